@@ -1,0 +1,1 @@
+//! GCS 2.0 protocol core (sans-IO).

@@ -1,0 +1,14 @@
+//! micropos: makes XY micropositioning stages accurate.
+//!
+//! The library holds everything that is not process plumbing: the GCS 2.0
+//! protocol core (sans-IO), the async C-863 driver, the Megarena pattern
+//! (layout, rendering, decoding) and, later, the stage model, compensation
+//! and metrology. The binaries `microposd` and `micropos` and the simulator
+//! `hil-sim` are thin shells around it. See `ARCHITECTURE.md`.
+
+#![forbid(unsafe_code)]
+#![warn(missing_docs)]
+
+pub mod frame;
+pub mod gcs;
+pub mod pattern;
