@@ -1,0 +1,543 @@
+//! Typed GCS 2.0 commands (host → controller) and their text form.
+//!
+//! The same type serves both ends: the driver formats commands with
+//! [`Command::to_text`], the simulator parses received lines with
+//! [`Command::parse`]. Keeping both in one place is what guarantees that the
+//! simulator accepts exactly what the driver sends.
+
+use std::fmt;
+use thiserror::Error;
+
+/// An axis identifier. On a C-863 it is `1` unless renamed with `SAI`;
+/// GCS allows up to 8 characters of `[0-9A-Za-z_]`.
+#[derive(Debug, Clone, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub struct AxisId(String);
+
+impl AxisId {
+    /// Validates an identifier.
+    pub fn new(s: &str) -> Result<Self, CommandError> {
+        if !s.is_empty()
+            && s.len() <= 8
+            && s.bytes().all(|b| b.is_ascii_alphanumeric() || b == b'_')
+        {
+            Ok(Self(s.to_owned()))
+        } else {
+            Err(CommandError::BadAxis(s.to_owned()))
+        }
+    }
+
+    /// The identifier text.
+    pub fn as_str(&self) -> &str {
+        &self.0
+    }
+}
+
+impl fmt::Display for AxisId {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(&self.0)
+    }
+}
+
+/// Why a command line could not be parsed or built. A controller answers all
+/// of these with silence and an error code; [`CommandError::gcs_code`] says
+/// which.
+#[derive(Debug, Clone, PartialEq, Eq, Error)]
+pub enum CommandError {
+    /// The mnemonic is not a command micropos (or the simulated C-863) knows.
+    #[error("unknown command {0:?}")]
+    Unknown(String),
+    /// Wrong number of arguments for the command.
+    #[error("{cmd}: wrong number of arguments")]
+    ArgCount {
+        /// The mnemonic.
+        cmd: &'static str,
+    },
+    /// An argument that should be a number is not.
+    #[error("{cmd}: {arg:?} is not a number")]
+    BadNumber {
+        /// The mnemonic.
+        cmd: &'static str,
+        /// The offending argument.
+        arg: String,
+    },
+    /// An axis identifier with forbidden characters.
+    #[error("invalid axis identifier {0:?}")]
+    BadAxis(String),
+}
+
+impl CommandError {
+    /// The GCS error a controller sets for this problem.
+    pub fn gcs_code(&self) -> super::GcsErrorCode {
+        use super::GcsErrorCode as E;
+        match self {
+            Self::Unknown(_) => E::UNKNOWN_COMMAND,
+            Self::ArgCount { .. } => E::WRONG_PARAM_COUNT,
+            Self::BadNumber { .. } => E::PARAM_SYNTAX,
+            Self::BadAxis(_) => E::INVALID_AXIS,
+        }
+    }
+}
+
+/// Which axes a query or a command names; empty means "all axes".
+pub type Axes = Vec<AxisId>;
+
+/// A GCS 2.0 command line, as far as micropos and the simulated C-863 use
+/// them. Positions and velocities are in the controller's units (mm, mm/s).
+#[derive(Debug, Clone, PartialEq)]
+pub enum Command {
+    /// `*IDN?`: identification string.
+    Idn,
+    /// `CSV?`: GCS syntax version (2.0 on a C-863).
+    Csv,
+    /// `ERR?`: last error code, cleared by reading it.
+    Err,
+    /// `HLP?`: list of commands.
+    Hlp,
+    /// `HPA?`: list of parameters.
+    Hpa,
+    /// `VER?`: firmware versions.
+    Ver,
+    /// `SAI?` (false) or `SAI? ALL` (true): axis identifiers.
+    SaiQuery {
+        /// Include deactivated axes.
+        all: bool,
+    },
+    /// `CST?`: stage names.
+    CstQuery(Axes),
+    /// `TMN?`: lower soft limit (mm).
+    TmnQuery(Axes),
+    /// `TMX?`: upper soft limit (mm).
+    TmxQuery(Axes),
+    /// `POS?`: current position (mm).
+    PosQuery(Axes),
+    /// `MOV?`: commanded target (mm).
+    MovQuery(Axes),
+    /// `ONT?`: on-target state.
+    OntQuery(Axes),
+    /// `FRF?`: referenced state.
+    FrfQuery(Axes),
+    /// `SVO?`: servo state.
+    SvoQuery(Axes),
+    /// `VEL?`: velocity (mm/s).
+    VelQuery(Axes),
+    /// `ACC?`: acceleration (mm/s²).
+    AccQuery(Axes),
+    /// `DEC?`: deceleration (mm/s²).
+    DecQuery(Axes),
+    /// `RON?`: reference mode.
+    RonQuery(Axes),
+    /// `SPA?`: parameter values; empty means all of them.
+    SpaQuery(Vec<(AxisId, u32)>),
+    /// `SVO axis 0|1`: servo off/on.
+    Svo(Vec<(AxisId, bool)>),
+    /// `RON axis 0|1`: reference mode on/off.
+    Ron(Vec<(AxisId, bool)>),
+    /// `FRF [axes]`: reference to the reference switch.
+    Frf(Axes),
+    /// `FNL [axes]`: reference to the negative limit switch.
+    Fnl(Axes),
+    /// `FPL [axes]`: reference to the positive limit switch.
+    Fpl(Axes),
+    /// `MOV axis pos ...`: absolute move (mm).
+    Mov(Vec<(AxisId, f64)>),
+    /// `MVR axis dist ...`: relative move (mm).
+    Mvr(Vec<(AxisId, f64)>),
+    /// `VEL axis v ...`: velocity (mm/s).
+    Vel(Vec<(AxisId, f64)>),
+    /// `ACC axis a ...`: acceleration (mm/s²).
+    Acc(Vec<(AxisId, f64)>),
+    /// `DEC axis a ...`: deceleration (mm/s²).
+    Dec(Vec<(AxisId, f64)>),
+    /// `SPA axis param value ...`: set parameters (value kept as text: PI
+    /// parameters are numbers or strings).
+    Spa(Vec<(AxisId, u32, String)>),
+    /// `HLT [axes]`: smooth halt (sets error 10).
+    Hlt(Axes),
+    /// `STP`: stop all at once (sets error 10).
+    Stp,
+}
+
+fn axes_text(name: &str, axes: &[AxisId]) -> String {
+    let mut s = name.to_owned();
+    for a in axes {
+        s.push(' ');
+        s.push_str(a.as_str());
+    }
+    s
+}
+
+/// Formats a number of mm for the controller: enough digits for 0.1 nm,
+/// trailing zeros trimmed, never exponent notation.
+pub fn format_number(v: f64) -> String {
+    let s = format!("{v:.7}");
+    let s = s.trim_end_matches('0').trim_end_matches('.');
+    if s == "-0" {
+        "0".to_owned()
+    } else {
+        s.to_owned()
+    }
+}
+
+fn pairs_text<T>(name: &str, pairs: &[(AxisId, T)], f: impl Fn(&T) -> String) -> String {
+    let mut s = name.to_owned();
+    for (a, v) in pairs {
+        s.push(' ');
+        s.push_str(a.as_str());
+        s.push(' ');
+        s.push_str(&f(v));
+    }
+    s
+}
+
+impl Command {
+    /// The mnemonic (`"MOV"`, `"POS?"`, ...).
+    pub fn mnemonic(&self) -> &'static str {
+        match self {
+            Self::Idn => "*IDN?",
+            Self::Csv => "CSV?",
+            Self::Err => "ERR?",
+            Self::Hlp => "HLP?",
+            Self::Hpa => "HPA?",
+            Self::Ver => "VER?",
+            Self::SaiQuery { .. } => "SAI?",
+            Self::CstQuery(_) => "CST?",
+            Self::TmnQuery(_) => "TMN?",
+            Self::TmxQuery(_) => "TMX?",
+            Self::PosQuery(_) => "POS?",
+            Self::MovQuery(_) => "MOV?",
+            Self::OntQuery(_) => "ONT?",
+            Self::FrfQuery(_) => "FRF?",
+            Self::SvoQuery(_) => "SVO?",
+            Self::VelQuery(_) => "VEL?",
+            Self::AccQuery(_) => "ACC?",
+            Self::DecQuery(_) => "DEC?",
+            Self::RonQuery(_) => "RON?",
+            Self::SpaQuery(_) => "SPA?",
+            Self::Svo(_) => "SVO",
+            Self::Ron(_) => "RON",
+            Self::Frf(_) => "FRF",
+            Self::Fnl(_) => "FNL",
+            Self::Fpl(_) => "FPL",
+            Self::Mov(_) => "MOV",
+            Self::Mvr(_) => "MVR",
+            Self::Vel(_) => "VEL",
+            Self::Acc(_) => "ACC",
+            Self::Dec(_) => "DEC",
+            Self::Spa(_) => "SPA",
+            Self::Hlt(_) => "HLT",
+            Self::Stp => "STP",
+        }
+    }
+
+    /// Whether the controller answers it. Queries answer; set commands are
+    /// silent and report problems only through `ERR?`.
+    pub fn is_query(&self) -> bool {
+        self.mnemonic().ends_with('?')
+    }
+
+    /// The command line as sent (without LF and address prefix).
+    pub fn to_text(&self) -> String {
+        let bool_text = |b: &bool| if *b { "1".to_owned() } else { "0".to_owned() };
+        match self {
+            Self::Idn | Self::Csv | Self::Err | Self::Hlp | Self::Hpa | Self::Ver | Self::Stp => {
+                self.mnemonic().to_owned()
+            }
+            Self::SaiQuery { all } => {
+                if *all {
+                    "SAI? ALL".to_owned()
+                } else {
+                    "SAI?".to_owned()
+                }
+            }
+            Self::CstQuery(a)
+            | Self::TmnQuery(a)
+            | Self::TmxQuery(a)
+            | Self::PosQuery(a)
+            | Self::MovQuery(a)
+            | Self::OntQuery(a)
+            | Self::FrfQuery(a)
+            | Self::SvoQuery(a)
+            | Self::VelQuery(a)
+            | Self::AccQuery(a)
+            | Self::DecQuery(a)
+            | Self::RonQuery(a)
+            | Self::Frf(a)
+            | Self::Fnl(a)
+            | Self::Fpl(a)
+            | Self::Hlt(a) => axes_text(self.mnemonic(), a),
+            Self::SpaQuery(p) => pairs_text("SPA?", p, |id| format!("0x{id:X}")),
+            Self::Svo(p) | Self::Ron(p) => pairs_text(self.mnemonic(), p, bool_text),
+            Self::Mov(p) | Self::Mvr(p) | Self::Vel(p) | Self::Acc(p) | Self::Dec(p) => {
+                pairs_text(self.mnemonic(), p, |v| format_number(*v))
+            }
+            Self::Spa(p) => {
+                let mut s = "SPA".to_owned();
+                for (a, id, v) in p {
+                    s.push_str(&format!(" {a} 0x{id:X} {v}"));
+                }
+                s
+            }
+        }
+    }
+
+    /// Parses a received command line (address prefix already removed).
+    ///
+    /// Mnemonics are case-sensitive upper case, as on PI controllers;
+    /// arguments are separated by one or more spaces.
+    pub fn parse(line: &str) -> Result<Self, CommandError> {
+        let mut words = line.split(' ').filter(|w| !w.is_empty());
+        let Some(mnemonic) = words.next() else {
+            return Err(CommandError::Unknown(String::new()));
+        };
+        let args: Vec<&str> = words.collect();
+        let axes = |cmd: &'static str| -> Result<Axes, CommandError> {
+            let _ = cmd;
+            args.iter().map(|a| AxisId::new(a)).collect()
+        };
+        let none = |cmd: &'static str, c: Command| -> Result<Command, CommandError> {
+            if args.is_empty() {
+                Ok(c)
+            } else {
+                Err(CommandError::ArgCount { cmd })
+            }
+        };
+        let pairs = |cmd: &'static str| -> Result<Vec<(AxisId, f64)>, CommandError> {
+            if args.is_empty() || args.len() % 2 != 0 {
+                return Err(CommandError::ArgCount { cmd });
+            }
+            args.chunks(2)
+                .map(|c| Ok((AxisId::new(c[0])?, parse_f64(cmd, c[1])?)))
+                .collect()
+        };
+        let bools = |cmd: &'static str| -> Result<Vec<(AxisId, bool)>, CommandError> {
+            if args.is_empty() || args.len() % 2 != 0 {
+                return Err(CommandError::ArgCount { cmd });
+            }
+            args.chunks(2)
+                .map(|c| {
+                    let v = match c[1] {
+                        "0" => false,
+                        "1" => true,
+                        other => {
+                            return Err(CommandError::BadNumber {
+                                cmd,
+                                arg: other.to_owned(),
+                            })
+                        }
+                    };
+                    Ok((AxisId::new(c[0])?, v))
+                })
+                .collect()
+        };
+        Ok(match mnemonic {
+            "*IDN?" => none("*IDN?", Self::Idn)?,
+            "CSV?" => none("CSV?", Self::Csv)?,
+            "ERR?" => none("ERR?", Self::Err)?,
+            "HLP?" => none("HLP?", Self::Hlp)?,
+            "HPA?" => none("HPA?", Self::Hpa)?,
+            "VER?" => none("VER?", Self::Ver)?,
+            "STP" => none("STP", Self::Stp)?,
+            "SAI?" => match args.as_slice() {
+                [] => Self::SaiQuery { all: false },
+                ["ALL"] => Self::SaiQuery { all: true },
+                _ => return Err(CommandError::ArgCount { cmd: "SAI?" }),
+            },
+            "CST?" => Self::CstQuery(axes("CST?")?),
+            "TMN?" => Self::TmnQuery(axes("TMN?")?),
+            "TMX?" => Self::TmxQuery(axes("TMX?")?),
+            "POS?" => Self::PosQuery(axes("POS?")?),
+            "MOV?" => Self::MovQuery(axes("MOV?")?),
+            "ONT?" => Self::OntQuery(axes("ONT?")?),
+            "FRF?" => Self::FrfQuery(axes("FRF?")?),
+            "SVO?" => Self::SvoQuery(axes("SVO?")?),
+            "VEL?" => Self::VelQuery(axes("VEL?")?),
+            "ACC?" => Self::AccQuery(axes("ACC?")?),
+            "DEC?" => Self::DecQuery(axes("DEC?")?),
+            "RON?" => Self::RonQuery(axes("RON?")?),
+            "FRF" => Self::Frf(axes("FRF")?),
+            "FNL" => Self::Fnl(axes("FNL")?),
+            "FPL" => Self::Fpl(axes("FPL")?),
+            "HLT" => Self::Hlt(axes("HLT")?),
+            "SVO" => Self::Svo(bools("SVO")?),
+            "RON" => Self::Ron(bools("RON")?),
+            "MOV" => Self::Mov(pairs("MOV")?),
+            "MVR" => Self::Mvr(pairs("MVR")?),
+            "VEL" => Self::Vel(pairs("VEL")?),
+            "ACC" => Self::Acc(pairs("ACC")?),
+            "DEC" => Self::Dec(pairs("DEC")?),
+            "SPA?" => {
+                if args.len() % 2 != 0 {
+                    return Err(CommandError::ArgCount { cmd: "SPA?" });
+                }
+                Self::SpaQuery(
+                    args.chunks(2)
+                        .map(|c| Ok((AxisId::new(c[0])?, parse_param_id("SPA?", c[1])?)))
+                        .collect::<Result<_, CommandError>>()?,
+                )
+            }
+            "SPA" => {
+                if args.is_empty() || args.len() % 3 != 0 {
+                    return Err(CommandError::ArgCount { cmd: "SPA" });
+                }
+                Self::Spa(
+                    args.chunks(3)
+                        .map(|c| {
+                            Ok((
+                                AxisId::new(c[0])?,
+                                parse_param_id("SPA", c[1])?,
+                                c[2].to_owned(),
+                            ))
+                        })
+                        .collect::<Result<_, CommandError>>()?,
+                )
+            }
+            other => return Err(CommandError::Unknown(other.to_owned())),
+        })
+    }
+}
+
+fn parse_f64(cmd: &'static str, s: &str) -> Result<f64, CommandError> {
+    match s.parse::<f64>() {
+        Ok(v) if v.is_finite() => Ok(v),
+        _ => Err(CommandError::BadNumber {
+            cmd,
+            arg: s.to_owned(),
+        }),
+    }
+}
+
+/// Parses a parameter id, written in hex (`0x3C`) or decimal (`60`).
+pub fn parse_param_id(cmd: &'static str, s: &str) -> Result<u32, CommandError> {
+    let r = match s.strip_prefix("0x").or_else(|| s.strip_prefix("0X")) {
+        Some(h) => u32::from_str_radix(h, 16),
+        None => s.parse::<u32>(),
+    };
+    r.map_err(|_| CommandError::BadNumber {
+        cmd,
+        arg: s.to_owned(),
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    fn ax(s: &str) -> AxisId {
+        AxisId::new(s).unwrap()
+    }
+
+    #[test]
+    fn text_forms() {
+        assert_eq!(Command::Mov(vec![(ax("1"), 12.5)]).to_text(), "MOV 1 12.5");
+        assert_eq!(
+            Command::Mvr(vec![(ax("1"), -0.0001)]).to_text(),
+            "MVR 1 -0.0001"
+        );
+        assert_eq!(Command::PosQuery(vec![ax("1")]).to_text(), "POS? 1");
+        assert_eq!(Command::PosQuery(vec![]).to_text(), "POS?");
+        assert_eq!(Command::SaiQuery { all: true }.to_text(), "SAI? ALL");
+        assert_eq!(Command::Svo(vec![(ax("1"), true)]).to_text(), "SVO 1 1");
+        assert_eq!(
+            Command::SpaQuery(vec![(ax("1"), 0x3C)]).to_text(),
+            "SPA? 1 0x3C"
+        );
+        assert_eq!(
+            Command::Spa(vec![(ax("1"), 0x3C, "M-111.1DG".into())]).to_text(),
+            "SPA 1 0x3C M-111.1DG"
+        );
+        assert_eq!(format_number(1e-9), "0");
+        assert_eq!(format_number(-1e-9), "0");
+        assert_eq!(format_number(15.0), "15");
+        assert!(Command::Idn.is_query());
+        assert!(!Command::Stp.is_query());
+    }
+
+    #[test]
+    fn parsing_and_errors() {
+        assert_eq!(
+            Command::parse("MOV 1 3.5").unwrap(),
+            Command::Mov(vec![(ax("1"), 3.5)])
+        );
+        assert_eq!(Command::parse("FRF").unwrap(), Command::Frf(vec![]));
+        assert_eq!(
+            Command::parse("SPA? 1 0x3c").unwrap(),
+            Command::SpaQuery(vec![(ax("1"), 0x3C)])
+        );
+        assert_eq!(Command::parse("SPA?").unwrap(), Command::SpaQuery(vec![]));
+        assert!(matches!(
+            Command::parse("XYZ?"),
+            Err(CommandError::Unknown(_))
+        ));
+        assert!(matches!(Command::parse(""), Err(CommandError::Unknown(_))));
+        assert!(matches!(
+            Command::parse("MOV 1"),
+            Err(CommandError::ArgCount { .. })
+        ));
+        assert!(matches!(
+            Command::parse("MOV 1 abc"),
+            Err(CommandError::BadNumber { .. })
+        ));
+        assert!(matches!(
+            Command::parse("MOV 1 inf"),
+            Err(CommandError::BadNumber { .. })
+        ));
+        assert!(matches!(
+            Command::parse("SVO 1 2"),
+            Err(CommandError::BadNumber { .. })
+        ));
+        assert!(matches!(
+            Command::parse("POS? a-b"),
+            Err(CommandError::BadAxis(_))
+        ));
+        assert!(matches!(
+            Command::parse("*IDN? x"),
+            Err(CommandError::ArgCount { .. })
+        ));
+        assert_eq!(CommandError::Unknown("X".into()).gcs_code().0, 2);
+    }
+
+    fn any_axis() -> impl Strategy<Value = AxisId> + Clone {
+        "[0-9A-Za-z_]{1,8}".prop_map(|s| AxisId::new(&s).unwrap())
+    }
+
+    fn any_command() -> impl Strategy<Value = Command> {
+        let axes = proptest::collection::vec(any_axis(), 0..3);
+        let fpairs = proptest::collection::vec((any_axis(), -1e4f64..1e4), 1..3);
+        prop_oneof![
+            Just(Command::Idn),
+            Just(Command::Err),
+            Just(Command::Stp),
+            any::<bool>().prop_map(|all| Command::SaiQuery { all }),
+            axes.clone().prop_map(Command::PosQuery),
+            axes.clone().prop_map(Command::Frf),
+            axes.prop_map(Command::Hlt),
+            fpairs.clone().prop_map(Command::Mov),
+            fpairs.prop_map(Command::Vel),
+            proptest::collection::vec((any_axis(), any::<bool>()), 1..3).prop_map(Command::Svo),
+            proptest::collection::vec((any_axis(), 0u32..0xFFFF_FFFF), 0..3)
+                .prop_map(Command::SpaQuery),
+        ]
+    }
+
+    proptest! {
+        #[test]
+        fn parse_never_panics(s in "\\PC{0,80}") {
+            let _ = Command::parse(&s);
+        }
+
+        #[test]
+        fn text_round_trips(c in any_command()) {
+            let parsed = Command::parse(&c.to_text()).unwrap();
+            match (&c, &parsed) {
+                (Command::Mov(a), Command::Mov(b)) | (Command::Vel(a), Command::Vel(b)) => {
+                    for ((ax1, v1), (ax2, v2)) in a.iter().zip(b) {
+                        prop_assert_eq!(ax1, ax2);
+                        prop_assert!((v1 - v2).abs() <= 5e-8);
+                    }
+                }
+                _ => prop_assert_eq!(&c, &parsed),
+            }
+        }
+    }
+}
