@@ -1,0 +1,31 @@
+#!/usr/bin/env bash
+# The project's test command (README): every test that runs on this machine.
+#
+# - Rust: unit, property and integration tests of the whole workspace.
+#   With MICROPOS_ALL_FEATURES=1 (CI) also the V4L2 and GenICam code, which need
+#   libclang-dev, libaravis-dev, libusb-1.0-0-dev and aravis-tools.
+# - Python: PI's own client (PIPython) against the simulated controllers, in a
+#   virtualenv under target/ that this script creates on first use.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+root=$PWD
+target=${CARGO_TARGET_DIR:-$root/target}
+
+features=()
+if [ "${MICROPOS_ALL_FEATURES:-0}" = 1 ]; then
+  features=(--all-features)
+fi
+
+echo "== cargo test ${features[*]:-}"
+cargo test --workspace "${features[@]}"
+
+if [ -d tests/pipython ]; then
+  echo "== PIPython against hil-sim"
+  venv=$target/venv-pipython
+  if [ ! -x "$venv/bin/pytest" ]; then
+    python3 -m venv "$venv"
+    "$venv/bin/pip" install --quiet --disable-pip-version-check -r tests/pipython/requirements.txt
+  fi
+  cargo build -p hil-sim --bin hil-sim
+  HIL_SIM_BIN="$target/debug/hil-sim" "$venv/bin/pytest" -q tests/pipython
+fi
