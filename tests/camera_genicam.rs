@@ -66,7 +66,9 @@ fn fake_camera_streams_and_takes_settings() {
     // Pixel formats: switch to each mono format the camera offers.
     let formats = cam.pixel_formats().unwrap();
     eprintln!("fake camera pixel formats: {formats:?}");
+    // aravis 0.8 fake camera offers Mono8 and Mono16: both paths run.
     assert!(formats.contains(&PixelFormat::Mono8), "{formats:?}");
+    assert!(formats.contains(&PixelFormat::Mono16), "{formats:?}");
     for fmt in [PixelFormat::Mono16, PixelFormat::Mono8] {
         if !formats.contains(&fmt) {
             continue;

@@ -13,20 +13,18 @@
 //! which aravis leaves out of its normal device lookup): handy to try the
 //! CLI or the daemon without hardware, and what the integration test uses.
 //!
-//! Timestamps: seconds since the source was opened, on the host's
-//! monotonic clock at the first frame, advanced by the camera's own frame
-//! timestamps after that (so host scheduling jitter does not enter the
-//! intervals). Sequence numbers follow the camera's frame ids, unwrapped, so
+//! Timestamps: see [`TimeAnchor`] (host clock at the first frame, camera
+//! clock after that). Sequence numbers follow the camera's frame ids, unwrapped, so
 //! frames the camera or the network dropped leave gaps.
 
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use aravis::glib;
 use aravis::prelude::*;
 use aravis::{AcquisitionMode, Buffer, BufferStatus, Camera, Stream};
 
 use super::convert::to_frame;
-use super::{unwrap_counter, CameraError, CameraInfo, CameraListing, FrameSource, PixelFormat};
+use super::{unwrap_counter, TimeAnchor, CameraError, CameraInfo, CameraListing, FrameSource, PixelFormat};
 use crate::frame::Frame;
 
 /// Buffers queued on the stream: enough to ride out a slow decode without
@@ -64,9 +62,7 @@ pub struct GenicamSource {
     stream: Option<Stream>,
     info: CameraInfo,
     timeout: Duration,
-    opened: Instant,
-    /// (camera timestamp ns, host seconds) of the first frame.
-    time_origin: Option<(u64, f64)>,
+    clock: TimeAnchor,
     /// (raw frame id, sequence) of the last frame.
     last_id: Option<(u64, u64)>,
     frame_id_modulus: u64,
@@ -138,8 +134,7 @@ impl GenicamSource {
             camera,
             stream: None,
             timeout: Duration::from_secs(2),
-            opened: Instant::now(),
-            time_origin: None,
+            clock: TimeAnchor::new(),
             last_id: None,
             frame_id_modulus,
         };
@@ -197,20 +192,6 @@ impl GenicamSource {
         result
     }
 
-    fn timestamp_s(&mut self, camera_ns: u64) -> f64 {
-        let host_s = self.opened.elapsed().as_secs_f64();
-        if camera_ns == 0 {
-            return host_s;
-        }
-        let (ns0, host0) = *self.time_origin.get_or_insert((camera_ns, host_s));
-        if camera_ns < ns0 {
-            // Camera clock reset (e.g. after a pixel format change): re-anchor.
-            self.time_origin = Some((camera_ns, host_s));
-            return host_s;
-        }
-        host0 + (camera_ns - ns0) as f64 * 1e-9
-    }
-
     fn sequence(&mut self, raw: u64) -> u64 {
         let seq = match self.last_id {
             None => 0,
@@ -244,7 +225,8 @@ impl GenicamSource {
         let x_pad = usize::try_from(x_pad).unwrap_or(0);
         let stride = width * super::convert::bytes_per_pixel(format) + x_pad;
         let data = buffer.image_data();
-        let ts = self.timestamp_s(buffer.timestamp());
+        let ns = buffer.timestamp();
+        let ts = self.clock.stamp((ns != 0).then_some(ns as f64 * 1e-9));
         let seq = self.sequence(buffer.frame_id());
         to_frame(format, width, height, stride, &data, ts, seq)
     }

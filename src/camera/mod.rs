@@ -471,6 +471,54 @@ pub fn frame_mean(frame: &Frame) -> f64 {
     sum as f64 / n
 }
 
+/// Turns camera frame timestamps into source timestamps: seconds since the
+/// source was opened, taken from the host's monotonic clock at the first
+/// frame and advanced by the camera's own clock after that, so host
+/// scheduling jitter does not enter the frame intervals. A camera clock that
+/// goes backwards (camera restarted) re-anchors on the host clock.
+#[derive(Debug, Clone)]
+pub struct TimeAnchor {
+    opened: std::time::Instant,
+    origin: Option<(f64, f64)>,
+}
+
+impl TimeAnchor {
+    /// Starts the source clock now.
+    pub fn new() -> Self {
+        Self {
+            opened: std::time::Instant::now(),
+            origin: None,
+        }
+    }
+
+    /// Source timestamp for a frame stamped `camera_s` by the camera (None
+    /// when the camera gives no timestamp).
+    pub fn stamp(&mut self, camera_s: Option<f64>) -> f64 {
+        let host_s = self.opened.elapsed().as_secs_f64();
+        self.stamp_at(camera_s, host_s)
+    }
+
+    /// [`TimeAnchor::stamp`] with the host time given, for tests.
+    pub fn stamp_at(&mut self, camera_s: Option<f64>, host_s: f64) -> f64 {
+        let Some(cam) = camera_s.filter(|c| c.is_finite() && *c > 0.0) else {
+            return host_s;
+        };
+        match self.origin {
+            Some((cam0, host0)) if cam >= cam0 => host0 + (cam - cam0),
+            _ => {
+                self.origin = Some((cam, host_s));
+                host_s
+            }
+        }
+    }
+}
+
+impl Default for TimeAnchor {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
 /// Unwraps a camera frame counter that wraps at `modulus` (0 = 64-bit, no
 /// wrap) into a monotonically increasing sequence number, so gaps (dropped
 /// frames) stay visible across wraps. Returns the new sequence number.
@@ -553,6 +601,19 @@ mod tests {
         // Restart: counter jumps back a little, counts as one frame.
         assert_eq!(unwrap_counter(500, 3, 100, 0), 101);
         assert_eq!(unwrap_counter(u64::MAX, 3, u64::MAX, 0), u64::MAX);
+    }
+
+    #[test]
+    fn time_anchor_follows_camera_clock() {
+        let mut a = TimeAnchor::new();
+        assert_eq!(a.stamp_at(Some(100.0), 0.5), 0.5);
+        // Host jitter is ignored once anchored.
+        assert_eq!(a.stamp_at(Some(100.25), 0.9), 0.75);
+        // No camera stamp: host time.
+        assert_eq!(a.stamp_at(None, 1.0), 1.0);
+        // Camera clock reset: re-anchor.
+        assert_eq!(a.stamp_at(Some(1.0), 2.0), 2.0);
+        assert_eq!(a.stamp_at(Some(1.5), 2.1), 2.5);
     }
 
     #[test]
