@@ -29,7 +29,16 @@ fn a_file_that_is_not_a_video_device_is_refused() {
     std::fs::write(&p, b"not a device").unwrap();
     let spec = SourceSpec::V4l2 { path: p };
     let err = open_source(&spec, &OpenOptions::default()).unwrap_err();
-    assert!(matches!(err, CameraError::Backend { backend: "v4l2", .. }), "{err}");
+    assert!(
+        matches!(
+            err,
+            CameraError::Backend {
+                backend: "v4l2",
+                ..
+            }
+        ),
+        "{err}"
+    );
 }
 
 #[test]

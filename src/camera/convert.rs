@@ -33,7 +33,9 @@ fn row_stride(
     len: usize,
 ) -> Result<usize, CameraError> {
     if width == 0 || height == 0 {
-        return Err(CameraError::BadData(format!("empty image {width}×{height}")));
+        return Err(CameraError::BadData(format!(
+            "empty image {width}×{height}"
+        )));
     }
     if format == PixelFormat::Yuyv && width % 2 != 0 {
         return Err(CameraError::BadData(format!(

@@ -139,10 +139,7 @@ pub fn list_files(pattern: &str) -> Result<Vec<PathBuf>, CameraError> {
     } else {
         return Err(CameraError::Io {
             path: path.to_path_buf(),
-            source: std::io::Error::new(
-                std::io::ErrorKind::NotFound,
-                "no such file or directory",
-            ),
+            source: std::io::Error::new(std::io::ErrorKind::NotFound, "no such file or directory"),
         });
     };
     files.sort();
@@ -281,7 +278,10 @@ pub fn encode_png<W: Write>(frame: &Frame, out: W) -> Result<(), String> {
         }
         Pixels::U16(p) => {
             let shift = 16 - depth;
-            (16, p.iter().flat_map(|&v| (v << shift).to_be_bytes()).collect())
+            (
+                16,
+                p.iter().flat_map(|&v| (v << shift).to_be_bytes()).collect(),
+            )
         }
     };
     enc.set_depth(if storage == 8 {
@@ -455,8 +455,8 @@ mod tests {
 
     #[test]
     fn declared_depth_for_plain_16_bit_files() {
-        let img = image::ImageBuffer::<image::Luma<u16>, _>::from_raw(2, 1, vec![100u16, 4095])
-            .unwrap();
+        let img =
+            image::ImageBuffer::<image::Luma<u16>, _>::from_raw(2, 1, vec![100u16, 4095]).unwrap();
         let mut buf = Vec::new();
         img.write_to(&mut Cursor::new(&mut buf), image::ImageFormat::Png)
             .unwrap();

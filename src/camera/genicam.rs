@@ -24,7 +24,9 @@ use aravis::prelude::*;
 use aravis::{AcquisitionMode, Buffer, BufferStatus, Camera, Stream};
 
 use super::convert::to_frame;
-use super::{unwrap_counter, TimeAnchor, CameraError, CameraInfo, CameraListing, FrameSource, PixelFormat};
+use super::{
+    unwrap_counter, CameraError, CameraInfo, CameraListing, FrameSource, PixelFormat, TimeAnchor,
+};
 use crate::frame::Frame;
 
 /// Buffers queued on the stream: enough to ride out a slow decode without
@@ -53,7 +55,8 @@ fn from_aravis_format(format: aravis::PixelFormat) -> Option<PixelFormat> {
     PixelFormat::ALL
         .into_iter()
         .find(|&f| to_aravis_format(f) == format)
-        .or((format == aravis::PixelFormat::CUSTOM_YUV_422_YUYV_PACKED).then_some(PixelFormat::Yuyv))
+        .or((format == aravis::PixelFormat::CUSTOM_YUV_422_YUYV_PACKED)
+            .then_some(PixelFormat::Yuyv))
 }
 
 /// A GenICam camera streaming continuously into a small buffer pool.
@@ -79,11 +82,13 @@ impl std::fmt::Debug for GenicamSource {
 
 /// Opens the camera `id` names (see the module docs).
 fn open_camera(id: Option<&str>) -> Result<Camera, CameraError> {
-    let not_found = |e: glib::Error| CameraError::NoDevice {
+    let not_found = |e: glib::Error| {
+        CameraError::NoDevice {
         path: id.unwrap_or("(first GenICam camera)").to_string(),
         hint: format!(
             "aravis: {e}; check `micropos camera list`, cabling, and for GigE that the camera is on this host's subnet"
         ),
+    }
     };
     match id {
         Some(fake) if fake.starts_with("Fake_") => {
@@ -94,7 +99,8 @@ fn open_camera(id: Option<&str>) -> Result<Camera, CameraError> {
             // aravis returns no device *and* no error for an unknown id here
             // (the bindings would panic on that), so check the list first.
             iface.update_device_list();
-            let known = (0..iface.n_devices()).any(|i| iface.device_id(i).is_some_and(|d| d == fake));
+            let known =
+                (0..iface.n_devices()).any(|i| iface.device_id(i).is_some_and(|d| d == fake));
             if !known {
                 return Err(CameraError::NoDevice {
                     path: fake.to_string(),
@@ -112,7 +118,10 @@ impl GenicamSource {
     /// Opens a camera and starts continuous acquisition.
     pub fn open(id: Option<&str>) -> Result<Self, CameraError> {
         let camera = open_camera(id)?;
-        let vendor = camera.vendor_name().map(|s| s.to_string()).unwrap_or_default();
+        let vendor = camera
+            .vendor_name()
+            .map(|s| s.to_string())
+            .unwrap_or_default();
         let model = camera
             .model_name()
             .map_err(|e| backend_err("reading model name", e))?;
@@ -388,7 +397,9 @@ pub fn list() -> Result<Vec<CameraListing>, CameraError> {
         let Some(iface) = iface else { continue };
         iface.update_device_list();
         for i in 0..iface.n_devices() {
-            let Some(id) = iface.device_id(i) else { continue };
+            let Some(id) = iface.device_id(i) else {
+                continue;
+            };
             let field = |v: Option<glib::GString>| v.map(|s| s.to_string()).unwrap_or_default();
             let description = format!(
                 "{protocol}: {} {} serial {} at {}",

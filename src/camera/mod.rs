@@ -209,8 +209,9 @@ impl FromStr for PixelFormat {
             _ => {
                 return Err(CameraError::BadSpec {
                     spec: s.to_string(),
-                    reason: "unknown pixel format; use Mono8, Mono10, Mono12, Mono14, Mono16 or YUYV"
-                        .into(),
+                    reason:
+                        "unknown pixel format; use Mono8, Mono10, Mono12, Mono14, Mono16 or YUYV"
+                            .into(),
                 })
             }
         })
@@ -299,13 +300,19 @@ pub trait FrameSource: Send + fmt::Debug {
 
     /// Pixel formats this source can be switched to.
     fn pixel_formats(&self) -> Result<Vec<PixelFormat>, CameraError> {
-        Err(self.not_supported("pixel format listing", "this source's pixel format is fixed"))
+        Err(self.not_supported(
+            "pixel format listing",
+            "this source's pixel format is fixed",
+        ))
     }
 
     /// Sets the acquisition frame rate and returns the applied rate.
     fn set_frame_rate_hz(&mut self, rate_hz: f64) -> Result<f64, CameraError> {
         let _ = rate_hz;
-        Err(self.not_supported("frame rate control", "this source has no frame rate setting"))
+        Err(self.not_supported(
+            "frame rate control",
+            "this source has no frame rate setting",
+        ))
     }
 
     /// Builds the [`CameraError::NotSupported`] error for this source.
@@ -352,15 +359,27 @@ impl FromStr for SourceSpec {
         };
         match kind.trim().to_ascii_lowercase().as_str() {
             "v4l2" => {
-                let path = rest.map(str::trim).filter(|r| !r.is_empty()).unwrap_or("/dev/video0");
-                Ok(SourceSpec::V4l2 { path: PathBuf::from(path) })
+                let path = rest
+                    .map(str::trim)
+                    .filter(|r| !r.is_empty())
+                    .unwrap_or("/dev/video0");
+                Ok(SourceSpec::V4l2 {
+                    path: PathBuf::from(path),
+                })
             }
             "genicam" | "aravis" => Ok(SourceSpec::Genicam {
-                id: rest.map(str::trim).filter(|r| !r.is_empty()).map(str::to_string),
+                id: rest
+                    .map(str::trim)
+                    .filter(|r| !r.is_empty())
+                    .map(str::to_string),
             }),
             "files" | "file" => match rest.filter(|r| !r.is_empty()) {
-                Some(p) => Ok(SourceSpec::Files { pattern: p.to_string() }),
-                None => Err(bad("files: needs a directory, file or glob, e.g. files:run1/*.png")),
+                Some(p) => Ok(SourceSpec::Files {
+                    pattern: p.to_string(),
+                }),
+                None => Err(bad(
+                    "files: needs a directory, file or glob, e.g. files:run1/*.png",
+                )),
             },
             _ => Err(bad(
                 "expected v4l2:/dev/videoN, genicam[:ID] or files:DIR_OR_GLOB",
@@ -547,11 +566,15 @@ mod tests {
     fn parses_source_specs() {
         assert_eq!(
             "v4l2:/dev/video3".parse::<SourceSpec>().unwrap(),
-            SourceSpec::V4l2 { path: "/dev/video3".into() }
+            SourceSpec::V4l2 {
+                path: "/dev/video3".into()
+            }
         );
         assert_eq!(
             "v4l2".parse::<SourceSpec>().unwrap(),
-            SourceSpec::V4l2 { path: "/dev/video0".into() }
+            SourceSpec::V4l2 {
+                path: "/dev/video0".into()
+            }
         );
         assert_eq!(
             "genicam".parse::<SourceSpec>().unwrap(),
@@ -559,19 +582,31 @@ mod tests {
         );
         assert_eq!(
             "genicam:Aravis-Fake-GV01".parse::<SourceSpec>().unwrap(),
-            SourceSpec::Genicam { id: Some("Aravis-Fake-GV01".into()) }
+            SourceSpec::Genicam {
+                id: Some("Aravis-Fake-GV01".into())
+            }
         );
         assert_eq!(
             "files:/data/run1/*.png".parse::<SourceSpec>().unwrap(),
-            SourceSpec::Files { pattern: "/data/run1/*.png".into() }
+            SourceSpec::Files {
+                pattern: "/data/run1/*.png".into()
+            }
         );
         // Colons after the first belong to the argument (IPv6, Windows-ish paths).
         assert_eq!(
             "files:a:b".parse::<SourceSpec>().unwrap(),
-            SourceSpec::Files { pattern: "a:b".into() }
+            SourceSpec::Files {
+                pattern: "a:b".into()
+            }
         );
-        assert!(matches!("files:".parse::<SourceSpec>(), Err(CameraError::BadSpec { .. })));
-        assert!(matches!("usb:0".parse::<SourceSpec>(), Err(CameraError::BadSpec { .. })));
+        assert!(matches!(
+            "files:".parse::<SourceSpec>(),
+            Err(CameraError::BadSpec { .. })
+        ));
+        assert!(matches!(
+            "usb:0".parse::<SourceSpec>(),
+            Err(CameraError::BadSpec { .. })
+        ));
         for s in ["v4l2:/dev/video1", "genicam", "genicam:x", "files:d"] {
             assert_eq!(s.parse::<SourceSpec>().unwrap().to_string(), s);
         }
@@ -579,7 +614,10 @@ mod tests {
 
     #[test]
     fn parses_pixel_formats() {
-        assert_eq!("mono16".parse::<PixelFormat>().unwrap(), PixelFormat::Mono16);
+        assert_eq!(
+            "mono16".parse::<PixelFormat>().unwrap(),
+            PixelFormat::Mono16
+        );
         assert_eq!("GREY".parse::<PixelFormat>().unwrap(), PixelFormat::Mono8);
         assert_eq!("Y12".parse::<PixelFormat>().unwrap(), PixelFormat::Mono12);
         assert_eq!("YUYV".parse::<PixelFormat>().unwrap(), PixelFormat::Yuyv);
@@ -618,8 +656,15 @@ mod tests {
 
     #[test]
     fn frame_mean_counts() {
-        let f = Frame::new(2, 2, 12, crate::frame::Pixels::U16(vec![0, 4095, 1, 4]), 0.0, 0)
-            .unwrap();
+        let f = Frame::new(
+            2,
+            2,
+            12,
+            crate::frame::Pixels::U16(vec![0, 4095, 1, 4]),
+            0.0,
+            0,
+        )
+        .unwrap();
         assert_eq!(frame_mean(&f), 1025.0);
     }
 }

@@ -329,10 +329,7 @@ impl FrameSource for V4l2Source {
             .device
             .enum_formats()
             .map_err(|e| io_err(&self.path, "listing formats", e))?;
-        Ok(formats
-            .iter()
-            .filter_map(|d| format_of(d.fourcc))
-            .collect())
+        Ok(formats.iter().filter_map(|d| format_of(d.fourcc)).collect())
     }
 
     fn set_pixel_format(&mut self, format: PixelFormat) -> Result<(), CameraError> {
@@ -359,7 +356,9 @@ impl FrameSource for V4l2Source {
             .map_err(|e| io_err(&self.path, "setting frame rate", e))?;
         let (n, d) = (got.interval.numerator, got.interval.denominator);
         if n == 0 {
-            return Err(CameraError::BadData("driver reports a zero frame interval".into()));
+            return Err(CameraError::BadData(
+                "driver reports a zero frame interval".into(),
+            ));
         }
         Ok(f64::from(d) / f64::from(n))
     }
@@ -385,7 +384,10 @@ pub fn list() -> Result<Vec<CameraListing>, CameraError> {
     let mut out = Vec::new();
     for p in paths {
         let description = match Device::with_path(&p).and_then(|d| d.query_caps()) {
-            Ok(c) if c.capabilities.contains(v4l::capability::Flags::VIDEO_CAPTURE) => {
+            Ok(c)
+                if c.capabilities
+                    .contains(v4l::capability::Flags::VIDEO_CAPTURE) =>
+            {
                 format!("{} ({}, {})", c.card, c.driver, c.bus)
             }
             Ok(_) => continue, // metadata or output node
