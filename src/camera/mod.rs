@@ -470,13 +470,14 @@ pub fn backends() -> (Vec<&'static str>, Vec<&'static str>) {
 /// enumerate reports its error in place of its cameras, so one broken
 /// backend does not hide the others.
 pub fn list_cameras() -> Vec<(&'static str, Result<Vec<CameraListing>, CameraError>)> {
-    #[allow(unused_mut)]
-    let mut out: Vec<(&'static str, Result<Vec<CameraListing>, CameraError>)> = Vec::new();
-    #[cfg(feature = "v4l2")]
-    out.push(("v4l2", v4l2::list()));
-    #[cfg(feature = "genicam")]
-    out.push(("genicam", genicam::list()));
-    out
+    type Lister = fn() -> Result<Vec<CameraListing>, CameraError>;
+    let listers: &[(&'static str, Lister)] = &[
+        #[cfg(feature = "v4l2")]
+        ("v4l2", v4l2::list),
+        #[cfg(feature = "genicam")]
+        ("genicam", genicam::list),
+    ];
+    listers.iter().map(|(name, list)| (*name, list())).collect()
 }
 
 /// Mean pixel value of a frame in counts; a cheap exposure check for
