@@ -6,4 +6,6 @@
 //! row index; units are micrometres. Dot (c, r) is centred at (c·p, r·p) for
 //! period p.
 
+pub mod export;
+pub mod plan;
 pub mod sequence;

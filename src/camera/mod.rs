@@ -1,0 +1,671 @@
+//! Frame sources: everything that hands the decoder a [`Frame`].
+//!
+//! Why one trait: the daemon, the CLI and the characterization runs must not
+//! care whether frames come from a GigE Vision camera, a V4L2 device, a
+//! directory of recorded images or (later) the simulator. They all implement
+//! [`FrameSource`]; the rest of micropos only sees frames with a timestamp,
+//! a sequence number and a bit depth.
+//!
+//! Threading model: [`FrameSource::next_frame`] blocks (bounded by the
+//! source's timeout), so the daemon calls it from a blocking thread
+//! (`tokio::task::spawn_blocking` or a dedicated capture thread), never from
+//! an async task. Sources are `Send` so they can move to that thread.
+//!
+//! Backends:
+//! - [`files`]: replay of recorded runs (always compiled in);
+//! - `v4l2` (cargo feature `v4l2`): Linux video devices through the `v4l` crate;
+//! - `genicam` (cargo feature `genicam`): GigE Vision / USB3 Vision cameras
+//!   through aravis.
+//!
+//! A simulated camera fits the same trait: its `next_frame` renders the
+//! pattern at the current simulated time and stamps the frame with it.
+
+pub mod convert;
+pub mod files;
+#[cfg(feature = "genicam")]
+pub mod genicam;
+#[cfg(feature = "v4l2")]
+pub mod v4l2;
+
+use std::fmt;
+use std::path::PathBuf;
+use std::str::FromStr;
+use std::time::Duration;
+
+use serde::Serialize;
+use thiserror::Error;
+
+use crate::frame::{Frame, FrameError};
+
+/// Why a frame source could not open, deliver a frame or change a setting.
+#[derive(Debug, Error)]
+pub enum CameraError {
+    /// The source cannot do what was asked (e.g. set exposure on a replay).
+    #[error("{what} is not supported by the {source_kind} source: {why}")]
+    NotSupported {
+        /// Which source kind ("files", "v4l2", "genicam").
+        source_kind: &'static str,
+        /// What was asked for ("exposure control", "pixel format Mono12", …).
+        what: String,
+        /// Why not, so the user knows what to do instead.
+        why: String,
+    },
+    /// The named device does not exist.
+    #[error("no device {path}: {hint}")]
+    NoDevice {
+        /// The device path or camera id that was asked for.
+        path: String,
+        /// What to check.
+        hint: String,
+    },
+    /// No frame arrived within the source's timeout.
+    #[error("no frame within {timeout_s:.3} s")]
+    Timeout {
+        /// The timeout that expired, in seconds.
+        timeout_s: f64,
+    },
+    /// A finite source (replay without loop) has delivered all its frames.
+    #[error("end of stream: all {frames} frames delivered")]
+    EndOfStream {
+        /// How many frames the source delivered in total.
+        frames: u64,
+    },
+    /// Reading a file or a directory failed.
+    #[error("{path}: {source}")]
+    Io {
+        /// The file or directory involved.
+        path: PathBuf,
+        /// The underlying error.
+        #[source]
+        source: std::io::Error,
+    },
+    /// An image file could not be decoded or does not fit the stream.
+    #[error("{path}: {reason}")]
+    Decode {
+        /// The offending file.
+        path: PathBuf,
+        /// What is wrong with it.
+        reason: String,
+    },
+    /// A camera buffer does not match its declared format.
+    #[error("bad frame data: {0}")]
+    BadData(String),
+    /// The camera backend reported an error.
+    #[error("{backend}: {message}")]
+    Backend {
+        /// "v4l2" or "genicam".
+        backend: &'static str,
+        /// The backend's message, with context.
+        message: String,
+    },
+    /// The source string asks for a backend this binary was built without.
+    #[error("the {backend} backend is not compiled in (rebuild with `--features {feature}`)")]
+    NotCompiled {
+        /// Backend name.
+        backend: &'static str,
+        /// Cargo feature that enables it.
+        feature: &'static str,
+    },
+    /// A source specification string could not be understood.
+    #[error("bad source {spec:?}: {reason}")]
+    BadSpec {
+        /// The string as given.
+        spec: String,
+        /// Why it was rejected.
+        reason: String,
+    },
+    /// A requested setting is outside what the camera accepts.
+    #[error("{what} = {value} is outside the camera's range [{min}, {max}]")]
+    OutOfRange {
+        /// The setting.
+        what: &'static str,
+        /// Requested value.
+        value: f64,
+        /// Smallest accepted value.
+        min: f64,
+        /// Largest accepted value.
+        max: f64,
+    },
+    /// The assembled pixels do not make a valid frame.
+    #[error(transparent)]
+    Frame(#[from] FrameError),
+}
+
+/// Pixel formats micropos can take from a camera. All are converted to a
+/// grayscale [`Frame`]; colour cameras are not useful for phase decoding.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize)]
+pub enum PixelFormat {
+    /// 8-bit luma (GenICam Mono8, V4L2 GREY).
+    Mono8,
+    /// 10-bit luma in 16-bit little-endian containers (GenICam Mono10, V4L2 Y10).
+    Mono10,
+    /// 12-bit luma in 16-bit little-endian containers (GenICam Mono12, V4L2 Y12).
+    Mono12,
+    /// 14-bit luma in 16-bit little-endian containers (GenICam Mono14).
+    Mono14,
+    /// 16-bit little-endian luma (GenICam Mono16, V4L2 Y16).
+    Mono16,
+    /// Packed 4:2:2 Y0 U Y1 V (V4L2 YUYV, GenICam YUV422_8); only luma is kept.
+    Yuyv,
+}
+
+impl PixelFormat {
+    /// Every supported format, in order of preference for decoding (deepest
+    /// monochrome first is not always best: more bits cost bandwidth, so the
+    /// daemon keeps whatever the camera is set to unless told otherwise).
+    pub const ALL: [PixelFormat; 6] = [
+        PixelFormat::Mono8,
+        PixelFormat::Mono10,
+        PixelFormat::Mono12,
+        PixelFormat::Mono14,
+        PixelFormat::Mono16,
+        PixelFormat::Yuyv,
+    ];
+
+    /// Significant bits per pixel of the luma the frame will carry.
+    pub fn bit_depth(self) -> u8 {
+        match self {
+            PixelFormat::Mono8 | PixelFormat::Yuyv => 8,
+            PixelFormat::Mono10 => 10,
+            PixelFormat::Mono12 => 12,
+            PixelFormat::Mono14 => 14,
+            PixelFormat::Mono16 => 16,
+        }
+    }
+
+    /// The GenICam (PFNC) name, as cameras spell it.
+    pub fn genicam_name(self) -> &'static str {
+        match self {
+            PixelFormat::Mono8 => "Mono8",
+            PixelFormat::Mono10 => "Mono10",
+            PixelFormat::Mono12 => "Mono12",
+            PixelFormat::Mono14 => "Mono14",
+            PixelFormat::Mono16 => "Mono16",
+            PixelFormat::Yuyv => "YUV422_8",
+        }
+    }
+}
+
+impl fmt::Display for PixelFormat {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.genicam_name())
+    }
+}
+
+impl FromStr for PixelFormat {
+    type Err = CameraError;
+
+    /// Accepts GenICam names (Mono8, Mono16, YUV422_8, …) and V4L2 fourccs
+    /// (GREY, Y10, Y12, Y16, YUYV), case-insensitively.
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        let t = s.trim().to_ascii_lowercase();
+        Ok(match t.as_str() {
+            "mono8" | "grey" | "gray" | "y8" | "y800" => PixelFormat::Mono8,
+            "mono10" | "y10" => PixelFormat::Mono10,
+            "mono12" | "y12" => PixelFormat::Mono12,
+            "mono14" | "y14" => PixelFormat::Mono14,
+            "mono16" | "y16" => PixelFormat::Mono16,
+            "yuyv" | "yuv422_8" | "yuv422_yuyv_packed" | "yuy2" => PixelFormat::Yuyv,
+            _ => {
+                return Err(CameraError::BadSpec {
+                    spec: s.to_string(),
+                    reason:
+                        "unknown pixel format; use Mono8, Mono10, Mono12, Mono14, Mono16 or YUYV"
+                            .into(),
+                })
+            }
+        })
+    }
+}
+
+/// What a source is and what it delivers.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct CameraInfo {
+    /// Backend kind: "files", "v4l2" or "genicam".
+    pub backend: &'static str,
+    /// Vendor and model as the camera reports them (a path for replays).
+    pub model: String,
+    /// Serial number or device path; empty when unknown.
+    pub serial: String,
+    /// Frame width in pixels.
+    pub width: usize,
+    /// Frame height in pixels.
+    pub height: usize,
+    /// Pixel format the camera delivers (before conversion to luma).
+    pub pixel_format: String,
+    /// Significant bits per pixel of the frames this source produces.
+    pub bit_depth: u8,
+}
+
+/// A camera found by [`list_cameras`].
+#[derive(Debug, Clone, PartialEq, Eq, Serialize)]
+pub struct CameraListing {
+    /// Backend kind.
+    pub backend: &'static str,
+    /// The `--source` string that opens this camera.
+    pub source: String,
+    /// Human description (vendor, model, serial, address).
+    pub description: String,
+}
+
+/// A source of frames. Implementations block in [`FrameSource::next_frame`]
+/// for at most their timeout.
+///
+/// Controls have default implementations that return
+/// [`CameraError::NotSupported`], so a source only implements what it
+/// really has and callers get a clear message for the rest.
+pub trait FrameSource: Send + fmt::Debug {
+    /// What this source is and what it delivers.
+    fn info(&self) -> CameraInfo;
+
+    /// The next frame. Blocks until one is available, the timeout expires
+    /// ([`CameraError::Timeout`]) or a finite source runs out
+    /// ([`CameraError::EndOfStream`]). A failed frame does not end the
+    /// stream: callers may call again.
+    fn next_frame(&mut self) -> Result<Frame, CameraError>;
+
+    /// How long [`FrameSource::next_frame`] waits before giving up.
+    fn set_timeout(&mut self, timeout: Duration);
+
+    /// Sets the exposure time and returns the value the camera applied
+    /// (cameras round to their own increments).
+    fn set_exposure_us(&mut self, exposure_us: f64) -> Result<f64, CameraError> {
+        let _ = exposure_us;
+        Err(self.not_supported("exposure control", "this source has no exposure setting"))
+    }
+
+    /// Current exposure time.
+    fn exposure_us(&self) -> Result<f64, CameraError> {
+        Err(self.not_supported("exposure control", "this source has no exposure setting"))
+    }
+
+    /// Sets the analog gain in dB and returns the applied value.
+    fn set_gain_db(&mut self, gain_db: f64) -> Result<f64, CameraError> {
+        let _ = gain_db;
+        Err(self.not_supported("gain control", "this source has no gain setting"))
+    }
+
+    /// Current gain in dB.
+    fn gain_db(&self) -> Result<f64, CameraError> {
+        Err(self.not_supported("gain control", "this source has no gain setting"))
+    }
+
+    /// Switches the camera's pixel format. Frames after the call use it.
+    fn set_pixel_format(&mut self, format: PixelFormat) -> Result<(), CameraError> {
+        Err(self.not_supported(
+            &format!("pixel format {format}"),
+            "this source's pixel format is fixed",
+        ))
+    }
+
+    /// Pixel formats this source can be switched to.
+    fn pixel_formats(&self) -> Result<Vec<PixelFormat>, CameraError> {
+        Err(self.not_supported(
+            "pixel format listing",
+            "this source's pixel format is fixed",
+        ))
+    }
+
+    /// Sets the acquisition frame rate and returns the applied rate.
+    fn set_frame_rate_hz(&mut self, rate_hz: f64) -> Result<f64, CameraError> {
+        let _ = rate_hz;
+        Err(self.not_supported(
+            "frame rate control",
+            "this source has no frame rate setting",
+        ))
+    }
+
+    /// Builds the [`CameraError::NotSupported`] error for this source.
+    fn not_supported(&self, what: &str, why: &str) -> CameraError {
+        CameraError::NotSupported {
+            source_kind: self.info().backend,
+            what: what.to_string(),
+            why: why.to_string(),
+        }
+    }
+}
+
+/// Which source to open, parsed from the CLI/config string.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum SourceSpec {
+    /// `v4l2[:/dev/videoN]`; default /dev/video0.
+    V4l2 {
+        /// Device node.
+        path: PathBuf,
+    },
+    /// `genicam[:ID]`; without an id the first camera aravis finds.
+    Genicam {
+        /// Aravis device id ("Vendor-Model-Serial"), serial, or IP address.
+        id: Option<String>,
+    },
+    /// `files:DIR_OR_GLOB_OR_FILE`: replay of recorded images.
+    Files {
+        /// Directory, single file or glob pattern (`*`, `?`, `[..]`).
+        pattern: String,
+    },
+}
+
+impl FromStr for SourceSpec {
+    type Err = CameraError;
+
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        let bad = |reason: &str| CameraError::BadSpec {
+            spec: s.to_string(),
+            reason: reason.to_string(),
+        };
+        let (kind, rest) = match s.split_once(':') {
+            Some((k, r)) => (k, Some(r)),
+            None => (s, None),
+        };
+        match kind.trim().to_ascii_lowercase().as_str() {
+            "v4l2" => {
+                let path = rest
+                    .map(str::trim)
+                    .filter(|r| !r.is_empty())
+                    .unwrap_or("/dev/video0");
+                Ok(SourceSpec::V4l2 {
+                    path: PathBuf::from(path),
+                })
+            }
+            "genicam" | "aravis" => Ok(SourceSpec::Genicam {
+                id: rest
+                    .map(str::trim)
+                    .filter(|r| !r.is_empty())
+                    .map(str::to_string),
+            }),
+            "files" | "file" => match rest.filter(|r| !r.is_empty()) {
+                Some(p) => Ok(SourceSpec::Files {
+                    pattern: p.to_string(),
+                }),
+                None => Err(bad(
+                    "files: needs a directory, file or glob, e.g. files:run1/*.png",
+                )),
+            },
+            _ => Err(bad(
+                "expected v4l2:/dev/videoN, genicam[:ID] or files:DIR_OR_GLOB",
+            )),
+        }
+    }
+}
+
+impl fmt::Display for SourceSpec {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            SourceSpec::V4l2 { path } => write!(f, "v4l2:{}", path.display()),
+            SourceSpec::Genicam { id: None } => f.write_str("genicam"),
+            SourceSpec::Genicam { id: Some(id) } => write!(f, "genicam:{id}"),
+            SourceSpec::Files { pattern } => write!(f, "files:{pattern}"),
+        }
+    }
+}
+
+/// Options that apply when opening any source.
+#[derive(Debug, Clone, PartialEq)]
+pub struct OpenOptions {
+    /// How long `next_frame` waits for a live camera.
+    pub timeout: Duration,
+    /// Replay options (ignored by live cameras).
+    pub files: files::FileOptions,
+}
+
+impl Default for OpenOptions {
+    fn default() -> Self {
+        Self {
+            timeout: Duration::from_secs(2),
+            files: files::FileOptions::default(),
+        }
+    }
+}
+
+/// Opens the source `spec` names.
+pub fn open_source(
+    spec: &SourceSpec,
+    options: &OpenOptions,
+) -> Result<Box<dyn FrameSource>, CameraError> {
+    let mut source: Box<dyn FrameSource> = match spec {
+        SourceSpec::Files { pattern } => {
+            Box::new(files::FileSource::open(pattern, options.files.clone())?)
+        }
+        #[cfg(feature = "v4l2")]
+        SourceSpec::V4l2 { path } => Box::new(v4l2::V4l2Source::open(path)?),
+        #[cfg(not(feature = "v4l2"))]
+        SourceSpec::V4l2 { .. } => {
+            return Err(CameraError::NotCompiled {
+                backend: "v4l2",
+                feature: "v4l2",
+            })
+        }
+        #[cfg(feature = "genicam")]
+        SourceSpec::Genicam { id } => Box::new(genicam::GenicamSource::open(id.as_deref())?),
+        #[cfg(not(feature = "genicam"))]
+        SourceSpec::Genicam { .. } => {
+            return Err(CameraError::NotCompiled {
+                backend: "genicam",
+                feature: "genicam",
+            })
+        }
+    };
+    source.set_timeout(options.timeout);
+    Ok(source)
+}
+
+/// Backends compiled into this build, and those that are not.
+pub fn backends() -> (Vec<&'static str>, Vec<&'static str>) {
+    let mut have = vec!["files"];
+    let mut missing = Vec::new();
+    if cfg!(feature = "v4l2") {
+        have.push("v4l2");
+    } else {
+        missing.push("v4l2");
+    }
+    if cfg!(feature = "genicam") {
+        have.push("genicam");
+    } else {
+        missing.push("genicam");
+    }
+    (have, missing)
+}
+
+/// Cameras of every compiled-in live backend. A backend that fails to
+/// enumerate reports its error in place of its cameras, so one broken
+/// backend does not hide the others.
+pub fn list_cameras() -> Vec<(&'static str, Result<Vec<CameraListing>, CameraError>)> {
+    type Lister = fn() -> Result<Vec<CameraListing>, CameraError>;
+    let listers: &[(&'static str, Lister)] = &[
+        #[cfg(feature = "v4l2")]
+        ("v4l2", v4l2::list),
+        #[cfg(feature = "genicam")]
+        ("genicam", genicam::list),
+    ];
+    listers.iter().map(|(name, list)| (*name, list())).collect()
+}
+
+/// Mean pixel value of a frame in counts; a cheap exposure check for
+/// `micropos camera stream`.
+pub fn frame_mean(frame: &Frame) -> f64 {
+    let n = (frame.width() * frame.height()) as f64;
+    let sum: u64 = match frame.pixels() {
+        crate::frame::Pixels::U8(p) => p.iter().map(|&v| u64::from(v)).sum(),
+        crate::frame::Pixels::U16(p) => p.iter().map(|&v| u64::from(v)).sum(),
+    };
+    sum as f64 / n
+}
+
+/// Turns camera frame timestamps into source timestamps: seconds since the
+/// source was opened, taken from the host's monotonic clock at the first
+/// frame and advanced by the camera's own clock after that, so host
+/// scheduling jitter does not enter the frame intervals. A camera clock that
+/// goes backwards (camera restarted) re-anchors on the host clock.
+#[derive(Debug, Clone)]
+pub struct TimeAnchor {
+    opened: std::time::Instant,
+    origin: Option<(f64, f64)>,
+}
+
+impl TimeAnchor {
+    /// Starts the source clock now.
+    pub fn new() -> Self {
+        Self {
+            opened: std::time::Instant::now(),
+            origin: None,
+        }
+    }
+
+    /// Source timestamp for a frame stamped `camera_s` by the camera (None
+    /// when the camera gives no timestamp).
+    pub fn stamp(&mut self, camera_s: Option<f64>) -> f64 {
+        let host_s = self.opened.elapsed().as_secs_f64();
+        self.stamp_at(camera_s, host_s)
+    }
+
+    /// [`TimeAnchor::stamp`] with the host time given, for tests.
+    pub fn stamp_at(&mut self, camera_s: Option<f64>, host_s: f64) -> f64 {
+        let Some(cam) = camera_s.filter(|c| c.is_finite() && *c > 0.0) else {
+            return host_s;
+        };
+        match self.origin {
+            Some((cam0, host0)) if cam >= cam0 => host0 + (cam - cam0),
+            _ => {
+                self.origin = Some((cam, host_s));
+                host_s
+            }
+        }
+    }
+}
+
+impl Default for TimeAnchor {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+/// Unwraps a camera frame counter that wraps at `modulus` (0 = 64-bit, no
+/// wrap) into a monotonically increasing sequence number, so gaps (dropped
+/// frames) stay visible across wraps. Returns the new sequence number.
+///
+/// `last` is the previous raw counter, `seq` the previous sequence number. A
+/// counter that goes backwards without wrapping (camera restarted) counts as
+/// one step.
+pub fn unwrap_counter(last: u64, raw: u64, seq: u64, modulus: u64) -> u64 {
+    let delta = if raw > last {
+        raw - last
+    } else if modulus != 0 && last < modulus && raw < modulus && last - raw > modulus / 2 {
+        // Wrapped: counters like the GigE Vision 16-bit block id skip 0,
+        // which the caller encodes by passing modulus = 0xFFFF and ids 1..=0xFFFF.
+        modulus - last + raw
+    } else {
+        1
+    };
+    seq.saturating_add(delta)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn parses_source_specs() {
+        assert_eq!(
+            "v4l2:/dev/video3".parse::<SourceSpec>().unwrap(),
+            SourceSpec::V4l2 {
+                path: "/dev/video3".into()
+            }
+        );
+        assert_eq!(
+            "v4l2".parse::<SourceSpec>().unwrap(),
+            SourceSpec::V4l2 {
+                path: "/dev/video0".into()
+            }
+        );
+        assert_eq!(
+            "genicam".parse::<SourceSpec>().unwrap(),
+            SourceSpec::Genicam { id: None }
+        );
+        assert_eq!(
+            "genicam:Aravis-Fake-GV01".parse::<SourceSpec>().unwrap(),
+            SourceSpec::Genicam {
+                id: Some("Aravis-Fake-GV01".into())
+            }
+        );
+        assert_eq!(
+            "files:/data/run1/*.png".parse::<SourceSpec>().unwrap(),
+            SourceSpec::Files {
+                pattern: "/data/run1/*.png".into()
+            }
+        );
+        // Colons after the first belong to the argument (IPv6, Windows-ish paths).
+        assert_eq!(
+            "files:a:b".parse::<SourceSpec>().unwrap(),
+            SourceSpec::Files {
+                pattern: "a:b".into()
+            }
+        );
+        assert!(matches!(
+            "files:".parse::<SourceSpec>(),
+            Err(CameraError::BadSpec { .. })
+        ));
+        assert!(matches!(
+            "usb:0".parse::<SourceSpec>(),
+            Err(CameraError::BadSpec { .. })
+        ));
+        for s in ["v4l2:/dev/video1", "genicam", "genicam:x", "files:d"] {
+            assert_eq!(s.parse::<SourceSpec>().unwrap().to_string(), s);
+        }
+    }
+
+    #[test]
+    fn parses_pixel_formats() {
+        assert_eq!(
+            "mono16".parse::<PixelFormat>().unwrap(),
+            PixelFormat::Mono16
+        );
+        assert_eq!("GREY".parse::<PixelFormat>().unwrap(), PixelFormat::Mono8);
+        assert_eq!("Y12".parse::<PixelFormat>().unwrap(), PixelFormat::Mono12);
+        assert_eq!("YUYV".parse::<PixelFormat>().unwrap(), PixelFormat::Yuyv);
+        assert!("RGB8".parse::<PixelFormat>().is_err());
+        for f in PixelFormat::ALL {
+            assert_eq!(f.genicam_name().parse::<PixelFormat>().unwrap(), f);
+        }
+        assert_eq!(PixelFormat::Mono12.bit_depth(), 12);
+        assert_eq!(PixelFormat::Yuyv.bit_depth(), 8);
+    }
+
+    #[test]
+    fn unwraps_counters() {
+        // 64-bit counter with a gap of 2 dropped frames.
+        assert_eq!(unwrap_counter(10, 13, 100, 0), 103);
+        // 16-bit GigE block id wrapping from 65535 to 1 (0 is skipped).
+        assert_eq!(unwrap_counter(0xFFFF, 1, 100, 0xFFFF), 101);
+        assert_eq!(unwrap_counter(0xFFFE, 2, 100, 0xFFFF), 103);
+        // Restart: counter jumps back a little, counts as one frame.
+        assert_eq!(unwrap_counter(500, 3, 100, 0), 101);
+        assert_eq!(unwrap_counter(u64::MAX, 3, u64::MAX, 0), u64::MAX);
+    }
+
+    #[test]
+    fn time_anchor_follows_camera_clock() {
+        let mut a = TimeAnchor::new();
+        assert_eq!(a.stamp_at(Some(100.0), 0.5), 0.5);
+        // Host jitter is ignored once anchored.
+        assert_eq!(a.stamp_at(Some(100.25), 0.9), 0.75);
+        // No camera stamp: host time.
+        assert_eq!(a.stamp_at(None, 1.0), 1.0);
+        // Camera clock reset: re-anchor.
+        assert_eq!(a.stamp_at(Some(1.0), 2.0), 2.0);
+        assert_eq!(a.stamp_at(Some(1.5), 2.1), 2.5);
+    }
+
+    #[test]
+    fn frame_mean_counts() {
+        let f = Frame::new(
+            2,
+            2,
+            12,
+            crate::frame::Pixels::U16(vec![0, 4095, 1, 4]),
+            0.0,
+            0,
+        )
+        .unwrap();
+        assert_eq!(frame_mean(&f), 1025.0);
+    }
+}
