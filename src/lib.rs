@@ -11,4 +11,5 @@
 
 pub mod frame;
 pub mod gcs;
+pub mod metrology;
 pub mod pattern;
