@@ -129,7 +129,7 @@ fn reads_a_file_written_by_another_program_with_extra_columns() {
             "Created at 12:30 on a Tuesday"
         ]
     );
-    assert_eq!(log.columns.temp_c, true);
+    assert!(log.columns.temp_c);
     assert_eq!(log.columns.extra, vec!["focus_score", "note, free text"]);
     assert_eq!(log.records.len(), 4);
     let r = &log.records;

@@ -37,7 +37,7 @@
 //! * Environmental compensation (temperature) is the caller's business; the
 //!   deviations are evaluated as given.
 
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, BTreeSet};
 
 use thiserror::Error;
 
@@ -251,7 +251,7 @@ pub fn evaluate(observations: &[Observation]) -> Result<AxisFigures, Iso230Error
     }
     // target key → (target, up visits, down visits)
     let mut groups: BTreeMap<u64, (f64, Visits, Visits)> = BTreeMap::new();
-    let mut all_cycles: BTreeMap<u32, ()> = BTreeMap::new();
+    let mut all_cycles: BTreeSet<u32> = BTreeSet::new();
     for (index, o) in observations.iter().enumerate() {
         if !o.target_um.is_finite() || !o.measured_um.is_finite() {
             return Err(Iso230Error::NonFinite {
@@ -277,7 +277,7 @@ pub fn evaluate(observations: &[Observation]) -> Result<AxisFigures, Iso230Error
             });
         }
         visits.insert(o.cycle, (o.deviation_um(), index));
-        all_cycles.insert(o.cycle, ());
+        all_cycles.insert(o.cycle);
     }
 
     let mut per_target: Vec<(f64, Vec<f64>, Vec<f64>)> = Vec::with_capacity(groups.len());
@@ -289,7 +289,7 @@ pub fn evaluate(observations: &[Observation]) -> Result<AxisFigures, Iso230Error
                     approach,
                 });
             }
-            if let Some(&cycle) = all_cycles.keys().find(|c| !visits.contains_key(c)) {
+            if let Some(&cycle) = all_cycles.iter().find(|c| !visits.contains_key(c)) {
                 return Err(Iso230Error::MissingVisit {
                     target_um,
                     approach,
