@@ -10,6 +10,8 @@
 #![warn(missing_docs)]
 
 pub mod camera;
+pub mod charact;
 pub mod frame;
 pub mod gcs;
+pub mod metrology;
 pub mod pattern;

@@ -1,0 +1,9 @@
+//! Characterization runs and their measurement log.
+//!
+//! [`log`] defines the on-disk measurement log (CSV with `#` metadata), its
+//! tolerant reader and its crash-safe appending writer. The log is the
+//! contract between the daemon that measures and every tool that analyses,
+//! including tools written by others, so its format is specified in
+//! `docs/measurement-log.md` and kept stable.
+
+pub mod log;
