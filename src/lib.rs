@@ -11,4 +11,5 @@
 
 pub mod frame;
 pub mod gcs;
+pub mod imageio;
 pub mod pattern;

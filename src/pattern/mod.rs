@@ -6,4 +6,5 @@
 //! row index; units are micrometres. Dot (c, r) is centred at (c·p, r·p) for
 //! period p.
 
+pub mod render;
 pub mod sequence;

@@ -149,7 +149,9 @@ mod tests {
             let n = bits as usize;
             let mut seen = vec![false; 1 << n];
             for i in 0..code.len() {
-                let w = (0..n).fold(0usize, |acc, k| (acc << 1) | code[(i + k) % code.len()] as usize);
+                let w = (0..n).fold(0usize, |acc, k| {
+                    (acc << 1) | code[(i + k) % code.len()] as usize
+                });
                 assert!(w != 0 && !seen[w], "bits {bits} window {i}");
                 seen[w] = true;
             }
