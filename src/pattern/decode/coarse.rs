@@ -20,6 +20,8 @@
 //! the whole sequence; the best offset must beat the runner-up by a margin
 //! (in bit units) or the decoder refuses to answer.
 
+// `!(x >= t)` is deliberate: it also rejects NaN. Index loops mirror the maths.
+#![allow(clippy::neg_cmp_op_on_partial_ord, clippy::needless_range_loop)]
 use super::fine::Grid;
 use super::DecodeError;
 use crate::frame::{Frame, Pixels};
@@ -67,7 +69,7 @@ impl Default for CoarseThresholds {
         Self {
             min_orientation_score: 0.7,
             min_orientation_margin: 0.1,
-            min_code_margin_bits: 2.0,
+            min_code_margin_bits: 1.0,
         }
     }
 }

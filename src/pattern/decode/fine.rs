@@ -20,6 +20,8 @@
 //! the smooth window keeps leakage from the code's other spectral content and
 //! from dots cut by the frame edge far below 1e-3 px.
 
+// `!(x >= t)` is deliberate: it also rejects NaN. Index loops mirror the maths.
+#![allow(clippy::neg_cmp_op_on_partial_ord, clippy::needless_range_loop)]
 use std::sync::Arc;
 
 use realfft::num_complex::Complex;

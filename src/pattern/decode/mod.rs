@@ -27,9 +27,12 @@
 //! [`Decoded::quality`] is the smaller of the two code-correlation margins in
 //! bit units: how many more code bits the runner-up offset would get wrong
 //! than the chosen one. Decoding refuses (error [`DecodeError::CodeAmbiguous`])
-//! below [`CoarseThresholds::min_code_margin_bits`] (default 2); clean views of
+//! below [`CoarseThresholds::min_code_margin_bits`] (default 1); clean views of
 //! a 12-bit pattern at ~10 px per period typically score 8–12. Finer
 //! diagnostics are in [`Quality`].
+
+// `!(x >= t)` is deliberate: it also rejects NaN. Index loops mirror the maths.
+#![allow(clippy::neg_cmp_op_on_partial_ord, clippy::needless_range_loop)]
 
 pub mod coarse;
 pub mod fine;
