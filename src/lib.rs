@@ -13,5 +13,6 @@ pub mod camera;
 pub mod charact;
 pub mod frame;
 pub mod gcs;
+pub mod imageio;
 pub mod metrology;
 pub mod pattern;

@@ -6,6 +6,8 @@
 //! row index; units are micrometres. Dot (c, r) is centred at (c·p, r·p) for
 //! period p.
 
+pub mod decode;
 pub mod export;
 pub mod plan;
+pub mod render;
 pub mod sequence;

@@ -1,11 +1,14 @@
 //! `micropos`: the command-line tool (offline tools and, later, the daemon
 //! client). Each subcommand lives in its own module; this file only wires
-//! them up.
+//! them up and maps outcomes to exit codes scripts can rely on:
+//! 0 success, 1 a runtime failure (device, decode, I/O), 2 a usage error.
 
 mod camera;
+mod decode;
 mod pattern;
 
-use anyhow::Result;
+use std::process::ExitCode;
+
 use clap::{Parser, Subcommand};
 
 /// micropos command-line tool.
@@ -18,6 +21,8 @@ struct Cli {
 
 #[derive(Debug, Subcommand)]
 enum Commands {
+    /// Decode the absolute position of Megarena pattern image(s).
+    Decode(decode::Args),
     /// Cameras and other frame sources: list, grab, stream.
     #[command(subcommand)]
     Camera(camera::CameraCommand),
@@ -26,9 +31,25 @@ enum Commands {
     Pattern(pattern::PatternCommand),
 }
 
-fn main() -> Result<()> {
-    match Cli::parse().command {
-        Commands::Camera(c) => camera::run(c),
-        Commands::Pattern(c) => pattern::run(c),
+/// Maps a subcommand that only succeeds or fails to an exit code.
+fn done(r: anyhow::Result<()>) -> anyhow::Result<ExitCode> {
+    r.map(|()| ExitCode::SUCCESS)
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    let (result, failure) = match cli.command {
+        // decode reports per-image failures itself (exit 1); an error here
+        // means unusable arguments.
+        Commands::Decode(args) => (decode::run(&args), 2),
+        Commands::Camera(c) => (done(camera::run(c)), 1),
+        Commands::Pattern(c) => (done(pattern::run(c)), 1),
+    };
+    match result {
+        Ok(code) => code,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            ExitCode::from(failure)
+        }
     }
 }

@@ -1,0 +1,582 @@
+//! Per-dot stage: which dots are missing, the orientation, and where the view
+//! sits in the code.
+//!
+//! The fine grid gives every dot site's image position. The stage samples each
+//! site and each background point (the lattice shifted by half a period along
+//! both axes), and measures presence as the site's contrast against its four
+//! background neighbours, normalised by the best contrast in its 5 × 5
+//! neighbourhood (vignetting- and gradient-proof). Sites whose neighbourhood
+//! has no contrast at all are void (dust, off-pattern) and are not read.
+//!
+//! Orientation comes from the 3 × 3 table of mean presence by (line index mod
+//! 3) of both axes: the pattern's empty crossings (both indices ≡ 0) give the
+//! one empty cell, and the code lines (≡ 1, half of them missing) sit one line
+//! after the crossing line in the forward direction and one line before it
+//! in the reversed direction. Matching the table against the template for
+//! all 36 (offset, direction) hypotheses and both dot polarities tells the
+//! lattice phase, the direction of each axis, and bright vs dark dots.
+//!
+//! The code lines' soft presence values (−1 … 1) are then correlated against
+//! the whole sequence; the best offset must beat the runner-up by a margin
+//! (in bit units) or the decoder refuses to answer.
+
+// `!(x >= t)` is deliberate: it also rejects NaN. Index loops mirror the maths.
+#![allow(clippy::neg_cmp_op_on_partial_ord, clippy::needless_range_loop)]
+use super::fine::Grid;
+use super::DecodeError;
+use crate::frame::{Frame, Pixels};
+use crate::pattern::sequence::LineSequence;
+
+/// Expected mean presence by line class (0 = crossing line, 1 = code line,
+/// 2 = plain full line) of the column and row lines.
+const TEMPLATE: [[f64; 3]; 3] = [[0.0, 0.5, 1.0], [0.5, 0.25, 0.5], [1.0, 0.5, 1.0]];
+
+/// What the per-dot stage found.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct CodeFix {
+    /// True when the dots are at the fundamental's phase π (dark dots).
+    pub dark_dots: bool,
+    /// Line-index direction along lattice axis a and b (+1/−1).
+    pub sigma: [i64; 2],
+    /// Global line index of lattice line 0 of axis a and b.
+    pub origin: [i64; 2],
+    /// Orientation template correlation of the chosen hypothesis.
+    pub orientation_score: f64,
+    /// Best minus second-best template correlation.
+    pub orientation_margin: f64,
+    /// Code correlation margin, bits, per lattice axis.
+    pub code_margin_bits: [f64; 2],
+    /// Code lines read (non-void) per lattice axis.
+    pub code_bits: [usize; 2],
+    /// Estimated disagreeing code bits of the chosen offset, per axis.
+    pub code_errors: [f64; 2],
+}
+
+/// Decision thresholds of the per-dot stage.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CoarseThresholds {
+    /// Minimum correlation of the 3 × 3 class table with its template.
+    pub min_orientation_score: f64,
+    /// Minimum lead of the best orientation hypothesis over the runner-up.
+    pub min_orientation_margin: f64,
+    /// Minimum lead of the best code offset over the runner-up, in bits
+    /// (one clean bit flip moves the score by one unit).
+    pub min_code_margin_bits: f64,
+}
+
+impl Default for CoarseThresholds {
+    fn default() -> Self {
+        Self {
+            min_orientation_score: 0.7,
+            min_orientation_margin: 0.1,
+            min_code_margin_bits: 1.0,
+        }
+    }
+}
+
+/// Reused buffers of the per-dot stage.
+#[derive(Debug, Default)]
+pub(crate) struct CoarseStage {
+    /// Samples on the integer lattice (α, β integers), [nb][na].
+    g0: Vec<f32>,
+    /// Samples on the half lattice (α+½, β+½), [nb+1][na+1].
+    g1: Vec<f32>,
+    pres: Vec<f32>,
+    tmp: Vec<f32>,
+    lmax: Vec<f32>,
+    sel: Vec<f32>,
+    lines: Vec<f32>,
+    counts: Vec<f32>,
+    epad: Vec<f32>,
+    epad_bits: u32,
+}
+
+/// Bilinear sample at image point (u, v) (pixel centres at j + 0.5); NaN
+/// outside the frame.
+fn sample(frame: &Frame, u: f64, v: f64) -> f32 {
+    let x = u - 0.5;
+    let y = v - 0.5;
+    let (w, h) = (frame.width(), frame.height());
+    if !(x >= 0.0 && y >= 0.0 && x <= (w - 1) as f64 && y <= (h - 1) as f64) {
+        return f32::NAN;
+    }
+    let j = (x.floor() as usize).min(w.saturating_sub(2));
+    let i = (y.floor() as usize).min(h.saturating_sub(2));
+    let fx = (x - j as f64) as f32;
+    let fy = (y - i as f64) as f32;
+    let j1 = (j + 1).min(w - 1);
+    let i1 = (i + 1).min(h - 1);
+    let get = |jj: usize, ii: usize| -> f32 {
+        match frame.pixels() {
+            Pixels::U8(p) => f32::from(p[ii * w + jj]),
+            Pixels::U16(p) => f32::from(p[ii * w + jj]),
+        }
+    };
+    let a = get(j, i) + fx * (get(j1, i) - get(j, i));
+    let b = get(j, i1) + fx * (get(j1, i1) - get(j, i1));
+    a + fy * (b - a)
+}
+
+impl CoarseStage {
+    fn prepare_code(&mut self, seq: &LineSequence, pad: usize) {
+        let q = seq.len() / 3;
+        if self.epad_bits == seq.bits() && self.epad.len() == q + 2 * pad {
+            return;
+        }
+        self.epad_bits = seq.bits();
+        self.epad.clear();
+        self.epad.resize(pad, 0.0);
+        for i in 0..q {
+            self.epad.push(if seq.line(3 * i as i64 + 1) {
+                1.0
+            } else {
+                -1.0
+            });
+        }
+        self.epad.resize(q + 2 * pad, 0.0);
+    }
+
+    /// Runs the stage on `frame` with the fine `grid`.
+    pub(crate) fn run(
+        &mut self,
+        frame: &Frame,
+        grid: &Grid,
+        seq: &LineSequence,
+        polarity: Option<bool>,
+        th: &CoarseThresholds,
+    ) -> Result<CodeFix, DecodeError> {
+        let (w, h) = (frame.width(), frame.height());
+        let tau = std::f64::consts::TAU;
+        let k = grid.k;
+        let det = k[0][0] * k[1][1] - k[0][1] * k[1][0];
+        if det.abs() < 1e-12 {
+            return Err(DecodeError::NoGrid("degenerate grid".into()));
+        }
+        // K⁻¹: image offset of a lattice-coordinate step.
+        let inv = [
+            [k[1][1] / det, -k[0][1] / det],
+            [-k[1][0] / det, k[0][0] / det],
+        ];
+        let da = [inv[0][0] * tau, inv[1][0] * tau];
+        let db = [inv[0][1] * tau, inv[1][1] * tau];
+        let (cx, cy) = (w as f64 / 2.0, h as f64 / 2.0);
+        let u00 = [
+            cx - (inv[0][0] * grid.phi[0] + inv[0][1] * grid.phi[1]),
+            cy - (inv[1][0] * grid.phi[0] + inv[1][1] * grid.phi[1]),
+        ];
+        // Lattice coordinate range over the frame.
+        let lat = |u: f64, v: f64| {
+            let x = u - cx;
+            let y = v - cy;
+            (
+                (k[0][0] * x + k[0][1] * y + grid.phi[0]) / tau,
+                (k[1][0] * x + k[1][1] * y + grid.phi[1]) / tau,
+            )
+        };
+        let mut amin = f64::MAX;
+        let mut amax = f64::MIN;
+        let mut bmin = f64::MAX;
+        let mut bmax = f64::MIN;
+        for (u, v) in [
+            (0.0, 0.0),
+            (w as f64, 0.0),
+            (0.0, h as f64),
+            (w as f64, h as f64),
+        ] {
+            let (a, b) = lat(u, v);
+            amin = amin.min(a);
+            amax = amax.max(a);
+            bmin = bmin.min(b);
+            bmax = bmax.max(b);
+        }
+        let a0 = amin.ceil() as i64;
+        let b0 = bmin.ceil() as i64;
+        let na = (amax.floor() as i64 - a0 + 1).max(0) as usize;
+        let nb = (bmax.floor() as i64 - b0 + 1).max(0) as usize;
+        if na * nb > 4_000_000 || na < 9 || nb < 9 {
+            return Err(DecodeError::TooFewPeriods {
+                got: na.min(nb),
+                need: seq.min_periods_in_view(),
+            });
+        }
+        // Sampling: centre plus four points at ±1/6 period along the axes.
+        let off = [
+            [0.0, 0.0],
+            [1.0 / 6.0, 0.0],
+            [-1.0 / 6.0, 0.0],
+            [0.0, 1.0 / 6.0],
+            [0.0, -1.0 / 6.0],
+        ];
+        let pos = |a: f64, b: f64| {
+            [
+                u00[0] + a * da[0] + b * db[0],
+                u00[1] + a * da[1] + b * db[1],
+            ]
+        };
+        let samp = |a: f64, b: f64| {
+            let mut s = 0.0;
+            for o in off {
+                let p = pos(a + o[0], b + o[1]);
+                s += sample(frame, p[0], p[1]);
+            }
+            s / 5.0
+        };
+        self.g0.clear();
+        for j in 0..nb {
+            for i in 0..na {
+                self.g0
+                    .push(samp((a0 + i as i64) as f64, (b0 + j as i64) as f64));
+            }
+        }
+        self.g1.clear();
+        for j in 0..=nb {
+            for i in 0..=na {
+                self.g1.push(samp(
+                    (a0 + i as i64) as f64 - 0.5,
+                    (b0 + j as i64) as f64 - 0.5,
+                ));
+            }
+        }
+        // Both polarity hypotheses, unless fixed.
+        let hyps: &[bool] = match polarity {
+            Some(false) => &[false],
+            Some(true) => &[true],
+            None => &[false, true],
+        };
+        let mut best: Option<(f64, bool, [usize; 2], [i64; 2])> = None;
+        let mut second = f64::MIN;
+        let mut chosen_pres: Vec<f32> = Vec::new();
+        let mut dims = (0, 0, 0i64, 0i64);
+        for &dark in hyps {
+            let (sa0, sb0, sna, snb) = self.presence(dark, na, nb, a0, b0);
+            let table = self.class_table(sna, snb, sa0, sb0);
+            for i0 in 0..3usize {
+                for j0 in 0..3usize {
+                    for sa in [1i64, -1] {
+                        for sb in [1i64, -1] {
+                            let score = template_corr(&table, i0, sa, j0, sb);
+                            match best {
+                                Some((bs, ..)) if score <= bs => second = second.max(score),
+                                _ => {
+                                    if let Some((bs, ..)) = best {
+                                        second = second.max(bs);
+                                    }
+                                    best = Some((score, dark, [i0, j0], [sa, sb]));
+                                    chosen_pres.clone_from(&self.pres);
+                                    dims = (sna, snb, sa0, sb0);
+                                }
+                            }
+                        }
+                    }
+                }
+            }
+        }
+        let Some((oscore, dark, res0, sigma)) = best else {
+            return Err(DecodeError::NoGrid("no orientation hypothesis".into()));
+        };
+        let omargin = oscore - second;
+        if !(oscore >= th.min_orientation_score) {
+            return Err(DecodeError::Orientation(format!(
+                "dot layout does not match the pattern's line structure (template correlation {oscore:.3} < {:.3})",
+                th.min_orientation_score
+            )));
+        }
+        if !(omargin >= th.min_orientation_margin) {
+            return Err(DecodeError::Orientation(format!(
+                "orientation ambiguous (margin {omargin:.3} < {:.3})",
+                th.min_orientation_margin
+            )));
+        }
+        std::mem::swap(&mut self.pres, &mut chosen_pres);
+        let (sna, snb, sa0, sb0) = dims;
+        // Code lines of each axis.
+        let need = seq.min_periods_in_view();
+        let mut origin = [0i64; 2];
+        let mut margins = [0.0; 2];
+        let mut nbits = [0usize; 2];
+        let mut errs = [0.0; 2];
+        for axis in 0..2 {
+            let (n_this, n_other, l0) = if axis == 0 {
+                (sna, snb, sa0)
+            } else {
+                (snb, sna, sb0)
+            };
+            if n_this < need {
+                return Err(DecodeError::TooFewPeriods { got: n_this, need });
+            }
+            let s_this = sigma[axis];
+            let s_other = sigma[1 - axis];
+            let r_this = res0[axis] as i64;
+            let r_other = res0[1 - axis] as i64;
+            let class = |l: i64, r0: i64, s: i64| (s * (l - r0)).rem_euclid(3);
+            // Soft line values of this axis's code lines.
+            self.lines.clear();
+            self.counts.clear();
+            let mut first_code: Option<i64> = None;
+            let o0 = if axis == 0 { sb0 } else { sa0 };
+            for li in 0..n_this {
+                let l = l0 + li as i64;
+                if class(l, r_this, s_this) != 1 {
+                    continue;
+                }
+                if first_code.is_none() {
+                    first_code = Some(l);
+                }
+                let mut sum = 0.0f32;
+                let mut cnt = 0.0f32;
+                for oi in 0..n_other {
+                    let o = o0 + oi as i64;
+                    if class(o, r_other, s_other) == 1 {
+                        continue;
+                    }
+                    let idx = if axis == 0 {
+                        oi * sna + li
+                    } else {
+                        li * sna + oi
+                    };
+                    let v = self.pres[idx];
+                    if v.is_finite() {
+                        sum += v;
+                        cnt += 1.0;
+                    }
+                }
+                let t = if cnt >= 3.0 {
+                    let mean = sum / cnt;
+                    (2.0 * mean - 1.0).clamp(-1.0, 1.0) * (cnt / 8.0).min(1.0)
+                } else {
+                    0.0
+                };
+                self.lines.push(t);
+            }
+            let Some(first) = first_code else {
+                return Err(DecodeError::TooFewPeriods { got: n_this, need });
+            };
+            let kk = self.lines.len();
+            nbits[axis] = self.lines.iter().filter(|t| t.abs() > 0.2).count();
+            if nbits[axis] < seq.bits() as usize + 1 {
+                return Err(DecodeError::CodeAmbiguous(format!(
+                    "only {} readable code lines along lattice axis {axis}, need {}",
+                    nbits[axis],
+                    seq.bits() + 1
+                )));
+            }
+            if s_this < 0 {
+                self.lines.reverse();
+            }
+            self.prepare_code(seq, kk);
+            let qn = seq.len() / 3;
+            // Candidate q0 (code slot of the lowest-slot visible code line) from −(kk−1) to qn−1.
+            let mut b1 = (f32::MIN, 0i64);
+            let mut b2 = f32::MIN;
+            let total: f32 = self.lines.iter().map(|t| t.abs()).sum();
+            for q0 in -(kk as i64 - 1)..qn as i64 {
+                let st = (q0 + kk as i64) as usize;
+                let e = &self.epad[st..st + kk];
+                let sc: f32 = e.iter().zip(&self.lines).map(|(a, b)| a * b).sum();
+                if sc > b1.0 {
+                    b2 = b2.max(b1.0);
+                    b1 = (sc, q0);
+                } else if sc > b2 {
+                    b2 = sc;
+                }
+            }
+            let margin = f64::from(b1.0 - b2) / 2.0;
+            margins[axis] = margin;
+            errs[axis] = f64::from(total - b1.0) / 2.0;
+            if !(margin >= th.min_code_margin_bits) {
+                return Err(DecodeError::CodeAmbiguous(format!(
+                    "code position along lattice axis {axis} not unique: best offset leads by {margin:.2} bits, need {:.2}",
+                    th.min_code_margin_bits
+                )));
+            }
+            // Global line of the visible code line with the lowest slot.
+            let q0 = b1.1;
+            let last_code = first + 3 * (kk as i64 - 1);
+            let (l_low, g_low) = if s_this > 0 {
+                (first, 3 * q0 + 1)
+            } else {
+                (last_code, 3 * q0 + 1)
+            };
+            origin[axis] = g_low - s_this * l_low;
+        }
+        Ok(CodeFix {
+            dark_dots: dark,
+            sigma,
+            origin,
+            orientation_score: oscore,
+            orientation_margin: omargin,
+            code_margin_bits: margins,
+            code_bits: nbits,
+            code_errors: errs,
+        })
+    }
+
+    /// Presence of every site for a polarity hypothesis, into `self.pres`
+    /// ([nb][na] of the site lattice, NaN = unreadable). Returns the site
+    /// lattice's first indices and size.
+    fn presence(
+        &mut self,
+        dark: bool,
+        na: usize,
+        nb: usize,
+        a0: i64,
+        b0: i64,
+    ) -> (i64, i64, usize, usize) {
+        // Bright dots: sites on g0 (integer lattice), background on g1.
+        // Dark dots: sites on g1 (half lattice), background on g0; the half
+        // lattice point (a0 + i − ½) has g0 neighbours i−1 and i.
+        let (sa0, sb0, sna, snb) = if dark {
+            (a0, b0, na.saturating_sub(1), nb.saturating_sub(1))
+        } else {
+            (a0, b0, na, nb)
+        };
+        self.pres.clear();
+        self.tmp.clear();
+        for j in 0..snb {
+            for i in 0..sna {
+                let (site, bg) = if dark {
+                    // site g1[j+1][i+1] is at (a0+i+½, b0+j+½); neighbours g0[j..=j+1][i..=i+1].
+                    let s = self.g1[(j + 1) * (na + 1) + i + 1];
+                    let b = [
+                        self.g0[j * na + i],
+                        self.g0[j * na + i + 1],
+                        self.g0[(j + 1) * na + i],
+                        self.g0[(j + 1) * na + i + 1],
+                    ];
+                    (s, b)
+                } else {
+                    let s = self.g0[j * na + i];
+                    let b = [
+                        self.g1[j * (na + 1) + i],
+                        self.g1[j * (na + 1) + i + 1],
+                        self.g1[(j + 1) * (na + 1) + i],
+                        self.g1[(j + 1) * (na + 1) + i + 1],
+                    ];
+                    (s, b)
+                };
+                let bm = 0.25 * (bg[0] + bg[1] + bg[2] + bg[3]);
+                let r = if dark { bm - site } else { site - bm };
+                self.pres.push(r);
+            }
+        }
+        // Site (i, j) of the dark lattice sits at lattice coordinate a0+i+½,
+        // which is a0+i in the lattice whose phases are shifted by π (dots at
+        // phase π): the caller uses φ − π for dark dots, so lines are indexed
+        // by the integer a0+i for both polarities.
+        // Local contrast: 5×5 max of r (NaN-aware), separable.
+        let n = sna * snb;
+        self.lmax.clear();
+        self.lmax.resize(n, f32::NAN);
+        self.tmp.resize(n, f32::NAN);
+        for j in 0..snb {
+            for i in 0..sna {
+                let mut m = f32::NEG_INFINITY;
+                for ii in i.saturating_sub(2)..(i + 3).min(sna) {
+                    let v = self.pres[j * sna + ii];
+                    if v > m {
+                        m = v;
+                    }
+                }
+                self.tmp[j * sna + i] = m;
+            }
+        }
+        for j in 0..snb {
+            for i in 0..sna {
+                let mut m = f32::NEG_INFINITY;
+                for jj in j.saturating_sub(2)..(j + 3).min(snb) {
+                    let v = self.tmp[jj * sna + i];
+                    if v > m {
+                        m = v;
+                    }
+                }
+                self.lmax[j * sna + i] = m;
+            }
+        }
+        // Global contrast: 90th percentile of the local maxima.
+        self.sel.clear();
+        self.sel.extend(
+            self.lmax
+                .iter()
+                .copied()
+                .filter(|v| v.is_finite() && *v > 0.0),
+        );
+        let cglob = if self.sel.is_empty() {
+            0.0
+        } else {
+            let k = (self.sel.len() * 9) / 10;
+            let k = k.min(self.sel.len() - 1);
+            let (_, v, _) = self.sel.select_nth_unstable_by(k, |a, b| a.total_cmp(b));
+            *v
+        };
+        for (p, &m) in self.pres.iter_mut().zip(&self.lmax) {
+            if !(p.is_finite() && m.is_finite() && cglob > 0.0 && m > 0.35 * cglob) {
+                *p = f32::NAN;
+            } else {
+                *p /= m;
+            }
+        }
+        (sa0, sb0, sna, snb)
+    }
+
+    /// Mean presence by (a mod 3, b mod 3), rows = a residue.
+    fn class_table(&self, sna: usize, snb: usize, sa0: i64, sb0: i64) -> [[f64; 3]; 3] {
+        let mut s = [[0.0f64; 3]; 3];
+        let mut c = [[0.0f64; 3]; 3];
+        for j in 0..snb {
+            let rb = (sb0 + j as i64).rem_euclid(3) as usize;
+            for i in 0..sna {
+                let v = self.pres[j * sna + i];
+                if v.is_finite() {
+                    let ra = (sa0 + i as i64).rem_euclid(3) as usize;
+                    s[ra][rb] += f64::from(v);
+                    c[ra][rb] += 1.0;
+                }
+            }
+        }
+        let mut t = [[f64::NAN; 3]; 3];
+        for ra in 0..3 {
+            for rb in 0..3 {
+                if c[ra][rb] > 0.0 {
+                    t[ra][rb] = s[ra][rb] / c[ra][rb];
+                }
+            }
+        }
+        t
+    }
+}
+
+/// Pearson correlation of the class table with the template under the
+/// hypothesis (crossing residues i0, j0; directions sa, sb).
+fn template_corr(t: &[[f64; 3]; 3], i0: usize, sa: i64, j0: usize, sb: i64) -> f64 {
+    let mut xs = [0.0; 9];
+    let mut ys = [0.0; 9];
+    let mut n = 0;
+    for ra in 0..3i64 {
+        for rb in 0..3i64 {
+            let v = t[ra as usize][rb as usize];
+            if !v.is_finite() {
+                continue;
+            }
+            let ca = (sa * (ra - i0 as i64)).rem_euclid(3) as usize;
+            let cb = (sb * (rb - j0 as i64)).rem_euclid(3) as usize;
+            xs[n] = v;
+            ys[n] = TEMPLATE[ca][cb];
+            n += 1;
+        }
+    }
+    if n < 9 {
+        return f64::MIN;
+    }
+    let mx = xs.iter().sum::<f64>() / 9.0;
+    let my = ys.iter().sum::<f64>() / 9.0;
+    let (mut sxy, mut sxx, mut syy) = (0.0, 0.0, 0.0);
+    for i in 0..9 {
+        sxy += (xs[i] - mx) * (ys[i] - my);
+        sxx += (xs[i] - mx).powi(2);
+        syy += (ys[i] - my).powi(2);
+    }
+    if sxx <= 0.0 || syy <= 0.0 {
+        return f64::MIN;
+    }
+    sxy / (sxx * syy).sqrt()
+}

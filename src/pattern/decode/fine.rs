@@ -1,0 +1,635 @@
+//! Full-frame stage: the two grid wave vectors and their phases at the image
+//! centre.
+//!
+//! 1. Peak search (cold start only): a Hann-windowed 2-D real FFT of a
+//!    central block of at most 256 × 256 pixels; the strongest peak in the
+//!    admissible frequency annulus is one grid direction, the strongest peak
+//!    near its perpendicular with a similar modulus is the other.
+//! 2. Demodulation: the frame, weighted by a separable Hann window over the
+//!    whole frame, is multiplied by e^{−i k·(u − c)} (separable: a per-column
+//!    and a per-row phasor table) and summed per tile, O(N) in pixels. The
+//!    tile phasors' phases are fitted by a weighted least-squares plane (after
+//!    a wrap-free gradient estimate from neighbour products), which refines k.
+//!    A second pass at the refined k gives the final phase at the centre as the
+//!    argument of the sum of all tiles — the globally Hann-windowed estimate,
+//!    unbiased to first order in any residual k error because the window is
+//!    symmetric about the centre.
+//!
+//! Why this shape: every present dot contributes the same phasor at the exact
+//! grid frequency, so the missing (coded) dots cost amplitude but not phase;
+//! the smooth window keeps leakage from the code's other spectral content and
+//! from dots cut by the frame edge far below 1e-3 px.
+
+// `!(x >= t)` is deliberate: it also rejects NaN. Index loops mirror the maths.
+#![allow(clippy::neg_cmp_op_on_partial_ord, clippy::needless_range_loop)]
+use std::sync::Arc;
+
+use realfft::num_complex::Complex;
+use realfft::{RealFftPlanner, RealToComplex};
+use rustfft::{Fft, FftPlanner};
+
+use super::DecodeError;
+use crate::frame::{Frame, Pixels};
+
+/// The grid found by the full-frame stage, in image coordinates relative to
+/// the image centre point c = (W/2, H/2).
+///
+/// Intensity ≈ mean + Σ_d A_d cos(k_d·(u − c) + φ_d) for the two lattice
+/// directions d = a, b; k_b is oriented so that k_a × k_b > 0 (k_b is k_a
+/// turned by about +90°, image x towards image y). Which direction is the
+/// pattern x axis, and the signs, are settled by the per-dot stage.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Grid {
+    /// Wave vectors, rad/px, `k[d] = [kx, ky]`.
+    pub k: [[f64; 2]; 2],
+    /// Phases at the image centre, rad, in (−π, π].
+    pub phi: [f64; 2],
+    /// Amplitude of each fundamental, fraction of full scale.
+    pub amplitude: [f64; 2],
+    /// Phase coherence |Σ tiles| / Σ |tile| after the plane fit, worst of the
+    /// two directions (1 = a perfect plane wave; below ~0.5 no grid).
+    pub coherence: f64,
+    /// RMS of the tile phase residuals about the fitted plane, rad, worst of
+    /// the two directions (lens distortion and noise show here).
+    pub phase_rms_rad: f64,
+}
+
+/// Side of the FFT block for the peak search.
+const MAX_FFT: usize = 256;
+/// Nominal demodulation tile side, px.
+const TILE: usize = 64;
+
+/// Buffers and plans of the full-frame stage, reused across frames.
+pub(crate) struct FineStage {
+    n: usize,
+    r2c: Option<Arc<dyn RealToComplex<f32>>>,
+    c2c: Option<Arc<dyn Fft<f32>>>,
+    planner_r: RealFftPlanner<f32>,
+    planner_c: FftPlanner<f32>,
+    crop: Vec<f32>,
+    spec: Vec<Complex<f32>>,
+    col: Vec<Complex<f32>>,
+    scratch: Vec<Complex<f32>>,
+    rscratch: Vec<Complex<f32>>,
+    power: Vec<f32>,
+    hann: Vec<f32>,
+    row: Vec<f32>,
+    wx: Vec<f32>,
+    wy: Vec<f64>,
+    tab: [Vec<f32>; 4],
+    tiles: [Vec<Complex<f64>>; 2],
+    tile_x: Vec<usize>,
+    tile_y: Vec<usize>,
+    win_w: usize,
+    win_h: usize,
+}
+
+impl std::fmt::Debug for FineStage {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("FineStage")
+            .field("n", &self.n)
+            .finish_non_exhaustive()
+    }
+}
+
+/// Writes row `i` of `frame` as intensities in [0, 1].
+pub(crate) fn row_f32(frame: &Frame, i: usize, out: &mut Vec<f32>) {
+    let w = frame.width();
+    let scale = 1.0 / frame.full_scale() as f32;
+    out.clear();
+    match frame.pixels() {
+        Pixels::U8(p) => out.extend(p[i * w..(i + 1) * w].iter().map(|&v| f32::from(v) * scale)),
+        Pixels::U16(p) => out.extend(p[i * w..(i + 1) * w].iter().map(|&v| f32::from(v) * scale)),
+    }
+}
+
+/// Four dot products of `x` with `a0..a3` at once (one pass over `x`),
+/// written so the compiler vectorises it.
+#[inline]
+fn dot4(x: &[f32], a0: &[f32], a1: &[f32], a2: &[f32], a3: &[f32]) -> [f32; 4] {
+    const L: usize = 8;
+    let n = x
+        .len()
+        .min(a0.len())
+        .min(a1.len())
+        .min(a2.len())
+        .min(a3.len());
+    let (x, a0, a1, a2, a3) = (&x[..n], &a0[..n], &a1[..n], &a2[..n], &a3[..n]);
+    let mut s = [[0f32; L]; 4];
+    let chunks = n / L;
+    for c in 0..chunks {
+        let o = c * L;
+        let xs = &x[o..o + L];
+        let (b0, b1, b2, b3) = (&a0[o..o + L], &a1[o..o + L], &a2[o..o + L], &a3[o..o + L]);
+        for l in 0..L {
+            s[0][l] += xs[l] * b0[l];
+            s[1][l] += xs[l] * b1[l];
+            s[2][l] += xs[l] * b2[l];
+            s[3][l] += xs[l] * b3[l];
+        }
+    }
+    let mut out = [0f32; 4];
+    for (o, acc) in out.iter_mut().zip(&s) {
+        *o = acc.iter().sum();
+    }
+    for t in chunks * L..n {
+        out[0] += x[t] * a0[t];
+        out[1] += x[t] * a1[t];
+        out[2] += x[t] * a2[t];
+        out[3] += x[t] * a3[t];
+    }
+    out
+}
+
+fn wrap(a: f64) -> f64 {
+    let t = std::f64::consts::TAU;
+    let r = a.rem_euclid(t);
+    if r > std::f64::consts::PI {
+        r - t
+    } else {
+        r
+    }
+}
+
+impl FineStage {
+    pub(crate) fn new() -> Self {
+        Self {
+            n: 0,
+            r2c: None,
+            c2c: None,
+            planner_r: RealFftPlanner::new(),
+            planner_c: FftPlanner::new(),
+            crop: Vec::new(),
+            spec: Vec::new(),
+            col: Vec::new(),
+            scratch: Vec::new(),
+            rscratch: Vec::new(),
+            power: Vec::new(),
+            hann: Vec::new(),
+            row: Vec::new(),
+            wx: Vec::new(),
+            wy: Vec::new(),
+            tab: [Vec::new(), Vec::new(), Vec::new(), Vec::new()],
+            tiles: [Vec::new(), Vec::new()],
+            tile_x: Vec::new(),
+            tile_y: Vec::new(),
+            win_w: 0,
+            win_h: 0,
+        }
+    }
+
+    fn prepare_fft(&mut self, n: usize) {
+        if self.n == n && self.r2c.is_some() {
+            return;
+        }
+        self.n = n;
+        let r2c = self.planner_r.plan_fft_forward(n);
+        let c2c = self.planner_c.plan_fft_forward(n);
+        self.rscratch = r2c.make_scratch_vec();
+        self.scratch = vec![Complex::new(0.0, 0.0); c2c.get_inplace_scratch_len()];
+        self.crop = vec![0.0; n * n];
+        self.spec = vec![Complex::new(0.0, 0.0); n * (n / 2 + 1)];
+        self.col = vec![Complex::new(0.0, 0.0); n];
+        self.power = vec![0.0; n * (n / 2 + 1)];
+        self.hann = (0..n)
+            .map(|i| {
+                let s = (std::f64::consts::PI * (i as f64 + 0.5) / n as f64).sin();
+                (s * s) as f32
+            })
+            .collect();
+        self.r2c = Some(r2c);
+        self.c2c = Some(c2c);
+    }
+
+    fn prepare_windows(&mut self, w: usize, h: usize) {
+        if self.win_w == w && self.win_h == h {
+            return;
+        }
+        self.win_w = w;
+        self.win_h = h;
+        let hann = |i: usize, n: usize| {
+            let s = (std::f64::consts::PI * (i as f64 + 0.5) / n as f64).sin();
+            s * s
+        };
+        self.wx = (0..w).map(|j| hann(j, w) as f32).collect();
+        self.wy = (0..h).map(|i| hann(i, h)).collect();
+        let ntx = (w as f64 / TILE as f64).round().max(1.0) as usize;
+        let nty = (h as f64 / TILE as f64).round().max(1.0) as usize;
+        self.tile_x = (0..=ntx).map(|t| t * w / ntx).collect();
+        self.tile_y = (0..=nty).map(|t| t * h / nty).collect();
+    }
+
+    /// Cold peak search: approximate wave vectors (rad/px) of the two grid
+    /// directions, with k_a × k_b > 0.
+    pub(crate) fn peak_search(
+        &mut self,
+        frame: &Frame,
+        min_period_px: f64,
+        max_period_px: f64,
+    ) -> Result<[[f64; 2]; 2], DecodeError> {
+        let (w, h) = (frame.width(), frame.height());
+        let m = w.min(h).min(MAX_FFT);
+        if m < 16 {
+            return Err(DecodeError::TooSmall {
+                width: w,
+                height: h,
+            });
+        }
+        let n = 1usize << (usize::BITS - 1 - m.leading_zeros());
+        self.prepare_fft(n);
+        let (Some(r2c), Some(c2c)) = (self.r2c.clone(), self.c2c.clone()) else {
+            return Err(DecodeError::NoGrid("FFT plan unavailable".into()));
+        };
+        let x0 = (w - n) / 2;
+        let y0 = (h - n) / 2;
+        // Crop, mean removal, window.
+        let mut sum = 0.0f64;
+        for i in 0..n {
+            row_f32(frame, y0 + i, &mut self.row);
+            let dst = &mut self.crop[i * n..(i + 1) * n];
+            dst.copy_from_slice(&self.row[x0..x0 + n]);
+            sum += dst.iter().map(|&v| f64::from(v)).sum::<f64>();
+        }
+        let mean = (sum / (n * n) as f64) as f32;
+        for i in 0..n {
+            let wy = self.hann[i];
+            for (v, &wx) in self.crop[i * n..(i + 1) * n].iter_mut().zip(&self.hann) {
+                *v = (*v - mean) * wx * wy;
+            }
+        }
+        let nc = n / 2 + 1;
+        for i in 0..n {
+            let (input, output) = (
+                &mut self.crop[i * n..(i + 1) * n],
+                &mut self.spec[i * nc..(i + 1) * nc],
+            );
+            r2c.process_with_scratch(input, output, &mut self.rscratch)
+                .map_err(|e| DecodeError::NoGrid(format!("FFT failed: {e}")))?;
+        }
+        for fx in 0..nc {
+            for i in 0..n {
+                self.col[i] = self.spec[i * nc + fx];
+            }
+            c2c.process_with_scratch(&mut self.col, &mut self.scratch);
+            for fy in 0..n {
+                self.power[fy * nc + fx] = self.col[fy].norm_sqr();
+            }
+        }
+        let fmin = (n as f64 / max_period_px).max(2.0);
+        let fmax = (n as f64 / min_period_px).min(n as f64 / 2.0 - 1.0);
+        if fmin >= fmax {
+            return Err(DecodeError::NoGrid(format!(
+                "no admissible period range: {min_period_px:.2}..{max_period_px:.2} px in a {n} px block"
+            )));
+        }
+        let freq = |fy: usize, fx: usize| -> (f64, f64) {
+            let y = if fy > n / 2 {
+                fy as f64 - n as f64
+            } else {
+                fy as f64
+            };
+            (fx as f64, y)
+        };
+        // Strongest peak in the annulus.
+        let mut best = (0.0f32, 0usize, 0usize);
+        let mut acc = 0.0f64;
+        let mut cnt = 0usize;
+        for fy in 0..n {
+            for fx in 0..nc {
+                let (x, y) = freq(fy, fx);
+                let r = (x * x + y * y).sqrt();
+                if r < fmin || r > fmax {
+                    continue;
+                }
+                let p = self.power[fy * nc + fx];
+                acc += f64::from(p);
+                cnt += 1;
+                if p > best.0 {
+                    best = (p, fy, fx);
+                }
+            }
+        }
+        let mean_p = acc / cnt.max(1) as f64;
+        if best.0 <= 0.0 || f64::from(best.0) < 20.0 * mean_p {
+            return Err(DecodeError::NoGrid(format!(
+                "no spectral peak stands out (peak/mean power {:.1}, need 20)",
+                f64::from(best.0) / mean_p.max(f64::MIN_POSITIVE)
+            )));
+        }
+        let ka = self.refine_peak(best.1, best.2, n);
+        let ra = (ka.0 * ka.0 + ka.1 * ka.1).sqrt();
+        // Second peak: near perpendicular, similar modulus.
+        let mut best2 = (0.0f32, 0usize, 0usize);
+        for fy in 0..n {
+            for fx in 0..nc {
+                let (x, y) = freq(fy, fx);
+                let r = (x * x + y * y).sqrt();
+                if r < 0.8 * ra || r > 1.25 * ra {
+                    continue;
+                }
+                let cosang = (x * ka.0 + y * ka.1) / (r * ra);
+                if cosang.abs() > 0.3 {
+                    continue;
+                }
+                let p = self.power[fy * nc + fx];
+                if p > best2.0 {
+                    best2 = (p, fy, fx);
+                }
+            }
+        }
+        if f64::from(best2.0) < 10.0 * mean_p || best2.0 < 0.05 * best.0 {
+            return Err(DecodeError::NoGrid(
+                "only one grid direction found (no peak near the perpendicular)".into(),
+            ));
+        }
+        let kb = self.refine_peak(best2.1, best2.2, n);
+        let s = std::f64::consts::TAU / n as f64;
+        let a = [ka.0 * s, ka.1 * s];
+        let mut b = [kb.0 * s, kb.1 * s];
+        if a[0] * b[1] - a[1] * b[0] < 0.0 {
+            b = [-b[0], -b[1]];
+        }
+        Ok([a, b])
+    }
+
+    /// Sub-bin peak position (cycles per block) by parabolic interpolation of
+    /// the log power along each axis.
+    fn refine_peak(&self, fy: usize, fx: usize, n: usize) -> (f64, f64) {
+        let nc = n / 2 + 1;
+        let p = |fy: isize, fx: isize| -> f64 {
+            // Hermitian symmetry for fx outside 0..nc.
+            let (fy, fx) = if fx < 0 { (-fy, -fx) } else { (fy, fx) };
+            let fy = fy.rem_euclid(n as isize) as usize;
+            let fx = (fx as usize).min(nc - 1);
+            f64::from(self.power[fy * nc + fx]).max(1e-30).ln()
+        };
+        let (y, x) = (fy as isize, fx as isize);
+        let c = p(y, x);
+        let off = |m: f64, z: f64, q: f64| {
+            let d = m - 2.0 * z + q;
+            if d < 0.0 {
+                (0.5 * (m - q) / d).clamp(-0.5, 0.5)
+            } else {
+                0.0
+            }
+        };
+        let dx = off(p(y, x - 1), c, p(y, x + 1));
+        let dy = off(p(y - 1, x), c, p(y + 1, x));
+        let yy = if fy > n / 2 {
+            fy as f64 - n as f64
+        } else {
+            fy as f64
+        };
+        (fx as f64 + dx, yy + dy)
+    }
+
+    /// One demodulation pass at wave vectors `k`: fills the tile phasors.
+    fn demod(&mut self, frame: &Frame, k: &[[f64; 2]; 2]) {
+        let (w, h) = (frame.width(), frame.height());
+        self.prepare_windows(w, h);
+        let cx = w as f64 / 2.0;
+        let cy = h as f64 / 2.0;
+        for t in &mut self.tab {
+            t.clear();
+        }
+        for j in 0..w {
+            let x = j as f64 + 0.5 - cx;
+            let wx = f64::from(self.wx[j]);
+            for d in 0..2 {
+                let (s, c) = (k[d][0] * x).sin_cos();
+                self.tab[2 * d].push((wx * c) as f32);
+                self.tab[2 * d + 1].push((-wx * s) as f32);
+            }
+        }
+        let ntx = self.tile_x.len() - 1;
+        let nty = self.tile_y.len() - 1;
+        for t in &mut self.tiles {
+            t.clear();
+            t.resize(ntx * nty, Complex::new(0.0, 0.0));
+        }
+        let mut ty = 0;
+        for i in 0..h {
+            while ty + 1 < nty && i >= self.tile_y[ty + 1] {
+                ty += 1;
+            }
+            row_f32(frame, i, &mut self.row);
+            let y = i as f64 + 0.5 - cy;
+            let wy = self.wy[i];
+            let ph = [
+                Complex::from_polar(wy, -k[0][1] * y),
+                Complex::from_polar(wy, -k[1][1] * y),
+            ];
+            for tx in 0..ntx {
+                let (j0, j1) = (self.tile_x[tx], self.tile_x[tx + 1]);
+                let s = dot4(
+                    &self.row[j0..j1],
+                    &self.tab[0][j0..j1],
+                    &self.tab[1][j0..j1],
+                    &self.tab[2][j0..j1],
+                    &self.tab[3][j0..j1],
+                );
+                let za = Complex::new(f64::from(s[0]), f64::from(s[1]));
+                let zb = Complex::new(f64::from(s[2]), f64::from(s[3]));
+                self.tiles[0][ty * ntx + tx] += za * ph[0];
+                self.tiles[1][ty * ntx + tx] += zb * ph[1];
+            }
+        }
+    }
+
+    /// Plane fit of the tile phases of direction `d`: returns (δk, phase at
+    /// the centre from the tile sum, coherence, residual rms, |Σ|).
+    fn fit(&self, d: usize, w: usize, h: usize) -> ([f64; 2], f64, f64, f64, f64) {
+        let ntx = self.tile_x.len() - 1;
+        let nty = self.tile_y.len() - 1;
+        let z = &self.tiles[d];
+        let cx = w as f64 / 2.0;
+        let cy = h as f64 / 2.0;
+        let centre = |tx: usize, ty: usize| {
+            (
+                0.5 * (self.tile_x[tx] + self.tile_x[tx + 1]) as f64 - cx,
+                0.5 * (self.tile_y[ty] + self.tile_y[ty + 1]) as f64 - cy,
+            )
+        };
+        // Wrap-free gradient from neighbour products.
+        let mut gx = Complex::new(0.0, 0.0);
+        let mut gy = Complex::new(0.0, 0.0);
+        for ty in 0..nty {
+            for tx in 0..ntx {
+                if tx + 1 < ntx {
+                    gx += z[ty * ntx + tx + 1] * z[ty * ntx + tx].conj();
+                }
+                if ty + 1 < nty {
+                    gy += z[(ty + 1) * ntx + tx] * z[ty * ntx + tx].conj();
+                }
+            }
+        }
+        let dxt = w as f64 / ntx as f64;
+        let dyt = h as f64 / nty as f64;
+        let g = [
+            if ntx > 1 { gx.arg() / dxt } else { 0.0 },
+            if nty > 1 { gy.arg() / dyt } else { 0.0 },
+        ];
+        // Reference phase after removing the gradient.
+        let mut zs = Complex::new(0.0, 0.0);
+        let mut total = Complex::new(0.0, 0.0);
+        let mut mag = 0.0;
+        for ty in 0..nty {
+            for tx in 0..ntx {
+                let (x, y) = centre(tx, ty);
+                let v = z[ty * ntx + tx];
+                zs += v * Complex::from_polar(1.0, -(g[0] * x + g[1] * y));
+                total += v;
+                mag += v.norm();
+            }
+        }
+        let r0 = zs.arg();
+        // Weighted LS plane on small residual phases.
+        let (mut sw, mut sx, mut sy, mut sxx, mut syy, mut sxy, mut sp, mut sxp, mut syp) =
+            (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
+        for ty in 0..nty {
+            for tx in 0..ntx {
+                let (x, y) = centre(tx, ty);
+                let v = z[ty * ntx + tx];
+                let wt = v.norm_sqr();
+                let p = wrap(v.arg() - (g[0] * x + g[1] * y) - r0);
+                sw += wt;
+                sx += wt * x;
+                sy += wt * y;
+                sxx += wt * x * x;
+                syy += wt * y * y;
+                sxy += wt * x * y;
+                sp += wt * p;
+                sxp += wt * x * p;
+                syp += wt * y * p;
+            }
+        }
+        let mut h_ = [0.0, 0.0];
+        let mut p0 = 0.0;
+        if sw > 0.0 {
+            // Solve the 3×3 normal equations (p0, hx, hy), dropping a
+            // dimension with a single tile.
+            let m = [[sw, sx, sy], [sx, sxx, sxy], [sy, sxy, syy]];
+            let rhs = [sp, sxp, syp];
+            let use_x = ntx > 1;
+            let use_y = nty > 1;
+            let sol = solve3(m, rhs, use_x, use_y);
+            p0 = sol[0];
+            h_ = [sol[1], sol[2]];
+        }
+        let mut res = 0.0;
+        for ty in 0..nty {
+            for tx in 0..ntx {
+                let (x, y) = centre(tx, ty);
+                let v = z[ty * ntx + tx];
+                let p = wrap(v.arg() - (g[0] * x + g[1] * y) - r0);
+                let e = p - (p0 + h_[0] * x + h_[1] * y);
+                res += v.norm_sqr() * e * e;
+            }
+        }
+        let rms = if sw > 0.0 {
+            (res / sw).sqrt()
+        } else {
+            f64::INFINITY
+        };
+        let coherence = if mag > 0.0 { zs.norm() / mag } else { 0.0 };
+        (
+            [g[0] + h_[0], g[1] + h_[1]],
+            total.arg(),
+            coherence,
+            rms,
+            total.norm(),
+        )
+    }
+
+    /// Demodulates at `k0`, refines k, and (if the refinement was not
+    /// negligible, or `passes` asks for it) demodulates again.
+    pub(crate) fn refine(
+        &mut self,
+        frame: &Frame,
+        k0: [[f64; 2]; 2],
+        max_passes: usize,
+    ) -> Result<Grid, DecodeError> {
+        let (w, h) = (frame.width(), frame.height());
+        let mut k = k0;
+        let mut out = None;
+        let half = 0.5 * (w.max(h) as f64);
+        for pass in 0..max_passes.max(1) {
+            self.demod(frame, &k);
+            let fa = self.fit(0, w, h);
+            let fb = self.fit(1, w, h);
+            let wsum: f64 =
+                self.wx.iter().map(|&v| f64::from(v)).sum::<f64>() * self.wy.iter().sum::<f64>();
+            let amp = [2.0 * fa.4 / wsum.max(1e-30), 2.0 * fb.4 / wsum.max(1e-30)];
+            let grid = Grid {
+                k: [
+                    [k[0][0] + fa.0[0], k[0][1] + fa.0[1]],
+                    [k[1][0] + fb.0[0], k[1][1] + fb.0[1]],
+                ],
+                phi: [fa.1, fb.1],
+                amplitude: amp,
+                coherence: fa.2.min(fb.2),
+                phase_rms_rad: fa.3.max(fb.3),
+            };
+            let step = (fa.0[0].hypot(fa.0[1])).max(fb.0[0].hypot(fb.0[1])) * half;
+            out = Some(grid);
+            k = grid.k;
+            // A residual k error ε costs nothing to first order in the
+            // centre phase; stop once the phase error it implies at the frame
+            // edge is tiny.
+            if step < 0.02 && pass > 0 || step < 0.002 {
+                break;
+            }
+        }
+        let g = out.ok_or_else(|| DecodeError::NoGrid("no demodulation pass".into()))?;
+        if !(g
+            .k
+            .iter()
+            .flatten()
+            .chain(g.phi.iter())
+            .all(|v| v.is_finite()))
+        {
+            return Err(DecodeError::NoGrid("non-finite grid estimate".into()));
+        }
+        Ok(g)
+    }
+}
+
+/// Solves the symmetric 3×3 system for (p0, hx, hy), fixing hx or hy to 0
+/// when that dimension has a single tile.
+fn solve3(m: [[f64; 3]; 3], r: [f64; 3], use_x: bool, use_y: bool) -> [f64; 3] {
+    let idx: Vec<usize> = [Some(0), use_x.then_some(1), use_y.then_some(2)]
+        .into_iter()
+        .flatten()
+        .collect();
+    let k = idx.len();
+    let mut a = [[0.0; 4]; 3];
+    for (ii, &i) in idx.iter().enumerate() {
+        for (jj, &j) in idx.iter().enumerate() {
+            a[ii][jj] = m[i][j];
+        }
+        a[ii][3] = r[i];
+    }
+    // Gaussian elimination with partial pivoting.
+    for c in 0..k {
+        let piv = (c..k)
+            .max_by(|&x, &y| a[x][c].abs().total_cmp(&a[y][c].abs()))
+            .unwrap_or(c);
+        a.swap(c, piv);
+        if a[c][c].abs() < 1e-300 {
+            return [0.0; 3];
+        }
+        for rr in 0..k {
+            if rr != c {
+                let f = a[rr][c] / a[c][c];
+                for cc in c..4 {
+                    a[rr][cc] -= f * a[c][cc];
+                }
+            }
+        }
+    }
+    let mut out = [0.0; 3];
+    for (ii, &i) in idx.iter().enumerate() {
+        out[i] = a[ii][3] / a[ii][ii];
+    }
+    out
+}

@@ -1,0 +1,369 @@
+//! Absolute position decoding of Megarena frames.
+//!
+//! # Conventions
+//! * Pattern frame: origin at the centre of dot (0, 0), x along increasing
+//!   column, y along increasing row, µm.
+//! * Image frame: pixel j covers [j, j+1); the reported position is that of
+//!   the image centre point (W/2, H/2).
+//! * θ is the angle from the image +x axis to the pattern +x axis, towards
+//!   image +y, in (−π, π] (the code tells 90°/180°/270° apart). A pattern point
+//!   seen at image point u is X = (x, y) + s·R·M·(u − (W/2, H/2)) with
+//!   R = [[cos θ, sin θ], [−sin θ, cos θ]], s the pixel size in µm and
+//!   M = diag(1, −1) when [`DecodeOptions::mirrored`] is set (identity
+//!   otherwise). A mirror cannot be detected from the image — the pattern is
+//!   symmetric under transposition — so it is an option, never a guess: a
+//!   wrong setting swaps x and y.
+//!
+//! # Stages
+//! [`fine`] (full frame, O(pixels)): the two grid wave vectors and their
+//! phases at the image centre. [`coarse`] (per dot site): polarity,
+//! orientation and the code position. Both use the same lattice origin — the
+//! dot site nearest the centre in the fine grid is the site whose absolute
+//! line indices the code gives — so the absolute position is
+//! p · (line of site 0 + fractional phase), and a phase wrap can never slip a
+//! period.
+//!
+//! # Quality
+//! [`Decoded::quality`] is the smaller of the two code-correlation margins in
+//! bit units: how many more code bits the runner-up offset would get wrong
+//! than the chosen one. Decoding refuses (error [`DecodeError::CodeAmbiguous`])
+//! below [`CoarseThresholds::min_code_margin_bits`] (default 1); clean views of
+//! a 12-bit pattern at ~10 px per period typically score 8–12. Finer
+//! diagnostics are in [`Quality`].
+
+// `!(x >= t)` is deliberate: it also rejects NaN. Index loops mirror the maths.
+#![allow(clippy::neg_cmp_op_on_partial_ord, clippy::needless_range_loop)]
+
+pub mod coarse;
+pub mod fine;
+
+use thiserror::Error;
+
+pub use coarse::CoarseThresholds;
+pub use fine::Grid;
+
+use crate::frame::Frame;
+use crate::pattern::sequence::{LineSequence, SequenceError};
+
+/// Why a frame could not be decoded. The decoder returns one of these rather
+/// than a position it is not sure of.
+#[derive(Debug, Clone, PartialEq, Error)]
+pub enum DecodeError {
+    /// Bad decoder options.
+    #[error("invalid decoder option: {0}")]
+    Options(String),
+    /// The code depth is not supported.
+    #[error(transparent)]
+    Sequence(#[from] SequenceError),
+    /// The frame is too small for any grid search.
+    #[error("frame {width}×{height} is too small (need at least 16×16)")]
+    TooSmall {
+        /// Frame width.
+        width: usize,
+        /// Frame height.
+        height: usize,
+    },
+    /// No periodic dot grid with the expected structure was found.
+    #[error("no dot grid found: {0}")]
+    NoGrid(String),
+    /// The view spans too few periods to read enough code bits.
+    #[error("view spans {got} periods along a pattern axis, need {need}")]
+    TooFewPeriods {
+        /// Periods (lines) seen.
+        got: usize,
+        /// Periods required, 3(n + 1).
+        need: usize,
+    },
+    /// The line structure does not give a unique orientation.
+    #[error("orientation: {0}")]
+    Orientation(String),
+    /// The code does not give a unique position.
+    #[error("code ambiguous: {0}")]
+    CodeAmbiguous(String),
+}
+
+/// Which way the dots are contrasted.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Polarity {
+    /// Decide per frame from the dot layout (the wrong polarity's "sites" are
+    /// the background points, which show no line structure).
+    #[default]
+    Auto,
+    /// Bright dots on a dark background (the real pattern under bright field).
+    BrightDots,
+    /// Dark dots on a bright background.
+    DarkDots,
+}
+
+/// Decoder options.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DecodeOptions {
+    /// Pattern period p, µm.
+    pub period_um: f64,
+    /// Code depth n of the pattern (4..=12).
+    pub bits: u32,
+    /// The optical path mirrors the image (see module conventions).
+    pub mirrored: bool,
+    /// Dot polarity.
+    pub polarity: Polarity,
+    /// Smallest period accepted, px (below ~3 px the dots alias).
+    pub min_period_px: f64,
+    /// Minimum phase coherence of the fine grid (see [`Grid::coherence`]).
+    pub min_coherence: f64,
+    /// Per-dot stage thresholds.
+    pub thresholds: CoarseThresholds,
+}
+
+impl DecodeOptions {
+    /// Options for a pattern of period `period_um` and code depth `bits`,
+    /// defaults elsewhere.
+    pub fn new(period_um: f64, bits: u32) -> Self {
+        Self {
+            period_um,
+            bits,
+            mirrored: false,
+            polarity: Polarity::Auto,
+            min_period_px: 3.0,
+            min_coherence: 0.5,
+            thresholds: CoarseThresholds::default(),
+        }
+    }
+}
+
+/// Diagnostics of one decode.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Quality {
+    /// Code-correlation margins (bits) along the pattern x and y axes.
+    pub code_margin_bits: [f64; 2],
+    /// Readable code lines along x and y.
+    pub code_bits: [usize; 2],
+    /// Estimated code-bit disagreements of the chosen offsets (soft units).
+    pub code_errors: [f64; 2],
+    /// Orientation template correlation (1 = perfect) and its lead.
+    pub orientation_score: f64,
+    /// Lead of the chosen orientation hypothesis over the runner-up.
+    pub orientation_margin: f64,
+    /// Fine-grid phase coherence (1 = perfect plane waves).
+    pub coherence: f64,
+    /// RMS of fine tile phase residuals, rad.
+    pub phase_rms_rad: f64,
+    /// Mean fundamental amplitude, fraction of full scale.
+    pub amplitude: f64,
+    /// True when the dots were found dark on a bright background.
+    pub dark_dots: bool,
+}
+
+/// An absolute pose of the image centre on the pattern.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Decoded {
+    /// Pattern x of the image centre point, µm.
+    pub x_um: f64,
+    /// Pattern y of the image centre point, µm.
+    pub y_um: f64,
+    /// Angle from image +x to pattern +x, towards image +y, rad, (−π, π].
+    pub theta_rad: f64,
+    /// Pixel size on the pattern, µm (mean of both axes).
+    pub pixel_um: f64,
+    /// Smaller code margin in bits (see the module docs).
+    pub quality: f64,
+    /// Detailed diagnostics.
+    pub details: Quality,
+    /// The fine grid used (image coordinates).
+    pub grid: Grid,
+    /// True when this result came from the tracking path.
+    pub tracked: bool,
+}
+
+/// A reusable decoder: FFT plans and all buffers survive across frames, so a
+/// warm decoder does not allocate per frame (for frames of a fixed size).
+#[derive(Debug)]
+pub struct Decoder {
+    opts: DecodeOptions,
+    seq: LineSequence,
+    fine: fine::FineStage,
+    coarse: coarse::CoarseStage,
+    last: Option<Grid>,
+}
+
+impl Decoder {
+    /// Builds a decoder, checking the options.
+    pub fn new(opts: DecodeOptions) -> Result<Self, DecodeError> {
+        let seq = LineSequence::new(opts.bits)?;
+        if !(opts.period_um.is_finite() && opts.period_um > 0.0) {
+            return Err(DecodeError::Options(format!(
+                "period_um must be > 0, got {}",
+                opts.period_um
+            )));
+        }
+        if !(opts.min_period_px.is_finite() && opts.min_period_px >= 2.0) {
+            return Err(DecodeError::Options(format!(
+                "min_period_px must be >= 2 (Nyquist), got {}",
+                opts.min_period_px
+            )));
+        }
+        Ok(Self {
+            opts,
+            seq,
+            fine: fine::FineStage::new(),
+            coarse: coarse::CoarseStage::default(),
+            last: None,
+        })
+    }
+
+    /// The options in use.
+    pub fn options(&self) -> &DecodeOptions {
+        &self.opts
+    }
+
+    /// Cold full-frame stage: FFT peak search, then demodulation and plane
+    /// fit. Public so the stages can be benchmarked separately.
+    pub fn fine_stage(&mut self, frame: &Frame) -> Result<Grid, DecodeError> {
+        let (w, h) = (frame.width(), frame.height());
+        let need = self.seq.min_periods_in_view() as f64;
+        let max_period = (w.min(h) as f64 / need).max(self.opts.min_period_px * 1.01);
+        let k0 = self
+            .fine
+            .peak_search(frame, self.opts.min_period_px, max_period)?;
+        let g = self.fine.refine(frame, k0, 3)?;
+        self.check_grid(&g)?;
+        Ok(g)
+    }
+
+    fn check_grid(&self, g: &Grid) -> Result<(), DecodeError> {
+        let ka = g.k[0][0].hypot(g.k[0][1]);
+        let kb = g.k[1][0].hypot(g.k[1][1]);
+        let ratio = ka / kb;
+        if !(0.9..=1.1).contains(&ratio) {
+            return Err(DecodeError::NoGrid(format!(
+                "the two grid periods differ by a factor {ratio:.3}"
+            )));
+        }
+        let cos = (g.k[0][0] * g.k[1][0] + g.k[0][1] * g.k[1][1]) / (ka * kb);
+        if cos.abs() > 0.1 {
+            return Err(DecodeError::NoGrid(format!(
+                "grid directions are {:.1}° apart, not 90°",
+                cos.acos().to_degrees()
+            )));
+        }
+        let period = std::f64::consts::TAU / ka.max(kb);
+        if !(period >= self.opts.min_period_px) {
+            return Err(DecodeError::NoGrid(format!(
+                "period {period:.2} px is below the minimum {:.2} px",
+                self.opts.min_period_px
+            )));
+        }
+        if !(g.coherence >= self.opts.min_coherence) {
+            return Err(DecodeError::NoGrid(format!(
+                "grid phase incoherent across the frame ({:.2} < {:.2})",
+                g.coherence, self.opts.min_coherence
+            )));
+        }
+        Ok(())
+    }
+
+    /// Per-dot stage on a fine grid: polarity, orientation, code position,
+    /// and the final pose.
+    pub fn dot_stage(&mut self, frame: &Frame, grid: &Grid) -> Result<Decoded, DecodeError> {
+        let polarity = match self.opts.polarity {
+            Polarity::Auto => None,
+            Polarity::BrightDots => Some(false),
+            Polarity::DarkDots => Some(true),
+        };
+        let fix = self
+            .coarse
+            .run(frame, grid, &self.seq, polarity, &self.opts.thresholds)?;
+        let tau = std::f64::consts::TAU;
+        let mut line_c = [0.0; 2];
+        for d in 0..2 {
+            let phi = if fix.dark_dots {
+                grid.phi[d] - std::f64::consts::PI
+            } else {
+                grid.phi[d]
+            };
+            line_c[d] = fix.origin[d] as f64 + fix.sigma[d] as f64 * phi / tau;
+        }
+        let mirrored = self.opts.mirrored;
+        let x_is_a = (fix.sigma[0] == fix.sigma[1]) ^ mirrored;
+        let (xa, ya) = if x_is_a { (0, 1) } else { (1, 0) };
+        let p = self.opts.period_um;
+        let kx = [
+            fix.sigma[xa] as f64 * grid.k[xa][0],
+            fix.sigma[xa] as f64 * grid.k[xa][1],
+        ];
+        let ky = [
+            fix.sigma[ya] as f64 * grid.k[ya][0],
+            fix.sigma[ya] as f64 * grid.k[ya][1],
+        ];
+        let (t1, t2) = if mirrored {
+            (f64::atan2(-kx[1], kx[0]), f64::atan2(-ky[0], -ky[1]))
+        } else {
+            (f64::atan2(kx[1], kx[0]), f64::atan2(-ky[0], ky[1]))
+        };
+        let theta = f64::atan2(t1.sin() + t2.sin(), t1.cos() + t2.cos());
+        let pixel_um = p * (kx[0].hypot(kx[1]) + ky[0].hypot(ky[1])) / (2.0 * tau);
+        let m = [fix.code_margin_bits[xa], fix.code_margin_bits[ya]];
+        let out = Decoded {
+            x_um: p * line_c[xa],
+            y_um: p * line_c[ya],
+            theta_rad: theta,
+            pixel_um,
+            quality: m[0].min(m[1]),
+            details: Quality {
+                code_margin_bits: m,
+                code_bits: [fix.code_bits[xa], fix.code_bits[ya]],
+                code_errors: [fix.code_errors[xa], fix.code_errors[ya]],
+                orientation_score: fix.orientation_score,
+                orientation_margin: fix.orientation_margin,
+                coherence: grid.coherence,
+                phase_rms_rad: grid.phase_rms_rad,
+                amplitude: 0.5 * (grid.amplitude[0] + grid.amplitude[1]),
+                dark_dots: fix.dark_dots,
+            },
+            grid: *grid,
+            tracked: false,
+        };
+        if ![out.x_um, out.y_um, out.theta_rad, out.pixel_um]
+            .iter()
+            .all(|v| v.is_finite())
+        {
+            return Err(DecodeError::NoGrid("non-finite pose".into()));
+        }
+        Ok(out)
+    }
+
+    /// Decodes a frame from scratch (peak search included).
+    pub fn decode(&mut self, frame: &Frame) -> Result<Decoded, DecodeError> {
+        self.last = None;
+        let g = self.fine_stage(frame)?;
+        let d = self.dot_stage(frame, &g)?;
+        self.last = Some(d.grid);
+        Ok(d)
+    }
+
+    /// Decodes a frame of a stream: reuses the previous frame's grid
+    /// frequencies (no peak search) and falls back to [`Decoder::decode`]
+    /// when there is no previous grid or tracking fails.
+    pub fn track(&mut self, frame: &Frame) -> Result<Decoded, DecodeError> {
+        if let Some(last) = self.last {
+            let tracked = self
+                .fine
+                .refine(frame, last.k, 2)
+                .and_then(|g| {
+                    self.check_grid(&g)?;
+                    if g.amplitude[0] < 0.5 * last.amplitude[0]
+                        || g.amplitude[1] < 0.5 * last.amplitude[1]
+                    {
+                        return Err(DecodeError::NoGrid("grid amplitude collapsed".into()));
+                    }
+                    Ok(g)
+                })
+                .and_then(|g| self.dot_stage(frame, &g));
+            if let Ok(mut d) = tracked {
+                d.tracked = true;
+                self.last = Some(d.grid);
+                return Ok(d);
+            }
+        }
+        self.decode(frame)
+    }
+}
