@@ -175,13 +175,37 @@ pub fn parse_term_config<C: DeserializeOwned>(
     kind: &str,
     table: toml::Table,
 ) -> Result<C, ModelError> {
-    toml::Value::Table(table)
-        .try_into()
-        .map_err(|e: toml::de::Error| ModelError::Term {
+    // Going through text (rather than `Value::try_into`) keeps the span of a
+    // bad value, so the message can quote the offending `key = value`.
+    let text = toml::to_string(&table).map_err(|e| ModelError::Serialize {
+        what: format!("term `{name}`"),
+        message: e.to_string(),
+    })?;
+    toml::from_str(&text).map_err(|e: toml::de::Error| {
+        let at = e
+            .span()
+            .and_then(|s| {
+                let start = text.get(..s.start)?.rfind('\n').map_or(0, |i| i + 1);
+                let end = text
+                    .get(s.start..)?
+                    .find('\n')
+                    .map_or(text.len(), |i| s.start + i);
+                text.get(start..end)
+            })
+            .map(str::trim)
+            .filter(|l| !l.is_empty());
+        let message = e.message().trim().to_string();
+        // A missing field has the whole table as its span: no line to quote.
+        let at = at.filter(|_| !message.starts_with("missing field"));
+        ModelError::Term {
             term: name.to_string(),
             kind: kind.to_string(),
-            message: e.message().trim().to_string(),
-        })
+            message: match at {
+                Some(line) => format!("at `{line}`: {message}"),
+                None => message,
+            },
+        }
+    })
 }
 
 /// Serializes a term's config struct into its model-file table.
