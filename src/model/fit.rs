@@ -79,7 +79,11 @@ pub struct FittedParam {
     /// Fitted value (the initial one when unidentifiable).
     pub value: f64,
     /// 1-σ standard error from the residual scatter, in the parameter's
-    /// unit; `None` when unidentifiable or without redundancy.
+    /// unit; `None` when unidentifiable or without redundancy. It assumes
+    /// independent residuals: common-mode errors (the settling error a static
+    /// axis keeps during a whole line, slow thermal drift) make it
+    /// optimistic, by 10× or more for slopes such as lead error or
+    /// squareness on line-by-line characterization data.
     pub std_error: Option<f64>,
     /// False when the data cannot determine it (see the module docs).
     pub identifiable: bool,
