@@ -220,10 +220,10 @@ fn solve(
         });
     }
     let mut scale = vec![1.0; k];
-    for c in 0..k {
+    for (c, sc) in scale.iter_mut().enumerate() {
         let n = j.column(c).norm();
         if n > 0.0 {
-            scale[c] = n;
+            *sc = n;
             j.column_mut(c).scale_mut(1.0 / n);
         }
     }
