@@ -3,7 +3,8 @@
 use micropos::model::terms::{play_offset_um, PlayOperator};
 use micropos::model::{
     AxisMotion, Direction, FitOptions, MotionState, MotionTracker, Sample, StageModel,
-    StageSimulator, Stochastic, Waypoint, PAPER_DEFAULT_TOML,
+    StageSimulator, Stochastic, Waypoint, MAX_PARAM_MAGNITUDE, MAX_POSITION_UM, MAX_TEMP_C,
+    PAPER_DEFAULT_TOML,
 };
 use proptest::prelude::*;
 
@@ -17,7 +18,7 @@ fn direction() -> impl Strategy<Value = Direction> {
 
 fn axis_motion() -> impl Strategy<Value = AxisMotion> {
     (
-        -1e7..1e7f64,
+        -MAX_POSITION_UM..MAX_POSITION_UM,
         direction(),
         0.0..1e6f64,
         proptest::option::of(0.0..1e6f64),
@@ -35,7 +36,7 @@ fn state() -> impl Strategy<Value = MotionState> {
         axis_motion(),
         axis_motion(),
         0.0..1e6f64,
-        -50.0..100.0f64,
+        -273.15..MAX_TEMP_C,
         0u32..100,
     )
         .prop_map(|(x, y, time_s, temp_c, cycle)| MotionState {
@@ -108,6 +109,30 @@ proptest! {
         for d in m.jacobian(&s) {
             prop_assert!(d[0].is_finite() && d[1].is_finite());
         }
+    }
+
+    /// Even with every parameter at an absurd but allowed magnitude, every
+    /// valid state gives finite contributions.
+    #[test]
+    fn extreme_parameters_stay_finite(
+        s in state(),
+        scale in prop_oneof![Just(MAX_PARAM_MAGNITUDE), Just(-MAX_PARAM_MAGNITUDE), Just(1.0)],
+        seed in any::<u64>(),
+    ) {
+        let mut m = StageModel::paper_default().unwrap();
+        let n = m.param_count();
+        let v: Vec<f64> = (0..n)
+            .map(|i| if (seed >> (i % 64)) & 1 == 1 { scale } else { -scale })
+            .collect();
+        m.set_parameter_vector(&v).unwrap();
+        let o = m.observed_position(&s);
+        prop_assert!(o.x_um.is_finite() && o.y_um.is_finite());
+        for d in m.jacobian(&s) {
+            prop_assert!(d[0].is_finite() && d[1].is_finite());
+        }
+        let mut too_big = v.clone();
+        too_big[seed as usize % n] = 2.0 * MAX_PARAM_MAGNITUDE;
+        prop_assert!(m.set_parameter_vector(&too_big).is_err());
     }
 
     /// The simulator accepts any finite sequence without panicking and

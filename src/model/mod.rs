@@ -46,8 +46,9 @@ pub use fit::{FitOptions, FitReport, FittedParam, Sample};
 pub use sim::{SimStep, StageSimulator};
 pub use state::{
     Axis, AxisMotion, Direction, MotionState, MotionTracker, Waypoint, DEFAULT_TEMP_C,
+    MAX_POSITION_UM, MAX_TEMP_C,
 };
-pub use term::{Effect, ParamInfo, Term, TermBuilder, TermRegistry};
+pub use term::{Effect, ParamInfo, Term, TermBuilder, TermRegistry, MAX_PARAM_MAGNITUDE};
 
 /// The documented default model file (PI M-111.1DG stack of the paper).
 pub const PAPER_DEFAULT_TOML: &str = include_str!("../../config/stage-model.toml");

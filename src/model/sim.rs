@@ -136,7 +136,7 @@ impl StageSimulator {
             }
         }
         self.last_commanded = XyUm { x_um, y_um };
-        Ok(self.evaluate(state, moved))
+        checked(self.evaluate(state, moved))
     }
 
     /// Lets time pass without motion (the room drifts, the platform and the
@@ -149,7 +149,7 @@ impl StageSimulator {
         }
         let temp_c = self.model.environment().temperature_at(time_s);
         let state = self.tracker.wait(time_s, temp_c)?;
-        Ok(self.evaluate(state, [false; 2]))
+        checked(self.evaluate(state, [false; 2]))
     }
 
     /// The current step again (no motion, no time).
@@ -174,6 +174,25 @@ impl StageSimulator {
             observed_um: o.into(),
             settling_um: self.settling_um,
         }
+    }
+}
+
+/// A model with valid parameters and a valid state is finite; this keeps a
+/// NaN from ever reaching a simulated controller or camera if that is ever
+/// broken (e.g. by a term registered from outside).
+fn checked(step: SimStep) -> Result<SimStep, ModelError> {
+    let v = [
+        step.true_um.x_um,
+        step.true_um.y_um,
+        step.observed_um.x_um,
+        step.observed_um.y_um,
+    ];
+    if v.iter().all(|x| x.is_finite()) {
+        Ok(step)
+    } else {
+        Err(ModelError::NonFinite {
+            what: "simulated position (a model term returned a non-finite value)".into(),
+        })
     }
 }
 

@@ -135,6 +135,15 @@ impl AxisMotion {
                 what: what("cmd_um"),
             });
         }
+        if self.cmd_um.abs() > MAX_POSITION_UM {
+            return Err(ModelError::Invalid {
+                key: what("cmd_um"),
+                reason: format!(
+                    "{} µm is beyond any stage (limit ±{MAX_POSITION_UM:e} µm)",
+                    self.cmd_um
+                ),
+            });
+        }
         if self.run_um.is_nan() || self.run_um < 0.0 {
             return Err(ModelError::NonFinite {
                 what: format!("{} (must be ≥ 0)", what("run_um")),
@@ -165,6 +174,13 @@ pub struct MotionState {
     /// Characterization cycle number (0-based), for grouping in analyses.
     pub cycle: u32,
 }
+
+/// Largest commanded position magnitude a valid state may have, µm (1 km:
+/// far beyond any stage, small enough that every term stays finite).
+pub const MAX_POSITION_UM: f64 = 1e9;
+
+/// Highest temperature a valid state may have, °C.
+pub const MAX_TEMP_C: f64 = 1e4;
 
 /// The temperature a [`MotionState`] gets when nothing else is known, °C. The
 /// thermal terms of the default model use it as their reference, so a state
@@ -212,8 +228,10 @@ impl MotionState {
         [self.axes[0].cmd_um, self.axes[1].cmd_um]
     }
 
-    /// Rejects states a term could turn into NaN: non-finite positions,
-    /// temperatures or times, negative run lengths.
+    /// Rejects states a term could turn into NaN or infinity: non-finite
+    /// positions, temperatures or times, positions beyond
+    /// [`MAX_POSITION_UM`], temperatures outside −273.15..=[`MAX_TEMP_C`],
+    /// negative run lengths.
     pub fn validate(&self) -> Result<(), ModelError> {
         for axis in Axis::ALL {
             self.axis(axis).validate(axis)?;
@@ -226,6 +244,12 @@ impl MotionState {
         if !self.temp_c.is_finite() {
             return Err(ModelError::NonFinite {
                 what: "motion state temp_c".into(),
+            });
+        }
+        if !(-273.15..=MAX_TEMP_C).contains(&self.temp_c) {
+            return Err(ModelError::Invalid {
+                key: "motion state temp_c".into(),
+                reason: format!("{} °C is outside -273.15..={MAX_TEMP_C} °C", self.temp_c),
             });
         }
         Ok(())

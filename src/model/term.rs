@@ -150,8 +150,8 @@ pub fn numeric_jacobian<T: Term + ?Sized>(term: &T, state: &MotionState) -> Vec<
     out
 }
 
-/// Checks a `set_params` argument: right count, all finite. Terms call it
-/// first thing.
+/// Checks a `set_params` argument: right count, all finite and within
+/// [`MAX_PARAM_MAGNITUDE`]. Terms call it first thing.
 pub fn check_param_values(term: &str, expected: usize, values: &[f64]) -> Result<(), ModelError> {
     if values.len() != expected {
         return Err(ModelError::ParamCount {
@@ -165,8 +165,24 @@ pub fn check_param_values(term: &str, expected: usize, values: &[f64]) -> Result
             what: format!("parameter {i} of term `{term}`"),
         });
     }
+    if let Some(i) = values.iter().position(|v| v.abs() > MAX_PARAM_MAGNITUDE) {
+        return Err(ModelError::Invalid {
+            key: format!("parameter {i} of term `{term}`"),
+            reason: format!(
+                "{} is implausibly large (limit ±{MAX_PARAM_MAGNITUDE:e})",
+                values[i]
+            ),
+        });
+    }
     Ok(())
 }
+
+/// Largest magnitude any term parameter or config number may have, in its
+/// own unit. Far beyond anything physical (1e12 µm is 1000 km), it keeps
+/// every contribution finite for states within [`MAX_POSITION_UM`].
+///
+/// [`MAX_POSITION_UM`]: super::state::MAX_POSITION_UM
+pub const MAX_PARAM_MAGNITUDE: f64 = 1e12;
 
 /// Deserializes a term's table into its config struct, turning serde's
 /// message (which names the offending key) into a [`ModelError::Term`].
@@ -219,13 +235,18 @@ pub fn config_table<C: Serialize>(name: &str, config: &C) -> Result<toml::Table,
 /// Validation helper: `value` must be finite. `key` names the offending key
 /// in the error (e.g. `forward_sin_um[1]`).
 pub fn require_finite(term: &str, key: &str, value: f64) -> Result<f64, ModelError> {
-    if value.is_finite() {
-        Ok(value)
-    } else {
+    if !value.is_finite() {
         Err(ModelError::Invalid {
             key: format!("term `{term}`: {key}"),
             reason: format!("must be a finite number, got {value}"),
         })
+    } else if value.abs() > MAX_PARAM_MAGNITUDE {
+        Err(ModelError::Invalid {
+            key: format!("term `{term}`: {key}"),
+            reason: format!("{value} is implausibly large (limit ±{MAX_PARAM_MAGNITUDE:e})"),
+        })
+    } else {
+        Ok(value)
     }
 }
 
