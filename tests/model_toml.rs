@@ -126,3 +126,10 @@ fn minimal_file_defaults_to_an_ideal_stage() {
     let text = m.to_toml().unwrap();
     assert!(StageModel::from_toml(&text).is_ok());
 }
+
+#[test]
+fn written_file_is_readable() {
+    let text = StageModel::paper_default().unwrap().to_toml().unwrap();
+    println!("{text}");
+    assert!(text.contains("[[term]]") && text.contains("kind = \"backlash\""));
+}
