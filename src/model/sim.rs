@@ -22,7 +22,7 @@ use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, StandardNormal};
 use serde::{Deserialize, Serialize};
 
-use super::state::{MotionState, MotionTracker, Waypoint};
+use super::state::{Axis, MotionState, MotionTracker, Waypoint};
 use super::{ModelError, StageModel, XyUm};
 
 /// The outcome of one simulator step.
@@ -139,6 +139,53 @@ impl StageSimulator {
         checked(self.evaluate(state, moved))
     }
 
+    /// Commands one axis only (each C-863 moves its own axis); the other
+    /// stays where its servo is.
+    pub fn move_axis(
+        &mut self,
+        axis: Axis,
+        target_um: f64,
+        time_s: f64,
+        cycle: u32,
+    ) -> Result<SimStep, ModelError> {
+        let mut t = self.tracker.state().cmd_xy_um();
+        t[axis.index()] = target_um;
+        let keep = self.last_commanded;
+        let step = self.move_to(t[0], t[1], time_s, cycle);
+        // Remember what was asked of the other axis too, not its servo
+        // position.
+        if step.is_ok() {
+            match axis {
+                Axis::X => self.last_commanded.y_um = keep.y_um,
+                Axis::Y => self.last_commanded.x_um = keep.x_um,
+            }
+        }
+        step.map(|mut s| {
+            s.commanded = self.last_commanded;
+            s
+        })
+    }
+
+    /// Where the platform would be with the screws at `(x_um, y_um)` at
+    /// `time_s`, without committing anything: no history change, no new
+    /// settling draw (the current one is kept). For rendering the camera
+    /// while the stage is still travelling.
+    pub fn preview(&self, x_um: f64, y_um: f64, time_s: f64) -> Result<SimStep, ModelError> {
+        let mut tracker = self.tracker.clone();
+        let temp_c = self.model.environment().temperature_at(time_s);
+        let cycle = tracker.state().cycle;
+        let state = tracker.step(Waypoint {
+            x_um,
+            y_um,
+            time_s,
+            temp_c,
+            cycle,
+        })?;
+        let mut step = checked(self.evaluate(state, [false; 2]))?;
+        step.commanded = XyUm { x_um, y_um };
+        Ok(step)
+    }
+
     /// Lets time pass without motion (the room drifts, the platform and the
     /// view follow the thermal terms).
     pub fn wait(&mut self, time_s: f64) -> Result<SimStep, ModelError> {
@@ -201,7 +248,6 @@ mod tests {
     use super::*;
     use crate::model::file::Stochastic;
     use crate::model::terms::{BacklashConfig, BacklashTerm};
-    use crate::model::Axis;
 
     fn backlash_only(min_inc: f64, sigma: f64) -> StageModel {
         let mut m = StageModel::ideal();
@@ -253,6 +299,30 @@ mod tests {
         assert_eq!(c.moved, [true, false]);
         assert_ne!(c.settling_um[0], a.settling_um[0]);
         assert_eq!(c.settling_um[1], a.settling_um[1]);
+    }
+
+    #[test]
+    fn single_axis_moves_and_previews() {
+        let mut s = StageSimulator::new(backlash_only(0.0, 0.0), MotionState::at_rest(0.0, 0.0), 1)
+            .unwrap();
+        s.move_to(100.0, 20.0, 1.0, 0).unwrap();
+        let a = s.move_axis(Axis::Y, 50.0, 2.0, 0).unwrap();
+        assert_eq!(a.moved, [false, true]);
+        assert_eq!(a.state.cmd_xy_um(), [100.0, 50.0]);
+        assert_eq!(
+            a.commanded,
+            XyUm {
+                x_um: 100.0,
+                y_um: 50.0
+            }
+        );
+        // Mid-travel back to 98 µm: 2 µm into the play, the platform has
+        // not moved yet; the preview commits nothing.
+        let before = *s.state();
+        let p = s.preview(98.0, 50.0, 2.5).unwrap();
+        assert_eq!(p.true_um.x_um, 99.0);
+        assert_eq!(*s.state(), before);
+        assert!(s.move_axis(Axis::X, f64::NAN, 3.0, 0).is_err());
     }
 
     #[test]
