@@ -133,3 +133,10 @@ fn written_file_is_readable() {
     println!("{text}");
     assert!(text.contains("[[term]]") && text.contains("kind = \"backlash\""));
 }
+
+#[test]
+fn describe_default() {
+    let d = StageModel::paper_default().unwrap().describe();
+    println!("{d}");
+    assert!(d.lines().count() > 80);
+}

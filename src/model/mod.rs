@@ -322,6 +322,53 @@ impl StageModel {
         out
     }
 
+    /// A human-readable listing: every term with its kind and effect, every
+    /// parameter with value, unit and meaning. For `micropos model show`
+    /// and reports, so a user can see every number the model uses.
+    pub fn describe(&self) -> String {
+        use std::fmt::Write;
+        let mut out = String::new();
+        let _ = writeln!(out, "stage model: {}", self.description);
+        let s = &self.stochastic;
+        let _ = writeln!(
+            out,
+            "  settling σ [x, y] = [{}, {}] µm; minimum incremental motion {} µm; position quantum {} µm",
+            s.repeatability_sigma_um[0],
+            s.repeatability_sigma_um[1],
+            s.min_incremental_motion_um,
+            s.position_quantum_um
+        );
+        let temps: Vec<String> = self
+            .environment
+            .temperature
+            .iter()
+            .map(|p| format!("{} s: {} °C", p.time_s, p.temp_c))
+            .collect();
+        let _ = writeln!(
+            out,
+            "  temperature ({}): {}",
+            match self.environment.temperature_interpolation {
+                Interpolation::Linear => "linear",
+                Interpolation::Smooth => "smooth",
+            },
+            temps.join(", ")
+        );
+        for t in &self.terms {
+            let _ = writeln!(out, "{} ({}, {:?})", t.name(), t.kind(), t.effect());
+            for p in t.params() {
+                let _ = writeln!(
+                    out,
+                    "  {:<28} {:>14} {:<9} {}",
+                    p.name,
+                    format!("{}", p.value),
+                    p.unit,
+                    p.doc
+                );
+            }
+        }
+        out
+    }
+
     /// Number of parameters.
     pub fn param_count(&self) -> usize {
         self.terms.iter().map(|t| t.params().len()).sum()
@@ -466,6 +513,17 @@ mod tests {
         assert_eq!(back.stochastic(), m.stochastic());
         assert_eq!(back.environment(), m.environment());
         assert_eq!(back.to_toml().unwrap(), text);
+    }
+
+    #[test]
+    fn describe_lists_every_parameter() {
+        let m = StageModel::paper_default().unwrap();
+        let d = m.describe();
+        for p in m.params() {
+            assert!(d.contains(&p.info.name), "{}", p.full_name);
+        }
+        assert!(d.contains("x_backlash (backlash, Platform)"));
+        assert!(d.contains("optics_thermal (optics_drift, Observation)"));
     }
 
     #[test]

@@ -177,8 +177,8 @@ impl Term for CyclicTerm {
                         "µm",
                         values[i],
                         format!(
-                            "{f} amplitude of harmonic {k} (period {:.6} µm of {axis}) of the {comp} error after {dir} motion of {axis}",
-                            self.cfg.period_um / k as f64
+                            "{f} amplitude of harmonic {k} (period {} µm of {axis}) of the {comp} error after {dir} motion of {axis}",
+                            short(self.cfg.period_um / k as f64)
                         ),
                     ));
                     i += 1;
@@ -235,6 +235,13 @@ impl Term for CyclicTerm {
     fn clone_box(&self) -> Box<dyn Term> {
         Box::new(self.clone())
     }
+}
+
+/// `133.333`, `400`: three decimals at most, no trailing zeros.
+fn short(v: f64) -> String {
+    let s = format!("{v:.3}");
+    let s = s.trim_end_matches('0').trim_end_matches('.');
+    s.to_string()
 }
 
 pub(crate) fn build_leadscrew(name: &str, table: toml::Table) -> Result<Box<dyn Term>, ModelError> {
