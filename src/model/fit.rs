@@ -1,9 +1,10 @@
 //! Least-squares fit of a [`StageModel`]'s parameters to measurements.
 //!
 //! Residual per sample: `measured − (cmd + Σ all contributions)` (x and y).
-//! The solver is Gauss–Newton with step halving; when every free parameter
-//! belongs to a linear term ([`Term::is_linear`]) the first step is the exact
-//! linear least-squares solution and the fit stops there.
+//! The solver is Levenberg–Marquardt (Gauss–Newton first, damped only when
+//! a step does not lower the cost); when every free parameter belongs to a
+//! linear term ([`Term::is_linear`]) the first step is the exact linear
+//! least-squares solution and the fit stops there.
 //!
 //! Each step solves the column-scaled jacobian (columns to unit norm, so µm,
 //! ppm and µrad parameters are comparable) through QR then an SVD of `R`,
@@ -40,7 +41,7 @@ pub struct FitOptions {
     /// `*`). Empty means all. A pattern that matches nothing is an error (a
     /// typo would otherwise silently fix a parameter).
     pub free: Vec<String>,
-    /// Gauss–Newton iteration limit.
+    /// Iteration limit (each iteration: one jacobian, one decomposition).
     pub max_iterations: usize,
     /// Singular values below this fraction of the largest (of the
     /// column-scaled jacobian) are treated as zero.
@@ -108,7 +109,7 @@ pub struct FitReport {
     /// Full names of parameters the data cannot identify (kept at their
     /// initial values).
     pub unidentifiable: Vec<String>,
-    /// Gauss–Newton iterations run.
+    /// Iterations run.
     pub iterations: usize,
     /// True when the last step no longer changed the solution (always true
     /// for a linear fit).
@@ -182,28 +183,65 @@ fn cost(r: &[f64]) -> f64 {
     r.iter().map(|v| v * v).sum()
 }
 
-/// The solved linearized problem at one point.
-struct Solve {
-    /// Step in parameter units, free order.
-    step: Vec<f64>,
-    /// Column scales.
+/// The linearized problem at one point, decomposed once so that steps for
+/// any damping come cheap.
+struct Linearized {
+    /// Column scales (norms of the jacobian columns; 1 for zero columns).
     scale: Vec<f64>,
     /// Singular values of the scaled jacobian.
     sv: Vec<f64>,
+    /// `uᵢᵀ·Qᵀr` per singular value.
+    proj: Vec<f64>,
     /// Right singular vectors: `v[(param, k)]`.
     v: DMatrix<f64>,
-    /// Kept singular value mask.
+    /// Singular values above the rank tolerance.
     kept: Vec<bool>,
 }
 
-fn solve(
+impl Linearized {
+    /// Levenberg–Marquardt step in parameter units (free order) for damping
+    /// `lambda` (0 = Gauss–Newton): `Σ vᵢ·sᵢ/(sᵢ² + λ)·projᵢ` over kept
+    /// singular values, unscaled. Minimal-norm: directions the data cannot
+    /// see get no update.
+    fn step(&self, lambda: f64) -> (Vec<f64>, f64) {
+        let k = self.scale.len();
+        let mut scaled = vec![0.0; k];
+        for (i, keep) in self.kept.iter().enumerate() {
+            if *keep {
+                let coef = self.sv[i] / (self.sv[i] * self.sv[i] + lambda) * self.proj[i];
+                for (c, x) in scaled.iter_mut().enumerate() {
+                    *x += self.v[(c, i)] * coef;
+                }
+            }
+        }
+        let norm = scaled.iter().map(|x| x * x).sum::<f64>().sqrt();
+        (
+            scaled.iter().zip(&self.scale).map(|(x, s)| x / s).collect(),
+            norm,
+        )
+    }
+
+    fn smax(&self) -> f64 {
+        self.sv.iter().copied().fold(0.0, f64::max)
+    }
+}
+
+/// A jacobian column with a smaller norm (µm per parameter unit, over all
+/// samples) carries no information: the parameter is unidentifiable there.
+/// Every physical sensitivity in this model is orders of magnitude larger;
+/// rounding noise of sin/cos at multiples of π is orders smaller.
+const MIN_SENSITIVITY: f64 = 1e-12;
+
+fn linearize(
     model: &StageModel,
     samples: &[Sample],
     free: &[usize],
     r: &[f64],
     rank_tolerance: f64,
-) -> Result<Solve, ModelError> {
+) -> Result<Linearized, ModelError> {
     let k = free.len();
+    // At least as many rows as columns (zero rows change nothing) so the QR
+    // below is of a tall matrix.
     let m = (2 * samples.len()).max(k);
     let mut j = DMatrix::<f64>::zeros(m, k);
     for (i, s) in samples.iter().enumerate() {
@@ -222,9 +260,13 @@ fn solve(
     let mut scale = vec![1.0; k];
     for (c, sc) in scale.iter_mut().enumerate() {
         let n = j.column(c).norm();
-        if n > 0.0 {
+        if n > MIN_SENSITIVITY {
             *sc = n;
             j.column_mut(c).scale_mut(1.0 / n);
+        } else {
+            // Rounding noise (sin(5π) = 6e-16), not information: scaling it
+            // to unit norm would turn it into a huge step.
+            j.column_mut(c).fill(0.0);
         }
     }
     let mut rhs = DVector::<f64>::zeros(m);
@@ -251,20 +293,12 @@ fn solve(
         .iter()
         .map(|s| smax > 0.0 && *s > rank_tolerance * smax)
         .collect();
-    let v = vt.transpose();
-    let mut step_scaled = DVector::<f64>::zeros(k);
-    for (i, keep) in kept.iter().enumerate() {
-        if *keep {
-            let coef = u.column(i).dot(&qtb) / sv[i];
-            step_scaled += v.column(i) * coef;
-        }
-    }
-    let step = (0..k).map(|c| step_scaled[c] / scale[c]).collect();
-    Ok(Solve {
-        step,
+    let proj = (0..sv.len()).map(|i| u.column(i).dot(&qtb)).collect();
+    Ok(Linearized {
         scale,
         sv,
-        v,
+        proj,
+        v: vt.transpose(),
         kept,
     })
 }
@@ -312,22 +346,19 @@ pub fn fit(
     let mut c = cost(&r);
     let mut iterations = 0;
     let mut converged = false;
+    // Levenberg–Marquardt damping, relative to s_max² of the scaled
+    // jacobian; 0 = pure Gauss–Newton, tried first.
+    let mut damping = 0.0;
     while iterations < options.max_iterations {
         iterations += 1;
-        let s = solve(&work, samples, &free, &r, options.rank_tolerance)?;
-        let step_norm: f64 = s
-            .step
-            .iter()
-            .zip(&s.scale)
-            .map(|(d, sc)| (d * sc).powi(2))
-            .sum::<f64>()
-            .sqrt();
-        let mut alpha = 1.0;
+        let lin = linearize(&work, samples, &free, &r, options.rank_tolerance)?;
+        let smax2 = lin.smax().powi(2);
         let mut accepted = false;
-        for _ in 0..30 {
+        for _ in 0..40 {
+            let (step, step_norm) = lin.step(damping * smax2);
             let mut trial = p.clone();
-            for (d, &i) in s.step.iter().zip(&free) {
-                trial[i] += alpha * d;
+            for (d, &i) in step.iter().zip(&free) {
+                trial[i] += d;
             }
             if work.set_parameter_vector(&trial).is_ok() {
                 let rt = residuals(&work, samples);
@@ -338,16 +369,20 @@ pub fn fit(
                     r = rt;
                     c = ct;
                     accepted = true;
-                    if linear || rel < 1e-14 || step_norm * alpha < 1e-12 {
+                    if linear || rel < 1e-14 || step_norm < 1e-12 {
                         converged = true;
                     }
+                    damping = if damping > 1e-12 { damping / 10.0 } else { 0.0 };
                     break;
                 }
             }
-            alpha *= 0.5;
+            damping = if damping == 0.0 { 1e-6 } else { damping * 10.0 };
+            if damping > 1e12 {
+                break;
+            }
         }
         if !accepted {
-            // No step lowers the cost: we are at the (local) minimum.
+            // No damping lowers the cost: we are at the (local) minimum.
             work.set_parameter_vector(&p)?;
             converged = true;
         }
@@ -357,7 +392,7 @@ pub fn fit(
     }
 
     // Report at the solution.
-    let s = solve(&work, samples, &free, &r, options.rank_tolerance)?;
+    let s = linearize(&work, samples, &free, &r, options.rank_tolerance)?;
     let smax = s.sv.iter().copied().fold(0.0, f64::max);
     let smin = s.sv.iter().copied().fold(f64::INFINITY, f64::min);
     let rank = s.kept.iter().filter(|k| **k).count();
@@ -422,6 +457,55 @@ mod tests {
         assert!(glob("a.b", "a.b"));
         assert!(!glob("a.b", "a.bc"));
         assert!(!glob("a*b*b", "ab"));
+    }
+
+    #[test]
+    fn degenerate_problems_report_instead_of_failing() {
+        // One sample, every parameter free: far more unknowns than data,
+        // bilinear angle × arm pairs among them. No error, nothing blows up,
+        // the sample is matched, the degeneracy is reported.
+        let mut m = StageModel::paper_default().unwrap();
+        let p0 = m.parameter_vector();
+        let s = Sample {
+            state: MotionState::at_rest(1000.0, 2000.0),
+            measured_x_um: 1010.0,
+            measured_y_um: 1995.0,
+        };
+        let r = m.fit(&[s], &FitOptions::default()).unwrap();
+        assert!(r.rank <= 2, "{}", r.rank);
+        let before = r.initial_residual_rms_um[0].hypot(r.initial_residual_rms_um[1]);
+        let after = r.residual_rms_um[0].hypot(r.residual_rms_um[1]);
+        assert!(after <= before * 1e-6, "{before} → {after}");
+        assert!(m.parameter_vector().iter().all(|v| v.is_finite()));
+        assert!(r.unidentifiable.len() >= r.params.len() - 2);
+        // The same sample with only linear terms free is solved exactly
+        // (minimal-norm), in one step.
+        let mut m = StageModel::paper_default().unwrap();
+        let r = m
+            .fit(
+                &[s],
+                &FitOptions::free(["squareness.*", "*_lead.*", "x_cyclic.*"]),
+            )
+            .unwrap();
+        assert!(r.linear && r.iterations == 1);
+        assert!(
+            r.residual_rms_um[0] < 1e-9 && r.residual_rms_um[1] < 1e-9,
+            "{:?}",
+            r.residual_rms_um
+        );
+        // Only thermal terms free at the reference temperature: the jacobian
+        // is exactly zero, nothing can move.
+        let mut m = StageModel::paper_default().unwrap();
+        let r = m
+            .fit(
+                &[s],
+                &FitOptions::free(["stage_thermal.*", "optics_thermal.*"]),
+            )
+            .unwrap();
+        assert_eq!(r.rank, 0);
+        assert_eq!(r.unidentifiable.len(), 6);
+        assert!(r.params.iter().all(|p| p.std_error.is_none()));
+        assert_eq!(m.parameter_vector(), p0);
     }
 
     #[test]
