@@ -51,14 +51,7 @@ fn simulate(truth: &StageModel, seed: u64) -> Vec<Sample> {
     trajectory()
         .iter()
         .enumerate()
-        .map(|(i, p)| {
-            let s = sim.move_to(p.0, p.1, 3.0 * i as f64, 0).unwrap();
-            Sample {
-                state: s.state,
-                measured_x_um: s.observed_um.x_um,
-                measured_y_um: s.observed_um.y_um,
-            }
-        })
+        .map(|(i, p)| Sample::from(&sim.move_to(p.0, p.1, 3.0 * i as f64, 0).unwrap()))
         .collect()
 }
 
@@ -312,25 +305,35 @@ fn backlash_is_recovered_from_short_moves() {
 #[test]
 fn simulator_and_log_replay_build_the_same_states() {
     // One model, one history code: replaying the commanded targets of a
-    // simulated run through MotionTracker gives the simulator's states.
+    // simulated run through MotionTracker (with the stage's minimum
+    // incremental motion) gives the simulator's states, sub-resolution
+    // moves included.
     let truth = StageModel::paper_default().unwrap();
     let start = MotionState::at_rest(7500.0, 7500.0);
     let mut sim = StageSimulator::new(truth.clone(), start, 3).unwrap();
     let mut wps = Vec::new();
     let mut sim_states = Vec::new();
     for (i, p) in trajectory().iter().enumerate().step_by(7) {
-        let t = 3.0 * i as f64;
-        let s = sim.move_to(p.0, p.1, t, 0).unwrap();
-        sim_states.push(s.state);
-        wps.push(Waypoint {
-            x_um: p.0,
-            y_um: p.1,
-            time_s: t,
-            temp_c: truth.environment().temperature_at(t),
-            cycle: 0,
-        });
+        for (k, dx) in [0.0, 0.03, -0.02].into_iter().enumerate() {
+            let t = 3.0 * i as f64 + k as f64;
+            let s = sim.move_to(p.0 + dx, p.1, t, 0).unwrap();
+            sim_states.push(s.state);
+            wps.push(Waypoint {
+                x_um: p.0 + dx,
+                y_um: p.1,
+                time_s: t,
+                temp_c: truth.environment().temperature_at(t),
+                cycle: 0,
+            });
+        }
     }
-    let replay = MotionTracker::states_for(start, &wps).unwrap();
+    let min_move = truth.stochastic().min_incremental_motion_um;
+    let replay = MotionTracker::new(start)
+        .unwrap()
+        .with_min_move(min_move)
+        .unwrap()
+        .replay(&wps)
+        .unwrap();
     assert_eq!(replay, sim_states);
 }
 

@@ -33,6 +33,18 @@ pub struct Sample {
     pub measured_y_um: f64,
 }
 
+impl From<&super::sim::SimStep> for Sample {
+    /// A simulated measurement: the simulator's state and what the camera
+    /// saw (before camera noise).
+    fn from(s: &super::sim::SimStep) -> Self {
+        Sample {
+            state: s.state,
+            measured_x_um: s.observed_um.x_um,
+            measured_y_um: s.observed_um.y_um,
+        }
+    }
+}
+
 /// How to fit.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct FitOptions {

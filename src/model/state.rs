@@ -294,6 +294,7 @@ impl Waypoint {
 #[derive(Debug, Clone, PartialEq)]
 pub struct MotionTracker {
     state: MotionState,
+    min_move_um: f64,
 }
 
 impl MotionTracker {
@@ -301,7 +302,25 @@ impl MotionTracker {
     /// position after `FRF`).
     pub fn new(start: MotionState) -> Result<Self, ModelError> {
         start.validate()?;
-        Ok(MotionTracker { state: start })
+        Ok(MotionTracker {
+            state: start,
+            min_move_um: 0.0,
+        })
+    }
+
+    /// Ignores moves shorter than `min_move_um` (measured from the tracked
+    /// position), as the stage does (its minimum incremental motion): with
+    /// the model's `stochastic.min_incremental_motion_um` a log replay sees
+    /// the same states as the simulator did.
+    pub fn with_min_move(mut self, min_move_um: f64) -> Result<Self, ModelError> {
+        if !(min_move_um.is_finite() && min_move_um >= 0.0) {
+            return Err(ModelError::Invalid {
+                key: "min_move_um".into(),
+                reason: format!("must be a finite number ≥ 0, got {min_move_um}"),
+            });
+        }
+        self.min_move_um = min_move_um;
+        Ok(self)
     }
 
     /// The state after the last waypoint.
@@ -313,8 +332,8 @@ impl MotionTracker {
     /// and leaves the tracker unchanged.
     pub fn step(&mut self, wp: Waypoint) -> Result<MotionState, ModelError> {
         let mut next = self.state;
-        advance(&mut next.axes[0], wp.x_um);
-        advance(&mut next.axes[1], wp.y_um);
+        advance(&mut next.axes[0], wp.x_um, self.min_move_um);
+        advance(&mut next.axes[1], wp.y_um, self.min_move_um);
         next.time_s = wp.time_s;
         next.temp_c = wp.temp_c;
         next.cycle = wp.cycle;
@@ -334,21 +353,30 @@ impl MotionTracker {
         Ok(next)
     }
 
-    /// States for a whole sequence of waypoints (a log), in order.
+    /// States for a whole sequence of waypoints (a log), in order, from
+    /// `start`, every move taken as made.
     pub fn states_for(
         start: MotionState,
         waypoints: &[Waypoint],
     ) -> Result<Vec<MotionState>, ModelError> {
-        let mut tracker = MotionTracker::new(start)?;
-        waypoints.iter().map(|wp| tracker.step(*wp)).collect()
+        MotionTracker::new(start)?.replay(waypoints)
+    }
+
+    /// Steps through `waypoints` and returns every state, in order.
+    pub fn replay(&mut self, waypoints: &[Waypoint]) -> Result<Vec<MotionState>, ModelError> {
+        waypoints.iter().map(|wp| self.step(*wp)).collect()
     }
 }
 
-fn advance(axis: &mut AxisMotion, target_um: f64) {
+fn advance(axis: &mut AxisMotion, target_um: f64, min_move_um: f64) {
     let delta = target_um - axis.cmd_um;
     if delta == 0.0 || !delta.is_finite() {
         // No motion (or garbage, which validate() rejects afterwards).
         axis.cmd_um = target_um;
+        return;
+    }
+    if delta.abs() < min_move_um {
+        // Below the minimum incremental motion: the stage does not move.
         return;
     }
     let dir = if delta > 0.0 {
@@ -393,6 +421,25 @@ mod tests {
         let s = t.step(Waypoint::at(14.0, -3.0)).unwrap();
         assert_eq!(s.axes[0].dir, Direction::Backward);
         assert_eq!(s.axes[0].run_um, 1.0);
+    }
+
+    #[test]
+    fn tracker_ignores_moves_below_the_minimum() {
+        let mut t = MotionTracker::new(MotionState::at_rest(0.0, 0.0))
+            .unwrap()
+            .with_min_move(0.05)
+            .unwrap();
+        t.step(Waypoint::at(10.0, 0.0)).unwrap();
+        let s = t.step(Waypoint::at(9.97, 0.0)).unwrap();
+        assert_eq!(s.axes[0].cmd_um, 10.0);
+        assert_eq!(s.axes[0].dir, Direction::Forward);
+        let s = t.step(Waypoint::at(9.94, 0.0)).unwrap();
+        assert_eq!(s.axes[0].cmd_um, 9.94);
+        assert_eq!(s.axes[0].dir, Direction::Backward);
+        assert!(MotionTracker::new(MotionState::at_rest(0.0, 0.0))
+            .unwrap()
+            .with_min_move(f64::NAN)
+            .is_err());
     }
 
     #[test]
