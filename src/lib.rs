@@ -2,7 +2,7 @@
 //!
 //! The library holds everything that is not process plumbing: the GCS 2.0
 //! protocol core (sans-IO), the async C-863 driver, the Megarena pattern
-//! (layout, rendering, decoding) and, later, the stage model, compensation
+//! (layout, rendering, decoding), the stage error model and, later, compensation
 //! and metrology. The binaries `microposd` and `micropos` and the simulator
 //! `hil-sim` are thin shells around it. See `ARCHITECTURE.md`.
 
@@ -15,4 +15,5 @@ pub mod frame;
 pub mod gcs;
 pub mod imageio;
 pub mod metrology;
+pub mod model;
 pub mod pattern;

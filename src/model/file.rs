@@ -1,0 +1,305 @@
+//! The model file (TOML): format, the non-term sections, loading and saving.
+//!
+//! ```toml
+//! format_version = 1
+//! description = "..."
+//! [stochastic]          # what the simulator adds that is not systematic
+//! [environment]         # ambient temperature history
+//! [[term]]              # one table per error term: kind, name, then the
+//! kind = "backlash"     # kind's own keys
+//! name = "x_backlash"
+//! axis = "x"
+//! backlash_um = 2.0
+//! ```
+//! Unknown keys anywhere are errors naming the key; non-finite numbers (TOML
+//! has `nan` and `inf`) are errors naming the key.
+
+use serde::{Deserialize, Serialize};
+
+use super::term::TermRegistry;
+use super::{ModelError, StageModel};
+
+/// The only format version this code reads and writes.
+pub const FORMAT_VERSION: u32 = 1;
+
+/// What the simulator adds on top of the systematic model.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
+#[serde(deny_unknown_fields)]
+pub struct Stochastic {
+    /// σ of the Gaussian settling error drawn for an axis each time it
+    /// completes a move, `[x, y]`, µm. The datasheet's 0.1 µm unidirectional
+    /// repeatability corresponds to σ ≈ 0.03 µm (ISO 9283 RP ≈ 2.6·σ for one
+    /// axis).
+    #[serde(default)]
+    pub repeatability_sigma_um: [f64; 2],
+    /// Minimum incremental motion, µm: a move shorter than this (from where
+    /// the servo is) does not happen at all. 0.05 µm on the M-111.
+    #[serde(default)]
+    pub min_incremental_motion_um: f64,
+    /// Grid to which commanded positions are rounded before moving, µm (the
+    /// encoder count); 0 disables.
+    #[serde(default)]
+    pub position_quantum_um: f64,
+}
+
+impl Stochastic {
+    /// Rejects negative or non-finite values, naming the key.
+    pub fn validate(&self) -> Result<(), ModelError> {
+        for (i, s) in self.repeatability_sigma_um.iter().enumerate() {
+            non_negative(&format!("stochastic.repeatability_sigma_um[{i}]"), *s)?;
+        }
+        non_negative(
+            "stochastic.min_incremental_motion_um",
+            self.min_incremental_motion_um,
+        )?;
+        non_negative("stochastic.position_quantum_um", self.position_quantum_um)?;
+        Ok(())
+    }
+}
+
+/// How the temperature varies between two profile points.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum Interpolation {
+    /// Straight lines between points.
+    Linear,
+    /// Smoothstep (3t² − 2t³) between points: zero slope at every point, as
+    /// a room settling between set points.
+    #[default]
+    Smooth,
+}
+
+/// One point of the ambient temperature history.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TemperaturePoint {
+    /// Time since the start of the run, s.
+    pub time_s: f64,
+    /// Ambient temperature at the stage then, °C.
+    pub temp_c: f64,
+}
+
+/// The ambient temperature history the simulator applies (the analysis uses
+/// logged temperatures instead when it has them).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Environment {
+    /// Interpolation between points.
+    #[serde(default)]
+    pub temperature_interpolation: Interpolation,
+    /// Temperature points with strictly increasing times; held constant
+    /// before the first and after the last.
+    #[serde(default = "default_temperature")]
+    pub temperature: Vec<TemperaturePoint>,
+}
+
+fn default_temperature() -> Vec<TemperaturePoint> {
+    vec![TemperaturePoint {
+        time_s: 0.0,
+        temp_c: super::state::DEFAULT_TEMP_C,
+    }]
+}
+
+impl Default for Environment {
+    fn default() -> Self {
+        Environment {
+            temperature_interpolation: Interpolation::default(),
+            temperature: default_temperature(),
+        }
+    }
+}
+
+impl Environment {
+    /// Rejects an empty profile, non-finite values and times that do not
+    /// increase, naming the key.
+    pub fn validate(&self) -> Result<(), ModelError> {
+        if self.temperature.is_empty() {
+            return Err(ModelError::Invalid {
+                key: "environment.temperature".into(),
+                reason: "needs at least one point".into(),
+            });
+        }
+        for (i, p) in self.temperature.iter().enumerate() {
+            finite(&format!("environment.temperature[{i}].time_s"), p.time_s)?;
+            finite(&format!("environment.temperature[{i}].temp_c"), p.temp_c)?;
+            if i > 0 && p.time_s <= self.temperature[i - 1].time_s {
+                return Err(ModelError::Invalid {
+                    key: format!("environment.temperature[{i}].time_s"),
+                    reason: format!(
+                        "times must increase strictly, got {} after {}",
+                        p.time_s,
+                        self.temperature[i - 1].time_s
+                    ),
+                });
+            }
+        }
+        Ok(())
+    }
+
+    /// Ambient temperature at `time_s`, °C. Non-finite time gives the first
+    /// point's temperature.
+    pub fn temperature_at(&self, time_s: f64) -> f64 {
+        let pts = &self.temperature;
+        let Some(first) = pts.first() else {
+            return super::state::DEFAULT_TEMP_C;
+        };
+        if !time_s.is_finite() || time_s <= first.time_s {
+            return first.temp_c;
+        }
+        for w in pts.windows(2) {
+            let (a, b) = (w[0], w[1]);
+            if time_s <= b.time_s {
+                let t = (time_s - a.time_s) / (b.time_s - a.time_s);
+                let s = match self.temperature_interpolation {
+                    Interpolation::Linear => t,
+                    Interpolation::Smooth => t * t * (3.0 - 2.0 * t),
+                };
+                return a.temp_c + s * (b.temp_c - a.temp_c);
+            }
+        }
+        pts.last().map_or(first.temp_c, |p| p.temp_c)
+    }
+}
+
+fn finite(key: &str, v: f64) -> Result<(), ModelError> {
+    if v.is_finite() {
+        Ok(())
+    } else {
+        Err(ModelError::Invalid {
+            key: key.to_string(),
+            reason: format!("must be a finite number, got {v}"),
+        })
+    }
+}
+
+fn non_negative(key: &str, v: f64) -> Result<(), ModelError> {
+    finite(key, v)?;
+    if v >= 0.0 {
+        Ok(())
+    } else {
+        Err(ModelError::Invalid {
+            key: key.to_string(),
+            reason: format!("must be ≥ 0, got {v}"),
+        })
+    }
+}
+
+#[derive(Debug, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct ModelFile {
+    format_version: u32,
+    #[serde(default)]
+    description: String,
+    #[serde(default)]
+    stochastic: Stochastic,
+    #[serde(default)]
+    environment: Environment,
+    #[serde(default)]
+    term: Vec<toml::Table>,
+}
+
+fn take_string(table: &mut toml::Table, index: usize, key: &str) -> Result<String, ModelError> {
+    match table.remove(key) {
+        Some(toml::Value::String(s)) => Ok(s),
+        Some(other) => Err(ModelError::Invalid {
+            key: format!("term[{index}].{key}"),
+            reason: format!("must be a string, got {}", other.type_str()),
+        }),
+        None => Err(ModelError::Invalid {
+            key: format!("term[{index}].{key}"),
+            reason: "missing".into(),
+        }),
+    }
+}
+
+pub(crate) fn parse(text: &str, registry: &TermRegistry) -> Result<StageModel, ModelError> {
+    let file: ModelFile = toml::from_str(text).map_err(|e| ModelError::Toml {
+        message: e.to_string().trim().to_string(),
+    })?;
+    if file.format_version != FORMAT_VERSION {
+        return Err(ModelError::Invalid {
+            key: "format_version".into(),
+            reason: format!(
+                "this micropos reads version {FORMAT_VERSION}, the file says {}",
+                file.format_version
+            ),
+        });
+    }
+    let mut terms = Vec::with_capacity(file.term.len());
+    for (i, mut table) in file.term.into_iter().enumerate() {
+        let kind = take_string(&mut table, i, "kind")?;
+        let name = take_string(&mut table, i, "name")?;
+        terms.push(registry.build(&kind, &name, table)?);
+    }
+    StageModel::new(file.description, terms, file.stochastic, file.environment)
+}
+
+pub(crate) fn render(model: &StageModel) -> Result<String, ModelError> {
+    let mut term = Vec::with_capacity(model.terms().len());
+    for t in model.terms() {
+        let mut table = toml::Table::new();
+        table.insert("kind".into(), toml::Value::String(t.kind().to_string()));
+        table.insert("name".into(), toml::Value::String(t.name().to_string()));
+        for (k, v) in t.to_config()? {
+            table.insert(k, v);
+        }
+        term.push(table);
+    }
+    let file = ModelFile {
+        format_version: FORMAT_VERSION,
+        description: model.description().to_string(),
+        stochastic: model.stochastic().clone(),
+        environment: model.environment().clone(),
+        term,
+    };
+    toml::to_string(&file).map_err(|e| ModelError::Serialize {
+        what: "stage model".into(),
+        message: e.to_string(),
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn temperature_profile_interpolates_and_holds() {
+        let env = Environment {
+            temperature_interpolation: Interpolation::Linear,
+            temperature: vec![
+                TemperaturePoint {
+                    time_s: 0.0,
+                    temp_c: 20.0,
+                },
+                TemperaturePoint {
+                    time_s: 100.0,
+                    temp_c: 21.0,
+                },
+            ],
+        };
+        env.validate().unwrap();
+        assert_eq!(env.temperature_at(-5.0), 20.0);
+        assert_eq!(env.temperature_at(25.0), 20.25);
+        assert_eq!(env.temperature_at(1e9), 21.0);
+        let smooth = Environment {
+            temperature_interpolation: Interpolation::Smooth,
+            ..env.clone()
+        };
+        // Smoothstep at t = 0.25: 0.15625.
+        assert!((smooth.temperature_at(25.0) - 20.15625).abs() < 1e-12);
+        assert_eq!(smooth.temperature_at(50.0), 20.5);
+    }
+
+    #[test]
+    fn bad_profiles_name_the_key() {
+        let mut env = Environment::default();
+        env.temperature.push(TemperaturePoint {
+            time_s: 0.0,
+            temp_c: 20.0,
+        });
+        let e = env.validate().unwrap_err().to_string();
+        assert!(e.contains("environment.temperature[1].time_s"), "{e}");
+        env.temperature.clear();
+        assert!(env.validate().is_err());
+    }
+}

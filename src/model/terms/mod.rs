@@ -1,0 +1,87 @@
+//! The built-in error terms. Each file holds one physical effect: its config
+//! struct (the model-file table), the term, its builder and unit tests with
+//! hand-computed values.
+
+use super::term::TermBuilder;
+
+pub mod angular;
+pub mod backlash;
+pub mod cyclic;
+pub mod lead;
+pub mod squareness;
+pub mod thermal;
+
+pub use angular::{AngularConfig, AngularTerm, Rotation};
+pub use backlash::{play_offset_um, BacklashConfig, BacklashTerm, PlayOperator};
+pub use cyclic::{CyclicConfig, CyclicTerm};
+pub use lead::{LeadConfig, LeadTerm};
+pub use squareness::{SquarenessConfig, SquarenessTerm};
+pub use thermal::{
+    OpticsDriftConfig, OpticsDriftTerm, ThermalExpansionConfig, ThermalExpansionTerm,
+};
+
+/// `(kind, one-line doc, builder)` of every built-in term.
+pub(crate) const BUILTIN: &[(&str, &str, TermBuilder)] = &[
+    (
+        cyclic::LEADSCREW_KIND,
+        "cyclic error along an axis at the leadscrew pitch and its harmonics, per direction",
+        cyclic::build_leadscrew,
+    ),
+    (
+        cyclic::COUPLING_KIND,
+        "cyclic error across an axis while it moves (same period), per direction",
+        cyclic::build_coupling,
+    ),
+    (
+        backlash::KIND,
+        "play between screw and nut: lost motion on reversal",
+        backlash::build,
+    ),
+    (
+        squareness::KIND,
+        "out-of-squareness of the Y axis: x error proportional to y",
+        squareness::build,
+    ),
+    (
+        lead::KIND,
+        "cumulative lead (scale) error of an axis, ppm",
+        lead::build,
+    ),
+    (
+        angular::KIND,
+        "yaw/pitch/roll of a moving carriage times the Abbe offset of the tool point",
+        angular::build,
+    ),
+    (
+        thermal::EXPANSION_KIND,
+        "thermal expansion and drift of the stage with ambient temperature",
+        thermal::build_expansion,
+    ),
+    (
+        thermal::OPTICS_KIND,
+        "apparent shift of the camera's view with ambient temperature",
+        thermal::build_optics,
+    ),
+];
+
+/// Weights of the forward and backward parameter sets for a direction: the
+/// direction's own set, or the mean of both when the direction is unknown.
+pub(crate) fn direction_weights(dir: super::state::Direction) -> (f64, f64) {
+    match dir {
+        super::state::Direction::Forward => (1.0, 0.0),
+        super::state::Direction::Backward => (0.0, 1.0),
+        super::state::Direction::Unknown => (0.5, 0.5),
+    }
+}
+
+/// `2π·k·p/period` for k = 1..=n as `(sin, cos)` pairs, with `p` reduced
+/// modulo the period first so huge positions stay exact and finite.
+pub(crate) fn harmonics(p_um: f64, period_um: f64, n: usize) -> Vec<(f64, f64)> {
+    let frac = p_um.rem_euclid(period_um) / period_um;
+    (1..=n)
+        .map(|k| {
+            let phi = std::f64::consts::TAU * ((k as f64 * frac).fract());
+            phi.sin_cos()
+        })
+        .collect()
+}
