@@ -101,25 +101,20 @@ pub struct Axis {
     inner: Arc<Inner>,
 }
 
-fn check_c863(target: &str, a: &crate::gcs::Answer) -> Result<Identification, DriverError> {
-    let text = a.text();
-    let not_pi = || DriverError::NotPi {
-        target: target.to_owned(),
-        idn: text.chars().take(120).collect(),
-    };
-    let idn = answer::identification(a).map_err(|_| not_pi())?;
-    let vendor = idn.vendor.to_ascii_uppercase();
-    if !(vendor.contains("(PI)") || vendor.contains("PHYSIK INSTRUMENTE")) {
-        return Err(not_pi());
-    }
+/// Identifies the controller and refuses anything but a C-863.
+async fn identify_c863(ctl: &Controller) -> Result<(Identification, u64), DriverError> {
+    let (idn, epoch) = ctl.identify().await?;
     if !idn.is_c863() {
         return Err(DriverError::NotC863 {
-            target: target.to_owned(),
+            target: ctl.label().to_owned(),
             model: idn.model.clone(),
-            idn: text,
+            idn: format!(
+                "{}, {}, {}, {}",
+                idn.vendor, idn.model, idn.serial, idn.firmware
+            ),
         });
     }
-    Ok(idn)
+    Ok((idn, epoch))
 }
 
 impl Axis {
@@ -133,18 +128,7 @@ impl Axis {
         events: broadcast::Sender<AxisEvent>,
     ) -> Result<Axis, DriverError> {
         let target = ctl.label().to_owned();
-        let (a, epoch) = match ctl.query(&Command::Idn).await {
-            Ok(v) => v,
-            // A device that answers ERR? but not *IDN? is not a PI controller.
-            Err(DriverError::Gcs { .. } | DriverError::Timeout { .. }) => {
-                return Err(DriverError::NotPi {
-                    target,
-                    idn: "(no answer to *IDN?)".to_owned(),
-                })
-            }
-            Err(e) => return Err(e),
-        };
-        let identity = check_c863(&target, &a)?;
+        let (identity, epoch) = identify_c863(&ctl).await?;
         let stale = ctl.error().await?;
         if !stale.is_ok() {
             tracing::info!(axis = %p.name, "cleared stale controller error at bring-up: {stale}");
@@ -268,14 +252,7 @@ impl Axis {
         if self.inner.verified_epoch.load(Ordering::SeqCst) == now {
             return Ok(());
         }
-        let (a, epoch) = self.ctl().query(&Command::Idn).await?;
-        let idn = match check_c863(self.ctl().label(), &a) {
-            Ok(i) => i,
-            Err(e) => {
-                self.ctl().line().resync(self.ctl().timeout()).await;
-                return Err(e);
-            }
-        };
+        let (idn, epoch) = identify_c863(self.ctl()).await?;
         if idn.serial != self.inner.identity.serial {
             let e = DriverError::ControllerChanged {
                 target: self.ctl().label().to_owned(),

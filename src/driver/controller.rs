@@ -16,7 +16,7 @@
 use super::error::DriverError;
 use super::line::{Line, Outcome};
 use super::AxisEvent;
-use crate::gcs::answer;
+use crate::gcs::answer::{self, Identification};
 use crate::gcs::frame::Address;
 use crate::gcs::{Answer, Command, ControlChar, GcsErrorCode, Outgoing};
 use std::sync::Arc;
@@ -116,6 +116,33 @@ impl Controller {
             },
             Outcome::Silence { .. } | Outcome::Sent => Err(self.not_answering()),
         }
+    }
+
+    /// Asks `*IDN?` and checks that a PI controller answered (any model).
+    /// A device that stays silent but answers `ERR?` is not a PI controller
+    /// either; one that answers nothing is [`DriverError::NotAnswering`].
+    pub async fn identify(&self) -> Result<(Identification, u64), DriverError> {
+        let (a, epoch) = match self.query(&Command::Idn).await {
+            Ok(v) => v,
+            Err(DriverError::Gcs { .. } | DriverError::Timeout { .. }) => {
+                return Err(DriverError::NotPi {
+                    target: self.label.to_string(),
+                    idn: "(no answer to *IDN?)".to_owned(),
+                })
+            }
+            Err(e) => return Err(e),
+        };
+        let text = a.text();
+        let not_pi = || DriverError::NotPi {
+            target: self.label.to_string(),
+            idn: text.chars().take(120).collect(),
+        };
+        let idn = answer::identification(&a).map_err(|_| not_pi())?;
+        let vendor = idn.vendor.to_ascii_uppercase();
+        if !(vendor.contains("(PI)") || vendor.contains("PHYSIK INSTRUMENTE")) {
+            return Err(not_pi());
+        }
+        Ok((idn, epoch))
     }
 
     /// Sends a query and returns its answer with the connection epoch.

@@ -236,17 +236,22 @@ impl Fake {
 
     /// Serves the controller side of `io` until it closes or `garbage`
     /// says so; `garbage` bytes are written to the host at once.
-    pub fn serve(&self, io: DuplexStream) -> mpsc::UnboundedSender<Vec<u8>> {
+    pub fn serve<S>(&self, io: S) -> mpsc::UnboundedSender<Vec<u8>>
+    where
+        S: tokio::io::AsyncRead + tokio::io::AsyncWrite + Send + 'static,
+    {
         let (tx, mut rx) = mpsc::unbounded_channel::<Vec<u8>>();
         let (mut rd, wr) = tokio::io::split(io);
         let wr = Arc::new(tokio::sync::Mutex::new(wr));
         let gw = wr.clone();
+        let (pulled_tx, mut pulled) = tokio::sync::watch::channel(false);
         // Garbage (and the pulled cable) go out independently of answers.
         tokio::spawn(async move {
             while let Some(g) = rx.recv().await {
                 let mut w = gw.lock().await;
                 if g.is_empty() {
                     let _ = w.shutdown().await;
+                    let _ = pulled_tx.send(true);
                     return;
                 }
                 let _ = w.write_all(&g).await;
@@ -257,9 +262,18 @@ impl Fake {
             let mut dec = RequestDecoder::new();
             let mut buf = [0u8; 256];
             loop {
-                let n = match rd.read(&mut buf).await {
-                    Ok(0) | Err(_) => return,
+                let r = tokio::select! {
+                    r = rd.read(&mut buf) => r,
+                    _ = pulled.changed() => return,
+                };
+                let n = match r {
+                    Ok(0) => return,
                     Ok(n) => n,
+                    // A pty master reads EIO while no slave is open yet.
+                    Err(_) => {
+                        tokio::time::sleep(Duration::from_millis(5)).await;
+                        continue;
+                    }
                 };
                 for req in dec.push(&buf[..n]) {
                     let now = Instant::now();

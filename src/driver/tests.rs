@@ -423,3 +423,33 @@ async fn dropping_handles_ends_the_line_task_without_sending() {
         14.0
     );
 }
+
+/// The real serial path: `tokio-serial` on a pty, the fake on the master.
+#[tokio::test]
+async fn serial_connector_on_a_pty_and_hangup() {
+    use tokio_serial::SerialPort;
+    let (master, slave) = tokio_serial::SerialStream::pair().unwrap();
+    let path = slave.name().unwrap();
+    drop(slave);
+    let fake = Fake::new(&[1]);
+    let kill = fake.serve(master);
+    let (events, _rx) = broadcast::channel(64);
+    let line = Line::open(
+        SerialConnector::new(&path, SerialSettings::default()),
+        LineOptions::default(),
+        events.clone(),
+    )
+    .await
+    .unwrap();
+    let ctl = Controller::new(line, None, Duration::from_millis(500), events.clone());
+    let ax = Axis::bring_up(ctl, params("x"), events).await.unwrap();
+    assert!(matches!(
+        ax.position_um().await,
+        Err(DriverError::NotReferenced { .. })
+    ));
+    // Close the master: the host side sees a hangup.
+    kill.send(Vec::new()).unwrap();
+    tokio::time::sleep(Duration::from_millis(100)).await;
+    let r = ax.position_um().await;
+    assert!(matches!(r, Err(DriverError::Disconnected { .. })), "{r:?}");
+}
