@@ -151,7 +151,7 @@ async fn bring_up_moves_velocity_halt_limits_unknown_command() {
         .events()
         .contains(&AxisEvent::Referenced { axis: "y".into() }));
     move_and_check(&x, &r, AxisName::X, 2_000.0).await;
-    move_and_check(&y, &r, AxisName::Y, 12_345.6789).await;
+    move_and_check(&y, &r, AxisName::Y, 12_345.678_9).await;
     // Relative move.
     x.move_rel_um(1_500.25).await.unwrap();
     assert_close(x.wait_on_target(None).await.unwrap(), 3_500.25, 0.5);

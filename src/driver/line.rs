@@ -313,14 +313,21 @@ impl<C: Connector> Task<C> {
         }
     }
 
-    /// Reads whatever arrives within `quiet`; true when the line was quiet.
+    /// Reads whatever arrives within `quiet` (zero: only what is already
+    /// there, without touching the timer, whose granularity is 1 ms); true
+    /// when the line was quiet.
     async fn drain(&mut self, io: &mut C::Io, quiet: Duration) -> Result<bool, String> {
         let mut buf = [0u8; 1024];
-        match tokio::time::timeout(quiet, io.read(&mut buf)).await {
-            Err(_) => Ok(true),
-            Ok(Ok(0)) => Err("end of file (device closed)".to_owned()),
-            Ok(Err(e)) => Err(format!("read error: {e}")),
-            Ok(Ok(n)) => {
+        let read = if quiet.is_zero() {
+            poll_once(io.read(&mut buf)).await
+        } else {
+            tokio::time::timeout(quiet, io.read(&mut buf)).await.ok()
+        };
+        match read {
+            None => Ok(true),
+            Some(Ok(0)) => Err("end of file (device closed)".to_owned()),
+            Some(Err(e)) => Err(format!("read error: {e}")),
+            Some(Ok(n)) => {
                 let now = self.now();
                 for ev in self.session.on_bytes(now, &buf[..n]) {
                     if let SessionEvent::Unexpected(t) = ev {
@@ -438,4 +445,14 @@ impl<C: Connector> Task<C> {
             }
         }
     }
+}
+
+/// Polls `fut` once: its output if it is ready now, else `None`.
+async fn poll_once<F: std::future::Future>(fut: F) -> Option<F::Output> {
+    let mut fut = std::pin::pin!(fut);
+    std::future::poll_fn(|cx| match fut.as_mut().poll(cx) {
+        std::task::Poll::Ready(v) => std::task::Poll::Ready(Some(v)),
+        std::task::Poll::Pending => std::task::Poll::Ready(None),
+    })
+    .await
 }
