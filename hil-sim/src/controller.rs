@@ -891,7 +891,11 @@ mod tests {
     }
 
     fn ctl(initial: f64) -> Controller {
-        Controller::new(ControllerConfig::new(Address::DEFAULT, "0115500001", initial))
+        Controller::new(ControllerConfig::new(
+            Address::DEFAULT,
+            "0115500001",
+            initial,
+        ))
     }
 
     /// Sends a line at time `t`; returns the answer text (None = silence).
@@ -980,13 +984,15 @@ mod tests {
         }
         assert!(!lines.last().unwrap().ends_with(' '));
         for cmd in Controller::help_commands().filter(|c| !c.starts_with('#')) {
-            match Command::parse(cmd) {
-                Err(micropos::gcs::CommandError::Unknown(_)) => panic!("{cmd} listed but unknown"),
-                _ => {}
+            if let Err(micropos::gcs::CommandError::Unknown(_)) = Command::parse(cmd) {
+                panic!("{cmd} listed but unknown");
             }
         }
         let hpa = q(&mut c, 0.0, "HPA?").unwrap();
-        assert!(hpa.contains("0x3C=\t0\t1\tCHAR\tstage\tStage_Name"), "{hpa}");
+        assert!(
+            hpa.contains("0x3C=\t0\t1\tCHAR\tstage\tStage_Name"),
+            "{hpa}"
+        );
         assert_eq!(err(&mut c, 0.0), 0);
     }
 
@@ -1024,7 +1030,10 @@ mod tests {
         assert_eq!(pos(&mut c, expected + 0.01), 7.5);
         assert_eq!(c.true_position_mm(s(expected + 0.01)), 7.5);
         assert_eq!(q(&mut c, expected + 0.1, "ONT? 1").unwrap(), "1=1\n");
-        assert_eq!(q(&mut c, expected + 0.1, "MOV? 1").unwrap(), "1=7.5000000\n");
+        assert_eq!(
+            q(&mut c, expected + 0.1, "MOV? 1").unwrap(),
+            "1=7.5000000\n"
+        );
     }
 
     #[test]
@@ -1182,7 +1191,10 @@ mod tests {
         // Reference survives servo off (incremental encoder keeps counting).
         assert_eq!(q(&mut c, t0 + 5.0, "FRF? 1").unwrap(), "1=1\n");
         q(&mut c, t0 + 5.0, "SVO 1 1");
-        assert_eq!(q(&mut c, t0 + 5.0, "MOV? 1").unwrap(), format!("1={}\n", num7(p)));
+        assert_eq!(
+            q(&mut c, t0 + 5.0, "MOV? 1").unwrap(),
+            format!("1={}\n", num7(p))
+        );
         assert_eq!(q(&mut c, t0 + 5.0, "ONT? 1").unwrap(), "1=1\n");
     }
 
@@ -1197,7 +1209,10 @@ mod tests {
         assert_eq!(ctrl(&mut c, t0 + 1.05, 5).unwrap(), b"1\n");
         assert!((pos(&mut c, t0 + 2.0) - (p + 0.05)).abs() < 1e-9);
         assert_eq!(err(&mut c, t0 + 2.0), 10);
-        assert_eq!(q(&mut c, t0 + 2.0, "MOV? 1").unwrap(), format!("1={}\n", num7(p + 0.05)));
+        assert_eq!(
+            q(&mut c, t0 + 2.0, "MOV? 1").unwrap(),
+            format!("1={}\n", num7(p + 0.05))
+        );
         q(&mut c, t0 + 2.0, "MOV 1 12");
         q(&mut c, t0 + 3.0, "STP");
         let p = pos(&mut c, t0 + 3.0);
