@@ -984,9 +984,8 @@ mod tests {
         }
         assert!(!lines.last().unwrap().ends_with(' '));
         for cmd in Controller::help_commands().filter(|c| !c.starts_with('#')) {
-            match Command::parse(cmd) {
-                Err(micropos::gcs::CommandError::Unknown(_)) => panic!("{cmd} listed but unknown"),
-                _ => {}
+            if let Err(micropos::gcs::CommandError::Unknown(_)) = Command::parse(cmd) {
+                panic!("{cmd} listed but unknown");
             }
         }
         let hpa = q(&mut c, 0.0, "HPA?").unwrap();

@@ -64,9 +64,11 @@ async fn main() -> anyhow::Result<()> {
                 control_socket: control,
                 seed,
             };
-            let mut term =
-                tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())
-                    .context("install SIGTERM handler")?;
+            // Handlers first: a signal right after the ready line must
+            // already end in a clean shutdown.
+            use tokio::signal::unix::{signal, SignalKind};
+            let mut term = signal(SignalKind::terminate()).context("install SIGTERM handler")?;
+            let mut int = signal(SignalKind::interrupt()).context("install SIGINT handler")?;
             let sim = tokio::task::spawn_blocking(move || SimHandle::start(cfg))
                 .await
                 .context("simulator start task")?
@@ -86,7 +88,7 @@ async fn main() -> anyhow::Result<()> {
                 out.flush().context("flush ready line")?;
             }
             tokio::select! {
-                r = tokio::signal::ctrl_c() => r.context("wait for SIGINT")?,
+                _ = int.recv() => {}
                 _ = term.recv() => {}
             }
             tokio::task::spawn_blocking(move || sim.shutdown())

@@ -10,8 +10,11 @@
 //! The pty is switched to raw mode (no echo, no CR/LF translation, no
 //! signal or flow-control characters) because the GCS control characters
 //! `#4`, `#5`, `#7`, `#24` would otherwise be eaten by the line discipline.
-//! The server keeps the slave side open too, so a client closing and
-//! reopening the port does not make the master side fail.
+//! The server does not keep the slave side open: while no client has the
+//! port open the master reports a hang-up, and what the controllers send
+//! then is discarded (and the queues flushed), as bytes sent down a serial
+//! cable with nobody listening are lost. A client opening the port later
+//! never reads stale answers.
 
 use crate::bus::{Bus, BusError};
 use crate::clock::{Clock, ScaledClock};
@@ -19,7 +22,7 @@ use crate::controller::{Controller, ControllerConfig};
 use micropos::gcs::Address;
 use nix::fcntl::{fcntl, FcntlArg, OFlag};
 use nix::poll::{poll, PollFd, PollFlags, PollTimeout};
-use nix::sys::termios::{cfmakeraw, tcgetattr, tcsetattr, SetArg};
+use nix::sys::termios::{cfmakeraw, tcflush, tcgetattr, tcsetattr, FlushArg, SetArg};
 use rand::{Rng, SeedableRng};
 use std::fmt;
 use std::fs::File;
@@ -177,15 +180,18 @@ fn nix_err(context: impl Into<String>) -> impl FnOnce(nix::Error) -> SimError {
     }
 }
 
-/// One open pty pair. Dropping it closes both sides.
+/// One open pty. Dropping it closes the master, which hangs up the client.
 #[derive(Debug)]
 struct Pty {
     master: File,
-    _slave: File,
+    slave_path: PathBuf,
+    /// Whether a client had the slave open at the last look.
+    connected: bool,
 }
 
 impl Pty {
-    /// Opens a raw, non-blocking pty and points `link` at its slave.
+    /// Opens a raw, non-blocking pty and points `link` at its slave. The
+    /// slave is configured and closed again: the settings stay with the pty.
     fn open(link: &Path) -> Result<Pty, SimError> {
         let pair = nix::pty::openpty(None, None).map_err(nix_err("openpty"))?;
         let mut t = tcgetattr(pair.slave.as_fd()).map_err(nix_err("tcgetattr on pty slave"))?;
@@ -202,8 +208,42 @@ impl Pty {
         relink(link, &slave_path)?;
         Ok(Pty {
             master: File::from(pair.master),
-            _slave: File::from(pair.slave),
+            slave_path,
+            connected: false,
         })
+    }
+
+    /// Polls the master for up to `wait`: returns (readable, client present).
+    fn wait(&self, wait: Duration) -> (bool, bool) {
+        let ms = u16::try_from(wait.as_millis()).unwrap_or(u16::MAX);
+        let mut fds = [PollFd::new(self.master.as_fd(), PollFlags::POLLIN)];
+        match poll(&mut fds, PollTimeout::from(ms)) {
+            Ok(n) if n > 0 => {
+                let r = fds[0].revents().unwrap_or(PollFlags::empty());
+                (
+                    r.intersects(PollFlags::POLLIN),
+                    !r.intersects(PollFlags::POLLHUP),
+                )
+            }
+            Ok(_) => (false, true),
+            Err(_) => (false, false),
+        }
+    }
+
+    /// Discards everything queued in both directions. The answers a client
+    /// left unread sit in the slave's line discipline, which only a flush
+    /// through the slave side reaches.
+    fn flush(&self) {
+        use std::os::unix::fs::OpenOptionsExt;
+        let _ = tcflush(self.master.as_fd(), FlushArg::TCIOFLUSH);
+        let slave = std::fs::OpenOptions::new()
+            .read(true)
+            .write(true)
+            .custom_flags((OFlag::O_NOCTTY | OFlag::O_NONBLOCK).bits())
+            .open(&self.slave_path);
+        if let Ok(f) = slave {
+            let _ = tcflush(f.as_fd(), FlushArg::TCIOFLUSH);
+        }
     }
 }
 
@@ -298,6 +338,10 @@ impl Line {
         let Some(pty) = self.pty.as_mut() else {
             return;
         };
+        let (_, connected) = pty.wait(Duration::ZERO);
+        if !connected {
+            return;
+        }
         let mut rest = bytes;
         while !rest.is_empty() {
             match pty.master.write(rest) {
@@ -368,16 +412,22 @@ impl Line {
                 std::thread::sleep(wait);
                 continue;
             };
-            let ms = u16::try_from(wait.as_millis().max(1)).unwrap_or(u16::MAX);
-            let readable = {
-                let mut fds = [PollFd::new(pty.master.as_fd(), PollFlags::POLLIN)];
-                match poll(&mut fds, PollTimeout::from(ms)) {
-                    Ok(n) if n > 0 => fds[0]
-                        .revents()
-                        .is_some_and(|r| r.intersects(PollFlags::POLLIN)),
-                    _ => false,
+            let (readable, connected) = pty.wait(wait.max(Duration::from_millis(1)));
+            if connected != pty.connected {
+                pty.connected = connected;
+                if !connected {
+                    // The client went: what it left unread, and any half
+                    // line it sent, are not for the next one.
+                    pty.flush();
+                    self.pending.clear();
+                    lock(&self.bus).reset_line();
                 }
-            };
+            }
+            if !connected {
+                // Hang-up is reported at once; do not spin on it.
+                std::thread::sleep(wait);
+                continue;
+            }
             if !readable {
                 continue;
             }
