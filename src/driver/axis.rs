@@ -307,6 +307,7 @@ impl Axis {
     /// on the same connection (see the module invariants).
     pub async fn position_um(&self) -> Result<f64, DriverError> {
         self.verify().await?;
+        let noise = self.ctl().line().noise_count();
         let (pos_mm, e1) = self
             .read(Command::PosQuery(self.id()), answer::number)
             .await?;
@@ -317,6 +318,16 @@ impl Axis {
             return Err(DriverError::Interrupted {
                 target: self.ctl().label().to_owned(),
                 command: "POS?".to_owned(),
+            });
+        }
+        if self.ctl().line().noise_count() != noise {
+            // Something out of turn arrived between POS? and the FRF? answer:
+            // the POS? answer may have been garbage shaped like an answer.
+            self.ctl().line().resync(self.ctl().timeout()).await;
+            return Err(DriverError::BadAnswer {
+                command: "POS?".to_owned(),
+                detail: "bytes that belong to no request arrived while the position was read; not trusted".to_owned(),
+                text: mm_to_um(pos_mm).to_string(),
             });
         }
         self.note_reference(referenced);
@@ -338,6 +349,12 @@ impl Axis {
         } else {
             Err(self.not_referenced())
         }
+    }
+
+    /// Checks an absolute target in µm against the travel range without
+    /// sending anything (so a two-axis move can be refused as a whole).
+    pub fn check_target_um(&self, target_um: f64) -> Result<(), DriverError> {
+        self.check_travel(target_um)
     }
 
     fn check_travel(&self, target_um: f64) -> Result<(), DriverError> {

@@ -137,7 +137,14 @@ impl Controller {
             target: self.label.to_string(),
             idn: text.chars().take(120).collect(),
         };
-        let idn = answer::identification(&a).map_err(|_| not_pi())?;
+        let idn = match answer::identification(&a) {
+            Ok(idn) => idn,
+            Err(_) => {
+                // Garbage or a late answer may be behind it: drain before the next request.
+                self.line.resync(self.timeout).await;
+                return Err(not_pi());
+            }
+        };
         let vendor = idn.vendor.to_ascii_uppercase();
         if !(vendor.contains("(PI)") || vendor.contains("PHYSIK INSTRUMENTE")) {
             return Err(not_pi());

@@ -88,6 +88,7 @@ pub struct Line {
     tx: mpsc::Sender<Request>,
     name: Arc<str>,
     epoch: Arc<AtomicU64>,
+    noise: Arc<AtomicU64>,
 }
 
 impl Line {
@@ -102,6 +103,7 @@ impl Line {
         let io = connector.connect().await?;
         let name: Arc<str> = connector.name().into();
         let epoch = Arc::new(AtomicU64::new(1));
+        let noise = Arc::new(AtomicU64::new(0));
         let (tx, rx) = mpsc::channel(32);
         let task = Task {
             connector,
@@ -111,6 +113,7 @@ impl Line {
             session: Session::new(),
             t0: Instant::now(),
             epoch: epoch.clone(),
+            noise: noise.clone(),
             quiet_needed: None,
             down_reason: String::new(),
         };
@@ -118,7 +121,12 @@ impl Line {
             line: name.to_string(),
         });
         tokio::spawn(task.run(io, rx));
-        Ok(Line { tx, name, epoch })
+        Ok(Line {
+            tx,
+            name,
+            epoch,
+            noise,
+        })
     }
 
     /// The device path.
@@ -129,6 +137,15 @@ impl Line {
     /// The current connection epoch (see [`Reply::epoch`]).
     pub fn epoch(&self) -> u64 {
         self.epoch.load(Ordering::SeqCst)
+    }
+
+    /// How many times bytes that belong to no request have arrived. A
+    /// reading is trusted only if this did not change while it was taken
+    /// and confirmed (see `Axis::position_um`): garbage shaped like an answer
+    /// can be taken for one, but then the real answer arrives out of turn and
+    /// moves this counter.
+    pub fn noise_count(&self) -> u64 {
+        self.noise.load(Ordering::SeqCst)
     }
 
     /// Runs one exchange: writes the request and, if it expects an answer,
@@ -174,6 +191,7 @@ struct Task<C: Connector> {
     session: Session,
     t0: Instant,
     epoch: Arc<AtomicU64>,
+    noise: Arc<AtomicU64>,
     /// Set after a silence: how long the line must be quiet before the next write.
     quiet_needed: Option<Duration>,
     down_reason: String,
@@ -191,6 +209,7 @@ impl<C: Connector> Task<C> {
     }
 
     fn noise(&self, text: String) {
+        self.noise.fetch_add(1, Ordering::SeqCst);
         tracing::warn!(line = %self.name, "unexpected bytes: {text}");
         let _ = self.events.send(AxisEvent::Noise {
             line: self.name.to_string(),
@@ -221,6 +240,8 @@ impl<C: Connector> Task<C> {
                         r = io.read(&mut buf) => match r {
                             Ok(0) => Step::Down("end of file (device closed)".to_owned()),
                             Ok(n) => {
+                                // No request is in flight: whatever this is, it is not an answer.
+                                self.noise.fetch_add(1, Ordering::SeqCst);
                                 let now = self.now();
                                 for ev in self.session.on_bytes(now, &buf[..n]) {
                                     if let SessionEvent::Unexpected(t) = ev {
@@ -328,6 +349,7 @@ impl<C: Connector> Task<C> {
             Some(Ok(0)) => Err("end of file (device closed)".to_owned()),
             Some(Err(e)) => Err(format!("read error: {e}")),
             Some(Ok(n)) => {
+                self.noise.fetch_add(1, Ordering::SeqCst);
                 let now = self.now();
                 for ev in self.session.on_bytes(now, &buf[..n]) {
                     if let SessionEvent::Unexpected(t) = ev {

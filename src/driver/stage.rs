@@ -260,3 +260,19 @@ mod tests {
         assert!(DriverConfig::default().validate().is_err());
     }
 }
+
+#[cfg(test)]
+mod example_config {
+    use super::*;
+
+    /// The shipped example must stay loadable.
+    #[test]
+    fn example_config_parses() {
+        let text = include_str!("../../config/driver.example.toml");
+        let table: toml::Table = toml::from_str(text).unwrap();
+        let cfg: DriverConfig = table["driver"].clone().try_into().unwrap();
+        assert_eq!(cfg.x.port, PathBuf::from("/dev/ttyUSB0"));
+        assert_eq!(cfg.y.timeout_ms, 1000);
+        cfg.validate().unwrap();
+    }
+}

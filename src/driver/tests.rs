@@ -453,3 +453,20 @@ async fn serial_connector_on_a_pty_and_hangup() {
     let r = ax.position_um().await;
     assert!(matches!(r, Err(DriverError::Disconnected { .. })), "{r:?}");
 }
+
+#[tokio::test(start_paused = true)]
+async fn garbage_shaped_like_an_answer_is_not_trusted() {
+    let rig = Rig::new(&[1]).await;
+    let ax = referenced_axis(&rig).await;
+    rig.fake.with(|b| b.delay = Duration::from_millis(50));
+    let garbage = rig.garbage.clone();
+    let inject = tokio::spawn(async move {
+        tokio::time::sleep(Duration::from_millis(10)).await;
+        garbage.send(b"1=9.9000000\n".to_vec()).unwrap();
+    });
+    let r = ax.position_um().await;
+    inject.await.unwrap();
+    assert!(matches!(r, Err(DriverError::BadAnswer { .. })), "{r:?}");
+    rig.fake.with(|b| b.delay = Duration::ZERO);
+    assert_eq!(ax.position_um().await.unwrap(), 7500.0);
+}

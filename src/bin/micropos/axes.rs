@@ -195,6 +195,9 @@ async fn reference(stage: &Stage) -> anyhow::Result<()> {
 }
 
 async fn move_to(stage: &Stage, x_um: f64, y_um: f64, velocity: Option<f64>) -> anyhow::Result<()> {
+    // Refuse the move as a whole: neither axis moves if one target is bad.
+    stage.x.check_target_um(x_um).context("axis x")?;
+    stage.y.check_target_um(y_um).context("axis y")?;
     if let Some(v) = velocity {
         stage.x.set_velocity_um_per_s(v).await?;
         stage.y.set_velocity_um_per_s(v).await?;
