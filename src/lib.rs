@@ -11,6 +11,7 @@
 
 pub mod camera;
 pub mod charact;
+pub mod driver;
 pub mod frame;
 pub mod gcs;
 pub mod imageio;

@@ -1,1 +1,28 @@
-//! hil-sim
+//! hil-sim: hardware-in-the-loop simulator for micropos.
+//!
+//! Simulated PI Mercury C-863.11 controllers (GCS 2.0, built on the
+//! protocol core in [`micropos::gcs`]) driving simulated M-111.1DG stages,
+//! served on real pseudo-terminals with fault injection, so the driver and
+//! PI's own Python client can be tested without hardware.
+//!
+//! Layers, from the inside out:
+//! - [`motion`]: trapezoidal profiles evaluated lazily in time;
+//! - [`controller`]: one C-863 as a sans-IO state machine (requests + time
+//!   in, answer bytes out), with the [`controller::Platform`] seam for the
+//!   stage error model;
+//! - [`bus`]: controllers sharing one line (daisy chain);
+//! - [`clock`]: scaled wall time or manual time;
+//! - [`serve`]: ptys, threads, faults; [`control`]: the JSON control socket.
+
+#![forbid(unsafe_code)]
+#![warn(missing_docs)]
+
+pub mod bus;
+pub mod clock;
+pub mod control;
+pub mod controller;
+pub mod motion;
+pub mod params;
+pub mod serve;
+
+pub use serve::{AxisName, Fault, ServeConfig, SimError, SimHandle};

@@ -3,10 +3,13 @@
 //! them up and maps outcomes to exit codes scripts can rely on:
 //! 0 success, 1 a runtime failure (device, decode, I/O), 2 a usage error.
 
+mod axes;
 mod camera;
 mod decode;
+mod gcs;
 mod pattern;
 
+use std::future::Future;
 use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
@@ -21,6 +24,10 @@ struct Cli {
 
 #[derive(Debug, Subcommand)]
 enum Commands {
+    /// Raw GCS console to one controller (real hardware bring-up).
+    Gcs(gcs::GcsArgs),
+    /// Status, referencing and moves of the two axes through the driver.
+    Axes(axes::AxesArgs),
     /// Decode the absolute position of Megarena pattern image(s).
     Decode(decode::Args),
     /// Cameras and other frame sources: list, grab, stream.
@@ -36,9 +43,29 @@ fn done(r: anyhow::Result<()>) -> anyhow::Result<ExitCode> {
     r.map(|()| ExitCode::SUCCESS)
 }
 
+/// Runs an async subcommand on a small runtime (only the commands that talk
+/// to devices need one).
+fn block_on<F: Future<Output = anyhow::Result<ExitCode>>>(f: F) -> anyhow::Result<ExitCode> {
+    let rt = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+        .map_err(|e| anyhow::anyhow!("cannot start the async runtime: {e}"))?;
+    rt.block_on(f)
+}
+
 fn main() -> ExitCode {
     let cli = Cli::parse();
+    tracing_subscriber::fmt()
+        .with_writer(std::io::stderr)
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env()
+                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("warn")),
+        )
+        .init();
     let (result, failure) = match cli.command {
+        Commands::Gcs(a) => (block_on(gcs::run(a)), 1),
+        Commands::Axes(a) => (block_on(axes::run(a)), 1),
         // decode reports per-image failures itself (exit 1); an error here
         // means unusable arguments.
         Commands::Decode(args) => (decode::run(&args), 2),

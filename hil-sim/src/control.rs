@@ -1,0 +1,358 @@
+//! The JSON-lines control socket: fault injection and ground truth for a
+//! simulator running in another process (the `hil-sim serve` binary).
+//!
+//! One request per line, one reply line per request:
+//! - `{"axis":"x","fault":"drop_line"}`, `"restore_line"`, `"power_cycle"`
+//! - `{"axis":"x","fault":"garbage","hex":"ff00"}`
+//! - `{"axis":"x","fault":"delay_replies","ms":300}`
+//! - `{"axis":"x","fault":"withhold_replies","on":true}`
+//! - `{"query":"truth"}` → `{"ok":true,"sim_time_s":..,"x_mm":..,"y_mm":..}`
+//!
+//! Without `"axis"`, a controller fault applies to both controllers and a
+//! line fault to every line once. Replies are `{"ok":true}` or
+//! `{"ok":false,"error":"<what and why>"}`; a bad request never closes the
+//! connection.
+
+use crate::serve::{AxisName, Fault, SimError};
+use serde_json::{json, Value};
+use std::io::{self, BufRead, BufReader, Write};
+use std::os::unix::net::{UnixListener, UnixStream};
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+use std::thread::JoinHandle;
+use std::time::Duration;
+
+/// Longest request line accepted (a garbage payload of 16 KiB in hex).
+const MAX_REQUEST: usize = 64 * 1024;
+
+/// What the control socket acts on (the simulator core).
+pub trait Injector: Send + Sync {
+    /// Injects a fault on an axis.
+    fn inject(&self, axis: AxisName, fault: Fault) -> Result<(), SimError>;
+    /// Ground truth of an axis (mm).
+    fn true_position_mm(&self, axis: AxisName) -> f64;
+    /// Simulated time now.
+    fn sim_time(&self) -> Duration;
+    /// One axis per distinct serial line.
+    fn line_axes(&self) -> Vec<AxisName>;
+}
+
+/// A parsed control request.
+#[derive(Debug, Clone, PartialEq)]
+pub enum ControlRequest {
+    /// Inject `fault` on these axes.
+    Fault {
+        /// The axis, or `None` for all.
+        axis: Option<AxisName>,
+        /// The fault.
+        fault: Fault,
+    },
+    /// Report ground truth.
+    Truth,
+}
+
+fn decode_hex(s: &str) -> Result<Vec<u8>, String> {
+    let s = s.trim();
+    if s.len() % 2 != 0 {
+        return Err(format!(
+            "hex string has an odd number of digits ({})",
+            s.len()
+        ));
+    }
+    (0..s.len())
+        .step_by(2)
+        .map(|i| {
+            s.get(i..i + 2)
+                .and_then(|h| u8::from_str_radix(h, 16).ok())
+                .ok_or_else(|| format!("{:?} is not a hex byte", s.get(i..i + 2).unwrap_or("")))
+        })
+        .collect()
+}
+
+/// Parses one request line.
+pub fn parse_request(line: &str) -> Result<ControlRequest, String> {
+    let v: Value = serde_json::from_str(line).map_err(|e| format!("not JSON: {e}"))?;
+    let obj = v.as_object().ok_or("request must be a JSON object")?;
+    if let Some(q) = obj.get("query") {
+        return match q.as_str() {
+            Some("truth") => Ok(ControlRequest::Truth),
+            _ => Err(format!("unknown query {q} (known: \"truth\")")),
+        };
+    }
+    let axis = match obj.get("axis") {
+        None | Some(Value::Null) => None,
+        Some(Value::String(s)) => Some(s.parse::<AxisName>().map_err(|e| e.to_string())?),
+        Some(other) => return Err(format!("axis must be \"x\" or \"y\", got {other}")),
+    };
+    let name = obj
+        .get("fault")
+        .and_then(Value::as_str)
+        .ok_or("request needs \"fault\" (a string) or \"query\"")?;
+    let fault = match name {
+        "drop_line" => Fault::DropLine,
+        "restore_line" => Fault::RestoreLine,
+        "power_cycle" => Fault::PowerCycle,
+        "garbage" => {
+            let hex = obj
+                .get("hex")
+                .and_then(Value::as_str)
+                .ok_or("garbage needs \"hex\": the bytes as a hex string")?;
+            Fault::Garbage(decode_hex(hex)?)
+        }
+        "delay_replies" => {
+            let ms = obj
+                .get("ms")
+                .and_then(Value::as_u64)
+                .ok_or("delay_replies needs \"ms\": a non-negative integer")?;
+            Fault::DelayReplies(Duration::from_millis(ms))
+        }
+        "withhold_replies" => {
+            let on = obj
+                .get("on")
+                .and_then(Value::as_bool)
+                .ok_or("withhold_replies needs \"on\": true or false")?;
+            Fault::WithholdReplies(on)
+        }
+        other => {
+            return Err(format!(
+                "unknown fault {other:?} (known: drop_line, restore_line, power_cycle, garbage, delay_replies, withhold_replies)"
+            ))
+        }
+    };
+    Ok(ControlRequest::Fault { axis, fault })
+}
+
+fn is_line_fault(f: &Fault) -> bool {
+    matches!(f, Fault::DropLine | Fault::RestoreLine | Fault::Garbage(_))
+}
+
+/// Executes one request line and returns the reply line (without LF).
+pub fn handle_line(inj: &dyn Injector, line: &str) -> String {
+    let reply = match parse_request(line) {
+        Err(e) => json!({"ok": false, "error": e}),
+        Ok(ControlRequest::Truth) => json!({
+            "ok": true,
+            "sim_time_s": inj.sim_time().as_secs_f64(),
+            "x_mm": inj.true_position_mm(AxisName::X),
+            "y_mm": inj.true_position_mm(AxisName::Y),
+        }),
+        Ok(ControlRequest::Fault { axis, fault }) => {
+            let axes = match axis {
+                Some(a) => vec![a],
+                None if is_line_fault(&fault) => inj.line_axes(),
+                None => AxisName::ALL.to_vec(),
+            };
+            let r: Result<(), SimError> = axes
+                .into_iter()
+                .try_for_each(|a| inj.inject(a, fault.clone()));
+            match r {
+                Ok(()) => json!({"ok": true}),
+                Err(e) => json!({"ok": false, "error": e.to_string()}),
+            }
+        }
+    };
+    reply.to_string()
+}
+
+/// The socket server thread.
+pub struct ControlServer {
+    path: PathBuf,
+    stop: Arc<AtomicBool>,
+    thread: Option<JoinHandle<()>>,
+}
+
+impl ControlServer {
+    /// Binds `path` (a stale socket file there is replaced; any other file
+    /// is an error) and serves it on its own threads.
+    pub fn start(path: &Path, inj: Arc<dyn Injector>) -> Result<ControlServer, SimError> {
+        use std::os::unix::fs::FileTypeExt;
+        if let Ok(meta) = std::fs::symlink_metadata(path) {
+            if meta.file_type().is_socket() {
+                let _ = std::fs::remove_file(path);
+            } else {
+                return Err(SimError::Config(format!(
+                    "control socket path {} exists and is not a socket",
+                    path.display()
+                )));
+            }
+        }
+        let listener = UnixListener::bind(path).map_err(|source| SimError::Io {
+            context: format!("bind control socket {}", path.display()),
+            source,
+        })?;
+        listener
+            .set_nonblocking(true)
+            .map_err(|source| SimError::Io {
+                context: "control socket non-blocking".into(),
+                source,
+            })?;
+        let stop = Arc::new(AtomicBool::new(false));
+        let stop2 = stop.clone();
+        let thread = std::thread::Builder::new()
+            .name("hil-sim-control".into())
+            .spawn(move || accept_loop(listener, inj, stop2))
+            .map_err(|source| SimError::Io {
+                context: "spawn control thread".into(),
+                source,
+            })?;
+        Ok(ControlServer {
+            path: path.to_owned(),
+            stop,
+            thread: Some(thread),
+        })
+    }
+
+    /// Stops the server, joins its threads and removes the socket file.
+    pub fn stop(mut self) {
+        self.stop_inner();
+    }
+
+    fn stop_inner(&mut self) {
+        self.stop.store(true, Ordering::SeqCst);
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+            let _ = std::fs::remove_file(&self.path);
+        }
+    }
+}
+
+impl Drop for ControlServer {
+    fn drop(&mut self) {
+        self.stop_inner();
+    }
+}
+
+fn accept_loop(listener: UnixListener, inj: Arc<dyn Injector>, stop: Arc<AtomicBool>) {
+    let mut conns: Vec<JoinHandle<()>> = Vec::new();
+    while !stop.load(Ordering::SeqCst) {
+        match listener.accept() {
+            Ok((stream, _)) => {
+                let inj = inj.clone();
+                let stop = stop.clone();
+                match std::thread::Builder::new()
+                    .name("hil-sim-control-conn".into())
+                    .spawn(move || serve_conn(stream, inj.as_ref(), &stop))
+                {
+                    Ok(t) => conns.push(t),
+                    Err(e) => tracing::warn!("control connection thread: {e}"),
+                }
+                conns.retain(|t| !t.is_finished());
+            }
+            Err(e) if e.kind() == io::ErrorKind::WouldBlock => {
+                std::thread::sleep(Duration::from_millis(10));
+            }
+            Err(e) => {
+                tracing::warn!("control socket accept: {e}");
+                std::thread::sleep(Duration::from_millis(10));
+            }
+        }
+    }
+    for t in conns {
+        let _ = t.join();
+    }
+}
+
+fn serve_conn(stream: UnixStream, inj: &dyn Injector, stop: &AtomicBool) {
+    if stream.set_nonblocking(false).is_err()
+        || stream
+            .set_read_timeout(Some(Duration::from_millis(50)))
+            .is_err()
+    {
+        return;
+    }
+    let Ok(mut writer) = stream.try_clone() else {
+        return;
+    };
+    let mut reader = BufReader::new(stream);
+    let mut line = Vec::new();
+    while !stop.load(Ordering::SeqCst) {
+        match reader.read_until(b'\n', &mut line) {
+            Ok(0) => return,
+            Ok(_) => {
+                if !line.ends_with(b"\n") {
+                    continue;
+                }
+                let text = String::from_utf8_lossy(&line).trim().to_owned();
+                line.clear();
+                if text.is_empty() {
+                    continue;
+                }
+                let reply = handle_line(inj, &text);
+                if writer.write_all(format!("{reply}\n").as_bytes()).is_err() {
+                    return;
+                }
+            }
+            Err(e)
+                if e.kind() == io::ErrorKind::WouldBlock
+                    || e.kind() == io::ErrorKind::TimedOut
+                    || e.kind() == io::ErrorKind::Interrupted =>
+            {
+                // Partial data stays in `line`; keep reading.
+            }
+            Err(_) => return,
+        }
+        if line.len() > MAX_REQUEST {
+            line.clear();
+            let msg =
+                json!({"ok": false, "error": format!("request longer than {MAX_REQUEST} bytes")});
+            if writer.write_all(format!("{msg}\n").as_bytes()).is_err() {
+                return;
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn parses_contract_requests() {
+        assert_eq!(
+            parse_request(r#"{"axis":"x","fault":"drop_line"}"#),
+            Ok(ControlRequest::Fault {
+                axis: Some(AxisName::X),
+                fault: Fault::DropLine
+            })
+        );
+        assert_eq!(
+            parse_request(r#"{"fault":"garbage","hex":"ff00"}"#),
+            Ok(ControlRequest::Fault {
+                axis: None,
+                fault: Fault::Garbage(vec![0xff, 0])
+            })
+        );
+        assert_eq!(
+            parse_request(r#"{"axis":"y","fault":"delay_replies","ms":300}"#),
+            Ok(ControlRequest::Fault {
+                axis: Some(AxisName::Y),
+                fault: Fault::DelayReplies(Duration::from_millis(300))
+            })
+        );
+        assert_eq!(
+            parse_request(r#"{"axis":"y","fault":"withhold_replies","on":true}"#),
+            Ok(ControlRequest::Fault {
+                axis: Some(AxisName::Y),
+                fault: Fault::WithholdReplies(true)
+            })
+        );
+        assert_eq!(
+            parse_request(r#"{"query":"truth"}"#),
+            Ok(ControlRequest::Truth)
+        );
+        for (bad, why) in [
+            ("nope", "not JSON"),
+            ("[1]", "object"),
+            (r#"{"fault":"melt"}"#, "unknown fault"),
+            (r#"{"axis":"z","fault":"drop_line"}"#, "unknown axis"),
+            (r#"{"fault":"garbage","hex":"f"}"#, "odd"),
+            (r#"{"fault":"garbage","hex":"zz"}"#, "hex byte"),
+            (r#"{"fault":"delay_replies","ms":-1}"#, "ms"),
+            (r#"{"query":"everything"}"#, "unknown query"),
+        ] {
+            let e = parse_request(bad).unwrap_err();
+            assert!(e.contains(why), "{bad}: {e}");
+        }
+    }
+}

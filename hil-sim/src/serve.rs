@@ -1,0 +1,872 @@
+//! Serving simulated controllers on pseudo-terminals, with fault injection.
+//!
+//! Each serial line is one pty served by one thread; the controllers behind
+//! it are a [`Bus`] shared (under a mutex) with the [`SimHandle`] so tests can
+//! read ground truth and power-cycle a controller. The thread owns the pty:
+//! line faults (pull the cable, plug it back, write garbage) are sent to it
+//! over a channel and acknowledged, so a fault is in effect when
+//! [`SimHandle::inject`] returns.
+//!
+//! The pty is switched to raw mode (no echo, no CR/LF translation, no
+//! signal or flow-control characters) because the GCS control characters
+//! `#4`, `#5`, `#7`, `#24` would otherwise be eaten by the line discipline.
+//! The server does not keep the slave side open: while no client has the
+//! port open the master reports a hang-up, and what the controllers send
+//! then is discarded (and the queues flushed), as bytes sent down a serial
+//! cable with nobody listening are lost. A client opening the port later
+//! never reads stale answers.
+
+use crate::bus::{Bus, BusError};
+use crate::clock::{Clock, ScaledClock};
+use crate::controller::{Controller, ControllerConfig};
+use micropos::gcs::Address;
+use nix::fcntl::{fcntl, FcntlArg, OFlag};
+use nix::poll::{poll, PollFd, PollFlags, PollTimeout};
+use nix::sys::termios::{cfmakeraw, tcflush, tcgetattr, tcsetattr, FlushArg, SetArg};
+use rand::{Rng, SeedableRng};
+use std::fmt;
+use std::fs::File;
+use std::io::{self, Read, Write};
+use std::os::fd::{AsFd, AsRawFd};
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::mpsc;
+use std::sync::{Arc, Mutex, MutexGuard};
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+
+/// Longest a serving thread sleeps before looking at its command channel and
+/// the stop flag: bounds fault-injection and shutdown latency.
+const POLL_INTERVAL: Duration = Duration::from_millis(5);
+/// How long [`SimHandle::start`] waits for each controller to answer.
+const READY_TIMEOUT: Duration = Duration::from_secs(5);
+
+/// One of the two stage axes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum AxisName {
+    /// The X axis (first controller; address 1 on a daisy chain).
+    X,
+    /// The Y axis (second controller; address 2 on a daisy chain).
+    Y,
+}
+
+impl AxisName {
+    /// Both axes, X first.
+    pub const ALL: [AxisName; 2] = [AxisName::X, AxisName::Y];
+
+    fn index(self) -> usize {
+        match self {
+            Self::X => 0,
+            Self::Y => 1,
+        }
+    }
+}
+
+impl fmt::Display for AxisName {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(match self {
+            Self::X => "x",
+            Self::Y => "y",
+        })
+    }
+}
+
+impl std::str::FromStr for AxisName {
+    type Err = SimError;
+    fn from_str(s: &str) -> Result<Self, SimError> {
+        match s {
+            "x" | "X" => Ok(Self::X),
+            "y" | "Y" => Ok(Self::Y),
+            other => Err(SimError::Config(format!(
+                "unknown axis {other:?} (expected \"x\" or \"y\")"
+            ))),
+        }
+    }
+}
+
+/// How to serve the simulated controllers.
+#[derive(Debug, Clone)]
+pub struct ServeConfig {
+    /// Directory for the symlinks `x`, `y` (or `bus` with `daisy_chain`).
+    pub link_dir: PathBuf,
+    /// Both controllers on one pty: X at address 1, Y at address 2.
+    pub daisy_chain: bool,
+    /// Simulated seconds per wall second (1.0 = real time).
+    pub time_scale: f64,
+    /// Unix socket for JSON-lines fault injection, if wanted.
+    pub control_socket: Option<PathBuf>,
+    /// Seed for everything random (serial numbers, power-up carriage
+    /// positions): the same seed gives the same simulation.
+    pub seed: u64,
+}
+
+impl Default for ServeConfig {
+    fn default() -> Self {
+        Self {
+            link_dir: PathBuf::new(),
+            daisy_chain: false,
+            time_scale: 1.0,
+            control_socket: None,
+            seed: 0,
+        }
+    }
+}
+
+/// A fault to inject on an axis's line or controller.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Fault {
+    /// Pulled cable: pty closed, symlink removed; controller state kept
+    /// (motion in progress goes on).
+    DropLine,
+    /// Cable back: new pty, symlink re-pointed to it.
+    RestoreLine,
+    /// Controller reset: unreferenced, servo off, position 0, error 0,
+    /// motion stopped, parameters back to defaults; line stays up.
+    PowerCycle,
+    /// These bytes are written to the host at once.
+    Garbage(Vec<u8>),
+    /// Every reply is delayed by this much wall time (`Duration::ZERO` to
+    /// undo).
+    DelayReplies(Duration),
+    /// true: the controller reads and executes but never answers.
+    WithholdReplies(bool),
+}
+
+/// What can go wrong while serving.
+#[derive(Debug, thiserror::Error)]
+pub enum SimError {
+    /// The configuration or a request is invalid.
+    #[error("invalid configuration: {0}")]
+    Config(String),
+    /// A system call on a file, pty or socket failed.
+    #[error("{context}: {source}")]
+    Io {
+        /// What was being done.
+        context: String,
+        /// The OS error.
+        source: io::Error,
+    },
+    /// The line of this axis is down (after [`Fault::DropLine`]).
+    #[error("the line of axis {0} is down")]
+    LineDown(AxisName),
+    /// A controller did not answer its readiness probe.
+    #[error("controller of axis {axis} did not answer at {link}: {why}")]
+    NotReady {
+        /// Which axis.
+        axis: AxisName,
+        /// The link probed.
+        link: PathBuf,
+        /// What happened.
+        why: String,
+    },
+    /// The serving thread of a line is gone.
+    #[error("the serving thread of axis {0} has stopped")]
+    ThreadGone(AxisName),
+    /// Controllers could not be put on a bus.
+    #[error(transparent)]
+    Bus(#[from] BusError),
+}
+
+fn io_err(context: impl Into<String>) -> impl FnOnce(io::Error) -> SimError {
+    let context = context.into();
+    move |source| SimError::Io { context, source }
+}
+
+fn nix_err(context: impl Into<String>) -> impl FnOnce(nix::Error) -> SimError {
+    let context = context.into();
+    move |e| SimError::Io {
+        context,
+        source: io::Error::from(e),
+    }
+}
+
+/// One open pty. Dropping it closes the master, which hangs up the client.
+#[derive(Debug)]
+struct Pty {
+    master: File,
+    slave_path: PathBuf,
+    /// Whether a client had the slave open at the last look.
+    connected: bool,
+}
+
+impl Pty {
+    /// Opens a raw, non-blocking pty and points `link` at its slave. The
+    /// slave is configured and closed again: the settings stay with the pty.
+    fn open(link: &Path) -> Result<Pty, SimError> {
+        let pair = nix::pty::openpty(None, None).map_err(nix_err("openpty"))?;
+        let mut t = tcgetattr(pair.slave.as_fd()).map_err(nix_err("tcgetattr on pty slave"))?;
+        cfmakeraw(&mut t);
+        tcsetattr(pair.slave.as_fd(), SetArg::TCSANOW, &t)
+            .map_err(nix_err("tcsetattr (raw mode) on pty slave"))?;
+        fcntl(
+            pair.master.as_raw_fd(),
+            FcntlArg::F_SETFL(OFlag::O_NONBLOCK),
+        )
+        .map_err(nix_err("set pty master non-blocking"))?;
+        let slave_path =
+            nix::unistd::ttyname(pair.slave.as_fd()).map_err(nix_err("ttyname of pty slave"))?;
+        relink(link, &slave_path)?;
+        Ok(Pty {
+            master: File::from(pair.master),
+            slave_path,
+            connected: false,
+        })
+    }
+
+    /// Polls the master for up to `wait`: returns (readable, client present).
+    fn wait(&self, wait: Duration) -> (bool, bool) {
+        let ms = u16::try_from(wait.as_millis()).unwrap_or(u16::MAX);
+        let mut fds = [PollFd::new(self.master.as_fd(), PollFlags::POLLIN)];
+        match poll(&mut fds, PollTimeout::from(ms)) {
+            Ok(n) if n > 0 => {
+                let r = fds[0].revents().unwrap_or(PollFlags::empty());
+                (
+                    r.intersects(PollFlags::POLLIN),
+                    !r.intersects(PollFlags::POLLHUP),
+                )
+            }
+            Ok(_) => (false, true),
+            Err(_) => (false, false),
+        }
+    }
+
+    /// Discards everything queued in both directions. The answers a client
+    /// left unread sit in the slave's line discipline, which only a flush
+    /// through the slave side reaches.
+    fn flush(&self) {
+        use std::os::unix::fs::OpenOptionsExt;
+        let _ = tcflush(self.master.as_fd(), FlushArg::TCIOFLUSH);
+        let slave = std::fs::OpenOptions::new()
+            .read(true)
+            .write(true)
+            .custom_flags((OFlag::O_NOCTTY | OFlag::O_NONBLOCK).bits())
+            .open(&self.slave_path);
+        if let Ok(f) = slave {
+            let _ = tcflush(f.as_fd(), FlushArg::TCIOFLUSH);
+        }
+    }
+}
+
+/// Points `link` at `target`, replacing any old link atomically (a client
+/// never sees the link missing during a restore).
+fn relink(link: &Path, target: &Path) -> Result<(), SimError> {
+    let name = link
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    let tmp = link.with_file_name(format!(".{name}.tmp-{}", std::process::id()));
+    let _ = std::fs::remove_file(&tmp);
+    std::os::unix::fs::symlink(target, &tmp)
+        .map_err(io_err(format!("create symlink {}", tmp.display())))?;
+    std::fs::rename(&tmp, link).map_err(io_err(format!("rename symlink to {}", link.display())))
+}
+
+/// Commands to a line thread.
+enum LineCmd {
+    Drop,
+    Restore,
+    Garbage(Vec<u8>),
+    Delay(usize, Duration),
+    Withhold(usize, bool),
+}
+
+type Ack = mpsc::Sender<Result<(), SimError>>;
+
+/// State owned by one line thread.
+struct Line {
+    axis: AxisName,
+    link: PathBuf,
+    pty: Option<Pty>,
+    bus: Arc<Mutex<Bus>>,
+    clock: Arc<dyn Clock>,
+    delay: Vec<Duration>,
+    withhold: Vec<bool>,
+    /// Delayed replies: (due, bytes), sorted by due time.
+    pending: Vec<(Instant, Vec<u8>)>,
+}
+
+fn lock(bus: &Mutex<Bus>) -> MutexGuard<'_, Bus> {
+    // A panic while holding the lock would be a simulator bug; the state is
+    // still usable for serving, so do not cascade it.
+    bus.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+impl Line {
+    fn apply(&mut self, cmd: LineCmd) -> Result<(), SimError> {
+        match cmd {
+            LineCmd::Drop => {
+                self.pty = None;
+                self.pending.clear();
+                lock(&self.bus).reset_line();
+                match std::fs::remove_file(&self.link) {
+                    Ok(()) => Ok(()),
+                    Err(e) if e.kind() == io::ErrorKind::NotFound => Ok(()),
+                    Err(e) => Err(io_err(format!("remove link {}", self.link.display()))(e)),
+                }
+            }
+            LineCmd::Restore => {
+                if self.pty.is_none() {
+                    self.pty = Some(Pty::open(&self.link)?);
+                }
+                Ok(())
+            }
+            LineCmd::Garbage(bytes) => {
+                if self.pty.is_none() {
+                    return Err(SimError::LineDown(self.axis));
+                }
+                self.write(&bytes);
+                Ok(())
+            }
+            LineCmd::Delay(i, d) => {
+                if let Some(slot) = self.delay.get_mut(i) {
+                    *slot = d;
+                }
+                Ok(())
+            }
+            LineCmd::Withhold(i, on) => {
+                if let Some(slot) = self.withhold.get_mut(i) {
+                    *slot = on;
+                }
+                Ok(())
+            }
+        }
+    }
+
+    /// Writes to the host. A host that does not read fills the pty buffer;
+    /// the bytes that do not fit are lost, as on a real line.
+    fn write(&mut self, bytes: &[u8]) {
+        let Some(pty) = self.pty.as_mut() else {
+            return;
+        };
+        let (_, connected) = pty.wait(Duration::ZERO);
+        if !connected {
+            return;
+        }
+        let mut rest = bytes;
+        while !rest.is_empty() {
+            match pty.master.write(rest) {
+                Ok(0) => break,
+                Ok(n) => rest = &rest[n..],
+                Err(e) if e.kind() == io::ErrorKind::Interrupted => {}
+                Err(e) => {
+                    tracing::warn!(axis = %self.axis, "dropping {} reply bytes: {e}", rest.len());
+                    break;
+                }
+            }
+        }
+    }
+
+    fn flush_due(&mut self) {
+        let now = Instant::now();
+        while self.pending.first().is_some_and(|(due, _)| *due <= now) {
+            let (_, bytes) = self.pending.remove(0);
+            self.write(&bytes);
+        }
+    }
+
+    fn on_bytes(&mut self, bytes: &[u8]) {
+        let now = self.clock.now();
+        let replies = lock(&self.bus).receive(now, bytes);
+        for r in replies {
+            if self.withhold.get(r.from).copied().unwrap_or(false) {
+                continue;
+            }
+            let delay = self.delay.get(r.from).copied().unwrap_or_default();
+            if delay.is_zero() && self.pending.is_empty() {
+                self.write(&r.bytes);
+            } else {
+                let due = Instant::now() + delay;
+                let at = self.pending.partition_point(|(d, _)| *d <= due);
+                self.pending.insert(at, (due, r.bytes));
+            }
+        }
+    }
+
+    fn run(mut self, rx: mpsc::Receiver<(LineCmd, Ack)>, stop: Arc<AtomicBool>) {
+        let mut buf = [0u8; 4096];
+        loop {
+            loop {
+                match rx.try_recv() {
+                    Ok((cmd, ack)) => {
+                        let r = self.apply(cmd);
+                        let _ = ack.send(r);
+                    }
+                    Err(mpsc::TryRecvError::Empty) => break,
+                    Err(mpsc::TryRecvError::Disconnected) => {
+                        stop.store(true, Ordering::SeqCst);
+                        break;
+                    }
+                }
+            }
+            if stop.load(Ordering::SeqCst) {
+                break;
+            }
+            self.flush_due();
+            let wait = self
+                .pending
+                .first()
+                .map(|(due, _)| due.saturating_duration_since(Instant::now()))
+                .unwrap_or(POLL_INTERVAL)
+                .min(POLL_INTERVAL);
+            let Some(pty) = self.pty.as_mut() else {
+                std::thread::sleep(wait);
+                continue;
+            };
+            let (readable, connected) = pty.wait(wait.max(Duration::from_millis(1)));
+            if connected != pty.connected {
+                pty.connected = connected;
+                if !connected {
+                    // The client went: what it left unread, and any half
+                    // line it sent, are not for the next one.
+                    pty.flush();
+                    self.pending.clear();
+                    lock(&self.bus).reset_line();
+                }
+            }
+            if !connected {
+                // Hang-up is reported at once; do not spin on it.
+                std::thread::sleep(wait);
+                continue;
+            }
+            if !readable {
+                continue;
+            }
+            match pty.master.read(&mut buf) {
+                Ok(0) => std::thread::sleep(wait),
+                Ok(n) => {
+                    let bytes = buf[..n].to_vec();
+                    self.on_bytes(&bytes);
+                }
+                Err(e)
+                    if e.kind() == io::ErrorKind::WouldBlock
+                        || e.kind() == io::ErrorKind::Interrupted => {}
+                Err(e) => {
+                    tracing::debug!(axis = %self.axis, "pty read: {e}");
+                    std::thread::sleep(wait);
+                }
+            }
+        }
+        self.pty = None;
+        let _ = std::fs::remove_file(&self.link);
+    }
+}
+
+/// Where an axis lives: which line, which controller on that line's bus.
+#[derive(Debug, Clone, Copy)]
+struct Route {
+    line: usize,
+    controller: usize,
+}
+
+struct LineCtl {
+    axis: AxisName,
+    link: PathBuf,
+    tx: Mutex<mpsc::Sender<(LineCmd, Ack)>>,
+    thread: Option<JoinHandle<()>>,
+}
+
+/// Shared between the handle and the control socket.
+struct Core {
+    clock: Arc<dyn Clock>,
+    buses: Vec<Arc<Mutex<Bus>>>,
+    lines: Vec<LineCtl>,
+    routes: [Route; 2],
+    stop: Arc<AtomicBool>,
+}
+
+impl Core {
+    fn send(&self, line: usize, cmd: LineCmd) -> Result<(), SimError> {
+        let ctl = &self.lines[line];
+        let (ack_tx, ack_rx) = mpsc::channel();
+        ctl.tx
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .send((cmd, ack_tx))
+            .map_err(|_| SimError::ThreadGone(ctl.axis))?;
+        ack_rx
+            .recv_timeout(Duration::from_secs(5))
+            .map_err(|_| SimError::ThreadGone(ctl.axis))?
+    }
+
+    fn inject(&self, axis: AxisName, fault: Fault) -> Result<(), SimError> {
+        let r = self.routes[axis.index()];
+        match fault {
+            Fault::DropLine => self.send(r.line, LineCmd::Drop),
+            Fault::RestoreLine => self.send(r.line, LineCmd::Restore),
+            Fault::Garbage(b) => self.send(r.line, LineCmd::Garbage(b)),
+            Fault::DelayReplies(d) => self.send(r.line, LineCmd::Delay(r.controller, d)),
+            Fault::WithholdReplies(on) => self.send(r.line, LineCmd::Withhold(r.controller, on)),
+            Fault::PowerCycle => {
+                let now = self.clock.now();
+                let mut bus = lock(&self.buses[r.line]);
+                if let Some(c) = bus.controller_mut(r.controller) {
+                    c.power_cycle(now);
+                }
+                Ok(())
+            }
+        }
+    }
+
+    fn true_position_mm(&self, axis: AxisName) -> f64 {
+        let r = self.routes[axis.index()];
+        let now = self.clock.now();
+        let bus = lock(&self.buses[r.line]);
+        bus.controllers()
+            .get(r.controller)
+            .map(|c| c.true_position_mm(now))
+            .unwrap_or(f64::NAN)
+    }
+
+    fn link(&self, axis: AxisName) -> PathBuf {
+        self.lines[self.routes[axis.index()].line].link.clone()
+    }
+}
+
+/// The running simulator. Dropping it shuts everything down and removes the
+/// links (and the control socket).
+pub struct SimHandle {
+    core: Arc<Core>,
+    control: Option<crate::control::ControlServer>,
+    down: bool,
+}
+
+impl fmt::Debug for SimHandle {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.debug_struct("SimHandle")
+            .field(
+                "links",
+                &self.core.lines.iter().map(|l| &l.link).collect::<Vec<_>>(),
+            )
+            .finish()
+    }
+}
+
+/// Serial numbers and power-up carriage positions for both controllers,
+/// drawn from the seed.
+fn controller_configs(seed: u64, daisy: bool) -> Result<[ControllerConfig; 2], SimError> {
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+    let mut make = |axis: AxisName| -> Result<ControllerConfig, SimError> {
+        let addr = if daisy { axis.index() as u8 + 1 } else { 1 };
+        let address = Address::new(addr).map_err(|e| SimError::Config(format!("address: {e}")))?;
+        let serial = format!("01155{:05}", rng.gen_range(0..100_000u32));
+        // Somewhere inside the travel; the controller does not know where.
+        let initial = rng.gen_range(1.0..14.0);
+        Ok(ControllerConfig::new(address, &serial, initial))
+    };
+    Ok([make(AxisName::X)?, make(AxisName::Y)?])
+}
+
+impl SimHandle {
+    /// Starts serving with a clock running `cfg.time_scale` times wall time.
+    /// Returns when the links exist and every controller has answered
+    /// `*IDN?` through its link. Spawns plain threads (no tokio), so it may
+    /// be called from inside or outside a tokio runtime.
+    pub fn start(cfg: ServeConfig) -> Result<SimHandle, SimError> {
+        if !(cfg.time_scale.is_finite() && cfg.time_scale > 0.0) {
+            return Err(SimError::Config(format!(
+                "time_scale must be a positive number, got {}",
+                cfg.time_scale
+            )));
+        }
+        let clock = Arc::new(ScaledClock::new(cfg.time_scale));
+        Self::start_with_clock(cfg, clock)
+    }
+
+    /// Like [`SimHandle::start`] but with a given clock (`cfg.time_scale` is
+    /// ignored): a [`crate::clock::ManualClock`] makes served timing
+    /// deterministic.
+    pub fn start_with_clock(
+        cfg: ServeConfig,
+        clock: Arc<dyn Clock>,
+    ) -> Result<SimHandle, SimError> {
+        if cfg.link_dir.as_os_str().is_empty() {
+            return Err(SimError::Config("link_dir must be set".into()));
+        }
+        if !cfg.link_dir.is_dir() {
+            return Err(SimError::Config(format!(
+                "link_dir {} is not a directory",
+                cfg.link_dir.display()
+            )));
+        }
+        let [cx, cy] = controller_configs(cfg.seed, cfg.daisy_chain)?;
+        let stop = Arc::new(AtomicBool::new(false));
+        let (buses, routes, names): (Vec<Bus>, [Route; 2], Vec<(AxisName, &str)>) =
+            if cfg.daisy_chain {
+                (
+                    vec![Bus::new(vec![Controller::new(cx), Controller::new(cy)])?],
+                    [
+                        Route {
+                            line: 0,
+                            controller: 0,
+                        },
+                        Route {
+                            line: 0,
+                            controller: 1,
+                        },
+                    ],
+                    vec![(AxisName::X, "bus")],
+                )
+            } else {
+                (
+                    vec![
+                        Bus::new(vec![Controller::new(cx)])?,
+                        Bus::new(vec![Controller::new(cy)])?,
+                    ],
+                    [
+                        Route {
+                            line: 0,
+                            controller: 0,
+                        },
+                        Route {
+                            line: 1,
+                            controller: 0,
+                        },
+                    ],
+                    vec![(AxisName::X, "x"), (AxisName::Y, "y")],
+                )
+            };
+        let buses: Vec<Arc<Mutex<Bus>>> =
+            buses.into_iter().map(|b| Arc::new(Mutex::new(b))).collect();
+        let mut lines = Vec::new();
+        let core_stop_on_err = |lines: &mut Vec<LineCtl>| {
+            stop.store(true, Ordering::SeqCst);
+            for l in lines.iter_mut() {
+                if let Some(t) = l.thread.take() {
+                    let _ = t.join();
+                }
+            }
+        };
+        for (i, (axis, name)) in names.iter().enumerate() {
+            let link = cfg.link_dir.join(name);
+            let pty = match Pty::open(&link) {
+                Ok(p) => p,
+                Err(e) => {
+                    core_stop_on_err(&mut lines);
+                    return Err(e);
+                }
+            };
+            let n = buses[i]
+                .lock()
+                .unwrap_or_else(|e| e.into_inner())
+                .controllers()
+                .len();
+            let line = Line {
+                axis: *axis,
+                link: link.clone(),
+                pty: Some(pty),
+                bus: buses[i].clone(),
+                clock: clock.clone(),
+                delay: vec![Duration::ZERO; n],
+                withhold: vec![false; n],
+                pending: Vec::new(),
+            };
+            let (tx, rx) = mpsc::channel();
+            let stop2 = stop.clone();
+            let thread = std::thread::Builder::new()
+                .name(format!("hil-sim-{name}"))
+                .spawn(move || line.run(rx, stop2))
+                .map_err(io_err("spawn line thread"));
+            let thread = match thread {
+                Ok(t) => t,
+                Err(e) => {
+                    core_stop_on_err(&mut lines);
+                    return Err(e);
+                }
+            };
+            lines.push(LineCtl {
+                axis: *axis,
+                link,
+                tx: Mutex::new(tx),
+                thread: Some(thread),
+            });
+        }
+        let core = Arc::new(Core {
+            clock,
+            buses,
+            lines,
+            routes,
+            stop,
+        });
+        let mut handle = SimHandle {
+            core,
+            control: None,
+            down: false,
+        };
+        for axis in AxisName::ALL {
+            handle.probe(axis, cfg.daisy_chain)?;
+        }
+        if let Some(path) = &cfg.control_socket {
+            let injector: Arc<dyn crate::control::Injector> = handle.core.clone();
+            handle.control = Some(crate::control::ControlServer::start(path, injector)?);
+        }
+        Ok(handle)
+    }
+
+    /// Asks the controller of `axis` for `*IDN?` through its link.
+    fn probe(&self, axis: AxisName, daisy: bool) -> Result<(), SimError> {
+        let link = self.link(axis);
+        let not_ready = |why: String| SimError::NotReady {
+            axis,
+            link: link.clone(),
+            why,
+        };
+        let request = if daisy {
+            format!("{} *IDN?\n", axis.index() + 1)
+        } else {
+            "*IDN?\n".to_owned()
+        };
+        let answer = exchange(&link, request.as_bytes(), READY_TIMEOUT)
+            .map_err(|e| not_ready(e.to_string()))?;
+        if answer.windows(8).any(|w| w == b"C-863.11") {
+            Ok(())
+        } else {
+            Err(not_ready(format!(
+                "unexpected answer {:?}",
+                String::from_utf8_lossy(&answer)
+            )))
+        }
+    }
+
+    /// The link of an axis: `DIR/x`, `DIR/y`, or `DIR/bus` for both.
+    pub fn link(&self, axis: AxisName) -> PathBuf {
+        self.core.link(axis)
+    }
+
+    /// Injects a fault; it is in effect when this returns.
+    pub fn inject(&self, axis: AxisName, fault: Fault) -> Result<(), SimError> {
+        self.core.inject(axis, fault)
+    }
+
+    /// Ground truth: where the platform of `axis` really is now (mm).
+    pub fn true_position_mm(&self, axis: AxisName) -> f64 {
+        self.core.true_position_mm(axis)
+    }
+
+    /// Simulated time now.
+    pub fn sim_time(&self) -> Duration {
+        self.core.clock.now()
+    }
+
+    /// Runs `f` on the controller of `axis` (under its bus lock) with the
+    /// current simulated time: for tests that need more than the truth, and
+    /// for installing a stage error model with
+    /// [`Controller::set_platform`].
+    pub fn with_controller<T>(
+        &self,
+        axis: AxisName,
+        f: impl FnOnce(&mut Controller, Duration) -> T,
+    ) -> Option<T> {
+        let r = self.core.routes[axis.index()];
+        let now = self.core.clock.now();
+        let mut bus = lock(&self.core.buses[r.line]);
+        bus.controller_mut(r.controller).map(|c| f(c, now))
+    }
+
+    /// Stops serving: threads end, links and control socket are removed.
+    pub fn shutdown(mut self) {
+        self.stop_all();
+    }
+
+    fn stop_all(&mut self) {
+        if self.down {
+            return;
+        }
+        self.down = true;
+        if let Some(c) = self.control.take() {
+            c.stop();
+        }
+        self.core.stop.store(true, Ordering::SeqCst);
+        // The threads are only reachable through the Arc; take them out.
+        if let Some(core) = Arc::get_mut(&mut self.core) {
+            for l in &mut core.lines {
+                if let Some(t) = l.thread.take() {
+                    let _ = t.join();
+                }
+            }
+        } else {
+            // The control server still holds a reference only if it failed to
+            // stop; the threads see the stop flag and remove their links.
+            for l in &self.core.lines {
+                let _ = std::fs::remove_file(&l.link);
+            }
+        }
+    }
+}
+
+impl Drop for SimHandle {
+    fn drop(&mut self) {
+        self.stop_all();
+    }
+}
+
+impl crate::control::Injector for Core {
+    fn inject(&self, axis: AxisName, fault: Fault) -> Result<(), SimError> {
+        Core::inject(self, axis, fault)
+    }
+
+    fn true_position_mm(&self, axis: AxisName) -> f64 {
+        Core::true_position_mm(self, axis)
+    }
+
+    fn sim_time(&self) -> Duration {
+        self.clock.now()
+    }
+
+    fn line_axes(&self) -> Vec<AxisName> {
+        // One axis per distinct line, so a line fault without an axis hits
+        // every line once.
+        let mut seen = Vec::new();
+        let mut out = Vec::new();
+        for axis in AxisName::ALL {
+            let l = self.routes[axis.index()].line;
+            if !seen.contains(&l) {
+                seen.push(l);
+                out.push(axis);
+            }
+        }
+        out
+    }
+}
+
+/// One blocking request/answer exchange through a serial device path: writes
+/// `request`, reads until an answer's final LF (a LF not preceded by a
+/// space) or `timeout`. A small helper for probes and tests; the real driver
+/// lives in `micropos`.
+pub fn exchange(path: &Path, request: &[u8], timeout: Duration) -> io::Result<Vec<u8>> {
+    let mut f = std::fs::OpenOptions::new()
+        .read(true)
+        .write(true)
+        .open(path)?;
+    f.write_all(request)?;
+    read_answer(&mut f, timeout)
+}
+
+/// Reads one complete GCS answer from `f` (see [`exchange`]).
+pub fn read_answer(f: &mut File, timeout: Duration) -> io::Result<Vec<u8>> {
+    let deadline = Instant::now() + timeout;
+    let mut out = Vec::new();
+    let mut buf = [0u8; 1024];
+    loop {
+        let left = deadline.saturating_duration_since(Instant::now());
+        if left.is_zero() {
+            return Err(io::Error::new(
+                io::ErrorKind::TimedOut,
+                format!("no complete answer within {timeout:?} (got {out:?})"),
+            ));
+        }
+        let ms = u16::try_from(left.as_millis().max(1)).unwrap_or(u16::MAX);
+        let mut fds = [PollFd::new(f.as_fd(), PollFlags::POLLIN)];
+        let n = poll(&mut fds, PollTimeout::from(ms)).map_err(io::Error::from)?;
+        if n == 0 {
+            continue;
+        }
+        let got = f.read(&mut buf)?;
+        if got == 0 {
+            return Err(io::Error::new(io::ErrorKind::UnexpectedEof, "line closed"));
+        }
+        out.extend_from_slice(&buf[..got]);
+        if out.ends_with(b"\n") && (out.len() < 2 || out[out.len() - 2] != b' ') {
+            return Ok(out);
+        }
+    }
+}

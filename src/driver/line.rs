@@ -1,0 +1,480 @@
+//! One task per serial line: it owns the byte stream and a
+//! [`Session`](crate::gcs::Session), runs one exchange at a time, watches the
+//! line while idle, and reopens the device after a fault.
+//!
+//! Invariants:
+//! - Exactly one exchange is in flight on a line; answers are matched to
+//!   requests only by order (GCS has no request ids).
+//! - Bytes received while no exchange runs are never part of an answer: the
+//!   session's decoder is cleared before each request is written.
+//! - After a silence the line waits until it has been quiet for one full
+//!   answer timeout before writing again, so a late answer is dropped instead
+//!   of being taken for the answer to the next request.
+//! - Every reply carries the connection epoch (incremented on each reopen), so
+//!   callers can tell that the device may have changed under them.
+//! - An exchange, once started, is completed even if its caller went away
+//!   (cancellation-safe: the line never loses track of what is in flight).
+
+use super::error::DriverError;
+use super::transport::Connector;
+use super::AxisEvent;
+use crate::gcs::frame::Address;
+use crate::gcs::{Answer, Outgoing, Session, SessionEvent};
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::Arc;
+use std::time::Duration;
+use tokio::io::{AsyncReadExt, AsyncWriteExt};
+use tokio::sync::{broadcast, mpsc, oneshot};
+use tokio::time::Instant;
+
+/// Reconnect behaviour of a line.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LineOptions {
+    /// First delay between reopen attempts.
+    pub reconnect_min: Duration,
+    /// Largest delay between reopen attempts (the delay doubles up to it).
+    pub reconnect_max: Duration,
+}
+
+impl Default for LineOptions {
+    fn default() -> Self {
+        Self {
+            reconnect_min: Duration::from_millis(50),
+            reconnect_max: Duration::from_secs(1),
+        }
+    }
+}
+
+/// How an exchange ended.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Outcome {
+    /// The answer (daisy-chain header removed).
+    Answer(Answer),
+    /// The request expects no answer and was written.
+    Sent,
+    /// No complete answer before the timeout.
+    Silence {
+        /// Whether part of an answer had arrived.
+        partial: bool,
+    },
+}
+
+/// The result of one exchange with the connection epoch it ran on.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Reply {
+    /// What happened.
+    pub outcome: Outcome,
+    /// Connection epoch: 1 for the first connection, +1 per reopen.
+    pub epoch: u64,
+}
+
+enum Request {
+    Exchange {
+        addr: Option<Address>,
+        out: Outgoing,
+        timeout: Duration,
+        reply: oneshot::Sender<Result<Reply, DriverError>>,
+    },
+    Resync {
+        quiet: Duration,
+    },
+}
+
+/// Handle to a line task. Cheap to clone; the task ends (closing the device)
+/// when the last handle is dropped, after finishing the exchange in flight.
+/// Closing sends nothing to the controller: motion in progress continues.
+#[derive(Debug, Clone)]
+pub struct Line {
+    tx: mpsc::Sender<Request>,
+    name: Arc<str>,
+    epoch: Arc<AtomicU64>,
+    noise: Arc<AtomicU64>,
+}
+
+impl Line {
+    /// Opens the line once (an error here is returned as is: a missing device
+    /// at start-up is a configuration problem, not a fault to ride out), then
+    /// spawns its task, which reopens it after faults.
+    pub async fn open<C: Connector>(
+        mut connector: C,
+        options: LineOptions,
+        events: broadcast::Sender<AxisEvent>,
+    ) -> Result<Line, DriverError> {
+        let io = connector.connect().await?;
+        let name: Arc<str> = connector.name().into();
+        let epoch = Arc::new(AtomicU64::new(1));
+        let noise = Arc::new(AtomicU64::new(0));
+        let (tx, rx) = mpsc::channel(32);
+        let task = Task {
+            connector,
+            options,
+            events,
+            name: name.clone(),
+            session: Session::new(),
+            t0: Instant::now(),
+            epoch: epoch.clone(),
+            noise: noise.clone(),
+            quiet_needed: None,
+            down_reason: String::new(),
+        };
+        let _ = task.events.send(AxisEvent::Connected {
+            line: name.to_string(),
+        });
+        tokio::spawn(task.run(io, rx));
+        Ok(Line {
+            tx,
+            name,
+            epoch,
+            noise,
+        })
+    }
+
+    /// The device path.
+    pub fn name(&self) -> &str {
+        &self.name
+    }
+
+    /// The current connection epoch (see [`Reply::epoch`]).
+    pub fn epoch(&self) -> u64 {
+        self.epoch.load(Ordering::SeqCst)
+    }
+
+    /// How many times bytes that belong to no request have arrived. A
+    /// reading is trusted only if this did not change while it was taken
+    /// and confirmed (see `Axis::position_um`): garbage shaped like an answer
+    /// can be taken for one, but then the real answer arrives out of turn and
+    /// moves this counter.
+    pub fn noise_count(&self) -> u64 {
+        self.noise.load(Ordering::SeqCst)
+    }
+
+    /// Runs one exchange: writes the request and, if it expects an answer,
+    /// waits for it at most `timeout` after the last byte received.
+    pub async fn exchange(
+        &self,
+        addr: Option<Address>,
+        out: Outgoing,
+        timeout: Duration,
+    ) -> Result<Reply, DriverError> {
+        let (reply, rx) = oneshot::channel();
+        self.tx
+            .send(Request::Exchange {
+                addr,
+                out,
+                timeout,
+                reply,
+            })
+            .await
+            .map_err(|_| self.closed())?;
+        rx.await.map_err(|_| self.closed())?
+    }
+
+    /// Asks the line to wait for `quiet` without traffic before its next
+    /// write: used when an answer turned out to be unusable, so that whatever
+    /// caused it (garbage, a late answer) is drained.
+    pub async fn resync(&self, quiet: Duration) {
+        let _ = self.tx.send(Request::Resync { quiet }).await;
+    }
+
+    fn closed(&self) -> DriverError {
+        DriverError::Closed {
+            line: self.name.to_string(),
+        }
+    }
+}
+
+struct Task<C: Connector> {
+    connector: C,
+    options: LineOptions,
+    events: broadcast::Sender<AxisEvent>,
+    name: Arc<str>,
+    session: Session,
+    t0: Instant,
+    epoch: Arc<AtomicU64>,
+    noise: Arc<AtomicU64>,
+    /// Set after a silence: how long the line must be quiet before the next write.
+    quiet_needed: Option<Duration>,
+    down_reason: String,
+}
+
+enum Step {
+    Continue,
+    Down(String),
+    Exit,
+}
+
+impl<C: Connector> Task<C> {
+    fn now(&self) -> Duration {
+        self.t0.elapsed()
+    }
+
+    fn noise(&self, text: String) {
+        self.noise.fetch_add(1, Ordering::SeqCst);
+        tracing::warn!(line = %self.name, "unexpected bytes: {text}");
+        let _ = self.events.send(AxisEvent::Noise {
+            line: self.name.to_string(),
+            text,
+        });
+    }
+
+    fn disconnected(&self) -> DriverError {
+        DriverError::Disconnected {
+            line: self.name.to_string(),
+            reason: self.down_reason.clone(),
+        }
+    }
+
+    async fn run(mut self, io: C::Io, mut rx: mpsc::Receiver<Request>) {
+        let mut conn = Some(io);
+        let mut buf = [0u8; 1024];
+        let mut backoff = self.options.reconnect_min;
+        let mut next_try = Instant::now();
+        loop {
+            let step = match conn.as_mut() {
+                Some(io) => {
+                    tokio::select! {
+                        req = rx.recv() => match req {
+                            None => Step::Exit,
+                            Some(req) => self.handle(io, req).await,
+                        },
+                        r = io.read(&mut buf) => match r {
+                            Ok(0) => Step::Down("end of file (device closed)".to_owned()),
+                            Ok(n) => {
+                                // No request is in flight: whatever this is, it is not an answer.
+                                self.noise.fetch_add(1, Ordering::SeqCst);
+                                let now = self.now();
+                                for ev in self.session.on_bytes(now, &buf[..n]) {
+                                    if let SessionEvent::Unexpected(t) = ev {
+                                        self.noise(t);
+                                    }
+                                }
+                                Step::Continue
+                            }
+                            Err(e) => Step::Down(format!("read error: {e}")),
+                        },
+                    }
+                }
+                None => {
+                    tokio::select! {
+                        req = rx.recv() => match req {
+                            None => Step::Exit,
+                            Some(Request::Exchange { reply, .. }) => {
+                                let _ = reply.send(Err(self.disconnected()));
+                                Step::Continue
+                            }
+                            Some(Request::Resync { .. }) => Step::Continue,
+                        },
+                        () = tokio::time::sleep_until(next_try) => {
+                            match self.connector.connect().await {
+                                Ok(io) => {
+                                    conn = Some(io);
+                                    self.session.reset();
+                                    self.quiet_needed = None;
+                                    backoff = self.options.reconnect_min;
+                                    let e = self.epoch.fetch_add(1, Ordering::SeqCst) + 1;
+                                    tracing::info!(line = %self.name, epoch = e, "line reconnected");
+                                    let _ = self.events.send(AxisEvent::Connected {
+                                        line: self.name.to_string(),
+                                    });
+                                }
+                                Err(e) => {
+                                    self.down_reason = format!("reopening fails: {e}");
+                                    next_try = Instant::now() + backoff;
+                                    backoff = (backoff * 2).min(self.options.reconnect_max);
+                                }
+                            }
+                            Step::Continue
+                        }
+                    }
+                }
+            };
+            match step {
+                Step::Continue => {}
+                Step::Exit => return,
+                Step::Down(reason) => {
+                    tracing::warn!(line = %self.name, "line down: {reason}");
+                    conn = None;
+                    self.session.reset();
+                    self.down_reason = reason.clone();
+                    next_try = Instant::now() + self.options.reconnect_min;
+                    backoff = self.options.reconnect_min;
+                    let _ = self.events.send(AxisEvent::Disconnected {
+                        line: self.name.to_string(),
+                        reason,
+                    });
+                }
+            }
+        }
+    }
+
+    async fn handle(&mut self, io: &mut C::Io, req: Request) -> Step {
+        match req {
+            Request::Resync { quiet } => {
+                self.quiet_needed = Some(self.quiet_needed.map_or(quiet, |q| q.max(quiet)));
+                Step::Continue
+            }
+            Request::Exchange {
+                addr,
+                out,
+                timeout,
+                reply,
+            } => {
+                if reply.is_closed() {
+                    // The caller gave up before anything was sent.
+                    return Step::Continue;
+                }
+                let (step, result) = self.exchange(io, addr, &out, timeout).await;
+                let result = result.map(|outcome| Reply {
+                    outcome,
+                    epoch: self.epoch.load(Ordering::SeqCst),
+                });
+                let _ = reply.send(result);
+                step
+            }
+        }
+    }
+
+    /// Reads whatever arrives within `quiet` (zero: only what is already
+    /// there, without touching the timer, whose granularity is 1 ms); true
+    /// when the line was quiet.
+    async fn drain(&mut self, io: &mut C::Io, quiet: Duration) -> Result<bool, String> {
+        let mut buf = [0u8; 1024];
+        let read = if quiet.is_zero() {
+            poll_once(io.read(&mut buf)).await
+        } else {
+            tokio::time::timeout(quiet, io.read(&mut buf)).await.ok()
+        };
+        match read {
+            None => Ok(true),
+            Some(Ok(0)) => Err("end of file (device closed)".to_owned()),
+            Some(Err(e)) => Err(format!("read error: {e}")),
+            Some(Ok(n)) => {
+                self.noise.fetch_add(1, Ordering::SeqCst);
+                let now = self.now();
+                for ev in self.session.on_bytes(now, &buf[..n]) {
+                    if let SessionEvent::Unexpected(t) = ev {
+                        self.noise(t);
+                    }
+                }
+                Ok(false)
+            }
+        }
+    }
+
+    async fn exchange(
+        &mut self,
+        io: &mut C::Io,
+        addr: Option<Address>,
+        out: &Outgoing,
+        timeout: Duration,
+    ) -> (Step, Result<Outcome, DriverError>) {
+        // 1. Resynchronise after a silence: let late answers arrive and drop them.
+        if let Some(quiet) = self.quiet_needed.take() {
+            // A line that never falls quiet (streaming garbage) gets a bounded wait.
+            let give_up = Instant::now() + quiet * 10;
+            loop {
+                match self.drain(io, quiet).await {
+                    Ok(true) => break,
+                    Ok(false) if Instant::now() >= give_up => break,
+                    Ok(false) => {}
+                    Err(reason) => {
+                        self.down_reason = reason.clone();
+                        return (Step::Down(reason), Err(self.disconnected()));
+                    }
+                }
+            }
+        }
+        // 2. Take in what is already there, then drop any partial answer.
+        loop {
+            match self.drain(io, Duration::ZERO).await {
+                Ok(true) => break,
+                Ok(false) => {}
+                Err(reason) => {
+                    self.down_reason = reason.clone();
+                    return (Step::Down(reason), Err(self.disconnected()));
+                }
+            }
+        }
+        self.session.reset();
+        // 3. Write the request.
+        let bytes = match self.session.start(self.now(), addr, out, timeout) {
+            Ok(b) => b,
+            Err(e) => return (Step::Continue, Err(DriverError::Invalid(e.to_string()))),
+        };
+        let write = async {
+            io.write_all(&bytes).await?;
+            io.flush().await
+        };
+        match tokio::time::timeout(timeout.max(Duration::from_millis(100)), write).await {
+            Ok(Ok(())) => {}
+            Ok(Err(e)) => {
+                let reason = format!("write error: {e}");
+                self.down_reason = reason.clone();
+                return (Step::Down(reason), Err(self.disconnected()));
+            }
+            Err(_) => {
+                // Half a command may be on the line: only a reopen makes it clean.
+                let reason = "write stalled (nobody reads the line)".to_owned();
+                self.down_reason = reason.clone();
+                return (Step::Down(reason), Err(self.disconnected()));
+            }
+        }
+        if !self.session.is_busy() {
+            return (Step::Continue, Ok(Outcome::Sent));
+        }
+        // 4. Wait for the answer or the deadline.
+        let mut buf = [0u8; 1024];
+        loop {
+            let Some(deadline) = self.session.deadline() else {
+                return (Step::Continue, Ok(Outcome::Silence { partial: false }));
+            };
+            let at = self.t0 + deadline;
+            tokio::select! {
+                r = io.read(&mut buf) => match r {
+                    Ok(0) | Err(_) => {
+                        let reason = match r {
+                            Err(e) => format!("read error: {e}"),
+                            _ => "end of file (device closed)".to_owned(),
+                        };
+                        self.down_reason = reason.clone();
+                        return (Step::Down(reason), Err(self.disconnected()));
+                    }
+                    Ok(n) => {
+                        let now = self.now();
+                        let mut answer = None;
+                        for ev in self.session.on_bytes(now, &buf[..n]) {
+                            match ev {
+                                SessionEvent::Answer(a) if answer.is_none() => answer = Some(a),
+                                SessionEvent::Answer(a) => self.noise(a.text()),
+                                SessionEvent::Unexpected(t) => {
+                                    self.quiet_needed = Some(timeout);
+                                    self.noise(t);
+                                }
+                                SessionEvent::Silence { .. } => {}
+                            }
+                        }
+                        if let Some(a) = answer {
+                            return (Step::Continue, Ok(Outcome::Answer(a)));
+                        }
+                    }
+                },
+                () = tokio::time::sleep_until(at) => {
+                    if let Some(SessionEvent::Silence { partial }) = self.session.on_time(self.now()) {
+                        self.quiet_needed = Some(timeout);
+                        return (Step::Continue, Ok(Outcome::Silence { partial }));
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// Polls `fut` once: its output if it is ready now, else `None`.
+async fn poll_once<F: std::future::Future>(fut: F) -> Option<F::Output> {
+    let mut fut = std::pin::pin!(fut);
+    std::future::poll_fn(|cx| match fut.as_mut().poll(cx) {
+        std::task::Poll::Ready(v) => std::task::Poll::Ready(Some(v)),
+        std::task::Poll::Pending => std::task::Poll::Ready(None),
+    })
+    .await
+}

@@ -1,0 +1,472 @@
+//! Driver logic against the fake controller over in-memory streams, with a
+//! paused tokio clock (deterministic, no real waiting).
+
+use super::fake::{duplex_connector, Fake};
+use super::*;
+use crate::gcs::frame::Address;
+use crate::gcs::{AxisId, Command, GcsErrorCode};
+use std::time::Duration;
+use tokio::io::DuplexStream;
+use tokio::sync::{broadcast, mpsc};
+
+const T: Duration = Duration::from_millis(200);
+
+struct Rig {
+    fake: Fake,
+    feed: mpsc::UnboundedSender<DuplexStream>,
+    line: Line,
+    events: broadcast::Sender<AxisEvent>,
+    rx: broadcast::Receiver<AxisEvent>,
+    garbage: mpsc::UnboundedSender<Vec<u8>>,
+}
+
+impl Rig {
+    async fn new(addresses: &[u8]) -> Rig {
+        let fake = Fake::new(addresses);
+        let (conn, feed) = duplex_connector();
+        let (host, dev) = tokio::io::duplex(4096);
+        let garbage = fake.serve(dev);
+        feed.send(host).unwrap();
+        let (events, rx) = broadcast::channel(256);
+        let line = Line::open(conn, LineOptions::default(), events.clone())
+            .await
+            .unwrap();
+        Rig {
+            fake,
+            feed,
+            line,
+            events,
+            rx,
+            garbage,
+        }
+    }
+
+    fn controller(&self, addr: Option<u8>) -> Controller {
+        Controller::new(
+            self.line.clone(),
+            addr.map(|a| Address::new(a).unwrap()),
+            T,
+            self.events.clone(),
+        )
+    }
+
+    async fn axis(&self, name: &str, addr: Option<u8>) -> Result<Axis, DriverError> {
+        Axis::bring_up(self.controller(addr), params(name), self.events.clone()).await
+    }
+
+    /// Pulls the cable: the fake side closes.
+    fn pull(&self) {
+        self.garbage.send(Vec::new()).unwrap();
+    }
+
+    /// Plugs a new cable to the same controller(s).
+    fn plug(&mut self) {
+        let (host, dev) = tokio::io::duplex(4096);
+        self.garbage = self.fake.serve(dev);
+        self.feed.send(host).unwrap();
+    }
+
+    fn drain_events(&mut self) -> Vec<AxisEvent> {
+        let mut v = Vec::new();
+        while let Ok(e) = self.rx.try_recv() {
+            v.push(e);
+        }
+        v
+    }
+}
+
+fn params(name: &str) -> AxisParams {
+    AxisParams {
+        name: name.to_owned(),
+        axis: AxisId::new("1").unwrap(),
+        reference: ReferenceMode::Frf,
+        reference_timeout: Duration::from_secs(10),
+        motion_timeout: Duration::from_secs(60),
+        poll_interval: Duration::from_millis(20),
+    }
+}
+
+async fn referenced_axis(rig: &Rig) -> Axis {
+    let ax = rig.axis("x", None).await.unwrap();
+    assert_eq!(ax.reference().await.unwrap(), 7500.0);
+    ax
+}
+
+#[tokio::test(start_paused = true)]
+async fn bring_up_reference_and_moves_in_micrometres() {
+    let mut rig = Rig::new(&[1]).await;
+    let ax = rig.axis("x", None).await.unwrap();
+    assert_eq!(ax.identity().model, "C-863.11");
+    assert_eq!(ax.travel_um(), (0.0, 15_000.0));
+    // Power-up state: no position until referenced.
+    assert!(matches!(
+        ax.position_um().await,
+        Err(DriverError::NotReferenced { .. })
+    ));
+    assert!(matches!(
+        ax.move_abs_um(1000.0).await,
+        Err(DriverError::NotReferenced { .. })
+    ));
+    assert_eq!(ax.reference().await.unwrap(), 7500.0);
+    assert!(rig
+        .drain_events()
+        .contains(&AxisEvent::Referenced { axis: "x".into() }));
+    ax.set_velocity_um_per_s(500.0).await.unwrap();
+    assert_eq!(ax.velocity_um_per_s().await.unwrap(), 500.0);
+    ax.move_abs_um(10_000.0).await.unwrap();
+    assert!(ax.is_moving().await.unwrap());
+    assert_eq!(ax.wait_on_target(None).await.unwrap(), 10_000.0);
+    assert!(!ax.is_moving().await.unwrap());
+    ax.move_rel_um(-2_500.5).await.unwrap();
+    assert_eq!(ax.wait_on_target(None).await.unwrap(), 7_499.5);
+    assert!((rig.fake.axis(1, |a| a.target_mm) - 7.4995).abs() < 1e-12);
+    let st = ax.status().await.unwrap();
+    assert!(st.referenced && st.servo_on && st.on_target);
+    assert_eq!(st.position_um, Some(7_499.5));
+    // Out of travel: refused before sending anything.
+    match ax.move_abs_um(15_000.1).await {
+        Err(DriverError::OutOfTravel {
+            target_um,
+            min_um,
+            max_um,
+            ..
+        }) => assert_eq!((target_um, min_um, max_um), (15_000.1, 0.0, 15_000.0)),
+        other => panic!("{other:?}"),
+    }
+    assert!(matches!(
+        ax.move_rel_um(-8_000.0).await,
+        Err(DriverError::OutOfTravel { .. })
+    ));
+    assert!(matches!(
+        ax.move_abs_um(f64::NAN).await,
+        Err(DriverError::Invalid(_))
+    ));
+    assert!(ax.set_velocity_um_per_s(-1.0).await.is_err());
+    assert!((rig.fake.axis(1, |a| a.target_mm) - 7.4995).abs() < 1e-12);
+    // The controller's own refusal comes back with PI's name.
+    match ax.set_velocity_um_per_s(5_000.0).await {
+        Err(DriverError::Gcs { code, command }) => {
+            assert_eq!(code, GcsErrorCode::VEL_OUT_OF_LIMITS);
+            assert_eq!(command, "VEL 1 5");
+        }
+        other => panic!("{other:?}"),
+    }
+}
+
+#[tokio::test(start_paused = true)]
+async fn silence_is_unknown_command_or_not_answering() {
+    let rig = Rig::new(&[1]).await;
+    let ctl = rig.controller(None);
+    // The fake does not know HPA?: silence, then ERR? = 2.
+    match ctl.query(&Command::Hpa).await {
+        Err(DriverError::Gcs { code, command }) => {
+            assert_eq!(code, GcsErrorCode::UNKNOWN_COMMAND);
+            assert_eq!(command, "HPA?");
+        }
+        other => panic!("{other:?}"),
+    }
+    let r = ctl.console("XYZ? 1").await.unwrap();
+    assert!(r.silent && r.answer.is_none());
+    assert_eq!(r.error, GcsErrorCode::UNKNOWN_COMMAND);
+    let r = ctl.console("POS? 1").await.unwrap();
+    assert_eq!(r.answer.unwrap().text(), "1=0.0000000");
+    assert_eq!(r.error, GcsErrorCode::NO_ERROR);
+    let r = ctl.console("#7").await.unwrap();
+    assert_eq!(r.answer.unwrap().raw_lines(), &[vec![0xB1]]);
+    // Nothing answers at all.
+    rig.fake.with(|b| b.silent = true);
+    assert!(matches!(
+        ctl.query(&Command::Idn).await,
+        Err(DriverError::NotAnswering { .. })
+    ));
+    assert!(matches!(
+        rig.axis("x", None).await,
+        Err(DriverError::NotAnswering { .. })
+    ));
+    rig.fake.with(|b| b.silent = false);
+    assert!(rig.axis("x", None).await.is_ok());
+}
+
+#[tokio::test(start_paused = true)]
+async fn non_pi_and_non_c863_are_refused() {
+    let rig = Rig::new(&[1]).await;
+    rig.fake.axis(1, |a| a.idn = "Arduino Uno".into());
+    match rig.axis("x", None).await {
+        Err(DriverError::NotPi { idn, .. }) => assert_eq!(idn, "Arduino Uno"),
+        other => panic!("{other:?}"),
+    }
+    rig.fake.axis(1, |a| {
+        a.idn = "(c)2019 Physik Instrumente (PI) GmbH & Co. KG, E-709.CHG, 1, 1".into()
+    });
+    assert!(matches!(
+        rig.axis("x", None).await,
+        Err(DriverError::NotC863 { model, .. }) if model == "E-709.CHG"
+    ));
+}
+
+#[tokio::test(start_paused = true)]
+async fn halt_stops_the_move_and_the_waiter() {
+    let rig = Rig::new(&[1]).await;
+    let ax = referenced_axis(&rig).await;
+    ax.move_abs_um(14_000.0).await.unwrap();
+    let waiter = {
+        let ax = ax.clone();
+        tokio::spawn(async move { ax.wait_on_target(None).await })
+    };
+    tokio::time::sleep(Duration::from_secs(2)).await;
+    ax.halt().await.unwrap();
+    assert!(matches!(
+        waiter.await.unwrap(),
+        Err(DriverError::Halted { .. })
+    ));
+    let p = ax.position_um().await.unwrap();
+    assert!(p > 7_500.0 && p < 14_000.0, "{p}");
+    // Error 10 was consumed by halt(): the next command is clean.
+    assert_eq!(
+        ax.controller().error().await.unwrap(),
+        GcsErrorCode::NO_ERROR
+    );
+    // Raw access reports error 10 as the controller does.
+    let r = ax.controller().console("HLT 1").await.unwrap();
+    assert_eq!(r.error, GcsErrorCode::STOPPED);
+    ax.move_abs_um(8_000.0).await.unwrap();
+    ax.stop().await.unwrap();
+    assert!(matches!(
+        ax.wait_on_target(None).await,
+        Err(DriverError::Halted { .. })
+    ));
+}
+
+#[tokio::test(start_paused = true)]
+async fn pulled_cable_gives_clear_errors_then_recovers() {
+    let mut rig = Rig::new(&[1]).await;
+    let ax = referenced_axis(&rig).await;
+    rig.drain_events();
+    rig.pull();
+    tokio::time::sleep(Duration::from_millis(10)).await;
+    match ax.position_um().await {
+        Err(DriverError::Disconnected { line, .. }) => assert_eq!(line, "fake"),
+        other => panic!("{other:?}"),
+    }
+    // Still down: reopening fails and says so.
+    tokio::time::sleep(Duration::from_millis(500)).await;
+    match ax.position_um().await {
+        Err(DriverError::Disconnected { reason, .. }) => {
+            assert!(reason.contains("reopening fails"), "{reason}")
+        }
+        other => panic!("{other:?}"),
+    }
+    rig.plug();
+    tokio::time::sleep(Duration::from_secs(2)).await;
+    assert_eq!(ax.position_um().await.unwrap(), 7500.0);
+    let ev = rig.drain_events();
+    assert!(ev
+        .iter()
+        .any(|e| matches!(e, AxisEvent::Disconnected { .. })));
+    assert!(ev.contains(&AxisEvent::Connected {
+        line: "fake".into()
+    }));
+}
+
+#[tokio::test(start_paused = true)]
+async fn power_cycle_refuses_positions_until_referenced() {
+    let mut rig = Rig::new(&[1]).await;
+    let ax = referenced_axis(&rig).await;
+    ax.set_velocity_um_per_s(700.0).await.unwrap();
+    ax.move_abs_um(9_000.0).await.unwrap();
+    ax.wait_on_target(None).await.unwrap();
+    rig.drain_events();
+    rig.fake.axis(1, |a| a.power_cycle());
+    assert!(matches!(
+        ax.position_um().await,
+        Err(DriverError::NotReferenced { .. })
+    ));
+    assert_eq!(
+        rig.drain_events(),
+        vec![AxisEvent::ReferenceLost { axis: "x".into() }]
+    );
+    assert!(matches!(
+        ax.move_abs_um(5_000.0).await,
+        Err(DriverError::NotReferenced { .. })
+    ));
+    assert!(matches!(
+        ax.target_um().await,
+        Err(DriverError::NotReferenced { .. })
+    ));
+    assert_eq!(ax.status().await.unwrap().position_um, None);
+    assert_eq!(ax.reference().await.unwrap(), 7500.0);
+    // The velocity set before the power cycle is back.
+    assert_eq!(ax.velocity_um_per_s().await.unwrap(), 700.0);
+}
+
+#[tokio::test(start_paused = true)]
+async fn garbage_is_never_taken_for_an_answer() {
+    let mut rig = Rig::new(&[1]).await;
+    let ax = referenced_axis(&rig).await;
+    // While idle, with and without a line feed: dropped, reported, harmless.
+    rig.garbage.send(b"\xff\x00noise".to_vec()).unwrap();
+    tokio::time::sleep(Duration::from_millis(5)).await;
+    assert_eq!(ax.position_um().await.unwrap(), 7500.0);
+    rig.garbage.send(b"1=3.0000000\n".to_vec()).unwrap();
+    tokio::time::sleep(Duration::from_millis(5)).await;
+    assert_eq!(ax.position_um().await.unwrap(), 7500.0);
+    assert!(rig
+        .drain_events()
+        .iter()
+        .any(|e| matches!(e, AxisEvent::Noise { .. })));
+    // Garbage that lands in the middle of an exchange: a clear error, never a number.
+    rig.fake.with(|b| b.delay = Duration::from_millis(50));
+    let garbage = rig.garbage.clone();
+    let inject = tokio::spawn(async move {
+        tokio::time::sleep(Duration::from_millis(10)).await;
+        garbage.send(b"\x13\xfe".to_vec()).unwrap();
+    });
+    let r = ax.position_um().await;
+    inject.await.unwrap();
+    assert!(matches!(r, Err(DriverError::BadAnswer { .. })), "{r:?}");
+    rig.fake.with(|b| b.delay = Duration::ZERO);
+    assert_eq!(ax.position_um().await.unwrap(), 7500.0);
+    assert_eq!(ax.position_um().await.unwrap(), 7500.0);
+}
+
+#[tokio::test(start_paused = true)]
+async fn late_replies_are_dropped_not_misattributed() {
+    let rig = Rig::new(&[1]).await;
+    let ax = referenced_axis(&rig).await;
+    ax.move_abs_um(9_000.0).await.unwrap();
+    ax.wait_on_target(None).await.unwrap();
+    rig.fake.with(|b| b.delay = T + T / 2);
+    let r = ax.position_um().await;
+    assert!(
+        matches!(
+            r,
+            Err(DriverError::NotAnswering { .. } | DriverError::Timeout { .. })
+        ),
+        "{r:?}"
+    );
+    rig.fake.with(|b| b.delay = Duration::ZERO);
+    for _ in 0..3 {
+        assert_eq!(ax.position_um().await.unwrap(), 9_000.0);
+        assert!(ax.is_referenced().await.unwrap());
+    }
+}
+
+#[tokio::test(start_paused = true)]
+async fn withheld_replies_then_recovery() {
+    let rig = Rig::new(&[1]).await;
+    let ax = referenced_axis(&rig).await;
+    rig.fake.with(|b| b.silent = true);
+    assert!(matches!(
+        ax.position_um().await,
+        Err(DriverError::NotAnswering { .. })
+    ));
+    rig.fake.with(|b| b.silent = false);
+    assert_eq!(ax.position_um().await.unwrap(), 7500.0);
+}
+
+#[tokio::test(start_paused = true)]
+async fn daisy_chain_serves_two_addresses() {
+    let rig = Rig::new(&[1, 2]).await;
+    let x = rig.axis("x", Some(1)).await.unwrap();
+    let y = rig.axis("y", Some(2)).await.unwrap();
+    let (a, b) = tokio::join!(x.reference(), y.reference());
+    assert_eq!((a.unwrap(), b.unwrap()), (7500.0, 7500.0));
+    let (a, b) = tokio::join!(x.move_abs_um(1_000.0), y.move_abs_um(12_000.0));
+    a.unwrap();
+    b.unwrap();
+    let (a, b) = tokio::join!(x.wait_on_target(None), y.wait_on_target(None));
+    assert_eq!((a.unwrap(), b.unwrap()), (1_000.0, 12_000.0));
+    assert_eq!(rig.fake.axis(1, |a| a.target_mm), 1.0);
+    assert_eq!(rig.fake.axis(2, |a| a.target_mm), 12.0);
+    // A power cycle of one controller does not touch the other.
+    rig.fake.axis(2, |a| a.power_cycle());
+    assert_eq!(x.position_um().await.unwrap(), 1_000.0);
+    assert!(matches!(
+        y.position_um().await,
+        Err(DriverError::NotReferenced { .. })
+    ));
+    // Nobody at address 3.
+    assert!(matches!(
+        rig.axis("z", Some(3)).await,
+        Err(DriverError::NotAnswering { .. })
+    ));
+}
+
+#[tokio::test(start_paused = true)]
+async fn a_different_controller_after_reconnect_is_refused() {
+    let mut rig = Rig::new(&[1]).await;
+    let ax = referenced_axis(&rig).await;
+    rig.pull();
+    rig.fake.axis(1, |a| {
+        a.idn = "(c)2015 Physik Instrumente (PI) GmbH & Co. KG, C-863.11, 999, 01.110".into()
+    });
+    rig.plug();
+    tokio::time::sleep(Duration::from_secs(2)).await;
+    assert!(matches!(
+        ax.position_um().await,
+        Err(DriverError::ControllerChanged { .. })
+    ));
+}
+
+#[tokio::test(start_paused = true)]
+async fn dropping_handles_ends_the_line_task_without_sending() {
+    let rig = Rig::new(&[1]).await;
+    let ax = referenced_axis(&rig).await;
+    ax.move_abs_um(14_000.0).await.unwrap();
+    let fake = rig.fake.clone();
+    drop(ax);
+    drop(rig);
+    tokio::time::sleep(Duration::from_secs(10)).await;
+    // Nothing halted the move: the controller finished it on its own.
+    assert_eq!(
+        fake.axis(1, |a| a.pos_mm(tokio::time::Instant::now())),
+        14.0
+    );
+}
+
+/// The real serial path: `tokio-serial` on a pty, the fake on the master.
+#[tokio::test]
+async fn serial_connector_on_a_pty_and_hangup() {
+    use tokio_serial::SerialPort;
+    let (master, slave) = tokio_serial::SerialStream::pair().unwrap();
+    let path = slave.name().unwrap();
+    drop(slave);
+    let fake = Fake::new(&[1]);
+    let kill = fake.serve(master);
+    let (events, _rx) = broadcast::channel(64);
+    let line = Line::open(
+        SerialConnector::new(&path, SerialSettings::default()),
+        LineOptions::default(),
+        events.clone(),
+    )
+    .await
+    .unwrap();
+    let ctl = Controller::new(line, None, Duration::from_millis(500), events.clone());
+    let ax = Axis::bring_up(ctl, params("x"), events).await.unwrap();
+    assert!(matches!(
+        ax.position_um().await,
+        Err(DriverError::NotReferenced { .. })
+    ));
+    // Close the master: the host side sees a hangup.
+    kill.send(Vec::new()).unwrap();
+    tokio::time::sleep(Duration::from_millis(100)).await;
+    let r = ax.position_um().await;
+    assert!(matches!(r, Err(DriverError::Disconnected { .. })), "{r:?}");
+}
+
+#[tokio::test(start_paused = true)]
+async fn garbage_shaped_like_an_answer_is_not_trusted() {
+    let rig = Rig::new(&[1]).await;
+    let ax = referenced_axis(&rig).await;
+    rig.fake.with(|b| b.delay = Duration::from_millis(50));
+    let garbage = rig.garbage.clone();
+    let inject = tokio::spawn(async move {
+        tokio::time::sleep(Duration::from_millis(10)).await;
+        garbage.send(b"1=9.9000000\n".to_vec()).unwrap();
+    });
+    let r = ax.position_um().await;
+    inject.await.unwrap();
+    assert!(matches!(r, Err(DriverError::BadAnswer { .. })), "{r:?}");
+    rig.fake.with(|b| b.delay = Duration::ZERO);
+    assert_eq!(ax.position_um().await.unwrap(), 7500.0);
+}
