@@ -230,19 +230,21 @@ impl Pty {
         }
     }
 
-    /// Discards everything queued in both directions. The answers a client
-    /// left unread sit in the slave's line discipline, which only a flush
-    /// through the slave side reaches.
+    /// Discards the answers a client left unread. They sit in the master's
+    /// output and the slave's line discipline; only a flush through the
+    /// slave side reaches the latter. The other direction is left alone: a
+    /// client that has just opened the port may already have sent its first
+    /// request.
     fn flush(&self) {
         use std::os::unix::fs::OpenOptionsExt;
-        let _ = tcflush(self.master.as_fd(), FlushArg::TCIOFLUSH);
+        let _ = tcflush(self.master.as_fd(), FlushArg::TCOFLUSH);
         let slave = std::fs::OpenOptions::new()
             .read(true)
             .write(true)
             .custom_flags((OFlag::O_NOCTTY | OFlag::O_NONBLOCK).bits())
             .open(&self.slave_path);
         if let Ok(f) = slave {
-            let _ = tcflush(f.as_fd(), FlushArg::TCIOFLUSH);
+            let _ = tcflush(f.as_fd(), FlushArg::TCIFLUSH);
         }
     }
 }

@@ -114,11 +114,11 @@ fn pty_is_raw() {
     // Control characters reach the controller (no ISIG/ICANON/IXON eating
     // them), nothing is echoed, LF is not turned into CRLF.
     tell(&mut x, "\x07");
-    assert_eq!(drain(&mut x, Duration::from_millis(200)), vec![0xB1, b'\n']);
+    assert_eq!(read_answer(&mut x, T).unwrap(), vec![0xB1, b'\n']);
     tell(&mut x, "\x05");
-    assert_eq!(drain(&mut x, Duration::from_millis(200)), b"0\n");
+    assert_eq!(read_answer(&mut x, T).unwrap(), b"0\n");
     tell(&mut x, "\x04");
-    assert_eq!(drain(&mut x, Duration::from_millis(200)), b"0x0\n");
+    assert_eq!(read_answer(&mut x, T).unwrap(), b"0x0\n");
     // CR is not turned into LF on input: "ERR?\r" is an unknown command.
     tell(&mut x, "ERR?\r");
     assert_eq!(drain(&mut x, Duration::from_millis(200)), b"");
@@ -167,7 +167,7 @@ fn daisy_chain_on_one_bus() {
     assert_eq!(ask(&mut f, "2 POS? 1\n"), "0 2 1=4.0000000\n");
     assert_eq!(sim.true_position_mm(AxisName::Y), 4.0);
     tell(&mut f, "2 \x07");
-    assert_eq!(drain(&mut f, Duration::from_millis(200)), b"0 2 \xb1\n");
+    assert_eq!(read_answer(&mut f, T).unwrap(), b"0 2 \xb1\n");
     // An error on 2 is not seen by 1.
     tell(&mut f, "2 FOO\n");
     assert_eq!(ask(&mut f, "1 ERR?\n"), "0 1 0\n");
@@ -242,7 +242,7 @@ fn power_cycle_garbage_delay_withhold() {
     sim.inject(AxisName::X, Fault::Garbage(vec![0xff, 0x00, b'z', b'\n']))
         .unwrap();
     assert_eq!(
-        drain(&mut x, Duration::from_millis(200)),
+        read_answer(&mut x, T).unwrap(),
         vec![0xff, 0x00, b'z', b'\n']
     );
 
@@ -295,7 +295,7 @@ fn control_socket_json_lines() {
         call(r#"{"axis":"x","fault":"garbage","hex":"41420a"}"#)["ok"],
         true
     );
-    assert_eq!(drain(&mut x, Duration::from_millis(200)), b"AB\n");
+    assert_eq!(read_answer(&mut x, T).unwrap(), b"AB\n");
     assert_eq!(
         call(r#"{"axis":"x","fault":"withhold_replies","on":true}"#)["ok"],
         true
@@ -323,7 +323,7 @@ fn control_socket_json_lines() {
     assert_eq!(ask(&mut x, "CSV?\n"), "2.0\n");
     // No axis: every line.
     assert_eq!(call(r#"{"fault":"garbage","hex":"5a0a"}"#)["ok"], true);
-    assert_eq!(drain(&mut x, Duration::from_millis(200)), b"Z\n");
+    assert_eq!(read_answer(&mut x, T).unwrap(), b"Z\n");
     // Y had no client: its garbage was lost, as on a cable nobody listens to.
     let mut y = open(&sim.link(AxisName::Y));
     assert_eq!(drain(&mut y, Duration::from_millis(100)), b"");
