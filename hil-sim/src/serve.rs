@@ -384,8 +384,27 @@ impl Line {
         }
     }
 
-    fn run(mut self, rx: mpsc::Receiver<(LineCmd, Ack)>, stop: Arc<AtomicBool>) {
+    /// Reads and handles everything the host has sent so far.
+    fn drain_input(&mut self) {
         let mut buf = [0u8; 4096];
+        loop {
+            let Some(pty) = self.pty.as_mut() else {
+                return;
+            };
+            match pty.master.read(&mut buf) {
+                Ok(0) => return,
+                Ok(n) => {
+                    let bytes = buf[..n].to_vec();
+                    self.on_bytes(&bytes);
+                }
+                Err(e) if e.kind() == io::ErrorKind::Interrupted => {}
+                // WouldBlock: all read. EIO: no client and nothing queued.
+                Err(_) => return,
+            }
+        }
+    }
+
+    fn run(mut self, rx: mpsc::Receiver<(LineCmd, Ack)>, stop: Arc<AtomicBool>) {
         loop {
             loop {
                 match rx.try_recv() {
@@ -415,37 +434,27 @@ impl Line {
                 continue;
             };
             let (readable, connected) = pty.wait(wait.max(Duration::from_millis(1)));
-            if connected != pty.connected {
-                pty.connected = connected;
-                if !connected {
-                    // The client went: what it left unread, and any half
-                    // line it sent, are not for the next one.
-                    pty.flush();
-                    self.pending.clear();
-                    lock(&self.bus).reset_line();
-                }
-            }
             if !connected {
+                // What the client sent before it left still reaches the
+                // controllers (they execute it; the answers are lost, see
+                // `write`). Then its leftovers are cleared so the next client
+                // starts clean.
+                self.drain_input();
+                if let Some(pty) = self.pty.as_mut() {
+                    if pty.connected {
+                        pty.connected = false;
+                        pty.flush();
+                        self.pending.clear();
+                        lock(&self.bus).reset_line();
+                    }
+                }
                 // Hang-up is reported at once; do not spin on it.
                 std::thread::sleep(wait);
                 continue;
             }
-            if !readable {
-                continue;
-            }
-            match pty.master.read(&mut buf) {
-                Ok(0) => std::thread::sleep(wait),
-                Ok(n) => {
-                    let bytes = buf[..n].to_vec();
-                    self.on_bytes(&bytes);
-                }
-                Err(e)
-                    if e.kind() == io::ErrorKind::WouldBlock
-                        || e.kind() == io::ErrorKind::Interrupted => {}
-                Err(e) => {
-                    tracing::debug!(axis = %self.axis, "pty read: {e}");
-                    std::thread::sleep(wait);
-                }
+            pty.connected = true;
+            if readable {
+                self.drain_input();
             }
         }
         self.pty = None;

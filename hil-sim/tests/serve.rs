@@ -140,6 +140,15 @@ fn pty_is_raw() {
     let mut x = open(&sim.link(AxisName::X));
     assert_eq!(drain(&mut x, Duration::from_millis(100)), b"");
     assert_eq!(ask(&mut x, "CSV?\n"), "2.0\n");
+    // Commands sent just before closing are still executed, their answers
+    // still lost, and a half line does not glue onto the next client's.
+    tell(&mut x, "SVO 1 1\nHLP?\nPOS");
+    drop(x);
+    std::thread::sleep(Duration::from_millis(50));
+    let mut x = open(&sim.link(AxisName::X));
+    assert_eq!(drain(&mut x, Duration::from_millis(100)), b"");
+    assert_eq!(ask(&mut x, "SVO? 1\n"), "1=1\n");
+    assert_eq!(ask(&mut x, "ERR?\n"), "0\n");
 }
 
 #[test]
