@@ -500,6 +500,15 @@ impl Core {
     }
 
     fn inject(&self, axis: AxisName, fault: Fault) -> Result<(), SimError> {
+        self.inject_on_route(axis, fault).map_err(|e| match e {
+            // A daisy-chain line serves both axes: name the one asked for.
+            SimError::LineDown(_) => SimError::LineDown(axis),
+            SimError::ThreadGone(_) => SimError::ThreadGone(axis),
+            other => other,
+        })
+    }
+
+    fn inject_on_route(&self, axis: AxisName, fault: Fault) -> Result<(), SimError> {
         let r = self.routes[axis.index()];
         match fault {
             Fault::DropLine => self.send(r.line, LineCmd::Drop),
@@ -649,6 +658,16 @@ impl SimHandle {
         };
         for (i, (axis, name)) in names.iter().enumerate() {
             let link = cfg.link_dir.join(name);
+            // Only ever replace our own kind of file: a stale symlink.
+            if let Ok(meta) = std::fs::symlink_metadata(&link) {
+                if !meta.file_type().is_symlink() {
+                    core_stop_on_err(&mut lines);
+                    return Err(SimError::Config(format!(
+                        "{} exists and is not a symlink; refusing to replace it",
+                        link.display()
+                    )));
+                }
+            }
             let pty = match Pty::open(&link) {
                 Ok(p) => p,
                 Err(e) => {

@@ -192,6 +192,16 @@ fn daisy_chain_on_one_bus() {
     sim.inject(AxisName::Y, Fault::PowerCycle).unwrap();
     assert_eq!(ask(&mut f, "2 POS? 1\n"), "0 2 1=0.0000000\n");
     assert_eq!(ask(&mut f, "1 SVO? 1\n"), "0 1 1=0\n");
+    // Pulling the shared cable takes both controllers off the line.
+    sim.inject(AxisName::Y, Fault::DropLine).unwrap();
+    assert!(std::fs::symlink_metadata(&bus).is_err());
+    let e = sim
+        .inject(AxisName::Y, Fault::Garbage(vec![1]))
+        .unwrap_err();
+    assert_eq!(e.to_string(), "the line of axis y is down");
+    sim.inject(AxisName::X, Fault::RestoreLine).unwrap();
+    let mut f = open(&bus);
+    assert_eq!(ask(&mut f, "2 POS? 1\n"), "0 2 1=0.0000000\n");
 }
 
 #[test]
@@ -378,6 +388,14 @@ fn scaled_time_and_start_errors() {
         .unwrap_err();
         assert!(e.to_string().contains("time_scale"), "{e}");
     }
+    std::fs::write(dir.path().join("x"), b"precious").unwrap();
+    let e = SimHandle::start(ServeConfig {
+        link_dir: dir.path().to_owned(),
+        ..ServeConfig::default()
+    })
+    .unwrap_err();
+    assert!(e.to_string().contains("not a symlink"), "{e}");
+    assert_eq!(std::fs::read(dir.path().join("x")).unwrap(), b"precious");
     let e = SimHandle::start(ServeConfig::default()).unwrap_err();
     assert!(e.to_string().contains("link_dir"), "{e}");
     let e = SimHandle::start(ServeConfig {
