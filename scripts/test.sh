@@ -19,13 +19,5 @@ fi
 echo "== cargo test ${features[*]:-}"
 cargo test --workspace "${features[@]}"
 
-if [ -d tests/pipython ]; then
-  echo "== PIPython against hil-sim"
-  venv=$target/venv-pipython
-  if [ ! -x "$venv/bin/pytest" ]; then
-    python3 -m venv "$venv"
-    "$venv/bin/pip" install --quiet --disable-pip-version-check -r tests/pipython/requirements.txt
-  fi
-  cargo build -p hil-sim --bin hil-sim
-  HIL_SIM_BIN="$target/debug/hil-sim" "$venv/bin/pytest" -q tests/pipython
-fi
+echo "== PIPython against hil-sim"
+PIPYTHON_VENV="${PIPYTHON_VENV:-$target/venv-pipython}" ./scripts/pipython.sh

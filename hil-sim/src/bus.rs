@@ -83,3 +83,68 @@ impl Bus {
         self.decoder = RequestDecoder::new();
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::controller::ControllerConfig;
+
+    fn c(addr: u8) -> Controller {
+        Controller::new(ControllerConfig::new(
+            Address::new(addr).unwrap(),
+            &format!("{addr}"),
+            5.0,
+        ))
+    }
+
+    #[test]
+    fn addresses_must_differ() {
+        assert_eq!(
+            Bus::new(vec![c(1), c(1)]).unwrap_err(),
+            BusError::DuplicateAddress(Address::new(1).unwrap())
+        );
+    }
+
+    #[test]
+    fn each_request_reaches_its_controller() {
+        let mut bus = Bus::new(vec![c(1), c(2)]).unwrap();
+        let t = Duration::ZERO;
+        let r = bus.receive(t, b"*IDN?\n2 CSV?\n3 CSV?\n2 SVO 1 1\n2 SVO? 1\n1 SVO? 1\n");
+        assert_eq!(r.len(), 4);
+        assert_eq!(r[0].from, 0);
+        assert!(r[0].bytes.starts_with(b"(c)2015"));
+        assert_eq!(
+            r[1],
+            Reply {
+                from: 1,
+                bytes: b"0 2 2.0\n".to_vec()
+            }
+        );
+        assert_eq!(
+            r[2],
+            Reply {
+                from: 1,
+                bytes: b"0 2 1=1\n".to_vec()
+            }
+        );
+        assert_eq!(
+            r[3],
+            Reply {
+                from: 0,
+                bytes: b"0 1 1=0\n".to_vec()
+            }
+        );
+        // A line cut mid-command is forgotten.
+        assert!(bus.receive(t, b"2 CS").is_empty());
+        bus.reset_line();
+        assert_eq!(bus.receive(t, b"V?\n").len(), 0);
+        assert_eq!(bus.receive(t, b"2 ERR?\n")[0].bytes, b"0 2 0\n");
+        assert_eq!(bus.receive(t, b"ERR?\n")[0].bytes, b"2\n");
+        // An overlong line is an error on every controller of the line.
+        let mut long = vec![b'A'; 2000];
+        long.push(b'\n');
+        assert!(bus.receive(t, &long).is_empty());
+        assert_eq!(bus.receive(t, b"1 ERR?\n")[0].bytes, b"0 1 3\n");
+        assert_eq!(bus.receive(t, b"2 ERR?\n")[0].bytes, b"0 2 3\n");
+    }
+}

@@ -1320,6 +1320,26 @@ mod tests {
     }
 
     #[test]
+    fn platform_seam_separates_truth_from_encoder() {
+        /// A leadscrew 0.1 % long plus a 2 µm offset.
+        #[derive(Debug)]
+        struct Scaled;
+        impl Platform for Scaled {
+            fn platform_position_mm(&self, actuator_mm: f64, _now: Duration) -> f64 {
+                actuator_mm * 1.001 + 0.002
+            }
+        }
+        let mut c = ctl(3.0);
+        c.set_platform(Box::new(Scaled));
+        let t0 = referenced(&mut c);
+        q(&mut c, t0, "MOV 1 10");
+        // The controller reports its encoder; the platform is elsewhere.
+        assert_eq!(pos(&mut c, t0 + 10.0), 10.0);
+        let truth = c.true_position_mm(s(t0 + 10.0));
+        assert!((truth - (10.0 * 1.001 + 0.002)).abs() < 1e-12, "{truth}");
+    }
+
+    #[test]
     fn addressing() {
         let mut c = Controller::new(ControllerConfig::new(Address::new(2).unwrap(), "2", 1.0));
         let mut d = RequestDecoder::new();

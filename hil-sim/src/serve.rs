@@ -230,19 +230,21 @@ impl Pty {
         }
     }
 
-    /// Discards everything queued in both directions. The answers a client
-    /// left unread sit in the slave's line discipline, which only a flush
-    /// through the slave side reaches.
+    /// Discards the answers a client left unread. They sit in the master's
+    /// output and the slave's line discipline; only a flush through the
+    /// slave side reaches the latter. The other direction is left alone: a
+    /// client that has just opened the port may already have sent its first
+    /// request.
     fn flush(&self) {
         use std::os::unix::fs::OpenOptionsExt;
-        let _ = tcflush(self.master.as_fd(), FlushArg::TCIOFLUSH);
+        let _ = tcflush(self.master.as_fd(), FlushArg::TCOFLUSH);
         let slave = std::fs::OpenOptions::new()
             .read(true)
             .write(true)
             .custom_flags((OFlag::O_NOCTTY | OFlag::O_NONBLOCK).bits())
             .open(&self.slave_path);
         if let Ok(f) = slave {
-            let _ = tcflush(f.as_fd(), FlushArg::TCIOFLUSH);
+            let _ = tcflush(f.as_fd(), FlushArg::TCIFLUSH);
         }
     }
 }
@@ -382,8 +384,27 @@ impl Line {
         }
     }
 
-    fn run(mut self, rx: mpsc::Receiver<(LineCmd, Ack)>, stop: Arc<AtomicBool>) {
+    /// Reads and handles everything the host has sent so far.
+    fn drain_input(&mut self) {
         let mut buf = [0u8; 4096];
+        loop {
+            let Some(pty) = self.pty.as_mut() else {
+                return;
+            };
+            match pty.master.read(&mut buf) {
+                Ok(0) => return,
+                Ok(n) => {
+                    let bytes = buf[..n].to_vec();
+                    self.on_bytes(&bytes);
+                }
+                Err(e) if e.kind() == io::ErrorKind::Interrupted => {}
+                // WouldBlock: all read. EIO: no client and nothing queued.
+                Err(_) => return,
+            }
+        }
+    }
+
+    fn run(mut self, rx: mpsc::Receiver<(LineCmd, Ack)>, stop: Arc<AtomicBool>) {
         loop {
             loop {
                 match rx.try_recv() {
@@ -413,37 +434,27 @@ impl Line {
                 continue;
             };
             let (readable, connected) = pty.wait(wait.max(Duration::from_millis(1)));
-            if connected != pty.connected {
-                pty.connected = connected;
-                if !connected {
-                    // The client went: what it left unread, and any half
-                    // line it sent, are not for the next one.
-                    pty.flush();
-                    self.pending.clear();
-                    lock(&self.bus).reset_line();
-                }
-            }
             if !connected {
+                // What the client sent before it left still reaches the
+                // controllers (they execute it; the answers are lost, see
+                // `write`). Then its leftovers are cleared so the next client
+                // starts clean.
+                self.drain_input();
+                if let Some(pty) = self.pty.as_mut() {
+                    if pty.connected {
+                        pty.connected = false;
+                        pty.flush();
+                        self.pending.clear();
+                        lock(&self.bus).reset_line();
+                    }
+                }
                 // Hang-up is reported at once; do not spin on it.
                 std::thread::sleep(wait);
                 continue;
             }
-            if !readable {
-                continue;
-            }
-            match pty.master.read(&mut buf) {
-                Ok(0) => std::thread::sleep(wait),
-                Ok(n) => {
-                    let bytes = buf[..n].to_vec();
-                    self.on_bytes(&bytes);
-                }
-                Err(e)
-                    if e.kind() == io::ErrorKind::WouldBlock
-                        || e.kind() == io::ErrorKind::Interrupted => {}
-                Err(e) => {
-                    tracing::debug!(axis = %self.axis, "pty read: {e}");
-                    std::thread::sleep(wait);
-                }
+            pty.connected = true;
+            if readable {
+                self.drain_input();
             }
         }
         self.pty = None;
@@ -489,6 +500,15 @@ impl Core {
     }
 
     fn inject(&self, axis: AxisName, fault: Fault) -> Result<(), SimError> {
+        self.inject_on_route(axis, fault).map_err(|e| match e {
+            // A daisy-chain line serves both axes: name the one asked for.
+            SimError::LineDown(_) => SimError::LineDown(axis),
+            SimError::ThreadGone(_) => SimError::ThreadGone(axis),
+            other => other,
+        })
+    }
+
+    fn inject_on_route(&self, axis: AxisName, fault: Fault) -> Result<(), SimError> {
         let r = self.routes[axis.index()];
         match fault {
             Fault::DropLine => self.send(r.line, LineCmd::Drop),
@@ -638,6 +658,16 @@ impl SimHandle {
         };
         for (i, (axis, name)) in names.iter().enumerate() {
             let link = cfg.link_dir.join(name);
+            // Only ever replace our own kind of file: a stale symlink.
+            if let Ok(meta) = std::fs::symlink_metadata(&link) {
+                if !meta.file_type().is_symlink() {
+                    core_stop_on_err(&mut lines);
+                    return Err(SimError::Config(format!(
+                        "{} exists and is not a symlink; refusing to replace it",
+                        link.display()
+                    )));
+                }
+            }
             let pty = match Pty::open(&link) {
                 Ok(p) => p,
                 Err(e) => {

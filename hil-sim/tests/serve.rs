@@ -114,11 +114,11 @@ fn pty_is_raw() {
     // Control characters reach the controller (no ISIG/ICANON/IXON eating
     // them), nothing is echoed, LF is not turned into CRLF.
     tell(&mut x, "\x07");
-    assert_eq!(drain(&mut x, Duration::from_millis(200)), vec![0xB1, b'\n']);
+    assert_eq!(read_answer(&mut x, T).unwrap(), vec![0xB1, b'\n']);
     tell(&mut x, "\x05");
-    assert_eq!(drain(&mut x, Duration::from_millis(200)), b"0\n");
+    assert_eq!(read_answer(&mut x, T).unwrap(), b"0\n");
     tell(&mut x, "\x04");
-    assert_eq!(drain(&mut x, Duration::from_millis(200)), b"0x0\n");
+    assert_eq!(read_answer(&mut x, T).unwrap(), b"0x0\n");
     // CR is not turned into LF on input: "ERR?\r" is an unknown command.
     tell(&mut x, "ERR?\r");
     assert_eq!(drain(&mut x, Duration::from_millis(200)), b"");
@@ -140,6 +140,15 @@ fn pty_is_raw() {
     let mut x = open(&sim.link(AxisName::X));
     assert_eq!(drain(&mut x, Duration::from_millis(100)), b"");
     assert_eq!(ask(&mut x, "CSV?\n"), "2.0\n");
+    // Commands sent just before closing are still executed, their answers
+    // still lost, and a half line does not glue onto the next client's.
+    tell(&mut x, "SVO 1 1\nHLP?\nPOS");
+    drop(x);
+    std::thread::sleep(Duration::from_millis(50));
+    let mut x = open(&sim.link(AxisName::X));
+    assert_eq!(drain(&mut x, Duration::from_millis(100)), b"");
+    assert_eq!(ask(&mut x, "SVO? 1\n"), "1=1\n");
+    assert_eq!(ask(&mut x, "ERR?\n"), "0\n");
 }
 
 #[test]
@@ -167,7 +176,7 @@ fn daisy_chain_on_one_bus() {
     assert_eq!(ask(&mut f, "2 POS? 1\n"), "0 2 1=4.0000000\n");
     assert_eq!(sim.true_position_mm(AxisName::Y), 4.0);
     tell(&mut f, "2 \x07");
-    assert_eq!(drain(&mut f, Duration::from_millis(200)), b"0 2 \xb1\n");
+    assert_eq!(read_answer(&mut f, T).unwrap(), b"0 2 \xb1\n");
     // An error on 2 is not seen by 1.
     tell(&mut f, "2 FOO\n");
     assert_eq!(ask(&mut f, "1 ERR?\n"), "0 1 0\n");
@@ -183,6 +192,16 @@ fn daisy_chain_on_one_bus() {
     sim.inject(AxisName::Y, Fault::PowerCycle).unwrap();
     assert_eq!(ask(&mut f, "2 POS? 1\n"), "0 2 1=0.0000000\n");
     assert_eq!(ask(&mut f, "1 SVO? 1\n"), "0 1 1=0\n");
+    // Pulling the shared cable takes both controllers off the line.
+    sim.inject(AxisName::Y, Fault::DropLine).unwrap();
+    assert!(std::fs::symlink_metadata(&bus).is_err());
+    let e = sim
+        .inject(AxisName::Y, Fault::Garbage(vec![1]))
+        .unwrap_err();
+    assert_eq!(e.to_string(), "the line of axis y is down");
+    sim.inject(AxisName::X, Fault::RestoreLine).unwrap();
+    let mut f = open(&bus);
+    assert_eq!(ask(&mut f, "2 POS? 1\n"), "0 2 1=0.0000000\n");
 }
 
 #[test]
@@ -242,7 +261,7 @@ fn power_cycle_garbage_delay_withhold() {
     sim.inject(AxisName::X, Fault::Garbage(vec![0xff, 0x00, b'z', b'\n']))
         .unwrap();
     assert_eq!(
-        drain(&mut x, Duration::from_millis(200)),
+        read_answer(&mut x, T).unwrap(),
         vec![0xff, 0x00, b'z', b'\n']
     );
 
@@ -295,7 +314,7 @@ fn control_socket_json_lines() {
         call(r#"{"axis":"x","fault":"garbage","hex":"41420a"}"#)["ok"],
         true
     );
-    assert_eq!(drain(&mut x, Duration::from_millis(200)), b"AB\n");
+    assert_eq!(read_answer(&mut x, T).unwrap(), b"AB\n");
     assert_eq!(
         call(r#"{"axis":"x","fault":"withhold_replies","on":true}"#)["ok"],
         true
@@ -323,7 +342,7 @@ fn control_socket_json_lines() {
     assert_eq!(ask(&mut x, "CSV?\n"), "2.0\n");
     // No axis: every line.
     assert_eq!(call(r#"{"fault":"garbage","hex":"5a0a"}"#)["ok"], true);
-    assert_eq!(drain(&mut x, Duration::from_millis(200)), b"Z\n");
+    assert_eq!(read_answer(&mut x, T).unwrap(), b"Z\n");
     // Y had no client: its garbage was lost, as on a cable nobody listens to.
     let mut y = open(&sim.link(AxisName::Y));
     assert_eq!(drain(&mut y, Duration::from_millis(100)), b"");
@@ -369,6 +388,14 @@ fn scaled_time_and_start_errors() {
         .unwrap_err();
         assert!(e.to_string().contains("time_scale"), "{e}");
     }
+    std::fs::write(dir.path().join("x"), b"precious").unwrap();
+    let e = SimHandle::start(ServeConfig {
+        link_dir: dir.path().to_owned(),
+        ..ServeConfig::default()
+    })
+    .unwrap_err();
+    assert!(e.to_string().contains("not a symlink"), "{e}");
+    assert_eq!(std::fs::read(dir.path().join("x")).unwrap(), b"precious");
     let e = SimHandle::start(ServeConfig::default()).unwrap_err();
     assert!(e.to_string().contains("link_dir"), "{e}");
     let e = SimHandle::start(ServeConfig {

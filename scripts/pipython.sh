@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # PI's official Python client (PIPython) against the simulated C-863s.
-# Called by .ci/run; runnable alone from the repository root.
+# Called by scripts/test.sh (the README test command); runnable alone from the repository root.
 #
 # Env: PIPYTHON_VENV (default .venv-pipython), CARGO_TARGET_DIR (default target).
 set -euo pipefail
