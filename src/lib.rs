@@ -11,6 +11,7 @@
 
 pub mod camera;
 pub mod charact;
+pub mod clock;
 pub mod driver;
 pub mod frame;
 pub mod gcs;
