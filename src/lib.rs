@@ -11,6 +11,7 @@
 
 pub mod camera;
 pub mod charact;
+pub mod comp;
 pub mod driver;
 pub mod frame;
 pub mod gcs;
