@@ -5,8 +5,8 @@
 use micropos::charact::log::Record;
 use micropos::charact::scan::{AxisScan, CharacterizationPlan};
 use micropos::comp::{
-    compensation_template, fnv1a64_hex, CompFile, CompKind, CompTable, Compensator, MotionHistory,
-    PlanOptions, SourceInfo, TableBuildOptions, VisionFrame,
+    compensation_template, fnv1a64_hex, CompFile, CompKind, CompTable, MotionHistory, PlanOptions,
+    SourceInfo, TableBuildOptions, VisionFrame,
 };
 use micropos::model::{MotionState, StageModel, StageSimulator, XyUm};
 use proptest::prelude::*;

@@ -155,7 +155,7 @@ impl AxisScan {
         }
         let n = self.points_per_pass_f();
         let total = n * 2.0 * f64::from(self.cycles);
-        if !(total <= MAX_PLAN_POINTS as f64) {
+        if total.is_nan() || total > MAX_PLAN_POINTS as f64 {
             return Err(invalid(
                 "step_um",
                 format!("{total} points exceed the limit of {MAX_PLAN_POINTS}"),

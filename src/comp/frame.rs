@@ -140,7 +140,7 @@ fn direction(samples: &[FrameSample], along_x: bool) -> Result<[f64; 2], CompErr
         scu += d * (s.vision.x_um - um);
         scv += d * (s.vision.y_um - vm);
     }
-    if !(scc > 0.0) {
+    if scc.is_nan() || scc <= 0.0 {
         return Err(CompError::NoData {
             what: format!(
                 "the {} scan does not move its axis",

@@ -496,10 +496,13 @@ mod tests {
             .unwrap();
         assert_eq!(
             q.waypoints,
-            vec![XyUm::from([79.0, 60.0]), XyUm::from([99.0, 60.0])]
+            vec![XyUm::from([119.0, 60.0]), XyUm::from([99.0, 60.0])]
         );
         h.commit(&q, 2.0, 20.0).unwrap();
-        assert_eq!(h.state().axes[0].dir, Direction::Forward);
+        // 1 µm back after a forward arrival: re-approached from above, so
+        // it arrives backward with the play taken up.
+        assert_eq!(h.state().axes[0].dir, Direction::Backward);
+        assert_eq!(q.arrival[0], Direction::Backward);
         let u = PlanOptions {
             policy: ApproachPolicy::Unidirectional([Direction::Forward; 2]),
             ..o
@@ -507,7 +510,8 @@ mod tests {
         let r = Uncompensated
             .command_for(XyUm::from([50.0, 70.0]), &h, &u)
             .unwrap();
-        assert_eq!(r.waypoints[0], XyUm::from([30.0, 70.0]));
+        // Unidirectional: x goes back to 50 but still arrives forward.
+        assert_eq!(r.waypoints[0].x_um, 30.0);
         assert_eq!(r.arrival, [Direction::Forward; 2]);
         assert!(Uncompensated
             .command_for(XyUm::from([f64::NAN, 0.0]), &h, &o)

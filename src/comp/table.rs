@@ -269,7 +269,7 @@ impl CompTable {
             }
         }
         let den = n * syy - sy * sy;
-        if !(den > 0.0) {
+        if den.is_nan() || den <= 0.0 {
             return Err(CompError::NoData {
                 what: "the Y scan spans a single position: cannot fit δx(y)".into(),
             });
