@@ -7,3 +7,4 @@
 //! `docs/measurement-log.md` and kept stable.
 
 pub mod log;
+pub mod scan;

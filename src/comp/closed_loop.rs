@@ -1,0 +1,409 @@
+//! Closed-loop correction on the camera, sans-IO.
+//!
+//! After a compensated move the camera measures where the stage really is;
+//! the residual `target − measured` is added to the command and the stage
+//! moves again, until the residual is within `tolerance_um` (default 0.1 µm)
+//! or a limit is hit. The daemon feeds [`ClosedLoop`] events (move settled,
+//! frame decoded) and executes the [`Action`]s it returns.
+//!
+//! Rules, each a reason to act or to stop:
+//! * A frame is used only if it was taken *after* the last move settled
+//!   (`timestamp_s > settled_at_s`), is newer than any frame used before
+//!   (`frame_seq`), and its decode quality is ≥ `min_quality`. Otherwise
+//!   it is rejected (the loop waits for another); `max_rejected_frames`
+//!   rejections in a row fail the loop.
+//! * Corrections keep each axis' arrival direction: a correction against
+//!   it would be lost in the backlash (a 0.3 µm reversal inside a 2 µm
+//!   play does not move the platform), so it goes `overshoot_um` back and
+//!   re-approaches in the arrival direction. Along the arrival direction a
+//!   small move is direct (the play is already taken up).
+//! * A residual that grows by more than `divergence_factor` over the
+//!   previous one (and is above tolerance) stops the loop: something else
+//!   than the stage error is moving (drift, a wrong frame transform).
+//! * At most `max_corrections` correction moves.
+//!
+//! The loop converges to what the camera measures: with optics drift
+//! (microscope thermal shift) the platform ends where the *observed*
+//! position equals the target, off by the drift from the true one.
+
+use serde::{Deserialize, Serialize};
+
+use super::{invalid, CompError};
+use crate::model::{Direction, XyUm};
+
+/// Options.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ClosedLoopConfig {
+    /// Done when `|target − measured| ≤ tolerance_um`, µm.
+    pub tolerance_um: f64,
+    /// Correction moves allowed after the first move.
+    pub max_corrections: u32,
+    /// Frames with a decode quality below this are not used (0..=1).
+    pub min_quality: f64,
+    /// Consecutive rejected frames before failing.
+    pub max_rejected_frames: u32,
+    /// Residual growth factor that counts as diverging (> 1).
+    pub divergence_factor: f64,
+    /// Re-approach distance for corrections against the arrival direction, µm.
+    pub overshoot_um: f64,
+}
+
+impl Default for ClosedLoopConfig {
+    fn default() -> Self {
+        ClosedLoopConfig {
+            tolerance_um: 0.1,
+            max_corrections: 10,
+            min_quality: 0.5,
+            max_rejected_frames: 5,
+            divergence_factor: 2.0,
+            overshoot_um: 20.0,
+        }
+    }
+}
+
+impl ClosedLoopConfig {
+    /// Checks the numbers.
+    pub fn validate(&self) -> Result<(), CompError> {
+        if !(self.tolerance_um.is_finite() && self.tolerance_um > 0.0) {
+            return Err(invalid("tolerance_um", "must be a finite number > 0"));
+        }
+        if !(0.0..=1.0).contains(&self.min_quality) {
+            return Err(invalid("min_quality", "must be within 0..=1"));
+        }
+        if !(self.divergence_factor.is_finite() && self.divergence_factor > 1.0) {
+            return Err(invalid("divergence_factor", "must be a finite number > 1"));
+        }
+        if !(self.overshoot_um.is_finite() && self.overshoot_um > 0.0) {
+            return Err(invalid("overshoot_um", "must be a finite number > 0"));
+        }
+        Ok(())
+    }
+}
+
+/// A decoded camera frame, already in the stage frame.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct FrameMeasurement {
+    /// Measured position, stage frame, µm.
+    pub position: XyUm,
+    /// When the frame was exposed, s (same clock as `settled_at_s`).
+    pub timestamp_s: f64,
+    /// Decode quality, 0 (useless) ..= 1.
+    pub quality: f64,
+    /// Camera frame sequence number (strictly increasing).
+    pub frame_seq: u64,
+}
+
+/// Why a frame was not used.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum RejectReason {
+    /// A move is in progress (no `settled` since the last command).
+    Moving,
+    /// Exposed at or before the move settled.
+    Stale,
+    /// Not newer than a frame already used.
+    OldSequence,
+    /// Decode quality below `min_quality`.
+    LowQuality,
+    /// Position or timestamp not finite.
+    NonFinite,
+}
+
+/// Why the loop gave up.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum FailReason {
+    /// `max_corrections` moves did not reach the tolerance.
+    RetryLimit,
+    /// The residual grew (see the module docs).
+    Diverging,
+    /// Too many unusable frames in a row; the last reason.
+    Frames(RejectReason),
+}
+
+/// What the daemon does next.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub enum Action {
+    /// Send these commands in order, then report [`ClosedLoop::settled`].
+    Move {
+        /// Commands, µm (the last is the new command).
+        waypoints: Vec<XyUm>,
+    },
+    /// The frame was not used; wait for another.
+    AwaitFrame {
+        /// Why.
+        rejected: RejectReason,
+    },
+    /// Within tolerance.
+    Done {
+        /// `target − measured`, µm.
+        residual_um: [f64; 2],
+        /// Correction moves made.
+        corrections: u32,
+    },
+    /// Gave up.
+    Failed {
+        /// Why.
+        reason: FailReason,
+        /// Last residual, µm (`None` before any usable frame).
+        residual_um: Option<[f64; 2]>,
+        /// Correction moves made.
+        corrections: u32,
+    },
+}
+
+/// See the module docs.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ClosedLoop {
+    cfg: ClosedLoopConfig,
+    target: XyUm,
+    cmd: [f64; 2],
+    arrival: [Direction; 2],
+    settled_at_s: Option<f64>,
+    last_seq: Option<u64>,
+    last_residual: Option<f64>,
+    last_residual_xy: Option<[f64; 2]>,
+    corrections: u32,
+    rejected: u32,
+    finished: bool,
+}
+
+impl ClosedLoop {
+    /// A loop for `target`, after a first move that commanded `cmd` and
+    /// arrived in `arrival` (from the [`super::MovePlan`]). Call
+    /// [`ClosedLoop::settled`] when that move has settled.
+    pub fn new(
+        target: XyUm,
+        cmd: XyUm,
+        arrival: [Direction; 2],
+        cfg: ClosedLoopConfig,
+    ) -> Result<Self, CompError> {
+        cfg.validate()?;
+        if ![target.x_um, target.y_um, cmd.x_um, cmd.y_um]
+            .iter()
+            .all(|v| v.is_finite())
+        {
+            return Err(invalid("closed loop", "target and command must be finite"));
+        }
+        let known = |d: Direction| match d {
+            Direction::Unknown => Direction::Forward,
+            d => d,
+        };
+        Ok(ClosedLoop {
+            cfg,
+            target,
+            cmd: [cmd.x_um, cmd.y_um],
+            arrival: [known(arrival[0]), known(arrival[1])],
+            settled_at_s: None,
+            last_seq: None,
+            last_residual: None,
+            last_residual_xy: None,
+            corrections: 0,
+            rejected: 0,
+            finished: false,
+        })
+    }
+
+    /// The current command, µm.
+    pub fn cmd(&self) -> XyUm {
+        XyUm::from(self.cmd)
+    }
+
+    /// Correction moves so far.
+    pub fn corrections(&self) -> u32 {
+        self.corrections
+    }
+
+    /// The last commanded move settled at `time_s`.
+    pub fn settled(&mut self, time_s: f64) {
+        self.settled_at_s = Some(time_s);
+    }
+
+    fn fail(&mut self, reason: FailReason) -> Action {
+        self.finished = true;
+        Action::Failed {
+            reason,
+            residual_um: self.last_residual_xy,
+            corrections: self.corrections,
+        }
+    }
+
+    fn reject(&mut self, why: RejectReason) -> Action {
+        self.rejected += 1;
+        if self.rejected >= self.cfg.max_rejected_frames {
+            self.fail(FailReason::Frames(why))
+        } else {
+            Action::AwaitFrame { rejected: why }
+        }
+    }
+
+    /// A decoded frame: returns what to do next.
+    pub fn on_frame(&mut self, m: &FrameMeasurement) -> Action {
+        if self.finished {
+            return Action::Failed {
+                reason: FailReason::RetryLimit,
+                residual_um: self.last_residual_xy,
+                corrections: self.corrections,
+            };
+        }
+        if ![m.position.x_um, m.position.y_um, m.timestamp_s, m.quality]
+            .iter()
+            .all(|v| v.is_finite())
+        {
+            return self.reject(RejectReason::NonFinite);
+        }
+        let Some(settled) = self.settled_at_s else {
+            return self.reject(RejectReason::Moving);
+        };
+        if m.timestamp_s <= settled {
+            return self.reject(RejectReason::Stale);
+        }
+        if self.last_seq.is_some_and(|s| m.frame_seq <= s) {
+            return self.reject(RejectReason::OldSequence);
+        }
+        if m.quality < self.cfg.min_quality {
+            return self.reject(RejectReason::LowQuality);
+        }
+        self.rejected = 0;
+        self.last_seq = Some(m.frame_seq);
+        let r = [
+            self.target.x_um - m.position.x_um,
+            self.target.y_um - m.position.y_um,
+        ];
+        let norm = r[0].hypot(r[1]);
+        let prev = self.last_residual;
+        self.last_residual = Some(norm);
+        self.last_residual_xy = Some(r);
+        if norm <= self.cfg.tolerance_um {
+            self.finished = true;
+            return Action::Done {
+                residual_um: r,
+                corrections: self.corrections,
+            };
+        }
+        if prev.is_some_and(|p| norm > self.cfg.divergence_factor * p.max(self.cfg.tolerance_um)) {
+            return self.fail(FailReason::Diverging);
+        }
+        if self.corrections >= self.cfg.max_corrections {
+            return self.fail(FailReason::RetryLimit);
+        }
+        let next = [self.cmd[0] + r[0], self.cmd[1] + r[1]];
+        let mut approach = next;
+        let mut needs = false;
+        for i in 0..2 {
+            let s = self.arrival[i].sign();
+            if (next[i] - self.cmd[i]) * s < 0.0 {
+                approach[i] = next[i] - s * self.cfg.overshoot_um;
+                needs = true;
+            }
+        }
+        let mut waypoints = Vec::with_capacity(2);
+        if needs {
+            waypoints.push(XyUm::from(approach));
+        }
+        waypoints.push(XyUm::from(next));
+        self.cmd = next;
+        self.corrections += 1;
+        self.settled_at_s = None;
+        Action::Move { waypoints }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn frame(x: f64, y: f64, t: f64, q: f64, seq: u64) -> FrameMeasurement {
+        FrameMeasurement {
+            position: XyUm { x_um: x, y_um: y },
+            timestamp_s: t,
+            quality: q,
+            frame_seq: seq,
+        }
+    }
+
+    #[test]
+    fn stale_low_quality_and_moving_frames_are_never_used() {
+        let t = XyUm::from([100.0, 200.0]);
+        let mut cl =
+            ClosedLoop::new(t, t, [Direction::Forward; 2], ClosedLoopConfig::default()).unwrap();
+        assert_eq!(
+            cl.on_frame(&frame(99.0, 200.0, 1.0, 1.0, 1)),
+            Action::AwaitFrame {
+                rejected: RejectReason::Moving
+            }
+        );
+        cl.settled(2.0);
+        assert_eq!(
+            cl.on_frame(&frame(99.0, 200.0, 2.0, 1.0, 2)),
+            Action::AwaitFrame {
+                rejected: RejectReason::Stale
+            }
+        );
+        assert_eq!(
+            cl.on_frame(&frame(99.0, 200.0, 2.1, 0.2, 3)),
+            Action::AwaitFrame {
+                rejected: RejectReason::LowQuality
+            }
+        );
+        // Residual +1 µm along x (forward: direct), −0.3 µm along y
+        // (against the arrival: re-approached from 20 µm below).
+        let Action::Move { waypoints } = cl.on_frame(&frame(99.0, 200.3, 2.2, 0.9, 4)) else {
+            panic!()
+        };
+        assert_eq!(waypoints.len(), 2);
+        let close =
+            |a: XyUm, x: f64, y: f64| (a.x_um - x).abs() < 1e-9 && (a.y_um - y).abs() < 1e-9;
+        assert!(close(waypoints[0], 101.0, 179.7), "{waypoints:?}");
+        assert!(close(waypoints[1], 101.0, 199.7), "{waypoints:?}");
+        // The next frame must come after the correction settled.
+        assert_eq!(
+            cl.on_frame(&frame(101.0, 200.0, 3.0, 1.0, 5)),
+            Action::AwaitFrame {
+                rejected: RejectReason::Moving
+            }
+        );
+    }
+
+    #[test]
+    fn retry_limit_and_divergence_stop_the_loop() {
+        let t = XyUm::from([0.0, 0.0]);
+        let cfg = ClosedLoopConfig {
+            max_corrections: 2,
+            ..ClosedLoopConfig::default()
+        };
+        let mut cl = ClosedLoop::new(t, t, [Direction::Forward; 2], cfg).unwrap();
+        let mut seq = 0;
+        let mut time = 0.0;
+        let mut step = |cl: &mut ClosedLoop, x: f64| {
+            time += 1.0;
+            cl.settled(time);
+            seq += 1;
+            cl.on_frame(&frame(x, 0.0, time + 0.5, 1.0, seq))
+        };
+        assert!(matches!(step(&mut cl, -1.0), Action::Move { .. }));
+        assert!(matches!(step(&mut cl, -0.8), Action::Move { .. }));
+        assert!(matches!(
+            step(&mut cl, -0.7),
+            Action::Failed {
+                reason: FailReason::RetryLimit,
+                ..
+            }
+        ));
+        let mut cl = ClosedLoop::new(t, t, [Direction::Forward; 2], cfg).unwrap();
+        assert!(matches!(step(&mut cl, -1.0), Action::Move { .. }));
+        assert!(matches!(
+            step(&mut cl, -3.0),
+            Action::Failed {
+                reason: FailReason::Diverging,
+                ..
+            }
+        ));
+        let mut cl = ClosedLoop::new(t, t, [Direction::Forward; 2], cfg).unwrap();
+        assert!(matches!(
+            step(&mut cl, 0.05),
+            Action::Done { corrections: 0, .. }
+        ));
+    }
+}

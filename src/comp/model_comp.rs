@@ -1,0 +1,233 @@
+//! Model-based compensation: fit the parametric stage model (harmonics of
+//! the screw lead, backlash, cross coupling, squareness, lead error,
+//! angular errors × Abbe arms) to the scans and predict the error anywhere.
+//!
+//! Why: a table needs points closer than the ripple it interpolates (the
+//! paper: 5 µm on a 400 µm screw, 9.5 h of measurement); a model with the
+//! right structure needs a few points per harmonic (50 µm steps: 10× fewer
+//! points), averages the settling noise over all of them, and behaves
+//! sensibly between and beyond the points (periodic terms stay periodic,
+//! squareness and lead stay linear). The price: errors the model has no
+//! term for stay uncompensated (the fit report's residual says how much).
+//!
+//! The log only holds the measured points, not the unlogged approach moves
+//! of the scan plan; the replay re-creates them (`approach_um` before each
+//! point whose inferred direction differs from the tracked one) so that the
+//! fitted states carry the right direction and play.
+
+use serde::{Deserialize, Serialize};
+
+use super::table::infer_directions;
+use super::{invalid, CompError, Compensator};
+use crate::charact::log::Record;
+use crate::charact::scan::{SEGMENT_SCAN_X, SEGMENT_SCAN_Y};
+use crate::model::{
+    Axis, Direction, Effect, FitOptions, FitReport, MotionState, MotionTracker, Sample, StageModel,
+    Waypoint, DEFAULT_TEMP_C,
+};
+
+/// Compensation by a fitted [`StageModel`]: the predicted offset is
+/// `observed_error_um` (platform and observation terms: the camera is the
+/// reference).
+#[derive(Debug, Clone)]
+pub struct ModelCompensator {
+    model: StageModel,
+}
+
+impl ModelCompensator {
+    /// Wraps a model (e.g. loaded from a compensation file).
+    pub fn new(model: StageModel) -> Self {
+        ModelCompensator { model }
+    }
+
+    /// The model.
+    pub fn model(&self) -> &StageModel {
+        &self.model
+    }
+
+    /// Fits `template` (see [`compensation_template`]) to the scan records
+    /// of a log and returns the compensator with the fit report.
+    pub fn fit_records(
+        template: StageModel,
+        records: &[Record],
+        options: &ModelBuildOptions,
+    ) -> Result<(ModelCompensator, FitReport), CompError> {
+        let samples = scan_samples(records, options)?;
+        let mut model = template;
+        let free: Vec<String> = model
+            .params()
+            .into_iter()
+            .filter(|p| !p.info.name.starts_with("arm_"))
+            .map(|p| p.full_name)
+            .collect();
+        if free.is_empty() {
+            return Err(invalid("template", "has no parameter to fit"));
+        }
+        let fit = FitOptions {
+            free,
+            max_iterations: options.max_iterations,
+            ..FitOptions::default()
+        };
+        let report = model.fit(&samples, &fit)?;
+        Ok((ModelCompensator { model }, report))
+    }
+}
+
+impl Compensator for ModelCompensator {
+    fn kind(&self) -> &'static str {
+        "model"
+    }
+
+    fn predicted_offset_um(&self, state: &MotionState) -> Result<[f64; 2], CompError> {
+        state.validate()?;
+        let e = self.model.observed_error_um(state);
+        if e.iter().all(|v| v.is_finite()) {
+            Ok(e)
+        } else {
+            Err(invalid("model", "predicted a non-finite error"))
+        }
+    }
+}
+
+/// The template a characterization fits: the structure of `model` (its
+/// terms, periods, harmonic counts and Abbe arms, which are geometry and
+/// are not fitted) with every other parameter reset to zero (backlash
+/// starts at 1 µm), and without the thermal and observation terms (they
+/// need a temperature history the scans do not resolve; see
+/// `docs/compensation-tables.md`).
+pub fn compensation_template(model: &StageModel) -> Result<StageModel, CompError> {
+    let mut m = model.clone();
+    let drop: Vec<String> = m
+        .terms()
+        .iter()
+        .filter(|t| {
+            t.effect() == Effect::Observation
+                || t.kind() == "thermal_expansion"
+                || t.kind() == "optics_drift"
+        })
+        .map(|t| t.name().to_string())
+        .collect();
+    for name in drop {
+        m.remove_term(&name);
+    }
+    let values: Vec<f64> = m
+        .params()
+        .iter()
+        .map(|p| {
+            if p.info.name.starts_with("arm_") {
+                p.info.value
+            } else if p.info.name == "backlash_um" {
+                1.0
+            } else {
+                0.0
+            }
+        })
+        .collect();
+    m.set_parameter_vector(&values)?;
+    Ok(m)
+}
+
+/// How to fit a model to a log.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ModelBuildOptions {
+    /// Segment of the X scan.
+    pub x_segment: String,
+    /// Segment of the Y scan.
+    pub y_segment: String,
+    /// Commands closer than this count as no move, µm.
+    pub grid_tolerance_um: f64,
+    /// Approach distance of the scan plan (re-created moves), µm.
+    pub approach_um: f64,
+    /// Minimum incremental motion of the stage, µm (as the model's).
+    pub min_move_um: f64,
+    /// Fit iteration limit.
+    pub max_iterations: usize,
+}
+
+impl Default for ModelBuildOptions {
+    fn default() -> Self {
+        ModelBuildOptions {
+            x_segment: SEGMENT_SCAN_X.into(),
+            y_segment: SEGMENT_SCAN_Y.into(),
+            grid_tolerance_um: 1e-3,
+            approach_um: 20.0,
+            min_move_um: 0.0,
+            max_iterations: 50,
+        }
+    }
+}
+
+/// Fit samples from the scan segments of a log: states re-created by
+/// replaying the commands (with the scan plan's approach moves), measured
+/// positions from the log, temperature from `temp_c` (or
+/// [`DEFAULT_TEMP_C`]).
+pub fn scan_samples(
+    records: &[Record],
+    options: &ModelBuildOptions,
+) -> Result<Vec<Sample>, CompError> {
+    if !(options.approach_um.is_finite() && options.approach_um > 0.0) {
+        return Err(invalid("approach_um", "must be a finite number > 0"));
+    }
+    if !(options.grid_tolerance_um.is_finite() && options.grid_tolerance_um > 0.0) {
+        return Err(invalid("grid_tolerance_um", "must be a finite number > 0"));
+    }
+    let mut out = Vec::new();
+    for (segment, axis) in [(&options.x_segment, Axis::X), (&options.y_segment, Axis::Y)] {
+        let recs: Vec<&Record> = records
+            .iter()
+            .filter(|r| &r.segment == segment)
+            .filter(|r| {
+                [r.t_s, r.x_cmd_um, r.y_cmd_um, r.x_meas_um, r.y_meas_um]
+                    .iter()
+                    .all(|v| v.is_finite())
+            })
+            .collect();
+        if recs.len() < 4 {
+            return Err(CompError::NoData {
+                what: format!("segment `{segment}` has {} usable records", recs.len()),
+            });
+        }
+        let i = axis.index();
+        let mov: Vec<f64> = recs.iter().map(|r| [r.x_cmd_um, r.y_cmd_um][i]).collect();
+        let dirs = infer_directions(&mov, options.grid_tolerance_um);
+        let first = recs[0];
+        let mut tracker = MotionTracker::new(MotionState::at_rest(first.x_cmd_um, first.y_cmd_um))?
+            .with_min_move(options.min_move_um)?;
+        for (r, d) in recs.iter().zip(dirs) {
+            let Some(d) = d else { continue };
+            let temp_c = r.temp_c.filter(|t| t.is_finite()).unwrap_or(DEFAULT_TEMP_C);
+            let cmd = [r.x_cmd_um, r.y_cmd_um];
+            let st = *tracker.state();
+            // Re-create the plan's approach moves: the held axis parked
+            // forward, the moving axis arriving in its pass direction.
+            let mut need = [Direction::Forward; 2];
+            need[i] = d;
+            let mut approach = cmd;
+            let mut any = false;
+            for k in 0..2 {
+                if st.axes[k].dir != need[k] {
+                    approach[k] = cmd[k] - need[k].sign() * options.approach_um;
+                    any = true;
+                }
+            }
+            let wp = |p: [f64; 2]| Waypoint {
+                x_um: p[0],
+                y_um: p[1],
+                time_s: r.t_s,
+                temp_c,
+                cycle: r.cycle,
+            };
+            if any {
+                tracker.step(wp(approach))?;
+            }
+            let state = tracker.step(wp(cmd))?;
+            out.push(Sample {
+                state,
+                measured_x_um: r.x_meas_um,
+                measured_y_um: r.y_meas_um,
+            });
+        }
+    }
+    Ok(out)
+}
