@@ -13,6 +13,7 @@ pub mod camera;
 pub mod charact;
 pub mod clock;
 pub mod comp;
+pub mod daemon;
 pub mod driver;
 pub mod frame;
 pub mod gcs;

@@ -1,1 +1,197 @@
-fn main() {}
+//! microposd: the micropos service. Owns the controllers and the camera and
+//! serves the local socket API (docs/socket-protocol.md). Runs under
+//! systemd (`Type=notify`, socket activation supported) or by hand.
+//!
+//! Exit codes: 0 clean shutdown, 1 runtime failure, 2 bad configuration or
+//! arguments.
+
+use anyhow::Context;
+use clap::Parser;
+use micropos::camera::{files::FileOptions, open_source, OpenOptions};
+use micropos::clock::WallClock;
+use micropos::daemon::{config::DaemonConfig, notify, Daemon};
+use std::os::unix::fs::PermissionsExt;
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+use std::sync::Arc;
+use std::time::Duration;
+
+/// The micropos daemon.
+#[derive(Debug, Parser)]
+#[command(name = "microposd", version, about)]
+struct Args {
+    /// Configuration file.
+    #[arg(long, short, default_value = "/etc/micropos/microposd.toml")]
+    config: PathBuf,
+    /// Socket path (overrides daemon.socket).
+    #[arg(long)]
+    socket: Option<PathBuf>,
+    /// Data directory (overrides daemon.data_dir).
+    #[arg(long)]
+    data_dir: Option<PathBuf>,
+    /// Validate the configuration and exit.
+    #[arg(long)]
+    check_config: bool,
+}
+
+fn init_logging() {
+    // Under systemd stderr goes to the journal (JOURNAL_STREAM is set):
+    // no colours, no timestamps (journald adds its own).
+    let journald = std::env::var_os("JOURNAL_STREAM").is_some();
+    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info"));
+    let b = tracing_subscriber::fmt()
+        .with_writer(std::io::stderr)
+        .with_env_filter(filter)
+        .with_ansi(!journald && std::io::IsTerminal::is_terminal(&std::io::stderr()));
+    if journald {
+        b.without_time().init();
+    } else {
+        b.init();
+    }
+}
+
+/// A socket passed by systemd (LISTEN_FDS), if any.
+fn activated_listener() -> anyhow::Result<Option<std::os::unix::net::UnixListener>> {
+    let fds: Vec<_> = sd_notify_listen_fds()?;
+    match fds.as_slice() {
+        [] => Ok(None),
+        [fd] => {
+            use std::os::fd::FromRawFd;
+            // SAFETY: systemd passed this descriptor to us (LISTEN_PID is
+            // ours, checked by listen_fds) and nothing else in the process
+            // owns it; we take ownership exactly once.
+            #[allow(unsafe_code)]
+            let l = unsafe { std::os::unix::net::UnixListener::from_raw_fd(*fd) };
+            Ok(Some(l))
+        }
+        more => anyhow::bail!(
+            "systemd passed {} sockets; microposd.socket must have exactly one ListenStream",
+            more.len()
+        ),
+    }
+}
+
+fn sd_notify_listen_fds() -> anyhow::Result<Vec<i32>> {
+    Ok(sd_notify::listen_fds()
+        .context("reading LISTEN_FDS")?
+        .collect())
+}
+
+/// Binds the socket: refuses to steal it from a running daemon, removes a
+/// stale one, sets the configured mode (group access for the `micropos`
+/// group: the socket's group is the daemon's primary group).
+fn bind(path: &Path, mode: u32) -> anyhow::Result<std::os::unix::net::UnixListener> {
+    if path.exists() {
+        if std::os::unix::net::UnixStream::connect(path).is_ok() {
+            anyhow::bail!("{} is in use by a running daemon", path.display());
+        }
+        std::fs::remove_file(path)
+            .with_context(|| format!("removing stale socket {}", path.display()))?;
+    }
+    if let Some(dir) = path.parent() {
+        if !dir.as_os_str().is_empty() {
+            std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+        }
+    }
+    let l = std::os::unix::net::UnixListener::bind(path)
+        .with_context(|| format!("binding {}", path.display()))?;
+    std::fs::set_permissions(path, std::fs::Permissions::from_mode(mode))
+        .with_context(|| format!("setting mode {mode:o} on {}", path.display()))?;
+    Ok(l)
+}
+
+async fn run(cfg: DaemonConfig) -> anyhow::Result<()> {
+    let mode = cfg.socket_mode()?;
+    let (std_listener, owned_path) = match activated_listener()? {
+        Some(l) => {
+            tracing::info!("using the socket passed by systemd");
+            (l, None)
+        }
+        None => (
+            bind(&cfg.daemon.socket, mode)?,
+            Some(cfg.daemon.socket.clone()),
+        ),
+    };
+    std_listener.set_nonblocking(true)?;
+    let listener = tokio::net::UnixListener::from_std(std_listener)?;
+    std::fs::create_dir_all(&cfg.daemon.data_dir)
+        .with_context(|| format!("creating data_dir {}", cfg.daemon.data_dir.display()))?;
+    let clock = Arc::new(WallClock::new());
+    let camera = match cfg.camera_source()? {
+        Some(spec) => {
+            let opts = OpenOptions {
+                timeout: Duration::from_millis(cfg.camera.timeout_ms),
+                files: FileOptions {
+                    looping: cfg.camera.looping,
+                    ..FileOptions::default()
+                },
+            };
+            let s = tokio::task::spawn_blocking(move || open_source(&spec, &opts))
+                .await?
+                .context("opening the camera (camera.source)")?;
+            Some(s)
+        }
+        None => None,
+    };
+    let running = Daemon::start(cfg, clock, camera, listener)?;
+    tracing::info!("microposd {} listening", env!("CARGO_PKG_VERSION"));
+    notify::ready();
+    let wd = tokio::spawn(notify::watchdog_loop(
+        running.daemon.clone(),
+        running.daemon.shutdown.subscribe(),
+    ));
+    let mut term = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())?;
+    tokio::select! {
+        _ = term.recv() => tracing::info!("SIGTERM: shutting down"),
+        _ = tokio::signal::ctrl_c() => tracing::info!("SIGINT: shutting down"),
+    }
+    notify::stopping();
+    running.shutdown().await;
+    let _ = wd.await;
+    if let Some(p) = owned_path {
+        let _ = std::fs::remove_file(p);
+    }
+    Ok(())
+}
+
+fn main() -> ExitCode {
+    let args = Args::parse();
+    init_logging();
+    let mut cfg = match DaemonConfig::load(&args.config) {
+        Ok(c) => c,
+        Err(e) => {
+            eprintln!("microposd: {}: {e}", args.config.display());
+            return ExitCode::from(2);
+        }
+    };
+    if let Some(s) = args.socket {
+        cfg.daemon.socket = s;
+    }
+    if let Some(d) = args.data_dir {
+        cfg.daemon.data_dir = d;
+    }
+    if args.check_config {
+        println!("{}: configuration is valid", args.config.display());
+        return ExitCode::SUCCESS;
+    }
+    let rt = match tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+    {
+        Ok(rt) => rt,
+        Err(e) => {
+            eprintln!("microposd: cannot start the runtime: {e}");
+            return ExitCode::from(1);
+        }
+    };
+    match rt.block_on(run(cfg)) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            tracing::error!("{e:#}");
+            eprintln!("microposd: {e:#}");
+            ExitCode::from(1)
+        }
+    }
+}

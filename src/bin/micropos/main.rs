@@ -5,6 +5,7 @@
 
 mod axes;
 mod camera;
+mod client;
 mod decode;
 mod gcs;
 mod pattern;
@@ -20,6 +21,8 @@ use clap::{Parser, Subcommand};
 struct Cli {
     #[command(subcommand)]
     command: Commands,
+    #[command(flatten)]
+    daemon: client::GlobalOpts,
 }
 
 #[derive(Debug, Subcommand)]
@@ -36,6 +39,14 @@ enum Commands {
     /// Megarena patterns: export for fabrication, plan depth and period.
     #[command(subcommand)]
     Pattern(pattern::PatternCommand),
+    /// Commands to the microposd daemon (over its Unix socket).
+    #[command(flatten)]
+    Daemon(client::ClientCommand),
+    /// Print shell completions (bash, zsh, fish, ...).
+    Completions {
+        /// The shell.
+        shell: clap_complete::Shell,
+    },
 }
 
 /// Maps a subcommand that only succeeds or fails to an exit code.
@@ -71,6 +82,12 @@ fn main() -> ExitCode {
         Commands::Decode(args) => (decode::run(&args), 2),
         Commands::Camera(c) => (done(camera::run(c)), 1),
         Commands::Pattern(c) => (done(pattern::run(c)), 1),
+        Commands::Daemon(c) => (block_on(client::run(cli.daemon, c)), 1),
+        Commands::Completions { shell } => {
+            let mut cmd = <Cli as clap::CommandFactory>::command();
+            clap_complete::generate(shell, &mut cmd, "micropos", &mut std::io::stdout());
+            (Ok(ExitCode::SUCCESS), 1)
+        }
     };
     match result {
         Ok(code) => code,

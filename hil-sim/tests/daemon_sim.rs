@@ -1,0 +1,366 @@
+//! microposd against the simulated controllers (in-process SimHandle over
+//! ptys, daemon in-process on a Unix socket): commands, safe states, faults,
+//! malformed input floods and many concurrent clients.
+
+use hil_sim::{AxisName, Fault, ServeConfig, SimHandle};
+use micropos::clock::WallClock;
+use micropos::daemon::config::DaemonConfig;
+use micropos::daemon::{Daemon, Running};
+use rand::{Rng, SeedableRng};
+use serde_json::{json, Value};
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+use tokio::io::{AsyncBufReadExt, AsyncWriteExt, BufReader};
+use tokio::net::UnixStream;
+
+struct Rig {
+    sim: Option<SimHandle>,
+    daemon: Option<Running>,
+    socket: PathBuf,
+    _dir: tempfile::TempDir,
+}
+
+impl Drop for Rig {
+    fn drop(&mut self) {
+        if let Some(s) = self.sim.take() {
+            s.shutdown();
+        }
+    }
+}
+
+async fn rig(time_scale: f64) -> Rig {
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = ServeConfig {
+        link_dir: dir.path().to_owned(),
+        daisy_chain: false,
+        time_scale,
+        control_socket: None,
+        seed: 11,
+    };
+    let sim = tokio::task::spawn_blocking(move || SimHandle::start(cfg))
+        .await
+        .unwrap()
+        .unwrap();
+    let socket = dir.path().join("d.sock");
+    let mut c = DaemonConfig::default();
+    c.daemon.socket = socket.clone();
+    c.daemon.data_dir = dir.path().join("data");
+    c.daemon.poll_interval_ms = 50;
+    c.driver.x.port = sim.link(AxisName::X);
+    c.driver.y.port = sim.link(AxisName::Y);
+    for a in [&mut c.driver.x, &mut c.driver.y] {
+        a.timeout_ms = 200;
+        a.reference_timeout_s = 20.0;
+        a.motion_timeout_s = 20.0;
+    }
+    c.driver.reconnect_min_ms = 20;
+    c.driver.reconnect_max_ms = 200;
+    c.limits.x_max_um = Some(14000.0);
+    c.validate().unwrap();
+    let listener = tokio::net::UnixListener::bind(&socket).unwrap();
+    let daemon = Daemon::start(c, Arc::new(WallClock::new()), None, listener).unwrap();
+    let r = Rig {
+        sim: Some(sim),
+        daemon: Some(daemon),
+        socket,
+        _dir: dir,
+    };
+    // Wait for the controllers to be connected.
+    let mut cl = Client::new(&r.socket).await;
+    let t = Instant::now();
+    loop {
+        let s = cl.call(json!({"cmd":"status"})).await;
+        if s["rig"]["connected"]["x"] == true && s["rig"]["connected"]["y"] == true {
+            break;
+        }
+        assert!(t.elapsed() < Duration::from_secs(10), "{s}");
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    r
+}
+
+struct Client {
+    r: BufReader<tokio::net::unix::OwnedReadHalf>,
+    w: tokio::net::unix::OwnedWriteHalf,
+    next: u64,
+}
+
+impl Client {
+    async fn new(p: &Path) -> Client {
+        let (r, w) = UnixStream::connect(p).await.unwrap().into_split();
+        Client {
+            r: BufReader::new(r),
+            w,
+            next: 0,
+        }
+    }
+    async fn send_raw(&mut self, b: &[u8]) {
+        self.w.write_all(b).await.unwrap();
+    }
+    async fn line(&mut self) -> Value {
+        let mut l = String::new();
+        let n = tokio::time::timeout(Duration::from_secs(30), self.r.read_line(&mut l))
+            .await
+            .unwrap()
+            .unwrap();
+        assert!(n > 0, "connection closed");
+        serde_json::from_str(&l).unwrap()
+    }
+    /// Sends a request, returns its reply (events in between are skipped).
+    async fn call(&mut self, mut req: Value) -> Value {
+        self.next += 1;
+        req["id"] = json!(self.next);
+        self.send_raw(format!("{req}\n").as_bytes()).await;
+        loop {
+            let v = self.line().await;
+            if v.get("event").is_none() {
+                assert_eq!(v["id"], json!(self.next), "{v}");
+                return v;
+            }
+        }
+    }
+}
+
+fn code(v: &Value) -> &str {
+    v["error"]["code"].as_str().unwrap_or("")
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn commands_safe_states_and_limits() {
+    let r = rig(20.0).await;
+    let mut c = Client::new(&r.socket).await;
+    let v = c.call(json!({"cmd":"version"})).await;
+    assert_eq!(v["protocol"], 1);
+    // Fresh controllers are unreferenced: nothing moves.
+    let m = c.call(json!({"cmd":"move","x_um":100.0})).await;
+    assert_eq!(code(&m), "not_referenced", "{m}");
+    let rf = c.call(json!({"cmd":"reference"})).await;
+    assert_eq!(rf["ok"], true, "{rf}");
+    // Outside the soft limit (14000) but inside travel: refused, nothing sent.
+    let m = c.call(json!({"cmd":"move","x_um":14500.0})).await;
+    assert_eq!(code(&m), "out_of_travel", "{m}");
+    let m = c.call(json!({"cmd":"move","x_um":-1.0})).await;
+    assert_eq!(code(&m), "out_of_travel");
+    let m = c
+        .call(json!({"cmd":"move","x_um":7600.0,"y_um":7400.0,"wait":true}))
+        .await;
+    assert_eq!(m["ok"], true, "{m}");
+    assert!((m["reported"]["x_um"].as_f64().unwrap() - 7600.0).abs() < 0.5);
+    let m = c
+        .call(json!({"cmd":"move","x_um":-50.0,"relative":true,"wait":true}))
+        .await;
+    assert_eq!(m["commanded"]["x_um"], 7550.0, "{m}");
+    let p = c.call(json!({"cmd":"position"})).await;
+    assert!(
+        (p["controller"]["x_um"].as_f64().unwrap() - 7550.0).abs() < 0.5,
+        "{p}"
+    );
+    assert_eq!(p["vision"], Value::Null);
+    assert_eq!(
+        code(
+            &c.call(json!({"cmd":"move","x_um":7000.0,"mode":"compensated"}))
+                .await
+        ),
+        "no_active_table"
+    );
+    assert_eq!(
+        code(&c.call(json!({"cmd":"characterize","action":"start"})).await),
+        "camera_unavailable"
+    );
+    // stop overtakes: a long move is cut short.
+    let m = c.call(json!({"cmd":"move","x_um":9000.0})).await;
+    assert_eq!(m["ok"], true);
+    let s = c.call(json!({"cmd":"stop"})).await;
+    assert_eq!(s["ok"], true, "{s}");
+    tokio::time::sleep(Duration::from_millis(200)).await;
+    let truth = r.sim.as_ref().unwrap().true_position_mm(AxisName::X) * 1000.0;
+    assert!(truth < 8990.0, "stop did not stop: {truth}");
+    let st = c.call(json!({"cmd":"status"})).await;
+    assert_eq!(st["rig"]["mode"], "idle", "{st}");
+    let cfg = c.call(json!({"cmd":"config"})).await;
+    assert_eq!(cfg["config"]["limits"]["x_max_um"], 14000.0);
+    drop(r);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn line_drop_halts_the_other_axis_and_power_cycle_needs_reference() {
+    let r = rig(2.0).await;
+    let mut c = Client::new(&r.socket).await;
+    let mut sub = Client::new(&r.socket).await;
+    assert_eq!(
+        sub.call(json!({"cmd":"subscribe","topics":["fault"]}))
+            .await["ok"],
+        true
+    );
+    assert_eq!(c.call(json!({"cmd":"reference"})).await["ok"], true);
+    let m = c
+        .call(json!({"cmd":"move","x_um":9000.0,"y_um":14000.0}))
+        .await;
+    assert_eq!(m["ok"], true, "{m}");
+    tokio::time::sleep(Duration::from_millis(100)).await;
+    let sim = r.sim.as_ref().unwrap();
+    sim.inject(AxisName::X, Fault::DropLine).unwrap();
+    // The fault reaches the subscriber.
+    let ev = loop {
+        let ev = sub.line().await;
+        if ev["event"] == "fault" {
+            break ev;
+        }
+    };
+    assert!(ev["reason"].as_str().unwrap().contains("axis x"), "{ev}");
+    // Y was halted well before its target.
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    let y1 = sim.true_position_mm(AxisName::Y);
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    let y2 = sim.true_position_mm(AxisName::Y);
+    assert!(
+        (y1 - y2).abs() < 1e-6 && y2 * 1000.0 < 13990.0,
+        "y still moving: {y1} {y2}"
+    );
+    let m = c.call(json!({"cmd":"move","y_um":8000.0})).await;
+    assert_eq!(code(&m), "not_connected", "{m}");
+    sim.inject(AxisName::X, Fault::RestoreLine).unwrap();
+    let t = Instant::now();
+    loop {
+        let s = c.call(json!({"cmd":"status"})).await;
+        if s["rig"]["connected"]["x"] == true {
+            break;
+        }
+        assert!(t.elapsed() < Duration::from_secs(10), "no reconnect: {s}");
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    // A power cycle loses the reference: moves refused until re-referenced.
+    sim.inject(AxisName::Y, Fault::PowerCycle).unwrap();
+    let t = Instant::now();
+    loop {
+        let m = c.call(json!({"cmd":"move","y_um":8000.0})).await;
+        if code(&m) == "not_referenced" {
+            break;
+        }
+        assert!(
+            t.elapsed() < Duration::from_secs(10),
+            "power cycle unnoticed: {m}"
+        );
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+    assert_eq!(
+        c.call(json!({"cmd":"reference","axes":"y"})).await["ok"],
+        true
+    );
+    assert_eq!(
+        c.call(json!({"cmd":"move","y_um":8000.0,"wait":true}))
+            .await["ok"],
+        true
+    );
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn malformed_flood_and_concurrent_clients() {
+    let r = rig(20.0).await;
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
+    let c = Client::new(&r.socket).await;
+    let samples: [&[u8]; 8] = [
+        b"{",
+        b"[]",
+        b"{\"cmd\":42}",
+        b"{\"cmd\":\"launch\"}",
+        b"{\"id\":1,\"cmd\":\"move\",\"x_um\":\"far\"}",
+        b"null",
+        b"{\"cmd\":\"move\"}",
+        b"\xff\xfe",
+    ];
+    let mut batch = Vec::new();
+    let mut expected = 0usize;
+    for i in 0..10_000 {
+        let line: Vec<u8> = match i % 4 {
+            0 => samples[rng.gen_range(0..samples.len())].to_vec(),
+            1 => (0..rng.gen_range(1..80))
+                .map(|_| rng.gen_range(0u8..=255))
+                .filter(|b| *b != b'\n')
+                .collect(),
+            2 => {
+                let s = format!("{{\"id\":{i},\"cmd\":\"status\"");
+                s.as_bytes()[..rng.gen_range(1..s.len())].to_vec()
+            }
+            _ if i % 1000 == 3 => vec![b'a'; micropos::daemon::protocol::MAX_REQUEST_BYTES + 100],
+            _ => b"{\"id\":\"x\",\"cmd\":\"subscribe\",\"topics\":\"all\"}".to_vec(),
+        };
+        if line.iter().all(u8::is_ascii_whitespace) {
+            continue;
+        }
+        batch.extend_from_slice(&line);
+        batch.push(b'\n');
+        expected += 1;
+    }
+    let Client {
+        r: mut reader,
+        mut w,
+        ..
+    } = c;
+    // Write and read at once, like a real client (the daemon applies
+    // back-pressure when replies are not read).
+    let writer = tokio::spawn(async move {
+        w.write_all(&batch).await.unwrap();
+        w
+    });
+    let mut errors = 0;
+    while errors < expected {
+        let mut l = String::new();
+        let n = tokio::time::timeout(Duration::from_secs(30), reader.read_line(&mut l))
+            .await
+            .unwrap()
+            .unwrap();
+        assert!(n > 0);
+        let v: Value = serde_json::from_str(&l).unwrap();
+        assert_eq!(v["ok"], false, "{v}");
+        assert!(!code(&v).is_empty());
+        errors += 1;
+    }
+    let w = writer.await.unwrap();
+    let mut c = Client {
+        r: reader,
+        w,
+        next: 100,
+    };
+    assert_eq!(c.call(json!({"cmd":"status"})).await["ok"], true);
+
+    // 64 concurrent clients: status, subscribe, moves.
+    let mut cl = Client::new(&r.socket).await;
+    assert_eq!(cl.call(json!({"cmd":"reference"})).await["ok"], true);
+    let mut tasks = Vec::new();
+    for k in 0..64u32 {
+        let p = r.socket.clone();
+        tasks.push(tokio::spawn(async move {
+            let mut c = Client::new(&p).await;
+            match k % 3 {
+                0 => {
+                    for _ in 0..5 {
+                        assert_eq!(c.call(json!({"cmd":"status"})).await["ok"], true);
+                    }
+                }
+                1 => {
+                    assert_eq!(
+                        c.call(json!({"cmd":"subscribe","topics":["position"]}))
+                            .await["ok"],
+                        true
+                    );
+                    let ev = c.line().await;
+                    assert_eq!(ev["event"], "position");
+                }
+                _ => {
+                    let x = 7000.0 + f64::from(k);
+                    let m = c.call(json!({"cmd":"move","x_um":x,"wait":true})).await;
+                    // Every valid move is served: done or cut short by
+                    // another client's move on the same axis.
+                    assert!(m["ok"] == true || code(&m) == "halted", "{m}");
+                }
+            }
+        }));
+    }
+    for t in tasks {
+        t.await.unwrap();
+    }
+    assert_eq!(cl.call(json!({"cmd":"status"})).await["ok"], true);
+    r.daemon.as_ref().unwrap().daemon.jobs.signal_cancel();
+}

@@ -1,0 +1,342 @@
+//! The daemon client: one subcommand per socket command. Human-readable
+//! output by default, the daemon's JSON reply with `--json`.
+//!
+//! Exit codes (scripts rely on them): 0 success; 1 the daemon refused or
+//! failed the command (its error code is printed, e.g. `out_of_travel`);
+//! 2 usage error; 3 the daemon is not reachable (socket missing, refused,
+//! closed mid-reply).
+
+use anyhow::Context;
+use clap::{Args, Subcommand};
+use serde_json::{json, Value};
+use std::io::Write;
+use std::path::PathBuf;
+use std::process::ExitCode;
+use tokio::io::{AsyncBufReadExt, AsyncWriteExt, BufReader};
+use tokio::net::UnixStream;
+
+/// Options of every daemon command.
+#[derive(Debug, Args)]
+pub struct GlobalOpts {
+    /// The daemon's socket.
+    #[arg(long, global = true, default_value = "/run/micropos/micropos.sock")]
+    pub socket: PathBuf,
+    /// Print the daemon's JSON replies instead of text.
+    #[arg(long, global = true)]
+    pub json: bool,
+}
+
+/// Commands sent to microposd.
+#[derive(Debug, Subcommand)]
+pub enum ClientCommand {
+    /// Daemon, rig and job state.
+    Status,
+    /// Positions: commanded, controller-reported, vision-measured.
+    Position,
+    /// Move the stage (µm).
+    Move {
+        /// X target (or offset with --relative), µm.
+        #[arg(long, allow_hyphen_values = true)]
+        x: Option<f64>,
+        /// Y target (or offset), µm.
+        #[arg(long, allow_hyphen_values = true)]
+        y: Option<f64>,
+        /// Offsets from the commanded position.
+        #[arg(long)]
+        relative: bool,
+        /// raw, compensated or closed_loop.
+        #[arg(long, default_value = "raw")]
+        mode: String,
+        /// Return only once on target.
+        #[arg(long)]
+        wait: bool,
+    },
+    /// Halt everything now.
+    Stop,
+    /// Reference axes (x, y or xy).
+    Reference {
+        /// Axes.
+        #[arg(default_value = "xy")]
+        axes: String,
+    },
+    /// Print events (positions, job progress, faults) until interrupted.
+    Subscribe {
+        /// Topics: position, job, fault (default all).
+        topics: Vec<String>,
+    },
+    /// Characterization job: start, status, cancel, resume.
+    Characterize {
+        /// start | status | cancel | resume
+        #[arg(default_value = "status")]
+        action: String,
+        /// Log file name (in the daemon's data directory).
+        #[arg(long)]
+        log: Option<String>,
+        /// Step, µm.
+        #[arg(long)]
+        step_um: Option<f64>,
+        /// Cycles.
+        #[arg(long)]
+        cycles: Option<u32>,
+        /// Follow progress with a progress bar until the job ends.
+        #[arg(long)]
+        follow: bool,
+    },
+    /// Validation tests: start (square | random), status, cancel.
+    Validate {
+        /// start | status | cancel
+        #[arg(default_value = "status")]
+        action: String,
+        /// square or random.
+        #[arg(long)]
+        test: Option<String>,
+    },
+    /// Compensation tables: list, load NAME, activate [NAME].
+    Tables {
+        /// list | load | activate
+        #[arg(default_value = "list")]
+        action: String,
+        /// Table name.
+        name: Option<String>,
+    },
+    /// The daemon's effective configuration.
+    Config,
+    /// Daemon and protocol version.
+    Version,
+}
+
+/// A connection to the daemon.
+struct Conn {
+    reader: BufReader<tokio::net::unix::OwnedReadHalf>,
+    writer: tokio::net::unix::OwnedWriteHalf,
+}
+
+/// Failure to reach the daemon (exit 3) vs. a refused command (exit 1).
+struct Unreachable(anyhow::Error);
+
+impl Conn {
+    async fn open(path: &PathBuf) -> Result<Conn, Unreachable> {
+        let s = UnixStream::connect(path)
+            .await
+            .with_context(|| {
+                format!(
+                    "cannot reach microposd at {} (is it running? --socket)",
+                    path.display()
+                )
+            })
+            .map_err(Unreachable)?;
+        let (r, w) = s.into_split();
+        Ok(Conn {
+            reader: BufReader::new(r),
+            writer: w,
+        })
+    }
+
+    async fn line(&mut self) -> Result<Value, Unreachable> {
+        let mut l = String::new();
+        let n = self
+            .reader
+            .read_line(&mut l)
+            .await
+            .map_err(|e| Unreachable(e.into()))?;
+        if n == 0 {
+            return Err(Unreachable(anyhow::anyhow!(
+                "the daemon closed the connection"
+            )));
+        }
+        serde_json::from_str(&l)
+            .map_err(|e| Unreachable(anyhow::anyhow!("unreadable reply {l:?}: {e}")))
+    }
+
+    async fn request(&mut self, mut req: Value) -> Result<Value, Unreachable> {
+        req["id"] = json!(1);
+        let mut s = req.to_string();
+        s.push('\n');
+        self.writer
+            .write_all(s.as_bytes())
+            .await
+            .map_err(|e| Unreachable(e.into()))?;
+        loop {
+            let v = self.line().await?;
+            if v.get("event").is_none() {
+                return Ok(v);
+            }
+        }
+    }
+}
+
+fn build(cmd: &ClientCommand) -> Value {
+    match cmd {
+        ClientCommand::Status => json!({"cmd": "status"}),
+        ClientCommand::Position => json!({"cmd": "position"}),
+        ClientCommand::Move {
+            x,
+            y,
+            relative,
+            mode,
+            wait,
+        } => {
+            json!({"cmd": "move", "x_um": x, "y_um": y, "relative": relative, "mode": mode, "wait": wait})
+        }
+        ClientCommand::Stop => json!({"cmd": "stop"}),
+        ClientCommand::Reference { axes } => json!({"cmd": "reference", "axes": axes}),
+        ClientCommand::Subscribe { topics } => {
+            if topics.is_empty() {
+                json!({"cmd": "subscribe"})
+            } else {
+                json!({"cmd": "subscribe", "topics": topics})
+            }
+        }
+        ClientCommand::Characterize {
+            action,
+            log,
+            step_um,
+            cycles,
+            ..
+        } => {
+            let mut v = json!({"cmd": "characterize", "action": action});
+            if let Some(l) = log {
+                v["log"] = json!(l);
+            }
+            if let Some(s) = step_um {
+                v["step_um"] = json!(s);
+            }
+            if let Some(c) = cycles {
+                v["cycles"] = json!(c);
+            }
+            v
+        }
+        ClientCommand::Validate { action, test } => {
+            json!({"cmd": "validate", "action": action, "test": test})
+        }
+        ClientCommand::Tables { action, name } => {
+            json!({"cmd": "tables", "action": action, "name": name})
+        }
+        ClientCommand::Config => json!({"cmd": "config"}),
+        ClientCommand::Version => json!({"cmd": "version"}),
+    }
+}
+
+fn human(v: &Value) -> String {
+    fn walk(v: &Value, indent: usize, out: &mut String) {
+        if let Value::Object(m) = v {
+            for (k, x) in m {
+                if k == "id" || k == "ok" {
+                    continue;
+                }
+                match x {
+                    Value::Object(_) => {
+                        out.push_str(&format!("{:indent$}{k}:\n", ""));
+                        walk(x, indent + 2, out);
+                    }
+                    Value::Null => out.push_str(&format!("{:indent$}{k}: -\n", "")),
+                    Value::Number(n) => match n.as_f64() {
+                        Some(f) if n.is_f64() => {
+                            out.push_str(&format!("{:indent$}{k}: {f:.4}\n", ""))
+                        }
+                        _ => out.push_str(&format!("{:indent$}{k}: {n}\n", "")),
+                    },
+                    Value::String(s) => out.push_str(&format!("{:indent$}{k}: {s}\n", "")),
+                    other => out.push_str(&format!("{:indent$}{k}: {other}\n", "")),
+                }
+            }
+        }
+    }
+    let mut s = String::new();
+    walk(v, 0, &mut s);
+    s
+}
+
+/// Runs a client command.
+pub async fn run(opts: GlobalOpts, cmd: ClientCommand) -> anyhow::Result<ExitCode> {
+    match run_inner(&opts, &cmd).await {
+        Ok(code) => Ok(code),
+        Err(Unreachable(e)) => {
+            eprintln!("error: {e:#}");
+            Ok(ExitCode::from(3))
+        }
+    }
+}
+
+async fn run_inner(opts: &GlobalOpts, cmd: &ClientCommand) -> Result<ExitCode, Unreachable> {
+    let mut conn = Conn::open(&opts.socket).await?;
+    let reply = conn.request(build(cmd)).await?;
+    let out = std::io::stdout();
+    if opts.json {
+        let _ = writeln!(out.lock(), "{reply}");
+    }
+    if reply["ok"] != json!(true) {
+        if !opts.json {
+            eprintln!(
+                "error [{}]: {}",
+                reply["error"]["code"].as_str().unwrap_or("?"),
+                reply["error"]["message"].as_str().unwrap_or("?")
+            );
+        }
+        return Ok(ExitCode::from(1));
+    }
+    if !opts.json {
+        let _ = write!(out.lock(), "{}", human(&reply));
+    }
+    match cmd {
+        ClientCommand::Subscribe { .. } => loop {
+            let ev = conn.line().await?;
+            if opts.json {
+                let _ = writeln!(out.lock(), "{ev}");
+            } else {
+                let name = ev["event"].as_str().unwrap_or("?").to_owned();
+                let _ = writeln!(
+                    out.lock(),
+                    "[{name}] {}",
+                    human(&ev).replace('\n', "  ").trim_end()
+                );
+            }
+        },
+        ClientCommand::Characterize {
+            follow: true,
+            action,
+            ..
+        } if action == "start" || action == "resume" => follow(&mut conn, &reply).await,
+        _ => Ok(ExitCode::SUCCESS),
+    }
+}
+
+/// Shows job progress with a bar until the job ends; exit 0 only if done.
+async fn follow(conn: &mut Conn, started: &Value) -> Result<ExitCode, Unreachable> {
+    let total = started["job"]["total"].as_u64().unwrap_or(0);
+    let bar = indicatif::ProgressBar::new(total);
+    bar.set_style(
+        indicatif::ProgressStyle::with_template("{bar:40} {pos}/{len} points  ETA {msg}")
+            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+    );
+    bar.set_position(started["job"]["done"].as_u64().unwrap_or(0));
+    conn.request(json!({"cmd": "subscribe", "topics": ["job", "fault"]}))
+        .await?;
+    loop {
+        let ev = conn.line().await?;
+        match ev["event"].as_str() {
+            Some("job") => {
+                bar.set_position(ev["done"].as_u64().unwrap_or(0));
+                if let Some(eta) = ev["eta_s"].as_f64() {
+                    bar.set_message(format!("{:.0} s", eta));
+                }
+                match ev["state"].as_str() {
+                    Some("running") | None => {}
+                    Some("done") => {
+                        bar.finish_with_message("done");
+                        return Ok(ExitCode::SUCCESS);
+                    }
+                    Some(other) => {
+                        bar.abandon_with_message(other.to_owned());
+                        eprintln!("job {other}: {}", ev["error"].as_str().unwrap_or(""));
+                        return Ok(ExitCode::from(1));
+                    }
+                }
+            }
+            Some("fault") => {
+                bar.println(format!("fault: {}", ev["reason"].as_str().unwrap_or("?")))
+            }
+            _ => {}
+        }
+    }
+}

@@ -1,0 +1,389 @@
+//! The daemon configuration (`microposd.toml`), validated at start so a bad
+//! file stops the daemon with a message naming the key and the problem
+//! instead of failing hours later in a job.
+
+use crate::camera::SourceSpec;
+use crate::driver::DriverConfig;
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+
+/// A configuration problem: which key, what is wrong.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("config key {key}: {problem}")]
+pub struct ConfigError {
+    /// Dotted key, e.g. `characterize.step_um`.
+    pub key: String,
+    /// What is wrong and what would be right.
+    pub problem: String,
+}
+
+fn bad(key: &str, problem: impl Into<String>) -> ConfigError {
+    ConfigError {
+        key: key.to_owned(),
+        problem: problem.into(),
+    }
+}
+
+/// The whole file.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
+#[serde(deny_unknown_fields, default)]
+pub struct DaemonConfig {
+    /// Process and socket settings.
+    pub daemon: DaemonSection,
+    /// The two controllers (see `config/driver.example.toml`).
+    pub driver: DriverConfig,
+    /// Soft limits, tighter than the controllers' travel.
+    pub limits: Limits,
+    /// The camera and the decoder.
+    pub camera: CameraSection,
+    /// Defaults of the characterization job.
+    pub characterize: CharacterizeDefaults,
+    /// Closed-loop moves.
+    pub closed_loop: ClosedLoop,
+}
+
+/// `[daemon]`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct DaemonSection {
+    /// Unix socket path (overridden by `--socket`; ignored under socket
+    /// activation).
+    pub socket: PathBuf,
+    /// Socket file mode, octal string (default `"0660"`: owner and group).
+    pub socket_mode: String,
+    /// Where measurement logs and tables live; client-given file names are
+    /// resolved inside it and nowhere else.
+    pub data_dir: PathBuf,
+    /// Period of the controller position poll that feeds the position
+    /// stream and the health check, ms.
+    pub poll_interval_ms: u64,
+    /// Most clients served at once (more wait in the accept queue).
+    pub max_clients: usize,
+}
+
+impl Default for DaemonSection {
+    fn default() -> Self {
+        Self {
+            socket: PathBuf::from("/run/micropos/micropos.sock"),
+            socket_mode: "0660".to_owned(),
+            data_dir: PathBuf::from("/var/lib/micropos"),
+            poll_interval_ms: 200,
+            max_clients: 256,
+        }
+    }
+}
+
+/// `[limits]`: soft limits in µm, controller coordinates. Unset = the
+/// controller's travel (`TMN?`/`TMX?`).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, Default)]
+#[serde(deny_unknown_fields, default)]
+pub struct Limits {
+    /// Lowest X target, µm.
+    pub x_min_um: Option<f64>,
+    /// Highest X target, µm.
+    pub x_max_um: Option<f64>,
+    /// Lowest Y target, µm.
+    pub y_min_um: Option<f64>,
+    /// Highest Y target, µm.
+    pub y_max_um: Option<f64>,
+}
+
+/// `[camera]`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct CameraSection {
+    /// Frame source (`v4l2:/dev/video0`, `genicam[:ID]`, `files:GLOB`,
+    /// `sim:PATH` once available); empty = no camera (vision features
+    /// answer `camera_unavailable`).
+    pub source: String,
+    /// Longest wait for a frame, ms.
+    pub timeout_ms: u64,
+    /// Replay sources: start again after the last file.
+    pub looping: bool,
+    /// Pattern period, µm.
+    pub period_um: f64,
+    /// Pattern code depth (4..=12).
+    pub bits: u32,
+    /// The optics mirror the image.
+    pub mirrored: bool,
+    /// Oldest measurement a closed-loop move or a job point may use, s.
+    pub max_age_s: f64,
+    /// Lowest decode quality (code margin, bits) accepted.
+    pub min_quality: f64,
+    /// Angle from the pattern frame to the stage frame, rad
+    /// (counter-clockwise positive): stage = R(angle)·vision + offset.
+    pub rotation_rad: f64,
+}
+
+impl Default for CameraSection {
+    fn default() -> Self {
+        Self {
+            source: String::new(),
+            timeout_ms: 2000,
+            looping: false,
+            period_um: 9.0,
+            bits: 12,
+            mirrored: false,
+            max_age_s: 1.0,
+            min_quality: 1.0,
+            rotation_rad: 0.0,
+        }
+    }
+}
+
+/// `[characterize]`: job defaults (a `characterize start` may override each).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct CharacterizeDefaults {
+    /// Step between points, µm.
+    pub step_um: f64,
+    /// X scan range, µm (centred in the travel unless `x_start_um`).
+    pub x_range_um: f64,
+    /// Y scan range, µm.
+    pub y_range_um: f64,
+    /// First X point, µm; unset = centred.
+    pub x_start_um: Option<f64>,
+    /// First Y point, µm; unset = centred.
+    pub y_start_um: Option<f64>,
+    /// Forward + backward cycles.
+    pub cycles: u32,
+    /// Frames averaged per point.
+    pub frames_per_point: u32,
+    /// Wait after on-target before measuring, s.
+    pub settle_s: f64,
+}
+
+impl Default for CharacterizeDefaults {
+    fn default() -> Self {
+        Self {
+            step_um: 5.0,
+            x_range_um: 9500.0,
+            y_range_um: 4200.0,
+            x_start_um: None,
+            y_start_um: None,
+            cycles: 3,
+            frames_per_point: 4,
+            settle_s: 0.5,
+        }
+    }
+}
+
+/// `[closed_loop]`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ClosedLoop {
+    /// Residual accepted, µm.
+    pub tolerance_um: f64,
+    /// Corrections tried before giving up.
+    pub max_iterations: u32,
+}
+
+impl Default for ClosedLoop {
+    fn default() -> Self {
+        Self {
+            tolerance_um: 0.1,
+            max_iterations: 5,
+        }
+    }
+}
+
+impl DaemonConfig {
+    /// Parses and validates a TOML text.
+    pub fn from_toml(text: &str) -> Result<Self, ConfigError> {
+        let cfg: DaemonConfig = toml::from_str(text).map_err(|e| ConfigError {
+            key: e
+                .span()
+                .map(|s| format!("at byte {}", s.start))
+                .unwrap_or_else(|| "(file)".to_owned()),
+            problem: e.message().to_owned(),
+        })?;
+        cfg.validate()?;
+        Ok(cfg)
+    }
+
+    /// Reads, parses and validates a file.
+    pub fn load(path: &Path) -> Result<Self, ConfigError> {
+        let text = std::fs::read_to_string(path)
+            .map_err(|e| bad("(file)", format!("cannot read {}: {e}", path.display())))?;
+        Self::from_toml(&text)
+    }
+
+    /// The socket mode as a number.
+    pub fn socket_mode(&self) -> Result<u32, ConfigError> {
+        let s = self.daemon.socket_mode.trim_start_matches("0o");
+        u32::from_str_radix(s, 8)
+            .ok()
+            .filter(|m| *m <= 0o777)
+            .ok_or_else(|| {
+                bad(
+                    "daemon.socket_mode",
+                    format!(
+                        "{:?} is not an octal mode like \"0660\"",
+                        self.daemon.socket_mode
+                    ),
+                )
+            })
+    }
+
+    /// The camera source, if one is configured.
+    pub fn camera_source(&self) -> Result<Option<SourceSpec>, ConfigError> {
+        if self.camera.source.trim().is_empty() {
+            return Ok(None);
+        }
+        self.camera
+            .source
+            .parse()
+            .map(Some)
+            .map_err(|e| bad("camera.source", format!("{e}")))
+    }
+
+    /// Checks every value that can be checked without hardware.
+    pub fn validate(&self) -> Result<(), ConfigError> {
+        if self.daemon.socket.as_os_str().is_empty() {
+            return Err(bad("daemon.socket", "must be a path"));
+        }
+        self.socket_mode()?;
+        if self.daemon.data_dir.as_os_str().is_empty() {
+            return Err(bad("daemon.data_dir", "must be a directory path"));
+        }
+        if !(10..=60_000).contains(&self.daemon.poll_interval_ms) {
+            return Err(bad("daemon.poll_interval_ms", "must be within 10..=60000"));
+        }
+        if self.daemon.max_clients == 0 {
+            return Err(bad("daemon.max_clients", "must be at least 1"));
+        }
+        self.driver
+            .validate()
+            .map_err(|e| bad("driver", e.to_string()))?;
+        for (axis, lo, hi) in [
+            ("x", self.limits.x_min_um, self.limits.x_max_um),
+            ("y", self.limits.y_min_um, self.limits.y_max_um),
+        ] {
+            for (k, v) in [("min", lo), ("max", hi)] {
+                if let Some(v) = v {
+                    if !v.is_finite() {
+                        return Err(bad(&format!("limits.{axis}_{k}_um"), "must be finite"));
+                    }
+                }
+            }
+            if let (Some(lo), Some(hi)) = (lo, hi) {
+                if lo >= hi {
+                    return Err(bad(
+                        &format!("limits.{axis}_min_um"),
+                        format!("{lo} must be below {axis}_max_um = {hi}"),
+                    ));
+                }
+            }
+        }
+        self.camera_source()?;
+        let c = &self.camera;
+        if c.timeout_ms == 0 {
+            return Err(bad("camera.timeout_ms", "must be positive"));
+        }
+        if !(c.period_um.is_finite() && c.period_um > 0.0) {
+            return Err(bad("camera.period_um", "must be a positive number of µm"));
+        }
+        if !(4..=12).contains(&c.bits) {
+            return Err(bad("camera.bits", "must be within 4..=12"));
+        }
+        if !(c.max_age_s.is_finite() && c.max_age_s > 0.0) {
+            return Err(bad("camera.max_age_s", "must be a positive number of s"));
+        }
+        if !c.min_quality.is_finite() {
+            return Err(bad("camera.min_quality", "must be a number"));
+        }
+        if !c.rotation_rad.is_finite() {
+            return Err(bad("camera.rotation_rad", "must be a number"));
+        }
+        let k = &self.characterize;
+        for (key, v) in [
+            ("characterize.step_um", k.step_um),
+            ("characterize.x_range_um", k.x_range_um),
+            ("characterize.y_range_um", k.y_range_um),
+        ] {
+            if !(v.is_finite() && v > 0.0) {
+                return Err(bad(
+                    key,
+                    format!("must be a positive number of µm, got {v}"),
+                ));
+            }
+        }
+        if k.step_um > k.x_range_um.min(k.y_range_um) {
+            return Err(bad(
+                "characterize.step_um",
+                "must not exceed the scan ranges",
+            ));
+        }
+        if !(1..=1000).contains(&k.cycles) {
+            return Err(bad("characterize.cycles", "must be within 1..=1000"));
+        }
+        if !(1..=1000).contains(&k.frames_per_point) {
+            return Err(bad(
+                "characterize.frames_per_point",
+                "must be within 1..=1000",
+            ));
+        }
+        if !(k.settle_s.is_finite() && (0.0..=3600.0).contains(&k.settle_s)) {
+            return Err(bad("characterize.settle_s", "must be within 0..=3600 s"));
+        }
+        let cl = &self.closed_loop;
+        if !(cl.tolerance_um.is_finite() && cl.tolerance_um > 0.0) {
+            return Err(bad(
+                "closed_loop.tolerance_um",
+                "must be a positive number of µm",
+            ));
+        }
+        if !(1..=100).contains(&cl.max_iterations) {
+            return Err(bad("closed_loop.max_iterations", "must be within 1..=100"));
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const MIN: &str = "[driver.x]\nport = \"/dev/ttyUSB0\"\n[driver.y]\nport = \"/dev/ttyUSB1\"\n";
+
+    #[test]
+    fn minimal_file_gets_defaults() {
+        let c = DaemonConfig::from_toml(MIN).unwrap();
+        assert_eq!(
+            c.daemon.socket,
+            PathBuf::from("/run/micropos/micropos.sock")
+        );
+        assert_eq!(c.socket_mode().unwrap(), 0o660);
+        assert_eq!(c.characterize.step_um, 5.0);
+        assert_eq!(c.characterize.cycles, 3);
+        assert!(c.camera_source().unwrap().is_none());
+    }
+
+    #[test]
+    fn errors_name_the_key() {
+        let e =
+            DaemonConfig::from_toml(&format!("{MIN}[characterize]\nstep_um = -1\n")).unwrap_err();
+        assert_eq!(e.key, "characterize.step_um");
+        let e = DaemonConfig::from_toml(&format!("{MIN}[daemon]\nsocket_mode = \"999\"\n"))
+            .unwrap_err();
+        assert_eq!(e.key, "daemon.socket_mode");
+        let e = DaemonConfig::from_toml(&format!("{MIN}[limits]\nx_min_um = 5\nx_max_um = 1\n"))
+            .unwrap_err();
+        assert_eq!(e.key, "limits.x_min_um");
+        let e =
+            DaemonConfig::from_toml(&format!("{MIN}[camera]\nsource = \"webcam\"\n")).unwrap_err();
+        assert_eq!(e.key, "camera.source");
+        let e = DaemonConfig::from_toml("[driver.x]\nport = \"/dev/a\"\n").unwrap_err();
+        assert_eq!(e.key, "driver");
+        let e = DaemonConfig::from_toml(&format!("{MIN}[daemon]\nsokcet = \"/x\"\n")).unwrap_err();
+        assert!(e.problem.contains("sokcet"), "{e}");
+    }
+
+    #[test]
+    fn shipped_configs_are_valid() {
+        for f in ["config/microposd.toml", "config/microposd-sim.toml"] {
+            let p = Path::new(env!("CARGO_MANIFEST_DIR")).join(f);
+            DaemonConfig::load(&p).unwrap_or_else(|e| panic!("{f}: {e}"));
+        }
+    }
+}

@@ -1,0 +1,464 @@
+//! Long jobs: one at a time, owning the axes through the state machine.
+//! Characterization now; validation later (answers `not_available`).
+//!
+//! A job stops at the first of: done, `cancel`, `stop`, a fault (the stop
+//! generation of the rig moved), or an error. Its log stays resumable in
+//! every case: each point is appended and flushed before the next move.
+
+pub mod plan;
+
+use super::protocol::{
+    Axes, CharacterizeParams, ErrorCode, MoveMode, MoveRequest, ProtoError, Topic,
+};
+use super::rig::Rig;
+use super::vision::Measurement;
+use crate::charact::log::{self, Columns, LogWriter, Metadata, Record, SyncPolicy};
+use plan::ScanPlan;
+use serde_json::{json, Value};
+use std::fs::File;
+use std::path::PathBuf;
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+use tokio::sync::watch;
+
+fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(|p| p.into_inner())
+}
+
+/// The log's columns: the standard ones plus the controller-reported
+/// positions and the mean decode quality, so every position source is kept.
+pub fn columns() -> Columns {
+    Columns {
+        temp_c: false,
+        extra: vec![
+            "x_reported_um".to_owned(),
+            "y_reported_um".to_owned(),
+            "vision_quality".to_owned(),
+        ],
+    }
+}
+
+/// Progress of the current or last job.
+#[derive(Debug, Clone)]
+pub struct Progress {
+    /// `characterize`.
+    pub kind: &'static str,
+    /// Log file name.
+    pub log: String,
+    /// `running`, `done`, `cancelled`, `stopped`, `failed`.
+    pub state: &'static str,
+    /// Points logged.
+    pub done: usize,
+    /// Points in the plan.
+    pub total: usize,
+    /// Estimated remaining rig time, s.
+    pub eta_s: Option<f64>,
+    /// Why it failed or stopped.
+    pub error: Option<String>,
+}
+
+impl Progress {
+    /// As JSON.
+    pub fn to_json(&self) -> Value {
+        json!({"kind": self.kind, "log": self.log, "state": self.state, "done": self.done,
+               "total": self.total, "eta_s": self.eta_s, "error": self.error})
+    }
+}
+
+#[derive(Debug)]
+struct Running {
+    cancel: watch::Sender<bool>,
+    task: tokio::task::JoinHandle<()>,
+}
+
+/// The job manager.
+#[derive(Debug, Default)]
+pub struct Jobs {
+    running: Mutex<Option<Running>>,
+    progress: Arc<Mutex<Option<Progress>>>,
+}
+
+impl Jobs {
+    /// Progress of the current or last job (`null` if none ran).
+    pub fn status(&self) -> Value {
+        lock(&self.progress)
+            .as_ref()
+            .map_or(Value::Null, Progress::to_json)
+    }
+
+    fn is_running(&self) -> bool {
+        lock(&self.running)
+            .as_ref()
+            .is_some_and(|r| !r.task.is_finished())
+    }
+
+    /// Cancels the running job; its log stays resumable.
+    pub async fn cancel(&self) -> Result<Value, ProtoError> {
+        let r = lock(&self.running).take();
+        let Some(r) = r else {
+            return Err(ProtoError::new(ErrorCode::JobState, "no job is running"));
+        };
+        let _ = r.cancel.send(true);
+        // The job finishes its current point (a move in flight is waited).
+        let _ = r.task.await;
+        Ok(self.status())
+    }
+
+    /// Stops a running job without waiting (shutdown, stop).
+    pub fn signal_cancel(&self) {
+        if let Some(r) = lock(&self.running).as_ref() {
+            let _ = r.cancel.send(true);
+        }
+    }
+
+    fn log_path(rig: &Rig, name: &str) -> PathBuf {
+        rig.cfg.daemon.data_dir.join(name)
+    }
+
+    /// Starts a new characterization.
+    pub async fn start(&self, rig: &Arc<Rig>, p: CharacterizeParams) -> Result<Value, ProtoError> {
+        if self.is_running() {
+            return Err(ProtoError::new(
+                ErrorCode::Busy,
+                "a job is already running; cancel it first",
+            ));
+        }
+        if rig.vision.is_none() {
+            return Err(ProtoError::new(
+                ErrorCode::CameraUnavailable,
+                "characterization measures with the camera; none is configured (camera.source)",
+            ));
+        }
+        let d = &rig.cfg.characterize;
+        let axes = p.axes.unwrap_or(Axes::Both);
+        let step_um = p.step_um.unwrap_or(d.step_um);
+        let x_range_um = p.x_range_um.unwrap_or(d.x_range_um);
+        let y_range_um = p.y_range_um.unwrap_or(d.y_range_um);
+        let status = rig.status();
+        let centre = |axis: &str, range: f64| -> Result<f64, ProtoError> {
+            let l = &status["limits"][axis];
+            match (l[0].as_f64(), l[1].as_f64()) {
+                (Some(lo), Some(hi)) => {
+                    if hi - lo < range {
+                        Err(ProtoError::new(
+                            ErrorCode::OutOfTravel,
+                            format!(
+                                "{axis} range {range} µm exceeds the allowed travel {lo}..{hi} µm"
+                            ),
+                        ))
+                    } else {
+                        Ok((lo + hi - range) / 2.0)
+                    }
+                }
+                _ => Err(ProtoError::new(
+                    ErrorCode::NotConnected,
+                    "the controllers are not connected",
+                )),
+            }
+        };
+        let plan = ScanPlan {
+            scan_x: axes.x(),
+            scan_y: axes.y(),
+            step_um,
+            x_start_um: match d.x_start_um {
+                Some(v) => v,
+                None => centre("x_um", x_range_um)?,
+            },
+            x_range_um,
+            y_start_um: match d.y_start_um {
+                Some(v) => v,
+                None => centre("y_um", y_range_um)?,
+            },
+            y_range_um,
+            cycles: p.cycles.unwrap_or(d.cycles),
+            frames_per_point: p.frames_per_point.unwrap_or(d.frames_per_point),
+            settle_s: p.settle_s.unwrap_or(d.settle_s),
+        };
+        if step_um > x_range_um.min(y_range_um) {
+            return Err(ProtoError::new(
+                ErrorCode::BadValue,
+                "step_um exceeds a scan range",
+            ));
+        }
+        let name = p
+            .log
+            .unwrap_or_else(|| format!("charact-{}.csv", unix_seconds()));
+        let path = Self::log_path(rig, &name);
+        if path.exists() {
+            return Err(ProtoError::new(
+                ErrorCode::LogError,
+                format!("log {name} exists already; resume it or choose another name"),
+            ));
+        }
+        rig.begin_job()?;
+        let total = plan.points().len();
+        self.launch(rig, plan, name, None, 0, total)
+    }
+
+    /// Resumes a job from its log.
+    pub async fn resume(&self, rig: &Arc<Rig>, name: &str) -> Result<Value, ProtoError> {
+        if self.is_running() {
+            return Err(ProtoError::new(ErrorCode::Busy, "a job is already running"));
+        }
+        if rig.vision.is_none() {
+            return Err(ProtoError::new(
+                ErrorCode::CameraUnavailable,
+                "no camera is configured (camera.source)",
+            ));
+        }
+        let path = Self::log_path(rig, name);
+        let cols = columns();
+        let (writer, resume) = tokio::task::spawn_blocking(move || {
+            log::open_append(&path, &cols, SyncPolicy::default())
+        })
+        .await
+        .map_err(|e| ProtoError::new(ErrorCode::Internal, e.to_string()))?
+        .map_err(|e| ProtoError::new(ErrorCode::LogError, format!("cannot resume {name}: {e}")))?;
+        let plan = ScanPlan::from_metadata(&resume.metadata)
+            .map_err(|e| ProtoError::new(ErrorCode::LogError, format!("{name}: {e}")))?;
+        let offset = (|| {
+            let x = resume.metadata.get("vision_offset_x_um")?.parse().ok()?;
+            let y = resume.metadata.get("vision_offset_y_um")?.parse().ok()?;
+            Some((x, y))
+        })()
+        .ok_or_else(|| {
+            ProtoError::new(
+                ErrorCode::LogError,
+                format!("{name}: vision_offset_x_um/y missing in the metadata"),
+            )
+        })?;
+        let total = plan.points().len();
+        let done = usize::try_from(resume.records).unwrap_or(usize::MAX);
+        if done >= total {
+            return Err(ProtoError::new(
+                ErrorCode::JobState,
+                format!("{name} is complete ({done} of {total} points)"),
+            ));
+        }
+        let t0 = resume.last_record.map_or(0.0, |r| r.t_s);
+        rig.begin_job()?;
+        self.launch(
+            rig,
+            plan,
+            name.to_owned(),
+            Some((writer, offset, t0)),
+            done,
+            total,
+        )
+    }
+
+    fn launch(
+        &self,
+        rig: &Arc<Rig>,
+        plan: ScanPlan,
+        name: String,
+        resumed: Option<(LogWriter<File>, (f64, f64), f64)>,
+        done: usize,
+        total: usize,
+    ) -> Result<Value, ProtoError> {
+        let (cancel, cancel_rx) = watch::channel(false);
+        *lock(&self.progress) = Some(Progress {
+            kind: "characterize",
+            log: name.clone(),
+            state: "running",
+            done,
+            total,
+            eta_s: None,
+            error: None,
+        });
+        let progress = self.progress.clone();
+        let rig2 = rig.clone();
+        let task = tokio::spawn(async move {
+            let r = run(&rig2, &plan, &name, resumed, done, &progress, cancel_rx).await;
+            rig2.end_job();
+            let mut g = lock(&progress);
+            if let Some(p) = g.as_mut() {
+                match r {
+                    Ok(state) => p.state = state,
+                    Err(e) => {
+                        tracing::warn!("characterization {name} failed: {e}");
+                        p.state = "failed";
+                        p.error = Some(e.to_string());
+                    }
+                }
+                p.eta_s = None;
+                rig2.push(Topic::Job, "job", p.to_json());
+            }
+        });
+        *lock(&self.running) = Some(Running { cancel, task });
+        Ok(json!({"job": lock(&self.progress).as_ref().map(Progress::to_json)}))
+    }
+}
+
+fn unix_seconds() -> u64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_secs())
+}
+
+/// Waits for `n` fresh, good measurements after `after_s` and averages them.
+async fn measure(rig: &Rig, n: u32, after_s: f64) -> Result<(Measurement, f64), ProtoError> {
+    let Some(v) = &rig.vision else {
+        return Err(ProtoError::new(ErrorCode::CameraUnavailable, "no camera"));
+    };
+    let mut rx = v.latest.clone();
+    let timeout = Duration::from_millis(rig.cfg.camera.timeout_ms);
+    let mut got: Vec<Measurement> = Vec::new();
+    let mut last_seq = None;
+    while got.len() < n as usize {
+        let m = *rx.borrow_and_update();
+        if let Some(m) = m {
+            if m.t_s >= after_s
+                && Some(m.sequence) != last_seq
+                && m.quality >= rig.cfg.camera.min_quality
+            {
+                last_seq = Some(m.sequence);
+                got.push(m);
+                continue;
+            }
+        }
+        match tokio::time::timeout(timeout, rx.changed()).await {
+            Ok(Ok(())) => {}
+            Ok(Err(_)) => {
+                return Err(ProtoError::new(
+                    ErrorCode::CameraUnavailable,
+                    "the camera pipeline ended",
+                ))
+            }
+            Err(_) => {
+                let why = v
+                    .last_error
+                    .lock()
+                    .ok()
+                    .and_then(|g| g.clone())
+                    .unwrap_or_else(|| "no frame".to_owned());
+                return Err(ProtoError::new(
+                    ErrorCode::StaleMeasurement,
+                    format!(
+                        "no fresh measurement of sufficient quality within {timeout:?} ({why})"
+                    ),
+                ));
+            }
+        }
+    }
+    let k = got.len() as f64;
+    let mean = |f: fn(&Measurement) -> f64| got.iter().map(f).sum::<f64>() / k;
+    let m = Measurement {
+        t_s: mean(|m| m.t_s),
+        sequence: got.last().map_or(0, |m| m.sequence),
+        x_um: mean(|m| m.x_um),
+        y_um: mean(|m| m.y_um),
+        theta_rad: mean(|m| m.theta_rad),
+        quality: mean(|m| m.quality),
+    };
+    Ok((m, m.quality))
+}
+
+async fn run(
+    rig: &Arc<Rig>,
+    plan: &ScanPlan,
+    name: &str,
+    resumed: Option<(LogWriter<File>, (f64, f64), f64)>,
+    start: usize,
+    progress: &Arc<Mutex<Option<Progress>>>,
+    mut cancel: watch::Receiver<bool>,
+) -> Result<&'static str, ProtoError> {
+    let points = plan.points();
+    let gen = rig.stop_generation();
+    let clock = rig.clock.clone();
+    let settle = Duration::try_from_secs_f64(plan.settle_s).unwrap_or_default();
+    let mut writer: Option<Arc<Mutex<LogWriter<File>>>> = None;
+    let mut offset = (0.0, 0.0);
+    let mut origin = clock.now_s();
+    if let Some((w, off, t0)) = resumed {
+        writer = Some(Arc::new(Mutex::new(w)));
+        offset = off;
+        origin = clock.now_s() - t0;
+    }
+    let began = clock.now_s();
+    for (i, p) in points.iter().enumerate().skip(start) {
+        if *cancel.borrow_and_update() {
+            return Ok("cancelled");
+        }
+        if rig.stop_generation() != gen {
+            return Ok("stopped");
+        }
+        let req = MoveRequest {
+            x_um: Some(p.x_um),
+            y_um: Some(p.y_um),
+            relative: false,
+            mode: MoveMode::Raw,
+            wait: true,
+            tolerance_um: None,
+        };
+        let moved = tokio::select! {
+            r = rig.move_to(&req, true) => r?,
+            _ = cancel.changed() => return Ok("cancelled"),
+        };
+        clock.sleep(settle).await;
+        let (m, quality) = measure(rig, plan.frames_per_point, clock.now_s()).await?;
+        let (vx, vy) = rig.vision_to_stage(&m);
+        if writer.is_none() {
+            // The first point of a new job ties the vision frame to the
+            // stage frame: meas = R·vision + offset, offset kept in the log.
+            offset = (p.x_um - vx, p.y_um - vy);
+            let mut md = Metadata::new();
+            plan.to_metadata(&mut md);
+            md.insert("vision_offset_x_um", offset.0.to_string());
+            md.insert("vision_offset_y_um", offset.1.to_string());
+            md.insert("daemon_version", env!("CARGO_PKG_VERSION"));
+            let path = rig.cfg.daemon.data_dir.join(name);
+            let w = tokio::task::spawn_blocking(move || {
+                log::create_file(&path, &md, columns(), SyncPolicy::default())
+            })
+            .await
+            .map_err(|e| ProtoError::new(ErrorCode::Internal, e.to_string()))?
+            .map_err(|e| {
+                ProtoError::new(ErrorCode::LogError, format!("cannot create {name}: {e}"))
+            })?;
+            writer = Some(Arc::new(Mutex::new(w)));
+        }
+        let rep = |axis: &str| moved["reported"][axis].as_f64();
+        let rec = Record {
+            t_s: clock.now_s() - origin,
+            segment: p.segment.to_owned(),
+            cycle: p.cycle,
+            x_target_um: p.x_um,
+            y_target_um: p.y_um,
+            x_cmd_um: p.x_um,
+            y_cmd_um: p.y_um,
+            x_meas_um: vx + offset.0,
+            y_meas_um: vy + offset.1,
+            temp_c: None,
+            extra: vec![
+                rep("x_um").map_or(String::new(), |v| format!("{v:.4}")),
+                rep("y_um").map_or(String::new(), |v| format!("{v:.4}")),
+                format!("{quality:.3}"),
+            ],
+        };
+        if let Some(w) = &writer {
+            let w = w.clone();
+            tokio::task::spawn_blocking(move || lock(&w).append(&rec))
+                .await
+                .map_err(|e| ProtoError::new(ErrorCode::Internal, e.to_string()))?
+                .map_err(|e| {
+                    ProtoError::new(ErrorCode::LogError, format!("cannot append to {name}: {e}"))
+                })?;
+        }
+        let done = i + 1;
+        let per_point = (clock.now_s() - began) / (done - start) as f64;
+        let eta = per_point * (points.len() - done) as f64;
+        let snapshot = {
+            let mut g = lock(progress);
+            g.as_mut().map(|pr| {
+                pr.done = done;
+                pr.eta_s = Some(eta);
+                pr.to_json()
+            })
+        };
+        if let Some(s) = snapshot {
+            rig.push(Topic::Job, "job", s);
+        }
+    }
+    Ok("done")
+}

@@ -1,0 +1,259 @@
+//! The characterization scan plan, pure: the ordered list of points, and
+//! its round trip through the measurement log's metadata so a resumed job
+//! rebuilds exactly the plan it started with (point `k` of the log is point
+//! `k` of the plan: resume continues at index = records already logged).
+
+use crate::charact::log::Metadata;
+
+/// One point of the plan.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Point {
+    /// `scan_x_fwd`, `scan_x_bwd`, `scan_y_fwd`, `scan_y_bwd`.
+    pub segment: &'static str,
+    /// 1-based cycle.
+    pub cycle: u32,
+    /// X target, µm (controller coordinates).
+    pub x_um: f64,
+    /// Y target, µm.
+    pub y_um: f64,
+}
+
+/// Per-axis 1-DoF scans, the other axis held at the centre of its range.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ScanPlan {
+    /// Scan X.
+    pub scan_x: bool,
+    /// Scan Y.
+    pub scan_y: bool,
+    /// Step, µm.
+    pub step_um: f64,
+    /// First X point, µm.
+    pub x_start_um: f64,
+    /// X range, µm.
+    pub x_range_um: f64,
+    /// First Y point, µm.
+    pub y_start_um: f64,
+    /// Y range, µm.
+    pub y_range_um: f64,
+    /// Forward + backward cycles.
+    pub cycles: u32,
+    /// Frames averaged per point.
+    pub frames_per_point: u32,
+    /// Settle time, s.
+    pub settle_s: f64,
+}
+
+/// A metadata entry was missing or unreadable.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("log metadata {key}: {problem}")]
+pub struct PlanError {
+    /// The metadata key.
+    pub key: String,
+    /// What is wrong.
+    pub problem: String,
+}
+
+const KEYS: [&str; 10] = [
+    "scan_x",
+    "scan_y",
+    "step_um",
+    "x_start_um",
+    "x_range_um",
+    "y_start_um",
+    "y_range_um",
+    "cycles",
+    "frames_per_point",
+    "settle_s",
+];
+
+impl ScanPlan {
+    fn steps(range_um: f64, step_um: f64) -> u32 {
+        // Tolerate rounding: 9500 / 5 is 1900 steps, not 1899.
+        ((range_um / step_um) + 1e-9).floor() as u32
+    }
+
+    /// Every point, in order.
+    pub fn points(&self) -> Vec<Point> {
+        let mut v = Vec::new();
+        let x_hold = self.x_start_um + self.x_range_um / 2.0;
+        let y_hold = self.y_start_um + self.y_range_um / 2.0;
+        let mut scan = |on: bool,
+                        fwd: &'static str,
+                        bwd: &'static str,
+                        start: f64,
+                        range: f64,
+                        x_axis: bool| {
+            if !on {
+                return;
+            }
+            let n = Self::steps(range, self.step_um);
+            for cycle in 1..=self.cycles {
+                for (seg, idx) in [
+                    (fwd, (0..=n).collect::<Vec<_>>()),
+                    (bwd, (0..=n).rev().collect()),
+                ] {
+                    for i in idx {
+                        let p = start + f64::from(i) * self.step_um;
+                        let (x_um, y_um) = if x_axis { (p, y_hold) } else { (x_hold, p) };
+                        v.push(Point {
+                            segment: seg,
+                            cycle,
+                            x_um,
+                            y_um,
+                        });
+                    }
+                }
+            }
+        };
+        scan(
+            self.scan_x,
+            "scan_x_fwd",
+            "scan_x_bwd",
+            self.x_start_um,
+            self.x_range_um,
+            true,
+        );
+        scan(
+            self.scan_y,
+            "scan_y_fwd",
+            "scan_y_bwd",
+            self.y_start_um,
+            self.y_range_um,
+            false,
+        );
+        v
+    }
+
+    /// Writes the plan into log metadata.
+    pub fn to_metadata(&self, md: &mut Metadata) {
+        let vals = [
+            self.scan_x.to_string(),
+            self.scan_y.to_string(),
+            self.step_um.to_string(),
+            self.x_start_um.to_string(),
+            self.x_range_um.to_string(),
+            self.y_start_um.to_string(),
+            self.y_range_um.to_string(),
+            self.cycles.to_string(),
+            self.frames_per_point.to_string(),
+            self.settle_s.to_string(),
+        ];
+        md.insert("job", "characterize");
+        for (k, v) in KEYS.iter().zip(vals) {
+            md.insert(*k, v);
+        }
+    }
+
+    /// Reads a plan back from log metadata.
+    pub fn from_metadata(md: &Metadata) -> Result<ScanPlan, PlanError> {
+        fn get<T: std::str::FromStr>(md: &Metadata, key: &str) -> Result<T, PlanError> {
+            let v = md.get(key).ok_or_else(|| PlanError {
+                key: key.to_owned(),
+                problem: "missing (not a log written by a microposd characterization?)".to_owned(),
+            })?;
+            v.parse().map_err(|_| PlanError {
+                key: key.to_owned(),
+                problem: format!("{v:?} is not a valid value"),
+            })
+        }
+        let p = ScanPlan {
+            scan_x: get(md, "scan_x")?,
+            scan_y: get(md, "scan_y")?,
+            step_um: get(md, "step_um")?,
+            x_start_um: get(md, "x_start_um")?,
+            x_range_um: get(md, "x_range_um")?,
+            y_start_um: get(md, "y_start_um")?,
+            y_range_um: get(md, "y_range_um")?,
+            cycles: get(md, "cycles")?,
+            frames_per_point: get(md, "frames_per_point")?,
+            settle_s: get(md, "settle_s")?,
+        };
+        let finite = [
+            p.step_um,
+            p.x_start_um,
+            p.x_range_um,
+            p.y_start_um,
+            p.y_range_um,
+            p.settle_s,
+        ]
+        .iter()
+        .all(|v| v.is_finite());
+        if !finite
+            || p.step_um <= 0.0
+            || p.x_range_um <= 0.0
+            || p.y_range_um <= 0.0
+            || p.cycles == 0
+            || p.frames_per_point == 0
+            || p.settle_s < 0.0
+        {
+            return Err(PlanError {
+                key: "step_um".to_owned(),
+                problem: "the plan in this log is not usable (non-positive step, range or count)"
+                    .to_owned(),
+            });
+        }
+        // Refuse plans so large the point list itself would be a problem.
+        let n = |r: f64| (r / p.step_um).min(1e7);
+        if (n(p.x_range_um) + n(p.y_range_um)) * f64::from(p.cycles) > 1e7 {
+            return Err(PlanError {
+                key: "step_um".to_owned(),
+                problem: "the plan has more than 10 million points".to_owned(),
+            });
+        }
+        Ok(p)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn plan() -> ScanPlan {
+        ScanPlan {
+            scan_x: true,
+            scan_y: true,
+            step_um: 5.0,
+            x_start_um: 2750.0,
+            x_range_um: 9500.0,
+            y_start_um: 5400.0,
+            y_range_um: 4200.0,
+            cycles: 3,
+            frames_per_point: 4,
+            settle_s: 0.5,
+        }
+    }
+
+    #[test]
+    fn default_plan_has_the_expected_points() {
+        let pts = plan().points();
+        assert_eq!(pts.len(), 1901 * 2 * 3 + 841 * 2 * 3);
+        assert_eq!(
+            pts[0],
+            Point {
+                segment: "scan_x_fwd",
+                cycle: 1,
+                x_um: 2750.0,
+                y_um: 7500.0
+            }
+        );
+        assert_eq!(pts[1900].x_um, 12250.0);
+        assert_eq!(pts[1901].segment, "scan_x_bwd");
+        assert_eq!(pts[1901].x_um, 12250.0);
+        let y0 = &pts[1901 * 6];
+        assert_eq!(
+            (y0.segment, y0.x_um, y0.y_um),
+            ("scan_y_fwd", 7500.0, 5400.0)
+        );
+    }
+
+    #[test]
+    fn plan_round_trips_through_metadata() {
+        let mut md = Metadata::new();
+        let p = plan();
+        p.to_metadata(&mut md);
+        assert_eq!(ScanPlan::from_metadata(&md).unwrap(), p);
+        let mut md2 = Metadata::new();
+        md2.insert("step_um", "x");
+        assert!(ScanPlan::from_metadata(&md2).is_err());
+    }
+}

@@ -1,0 +1,162 @@
+//! microposd, the service: owns the two controllers and the camera, serves
+//! commands over a local Unix socket (newline-delimited JSON, see
+//! `docs/socket-protocol.md`), runs long jobs.
+//!
+//! Files, one job each:
+//! - [`protocol`]: requests and replies, sans-IO (fuzzed);
+//! - [`connection`]: splits a byte stream into bounded lines;
+//! - [`server`]: accepts clients, one task per client;
+//! - [`state`]: the safe-state machine (pure);
+//! - [`rig`]: motion coordinator, soft limits, positions, event bus;
+//! - [`vision`]: capture and decode threads (never on the runtime);
+//! - [`jobs`]: characterization with resume;
+//! - [`config`]: the validated configuration;
+//! - [`notify`]: systemd readiness, status and a health-fed watchdog.
+//!
+//! Shutdown: one `broadcast` tells every task; clients get a
+//! `shutting_down` error line; the axes are left as they are (a running
+//! job stops between points, its log resumable).
+
+pub mod config;
+pub mod connection;
+pub mod jobs;
+pub mod notify;
+pub mod protocol;
+pub mod rig;
+pub mod server;
+pub mod state;
+pub mod vision;
+
+use crate::camera::FrameSource;
+use crate::clock::RigClock;
+use crate::pattern::decode::DecodeOptions;
+use config::DaemonConfig;
+use protocol::{CharacterizeAction, Command, ErrorCode, ProtoError, TablesAction, ValidateAction};
+use serde_json::{json, Value};
+use std::sync::Arc;
+use tokio::net::UnixListener;
+use tokio::sync::broadcast;
+
+/// The running daemon's shared parts.
+#[derive(Debug)]
+pub struct Daemon {
+    /// The rig.
+    pub rig: Arc<rig::Rig>,
+    /// Jobs.
+    pub jobs: jobs::Jobs,
+    /// Sends shutdown to every task.
+    pub shutdown: broadcast::Sender<()>,
+}
+
+/// Handle to a started daemon.
+#[derive(Debug)]
+pub struct Running {
+    /// The shared parts.
+    pub daemon: Arc<Daemon>,
+    tasks: Vec<tokio::task::JoinHandle<()>>,
+}
+
+impl Running {
+    /// Asks every task to stop and waits for them.
+    pub async fn shutdown(self) {
+        self.daemon.jobs.signal_cancel();
+        let _ = self.daemon.shutdown.send(());
+        for t in self.tasks {
+            let _ = t.await;
+        }
+    }
+}
+
+impl Daemon {
+    /// Starts the rig tasks and the server on `listener`. `camera` is the
+    /// opened frame source, if any (the caller opens it so tests can pass
+    /// their own).
+    pub fn start(
+        cfg: DaemonConfig,
+        clock: Arc<dyn RigClock>,
+        camera: Option<Box<dyn FrameSource>>,
+        listener: UnixListener,
+    ) -> Result<Running, ProtoError> {
+        let vision = match camera {
+            Some(src) => {
+                let mut opts = DecodeOptions::new(cfg.camera.period_um, cfg.camera.bits);
+                opts.mirrored = cfg.camera.mirrored;
+                Some(
+                    vision::Vision::start(src, opts, clock.clone()).map_err(|e| {
+                        ProtoError::new(ErrorCode::CameraUnavailable, e.to_string())
+                    })?,
+                )
+            }
+            None => None,
+        };
+        let (shutdown, _) = broadcast::channel(4);
+        let rig = Arc::new(rig::Rig::new(cfg, clock, vision));
+        let daemon = Arc::new(Daemon {
+            rig: rig.clone(),
+            jobs: jobs::Jobs::default(),
+            shutdown: shutdown.clone(),
+        });
+        let tasks = vec![
+            tokio::spawn(rig.clone().connect_loop(shutdown.subscribe())),
+            tokio::spawn(rig.clone().poll_loop(shutdown.subscribe())),
+            tokio::spawn(server::serve(
+                daemon.clone(),
+                listener,
+                shutdown.subscribe(),
+            )),
+        ];
+        Ok(Running { daemon, tasks })
+    }
+
+    /// Executes one command (everything but `subscribe`, which the server
+    /// handles per connection).
+    pub async fn execute(&self, cmd: Command) -> Result<Value, ProtoError> {
+        let rig = &self.rig;
+        match cmd {
+            Command::Version => Ok(json!({
+                "daemon": env!("CARGO_PKG_VERSION"),
+                "protocol": protocol::PROTOCOL_VERSION,
+                "commands": protocol::COMMANDS,
+            })),
+            Command::Status => {
+                let mut s = rig.status();
+                s["job"] = self.jobs.status();
+                Ok(s)
+            }
+            Command::Position => Ok(rig.position().await),
+            Command::Move(m) => rig.move_to(&m, false).await,
+            Command::Stop => {
+                self.jobs.signal_cancel();
+                rig.stop().await
+            }
+            Command::Reference(axes) => rig.reference(axes).await,
+            Command::Config => serde_json::to_value(&rig.cfg)
+                .map(|c| json!({"config": c}))
+                .map_err(|e| ProtoError::new(ErrorCode::Internal, e.to_string())),
+            Command::Characterize(a) => match a {
+                CharacterizeAction::Start(p) => self.jobs.start(rig, p).await,
+                CharacterizeAction::Resume { log } => self.jobs.resume(rig, &log).await,
+                CharacterizeAction::Status => Ok(json!({"job": self.jobs.status()})),
+                CharacterizeAction::Cancel => self.jobs.cancel().await.map(|j| json!({"job": j})),
+            },
+            Command::Validate(v) => match v {
+                ValidateAction::Status => Ok(json!({"validation": null})),
+                ValidateAction::Start { .. } | ValidateAction::Cancel => Err(ProtoError::new(
+                    ErrorCode::NotAvailable,
+                    "validation (square and random-points tests) needs the compensation library, not in this build",
+                )),
+            },
+            Command::Tables(t) => match t {
+                TablesAction::List => Ok(json!({"tables": [], "active": null})),
+                TablesAction::Load { .. } | TablesAction::Activate { .. } => Err(ProtoError::new(
+                    ErrorCode::NotAvailable,
+                    "compensation tables: the table format is not in this build yet",
+                )),
+            },
+            Command::Subscribe(_) => Err(ProtoError::new(
+                ErrorCode::Internal,
+                "subscribe is handled by the connection",
+            )),
+        }
+    }
+}

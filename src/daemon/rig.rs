@@ -1,0 +1,625 @@
+//! The rig as the daemon sees it: the stage (once connected), the safe-state
+//! machine, the motion coordinator (one move at a time per stage, `stop`
+//! overtakes the queue), soft limits, positions from every source, and the
+//! event bus to subscribers.
+
+use super::config::DaemonConfig;
+use super::protocol::{Axes, ErrorCode, MoveMode, MoveRequest, ProtoError, Topic};
+use super::state::{Action, Activity, AxisId, Input, Refusal, SafetyState};
+use super::vision::{Measurement, Vision};
+use crate::clock::RigClock;
+use crate::driver::{Axis, AxisEvent, DriverError, Stage};
+use serde_json::{json, Map, Value};
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+use tokio::sync::broadcast;
+
+/// An event for subscribers, serialized once for all of them.
+#[derive(Debug, Clone)]
+pub struct Pushed {
+    /// Its topic (subscribers filter on it).
+    pub topic: Topic,
+    /// The complete line, newline included.
+    pub line: Arc<str>,
+}
+
+/// Positions last read from the controllers.
+#[derive(Debug, Clone, Copy, Default)]
+struct Reported {
+    t_s: f64,
+    x_um: Option<f64>,
+    y_um: Option<f64>,
+}
+
+/// The rig. Shared by every task through an `Arc`.
+#[derive(Debug)]
+pub struct Rig {
+    /// The validated configuration.
+    pub cfg: DaemonConfig,
+    /// The rig's clock: every wait and timestamp goes through it.
+    pub clock: Arc<dyn RigClock>,
+    stage: Mutex<Option<Stage>>,
+    state: Mutex<SafetyState>,
+    commanded: Mutex<[Option<f64>; 2]>,
+    reported: Mutex<Reported>,
+    motion: tokio::sync::Mutex<()>,
+    stop_gen: AtomicU64,
+    events: broadcast::Sender<Pushed>,
+    /// The camera pipeline, if a camera is configured.
+    pub vision: Option<Vision>,
+    /// Bumped by the position poller on every healthy round: the watchdog
+    /// is only fed while it moves.
+    pub heartbeat: AtomicU64,
+}
+
+fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(|p| p.into_inner())
+}
+
+/// Ends an activity in the state machine when dropped (also on error or
+/// cancellation of the future).
+struct ActivityGuard<'a> {
+    rig: &'a Rig,
+    activity: Activity,
+}
+
+impl Drop for ActivityGuard<'_> {
+    fn drop(&mut self) {
+        let t = self.rig.clock.now_s();
+        lock(&self.rig.state).apply(Input::End(self.activity), t);
+    }
+}
+
+/// Maps a driver error to a protocol error with a stable code.
+pub fn driver_error(e: DriverError) -> ProtoError {
+    let code = match &e {
+        DriverError::OutOfTravel { .. } => ErrorCode::OutOfTravel,
+        DriverError::NotReferenced { .. } => ErrorCode::NotReferenced,
+        DriverError::Halted { .. } => ErrorCode::Halted,
+        e if e.is_link_fault() => ErrorCode::NotConnected,
+        _ => ErrorCode::DriverError,
+    };
+    ProtoError::new(code, e.to_string())
+}
+
+fn refusal(r: Refusal) -> ProtoError {
+    match r {
+        Refusal::NotConnected(m) => ProtoError::new(ErrorCode::NotConnected, m),
+        Refusal::NotReferenced(a) => ProtoError::new(
+            ErrorCode::NotReferenced,
+            format!("axis {} is not referenced; send reference first", a.name()),
+        ),
+        Refusal::Busy(a) => ProtoError::new(
+            ErrorCode::Busy,
+            format!("the axes are busy ({a:?}); stop it or wait"),
+        ),
+    }
+}
+
+impl Rig {
+    /// A rig with no stage yet.
+    pub fn new(cfg: DaemonConfig, clock: Arc<dyn RigClock>, vision: Option<Vision>) -> Rig {
+        let (events, _) = broadcast::channel(1024);
+        Rig {
+            cfg,
+            clock,
+            stage: Mutex::new(None),
+            state: Mutex::new(SafetyState::new()),
+            commanded: Mutex::new([None, None]),
+            reported: Mutex::new(Reported::default()),
+            motion: tokio::sync::Mutex::new(()),
+            stop_gen: AtomicU64::new(0),
+            events,
+            vision,
+            heartbeat: AtomicU64::new(0),
+        }
+    }
+
+    /// A receiver of every pushed event.
+    pub fn subscribe(&self) -> broadcast::Receiver<Pushed> {
+        self.events.subscribe()
+    }
+
+    /// Pushes an event to subscribers of `topic`.
+    pub fn push(&self, topic: Topic, name: &str, fields: Value) {
+        let fields = match fields {
+            Value::Object(m) => m,
+            _ => Map::new(),
+        };
+        let line = super::protocol::event_line(name, fields);
+        // No subscriber is fine.
+        let _ = self.events.send(Pushed {
+            topic,
+            line: line.into(),
+        });
+    }
+
+    fn stage(&self) -> Result<Stage, ProtoError> {
+        lock(&self.stage).clone().ok_or_else(|| {
+            ProtoError::new(
+                ErrorCode::NotConnected,
+                "the controllers are not connected (yet); see status",
+            )
+        })
+    }
+
+    /// Feeds the state machine and carries out what it asks.
+    pub fn apply(self: &Arc<Self>, input: Input) {
+        let t = self.clock.now_s();
+        let actions = lock(&self.state).apply(input, t);
+        for a in actions {
+            match a {
+                Action::HaltAll { reason } => {
+                    tracing::warn!("halting both axes: {reason}");
+                    self.stop_gen.fetch_add(1, Ordering::SeqCst);
+                    self.push(Topic::Fault, "fault", json!({"t_s": t, "reason": reason}));
+                    let rig = self.clone();
+                    tokio::spawn(async move { rig.halt_all().await });
+                }
+            }
+        }
+    }
+
+    /// Halts both axes at once; errors (a dead line) are logged, not fatal.
+    async fn halt_all(&self) -> Vec<(AxisId, Result<(), DriverError>)> {
+        let Ok(stage) = self.stage() else {
+            return vec![];
+        };
+        let (x, y) = tokio::join!(stage.x.halt(), stage.y.halt());
+        let mut out = vec![(AxisId::X, x), (AxisId::Y, y)];
+        for (a, r) in &mut out {
+            if let Err(e) = r {
+                tracing::warn!("halt of axis {} failed: {e}", a.name());
+            }
+        }
+        *lock(&self.commanded) = [None, None];
+        out
+    }
+
+    /// Connects the stage, retrying with backoff until it answers (the
+    /// daemon runs, and says why nothing moves, while the controllers are
+    /// off). Then watches driver events.
+    pub async fn connect_loop(self: Arc<Self>, mut shutdown: broadcast::Receiver<()>) {
+        let (tx, mut rx) = broadcast::channel(256);
+        let mut delay = Duration::from_millis(200);
+        let mut reported = false;
+        let stage = loop {
+            tokio::select! {
+                r = Stage::connect(&self.cfg.driver, tx.clone()) => match r {
+                    Ok(s) => break s,
+                    Err(e) => {
+                        if !reported {
+                            tracing::warn!("controllers not available: {e}; retrying");
+                            self.push(Topic::Fault, "fault", json!({"t_s": self.clock.now_s(), "reason": format!("controllers not available: {e}")}));
+                            reported = true;
+                        }
+                    }
+                },
+                _ = shutdown.recv() => return,
+            }
+            tokio::select! {
+                _ = tokio::time::sleep(delay) => {},
+                _ = shutdown.recv() => return,
+            }
+            delay = (delay * 2).min(Duration::from_secs(5));
+        };
+        let rx_x = stage.x.is_referenced().await.unwrap_or(false);
+        let rx_y = stage.y.is_referenced().await.unwrap_or(false);
+        tracing::info!(
+            "controllers connected (referenced: x {rx_x}, y {rx_y}; travel x {:?} µm, y {:?} µm)",
+            stage.x.travel_um(),
+            stage.y.travel_um()
+        );
+        *lock(&self.stage) = Some(stage);
+        self.apply(Input::StageUp {
+            referenced: [rx_x, rx_y],
+        });
+        self.push(
+            Topic::Fault,
+            "state",
+            json!({"t_s": self.clock.now_s(), "state": lock(&self.state).to_json()}),
+        );
+        loop {
+            let ev = tokio::select! {
+                ev = rx.recv() => ev,
+                _ = shutdown.recv() => return,
+            };
+            let ev = match ev {
+                Ok(ev) => ev,
+                Err(broadcast::error::RecvError::Lagged(n)) => {
+                    self.apply(Input::Fault(format!("{n} driver events were missed")));
+                    continue;
+                }
+                Err(broadcast::error::RecvError::Closed) => return,
+            };
+            self.on_driver_event(ev);
+        }
+    }
+
+    fn axis_of_line(&self, line: &str) -> Vec<AxisId> {
+        let mut v = Vec::new();
+        if self.cfg.driver.x.port.to_string_lossy() == line {
+            v.push(AxisId::X);
+        }
+        if self.cfg.driver.y.port.to_string_lossy() == line {
+            v.push(AxisId::Y);
+        }
+        v
+    }
+
+    fn on_driver_event(self: &Arc<Self>, ev: AxisEvent) {
+        tracing::debug!("driver event {ev:?}");
+        match ev {
+            AxisEvent::Connected { line } => {
+                for a in self.axis_of_line(&line) {
+                    self.apply(Input::LinkUp(a));
+                }
+                self.push(Topic::Fault, "link_up", json!({"line": line}));
+            }
+            AxisEvent::Disconnected { line, reason } => {
+                for a in self.axis_of_line(&line) {
+                    self.apply(Input::LinkDown(a, reason.clone()));
+                }
+            }
+            AxisEvent::Noise { line, text } => {
+                tracing::debug!("noise on {line}: {text:?}");
+            }
+            AxisEvent::Fault { source, error } => {
+                self.apply(Input::Fault(format!("{source}: {error}")));
+            }
+            AxisEvent::ReferenceLost { axis } => {
+                if let Some(a) = AxisId::from_name(&axis) {
+                    self.apply(Input::ReferenceLost(a));
+                }
+            }
+            AxisEvent::Referenced { axis } => {
+                if let Some(a) = AxisId::from_name(&axis) {
+                    self.apply(Input::Referenced(a));
+                }
+            }
+        }
+    }
+
+    /// Polls controller positions while idle or moving (not during a
+    /// reference run) and streams them; each healthy round feeds the
+    /// watchdog heartbeat.
+    pub async fn poll_loop(self: Arc<Self>, mut shutdown: broadcast::Receiver<()>) {
+        let period = Duration::from_millis(self.cfg.daemon.poll_interval_ms);
+        let mut last_vision_seq = None;
+        loop {
+            tokio::select! {
+                _ = tokio::time::sleep(period) => {},
+                _ = shutdown.recv() => return,
+            }
+            let t = self.clock.now_s();
+            if let Some(v) = &self.vision {
+                let m = *v.latest.borrow();
+                if let Some(m) = m {
+                    if Some(m.sequence) != last_vision_seq {
+                        last_vision_seq = Some(m.sequence);
+                        let (sx, sy) = self.vision_to_stage(&m);
+                        let mut f = m.to_json();
+                        f["source"] = json!("vision");
+                        f["stage_x_um"] = json!(sx);
+                        f["stage_y_um"] = json!(sy);
+                        self.push(Topic::Position, "position", f);
+                    }
+                }
+            }
+            let Ok(stage) = self.stage() else {
+                // Not connected yet: the connect loop is alive, so are we.
+                self.heartbeat.fetch_add(1, Ordering::Relaxed);
+                continue;
+            };
+            if lock(&self.state).activity() == Activity::Referencing {
+                self.heartbeat.fetch_add(1, Ordering::Relaxed);
+                continue;
+            }
+            let (x, y) = tokio::join!(stage.x.position_um(), stage.y.position_um());
+            let x = x.ok();
+            let y = y.ok();
+            *lock(&self.reported) = Reported {
+                t_s: t,
+                x_um: x,
+                y_um: y,
+            };
+            self.heartbeat.fetch_add(1, Ordering::Relaxed);
+            self.push(
+                Topic::Position,
+                "position",
+                json!({"source": "controller", "t_s": t, "x_um": x, "y_um": y}),
+            );
+        }
+    }
+
+    /// Vision (pattern frame) to stage frame with the configured rotation;
+    /// the offset is not known here (jobs establish it), so these are
+    /// pattern coordinates rotated into the stage axes.
+    pub fn vision_to_stage(&self, m: &Measurement) -> (f64, f64) {
+        let (s, c) = self.cfg.camera.rotation_rad.sin_cos();
+        (c * m.x_um - s * m.y_um, s * m.x_um + c * m.y_um)
+    }
+
+    /// Soft limits ∩ controller travel for an axis, µm.
+    pub fn limits_um(&self, axis: &Axis, a: AxisId) -> (f64, f64) {
+        let (tmin, tmax) = axis.travel_um();
+        let l = &self.cfg.limits;
+        let (lo, hi) = match a {
+            AxisId::X => (l.x_min_um, l.x_max_um),
+            AxisId::Y => (l.y_min_um, l.y_max_um),
+        };
+        (
+            lo.map_or(tmin, |v| v.max(tmin)),
+            hi.map_or(tmax, |v| v.min(tmax)),
+        )
+    }
+
+    /// A client or job move. Refused before any byte is sent if the state
+    /// forbids it or a target is outside the limits.
+    pub async fn move_to(
+        self: &Arc<Self>,
+        req: &MoveRequest,
+        from_job: bool,
+    ) -> Result<Value, ProtoError> {
+        match req.mode {
+            MoveMode::Raw => {}
+            MoveMode::Compensated => {
+                return Err(ProtoError::new(
+                    ErrorCode::NoActiveTable,
+                    "no compensation table is active (tables: not available in this build); use mode raw",
+                ))
+            }
+            MoveMode::ClosedLoop => {
+                return Err(ProtoError::new(
+                    ErrorCode::NotAvailable,
+                    "closed_loop moves are not available in this build yet; use mode raw",
+                ))
+            }
+        }
+        let stage = self.stage()?;
+        let gen = self.stop_gen.load(Ordering::SeqCst);
+        let _queue = self.motion.lock().await;
+        if self.stop_gen.load(Ordering::SeqCst) != gen {
+            return Err(ProtoError::new(
+                ErrorCode::Halted,
+                "a stop or fault came before this move started; it was not sent",
+            ));
+        }
+        let want = [req.x_um.is_some(), req.y_um.is_some()];
+        lock(&self.state)
+            .may_move(want, from_job)
+            .map_err(refusal)?;
+        let mut targets = [None, None];
+        for (i, (a, axis, v)) in [
+            (AxisId::X, &stage.x, req.x_um),
+            (AxisId::Y, &stage.y, req.y_um),
+        ]
+        .into_iter()
+        .enumerate()
+        {
+            let Some(v) = v else { continue };
+            let t = if req.relative {
+                let cached = lock(&self.commanded)[i];
+                let base = match cached {
+                    Some(c) => c,
+                    None => axis.target_um().await.map_err(driver_error)?,
+                };
+                base + v
+            } else {
+                v
+            };
+            let (lo, hi) = self.limits_um(axis, a);
+            if !(lo..=hi).contains(&t) {
+                return Err(ProtoError::new(
+                    ErrorCode::OutOfTravel,
+                    format!(
+                        "axis {} target {t} µm is outside the allowed range {lo}..{hi} µm (soft limits ∩ controller travel); nothing was sent",
+                        a.name()
+                    ),
+                ));
+            }
+            targets[i] = Some(t);
+        }
+        self.apply(Input::Begin(Activity::Moving));
+        let _guard = ActivityGuard {
+            rig: self,
+            activity: Activity::Moving,
+        };
+        let send = |axis: &Axis, t: Option<f64>| {
+            let axis = axis.clone();
+            async move {
+                match t {
+                    Some(t) => axis.move_abs_um(t).await.map(Some),
+                    None => Ok(None),
+                }
+            }
+        };
+        let (rx, ry) = tokio::join!(send(&stage.x, targets[0]), send(&stage.y, targets[1]));
+        {
+            let mut c = lock(&self.commanded);
+            if rx.is_ok() && targets[0].is_some() {
+                c[0] = targets[0];
+            }
+            if ry.is_ok() && targets[1].is_some() {
+                c[1] = targets[1];
+            }
+        }
+        if let Err(e) = rx.and(ry) {
+            // One axis may have started: a half-accepted move is halted.
+            self.halt_all().await;
+            return Err(driver_error(e));
+        }
+        let mut out = json!({"commanded": {"x_um": targets[0], "y_um": targets[1]}});
+        if req.wait {
+            let wait = |axis: &Axis, t: Option<f64>| {
+                let axis = axis.clone();
+                async move {
+                    match t {
+                        Some(_) => axis.wait_on_target(None).await.map(Some),
+                        None => Ok(None),
+                    }
+                }
+            };
+            let (wx, wy) = tokio::join!(wait(&stage.x, targets[0]), wait(&stage.y, targets[1]));
+            let (wx, wy) = (wx.map_err(driver_error)?, wy.map_err(driver_error)?);
+            out["reported"] = json!({"x_um": wx, "y_um": wy});
+            out["on_target"] = json!(true);
+        }
+        Ok(out)
+    }
+
+    /// Halts everything now: overtakes queued moves (they are refused when
+    /// their turn comes), stops a job, sends `#24` to both controllers.
+    pub async fn stop(self: &Arc<Self>) -> Result<Value, ProtoError> {
+        self.stop_gen.fetch_add(1, Ordering::SeqCst);
+        let t = self.clock.now_s();
+        lock(&self.state).apply(Input::Stop, t);
+        self.push(
+            Topic::Fault,
+            "stopped",
+            json!({"t_s": t, "reason": "stop requested by a client"}),
+        );
+        let stage = self.stage()?;
+        let (x, y) = tokio::join!(stage.x.stop(), stage.y.stop());
+        *lock(&self.commanded) = [None, None];
+        let mut errors = Vec::new();
+        for (n, r) in [("x", x), ("y", y)] {
+            if let Err(e) = r {
+                errors.push(format!("axis {n}: {e}"));
+            }
+        }
+        if errors.is_empty() {
+            Ok(json!({"stopped": true}))
+        } else {
+            Err(ProtoError::new(
+                ErrorCode::DriverError,
+                format!("stop sent, but: {}", errors.join("; ")),
+            ))
+        }
+    }
+
+    /// A stop generation: jobs compare it to notice a stop or a fault.
+    pub fn stop_generation(&self) -> u64 {
+        self.stop_gen.load(Ordering::SeqCst)
+    }
+
+    /// Marks a job as owning the axes (refused unless idle and connected).
+    pub fn begin_job(self: &Arc<Self>) -> Result<(), ProtoError> {
+        let t = self.clock.now_s();
+        let mut s = lock(&self.state);
+        s.may_take_axes().map_err(refusal)?;
+        s.apply(Input::Begin(Activity::Job), t);
+        Ok(())
+    }
+
+    /// Ends a job's ownership of the axes.
+    pub fn end_job(&self) {
+        let t = self.clock.now_s();
+        lock(&self.state).apply(Input::End(Activity::Job), t);
+    }
+
+    /// References the selected axes (the stage moves to its reference).
+    pub async fn reference(self: &Arc<Self>, axes: Axes) -> Result<Value, ProtoError> {
+        let stage = self.stage()?;
+        let _queue = self.motion.lock().await;
+        {
+            let t = self.clock.now_s();
+            let mut s = lock(&self.state);
+            s.may_take_axes().map_err(refusal)?;
+            s.apply(Input::Begin(Activity::Referencing), t);
+        }
+        let _guard = ActivityGuard {
+            rig: self,
+            activity: Activity::Referencing,
+        };
+        let run = |axis: &Axis, on: bool| {
+            let axis = axis.clone();
+            async move {
+                if on {
+                    axis.reference().await.map(Some)
+                } else {
+                    Ok(None)
+                }
+            }
+        };
+        let (x, y) = tokio::join!(run(&stage.x, axes.x()), run(&stage.y, axes.y()));
+        let x = x.map_err(driver_error)?;
+        let y = y.map_err(driver_error)?;
+        {
+            let mut c = lock(&self.commanded);
+            if x.is_some() {
+                c[0] = x;
+            }
+            if y.is_some() {
+                c[1] = y;
+            }
+        }
+        for (a, v) in [(AxisId::X, x), (AxisId::Y, y)] {
+            if v.is_some() {
+                self.apply(Input::Referenced(a));
+            }
+        }
+        Ok(json!({"reported": {"x_um": x, "y_um": y}}))
+    }
+
+    /// Positions from every source, each named, with its time.
+    pub async fn position(&self) -> Value {
+        let commanded = *lock(&self.commanded);
+        let mut controller = json!(null);
+        if let Ok(stage) = self.stage() {
+            let t = self.clock.now_s();
+            let (x, y) = tokio::join!(stage.x.position_um(), stage.y.position_um());
+            let err = |r: &Result<f64, DriverError>| r.as_ref().err().map(|e| e.to_string());
+            controller = json!({"t_s": t, "x_um": x.as_ref().ok(), "y_um": y.as_ref().ok(),
+                                "x_error": err(&x), "y_error": err(&y)});
+        } else {
+            let r = *lock(&self.reported);
+            if r.x_um.is_some() || r.y_um.is_some() {
+                controller = json!({"t_s": r.t_s, "x_um": r.x_um, "y_um": r.y_um});
+            }
+        }
+        let vision = self.vision.as_ref().and_then(|v| {
+            let m = (*v.latest.borrow())?;
+            let (sx, sy) = self.vision_to_stage(&m);
+            let mut j = m.to_json();
+            j["age_s"] = json!(self.clock.now_s() - m.t_s);
+            j["stage_x_um"] = json!(sx);
+            j["stage_y_um"] = json!(sy);
+            Some(j)
+        });
+        json!({
+            "commanded": {"x_um": commanded[0], "y_um": commanded[1]},
+            "controller": controller,
+            "vision": vision,
+        })
+    }
+
+    /// The state part of `status`.
+    pub fn status(&self) -> Value {
+        let stage = lock(&self.stage).clone();
+        let travel = stage.map(|s| {
+            let (xl, xh) = self.limits_um(&s.x, AxisId::X);
+            let (yl, yh) = self.limits_um(&s.y, AxisId::Y);
+            json!({"x_um": [xl, xh], "y_um": [yl, yh]})
+        });
+        json!({
+            "t_s": self.clock.now_s(),
+            "rig": lock(&self.state).to_json(),
+            "limits": travel,
+            "camera": self.vision.as_ref().map(|v| v.to_json()),
+        })
+    }
+
+    /// The newest vision measurement if it is fresh and good enough.
+    pub fn fresh_measurement(&self, newer_than_s: f64) -> Result<Option<Measurement>, ProtoError> {
+        let Some(v) = &self.vision else {
+            return Err(ProtoError::new(
+                ErrorCode::CameraUnavailable,
+                "no camera is configured (camera.source)",
+            ));
+        };
+        let m = *v.latest.borrow();
+        Ok(m.filter(|m| m.t_s > newer_than_s && m.quality >= self.cfg.camera.min_quality))
+    }
+}

@@ -1,0 +1,414 @@
+//! The safe-state machine, pure: inputs are what happened (driver events,
+//! client actions, job ends), outputs are what must be done (halt both
+//! axes) and whether motion is allowed now.
+//!
+//! Invariants:
+//! - any fault (line down, controller fault, reference lost, camera loss
+//!   during a job) yields [`Action::HaltAll`] and latches `last_fault`;
+//! - after a fault nothing moves by itself: a running job is stopped and
+//!   only a client command (move, reference, resume) starts motion again;
+//! - motion needs both lines up; a move of an axis needs it referenced.
+
+use serde_json::{json, Value};
+
+/// One of the two axes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum AxisId {
+    /// X.
+    X,
+    /// Y.
+    Y,
+}
+
+impl AxisId {
+    /// `"x"` / `"y"`.
+    pub fn name(self) -> &'static str {
+        match self {
+            AxisId::X => "x",
+            AxisId::Y => "y",
+        }
+    }
+    fn index(self) -> usize {
+        match self {
+            AxisId::X => 0,
+            AxisId::Y => 1,
+        }
+    }
+    /// From a driver axis name.
+    pub fn from_name(s: &str) -> Option<AxisId> {
+        match s {
+            "x" => Some(AxisId::X),
+            "y" => Some(AxisId::Y),
+            _ => None,
+        }
+    }
+}
+
+/// What the rig is doing.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Activity {
+    /// Nothing commanded.
+    Idle,
+    /// Client moves in progress.
+    Moving,
+    /// A reference run.
+    Referencing,
+    /// A job owns the axes.
+    Job,
+}
+
+impl Activity {
+    fn as_str(self) -> &'static str {
+        match self {
+            Activity::Idle => "idle",
+            Activity::Moving => "moving",
+            Activity::Referencing => "referencing",
+            Activity::Job => "job",
+        }
+    }
+}
+
+/// An input to the machine.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Input {
+    /// The stage is connected and brought up (both axes).
+    StageUp {
+        /// Referenced state per axis (X, Y).
+        referenced: [bool; 2],
+    },
+    /// A line (re)opened.
+    LinkUp(AxisId),
+    /// A line went down.
+    LinkDown(AxisId, String),
+    /// An axis was referenced.
+    Referenced(AxisId),
+    /// An axis lost its reference (power cycle).
+    ReferenceLost(AxisId),
+    /// A controller fault that is not a line loss.
+    Fault(String),
+    /// Activity began.
+    Begin(Activity),
+    /// Activity ended.
+    End(Activity),
+    /// `stop` from a client.
+    Stop,
+}
+
+/// What the caller must do.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Action {
+    /// Halt both axes now and stop any job; report `reason` to subscribers.
+    HaltAll {
+        /// Why.
+        reason: String,
+    },
+}
+
+/// A latched fault.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FaultRecord {
+    /// Rig time, s.
+    pub t_s: f64,
+    /// What happened.
+    pub reason: String,
+}
+
+/// Why motion is refused now.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Refusal {
+    /// The stage never connected or a line is down.
+    NotConnected(String),
+    /// An axis is not referenced.
+    NotReferenced(AxisId),
+    /// Something else owns the axes.
+    Busy(Activity),
+}
+
+/// The machine.
+#[derive(Debug, Clone)]
+pub struct SafetyState {
+    stage_up: bool,
+    link_up: [bool; 2],
+    referenced: [bool; 2],
+    activity: Activity,
+    moves_in_flight: u32,
+    last_fault: Option<FaultRecord>,
+    faults: u64,
+}
+
+impl Default for SafetyState {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl SafetyState {
+    /// Before the stage connected: nothing may move.
+    pub fn new() -> Self {
+        Self {
+            stage_up: false,
+            link_up: [false; 2],
+            referenced: [false; 2],
+            activity: Activity::Idle,
+            moves_in_flight: 0,
+            last_fault: None,
+            faults: 0,
+        }
+    }
+
+    /// Applies an input at rig time `t_s`.
+    pub fn apply(&mut self, input: Input, t_s: f64) -> Vec<Action> {
+        let fault = |me: &mut Self, reason: String| {
+            me.faults += 1;
+            me.last_fault = Some(FaultRecord {
+                t_s,
+                reason: reason.clone(),
+            });
+            me.activity = Activity::Idle;
+            me.moves_in_flight = 0;
+            vec![Action::HaltAll { reason }]
+        };
+        match input {
+            Input::StageUp { referenced } => {
+                self.stage_up = true;
+                self.link_up = [true; 2];
+                self.referenced = referenced;
+                vec![]
+            }
+            Input::LinkUp(a) => {
+                self.link_up[a.index()] = true;
+                vec![]
+            }
+            Input::LinkDown(a, why) => {
+                let was_up = self.link_up[a.index()];
+                self.link_up[a.index()] = false;
+                if was_up || self.activity != Activity::Idle {
+                    fault(self, format!("axis {} line down: {why}", a.name()))
+                } else {
+                    vec![]
+                }
+            }
+            Input::Referenced(a) => {
+                self.referenced[a.index()] = true;
+                vec![]
+            }
+            Input::ReferenceLost(a) => {
+                self.referenced[a.index()] = false;
+                fault(
+                    self,
+                    format!(
+                        "axis {} lost its reference (controller power cycle?); reference it again",
+                        a.name()
+                    ),
+                )
+            }
+            Input::Fault(why) => fault(self, why),
+            Input::Begin(Activity::Moving) => {
+                self.moves_in_flight += 1;
+                if self.activity == Activity::Idle {
+                    self.activity = Activity::Moving;
+                }
+                vec![]
+            }
+            Input::Begin(a) => {
+                self.activity = a;
+                vec![]
+            }
+            Input::End(Activity::Moving) => {
+                self.moves_in_flight = self.moves_in_flight.saturating_sub(1);
+                if self.moves_in_flight == 0 && self.activity == Activity::Moving {
+                    self.activity = Activity::Idle;
+                }
+                vec![]
+            }
+            Input::End(a) => {
+                if self.activity == a {
+                    self.activity = if self.moves_in_flight > 0 {
+                        Activity::Moving
+                    } else {
+                        Activity::Idle
+                    };
+                }
+                vec![]
+            }
+            Input::Stop => {
+                self.activity = Activity::Idle;
+                self.moves_in_flight = 0;
+                vec![Action::HaltAll {
+                    reason: "stop requested by a client".to_owned(),
+                }]
+            }
+        }
+    }
+
+    fn connected(&self) -> Result<(), Refusal> {
+        if !self.stage_up {
+            return Err(Refusal::NotConnected(
+                "the controllers are not connected yet".to_owned(),
+            ));
+        }
+        for a in [AxisId::X, AxisId::Y] {
+            if !self.link_up[a.index()] {
+                return Err(Refusal::NotConnected(format!(
+                    "axis {} line is down",
+                    a.name()
+                )));
+            }
+        }
+        Ok(())
+    }
+
+    /// Whether a client move of these axes may start (`from_job` for moves
+    /// the job itself makes).
+    pub fn may_move(&self, axes: [bool; 2], from_job: bool) -> Result<(), Refusal> {
+        self.connected()?;
+        match self.activity {
+            Activity::Job if !from_job => return Err(Refusal::Busy(Activity::Job)),
+            Activity::Referencing => return Err(Refusal::Busy(Activity::Referencing)),
+            _ => {}
+        }
+        for a in [AxisId::X, AxisId::Y] {
+            if axes[a.index()] && !self.referenced[a.index()] {
+                return Err(Refusal::NotReferenced(a));
+            }
+        }
+        Ok(())
+    }
+
+    /// Whether a reference run or a job may start.
+    pub fn may_take_axes(&self) -> Result<(), Refusal> {
+        self.connected()?;
+        match self.activity {
+            Activity::Idle => Ok(()),
+            a => Err(Refusal::Busy(a)),
+        }
+    }
+
+    /// Whether an axis is referenced.
+    pub fn referenced(&self, a: AxisId) -> bool {
+        self.referenced[a.index()]
+    }
+
+    /// What the rig is doing.
+    pub fn activity(&self) -> Activity {
+        self.activity
+    }
+
+    /// The last fault, if any.
+    pub fn last_fault(&self) -> Option<&FaultRecord> {
+        self.last_fault.as_ref()
+    }
+
+    /// A name for the overall state: `disconnected`, `unreferenced`,
+    /// `idle`, `moving`, `referencing`, `job`.
+    pub fn mode(&self) -> &'static str {
+        if self.connected().is_err() {
+            "disconnected"
+        } else if self.activity == Activity::Idle && !(self.referenced[0] && self.referenced[1]) {
+            "unreferenced"
+        } else {
+            self.activity.as_str()
+        }
+    }
+
+    /// Status as JSON for the `status` command.
+    pub fn to_json(&self) -> Value {
+        json!({
+            "mode": self.mode(),
+            "activity": self.activity.as_str(),
+            "connected": {"x": self.stage_up && self.link_up[0], "y": self.stage_up && self.link_up[1]},
+            "referenced": {"x": self.referenced[0], "y": self.referenced[1]},
+            "faults": self.faults,
+            "last_fault": self.last_fault.as_ref().map(|f| json!({"t_s": f.t_s, "reason": f.reason})),
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn up() -> SafetyState {
+        let mut s = SafetyState::new();
+        s.apply(
+            Input::StageUp {
+                referenced: [true, true],
+            },
+            0.0,
+        );
+        s
+    }
+
+    #[test]
+    fn nothing_moves_before_connection_or_reference() {
+        let s = SafetyState::new();
+        assert!(matches!(
+            s.may_move([true, false], false),
+            Err(Refusal::NotConnected(_))
+        ));
+        let mut s = SafetyState::new();
+        s.apply(
+            Input::StageUp {
+                referenced: [true, false],
+            },
+            0.0,
+        );
+        assert!(s.may_move([true, false], false).is_ok());
+        assert_eq!(
+            s.may_move([false, true], false),
+            Err(Refusal::NotReferenced(AxisId::Y))
+        );
+        assert_eq!(s.mode(), "unreferenced");
+    }
+
+    #[test]
+    fn a_line_loss_halts_all_and_latches() {
+        let mut s = up();
+        s.apply(Input::Begin(Activity::Job), 1.0);
+        let a = s.apply(Input::LinkDown(AxisId::X, "eof".into()), 2.0);
+        assert!(matches!(&a[..], [Action::HaltAll { reason }] if reason.contains("axis x")));
+        assert_eq!(s.activity(), Activity::Idle);
+        assert_eq!(s.mode(), "disconnected");
+        assert!(s.may_move([false, true], false).is_err());
+        // A repeated report of the same loss is not a second fault.
+        assert!(s
+            .apply(Input::LinkDown(AxisId::X, "again".into()), 2.1)
+            .is_empty());
+        s.apply(Input::LinkUp(AxisId::X), 3.0);
+        assert!(s.may_move([true, true], false).is_ok());
+        assert_eq!(s.last_fault().unwrap().t_s, 2.0);
+    }
+
+    #[test]
+    fn reference_loss_requires_re_referencing() {
+        let mut s = up();
+        let a = s.apply(Input::ReferenceLost(AxisId::Y), 1.0);
+        assert_eq!(a.len(), 1);
+        assert_eq!(
+            s.may_move([false, true], false),
+            Err(Refusal::NotReferenced(AxisId::Y))
+        );
+        s.apply(Input::Referenced(AxisId::Y), 2.0);
+        assert!(s.may_move([true, true], false).is_ok());
+    }
+
+    #[test]
+    fn jobs_own_the_axes_and_moves_nest() {
+        let mut s = up();
+        s.apply(Input::Begin(Activity::Moving), 0.0);
+        s.apply(Input::Begin(Activity::Moving), 0.0);
+        assert_eq!(s.may_take_axes(), Err(Refusal::Busy(Activity::Moving)));
+        s.apply(Input::End(Activity::Moving), 0.0);
+        assert_eq!(s.activity(), Activity::Moving);
+        s.apply(Input::End(Activity::Moving), 0.0);
+        assert!(s.may_take_axes().is_ok());
+        s.apply(Input::Begin(Activity::Job), 0.0);
+        assert_eq!(
+            s.may_move([true, true], false),
+            Err(Refusal::Busy(Activity::Job))
+        );
+        assert!(s.may_move([true, true], true).is_ok());
+        assert_eq!(s.apply(Input::Stop, 0.0).len(), 1);
+        assert_eq!(s.activity(), Activity::Idle);
+    }
+}
