@@ -84,13 +84,15 @@ fn bias_sub_period_sweep_and_angle() {
             let o = d.decode(&r.render(&pose, 0, 0.0, 0).unwrap()).unwrap();
             let ex = (o.x_um - pose.x_um) / PX;
             let ey = (o.y_um - pose.y_um) / PX;
+            eprintln!("θ {theta} step {step}: ex {ex:.2e} ey {ey:.2e}");
             worst = worst.max(ex.abs()).max(ey.abs());
             worst_t = worst_t.max((o.theta_rad - pose.theta_rad).abs());
         }
     }
     eprintln!("bias: worst |error| {worst:.2e} px, worst |dθ| {worst_t:.2e} rad");
-    // Measured worst ≈ 2.1e-3 px (θ = 0.02 rad, exactly 10 px/period);
-    // the 1e-3 px goal is not met yet at every angle, see notes/vision.md.
+    // Measured worst ≈ 2.3e-3 px (θ = 2.0 rad: a constant offset over the
+    // sweep, independent of the renderer's oversampling, so not aliasing);
+    // the 1e-3 px goal is not met yet at every view, see notes/vision.md.
     assert!(worst <= 2.5e-3, "bias {worst} px");
     assert!(worst_t <= 1e-4, "theta error {worst_t} rad");
 }
@@ -124,7 +126,7 @@ fn absolute(bits: u32, n: usize, seed: u64) {
     let seq = LineSequence::new(bits).unwrap();
     let extent = (seq.len() - 1) as f64 * P;
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
-    let (w, h) = (640usize, 480usize);
+    let (w, h) = (1024usize, 768usize);
     let (mut ok, mut wrong, mut err_inside, mut err_edge) = (0, 0, 0, 0);
     let mut worst = 0.0f64;
     for i in 0..n {
@@ -153,6 +155,12 @@ fn absolute(bits: u32, n: usize, seed: u64) {
             pixel_um: pixel,
             mirrored,
         };
+        let cfg_dbg = (
+            cfg.blur_sigma_px,
+            cfg.dust_fraction,
+            cfg.vignetting,
+            cfg.gradient,
+        );
         let mut r = Renderer::new(cfg).unwrap();
         let f = r.render(&pose, i as u64, 0.0, 0).unwrap();
         let mut opts = DecodeOptions::new(P, bits);
@@ -186,7 +194,10 @@ fn absolute(bits: u32, n: usize, seed: u64) {
             Err(e) => {
                 if inside {
                     err_inside += 1;
-                    eprintln!("error inside pattern: {pose:?}: {e}");
+                    eprintln!(
+                        "error inside pattern: #{i} {pose:?} blur {:.2} dust {:.3} vign {:.2} grad {:?}: {e}",
+                        cfg_dbg.0, cfg_dbg.1, cfg_dbg.2, cfg_dbg.3
+                    );
                 } else {
                     err_edge += 1;
                 }
@@ -198,10 +209,13 @@ fn absolute(bits: u32, n: usize, seed: u64) {
         "absolute {bits}-bit: {n} poses, ok {ok}, wrong {wrong}, errors inside {err_inside}, errors at pattern edge {err_edge}, worst ok error {worst:.4} µm"
     );
     assert_eq!(wrong, 0);
-    // Small views (640×480 at up to 11 px/period hold only 14–20 code bits)
-    // are sometimes genuinely ambiguous; they must fail as errors.
+    // 1024×768 (the camera) at 7–11 px/period. Measured over 1000
+    // poses: 10 (10-bit) and 11 (12-bit) on-pattern failures, all in the
+    // full-frame stage at exactly commensurate periods with heavy blur
+    // (renderer aliasing with oversample 1, see notes/vision.md) — never a
+    // code ambiguity from too few bits. They must fail as errors.
     assert!(
-        err_inside * 8 <= n,
+        err_inside * 50 <= n.max(100),
         "too many failures on on-pattern views: {err_inside}/{n}"
     );
 }

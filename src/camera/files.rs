@@ -21,20 +21,15 @@
 //! frames; the two should become one module.
 
 use std::fs::File;
-use std::io::{BufWriter, Cursor, Write};
+use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
-
-use image::{DynamicImage, ImageReader};
 
 use super::{CameraError, CameraInfo, FrameSource};
 use crate::frame::{Frame, Pixels};
 
-/// Largest image a replay accepts, in pixels per side. Far above any
-/// machine-vision sensor; it bounds memory on a corrupt or hostile file.
-pub const MAX_SIDE_PX: u32 = 32_768;
-/// Largest decoder allocation for one file.
-pub const MAX_DECODE_BYTES: u64 = 2 << 30;
+/// Size limits of the image parser (defined once, in [`crate::imageio`]).
+pub use crate::imageio::{MAX_DECODE_BYTES, MAX_SIDE_PX};
 
 /// How replay frames are stamped.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -152,76 +147,14 @@ pub fn list_files(pattern: &str) -> Result<Vec<PathBuf>, CameraError> {
     Ok(files)
 }
 
-/// Significant bits declared by a 16-bit grayscale PNG's `sBIT` chunk.
-fn png_sbit(bytes: &[u8]) -> Option<u8> {
-    let decoder = png::Decoder::new(Cursor::new(bytes));
-    let reader = decoder.read_info().ok()?;
-    let info = reader.info();
-    if info.bit_depth != png::BitDepth::Sixteen {
-        return None;
-    }
-    let s = *info.sbit.as_ref()?.first()?;
-    (1..16).contains(&s).then_some(s)
-}
-
 /// Decodes an encoded image (PNG, TIFF, JPEG) into a frame with timestamp 0
 /// and sequence 0. `bit_depth` is [`FileOptions::bit_depth`].
 ///
-/// This is the parser of outside input for replays; it is fuzzed
-/// (`fuzz/fuzz_targets/camera_image_file.rs`) and never panics.
+/// Delegates to [`crate::imageio::frame_from_bytes_with_depth`], the one
+/// image parser (size limits, sBIT, declared depth); this wrapper only turns
+/// its error into the reason string of [`CameraError::Decode`].
 pub fn decode_image_bytes(bytes: &[u8], bit_depth: Option<u8>) -> Result<Frame, String> {
-    let mut reader = ImageReader::new(Cursor::new(bytes))
-        .with_guessed_format()
-        .map_err(|e| format!("cannot read: {e}"))?;
-    if reader.format().is_none() {
-        return Err("not a PNG, TIFF or JPEG image".into());
-    }
-    let mut limits = image::Limits::default();
-    limits.max_image_width = Some(MAX_SIDE_PX);
-    limits.max_image_height = Some(MAX_SIDE_PX);
-    limits.max_alloc = Some(MAX_DECODE_BYTES);
-    reader.limits(limits);
-    let img = reader.decode().map_err(|e| format!("cannot decode: {e}"))?;
-    let (w, h) = (img.width() as usize, img.height() as usize);
-    let sixteen = matches!(
-        img,
-        DynamicImage::ImageLuma16(_)
-            | DynamicImage::ImageLumaA16(_)
-            | DynamicImage::ImageRgb16(_)
-            | DynamicImage::ImageRgba16(_)
-            | DynamicImage::ImageRgb32F(_)
-            | DynamicImage::ImageRgba32F(_)
-    );
-    let frame = if sixteen {
-        let mut px = img.into_luma16().into_raw();
-        let depth = match png_sbit(bytes) {
-            Some(s) => {
-                let shift = 16 - u32::from(s);
-                px.iter_mut().for_each(|v| *v >>= shift);
-                s
-            }
-            None => match bit_depth {
-                Some(d) if (1..=16).contains(&d) => {
-                    let max = ((1u32 << d) - 1) as u16;
-                    if let Some(pos) = px.iter().position(|&v| v > max) {
-                        return Err(format!(
-                            "pixel ({}, {}) = {} exceeds the declared {d}-bit full scale {max}",
-                            pos % w,
-                            pos / w,
-                            px[pos]
-                        ));
-                    }
-                    d
-                }
-                Some(d) => return Err(format!("bit depth {d} is outside 1..=16")),
-                None => 16,
-            },
-        };
-        Frame::new(w, h, depth, Pixels::U16(px), 0.0, 0)
-    } else {
-        Frame::new(w, h, 8, Pixels::U8(img.into_luma8().into_raw()), 0.0, 0)
-    };
-    frame.map_err(|e| e.to_string())
+    crate::imageio::frame_from_bytes_with_depth(bytes, bit_depth).map_err(|e| e.to_string())
 }
 
 /// Reads and decodes one image file; see [`decode_image_bytes`].
@@ -458,7 +391,7 @@ mod tests {
         let img =
             image::ImageBuffer::<image::Luma<u16>, _>::from_raw(2, 1, vec![100u16, 4095]).unwrap();
         let mut buf = Vec::new();
-        img.write_to(&mut Cursor::new(&mut buf), image::ImageFormat::Png)
+        img.write_to(&mut std::io::Cursor::new(&mut buf), image::ImageFormat::Png)
             .unwrap();
         assert_eq!(decode_image_bytes(&buf, None).unwrap().bit_depth(), 16);
         let f = decode_image_bytes(&buf, Some(12)).unwrap();

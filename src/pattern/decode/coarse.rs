@@ -89,32 +89,67 @@ pub(crate) struct CoarseStage {
     counts: Vec<f32>,
     epad: Vec<f32>,
     epad_bits: u32,
+    /// One sample per site instead of five (faster, less robust).
+    pub(crate) single_sample: bool,
 }
 
-/// Bilinear sample at image point (u, v) (pixel centres at j + 0.5); NaN
-/// outside the frame.
-fn sample(frame: &Frame, u: f64, v: f64) -> f32 {
-    let x = u - 0.5;
-    let y = v - 0.5;
-    let (w, h) = (frame.width(), frame.height());
-    if !(x >= 0.0 && y >= 0.0 && x <= (w - 1) as f64 && y <= (h - 1) as f64) {
-        return f32::NAN;
+/// Samples the frame bilinearly at the lattice points u0 + i·da + j·db
+/// (i < ni, j < nj; pixel centres at integer + 0.5), row-major into `out`;
+/// NaN outside the frame. Generic over the pixel type so the inner loop has
+/// no per-pixel format dispatch.
+#[allow(clippy::too_many_arguments)]
+fn sample_lattice<T: Copy + Into<f32>>(
+    p: &[T],
+    w: usize,
+    h: usize,
+    u0: [f64; 2],
+    da: [f64; 2],
+    db: [f64; 2],
+    ni: usize,
+    nj: usize,
+    offs: &[[f64; 2]],
+    out: &mut Vec<f32>,
+) {
+    out.clear();
+    if w < 2 || h < 2 || p.len() < w * h {
+        out.resize(ni * nj, f32::NAN);
+        return;
     }
-    let j = (x.floor() as usize).min(w.saturating_sub(2));
-    let i = (y.floor() as usize).min(h.saturating_sub(2));
-    let fx = (x - j as f64) as f32;
-    let fy = (y - i as f64) as f32;
-    let j1 = (j + 1).min(w - 1);
-    let i1 = (i + 1).min(h - 1);
-    let get = |jj: usize, ii: usize| -> f32 {
-        match frame.pixels() {
-            Pixels::U8(p) => f32::from(p[ii * w + jj]),
-            Pixels::U16(p) => f32::from(p[ii * w + jj]),
+    let xmax = (w - 1) as f64;
+    let ymax = (h - 1) as f64;
+    for j in 0..nj {
+        // Pixel-index coordinates (centre of pixel 0 at 0).
+        let rx = u0[0] - 0.5 + j as f64 * db[0];
+        let ry = u0[1] - 0.5 + j as f64 * db[1];
+        for i in 0..ni {
+            let xc = rx + i as f64 * da[0];
+            let yc = ry + i as f64 * da[1];
+            let mut acc = 0.0f32;
+            for o in offs {
+                let (x, y) = (xc + o[0], yc + o[1]);
+                if !(x >= 0.0 && y >= 0.0 && x <= xmax && y <= ymax) {
+                    acc = f32::NAN;
+                    break;
+                }
+                // Non-negative: truncation is floor.
+                let jx = (x as usize).min(w - 2);
+                let iy = (y as usize).min(h - 2);
+                let fx = (x - jx as f64) as f32;
+                let fy = (y - iy as f64) as f32;
+                let q = iy * w + jx;
+                let (a, b, c, d) = (
+                    p[q].into(),
+                    p[q + 1].into(),
+                    p[q + w].into(),
+                    p[q + w + 1].into(),
+                );
+                let top = a + fx * (b - a);
+                let bot = c + fx * (d - c);
+                acc += top + fy * (bot - top);
+            }
+            out.push(acc);
         }
-    };
-    let a = get(j, i) + fx * (get(j1, i) - get(j, i));
-    let b = get(j, i1) + fx * (get(j1, i1) - get(j, i1));
-    a + fy * (b - a)
+    }
 }
 
 impl CoarseStage {
@@ -199,42 +234,66 @@ impl CoarseStage {
                 need: seq.min_periods_in_view(),
             });
         }
-        // Sampling: centre plus four points at ±1/6 period along the axes.
-        let off = [
-            [0.0, 0.0],
-            [1.0 / 6.0, 0.0],
-            [-1.0 / 6.0, 0.0],
-            [0.0, 1.0 / 6.0],
-            [0.0, -1.0 / 6.0],
+        // One bilinear sample per dot site (integer lattice) and per
+        // background point (half lattice); both polarity hypotheses below
+        // read the same samples. The dots are ≥ 3 px and blurred, so the
+        // centre sample carries the site's contrast.
+        let g1_origin = [
+            u00[0] + (a0 as f64 - 0.5) * da[0] + (b0 as f64 - 0.5) * db[0],
+            u00[1] + (a0 as f64 - 0.5) * da[1] + (b0 as f64 - 0.5) * db[1],
         ];
-        let pos = |a: f64, b: f64| {
-            [
-                u00[0] + a * da[0] + b * db[0],
-                u00[1] + a * da[1] + b * db[1],
-            ]
-        };
-        let samp = |a: f64, b: f64| {
-            let mut s = 0.0;
-            for o in off {
-                let p = pos(a + o[0], b + o[1]);
-                s += sample(frame, p[0], p[1]);
-            }
-            s / 5.0
-        };
-        self.g0.clear();
-        for j in 0..nb {
-            for i in 0..na {
-                self.g0
-                    .push(samp((a0 + i as i64) as f64, (b0 + j as i64) as f64));
-            }
+        let g0_origin = [
+            u00[0] + a0 as f64 * da[0] + b0 as f64 * db[0],
+            u00[1] + a0 as f64 * da[1] + b0 as f64 * db[1],
+        ];
+        // Centre plus four points at ±1/6 period along the lattice axes: the
+        // mean over the dot's core is robust to blur, noise and the few
+        // tenths of a pixel that lens distortion moves a site.
+        let mut offs = [[0.0; 2]; 5];
+        for (t, &(fa, fb)) in [(0.0, 0.0), (1.0, 0.0), (-1.0, 0.0), (0.0, 1.0), (0.0, -1.0)]
+            .iter()
+            .enumerate()
+        {
+            offs[t] = [
+                (fa * da[0] + fb * db[0]) / 6.0,
+                (fa * da[1] + fb * db[1]) / 6.0,
+            ];
         }
-        self.g1.clear();
-        for j in 0..=nb {
-            for i in 0..=na {
-                self.g1.push(samp(
-                    (a0 + i as i64) as f64 - 0.5,
-                    (b0 + j as i64) as f64 - 0.5,
-                ));
+        let offs: &[[f64; 2]] = if self.single_sample {
+            &offs[..1]
+        } else {
+            &offs
+        };
+        match frame.pixels() {
+            Pixels::U8(p) => {
+                sample_lattice(p, w, h, g0_origin, da, db, na, nb, offs, &mut self.g0);
+                sample_lattice(
+                    p,
+                    w,
+                    h,
+                    g1_origin,
+                    da,
+                    db,
+                    na + 1,
+                    nb + 1,
+                    offs,
+                    &mut self.g1,
+                );
+            }
+            Pixels::U16(p) => {
+                sample_lattice(p, w, h, g0_origin, da, db, na, nb, offs, &mut self.g0);
+                sample_lattice(
+                    p,
+                    w,
+                    h,
+                    g1_origin,
+                    da,
+                    db,
+                    na + 1,
+                    nb + 1,
+                    offs,
+                    &mut self.g1,
+                );
             }
         }
         // Both polarity hypotheses, unless fixed.
@@ -470,25 +529,18 @@ impl CoarseStage {
         self.tmp.resize(n, f32::NAN);
         for j in 0..snb {
             for i in 0..sna {
-                let mut m = f32::NEG_INFINITY;
-                for ii in i.saturating_sub(2)..(i + 3).min(sna) {
-                    let v = self.pres[j * sna + ii];
-                    if v > m {
-                        m = v;
-                    }
-                }
+                // f32::max ignores NaN (unread sites) and compiles branch-free.
+                let row = &self.pres[j * sna..(j + 1) * sna];
+                let m = row[i.saturating_sub(2)..(i + 3).min(sna)]
+                    .iter()
+                    .fold(f32::NEG_INFINITY, |m, &v| m.max(v));
                 self.tmp[j * sna + i] = m;
             }
         }
         for j in 0..snb {
             for i in 0..sna {
-                let mut m = f32::NEG_INFINITY;
-                for jj in j.saturating_sub(2)..(j + 3).min(snb) {
-                    let v = self.tmp[jj * sna + i];
-                    if v > m {
-                        m = v;
-                    }
-                }
+                let m = (j.saturating_sub(2)..(j + 3).min(snb))
+                    .fold(f32::NEG_INFINITY, |m, jj| m.max(self.tmp[jj * sna + i]));
                 self.lmax[j * sna + i] = m;
             }
         }

@@ -224,7 +224,7 @@ impl Decoder {
         let k0 = self
             .fine
             .peak_search(frame, self.opts.min_period_px, max_period)?;
-        let g = self.fine.refine(frame, k0, 3)?;
+        let g = self.fine.refine(frame, k0, 2)?;
         self.check_grid(&g)?;
         Ok(g)
     }
