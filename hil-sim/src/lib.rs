@@ -22,6 +22,7 @@ pub mod camera;
 pub mod clock;
 pub mod control;
 pub mod controller;
+pub mod experiment;
 pub mod motion;
 pub mod params;
 pub mod rig;

@@ -62,7 +62,7 @@ enum Cmd {
     },
 }
 
-#[tokio::main(flavor = "current_thread")]
+#[tokio::main(flavor = "multi_thread", worker_threads = 2)]
 async fn main() -> anyhow::Result<()> {
     tracing_subscriber::fmt()
         .with_env_filter(
@@ -143,8 +143,9 @@ async fn main() -> anyhow::Result<()> {
                 Some(p) => hil_sim::rig::RigConfig::load(&p).map_err(anyhow::Error::msg)?,
                 None => hil_sim::rig::RigConfig::default(),
             };
-            let _ = (seed, rig);
-            anyhow::bail!("demo: not built yet")
+            hil_sim::experiment::demo(seed, rig)
+                .await
+                .map_err(anyhow::Error::from)
         }
     }
 }
