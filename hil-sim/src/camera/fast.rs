@@ -215,7 +215,7 @@ impl FastRenderer {
     /// Sums the dot stamps for the pattern point `(x_um, y_um)` at the image
     /// centre into the accumulator.
     fn accumulate(&mut self, x_um: f64, y_um: f64) {
-        self.acc.iter_mut().for_each(|v| *v = 0.0);
+        self.acc.fill(0.0);
         let (w, h) = (self.cfg.width as i64, self.cfg.height as i64);
         let p = self.cfg.period_um;
         let s = self.cfg.pixel_um;
@@ -313,7 +313,7 @@ impl FastRenderer {
             return Err(format!("pattern position ({x_um}, {y_um}) is not finite"));
         }
         self.accumulate(x_um, y_um);
-        Ok(self.finish(gain, noise_seed, timestamp_s, sequence)?)
+        self.finish(gain, noise_seed, timestamp_s, sequence)
     }
 
     /// A frame with no pattern: background (with shading and noise) when
@@ -376,12 +376,13 @@ impl FastRenderer {
             let shade = &self.shade[i * w..(i + 1) * w];
             let off = rng.gen_range(0..NOISE_LEN.saturating_sub(w).max(1));
             let noise_row = &self.noise[off..(off + w).min(NOISE_LEN)];
-            for ((&c, &sh), &n) in acc.iter().zip(shade).zip(noise_row) {
+            out16.extend(acc.iter().zip(shade).zip(noise_row).map(|((&c, &sh), &n)| {
                 let v = (bg + (fg - bg) * c) * sh * g;
                 let var = v.max(0.0) * inv_fw + rn2;
                 let v = v + n * var.sqrt();
-                out16.push((v * fs).round().clamp(0.0, fs) as u16);
-            }
+                // +0.5 and truncation: round half up, cheaper than round().
+                (v * fs + 0.5).clamp(0.0, fs) as u16
+            }));
         }
         let pixels = if self.cfg.bit_depth <= 8 {
             Pixels::U8(out16.iter().map(|&v| v as u8).collect())
