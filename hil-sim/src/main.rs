@@ -98,6 +98,7 @@ async fn main() -> anyhow::Result<()> {
                 rig,
                 model,
                 camera_socket: Some(camera_socket.clone()),
+                stage_model: None,
             };
             // Handlers first: a signal right after the ready line must
             // already end in a clean shutdown.

@@ -106,6 +106,9 @@ pub struct ServeConfig {
     pub model: Option<PathBuf>,
     /// Unix socket for the simulated camera, if wanted.
     pub camera_socket: Option<PathBuf>,
+    /// An in-memory stage model, overriding both model files (tests use
+    /// `StageModel::ideal()` to check the controllers alone).
+    pub stage_model: Option<micropos::model::StageModel>,
 }
 
 impl Default for ServeConfig {
@@ -119,6 +122,7 @@ impl Default for ServeConfig {
             rig: crate::rig::RigConfig::default(),
             model: None,
             camera_socket: None,
+            stage_model: None,
         }
     }
 }
@@ -625,7 +629,10 @@ impl SimHandle {
         let [cx, cy] = controller_configs(cfg.seed, cfg.daisy_chain)?;
         cfg.rig.validate().map_err(SimError::Config)?;
         let model_path = cfg.model.clone().or_else(|| cfg.rig.model.clone());
-        let model = crate::rig::load_model(model_path.as_deref()).map_err(SimError::Config)?;
+        let model = match &cfg.stage_model {
+            Some(m) => m.clone(),
+            None => crate::rig::load_model(model_path.as_deref()).map_err(SimError::Config)?,
+        };
         let rig = Arc::new(
             crate::rig::Rig::new(
                 model,

@@ -73,6 +73,7 @@ fn driver_config(sim: &SimHandle, daisy: bool) -> DriverConfig {
 async fn rig(daisy: bool) -> Rig {
     let dir = tempfile::tempdir().unwrap();
     let cfg = ServeConfig {
+        stage_model: Some(micropos::model::StageModel::ideal()),
         link_dir: dir.path().to_owned(),
         daisy_chain: daisy,
         time_scale: TIME_SCALE,
