@@ -28,6 +28,7 @@ struct Bench {
 fn setup() -> Bench {
     let dir = tempfile::tempdir().expect("tempdir");
     let sim = SimHandle::start(ServeConfig {
+        stage_model: Some(micropos::model::StageModel::ideal()),
         link_dir: dir.path().to_owned(),
         time_scale: 20.0,
         seed: 1,

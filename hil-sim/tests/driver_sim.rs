@@ -73,11 +73,13 @@ fn driver_config(sim: &SimHandle, daisy: bool) -> DriverConfig {
 async fn rig(daisy: bool) -> Rig {
     let dir = tempfile::tempdir().unwrap();
     let cfg = ServeConfig {
+        stage_model: Some(micropos::model::StageModel::ideal()),
         link_dir: dir.path().to_owned(),
         daisy_chain: daisy,
         time_scale: TIME_SCALE,
         control_socket: None,
         seed: 7,
+        ..Default::default()
     };
     let sim = tokio::task::spawn_blocking(move || SimHandle::start(cfg))
         .await

@@ -56,6 +56,7 @@ fn drain(f: &mut File, d: Duration) -> Vec<u8> {
 fn manual(dir: &Path, daisy: bool, control: bool) -> (SimHandle, ManualClock) {
     let clock = ManualClock::new();
     let cfg = ServeConfig {
+        stage_model: Some(micropos::model::StageModel::ideal()),
         link_dir: dir.to_owned(),
         daisy_chain: daisy,
         control_socket: control.then(|| dir.join("ctl")),
@@ -363,6 +364,7 @@ fn control_socket_json_lines() {
 fn scaled_time_and_start_errors() {
     let dir = tempfile::tempdir().unwrap();
     let sim = SimHandle::start(ServeConfig {
+        stage_model: Some(micropos::model::StageModel::ideal()),
         link_dir: dir.path().to_owned(),
         time_scale: 1000.0,
         ..ServeConfig::default()
@@ -381,6 +383,7 @@ fn scaled_time_and_start_errors() {
 
     for bad in [0.0, -1.0, f64::NAN, f64::INFINITY] {
         let e = SimHandle::start(ServeConfig {
+            stage_model: Some(micropos::model::StageModel::ideal()),
             link_dir: dir.path().to_owned(),
             time_scale: bad,
             ..ServeConfig::default()
@@ -390,6 +393,7 @@ fn scaled_time_and_start_errors() {
     }
     std::fs::write(dir.path().join("x"), b"precious").unwrap();
     let e = SimHandle::start(ServeConfig {
+        stage_model: Some(micropos::model::StageModel::ideal()),
         link_dir: dir.path().to_owned(),
         ..ServeConfig::default()
     })
@@ -399,6 +403,7 @@ fn scaled_time_and_start_errors() {
     let e = SimHandle::start(ServeConfig::default()).unwrap_err();
     assert!(e.to_string().contains("link_dir"), "{e}");
     let e = SimHandle::start(ServeConfig {
+        stage_model: Some(micropos::model::StageModel::ideal()),
         link_dir: dir.path().join("missing"),
         ..ServeConfig::default()
     })
@@ -416,6 +421,7 @@ fn starts_inside_a_tokio_runtime() {
     let path = dir.path().to_owned();
     let sim = rt.block_on(async move {
         SimHandle::start(ServeConfig {
+            stage_model: Some(micropos::model::StageModel::ideal()),
             link_dir: path,
             ..ServeConfig::default()
         })
@@ -445,8 +451,15 @@ fn binary_serves_until_sigterm() {
     let y = dir.path().join("y");
     assert_eq!(
         line.trim_end(),
-        format!("hil-sim ready x={} y={}", x.display(), y.display())
+        format!(
+            "hil-sim ready x={} y={} camera={} control={}",
+            x.display(),
+            y.display(),
+            dir.path().join("camera.sock").display(),
+            dir.path().join("ctl").display()
+        )
     );
+    assert!(dir.path().join("camera.sock").exists());
     let mut fx = open(&x);
     assert!(ask(&mut fx, "*IDN?\n").contains("C-863.11"));
     assert!(dir.path().join("ctl").exists());
@@ -457,6 +470,7 @@ fn binary_serves_until_sigterm() {
     assert!(std::fs::symlink_metadata(&x).is_err());
     assert!(std::fs::symlink_metadata(&y).is_err());
     assert!(!dir.path().join("ctl").exists());
+    assert!(!dir.path().join("camera.sock").exists());
 
     // Daisy chain and a bad argument.
     let mut child = Command::new(env!("CARGO_BIN_EXE_hil-sim"))
@@ -470,7 +484,12 @@ fn binary_serves_until_sigterm() {
     out.read_line(&mut line).unwrap();
     assert_eq!(
         line.trim_end(),
-        format!("hil-sim ready bus={}", dir.path().join("bus").display())
+        format!(
+            "hil-sim ready bus={} camera={} control={}",
+            dir.path().join("bus").display(),
+            dir.path().join("camera.sock").display(),
+            dir.path().join("control.sock").display()
+        )
     );
     let pid = nix::unistd::Pid::from_raw(i32::try_from(child.id()).unwrap());
     nix::sys::signal::kill(pid, nix::sys::signal::Signal::SIGINT).unwrap();
