@@ -19,3 +19,4 @@ pub mod imageio;
 pub mod metrology;
 pub mod model;
 pub mod pattern;
+pub mod plot;

@@ -6,8 +6,10 @@
 mod axes;
 mod camera;
 mod decode;
+mod diagnose;
 mod gcs;
 mod pattern;
+mod simlog;
 
 use std::future::Future;
 use std::process::ExitCode;
@@ -36,6 +38,11 @@ enum Commands {
     /// Megarena patterns: export for fabrication, plan depth and period.
     #[command(subcommand)]
     Pattern(pattern::PatternCommand),
+    /// What the stage model gets wrong about a measurement log: findings,
+    /// held-out gains, plots, extended model.
+    Diagnose(diagnose::Args),
+    /// Synthetic characterization log with one hidden effect (try diagnose).
+    Simlog(simlog::Args),
 }
 
 /// Maps a subcommand that only succeeds or fails to an exit code.
@@ -71,6 +78,8 @@ fn main() -> ExitCode {
         Commands::Decode(args) => (decode::run(&args), 2),
         Commands::Camera(c) => (done(camera::run(c)), 1),
         Commands::Pattern(c) => (done(pattern::run(c)), 1),
+        Commands::Diagnose(a) => (diagnose::run(&a), 1),
+        Commands::Simlog(a) => (simlog::run(&a), 1),
     };
     match result {
         Ok(code) => code,
