@@ -992,10 +992,12 @@ pub fn diagnose(
             measured_y_um: d.meas[i][1],
         })
         .collect();
-    let mut specs: Vec<Spec> = accepted.iter().map(|(s, _)| s.clone()).collect();
+    let specs: Vec<Spec> = accepted.iter().map(|(s, _)| s.clone()).collect();
     let mut std_errs: HashMap<String, f64> = HashMap::new();
-    // Localized features: refine place and width with the model's own
-    // Levenberg–Marquardt (the only nonlinear candidate).
+    // Localized features: standard errors of place and width from the
+    // model's own Levenberg–Marquardt (the only nonlinear candidate). Its
+    // values are not taken: it cannot profile out the block constants of
+    // static axes, and the centred search already refined place and width.
     if specs.iter().any(|s| matches!(s, Spec::Localized { .. })) {
         let (ext, names) = extended(&d, model, &base_names, &specs)?;
         let mut free = base_names.clone();
@@ -1011,21 +1013,6 @@ pub fn diagnose(
             ..FitOptions::default()
         };
         if let Ok(report) = fitted.fit(&samples, &fo) {
-            for (spec, name) in specs.iter_mut().zip(&names) {
-                if let Spec::Localized {
-                    position_um,
-                    width_um,
-                    ..
-                } = spec
-                {
-                    let pos = fitted.param(&format!("{name}.position_um"))?;
-                    let w = fitted.param(&format!("{name}.width_um"))?;
-                    if pos.is_finite() && w > 0.0 {
-                        *position_um = pos;
-                        *width_um = w;
-                    }
-                }
-            }
             for p in &report.params {
                 if p.name.ends_with(".position_um") || p.name.ends_with(".width_um") {
                     if let Some(e) = p.std_error {
@@ -1122,6 +1109,9 @@ fn extended(
     extended_with_se(d, model, base_names, specs).map(|(m, n, _)| (m, n))
 }
 
+/// Extended model, its new term names, and standard errors by full name.
+type Extended = (StageModel, Vec<String>, HashMap<String, f64>);
+
 /// [`extended`] plus the standard error of every linear parameter, by full
 /// name.
 fn extended_with_se(
@@ -1129,7 +1119,7 @@ fn extended_with_se(
     model: &StageModel,
     base_names: &[String],
     specs: &[Spec],
-) -> Result<(StageModel, Vec<String>, HashMap<String, f64>), AnalysisError> {
+) -> Result<Extended, AnalysisError> {
     let (names_check, mut cols) = base_columns(d, model, &base_kinds_of(model, base_names));
     debug_assert_eq!(names_check, base_names);
     for s in specs {

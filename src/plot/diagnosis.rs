@@ -68,7 +68,7 @@ pub fn write_all(d: &Diagnosis, dir: &Path) -> Result<Vec<PathBuf>, PlotError> {
                     (a.min(x), b.max(x))
                 });
             let span = hi - lo;
-            if !(span > 0.0) {
+            if span.is_nan() || span <= 0.0 {
                 continue;
             }
             let f_min = 2.0 / span;
