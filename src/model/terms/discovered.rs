@@ -259,7 +259,7 @@ fn linear_basis(cfg: &DiscoveredConfig, state: &MotionState) -> Vec<f64> {
         }
         DiscoveredConfig::Temperature(c) => vec![state.temp_c - c.reference_temp_c],
         DiscoveredConfig::Localized(c) => {
-            let z = (state.cmd_um(c.axis) - c.position_um) / c.width_um;
+            let z = (state.cmd_um(c.axis) - c.position_um) / c.width_um.abs().max(1e-9);
             // Beyond 40σ the bump is below 1e-300: exactly zero, no underflow games.
             vec![if z.abs() > 40.0 {
                 0.0
@@ -384,7 +384,9 @@ impl Term for DiscoveredTerm {
             }
             DiscoveredConfig::Temperature(c) => c.um_per_c = values[0],
         }
-        next.validate(&self.name)?;
+        // Values from a fit may be anything finite (checked above); a
+        // negative or zero width is read as |w| (floored) by the evaluation,
+        // so every contribution stays finite.
         self.cfg = next;
         Ok(())
     }
@@ -528,8 +530,13 @@ mod tests {
         let text = m.to_toml().unwrap();
         let back = StageModel::from_toml(&text).unwrap();
         assert_eq!(back.parameter_vector(), m.parameter_vector());
-        let mut bad = back.clone();
-        assert!(bad.set_param("b.width_um", 0.0).is_err());
+        let mut odd = back.clone();
+        odd.set_param("b.width_um", -50.0).unwrap();
+        let c2 = odd.observed_error_um(&MotionState::at_rest(0.0, 1050.0));
+        assert!((c2[1] + 0.5 * (-0.5f64).exp()).abs() < 1e-12);
+        odd.set_param("b.width_um", 0.0).unwrap();
+        assert!(odd.observed_error_um(&MotionState::at_rest(0.0, 1000.0))[1].is_finite());
+        assert!(StageModel::from_toml(&text.replace("width_um = 50.0", "width_um = 0.0")).is_err());
     }
 
     #[test]
