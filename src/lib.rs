@@ -9,6 +9,7 @@
 #![forbid(unsafe_code)]
 #![warn(missing_docs)]
 
+pub mod analysis;
 pub mod camera;
 pub mod charact;
 pub mod clock;
@@ -21,3 +22,4 @@ pub mod imageio;
 pub mod metrology;
 pub mod model;
 pub mod pattern;
+pub mod plot;

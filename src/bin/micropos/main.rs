@@ -7,8 +7,10 @@ mod axes;
 mod camera;
 mod client;
 mod decode;
+mod diagnose;
 mod gcs;
 mod pattern;
+mod simlog;
 
 use std::future::Future;
 use std::process::ExitCode;
@@ -47,6 +49,11 @@ enum Commands {
         /// The shell.
         shell: clap_complete::Shell,
     },
+    /// What the stage model gets wrong about a measurement log: findings,
+    /// held-out gains, plots, extended model.
+    Diagnose(diagnose::Args),
+    /// Synthetic characterization log with one hidden effect (try diagnose).
+    Simlog(simlog::Args),
 }
 
 /// Maps a subcommand that only succeeds or fails to an exit code.
@@ -88,6 +95,8 @@ fn main() -> ExitCode {
             clap_complete::generate(shell, &mut cmd, "micropos", &mut std::io::stdout());
             (Ok(ExitCode::SUCCESS), 1)
         }
+        Commands::Diagnose(a) => (diagnose::run(&a), 1),
+        Commands::Simlog(a) => (simlog::run(&a), 1),
     };
     match result {
         Ok(code) => code,

@@ -7,6 +7,7 @@ use super::term::TermBuilder;
 pub mod angular;
 pub mod backlash;
 pub mod cyclic;
+pub mod discovered;
 pub mod lead;
 pub mod squareness;
 pub mod thermal;
@@ -14,6 +15,10 @@ pub mod thermal;
 pub use angular::{AngularConfig, AngularTerm, Rotation};
 pub use backlash::{play_offset_um, BacklashConfig, BacklashTerm, PlayOperator};
 pub use cyclic::{CyclicConfig, CyclicTerm};
+pub use discovered::{
+    DiscoveredConfig, DiscoveredTerm, LocalizedConfig, PositionPeriodicConfig, PositionSlopeConfig,
+    TemperatureConfig, TimeDriftConfig, TimePeriodicConfig,
+};
 pub use lead::{LeadConfig, LeadTerm};
 pub use squareness::{SquarenessConfig, SquarenessTerm};
 pub use thermal::{
@@ -61,6 +66,36 @@ pub(crate) const BUILTIN: &[(&str, &str, TermBuilder)] = &[
         thermal::OPTICS_KIND,
         "apparent shift of the camera's view with ambient temperature",
         thermal::build_optics,
+    ),
+    (
+        discovered::POSITION_PERIODIC_KIND,
+        "periodic error along a position at any period (found by `micropos diagnose`)",
+        discovered::build_position_periodic,
+    ),
+    (
+        discovered::LOCALIZED_KIND,
+        "localized (Gaussian) error feature along an axis (found by `micropos diagnose`)",
+        discovered::build_localized,
+    ),
+    (
+        discovered::POSITION_SLOPE_KIND,
+        "error proportional to an axis position: scale or cross-axis slope, ppm",
+        discovered::build_position_slope,
+    ),
+    (
+        discovered::TIME_DRIFT_KIND,
+        "linear/quadratic drift of an error component with time",
+        discovered::build_time_drift,
+    ),
+    (
+        discovered::TIME_PERIODIC_KIND,
+        "periodic error in time (e.g. an HVAC cycle)",
+        discovered::build_time_periodic,
+    ),
+    (
+        discovered::TEMPERATURE_KIND,
+        "error proportional to the temperature difference from a reference",
+        discovered::build_temperature,
     ),
 ];
 

@@ -1,0 +1,85 @@
+//! `micropos diagnose LOG.csv`: what the stage model (the simulation) gets
+//! wrong about a measurement log — findings with held-out gains, plots, and
+//! an extended model file.
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use anyhow::{Context, Result};
+use micropos::analysis::{diagnose, DiagnoseOptions};
+use micropos::charact::log::read_file;
+use micropos::model::StageModel;
+
+/// Arguments of `micropos diagnose`.
+#[derive(Debug, clap::Args)]
+pub struct Args {
+    /// Measurement log (micropos measurement log format, any writer).
+    pub log: PathBuf,
+    /// Stage model file (default: the built-in paper default,
+    /// config/stage-model.toml).
+    #[arg(long)]
+    pub model: Option<PathBuf>,
+    /// Write plots (PNG + SVG) into this directory.
+    #[arg(long)]
+    pub plots: Option<PathBuf>,
+    /// JSON report on stdout instead of text.
+    #[arg(long)]
+    pub json: bool,
+    /// Write the extended model (base fit + findings) to this file.
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+    /// Held-out z-score a finding must reach.
+    #[arg(long, default_value_t = DiagnoseOptions::default().z_threshold)]
+    pub z: f64,
+    /// Held-out RMS gain (%) a finding must reach.
+    #[arg(long, default_value_t = DiagnoseOptions::default().min_gain_pct)]
+    pub min_gain: f64,
+}
+
+/// Runs the subcommand.
+pub fn run(args: &Args) -> Result<ExitCode> {
+    let model = match &args.model {
+        Some(p) => {
+            let text = std::fs::read_to_string(p)
+                .with_context(|| format!("cannot read model file {}", p.display()))?;
+            StageModel::from_toml(&text).with_context(|| format!("model file {}", p.display()))?
+        }
+        None => StageModel::paper_default().context("built-in default model")?,
+    };
+    let log = read_file(&args.log).with_context(|| format!("log {}", args.log.display()))?;
+    for w in log.warnings.iter().take(5) {
+        eprintln!("warning: {}: {w:?}", args.log.display());
+    }
+    let opts = DiagnoseOptions {
+        z_threshold: args.z,
+        min_gain_pct: args.min_gain,
+        ..DiagnoseOptions::default()
+    };
+    let d = diagnose(&log, &model, &opts).context("diagnose")?;
+    if let Some(dir) = &args.plots {
+        let files = micropos::plot::diagnosis::write_all(&d, dir)
+            .with_context(|| format!("plots into {}", dir.display()))?;
+        if !args.json {
+            println!("{} plot files in {}", files.len(), dir.display());
+        }
+    }
+    if let Some(out) = &args.out {
+        let text = d
+            .extended_model
+            .to_toml()
+            .context("render extended model")?;
+        std::fs::write(out, text).with_context(|| format!("write {}", out.display()))?;
+        if !args.json {
+            println!("extended model written to {}", out.display());
+        }
+    }
+    let text = if args.json {
+        serde_json::to_string_pretty(&d.to_json())? + "\n"
+    } else {
+        d.to_text()
+    };
+    // A closed pipe (`| head`) is not a reason to panic.
+    use std::io::Write;
+    let _ = std::io::stdout().lock().write_all(text.as_bytes());
+    Ok(ExitCode::SUCCESS)
+}

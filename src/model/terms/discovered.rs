@@ -1,0 +1,580 @@
+//! Terms the discrepancy analysis (`micropos diagnose`, `crate::analysis`)
+//! adds to a model when the log shows an effect the model lacks.
+//!
+//! Why they are built-in kinds and not registered by the analysis at run
+//! time: an extended model file written by `diagnose --out` must load
+//! everywhere a model loads (`hil-sim --model`, `StageModel::from_toml`),
+//! without the loader knowing about the analysis.
+//!
+//! Every term puts its error on one `component` (x or y) and, where it
+//! depends on position, on the commanded position of one `axis` (the same
+//! axis for a scale-like error, the other one for a cross-axis dependence).
+//! Contributions follow the model's sign (added to the commanded position:
+//! the paper's error `target − measured` is their negative).
+//!
+//! ```text
+//! position_periodic:  d = s·sin(2π·p/P) + c·cos(2π·p/P)            p = cmd of `axis`
+//! localized:          d = A·exp(−(p − p0)²/(2w²))                  (Gaussian bump, w = σ)
+//! position_slope:     d = ppm·1e-6·p                               (zero at p = 0)
+//! time_drift:         d = r·h + q·h²,  h = (t − t0)/3600 s          (zero at t0)
+//! time_periodic:      d = s·sin(2π·t/T) + c·cos(2π·t/T)
+//! temperature_linear: d = k·(temp − reference)
+//! ```
+//! All are linear in their parameters except `localized` (position and
+//! width).
+
+use serde::{Deserialize, Serialize};
+
+use super::super::state::{Axis, MotionState, DEFAULT_TEMP_C};
+use super::super::term::{
+    check_param_values, config_table, parse_term_config, require_finite, require_positive,
+    ParamInfo, Term,
+};
+use super::super::ModelError;
+
+/// Kind name: periodic error in position at any period.
+pub const POSITION_PERIODIC_KIND: &str = "position_periodic";
+/// Kind name: localized (Gaussian) error feature along an axis.
+pub const LOCALIZED_KIND: &str = "localized";
+/// Kind name: error proportional to an axis position (scale or cross-axis slope).
+pub const POSITION_SLOPE_KIND: &str = "position_slope";
+/// Kind name: slow drift with time.
+pub const TIME_DRIFT_KIND: &str = "time_drift";
+/// Kind name: periodic error in time.
+pub const TIME_PERIODIC_KIND: &str = "time_periodic";
+/// Kind name: error proportional to the temperature difference.
+pub const TEMPERATURE_KIND: &str = "temperature_linear";
+
+fn default_reference_temp_c() -> f64 {
+    DEFAULT_TEMP_C
+}
+
+/// `position_periodic` table.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PositionPeriodicConfig {
+    /// Axis whose commanded position sets the phase.
+    pub axis: Axis,
+    /// Error component the term moves.
+    pub component: Axis,
+    /// Period, µm of `axis` travel (> 0).
+    pub period_um: f64,
+    /// Sine amplitude, µm.
+    pub sin_um: f64,
+    /// Cosine amplitude, µm.
+    pub cos_um: f64,
+}
+
+/// `localized` table.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LocalizedConfig {
+    /// Axis along which the feature sits.
+    pub axis: Axis,
+    /// Error component the term moves.
+    pub component: Axis,
+    /// Centre, µm of commanded `axis` position.
+    pub position_um: f64,
+    /// Gaussian σ, µm (> 0).
+    pub width_um: f64,
+    /// Peak error, µm (signed).
+    pub amplitude_um: f64,
+}
+
+/// `position_slope` table.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PositionSlopeConfig {
+    /// Axis whose position the error is proportional to.
+    pub axis: Axis,
+    /// Error component the term moves.
+    pub component: Axis,
+    /// Slope, ppm (µm of error per m of `axis` position; µrad when the
+    /// component is the other axis).
+    pub ppm: f64,
+}
+
+/// `time_drift` table.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TimeDriftConfig {
+    /// Error component the term moves.
+    pub component: Axis,
+    /// Time at which the drift is zero, s.
+    #[serde(default)]
+    pub start_time_s: f64,
+    /// Linear rate, µm per hour.
+    pub rate_um_per_h: f64,
+    /// Quadratic coefficient, µm per hour².
+    #[serde(default)]
+    pub curvature_um_per_h2: f64,
+}
+
+/// `time_periodic` table.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TimePeriodicConfig {
+    /// Error component the term moves.
+    pub component: Axis,
+    /// Period, s (> 0).
+    pub period_s: f64,
+    /// Sine amplitude, µm.
+    pub sin_um: f64,
+    /// Cosine amplitude, µm.
+    pub cos_um: f64,
+}
+
+/// `temperature_linear` table.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TemperatureConfig {
+    /// Error component the term moves.
+    pub component: Axis,
+    /// Temperature at which the term is zero, °C.
+    #[serde(default = "default_reference_temp_c")]
+    pub reference_temp_c: f64,
+    /// Sensitivity, µm per °C.
+    pub um_per_c: f64,
+}
+
+/// The configuration of a discovered term, one variant per kind.
+#[derive(Debug, Clone, PartialEq)]
+pub enum DiscoveredConfig {
+    /// See [`PositionPeriodicConfig`].
+    PositionPeriodic(PositionPeriodicConfig),
+    /// See [`LocalizedConfig`].
+    Localized(LocalizedConfig),
+    /// See [`PositionSlopeConfig`].
+    PositionSlope(PositionSlopeConfig),
+    /// See [`TimeDriftConfig`].
+    TimeDrift(TimeDriftConfig),
+    /// See [`TimePeriodicConfig`].
+    TimePeriodic(TimePeriodicConfig),
+    /// See [`TemperatureConfig`].
+    Temperature(TemperatureConfig),
+}
+
+impl DiscoveredConfig {
+    fn kind(&self) -> &'static str {
+        match self {
+            DiscoveredConfig::PositionPeriodic(_) => POSITION_PERIODIC_KIND,
+            DiscoveredConfig::Localized(_) => LOCALIZED_KIND,
+            DiscoveredConfig::PositionSlope(_) => POSITION_SLOPE_KIND,
+            DiscoveredConfig::TimeDrift(_) => TIME_DRIFT_KIND,
+            DiscoveredConfig::TimePeriodic(_) => TIME_PERIODIC_KIND,
+            DiscoveredConfig::Temperature(_) => TEMPERATURE_KIND,
+        }
+    }
+
+    fn component(&self) -> Axis {
+        match self {
+            DiscoveredConfig::PositionPeriodic(c) => c.component,
+            DiscoveredConfig::Localized(c) => c.component,
+            DiscoveredConfig::PositionSlope(c) => c.component,
+            DiscoveredConfig::TimeDrift(c) => c.component,
+            DiscoveredConfig::TimePeriodic(c) => c.component,
+            DiscoveredConfig::Temperature(c) => c.component,
+        }
+    }
+
+    fn validate(&self, name: &str) -> Result<(), ModelError> {
+        match self {
+            DiscoveredConfig::PositionPeriodic(c) => {
+                require_positive(name, "period_um", c.period_um)?;
+                require_finite(name, "sin_um", c.sin_um)?;
+                require_finite(name, "cos_um", c.cos_um)?;
+            }
+            DiscoveredConfig::Localized(c) => {
+                require_finite(name, "position_um", c.position_um)?;
+                require_positive(name, "width_um", c.width_um)?;
+                require_finite(name, "amplitude_um", c.amplitude_um)?;
+            }
+            DiscoveredConfig::PositionSlope(c) => {
+                require_finite(name, "ppm", c.ppm)?;
+            }
+            DiscoveredConfig::TimeDrift(c) => {
+                require_finite(name, "start_time_s", c.start_time_s)?;
+                require_finite(name, "rate_um_per_h", c.rate_um_per_h)?;
+                require_finite(name, "curvature_um_per_h2", c.curvature_um_per_h2)?;
+            }
+            DiscoveredConfig::TimePeriodic(c) => {
+                require_positive(name, "period_s", c.period_s)?;
+                require_finite(name, "sin_um", c.sin_um)?;
+                require_finite(name, "cos_um", c.cos_um)?;
+            }
+            DiscoveredConfig::Temperature(c) => {
+                require_finite(name, "reference_temp_c", c.reference_temp_c)?;
+                require_finite(name, "um_per_c", c.um_per_c)?;
+            }
+        }
+        Ok(())
+    }
+}
+
+/// A term found by the discrepancy analysis; see the module docs.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DiscoveredTerm {
+    name: String,
+    cfg: DiscoveredConfig,
+}
+
+impl DiscoveredTerm {
+    /// Builds and validates.
+    pub fn new(name: &str, cfg: DiscoveredConfig) -> Result<Self, ModelError> {
+        cfg.validate(name)?;
+        Ok(DiscoveredTerm {
+            name: name.to_string(),
+            cfg,
+        })
+    }
+
+    /// The configuration.
+    pub fn config(&self) -> &DiscoveredConfig {
+        &self.cfg
+    }
+}
+
+/// `(sin, cos)` of `2π·v/period`, with `v` reduced modulo the period first
+/// so large positions or times stay exact.
+fn phase(v: f64, period: f64) -> (f64, f64) {
+    let frac = v.rem_euclid(period) / period;
+    (std::f64::consts::TAU * frac).sin_cos()
+}
+
+/// Basis value(s) of a linear term at `state` (one per parameter).
+fn linear_basis(cfg: &DiscoveredConfig, state: &MotionState) -> Vec<f64> {
+    match cfg {
+        DiscoveredConfig::PositionPeriodic(c) => {
+            let (s, co) = phase(state.cmd_um(c.axis), c.period_um);
+            vec![s, co]
+        }
+        DiscoveredConfig::PositionSlope(c) => vec![1e-6 * state.cmd_um(c.axis)],
+        DiscoveredConfig::TimeDrift(c) => {
+            let h = (state.time_s - c.start_time_s) / 3600.0;
+            vec![h, h * h]
+        }
+        DiscoveredConfig::TimePeriodic(c) => {
+            let (s, co) = phase(state.time_s, c.period_s);
+            vec![s, co]
+        }
+        DiscoveredConfig::Temperature(c) => vec![state.temp_c - c.reference_temp_c],
+        DiscoveredConfig::Localized(c) => {
+            let z = (state.cmd_um(c.axis) - c.position_um) / c.width_um.abs().max(1e-9);
+            // Beyond 40σ the bump is below 1e-300: exactly zero, no underflow games.
+            vec![if z.abs() > 40.0 {
+                0.0
+            } else {
+                (-0.5 * z * z).exp()
+            }]
+        }
+    }
+}
+
+impl Term for DiscoveredTerm {
+    fn name(&self) -> &str {
+        &self.name
+    }
+
+    fn kind(&self) -> &'static str {
+        self.cfg.kind()
+    }
+
+    fn params(&self) -> Vec<ParamInfo> {
+        let comp = self.cfg.component();
+        match &self.cfg {
+            DiscoveredConfig::PositionPeriodic(c) => vec![
+                ParamInfo::new(
+                    "sin_um",
+                    "µm",
+                    c.sin_um,
+                    format!("{comp} error ∝ sin(2π·{}/{} µm)", c.axis, c.period_um),
+                ),
+                ParamInfo::new(
+                    "cos_um",
+                    "µm",
+                    c.cos_um,
+                    format!("{comp} error ∝ cos(2π·{}/{} µm)", c.axis, c.period_um),
+                ),
+            ],
+            DiscoveredConfig::Localized(c) => vec![
+                ParamInfo::new(
+                    "amplitude_um",
+                    "µm",
+                    c.amplitude_um,
+                    format!("peak {comp} error of the feature"),
+                ),
+                ParamInfo::new(
+                    "position_um",
+                    "µm",
+                    c.position_um,
+                    format!("centre of the feature along {}", c.axis),
+                ),
+                ParamInfo::new(
+                    "width_um",
+                    "µm",
+                    c.width_um,
+                    "Gaussian σ of the feature".to_string(),
+                ),
+            ],
+            DiscoveredConfig::PositionSlope(c) => vec![ParamInfo::new(
+                "ppm",
+                "ppm",
+                c.ppm,
+                format!("{comp} error per unit of {} position", c.axis),
+            )],
+            DiscoveredConfig::TimeDrift(c) => vec![
+                ParamInfo::new(
+                    "rate_um_per_h",
+                    "µm/h",
+                    c.rate_um_per_h,
+                    format!("linear {comp} drift"),
+                ),
+                ParamInfo::new(
+                    "curvature_um_per_h2",
+                    "µm/h²",
+                    c.curvature_um_per_h2,
+                    format!("quadratic {comp} drift"),
+                ),
+            ],
+            DiscoveredConfig::TimePeriodic(c) => vec![
+                ParamInfo::new(
+                    "sin_um",
+                    "µm",
+                    c.sin_um,
+                    format!("{comp} error ∝ sin(2π·t/{} s)", c.period_s),
+                ),
+                ParamInfo::new(
+                    "cos_um",
+                    "µm",
+                    c.cos_um,
+                    format!("{comp} error ∝ cos(2π·t/{} s)", c.period_s),
+                ),
+            ],
+            DiscoveredConfig::Temperature(c) => vec![ParamInfo::new(
+                "um_per_c",
+                "µm/°C",
+                c.um_per_c,
+                format!("{comp} error per °C from the reference"),
+            )],
+        }
+    }
+
+    fn set_params(&mut self, values: &[f64]) -> Result<(), ModelError> {
+        let n = self.params().len();
+        check_param_values(&self.name, n, values)?;
+        let mut next = self.cfg.clone();
+        match &mut next {
+            DiscoveredConfig::PositionPeriodic(c) => {
+                c.sin_um = values[0];
+                c.cos_um = values[1];
+            }
+            DiscoveredConfig::Localized(c) => {
+                c.amplitude_um = values[0];
+                c.position_um = values[1];
+                c.width_um = values[2];
+            }
+            DiscoveredConfig::PositionSlope(c) => c.ppm = values[0],
+            DiscoveredConfig::TimeDrift(c) => {
+                c.rate_um_per_h = values[0];
+                c.curvature_um_per_h2 = values[1];
+            }
+            DiscoveredConfig::TimePeriodic(c) => {
+                c.sin_um = values[0];
+                c.cos_um = values[1];
+            }
+            DiscoveredConfig::Temperature(c) => c.um_per_c = values[0],
+        }
+        // Values from a fit may be anything finite (checked above); a
+        // negative or zero width is read as |w| (floored) by the evaluation,
+        // so every contribution stays finite.
+        self.cfg = next;
+        Ok(())
+    }
+
+    fn contribution(&self, state: &MotionState) -> [f64; 2] {
+        let basis = linear_basis(&self.cfg, state);
+        let v = match &self.cfg {
+            DiscoveredConfig::Localized(c) => c.amplitude_um * basis[0],
+            _ => self
+                .params()
+                .iter()
+                .zip(&basis)
+                .map(|(p, b)| p.value * b)
+                .sum(),
+        };
+        let mut out = [0.0; 2];
+        out[self.cfg.component().index()] = v;
+        out
+    }
+
+    fn is_linear(&self) -> bool {
+        !matches!(self.cfg, DiscoveredConfig::Localized(_))
+    }
+
+    fn jacobian(&self, state: &MotionState) -> Vec<[f64; 2]> {
+        if !self.is_linear() {
+            return super::super::term::numeric_jacobian(self, state);
+        }
+        let i = self.cfg.component().index();
+        linear_basis(&self.cfg, state)
+            .into_iter()
+            .map(|b| {
+                let mut d = [0.0; 2];
+                d[i] = b;
+                d
+            })
+            .collect()
+    }
+
+    fn to_config(&self) -> Result<toml::Table, ModelError> {
+        match &self.cfg {
+            DiscoveredConfig::PositionPeriodic(c) => config_table(&self.name, c),
+            DiscoveredConfig::Localized(c) => config_table(&self.name, c),
+            DiscoveredConfig::PositionSlope(c) => config_table(&self.name, c),
+            DiscoveredConfig::TimeDrift(c) => config_table(&self.name, c),
+            DiscoveredConfig::TimePeriodic(c) => config_table(&self.name, c),
+            DiscoveredConfig::Temperature(c) => config_table(&self.name, c),
+        }
+    }
+
+    fn clone_box(&self) -> Box<dyn Term> {
+        Box::new(self.clone())
+    }
+}
+
+fn boxed(name: &str, cfg: DiscoveredConfig) -> Result<Box<dyn Term>, ModelError> {
+    Ok(Box::new(DiscoveredTerm::new(name, cfg)?))
+}
+
+pub(crate) fn build_position_periodic(
+    name: &str,
+    table: toml::Table,
+) -> Result<Box<dyn Term>, ModelError> {
+    let c = parse_term_config(name, POSITION_PERIODIC_KIND, table)?;
+    boxed(name, DiscoveredConfig::PositionPeriodic(c))
+}
+
+pub(crate) fn build_localized(name: &str, table: toml::Table) -> Result<Box<dyn Term>, ModelError> {
+    let c = parse_term_config(name, LOCALIZED_KIND, table)?;
+    boxed(name, DiscoveredConfig::Localized(c))
+}
+
+pub(crate) fn build_position_slope(
+    name: &str,
+    table: toml::Table,
+) -> Result<Box<dyn Term>, ModelError> {
+    let c = parse_term_config(name, POSITION_SLOPE_KIND, table)?;
+    boxed(name, DiscoveredConfig::PositionSlope(c))
+}
+
+pub(crate) fn build_time_drift(
+    name: &str,
+    table: toml::Table,
+) -> Result<Box<dyn Term>, ModelError> {
+    let c = parse_term_config(name, TIME_DRIFT_KIND, table)?;
+    boxed(name, DiscoveredConfig::TimeDrift(c))
+}
+
+pub(crate) fn build_time_periodic(
+    name: &str,
+    table: toml::Table,
+) -> Result<Box<dyn Term>, ModelError> {
+    let c = parse_term_config(name, TIME_PERIODIC_KIND, table)?;
+    boxed(name, DiscoveredConfig::TimePeriodic(c))
+}
+
+pub(crate) fn build_temperature(
+    name: &str,
+    table: toml::Table,
+) -> Result<Box<dyn Term>, ModelError> {
+    let c = parse_term_config(name, TEMPERATURE_KIND, table)?;
+    boxed(name, DiscoveredConfig::Temperature(c))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::model::StageModel;
+
+    #[test]
+    fn values_and_round_trip() {
+        let t = DiscoveredTerm::new(
+            "p",
+            DiscoveredConfig::PositionPeriodic(PositionPeriodicConfig {
+                axis: Axis::X,
+                component: Axis::Y,
+                period_um: 1600.0,
+                sin_um: 0.8,
+                cos_um: 0.0,
+            }),
+        )
+        .unwrap();
+        let c = t.contribution(&MotionState::at_rest(400.0, 0.0));
+        assert!((c[1] - 0.8).abs() < 1e-12 && c[0] == 0.0, "{c:?}");
+        let b = DiscoveredTerm::new(
+            "b",
+            DiscoveredConfig::Localized(LocalizedConfig {
+                axis: Axis::Y,
+                component: Axis::Y,
+                position_um: 1000.0,
+                width_um: 50.0,
+                amplitude_um: -0.5,
+            }),
+        )
+        .unwrap();
+        let c = b.contribution(&MotionState::at_rest(0.0, 1050.0));
+        assert!((c[1] + 0.5 * (-0.5f64).exp()).abs() < 1e-12);
+        let mut m = StageModel::ideal();
+        m.push_term(Box::new(t)).unwrap();
+        m.push_term(Box::new(b)).unwrap();
+        let text = m.to_toml().unwrap();
+        let back = StageModel::from_toml(&text).unwrap();
+        assert_eq!(back.parameter_vector(), m.parameter_vector());
+        let mut odd = back.clone();
+        odd.set_param("b.width_um", -50.0).unwrap();
+        let c2 = odd.observed_error_um(&MotionState::at_rest(0.0, 1050.0));
+        assert!((c2[1] + 0.5 * (-0.5f64).exp()).abs() < 1e-12);
+        odd.set_param("b.width_um", 0.0).unwrap();
+        assert!(odd.observed_error_um(&MotionState::at_rest(0.0, 1000.0))[1].is_finite());
+        assert!(StageModel::from_toml(&text.replace("width_um = 50.0", "width_um = 0.0")).is_err());
+    }
+
+    #[test]
+    fn drift_temperature_and_slope() {
+        let mut s = MotionState::at_rest(2000.0, 0.0);
+        s.time_s = 7200.0;
+        s.temp_c = 21.0;
+        let d = DiscoveredTerm::new(
+            "d",
+            DiscoveredConfig::TimeDrift(TimeDriftConfig {
+                component: Axis::X,
+                start_time_s: 0.0,
+                rate_um_per_h: 0.5,
+                curvature_um_per_h2: 0.1,
+            }),
+        )
+        .unwrap();
+        assert!((d.contribution(&s)[0] - 1.4).abs() < 1e-12);
+        let k = DiscoveredTerm::new(
+            "k",
+            DiscoveredConfig::Temperature(TemperatureConfig {
+                component: Axis::Y,
+                reference_temp_c: 20.0,
+                um_per_c: 0.3,
+            }),
+        )
+        .unwrap();
+        assert!((k.contribution(&s)[1] - 0.3).abs() < 1e-12);
+        let p = DiscoveredTerm::new(
+            "p",
+            DiscoveredConfig::PositionSlope(PositionSlopeConfig {
+                axis: Axis::X,
+                component: Axis::Y,
+                ppm: 50.0,
+            }),
+        )
+        .unwrap();
+        assert!((p.contribution(&s)[1] - 0.1).abs() < 1e-12);
+        assert_eq!(p.jacobian(&s)[0], [0.0, 2000.0e-6]);
+    }
+}

@@ -1,0 +1,244 @@
+//! The analysis must find an effect hidden in a simulated log: kind, axis,
+//! component and parameters within stated tolerances, with a positive
+//! held-out gain; and must find nothing in logs without one.
+//!
+//! Default: 16 seeds with an effect (2 per kind) and 6 without.
+//! `MICROPOS_FULL=1`: 96 with (12 per kind) and 40 without. Each run prints
+//! a table (kind, size/noise, recovered vs true) for the report.
+
+use std::collections::BTreeMap;
+
+use micropos::analysis::generate::{
+    draw_effect, simulate_log, truth_model, InjectedEffect, SimPlan, GENERATED_KINDS,
+};
+use micropos::analysis::{diagnose, DiagnoseOptions, Diagnosis, FindingKind};
+use micropos::charact::log::parse_bytes;
+use micropos::model::StageModel;
+
+fn full() -> bool {
+    std::env::var("MICROPOS_FULL").is_ok_and(|v| v == "1")
+}
+
+/// Noise of the default plan: settling σ ⊕ camera σ.
+const NOISE_UM: f64 = 0.046;
+
+fn run(seed: u64, effect: Option<&InjectedEffect>) -> Diagnosis {
+    let base = StageModel::paper_default().unwrap();
+    let plan = SimPlan::default();
+    let truth = truth_model(&base, effect, &plan, seed).unwrap();
+    let log = simulate_log(&truth, &plan, seed).unwrap();
+    // Through the file format, as a user would.
+    let parsed = parse_bytes(&log.to_bytes().unwrap()).unwrap();
+    diagnose(&parsed, &base, &DiagnoseOptions::default()).unwrap()
+}
+
+/// Peak error of the effect over the plan, µm (for the size/noise table).
+fn peak_um(e: &InjectedEffect, plan: &SimPlan) -> f64 {
+    let p = &e.params;
+    match e.kind {
+        FindingKind::Scale | FindingKind::CrossAxis => {
+            let v = p.get("ppm").or(p.get("slope_urad")).unwrap();
+            let r = if e.axis == micropos::model::Axis::X {
+                plan.x_range_um[1]
+            } else {
+                plan.y_range_um[1]
+            };
+            v.abs() * r * 1e-6
+        }
+        FindingKind::TimeDrift => p["rate_um_per_h"].abs() * plan.duration_s() / 3600.0,
+        FindingKind::Reversal => p["value_um"] / 2.0,
+        FindingKind::Temperature => p["um_per_c"].abs(),
+        _ => p["amplitude_um"].abs(),
+    }
+}
+
+/// `Ok(())` when the first finding names the effect and recovers it.
+fn check(e: &InjectedEffect, d: &Diagnosis) -> Result<(), String> {
+    let f = d.findings.first().ok_or("nothing found")?;
+    if f.kind != e.kind || f.component != e.component || f.axis != e.axis {
+        return Err(format!(
+            "named {} ({} error vs {}), truth {} ({} error vs {})",
+            f.kind, f.component, f.axis, e.kind, e.component, e.axis
+        ));
+    }
+    if f.gain_pct <= 0.0 || f.heldout_rms_after_um >= f.heldout_rms_before_um {
+        return Err(format!("no held-out gain: {}", f.gain_pct));
+    }
+    // Tolerances: relative (rel) plus absolute (abs) in the parameter's unit.
+    let tol: BTreeMap<&str, (f64, f64)> = [
+        ("period_um", (0.02, 5.0)),
+        ("period_s", (0.02, 5.0)),
+        ("amplitude_um", (0.15, 0.02)),
+        ("ppm", (0.10, 3.0)),
+        ("slope_urad", (0.10, 3.0)),
+        ("position_um", (0.0, 25.0)),
+        ("width_um", (0.25, 10.0)),
+        ("rate_um_per_h", (0.15, 0.02)),
+        ("value_um", (0.10, 0.03)),
+        ("um_per_c", (0.10, 0.02)),
+    ]
+    .into_iter()
+    .collect();
+    for (k, truth) in &e.params {
+        let got = f.params.get(k).ok_or(format!("no parameter {k}"))?;
+        let (rel, abs) = tol[k.as_str()];
+        let allowed = rel * truth.abs() + abs;
+        if (got - truth).abs() > allowed {
+            return Err(format!(
+                "{k}: got {got:.4}, truth {truth:.4} (± {allowed:.4})"
+            ));
+        }
+    }
+    Ok(())
+}
+
+#[test]
+fn hidden_effects_are_named_and_recovered() {
+    let per_kind = if full() { 12 } else { 2 };
+    let plan = SimPlan::default();
+    let cases: Vec<(u64, FindingKind)> = (0..per_kind)
+        .flat_map(|i| GENERATED_KINDS.map(|k| (1000 + i as u64 * 17 + k as u64, k)))
+        .collect();
+    let results: Vec<(u64, InjectedEffect, Result<(), String>, f64)> = std::thread::scope(|s| {
+        let chunks: Vec<Vec<(u64, FindingKind)>> = cases
+            .chunks(cases.len().div_ceil(2))
+            .map(|c| c.to_vec())
+            .collect();
+        let handles: Vec<_> = chunks
+            .into_iter()
+            .map(|chunk| {
+                let plan = plan.clone();
+                s.spawn(move || {
+                    chunk
+                        .into_iter()
+                        .map(|(seed, kind)| {
+                            let e = draw_effect(seed, Some(kind), &plan).unwrap();
+                            let d = run(seed, Some(&e));
+                            let r = check(&e, &d);
+                            let gain = d.findings.first().map_or(0.0, |f| f.gain_pct);
+                            (seed, e, r, gain)
+                        })
+                        .collect::<Vec<_>>()
+                })
+            })
+            .collect();
+        handles
+            .into_iter()
+            .flat_map(|h| h.join().unwrap())
+            .collect()
+    });
+    let mut failures = Vec::new();
+    let mut by_kind: BTreeMap<&str, (usize, usize, f64)> = BTreeMap::new();
+    for (seed, e, r, gain) in &results {
+        let snr = peak_um(e, &plan) / NOISE_UM;
+        println!(
+            "seed {seed:5} {:18} {}/{} size/noise {snr:5.1} gain {gain:5.1}% {}",
+            e.kind.as_str(),
+            e.component,
+            e.axis,
+            match r {
+                Ok(()) => "ok".to_string(),
+                Err(m) => format!("FAIL {m}"),
+            }
+        );
+        let k = by_kind
+            .entry(e.kind.as_str())
+            .or_insert((0, 0, f64::INFINITY));
+        k.0 += 1;
+        if r.is_ok() {
+            k.1 += 1;
+            k.2 = k.2.min(snr);
+        } else {
+            failures.push(format!(
+                "seed {seed} {}: {}",
+                e.kind,
+                r.as_ref().unwrap_err()
+            ));
+        }
+    }
+    for (k, (n, ok, min_snr)) in &by_kind {
+        println!("{k:18} recovered {ok}/{n}, smallest recovered size/noise {min_snr:.1}");
+    }
+    // Known hard case (about 1 in 100): an error of one axis localized in
+    // the other axis's position right where the first axis's scan line
+    // sits; it then also offsets that whole scan, and the search names a
+    // distorted bump. Allowed: at most 2 % of the seeds (none in the
+    // default run of 16).
+    println!(
+        "recovered {}/{} hidden effects",
+        results.len() - failures.len(),
+        results.len()
+    );
+    assert!(failures.len() * 50 <= results.len(), "{failures:#?}");
+}
+
+#[test]
+fn logs_without_an_effect_give_no_finding() {
+    let n = if full() { 40 } else { 6 };
+    let found: Vec<(u64, Vec<String>)> = std::thread::scope(|s| {
+        let handles: Vec<_> = (0..2u64)
+            .map(|half| {
+                s.spawn(move || {
+                    (0..n as u64)
+                        .filter(|i| i % 2 == half)
+                        .map(|i| {
+                            let seed = 5000 + i;
+                            let d = run(seed, None);
+                            (
+                                seed,
+                                d.findings.iter().map(|f| f.explanation.clone()).collect(),
+                            )
+                        })
+                        .collect::<Vec<_>>()
+                })
+            })
+            .collect();
+        handles
+            .into_iter()
+            .flat_map(|h| h.join().unwrap())
+            .collect()
+    });
+    let false_logs = found.iter().filter(|(_, f)| !f.is_empty()).count();
+    println!(
+        "negative control: {false_logs}/{n} logs with a false finding (z ≥ {}, gain ≥ {} %)",
+        DiagnoseOptions::default().z_threshold,
+        DiagnoseOptions::default().min_gain_pct
+    );
+    for (seed, f) in &found {
+        if !f.is_empty() {
+            println!("  seed {seed}: {f:?}");
+        }
+    }
+    // The threshold is set for well below 1 false finding in 20 logs.
+    assert!(
+        false_logs * 20 <= n,
+        "{false_logs} of {n} logs had false findings"
+    );
+}
+
+#[test]
+fn extended_model_loads_and_reproduces_the_log_to_the_noise() {
+    let plan = SimPlan::default();
+    let e = draw_effect(42, Some(FindingKind::PositionPeriodic), &plan).unwrap();
+    let d = run(42, Some(&e));
+    assert_eq!(d.findings.len(), 1, "{}", d.to_text());
+    let text = d.extended_model.to_toml().unwrap();
+    let back = StageModel::from_toml(&text).unwrap();
+    assert_eq!(back.parameter_vector(), d.extended_model.parameter_vector());
+    // Replaying the same log against the extended model leaves only noise:
+    // diagnose finds nothing more, and the rms is at the noise floor.
+    let truth = truth_model(&StageModel::paper_default().unwrap(), Some(&e), &plan, 42).unwrap();
+    let log = parse_bytes(&simulate_log(&truth, &plan, 42).unwrap().to_bytes().unwrap()).unwrap();
+    let again = diagnose(&log, &back, &DiagnoseOptions::default()).unwrap();
+    assert!(again.findings.is_empty(), "{}", again.to_text());
+    for c in [again.model_rms_um.x, again.model_rms_um.y] {
+        assert!(c < 1.2 * NOISE_UM, "rms {c} vs noise {NOISE_UM}");
+    }
+    let json = d.to_json();
+    let f = &json["findings"][0];
+    assert_eq!(f["kind"], "position_periodic");
+    assert!(f["params"]["period_um"].as_f64().is_some());
+    assert!(f["gain_pct"].as_f64().unwrap() > 0.0);
+    assert!(json["baseline_rms_um"]["x"].as_f64().is_some());
+    assert!(json["extended_rms_um"]["y"].as_f64().is_some());
+}
