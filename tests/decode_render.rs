@@ -92,7 +92,7 @@ fn bias_sub_period_sweep_and_angle() {
     eprintln!("bias: worst |error| {worst:.2e} px, worst |dθ| {worst_t:.2e} rad");
     // Measured worst ≈ 2.3e-3 px (θ = 2.0 rad: a constant offset over the
     // sweep, independent of the renderer's oversampling, so not aliasing);
-    // the 1e-3 px goal is not met yet at every view, see notes/vision.md.
+    // the 1e-3 px goal is not met yet at every view, see docs/design/vision.md.
     assert!(worst <= 2.5e-3, "bias {worst} px");
     assert!(worst_t <= 1e-4, "theta error {worst_t} rad");
 }
@@ -212,7 +212,7 @@ fn absolute(bits: u32, n: usize, seed: u64) {
     // 1024×768 (the camera) at 7–11 px/period. Measured over 1000
     // poses: 10 (10-bit) and 11 (12-bit) on-pattern failures, all in the
     // full-frame stage at exactly commensurate periods with heavy blur
-    // (renderer aliasing with oversample 1, see notes/vision.md) — never a
+    // (renderer aliasing with oversample 1, see docs/design/vision.md) — never a
     // code ambiguity from too few bits. They must fail as errors.
     assert!(
         err_inside * 50 <= n.max(100),

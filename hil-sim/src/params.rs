@@ -40,7 +40,7 @@ pub const DIST_NEG_LIMIT_TO_REF: u32 = 0x17;
 /// Parameter id: distance from the reference to the positive limit (mm).
 pub const DIST_REF_TO_POS_LIMIT: u32 = 0x2F;
 /// Parameter id: maximum travel in negative direction (mm); `TMN?` (the
-/// simulator reports it as the lower soft limit itself, see notes/sim.md).
+/// simulator reports it as the lower soft limit itself, see docs/design/sim-controllers.md).
 pub const MAX_TRAVEL_NEG: u32 = 0x30;
 /// Parameter id: stage name; `CST?`.
 pub const STAGE_NAME: u32 = 0x3C;
