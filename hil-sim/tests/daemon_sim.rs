@@ -37,6 +37,7 @@ async fn rig(time_scale: f64) -> Rig {
         time_scale,
         control_socket: None,
         seed: 11,
+        ..Default::default()
     };
     let sim = tokio::task::spawn_blocking(move || SimHandle::start(cfg))
         .await
