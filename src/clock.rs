@@ -57,6 +57,171 @@ impl RigClock for WallClock {
     }
 }
 
+/// The simulated rig's clock, read and advanced through `hil-sim`'s control
+/// socket (`{"clock":"now"}`, `{"clock":"advance","s":…}`).
+///
+/// Why: on the simulator a settle time or an exposure should cost simulated
+/// time, not wall time, so `sleep(d)` advances the rig's clock by `d` at once
+/// and a 9.5-hour job runs in minutes. `now_s` is a synchronous trait method,
+/// so it does one bounded exchange on a local Unix socket (answered by a
+/// dedicated thread in microseconds; read/write timeouts 1 s); `sleep` runs
+/// its exchange on the blocking pool. On a failed exchange `now_s` returns
+/// the last time it knew (never going back) and logs the error: a clock must
+/// not panic, and the next job step reports the dead simulator anyway.
+#[derive(Debug)]
+pub struct SimClock {
+    path: std::path::PathBuf,
+    conn: std::sync::Arc<std::sync::Mutex<SimClockConn>>,
+}
+
+#[derive(Debug, Default)]
+struct SimClockConn {
+    stream: Option<std::io::BufReader<std::os::unix::net::UnixStream>>,
+    last_s: f64,
+}
+
+/// Why the simulated clock could not be read or advanced.
+#[derive(Debug, thiserror::Error)]
+pub enum SimClockError {
+    /// The control socket could not be reached or broke.
+    #[error("simulator control socket {path}: {source}")]
+    Io {
+        /// The socket path.
+        path: String,
+        /// The OS error.
+        source: std::io::Error,
+    },
+    /// The simulator answered something that is not a clock reply.
+    #[error("simulator control socket {path}: bad clock reply {reply:?}")]
+    BadReply {
+        /// The socket path.
+        path: String,
+        /// The reply line.
+        reply: String,
+    },
+}
+
+/// Longest control reply line read by [`SimClock`].
+const SIM_CLOCK_MAX_REPLY: u64 = 64 * 1024;
+
+impl SimClockConn {
+    fn exchange(&mut self, path: &std::path::Path, request: &str) -> Result<f64, SimClockError> {
+        use std::io::{BufRead, Read, Write};
+        let io = |source| SimClockError::Io {
+            path: path.display().to_string(),
+            source,
+        };
+        if self.stream.is_none() {
+            let s = std::os::unix::net::UnixStream::connect(path).map_err(io)?;
+            let t = Some(Duration::from_secs(1));
+            s.set_read_timeout(t).map_err(io)?;
+            s.set_write_timeout(t).map_err(io)?;
+            self.stream = Some(std::io::BufReader::new(s));
+        }
+        let r = (|| {
+            let Some(stream) = self.stream.as_mut() else {
+                return Err(io(std::io::Error::other("not connected")));
+            };
+            stream
+                .get_mut()
+                .write_all(format!("{request}\n").as_bytes())
+                .map_err(io)?;
+            let mut line = String::new();
+            stream
+                .by_ref()
+                .take(SIM_CLOCK_MAX_REPLY)
+                .read_line(&mut line)
+                .map_err(io)?;
+            let bad = || SimClockError::BadReply {
+                path: path.display().to_string(),
+                reply: line.trim_end().to_owned(),
+            };
+            let v: serde_json::Value = serde_json::from_str(&line).map_err(|_| bad())?;
+            if v.get("ok").and_then(serde_json::Value::as_bool) != Some(true) {
+                return Err(bad());
+            }
+            v.get("t_s")
+                .and_then(serde_json::Value::as_f64)
+                .filter(|t| t.is_finite())
+                .ok_or_else(bad)
+        })();
+        match r {
+            Ok(t) => {
+                self.last_s = self.last_s.max(t);
+                Ok(self.last_s)
+            }
+            Err(e) => {
+                self.stream = None;
+                Err(e)
+            }
+        }
+    }
+}
+
+impl SimClock {
+    /// Connects to the control socket of `hil-sim serve` and reads the time
+    /// once, so a wrong path fails here.
+    pub fn connect(path: &std::path::Path) -> Result<Self, SimClockError> {
+        let c = Self {
+            path: path.to_owned(),
+            conn: Default::default(),
+        };
+        c.try_now_s()?;
+        Ok(c)
+    }
+
+    /// Simulated time now, or why it could not be read.
+    pub fn try_now_s(&self) -> Result<f64, SimClockError> {
+        let mut g = self.conn.lock().unwrap_or_else(|e| e.into_inner());
+        g.exchange(&self.path, r#"{"clock":"now"}"#)
+    }
+
+    /// Advances simulated time by `d` (blocking exchange); returns the new time.
+    pub fn advance_blocking(&self, d: Duration) -> Result<f64, SimClockError> {
+        let mut g = self.conn.lock().unwrap_or_else(|e| e.into_inner());
+        let req = serde_json::json!({"clock": "advance", "s": d.as_secs_f64()}).to_string();
+        g.exchange(&self.path, &req)
+    }
+}
+
+impl RigClock for SimClock {
+    fn now_s(&self) -> f64 {
+        match self.try_now_s() {
+            Ok(t) => t,
+            Err(e) => {
+                tracing::warn!("{e}");
+                self.conn.lock().unwrap_or_else(|e| e.into_inner()).last_s
+            }
+        }
+    }
+
+    fn sleep(&self, d: Duration) -> ClockFuture<'_> {
+        let conn = self.conn.clone();
+        let path = self.path.clone();
+        Box::pin(async move {
+            let req = serde_json::json!({"clock": "advance", "s": d.as_secs_f64()}).to_string();
+            let r = tokio::task::spawn_blocking(move || {
+                let mut g = conn.lock().unwrap_or_else(|e| e.into_inner());
+                g.exchange(&path, &req)
+            })
+            .await;
+            match r {
+                Ok(Ok(_)) => {}
+                Ok(Err(e)) => {
+                    // Time must still pass for the caller: fall back to
+                    // waiting on the wall clock.
+                    tracing::warn!("{e}; sleeping on the wall clock instead");
+                    tokio::time::sleep(d).await;
+                }
+                Err(e) => {
+                    tracing::warn!("clock advance task failed: {e}");
+                    tokio::time::sleep(d).await;
+                }
+            }
+        })
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

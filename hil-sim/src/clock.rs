@@ -19,13 +19,20 @@ pub trait Clock: Send + Sync + std::fmt::Debug {
     /// simulated time does not follow the wall clock (manual clocks). Used
     /// to choose how long a serving thread may sleep.
     fn wall_for(&self, d: Duration) -> Option<Duration>;
+
+    /// Jumps simulated time forward by `d` (the contract's
+    /// `{"clock":"advance"}`): a client that knows it talks to the simulator
+    /// skips waits, and the camera spends frame time.
+    fn advance(&self, d: Duration);
 }
 
-/// Wall time scaled by a constant factor.
+/// Wall time scaled by a constant factor, plus explicit advances:
+/// sim_time = scale · wall_elapsed + Σ advances. Clones share the advances.
 #[derive(Debug, Clone)]
 pub struct ScaledClock {
     start: Instant,
     scale: f64,
+    advanced: Arc<Mutex<Duration>>,
 }
 
 impl ScaledClock {
@@ -42,6 +49,7 @@ impl ScaledClock {
         Self {
             start: Instant::now(),
             scale,
+            advanced: Arc::default(),
         }
     }
 
@@ -54,11 +62,19 @@ impl ScaledClock {
 impl Clock for ScaledClock {
     fn now(&self) -> Duration {
         let wall = self.start.elapsed().as_secs_f64();
-        Duration::try_from_secs_f64(wall * self.scale).unwrap_or(Duration::MAX)
+        let adv = *self.advanced.lock().unwrap_or_else(|e| e.into_inner());
+        Duration::try_from_secs_f64(wall * self.scale)
+            .unwrap_or(Duration::MAX)
+            .saturating_add(adv)
     }
 
     fn wall_for(&self, d: Duration) -> Option<Duration> {
         Duration::try_from_secs_f64(d.as_secs_f64() / self.scale).ok()
+    }
+
+    fn advance(&self, d: Duration) {
+        let mut g = self.advanced.lock().unwrap_or_else(|e| e.into_inner());
+        *g = g.saturating_add(d);
     }
 }
 
@@ -95,6 +111,10 @@ impl Clock for ManualClock {
         *self.now.lock().unwrap_or_else(|e| e.into_inner())
     }
 
+    fn advance(&self, d: Duration) {
+        ManualClock::advance(self, d);
+    }
+
     fn wall_for(&self, _d: Duration) -> Option<Duration> {
         None
     }
@@ -129,5 +149,8 @@ mod tests {
         assert!(b >= a);
         assert_eq!(ScaledClock::new(f64::NAN).scale(), 1.0);
         assert_eq!(ScaledClock::new(-2.0).scale(), 1.0);
+        let before = c.now();
+        Clock::advance(&c, Duration::from_secs(100));
+        assert!(c.now() >= before + Duration::from_secs(100));
     }
 }

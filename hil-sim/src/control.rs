@@ -6,7 +6,14 @@
 //! - `{"axis":"x","fault":"garbage","hex":"ff00"}`
 //! - `{"axis":"x","fault":"delay_replies","ms":300}`
 //! - `{"axis":"x","fault":"withhold_replies","on":true}`
-//! - `{"query":"truth"}` → `{"ok":true,"sim_time_s":..,"x_mm":..,"y_mm":..}`
+//! - `{"query":"truth"}` → `{"ok":true,"sim_time_s":..,"x_mm":..,"y_mm":..,
+//!   "true_x_um":..,"true_y_um":..,"observed_x_um":..,"observed_y_um":..}`
+//!   (`observed_*` = pattern point under the image centre, pattern frame,
+//!   as the camera decodes it; `observed_stage_*_um` = the same in the stage
+//!   frame; see `crate::rig`)
+//! - `{"clock":"now"}` → `{"ok":true,"t_s":..}`;
+//!   `{"clock":"advance","s":0.25}` → `{"ok":true,"t_s":..}` (time after)
+//! - `{"camera":"stall"|"garbage"|"normal"}`: camera faults
 //!
 //! Without `"axis"`, a controller fault applies to both controllers and a
 //! line fault to every line once. Replies are `{"ok":true}` or
@@ -36,6 +43,15 @@ pub trait Injector: Send + Sync {
     fn sim_time(&self) -> Duration;
     /// One axis per distinct serial line.
     fn line_axes(&self) -> Vec<AxisName>;
+    /// The rig's ground truth now (stage model and camera view), if a rig
+    /// is simulated.
+    fn rig_truth(&self) -> Option<crate::rig::RigTruth> {
+        None
+    }
+    /// Advances simulated time by `d`.
+    fn advance(&self, d: Duration) -> Result<(), SimError>;
+    /// Sets the camera's fault mode.
+    fn camera_mode(&self, mode: crate::camera::CameraMode) -> Result<(), SimError>;
 }
 
 /// A parsed control request.
@@ -50,6 +66,12 @@ pub enum ControlRequest {
     },
     /// Report ground truth.
     Truth,
+    /// Report simulated time.
+    ClockNow,
+    /// Advance simulated time.
+    ClockAdvance(Duration),
+    /// Set the camera's fault mode.
+    Camera(crate::camera::CameraMode),
 }
 
 fn decode_hex(s: &str) -> Result<Vec<u8>, String> {
@@ -74,6 +96,33 @@ fn decode_hex(s: &str) -> Result<Vec<u8>, String> {
 pub fn parse_request(line: &str) -> Result<ControlRequest, String> {
     let v: Value = serde_json::from_str(line).map_err(|e| format!("not JSON: {e}"))?;
     let obj = v.as_object().ok_or("request must be a JSON object")?;
+    if let Some(c) = obj.get("clock") {
+        return match c.as_str() {
+            Some("now") => Ok(ControlRequest::ClockNow),
+            Some("advance") => {
+                let secs = obj
+                    .get("s")
+                    .and_then(Value::as_f64)
+                    .filter(|s| s.is_finite() && (0.0..=1e7).contains(s))
+                    .ok_or("clock advance needs \"s\": seconds, a number in 0..=1e7")?;
+                Ok(ControlRequest::ClockAdvance(Duration::from_secs_f64(secs)))
+            }
+            _ => Err(format!(
+                "unknown clock request {c} (known: \"now\", \"advance\")"
+            )),
+        };
+    }
+    if let Some(c) = obj.get("camera") {
+        use crate::camera::CameraMode;
+        return match c.as_str() {
+            Some("stall") => Ok(ControlRequest::Camera(CameraMode::Stall)),
+            Some("garbage") => Ok(ControlRequest::Camera(CameraMode::Garbage)),
+            Some("normal") => Ok(ControlRequest::Camera(CameraMode::Normal)),
+            _ => Err(format!(
+                "unknown camera mode {c} (known: \"stall\", \"garbage\", \"normal\")"
+            )),
+        };
+    }
     if let Some(q) = obj.get("query") {
         return match q.as_str() {
             Some("truth") => Ok(ControlRequest::Truth),
@@ -131,12 +180,38 @@ fn is_line_fault(f: &Fault) -> bool {
 pub fn handle_line(inj: &dyn Injector, line: &str) -> String {
     let reply = match parse_request(line) {
         Err(e) => json!({"ok": false, "error": e}),
-        Ok(ControlRequest::Truth) => json!({
-            "ok": true,
-            "sim_time_s": inj.sim_time().as_secs_f64(),
-            "x_mm": inj.true_position_mm(AxisName::X),
-            "y_mm": inj.true_position_mm(AxisName::Y),
-        }),
+        Ok(ControlRequest::Truth) => {
+            let mut v = json!({
+                "ok": true,
+                "sim_time_s": inj.sim_time().as_secs_f64(),
+                "x_mm": inj.true_position_mm(AxisName::X),
+                "y_mm": inj.true_position_mm(AxisName::Y),
+            });
+            if let (Some(t), Some(o)) = (inj.rig_truth(), v.as_object_mut()) {
+                for (k, x) in [
+                    ("sim_time_s", t.sim_time_s),
+                    ("true_x_um", t.true_um[0]),
+                    ("true_y_um", t.true_um[1]),
+                    ("observed_x_um", t.observed_pattern_um[0]),
+                    ("observed_y_um", t.observed_pattern_um[1]),
+                    ("observed_stage_x_um", t.observed_stage_um[0]),
+                    ("observed_stage_y_um", t.observed_stage_um[1]),
+                ] {
+                    o.insert(k.into(), json!(x));
+                }
+                o.insert("moving".into(), json!(t.moving));
+            }
+            v
+        }
+        Ok(ControlRequest::ClockNow) => json!({"ok": true, "t_s": inj.sim_time().as_secs_f64()}),
+        Ok(ControlRequest::ClockAdvance(d)) => match inj.advance(d) {
+            Ok(()) => json!({"ok": true, "t_s": inj.sim_time().as_secs_f64()}),
+            Err(e) => json!({"ok": false, "error": e.to_string()}),
+        },
+        Ok(ControlRequest::Camera(m)) => match inj.camera_mode(m) {
+            Ok(()) => json!({"ok": true}),
+            Err(e) => json!({"ok": false, "error": e.to_string()}),
+        },
         Ok(ControlRequest::Fault { axis, fault }) => {
             let axes = match axis {
                 Some(a) => vec![a],
@@ -341,6 +416,18 @@ mod tests {
             parse_request(r#"{"query":"truth"}"#),
             Ok(ControlRequest::Truth)
         );
+        assert_eq!(
+            parse_request(r#"{"clock":"advance","s":0.25}"#),
+            Ok(ControlRequest::ClockAdvance(Duration::from_millis(250)))
+        );
+        assert_eq!(
+            parse_request(r#"{"clock":"now"}"#),
+            Ok(ControlRequest::ClockNow)
+        );
+        assert_eq!(
+            parse_request(r#"{"camera":"garbage"}"#),
+            Ok(ControlRequest::Camera(crate::camera::CameraMode::Garbage))
+        );
         for (bad, why) in [
             ("nope", "not JSON"),
             ("[1]", "object"),
@@ -350,6 +437,10 @@ mod tests {
             (r#"{"fault":"garbage","hex":"zz"}"#, "hex byte"),
             (r#"{"fault":"delay_replies","ms":-1}"#, "ms"),
             (r#"{"query":"everything"}"#, "unknown query"),
+            (r#"{"clock":"later"}"#, "unknown clock"),
+            (r#"{"clock":"advance","s":-1}"#, "seconds"),
+            (r#"{"clock":"advance"}"#, "seconds"),
+            (r#"{"camera":"melt"}"#, "unknown camera"),
         ] {
             let e = parse_request(bad).unwrap_err();
             assert!(e.contains(why), "{bad}: {e}");

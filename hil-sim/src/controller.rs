@@ -84,6 +84,51 @@ pub trait Platform: Send + fmt::Debug {
     /// True platform position (mm) for actuator position `actuator_mm` at
     /// simulated time `now`.
     fn platform_position_mm(&self, actuator_mm: f64, now: Duration) -> f64;
+
+    /// The controller has a new actuator trajectory (a move, a referencing
+    /// move, a stop, a power cycle), planned at `now`. A platform with
+    /// history or 2-D coupling (the shared rig of `crate::rig`) needs the
+    /// whole path, not just positions at query times: a move must be
+    /// committed to the stage model when it settles even if nobody asks
+    /// then. Stateless platforms ignore it.
+    fn actuator_path(&mut self, path: &ActuatorPath, now: Duration) {
+        let _ = (path, now);
+    }
+}
+
+/// Where the actuator goes from now on: a motion profile (in encoder mm)
+/// plus the encoder-to-actuator offset, or rest at an encoder position.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ActuatorPath {
+    /// actuator = encoder + offset_mm along this path.
+    pub offset_mm: f64,
+    /// The motion, or `None` when the carriage is at rest.
+    pub profile: Option<Profile>,
+    /// Encoder position at rest (used when `profile` is `None`).
+    pub rest_encoder_mm: f64,
+}
+
+impl ActuatorPath {
+    /// Actuator position (mm) at `now`.
+    pub fn actuator_mm(&self, now: Duration) -> f64 {
+        match &self.profile {
+            Some(p) => p.state_at(now).0 + self.offset_mm,
+            None => self.rest_encoder_mm + self.offset_mm,
+        }
+    }
+
+    /// Where the actuator comes to rest (mm).
+    pub fn final_actuator_mm(&self) -> f64 {
+        match &self.profile {
+            Some(p) => p.end_mm() + self.offset_mm,
+            None => self.rest_encoder_mm + self.offset_mm,
+        }
+    }
+
+    /// When the carriage stops (`None`: it is at rest already).
+    pub fn end_time(&self) -> Option<Duration> {
+        self.profile.as_ref().map(Profile::end_time)
+    }
 }
 
 /// A perfect stage: the platform is exactly where the actuator is.
@@ -168,6 +213,8 @@ pub struct Controller {
     settled_at: Duration,
     params: ParamSet,
     last_now: Duration,
+    /// The last path told to the platform.
+    reported: Option<ActuatorPath>,
 }
 
 /// Formats a number the way the C-863 answers positions: 7 decimals, no
@@ -261,6 +308,38 @@ impl Controller {
             settled_at: Duration::ZERO,
             params: ParamSet::default(),
             last_now: Duration::ZERO,
+            reported: None,
+        }
+    }
+
+    /// The actuator path of the current activity.
+    pub fn actuator_path(&self) -> ActuatorPath {
+        let profile = match &self.activity {
+            Activity::Idle => None,
+            Activity::Moving(p) => Some(p.clone()),
+            Activity::Referencing { profile, .. } => Some(profile.clone()),
+        };
+        ActuatorPath {
+            offset_mm: self.offset_mm,
+            profile,
+            rest_encoder_mm: self.encoder_mm,
+        }
+    }
+
+    /// Reports the current path to the platform (at power-up, once the
+    /// platform is shared).
+    pub fn power_up_report(&mut self) {
+        self.reported = None;
+        let now = self.last_now;
+        self.sync_platform(now);
+    }
+
+    /// Tells the platform about a changed actuator path.
+    fn sync_platform(&mut self, now: Duration) {
+        let p = self.actuator_path();
+        if self.reported.as_ref() != Some(&p) {
+            self.platform.actuator_path(&p, now);
+            self.reported = Some(p);
         }
     }
 
@@ -277,6 +356,9 @@ impl Controller {
     /// Replaces the platform model (the stage error model of later issues).
     pub fn set_platform(&mut self, platform: Box<dyn Platform>) {
         self.platform = platform;
+        self.reported = None;
+        let now = self.last_now;
+        self.sync_platform(now);
     }
 
     /// Whether this controller takes a request with this address prefix
@@ -301,6 +383,7 @@ impl Controller {
         self.error = E::NO_ERROR;
         self.settled_at = now;
         self.params = ParamSet::default();
+        self.sync_platform(now);
     }
 
     /// Encoder position (what `POS?` says) at `now`, in mm.
@@ -477,6 +560,13 @@ impl Controller {
     /// Handles one request at `now`; returns the answer bytes if this
     /// controller answers it. Requests for other addresses are ignored.
     pub fn handle(&mut self, now: Duration, req: &Request) -> Option<Vec<u8>> {
+        let out = self.handle_inner(now, req);
+        let now = self.last_now.max(now);
+        self.sync_platform(now);
+        out
+    }
+
+    fn handle_inner(&mut self, now: Duration, req: &Request) -> Option<Vec<u8>> {
         match req {
             Request::Overlong => {
                 self.tick(now);

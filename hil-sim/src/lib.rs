@@ -18,11 +18,14 @@
 #![warn(missing_docs)]
 
 pub mod bus;
+pub mod camera;
 pub mod clock;
 pub mod control;
 pub mod controller;
+pub mod experiment;
 pub mod motion;
 pub mod params;
+pub mod rig;
 pub mod serve;
 
 pub use serve::{AxisName, Fault, ServeConfig, SimError, SimHandle};

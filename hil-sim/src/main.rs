@@ -33,13 +33,36 @@ enum Cmd {
         /// Unix socket for JSON-lines fault injection.
         #[arg(long)]
         control: Option<PathBuf>,
-        /// Seed for serial numbers and power-up carriage positions.
+        /// Seed for serial numbers, power-up carriage positions, settling
+        /// and camera noise.
         #[arg(long, default_value_t = 0)]
         seed: u64,
+        /// Rig file (model, pattern mounting, camera); default: the paper's
+        /// rig (config/sim-rig.toml).
+        #[arg(long)]
+        rig: Option<PathBuf>,
+        /// Stage model file (overrides the rig file's); default: the paper
+        /// default (config/stage-model.toml).
+        #[arg(long)]
+        model: Option<PathBuf>,
+        /// Unix socket for the simulated camera (default: DIR/camera.sock).
+        #[arg(long)]
+        camera_socket: Option<PathBuf>,
+    },
+    /// Start the rig in-process, bring both axes up through the micropos
+    /// driver over the ptys, move through a few targets and print commanded,
+    /// controller-reported, vision-measured and true positions.
+    Demo {
+        /// Seed of the simulation.
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// Rig file (default: the paper's rig).
+        #[arg(long)]
+        rig: Option<PathBuf>,
     },
 }
 
-#[tokio::main(flavor = "current_thread")]
+#[tokio::main(flavor = "multi_thread", worker_threads = 2)]
 async fn main() -> anyhow::Result<()> {
     tracing_subscriber::fmt()
         .with_env_filter(
@@ -56,13 +79,25 @@ async fn main() -> anyhow::Result<()> {
             time_scale,
             control,
             seed,
+            rig,
+            model,
+            camera_socket,
         } => {
+            let rig = match rig {
+                Some(p) => hil_sim::rig::RigConfig::load(&p).map_err(anyhow::Error::msg)?,
+                None => hil_sim::rig::RigConfig::default(),
+            };
+            let control = control.unwrap_or_else(|| link_dir.join("control.sock"));
+            let camera_socket = camera_socket.unwrap_or_else(|| link_dir.join("camera.sock"));
             let cfg = ServeConfig {
                 link_dir,
                 daisy_chain,
                 time_scale,
-                control_socket: control,
+                control_socket: Some(control.clone()),
                 seed,
+                rig,
+                model,
+                camera_socket: Some(camera_socket.clone()),
             };
             // Handlers first: a signal right after the ready line must
             // already end in a clean shutdown.
@@ -74,12 +109,19 @@ async fn main() -> anyhow::Result<()> {
                 .context("simulator start task")?
                 .context("start simulator")?;
             let line = if daisy_chain {
-                format!("hil-sim ready bus={}", sim.link(AxisName::X).display())
+                format!(
+                    "hil-sim ready bus={} camera={} control={}",
+                    sim.link(AxisName::X).display(),
+                    camera_socket.display(),
+                    control.display()
+                )
             } else {
                 format!(
-                    "hil-sim ready x={} y={}",
+                    "hil-sim ready x={} y={} camera={} control={}",
                     sim.link(AxisName::X).display(),
-                    sim.link(AxisName::Y).display()
+                    sim.link(AxisName::Y).display(),
+                    camera_socket.display(),
+                    control.display()
                 )
             };
             {
@@ -95,6 +137,15 @@ async fn main() -> anyhow::Result<()> {
                 .await
                 .context("simulator shutdown task")?;
             Ok(())
+        }
+        Cmd::Demo { seed, rig } => {
+            let rig = match rig {
+                Some(p) => hil_sim::rig::RigConfig::load(&p).map_err(anyhow::Error::msg)?,
+                None => hil_sim::rig::RigConfig::default(),
+            };
+            hil_sim::experiment::demo(seed, rig)
+                .await
+                .map_err(anyhow::Error::from)
         }
     }
 }

@@ -96,8 +96,16 @@ pub struct ServeConfig {
     /// Unix socket for JSON-lines fault injection, if wanted.
     pub control_socket: Option<PathBuf>,
     /// Seed for everything random (serial numbers, power-up carriage
-    /// positions): the same seed gives the same simulation.
+    /// positions, settling noise, camera noise): the same seed gives the
+    /// same simulation.
     pub seed: u64,
+    /// The rig: stage model file, pattern mounting, camera.
+    pub rig: crate::rig::RigConfig,
+    /// Stage model file, overriding `rig.model` (none: the rig's, else the
+    /// paper default).
+    pub model: Option<PathBuf>,
+    /// Unix socket for the simulated camera, if wanted.
+    pub camera_socket: Option<PathBuf>,
 }
 
 impl Default for ServeConfig {
@@ -108,6 +116,9 @@ impl Default for ServeConfig {
             time_scale: 1.0,
             control_socket: None,
             seed: 0,
+            rig: crate::rig::RigConfig::default(),
+            model: None,
+            camera_socket: None,
         }
     }
 }
@@ -483,6 +494,8 @@ struct Core {
     lines: Vec<LineCtl>,
     routes: [Route; 2],
     stop: Arc<AtomicBool>,
+    rig: Arc<crate::rig::Rig>,
+    camera: Arc<crate::camera::SimCamera>,
 }
 
 impl Core {
@@ -547,6 +560,7 @@ impl Core {
 pub struct SimHandle {
     core: Arc<Core>,
     control: Option<crate::control::ControlServer>,
+    camera_server: Option<crate::camera::server::CameraServer>,
     down: bool,
 }
 
@@ -609,6 +623,26 @@ impl SimHandle {
             )));
         }
         let [cx, cy] = controller_configs(cfg.seed, cfg.daisy_chain)?;
+        cfg.rig.validate().map_err(SimError::Config)?;
+        let model_path = cfg.model.clone().or_else(|| cfg.rig.model.clone());
+        let model = crate::rig::load_model(model_path.as_deref()).map_err(SimError::Config)?;
+        let rig = Arc::new(
+            crate::rig::Rig::new(
+                model,
+                cfg.seed,
+                [cx.initial_actuator_mm, cy.initial_actuator_mm],
+                cfg.rig.mounting,
+            )
+            .map_err(|e| SimError::Config(format!("stage model: {e}")))?,
+        );
+        let camera = Arc::new(
+            crate::camera::SimCamera::new(&cfg.rig.camera, rig.clone(), clock.clone(), cfg.seed)
+                .map_err(SimError::Config)?,
+        );
+        let mut cx = cx;
+        let mut cy = cy;
+        cx.platform = rig.platform(micropos::model::Axis::X);
+        cy.platform = rig.platform(micropos::model::Axis::Y);
         let stop = Arc::new(AtomicBool::new(false));
         let (buses, routes, names): (Vec<Bus>, [Route; 2], Vec<(AxisName, &str)>) =
             if cfg.daisy_chain {
@@ -716,10 +750,23 @@ impl SimHandle {
             lines,
             routes,
             stop,
+            rig,
+            camera,
         });
+        // The controllers tell the rig their (rest) paths at once.
+        for b in &core.buses {
+            let mut bus = lock(b);
+            let n = bus.controllers().len();
+            for i in 0..n {
+                if let Some(c) = bus.controller_mut(i) {
+                    c.power_up_report();
+                }
+            }
+        }
         let mut handle = SimHandle {
             core,
             control: None,
+            camera_server: None,
             down: false,
         };
         for axis in AxisName::ALL {
@@ -728,6 +775,12 @@ impl SimHandle {
         if let Some(path) = &cfg.control_socket {
             let injector: Arc<dyn crate::control::Injector> = handle.core.clone();
             handle.control = Some(crate::control::ControlServer::start(path, injector)?);
+        }
+        if let Some(path) = &cfg.camera_socket {
+            handle.camera_server = Some(crate::camera::server::CameraServer::start(
+                path,
+                handle.core.camera.clone(),
+            )?);
         }
         Ok(handle)
     }
@@ -777,6 +830,32 @@ impl SimHandle {
         self.core.clock.now()
     }
 
+    /// Jumps simulated time forward by `d`.
+    pub fn advance(&self, d: Duration) {
+        self.core.clock.advance(d);
+    }
+
+    /// The shared rig (stage model, mounting).
+    pub fn rig(&self) -> &Arc<crate::rig::Rig> {
+        &self.core.rig
+    }
+
+    /// Ground truth of the rig now.
+    pub fn truth(&self) -> crate::rig::RigTruth {
+        self.core.rig.truth(self.core.clock.now())
+    }
+
+    /// The simulated camera (for in-process frames:
+    /// [`crate::camera::SimCameraSource`]).
+    pub fn camera(&self) -> &Arc<crate::camera::SimCamera> {
+        &self.core.camera
+    }
+
+    /// The camera socket, if served.
+    pub fn camera_socket(&self) -> Option<&Path> {
+        self.camera_server.as_ref().map(|c| c.path())
+    }
+
     /// Runs `f` on the controller of `axis` (under its bus lock) with the
     /// current simulated time: for tests that need more than the truth, and
     /// for installing a stage error model with
@@ -803,6 +882,9 @@ impl SimHandle {
         }
         self.down = true;
         if let Some(c) = self.control.take() {
+            c.stop();
+        }
+        if let Some(c) = self.camera_server.take() {
             c.stop();
         }
         self.core.stop.store(true, Ordering::SeqCst);
@@ -840,6 +922,20 @@ impl crate::control::Injector for Core {
 
     fn sim_time(&self) -> Duration {
         self.clock.now()
+    }
+
+    fn rig_truth(&self) -> Option<crate::rig::RigTruth> {
+        Some(self.rig.truth(self.clock.now()))
+    }
+
+    fn advance(&self, d: Duration) -> Result<(), SimError> {
+        self.clock.advance(d);
+        Ok(())
+    }
+
+    fn camera_mode(&self, mode: crate::camera::CameraMode) -> Result<(), SimError> {
+        self.camera.set_mode(mode);
+        Ok(())
     }
 
     fn line_axes(&self) -> Vec<AxisName> {

@@ -78,6 +78,7 @@ async fn rig(daisy: bool) -> Rig {
         time_scale: TIME_SCALE,
         control_socket: None,
         seed: 7,
+        ..Default::default()
     };
     let sim = tokio::task::spawn_blocking(move || SimHandle::start(cfg))
         .await

@@ -24,6 +24,7 @@ pub mod convert;
 pub mod files;
 #[cfg(feature = "genicam")]
 pub mod genicam;
+pub mod simsocket;
 #[cfg(feature = "v4l2")]
 pub mod v4l2;
 
@@ -343,6 +344,11 @@ pub enum SourceSpec {
         /// Directory, single file or glob pattern (`*`, `?`, `[..]`).
         pattern: String,
     },
+    /// `sim:PATH`: the simulated rig's camera socket (`hil-sim serve`).
+    Sim {
+        /// The Unix socket, e.g. `/tmp/rig/camera.sock`.
+        path: PathBuf,
+    },
 }
 
 impl FromStr for SourceSpec {
@@ -381,8 +387,16 @@ impl FromStr for SourceSpec {
                     "files: needs a directory, file or glob, e.g. files:run1/*.png",
                 )),
             },
+            "sim" => match rest.map(str::trim).filter(|r| !r.is_empty()) {
+                Some(p) => Ok(SourceSpec::Sim {
+                    path: PathBuf::from(p),
+                }),
+                None => Err(bad(
+                    "sim: needs the camera socket of hil-sim, e.g. sim:/tmp/rig/camera.sock",
+                )),
+            },
             _ => Err(bad(
-                "expected v4l2:/dev/videoN, genicam[:ID] or files:DIR_OR_GLOB",
+                "expected v4l2:/dev/videoN, genicam[:ID], files:DIR_OR_GLOB or sim:SOCKET",
             )),
         }
     }
@@ -395,6 +409,7 @@ impl fmt::Display for SourceSpec {
             SourceSpec::Genicam { id: None } => f.write_str("genicam"),
             SourceSpec::Genicam { id: Some(id) } => write!(f, "genicam:{id}"),
             SourceSpec::Files { pattern } => write!(f, "files:{pattern}"),
+            SourceSpec::Sim { path } => write!(f, "sim:{}", path.display()),
         }
     }
 }
@@ -426,6 +441,7 @@ pub fn open_source(
         SourceSpec::Files { pattern } => {
             Box::new(files::FileSource::open(pattern, options.files.clone())?)
         }
+        SourceSpec::Sim { path } => Box::new(simsocket::SimSocketSource::open(path)?),
         #[cfg(feature = "v4l2")]
         SourceSpec::V4l2 { path } => Box::new(v4l2::V4l2Source::open(path)?),
         #[cfg(not(feature = "v4l2"))]
@@ -565,6 +581,20 @@ mod tests {
 
     #[test]
     fn parses_source_specs() {
+        assert_eq!(
+            "sim:/tmp/rig/camera.sock".parse::<SourceSpec>().unwrap(),
+            SourceSpec::Sim {
+                path: "/tmp/rig/camera.sock".into()
+            }
+        );
+        assert!("sim:".parse::<SourceSpec>().is_err());
+        assert_eq!(
+            SourceSpec::Sim {
+                path: "/a/b".into()
+            }
+            .to_string(),
+            "sim:/a/b"
+        );
         assert_eq!(
             "v4l2:/dev/video3".parse::<SourceSpec>().unwrap(),
             SourceSpec::V4l2 {

@@ -1,0 +1,434 @@
+//! A fast renderer of the Megarena pattern for a fixed mounting angle.
+//!
+//! Why: micropos's exact renderer (`micropos::pattern::render`) clips every
+//! pixel against every dot and blurs the whole frame: 30–80 ms per
+//! 1024 × 768 frame, too slow for a 9.5-hour characterization of ≈ 16 000
+//! frames. Here the mounting angle, pixel size and PSF are fixed for the
+//! life of the renderer, so the image of one dot depends only on its
+//! sub-pixel phase. [`FastRenderer::new`] precomputes, for Q × Q sub-pixel
+//! phases, the *stamp* of one dot: the pixel-integrated intensity of a
+//! square dot (side p/2) convolved with a Gaussian PSF. A frame is then the
+//! sum of the stamps of the visible dots (nearest phase; Q = 32, so a dot is
+//! placed within 1/64 px, and the phase errors of thousands of dots average
+//! out), shaded (illumination gradient, vignetting, dust, illumination
+//! drift), with shot and read noise drawn from a precomputed Gaussian table
+//! at per-row random offsets, and quantised.
+//!
+//! Same conventions as micropos's renderer (pixel j covers [j, j+1), the
+//! pose is the pattern point at (W/2, H/2), θ from image +x to pattern +x).
+//! A defocus disc of radius R is approximated by a Gaussian of the same
+//! variance (σ² + R²/4). Stamps are exact PSF-then-pixel integration (the
+//! Gaussian-blurred square is a product of error functions in the dot's own
+//! axes; the pixel integral is a 32 × 32 midpoint sum via a summed-area
+//! table).
+
+use super::CameraConfig;
+use micropos::frame::{Frame, Pixels};
+use micropos::pattern::sequence::LineSequence;
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+/// Sub-pixel phases per pixel side.
+const Q: usize = 32;
+/// Length of the Gaussian noise table (power of two).
+const NOISE_LEN: usize = 1 << 20;
+
+/// Standard normal CDF via erfc (W. J. Cody-style rational approximation by
+/// Numerical Recipes' erfc, |error| < 1.2e-7).
+fn phi(x: f64) -> f64 {
+    0.5 * erfc(-x / std::f64::consts::SQRT_2)
+}
+
+fn erfc(x: f64) -> f64 {
+    let z = x.abs();
+    let t = 1.0 / (1.0 + 0.5 * z);
+    let r = t
+        * (-z * z - 1.265_512_23
+            + t * (1.000_023_68
+                + t * (0.374_091_96
+                    + t * (0.096_784_18
+                        + t * (-0.186_288_06
+                            + t * (0.278_868_07
+                                + t * (-1.135_203_98
+                                    + t * (1.488_515_87
+                                        + t * (-0.822_152_23 + t * 0.170_872_77)))))))))
+            .exp();
+    if x >= 0.0 {
+        r
+    } else {
+        2.0 - r
+    }
+}
+
+/// See the module docs.
+#[derive(Debug, Clone)]
+pub struct FastRenderer {
+    cfg: CameraConfig,
+    theta_rad: f64,
+    seq: LineSequence,
+    k: usize,
+    side: usize,
+    stamps: Vec<f32>,
+    shade: Vec<f32>,
+    noise: Vec<f32>,
+    acc: Vec<f32>,
+}
+
+impl FastRenderer {
+    /// Builds the stamps for `cfg` at mounting angle `theta_rad`.
+    pub fn new(cfg: &CameraConfig, theta_rad: f64) -> Result<FastRenderer, String> {
+        cfg.validate()?;
+        if !theta_rad.is_finite() {
+            return Err(format!("mounting angle {theta_rad} is not finite"));
+        }
+        let seq = LineSequence::new(cfg.bits).map_err(|e| e.to_string())?;
+        let h = cfg.period_um / (4.0 * cfg.pixel_um);
+        let sigma = (cfg.blur_sigma_px.powi(2) + cfg.defocus_radius_px.powi(2) / 4.0).sqrt();
+        let (sn, cs) = theta_rad.sin_cos();
+        let k = (h * (cs.abs() + sn.abs()) + 4.0 * sigma + 1.0).ceil() as usize;
+        let side = 2 * k + 1;
+        // Fine grid of the blurred dot, samples at (g + 0.5)/Q px, g ∈ [−G, G).
+        let g = (k + 1) * Q;
+        let n = 2 * g;
+        let bx = |x: f64| -> f64 {
+            if sigma > 0.0 {
+                phi((h - x) / sigma) - phi((-h - x) / sigma)
+            } else if x.abs() < h {
+                1.0
+            } else {
+                0.0
+            }
+        };
+        let mut sat = vec![0f64; (n + 1) * (n + 1)];
+        for iy in 0..n {
+            let dv = (iy as f64 - g as f64 + 0.5) / Q as f64;
+            let mut row = 0.0;
+            for ix in 0..n {
+                let du = (ix as f64 - g as f64 + 0.5) / Q as f64;
+                let a = du * cs + dv * sn;
+                let b = -du * sn + dv * cs;
+                row += bx(a) * bx(b);
+                sat[(iy + 1) * (n + 1) + ix + 1] = sat[iy * (n + 1) + ix + 1] + row;
+            }
+        }
+        let block = |x0: usize, y0: usize| -> f64 {
+            let w = n + 1;
+            sat[(y0 + Q) * w + x0 + Q] - sat[y0 * w + x0 + Q] - sat[(y0 + Q) * w + x0]
+                + sat[y0 * w + x0]
+        };
+        let norm = 1.0 / (Q * Q) as f64;
+        let mut stamps = vec![0f32; Q * Q * side * side];
+        for b in 0..Q {
+            for a in 0..Q {
+                let base = (b * Q + a) * side * side;
+                for ky in 0..side {
+                    let y0 = (ky as i64 - k as i64) * Q as i64 - b as i64 + g as i64;
+                    for kx in 0..side {
+                        let x0 = (kx as i64 - k as i64) * Q as i64 - a as i64 + g as i64;
+                        // In range by construction (see the module docs).
+                        let v = block(x0 as usize, y0 as usize) * norm;
+                        stamps[base + ky * side + kx] = v as f32;
+                    }
+                }
+            }
+        }
+        let mut rng = ChaCha8Rng::seed_from_u64(cfg.dust_seed ^ 0x6e6f697365);
+        let noise: Vec<f32> = (0..NOISE_LEN)
+            .map(|_| rng.sample::<f32, _>(rand_distr::StandardNormal))
+            .collect();
+        let mut r = FastRenderer {
+            cfg: cfg.clone(),
+            theta_rad,
+            seq,
+            k,
+            side,
+            stamps,
+            shade: Vec::new(),
+            noise,
+            acc: vec![0.0; cfg.width * cfg.height],
+        };
+        r.build_shade();
+        Ok(r)
+    }
+
+    /// The configuration.
+    pub fn config(&self) -> &CameraConfig {
+        &self.cfg
+    }
+
+    /// The mounting angle the stamps were built for, rad.
+    pub fn theta_rad(&self) -> f64 {
+        self.theta_rad
+    }
+
+    fn build_shade(&mut self) {
+        let (w, h) = (self.cfg.width, self.cfg.height);
+        let (cx, cy) = (w as f64 / 2.0, h as f64 / 2.0);
+        let r2max = cx * cx + cy * cy;
+        self.shade = Vec::with_capacity(w * h);
+        for i in 0..h {
+            let y = i as f64 + 0.5 - cy;
+            for j in 0..w {
+                let x = j as f64 + 0.5 - cx;
+                let gr =
+                    1.0 + self.cfg.gradient[0] * x / w as f64 + self.cfg.gradient[1] * y / h as f64;
+                let v = 1.0 - self.cfg.vignetting * (x * x + y * y) / r2max;
+                self.shade.push((gr * v).max(0.0) as f32);
+            }
+        }
+        if self.cfg.dust_fraction > 0.0 {
+            let mut rng = ChaCha8Rng::seed_from_u64(self.cfg.dust_seed);
+            let mut dust = vec![0f32; w * h];
+            let target = self.cfg.dust_fraction * (w * h) as f64;
+            let mut covered = 0.0;
+            let (rmin, rmax) = (self.cfg.dust_radius_px[0], self.cfg.dust_radius_px[1]);
+            let mut tries = 0;
+            while covered < target && tries < 100_000 {
+                tries += 1;
+                let rad = rng.gen_range(rmin..=rmax);
+                let bx = rng.gen_range(0.0..w as f64);
+                let by = rng.gen_range(0.0..h as f64);
+                let i0 = (by - rad - 1.0).floor().max(0.0) as usize;
+                let i1 = ((by + rad + 1.0).ceil() as usize).min(h);
+                let j0 = (bx - rad - 1.0).floor().max(0.0) as usize;
+                let j1 = ((bx + rad + 1.0).ceil() as usize).min(w);
+                for i in i0..i1 {
+                    for j in j0..j1 {
+                        let d =
+                            ((j as f64 + 0.5 - bx).powi(2) + (i as f64 + 0.5 - by).powi(2)).sqrt();
+                        let m = (rad + 0.5 - d).clamp(0.0, 1.0) as f32;
+                        let cell = &mut dust[i * w + j];
+                        if m > *cell {
+                            covered += f64::from(m - *cell);
+                            *cell = m;
+                        }
+                    }
+                }
+            }
+            let t = self.cfg.dust_transmission as f32;
+            for (s, d) in self.shade.iter_mut().zip(&dust) {
+                *s *= 1.0 - d * (1.0 - t);
+            }
+        }
+    }
+
+    /// Sums the dot stamps for the pattern point `(x_um, y_um)` at the image
+    /// centre into the accumulator.
+    fn accumulate(&mut self, x_um: f64, y_um: f64) {
+        self.acc.fill(0.0);
+        let (w, h) = (self.cfg.width as i64, self.cfg.height as i64);
+        let p = self.cfg.period_um;
+        let s = self.cfg.pixel_um;
+        let (sn, cs) = self.theta_rad.sin_cos();
+        let (e1, e2) = ((cs, sn), (-sn, cs));
+        let (cxi, cyi) = (w as f64 / 2.0, h as f64 / 2.0);
+        // Pattern bounding box of the frame plus the stamp margin.
+        let m = self.k as f64 + 1.0;
+        let mut cmin = f64::MAX;
+        let mut cmax = f64::MIN;
+        let mut rmin = f64::MAX;
+        let mut rmax = f64::MIN;
+        for (u, v) in [
+            (-m, -m),
+            (w as f64 + m, -m),
+            (-m, h as f64 + m),
+            (w as f64 + m, h as f64 + m),
+        ] {
+            let du = u - cxi;
+            let dv = v - cyi;
+            let x = x_um + s * (cs * du + sn * dv);
+            let y = y_um + s * (-sn * du + cs * dv);
+            cmin = cmin.min(x / p);
+            cmax = cmax.max(x / p);
+            rmin = rmin.min(y / p);
+            rmax = rmax.max(y / p);
+        }
+        let len = self.seq.len() as f64;
+        let c0 = (cmin - 1.0).floor().max(0.0) as i64;
+        let c1 = (cmax + 1.0).ceil().min(len) as i64;
+        let r0 = (rmin - 1.0).floor().max(0.0) as i64;
+        let r1 = (rmax + 1.0).ceil().min(len) as i64;
+        let k = self.k as i64;
+        let side = self.side;
+        let wu = w as usize;
+        for r in r0..r1 {
+            if !self.seq.line(r) {
+                continue;
+            }
+            let dy = (r as f64 * p - y_um) / s;
+            for c in c0..c1 {
+                if !self.seq.dot(c, r) {
+                    continue;
+                }
+                let dx = (c as f64 * p - x_um) / s;
+                let uc = cxi + e1.0 * dx + e2.0 * dy;
+                let vc = cyi + e1.1 * dx + e2.1 * dy;
+                let mut j0 = uc.floor();
+                let mut a = ((uc - j0) * Q as f64).round() as usize;
+                if a >= Q {
+                    a = 0;
+                    j0 += 1.0;
+                }
+                let mut i0 = vc.floor();
+                let mut b = ((vc - i0) * Q as f64).round() as usize;
+                if b >= Q {
+                    b = 0;
+                    i0 += 1.0;
+                }
+                let (j0, i0) = (j0 as i64 - k, i0 as i64 - k);
+                if j0 >= w || i0 >= h || j0 + side as i64 <= 0 || i0 + side as i64 <= 0 {
+                    continue;
+                }
+                let stamp = &self.stamps[(b * Q + a) * side * side..(b * Q + a + 1) * side * side];
+                let kx0 = (-j0).max(0) as usize;
+                let kx1 = ((w - j0).min(side as i64)) as usize;
+                let ky0 = (-i0).max(0) as usize;
+                let ky1 = ((h - i0).min(side as i64)) as usize;
+                for ky in ky0..ky1 {
+                    let row = (i0 + ky as i64) as usize * wu;
+                    let dst = &mut self.acc
+                        [row + (j0 + kx0 as i64) as usize..row + (j0 + kx1 as i64) as usize];
+                    let src = &stamp[ky * side + kx0..ky * side + kx1];
+                    for (d, s) in dst.iter_mut().zip(src) {
+                        *d += s;
+                    }
+                }
+            }
+        }
+    }
+
+    /// Renders the pattern with `(x_um, y_um)` (pattern frame) at the image
+    /// centre. `gain` scales the illumination (drift); `noise_seed` picks
+    /// this frame's noise.
+    pub fn render(
+        &mut self,
+        x_um: f64,
+        y_um: f64,
+        gain: f64,
+        noise_seed: u64,
+        timestamp_s: f64,
+        sequence: u64,
+    ) -> Result<Frame, String> {
+        if !(x_um.is_finite() && y_um.is_finite() && x_um.abs() < 1e9 && y_um.abs() < 1e9) {
+            return Err(format!("pattern position ({x_um}, {y_um}) is not finite"));
+        }
+        self.accumulate(x_um, y_um);
+        self.finish(gain, noise_seed, timestamp_s, sequence)
+    }
+
+    /// A frame with no pattern: background (with shading and noise) when
+    /// `noise_only` is false, uniform random pixels otherwise (camera fault).
+    pub fn garbage(
+        &mut self,
+        noise_only: bool,
+        noise_seed: u64,
+        timestamp_s: f64,
+        sequence: u64,
+    ) -> Result<Frame, String> {
+        if noise_only {
+            let mut rng = ChaCha8Rng::seed_from_u64(noise_seed);
+            let fs = (1u32 << self.cfg.bit_depth) - 1;
+            let n = self.cfg.width * self.cfg.height;
+            let px = if self.cfg.bit_depth <= 8 {
+                Pixels::U8((0..n).map(|_| rng.gen_range(0..=fs) as u8).collect())
+            } else {
+                Pixels::U16((0..n).map(|_| rng.gen_range(0..=fs) as u16).collect())
+            };
+            return Frame::new(
+                self.cfg.width,
+                self.cfg.height,
+                self.cfg.bit_depth,
+                px,
+                timestamp_s,
+                sequence,
+            )
+            .map_err(|e| e.to_string());
+        }
+        self.acc.iter_mut().for_each(|v| *v = 0.0);
+        self.finish(1.0, noise_seed, timestamp_s, sequence)
+    }
+
+    fn finish(
+        &mut self,
+        gain: f64,
+        noise_seed: u64,
+        timestamp_s: f64,
+        sequence: u64,
+    ) -> Result<Frame, String> {
+        let (w, h) = (self.cfg.width, self.cfg.height);
+        let fs = ((1u32 << self.cfg.bit_depth) - 1) as f32;
+        let (bg, fg) = if self.cfg.dark_dots {
+            (self.cfg.foreground as f32, self.cfg.background as f32)
+        } else {
+            (self.cfg.background as f32, self.cfg.foreground as f32)
+        };
+        let g = gain as f32;
+        let inv_fw = if self.cfg.full_well_e > 0.0 {
+            (1.0 / self.cfg.full_well_e) as f32
+        } else {
+            0.0
+        };
+        let rn2 = (self.cfg.read_noise * self.cfg.read_noise) as f32;
+        let mut rng = ChaCha8Rng::seed_from_u64(noise_seed);
+        let mut out16 = Vec::with_capacity(w * h);
+        for i in 0..h {
+            let acc = &self.acc[i * w..(i + 1) * w];
+            let shade = &self.shade[i * w..(i + 1) * w];
+            let off = rng.gen_range(0..NOISE_LEN.saturating_sub(w).max(1));
+            let noise_row = &self.noise[off..(off + w).min(NOISE_LEN)];
+            out16.extend(acc.iter().zip(shade).zip(noise_row).map(|((&c, &sh), &n)| {
+                let v = (bg + (fg - bg) * c) * sh * g;
+                let var = v.max(0.0) * inv_fw + rn2;
+                let v = v + n * var.sqrt();
+                // +0.5 and truncation: round half up, cheaper than round().
+                (v * fs + 0.5).clamp(0.0, fs) as u16
+            }));
+        }
+        let pixels = if self.cfg.bit_depth <= 8 {
+            Pixels::U8(out16.iter().map(|&v| v as u8).collect())
+        } else {
+            Pixels::U16(out16)
+        };
+        Frame::new(w, h, self.cfg.bit_depth, pixels, timestamp_s, sequence)
+            .map_err(|e| e.to_string())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn erfc_is_accurate() {
+        for (x, want) in [
+            (0.0, 1.0),
+            (0.5, 0.479_500_122_186_953_5),
+            (1.0, 0.157_299_207_050_285_1),
+            (-1.0, 1.842_700_792_949_715),
+            (2.5, 4.069_520_174_449_59e-4),
+        ] {
+            assert!((erfc(x) - want).abs() < 2e-7, "erfc({x})");
+        }
+    }
+
+    #[test]
+    fn a_stamp_integrates_to_the_dot_area() {
+        let cfg = CameraConfig {
+            width: 64,
+            height: 64,
+            ..CameraConfig::default()
+        };
+        let r = FastRenderer::new(&cfg, 0.3f64.to_radians()).unwrap();
+        let side = r.side;
+        let area_px = (cfg.period_um / 2.0 / cfg.pixel_um).powi(2);
+        for ph in [0, 5, Q * Q - 1] {
+            let s: f32 = r.stamps[ph * side * side..(ph + 1) * side * side]
+                .iter()
+                .sum();
+            assert!(
+                (f64::from(s) - area_px).abs() < 1e-3 * area_px,
+                "{s} vs {area_px}"
+            );
+        }
+    }
+}

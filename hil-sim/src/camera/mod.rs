@@ -1,0 +1,463 @@
+//! The simulated microscope camera: renders the Megarena pattern at the
+//! platform's observed pose, on the rig's simulated clock.
+//!
+//! Timing (contract): a grab at simulated time `now` starts its exposure at
+//! the next frame slot `max(now, last_start + 1/fps)`, exposes for
+//! `exposure_us` and is rendered at the exposure mid-point; the clock is
+//! advanced to the end of the exposure, so a grab costs frame time as on a
+//! real camera. Motion during the exposure is not blurred (the pose at the
+//! mid-point is used).
+//!
+//! Faults (contract): [`CameraMode::Stall`] (no answer: the socket server
+//! drops the request, the in-process source times out), [`CameraMode::Garbage`]
+//! (undecodable frames: blank and noise frames alternate).
+//!
+//! Beyond the pattern (10-bit, 4 µm: 12384 µm square) the frame shows part or
+//! none of the dots and the decoder reports an error; it never yields a
+//! position from outside the pattern.
+
+pub mod fast;
+pub mod server;
+
+use crate::clock::Clock;
+use crate::rig::{Rig, RigTruth};
+use fast::FastRenderer;
+use micropos::camera::{CameraError, CameraInfo, FrameSource};
+use micropos::frame::Frame;
+use serde::{Deserialize, Serialize};
+use std::sync::{Arc, Mutex, MutexGuard};
+use std::time::Duration;
+
+/// Optics, sensor and pattern of the simulated camera (`[camera]` of the rig
+/// file). Defaults: the paper's rig as the issue describes it.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct CameraConfig {
+    /// Frame width, px.
+    pub width: usize,
+    /// Frame height, px.
+    pub height: usize,
+    /// Sensor bit depth (8 → u8 pixels, 9..=16 → u16).
+    pub bit_depth: u8,
+    /// Pattern period, µm.
+    pub period_um: f64,
+    /// Code depth of the pattern (10 → 3096 lines, 12384 µm at 4 µm).
+    pub bits: u32,
+    /// Pixel size on the pattern, µm (0.4 → 10 px per period).
+    pub pixel_um: f64,
+    /// Frame rate, frames per simulated second.
+    pub fps: f64,
+    /// Exposure time, µs.
+    pub exposure_us: f64,
+    /// Dark dots on a bright background (false: bright dots, as the real
+    /// pattern under bright field).
+    pub dark_dots: bool,
+    /// Background level, fraction of full scale.
+    pub background: f64,
+    /// Dot level, fraction of full scale.
+    pub foreground: f64,
+    /// Gaussian PSF σ, px.
+    pub blur_sigma_px: f64,
+    /// Defocus disc radius, px (approximated by a Gaussian of equal variance).
+    pub defocus_radius_px: f64,
+    /// Linear illumination gradient, relative change left→right, top→bottom.
+    pub gradient: [f64; 2],
+    /// Vignetting: relative intensity drop at the corners.
+    pub vignetting: f64,
+    /// Electrons at full scale (shot noise); 0 = none.
+    pub full_well_e: f64,
+    /// Read noise σ, fraction of full scale.
+    pub read_noise: f64,
+    /// Fraction of the frame covered by dust (0..0.9).
+    pub dust_fraction: f64,
+    /// Dust blob radius range, px.
+    pub dust_radius_px: [f64; 2],
+    /// Dust transmission (0 = opaque).
+    pub dust_transmission: f64,
+    /// Seed of the dust layout (and of the noise table).
+    pub dust_seed: u64,
+    /// Illumination drift: relative amplitude of a slow sinusoidal change of
+    /// the lamp intensity.
+    pub illumination_drift: f64,
+    /// Period of the illumination drift, simulated s.
+    pub illumination_period_s: f64,
+}
+
+impl Default for CameraConfig {
+    fn default() -> Self {
+        Self {
+            width: 1024,
+            height: 768,
+            bit_depth: 10,
+            period_um: 4.0,
+            bits: 10,
+            pixel_um: 0.4,
+            fps: 30.0,
+            exposure_us: 2000.0,
+            dark_dots: false,
+            background: 0.15,
+            foreground: 0.8,
+            blur_sigma_px: 0.9,
+            defocus_radius_px: 0.0,
+            gradient: [0.03, -0.02],
+            vignetting: 0.08,
+            full_well_e: 10_000.0,
+            read_noise: 0.003,
+            dust_fraction: 0.0,
+            dust_radius_px: [3.0, 25.0],
+            dust_transmission: 0.1,
+            dust_seed: 1,
+            illumination_drift: 0.02,
+            illumination_period_s: 3600.0,
+        }
+    }
+}
+
+impl CameraConfig {
+    /// Checks every value; the message names the key and the accepted range.
+    pub fn validate(&self) -> Result<(), String> {
+        let chk = |name: &str, v: f64, ok: bool, why: &str| {
+            if ok && v.is_finite() {
+                Ok(())
+            } else {
+                Err(format!("camera.{name} = {v}: {why}"))
+            }
+        };
+        chk(
+            "width",
+            self.width as f64,
+            (16..=8192).contains(&self.width),
+            "16..=8192",
+        )?;
+        chk(
+            "height",
+            self.height as f64,
+            (16..=8192).contains(&self.height),
+            "16..=8192",
+        )?;
+        chk(
+            "bit_depth",
+            f64::from(self.bit_depth),
+            (8..=16).contains(&self.bit_depth),
+            "8..=16",
+        )?;
+        chk(
+            "bits",
+            f64::from(self.bits),
+            (4..=12).contains(&self.bits),
+            "4..=12",
+        )?;
+        chk("period_um", self.period_um, self.period_um > 0.0, "> 0")?;
+        chk("pixel_um", self.pixel_um, self.pixel_um > 0.0, "> 0")?;
+        chk(
+            "period in px",
+            self.period_um / self.pixel_um,
+            (3.0..=64.0).contains(&(self.period_um / self.pixel_um)),
+            "period_um / pixel_um must be 3..=64 px",
+        )?;
+        chk(
+            "fps",
+            self.fps,
+            self.fps > 0.0 && self.fps <= 10_000.0,
+            "0 < fps <= 10000",
+        )?;
+        chk(
+            "exposure_us",
+            self.exposure_us,
+            self.exposure_us > 0.0 && self.exposure_us * 1e-6 <= 1.0 / self.fps,
+            "> 0 and at most one frame period",
+        )?;
+        chk(
+            "background",
+            self.background,
+            (0.0..=1.0).contains(&self.background),
+            "0..=1",
+        )?;
+        chk(
+            "foreground",
+            self.foreground,
+            (0.0..=1.0).contains(&self.foreground),
+            "0..=1",
+        )?;
+        chk(
+            "blur_sigma_px",
+            self.blur_sigma_px,
+            (0.0..=5.0).contains(&self.blur_sigma_px),
+            "0..=5",
+        )?;
+        chk(
+            "defocus_radius_px",
+            self.defocus_radius_px,
+            (0.0..=10.0).contains(&self.defocus_radius_px),
+            "0..=10",
+        )?;
+        for g in self.gradient {
+            chk("gradient", g, g.abs() < 1.9, "|g| < 1.9")?;
+        }
+        chk(
+            "vignetting",
+            self.vignetting,
+            (0.0..1.0).contains(&self.vignetting),
+            "0..1",
+        )?;
+        chk(
+            "full_well_e",
+            self.full_well_e,
+            self.full_well_e >= 0.0,
+            ">= 0",
+        )?;
+        chk(
+            "read_noise",
+            self.read_noise,
+            (0.0..=1.0).contains(&self.read_noise),
+            "0..=1",
+        )?;
+        chk(
+            "dust_fraction",
+            self.dust_fraction,
+            (0.0..=0.9).contains(&self.dust_fraction),
+            "0..=0.9",
+        )?;
+        chk(
+            "dust_radius_px",
+            self.dust_radius_px[0],
+            self.dust_radius_px[0] > 0.0
+                && self.dust_radius_px[1] >= self.dust_radius_px[0]
+                && self.dust_radius_px[1] <= 1000.0,
+            "0 < min <= max <= 1000",
+        )?;
+        chk(
+            "dust_transmission",
+            self.dust_transmission,
+            (0.0..=1.0).contains(&self.dust_transmission),
+            "0..=1",
+        )?;
+        chk(
+            "illumination_drift",
+            self.illumination_drift,
+            (0.0..0.5).contains(&self.illumination_drift),
+            "0..0.5",
+        )?;
+        chk(
+            "illumination_period_s",
+            self.illumination_period_s,
+            self.illumination_period_s > 0.0,
+            "> 0",
+        )?;
+        Ok(())
+    }
+
+    /// The equivalent configuration of micropos's exact renderer (no noise
+    /// there: the caller sets what it compares).
+    pub fn exact_render_config(&self) -> micropos::pattern::render::RenderConfig {
+        micropos::pattern::render::RenderConfig {
+            width: self.width,
+            height: self.height,
+            bit_depth: self.bit_depth,
+            period_um: self.period_um,
+            bits: self.bits,
+            dark_dots: self.dark_dots,
+            background: self.background,
+            foreground: self.foreground,
+            blur_sigma_px: self.blur_sigma_px,
+            defocus_radius_px: self.defocus_radius_px,
+            gradient: self.gradient,
+            vignetting: self.vignetting,
+            full_well_e: self.full_well_e,
+            read_noise: self.read_noise,
+            dust_fraction: self.dust_fraction,
+            dust_radius_px: (self.dust_radius_px[0], self.dust_radius_px[1]),
+            dust_transmission: self.dust_transmission,
+            dust_seed: self.dust_seed,
+            oversample: 2,
+        }
+    }
+}
+
+/// Camera fault mode (contract: `{"camera":"stall"|"garbage"|"normal"}`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum CameraMode {
+    /// Frames of the pattern.
+    #[default]
+    Normal,
+    /// Grabs are never answered.
+    Stall,
+    /// Undecodable frames (blank and noise, alternating).
+    Garbage,
+}
+
+/// One delivered frame with the truth it was rendered from.
+#[derive(Debug, Clone)]
+pub struct Grab {
+    /// The frame (timestamp = exposure mid-point, simulated s).
+    pub frame: Frame,
+    /// The rig's ground truth at the exposure mid-point.
+    pub truth: RigTruth,
+}
+
+/// Why a grab gave no frame.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum GrabError {
+    /// The camera is stalled (fault injection).
+    #[error("camera stalled (fault injected)")]
+    Stalled,
+    /// Rendering failed.
+    #[error("render: {0}")]
+    Render(String),
+}
+
+#[derive(Debug)]
+struct CameraState {
+    renderer: FastRenderer,
+    last_start_s: Option<f64>,
+    sequence: u64,
+    mode: CameraMode,
+    seed: u64,
+}
+
+/// The camera, shared between the socket server and in-process users.
+#[derive(Debug)]
+pub struct SimCamera {
+    state: Mutex<CameraState>,
+    rig: Arc<Rig>,
+    clock: Arc<dyn Clock>,
+}
+
+impl SimCamera {
+    /// A camera looking at the rig's pattern, on `clock`. `seed` seeds the
+    /// per-frame noise.
+    pub fn new(
+        cfg: &CameraConfig,
+        rig: Arc<Rig>,
+        clock: Arc<dyn Clock>,
+        seed: u64,
+    ) -> Result<SimCamera, String> {
+        let renderer = FastRenderer::new(cfg, rig.mounting().theta_deg.to_radians())?;
+        Ok(SimCamera {
+            state: Mutex::new(CameraState {
+                renderer,
+                last_start_s: None,
+                sequence: 0,
+                mode: CameraMode::Normal,
+                seed,
+            }),
+            rig,
+            clock,
+        })
+    }
+
+    fn lock(&self) -> MutexGuard<'_, CameraState> {
+        self.state.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    /// The configuration.
+    pub fn config(&self) -> CameraConfig {
+        self.lock().renderer.config().clone()
+    }
+
+    /// Sets the fault mode.
+    pub fn set_mode(&self, mode: CameraMode) {
+        self.lock().mode = mode;
+    }
+
+    /// The fault mode.
+    pub fn mode(&self) -> CameraMode {
+        self.lock().mode
+    }
+
+    /// Takes one frame (see the module docs for timing).
+    pub fn grab(&self) -> Result<Grab, GrabError> {
+        let mut st = self.lock();
+        if st.mode == CameraMode::Stall {
+            return Err(GrabError::Stalled);
+        }
+        let cfg = st.renderer.config().clone();
+        let now = self.clock.now().as_secs_f64();
+        let period = 1.0 / cfg.fps;
+        let start = match st.last_start_s {
+            Some(l) => now.max(l + period),
+            None => now,
+        };
+        let exposure = cfg.exposure_us * 1e-6;
+        let end = start + exposure;
+        if end > now {
+            self.clock
+                .advance(Duration::try_from_secs_f64(end - now).unwrap_or_default());
+        }
+        st.last_start_s = Some(start);
+        let mid = start + exposure / 2.0;
+        let truth = self
+            .rig
+            .truth(Duration::try_from_secs_f64(mid).unwrap_or_default());
+        st.sequence += 1;
+        let seq = st.sequence;
+        let noise_seed = st.seed.wrapping_mul(0x9e37_79b9_7f4a_7c15) ^ seq;
+        let frame = match st.mode {
+            CameraMode::Garbage => st.renderer.garbage(seq % 2 == 0, noise_seed, mid, seq),
+            _ => {
+                let gain = 1.0
+                    + cfg.illumination_drift
+                        * (2.0 * std::f64::consts::PI * mid / cfg.illumination_period_s).sin();
+                let [x, y] = truth.observed_pattern_um;
+                st.renderer.render(x, y, gain, noise_seed, mid, seq)
+            }
+        }
+        .map_err(GrabError::Render)?;
+        Ok(Grab { frame, truth })
+    }
+}
+
+/// The camera as a micropos [`FrameSource`], in process.
+#[derive(Debug, Clone)]
+pub struct SimCameraSource {
+    camera: Arc<SimCamera>,
+    timeout: Duration,
+}
+
+impl SimCameraSource {
+    /// A source taking frames from `camera`.
+    pub fn new(camera: Arc<SimCamera>) -> Self {
+        Self {
+            camera,
+            timeout: Duration::from_secs(2),
+        }
+    }
+}
+
+impl FrameSource for SimCameraSource {
+    fn info(&self) -> CameraInfo {
+        let c = self.camera.config();
+        CameraInfo {
+            backend: "sim",
+            model: "hil-sim simulated microscope camera".into(),
+            serial: "in-process".into(),
+            width: c.width,
+            height: c.height,
+            pixel_format: format!("Mono{}", c.bit_depth),
+            bit_depth: c.bit_depth,
+        }
+    }
+
+    fn next_frame(&mut self) -> Result<Frame, CameraError> {
+        match self.camera.grab() {
+            Ok(g) => Ok(g.frame),
+            // In process a stall is reported at once rather than after
+            // sleeping the timeout: nothing would arrive anyway.
+            Err(GrabError::Stalled) => Err(CameraError::Timeout {
+                timeout_s: self.timeout.as_secs_f64(),
+            }),
+            Err(GrabError::Render(m)) => Err(CameraError::Backend {
+                backend: "sim",
+                message: m,
+            }),
+        }
+    }
+
+    fn set_timeout(&mut self, timeout: Duration) {
+        self.timeout = timeout;
+    }
+
+    fn exposure_us(&self) -> Result<f64, CameraError> {
+        Ok(self.camera.config().exposure_us)
+    }
+}
