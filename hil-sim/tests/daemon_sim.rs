@@ -37,6 +37,7 @@ async fn rig(time_scale: f64) -> Rig {
         time_scale,
         control_socket: None,
         seed: 11,
+        ..ServeConfig::default()
     };
     let sim = tokio::task::spawn_blocking(move || SimHandle::start(cfg))
         .await
@@ -215,7 +216,9 @@ async fn line_drop_halts_the_other_axis_and_power_cycle_needs_reference() {
     tokio::time::sleep(Duration::from_millis(300)).await;
     let y2 = sim.true_position_mm(AxisName::Y);
     assert!(
-        (y1 - y2).abs() < 1e-6 && y2 * 1000.0 < 13990.0,
+        // The shared stage model (rig merge) lets the true position creep by
+        // µm after a halt (drift terms); a moving axis covers mm in 300 ms.
+        (y1 - y2).abs() < 0.01 && y2 * 1000.0 < 13990.0,
         "y still moving: {y1} {y2}"
     );
     let m = c.call(json!({"cmd":"move","y_um":8000.0})).await;
