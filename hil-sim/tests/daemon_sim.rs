@@ -37,7 +37,7 @@ async fn rig(time_scale: f64) -> Rig {
         time_scale,
         control_socket: None,
         seed: 11,
-        ..Default::default()
+        ..ServeConfig::default()
     };
     let sim = tokio::task::spawn_blocking(move || SimHandle::start(cfg))
         .await
@@ -216,7 +216,9 @@ async fn line_drop_halts_the_other_axis_and_power_cycle_needs_reference() {
     tokio::time::sleep(Duration::from_millis(300)).await;
     let y2 = sim.true_position_mm(AxisName::Y);
     assert!(
-        (y1 - y2).abs() < 1e-6 && y2 * 1000.0 < 13990.0,
+        // The shared stage model (rig merge) lets the true position creep by
+        // µm after a halt (drift terms); a moving axis covers mm in 300 ms.
+        (y1 - y2).abs() < 0.01 && y2 * 1000.0 < 13990.0,
         "y still moving: {y1} {y2}"
     );
     let m = c.call(json!({"cmd":"move","y_um":8000.0})).await;
@@ -364,4 +366,71 @@ async fn malformed_flood_and_concurrent_clients() {
     }
     assert_eq!(cl.call(json!({"cmd":"status"})).await["ok"], true);
     r.daemon.as_ref().unwrap().daemon.jobs.signal_cancel();
+}
+
+/// Tables: a bad file is refused with the reason, a model table loads and
+/// activates without restart, compensated moves plan through it (the
+/// command differs from the target by the predicted offset), closed loop
+/// without a camera is refused clearly, deactivation brings
+/// `no_active_table` back.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn tables_and_compensated_moves() {
+    let r = rig(20.0).await;
+    let data = r._dir.path().join("data");
+    let model_text = std::fs::read_to_string(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../config/stage-model.toml"
+    ))
+    .unwrap();
+    let model = micropos::model::StageModel::from_toml(&model_text).unwrap();
+    std::fs::create_dir_all(&data).unwrap();
+    let tmpl = micropos::comp::compensation_template(&model).unwrap();
+    let file =
+        micropos::comp::CompFile::model(&tmpl, "test", micropos::comp::SourceInfo::default())
+            .unwrap();
+    file.write_path(data.join("truth.toml")).unwrap();
+    std::fs::write(data.join("bad.toml"), "format_version = 99\n").unwrap();
+    let mut c = Client::new(&r.socket).await;
+    assert_eq!(c.call(json!({"cmd":"reference"})).await["ok"], true);
+    let m = c
+        .call(json!({"cmd":"move","x_um":3000.0,"y_um":3000.0,"mode":"compensated","wait":true}))
+        .await;
+    assert_eq!(code(&m), "no_active_table", "{m}");
+    let b = c
+        .call(json!({"cmd":"tables","action":"load","name":"bad.toml"}))
+        .await;
+    assert_eq!(code(&b), "bad_value", "{b}");
+    let l = c
+        .call(json!({"cmd":"tables","action":"load","name":"truth.toml"}))
+        .await;
+    assert_eq!(l["ok"], true, "{l}");
+    let a = c
+        .call(json!({"cmd":"tables","action":"activate","name":"truth.toml"}))
+        .await;
+    assert_eq!(a["ok"], true, "{a}");
+    let list = c.call(json!({"cmd":"tables"})).await;
+    assert_eq!(list["active"], "truth.toml", "{list}");
+    let m = c
+        .call(json!({"cmd":"move","x_um":3000.0,"y_um":3000.0,"mode":"compensated","wait":true}))
+        .await;
+    assert_eq!(m["ok"], true, "{m}");
+    let res = &m;
+    assert_eq!(res["compensator"], "model", "{m}");
+    let off = res["predicted_offset_um"][0].as_f64().unwrap();
+    let cmd = res["commanded"]["x_um"].as_f64().unwrap();
+    assert!(off.abs() > 0.01, "the model predicts an error here: {m}");
+    assert!(
+        (cmd + off - 3000.0).abs() < 0.05,
+        "cmd + offset = target: {m}"
+    );
+    let cl = c
+        .call(json!({"cmd":"move","x_um":3100.0,"mode":"closed_loop","wait":true}))
+        .await;
+    assert_eq!(code(&cl), "camera_unavailable", "{cl}");
+    let d = c.call(json!({"cmd":"tables","action":"activate"})).await;
+    assert_eq!(d["ok"], true, "{d}");
+    let m = c
+        .call(json!({"cmd":"move","x_um":3000.0,"mode":"compensated"}))
+        .await;
+    assert_eq!(code(&m), "no_active_table", "{m}");
 }

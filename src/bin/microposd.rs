@@ -8,7 +8,8 @@
 use anyhow::Context;
 use clap::Parser;
 use micropos::camera::{files::FileOptions, open_source, OpenOptions};
-use micropos::clock::WallClock;
+use micropos::clock::{RigClock, SimClock, WallClock};
+use micropos::daemon::config::ClockSpec;
 use micropos::daemon::{config::DaemonConfig, notify, Daemon};
 use std::os::unix::fs::PermissionsExt;
 use std::path::{Path, PathBuf};
@@ -117,7 +118,18 @@ async fn run(cfg: DaemonConfig) -> anyhow::Result<()> {
     let listener = tokio::net::UnixListener::from_std(std_listener)?;
     std::fs::create_dir_all(&cfg.daemon.data_dir)
         .with_context(|| format!("creating data_dir {}", cfg.daemon.data_dir.display()))?;
-    let clock = Arc::new(WallClock::new());
+    let clock: Arc<dyn RigClock> = match cfg.clock_spec()? {
+        ClockSpec::Wall => Arc::new(WallClock::new()),
+        ClockSpec::Sim(path) => {
+            let p = path.clone();
+            let c = tokio::task::spawn_blocking(move || SimClock::connect(&p))
+                .await?
+                .with_context(|| {
+                    format!("connecting the sim clock (rig.clock) at {}", path.display())
+                })?;
+            Arc::new(c)
+        }
+    };
     let camera = match cfg.camera_source()? {
         Some(spec) => {
             let opts = OpenOptions {

@@ -17,6 +17,7 @@
 //! `shutting_down` error line; the axes are left as they are (a running
 //! job stops between points, its log resumable).
 
+pub mod comp;
 pub mod config;
 pub mod connection;
 pub mod jobs;
@@ -147,11 +148,9 @@ impl Daemon {
                 )),
             },
             Command::Tables(t) => match t {
-                TablesAction::List => Ok(json!({"tables": [], "active": null})),
-                TablesAction::Load { .. } | TablesAction::Activate { .. } => Err(ProtoError::new(
-                    ErrorCode::NotAvailable,
-                    "compensation tables: the table format is not in this build yet",
-                )),
+                TablesAction::List => rig.comp.list(&rig.cfg.daemon.data_dir).await,
+                TablesAction::Load { name } => rig.comp.load(&rig.cfg.daemon.data_dir, &name).await,
+                TablesAction::Activate { name } => rig.comp.activate(name.as_deref()),
             },
             Command::Subscribe(_) => Err(ProtoError::new(
                 ErrorCode::Internal,

@@ -56,6 +56,15 @@ pub enum ErrorCode {
     NotConverged,
     /// `compensated` move without an active compensation table.
     NoActiveTable,
+    /// Closed loop: no fresh frame arrived after the move settled.
+    CameraStalled,
+    /// Closed loop: frames arrive but do not decode, or decode below
+    /// `camera.min_quality`.
+    LowQuality,
+    /// Closed loop: the correction limit was reached outside tolerance.
+    RetryLimit,
+    /// Closed loop: the residual grew; the loop stopped instead of chasing it.
+    Diverging,
     /// The feature exists in the protocol but not in this build yet.
     NotAvailable,
     /// No such job, or the job is not in a state that allows the action.
@@ -89,6 +98,10 @@ impl ErrorCode {
             ErrorCode::StaleMeasurement => "stale_measurement",
             ErrorCode::NotConverged => "not_converged",
             ErrorCode::NoActiveTable => "no_active_table",
+            ErrorCode::CameraStalled => "camera_stalled",
+            ErrorCode::LowQuality => "low_quality",
+            ErrorCode::RetryLimit => "retry_limit",
+            ErrorCode::Diverging => "diverging",
             ErrorCode::NotAvailable => "not_available",
             ErrorCode::JobState => "job_state",
             ErrorCode::LogError => "log_error",

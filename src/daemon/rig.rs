@@ -51,6 +51,8 @@ pub struct Rig {
     /// Bumped by the position poller on every healthy round: the watchdog
     /// is only fed while it moves.
     pub heartbeat: AtomicU64,
+    /// Compensation tables, the active compensator, the motion history.
+    pub comp: super::comp::CompState,
 }
 
 fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
@@ -113,6 +115,7 @@ impl Rig {
             events,
             vision,
             heartbeat: AtomicU64::new(0),
+            comp: super::comp::CompState::default(),
         }
     }
 
@@ -363,20 +366,128 @@ impl Rig {
         from_job: bool,
     ) -> Result<Value, ProtoError> {
         match req.mode {
-            MoveMode::Raw => {}
-            MoveMode::Compensated => {
-                return Err(ProtoError::new(
-                    ErrorCode::NoActiveTable,
-                    "no compensation table is active (tables: not available in this build); use mode raw",
-                ))
-            }
-            MoveMode::ClosedLoop => {
-                return Err(ProtoError::new(
-                    ErrorCode::NotAvailable,
-                    "closed_loop moves are not available in this build yet; use mode raw",
-                ))
-            }
+            MoveMode::Raw => self.raw_move(req, from_job, true).await,
+            MoveMode::Compensated | MoveMode::ClosedLoop => self.planned_move(req, from_job).await,
         }
+    }
+
+    /// The commanded position of both axes (cached, else queried).
+    async fn current_cmd(&self) -> Result<[f64; 2], ProtoError> {
+        let stage = self.stage()?;
+        let cached = *lock(&self.commanded);
+        let x = match cached[0] {
+            Some(v) => v,
+            None => stage.x.target_um().await.map_err(driver_error)?,
+        };
+        let y = match cached[1] {
+            Some(v) => v,
+            None => stage.y.target_um().await.map_err(driver_error)?,
+        };
+        Ok([x, y])
+    }
+
+    /// A `compensated` or `closed_loop` move: plan with the active
+    /// compensator (closed loop without a table plans uncompensated), send
+    /// the waypoints waiting for each, commit the plan to the history, then
+    /// for closed loop correct from fresh frames.
+    async fn planned_move(
+        self: &Arc<Self>,
+        req: &MoveRequest,
+        from_job: bool,
+    ) -> Result<Value, ProtoError> {
+        use super::comp as c;
+        let comp = c::compensator_for(self, req.mode == MoveMode::Compensated)?;
+        let frame = if req.mode == MoveMode::ClosedLoop {
+            if self.vision.is_none() {
+                return Err(ProtoError::new(
+                    ErrorCode::CameraUnavailable,
+                    "closed_loop needs a camera (camera.source)",
+                ));
+            }
+            let f = self.comp.active().and_then(|a| a.frame).ok_or_else(|| {
+                ProtoError::new(
+                    ErrorCode::NoActiveTable,
+                    "closed_loop needs the vision → stage transform: activate a table built from a characterization (it records the frame)",
+                )
+            })?;
+            Some(f)
+        } else {
+            None
+        };
+        let start = self.current_cmd().await?;
+        let base = self.comp.last_target().map_or(start, |t| [t.x_um, t.y_um]);
+        let pick = |v: Option<f64>, b: f64| match v {
+            Some(v) if req.relative => b + v,
+            Some(v) => v,
+            None => b,
+        };
+        let target = crate::model::XyUm {
+            x_um: pick(req.x_um, base[0]),
+            y_um: pick(req.y_um, base[1]),
+        };
+        let opts = crate::comp::PlanOptions::default();
+        let plan = self.comp.plan(&*comp, target, start, &opts)?;
+        for w in &plan.waypoints {
+            let r = MoveRequest {
+                x_um: Some(w.x_um),
+                y_um: Some(w.y_um),
+                relative: false,
+                mode: MoveMode::Raw,
+                wait: true,
+                tolerance_um: None,
+            };
+            self.raw_move(&r, from_job, false).await?;
+        }
+        self.comp.commit_plan(&plan, self.clock.now_s());
+        let mut out = json!({
+            "mode": req.mode.as_str(),
+            "compensator": comp.kind(),
+            "target": {"x_um": target.x_um, "y_um": target.y_um},
+            "commanded": {"x_um": plan.cmd.x_um, "y_um": plan.cmd.y_um},
+            "waypoints": plan.waypoints.len(),
+            "predicted_offset_um": plan.predicted_offset_um,
+            "on_target": true,
+        });
+        if let Some(frame) = frame {
+            let cl = crate::comp::closed_loop::ClosedLoop::new(
+                target,
+                plan.cmd,
+                plan.arrival,
+                c::loop_config(self, req.tolerance_um),
+            )
+            .map_err(|e| ProtoError::new(ErrorCode::BadValue, format!("closed loop: {e}")))?;
+            let me = self.clone();
+            let res = c::run_loop(self, cl, frame, move |wps| {
+                let me = me.clone();
+                Box::pin(async move {
+                    for w in wps {
+                        let r = MoveRequest {
+                            x_um: Some(w.x_um),
+                            y_um: Some(w.y_um),
+                            relative: false,
+                            mode: MoveMode::Raw,
+                            wait: true,
+                            tolerance_um: None,
+                        };
+                        me.raw_move(&r, from_job, true).await?;
+                    }
+                    Ok(())
+                })
+            })
+            .await?;
+            out["closed_loop"] = res;
+        }
+        Ok(out)
+    }
+
+    /// A raw move (also each waypoint of a planned move). `commit` records
+    /// it in the motion history (planned moves commit their whole plan).
+    async fn raw_move(
+        self: &Arc<Self>,
+        req: &MoveRequest,
+        from_job: bool,
+        commit: bool,
+    ) -> Result<Value, ProtoError> {
         let stage = self.stage()?;
         let gen = self.stop_gen.load(Ordering::SeqCst);
         let _queue = self.motion.lock().await;
@@ -449,6 +560,9 @@ impl Rig {
             // One axis may have started: a half-accepted move is halted.
             self.halt_all().await;
             return Err(driver_error(e));
+        }
+        if commit {
+            self.comp.commit_raw(targets, self.clock.now_s());
         }
         let mut out = json!({"commanded": {"x_um": targets[0], "y_um": targets[1]}});
         if req.wait {
@@ -523,6 +637,8 @@ impl Rig {
     pub async fn reference(self: &Arc<Self>, axes: Axes) -> Result<Value, ProtoError> {
         let stage = self.stage()?;
         let _queue = self.motion.lock().await;
+        // The play is unknown again after a reference run.
+        self.comp.reset_history();
         {
             let t = self.clock.now_s();
             let mut s = lock(&self.state);

@@ -1,0 +1,375 @@
+//! Compensation in the daemon: loaded tables, the active compensator, the
+//! motion history, and the planned (`compensated`) and `closed_loop` moves.
+//!
+//! Why the daemon keeps the history: a table or model predicts the error from
+//! the arrival direction and the play, which depend on every move made since
+//! the reference, including raw moves and job steps. So every executed move
+//! is committed here, whatever its mode.
+//!
+//! Activation swaps an `Arc<dyn Compensator>` under a mutex: a move in flight
+//! keeps the compensator it started with; the next move uses the new one.
+
+use super::protocol::{ErrorCode, ProtoError};
+use super::rig::Rig;
+use crate::comp::closed_loop::{
+    Action, ClosedLoop, ClosedLoopConfig, FailReason, FrameMeasurement, RejectReason,
+};
+use crate::comp::{
+    CompFile, Compensator, MotionHistory, MovePlan, PlanOptions, Uncompensated, VisionFrame,
+};
+use crate::model::state::MotionState;
+use crate::model::XyUm;
+use serde_json::{json, Value};
+use std::collections::BTreeMap;
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+
+fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(|p| p.into_inner())
+}
+
+/// The active compensator and where it came from.
+#[derive(Debug, Clone)]
+pub struct Active {
+    /// Table file name.
+    pub name: String,
+    /// The compensator.
+    pub comp: Arc<dyn Compensator>,
+    /// Vision → stage transform recorded with the table (closed loop needs it).
+    pub frame: Option<VisionFrame>,
+}
+
+/// Loaded tables, the active one, the motion history.
+#[derive(Debug, Default)]
+pub struct CompState {
+    loaded: Mutex<BTreeMap<String, Arc<CompFile>>>,
+    active: Mutex<Option<Active>>,
+    history: Mutex<Option<MotionHistory>>,
+}
+
+fn comp_err(code: ErrorCode, what: &str, e: impl std::fmt::Display) -> ProtoError {
+    ProtoError::new(code, format!("{what}: {e}"))
+}
+
+impl CompState {
+    /// The active compensator, if any.
+    pub fn active(&self) -> Option<Active> {
+        lock(&self.active).clone()
+    }
+
+    /// `tables list`: `.toml` files of the data directory, loaded, active.
+    pub async fn list(&self, data_dir: &std::path::Path) -> Result<Value, ProtoError> {
+        let dir = data_dir.to_owned();
+        let files = tokio::task::spawn_blocking(move || -> std::io::Result<Vec<String>> {
+            let mut v = Vec::new();
+            for e in std::fs::read_dir(&dir)? {
+                let name = e?.file_name().to_string_lossy().into_owned();
+                if name.ends_with(".toml") && !name.starts_with('.') {
+                    v.push(name);
+                }
+            }
+            v.sort();
+            Ok(v)
+        })
+        .await
+        .map_err(|e| comp_err(ErrorCode::Internal, "listing tables", e))?
+        .map_err(|e| comp_err(ErrorCode::LogError, "listing the data directory", e))?;
+        let loaded: Vec<Value> = lock(&self.loaded)
+            .iter()
+            .map(|(n, f)| {
+                json!({"name": n, "kind": f.kind, "created": f.created,
+                       "records": f.source.records, "has_frame": f.frame.is_some()})
+            })
+            .collect();
+        Ok(json!({"files": files, "loaded": loaded,
+                  "active": self.active().map(|a| a.name)}))
+    }
+
+    /// `tables load NAME`: reads and checks the file (a bad file is refused
+    /// with the reason; the active table stays as it was).
+    pub async fn load(&self, data_dir: &std::path::Path, name: &str) -> Result<Value, ProtoError> {
+        let path = data_dir.join(name);
+        let file = tokio::task::spawn_blocking(move || CompFile::read_path(&path))
+            .await
+            .map_err(|e| comp_err(ErrorCode::Internal, "loading a table", e))?
+            .map_err(|e| comp_err(ErrorCode::BadValue, &format!("table {name}"), e))?;
+        // Building the compensator checks the content, not only the syntax.
+        file.compensator()
+            .map_err(|e| comp_err(ErrorCode::BadValue, &format!("table {name}"), e))?;
+        let out = json!({"loaded": name, "kind": file.kind, "records": file.source.records});
+        lock(&self.loaded).insert(name.to_owned(), Arc::new(file));
+        Ok(out)
+    }
+
+    /// `tables activate [NAME]`: swaps the active compensator (`None`
+    /// deactivates). The table must be loaded first.
+    pub fn activate(&self, name: Option<&str>) -> Result<Value, ProtoError> {
+        let Some(name) = name else {
+            *lock(&self.active) = None;
+            return Ok(json!({"active": null}));
+        };
+        let file = lock(&self.loaded).get(name).cloned().ok_or_else(|| {
+            ProtoError::new(
+                ErrorCode::BadValue,
+                format!("table {name:?} is not loaded; tables load it first"),
+            )
+        })?;
+        let comp = file
+            .compensator()
+            .map_err(|e| comp_err(ErrorCode::BadValue, &format!("table {name}"), e))?;
+        *lock(&self.active) = Some(Active {
+            name: name.to_owned(),
+            comp: Arc::from(comp),
+            frame: file.frame,
+        });
+        Ok(json!({"active": name, "kind": file.kind}))
+    }
+
+    /// Records a move made without a plan (raw moves, job steps).
+    pub fn commit_raw(&self, cmd: [Option<f64>; 2], time_s: f64) {
+        let mut h = lock(&self.history);
+        let hist = match h.as_mut() {
+            Some(h) => h,
+            None => {
+                let (Some(x), Some(y)) = (cmd[0], cmd[1]) else {
+                    return;
+                };
+                match MotionHistory::new(MotionState::at_rest(x, y), 0.0) {
+                    Ok(n) => {
+                        *h = Some(n);
+                        return;
+                    }
+                    Err(e) => {
+                        tracing::warn!("motion history not started: {e}");
+                        return;
+                    }
+                }
+            }
+        };
+        let s = hist.state().cmd_xy_um();
+        let c = XyUm {
+            x_um: cmd[0].unwrap_or(s[0]),
+            y_um: cmd[1].unwrap_or(s[1]),
+        };
+        if let Err(e) = hist.commit_move(c, c, time_s, crate::model::state::DEFAULT_TEMP_C) {
+            tracing::warn!("motion history: {e}; restarting it at the command");
+            *h = MotionHistory::new(MotionState::at_rest(c.x_um, c.y_um), 0.0).ok();
+        }
+    }
+
+    /// Forgets the history (after a reference run or a fault: the play is
+    /// unknown again).
+    pub fn reset_history(&self) {
+        *lock(&self.history) = None;
+    }
+
+    /// Plans a move to `target` with `comp`; `start` is the commanded
+    /// position used if no history exists yet.
+    pub fn plan(
+        &self,
+        comp: &dyn Compensator,
+        target: XyUm,
+        start: [f64; 2],
+        opts: &PlanOptions,
+    ) -> Result<MovePlan, ProtoError> {
+        let mut h = lock(&self.history);
+        if h.is_none() {
+            *h = Some(
+                MotionHistory::new(MotionState::at_rest(start[0], start[1]), 0.0)
+                    .map_err(|e| comp_err(ErrorCode::Internal, "motion history", e))?,
+            );
+        }
+        let Some(hist) = h.as_ref() else {
+            return Err(ProtoError::new(ErrorCode::Internal, "no motion history"));
+        };
+        comp.command_for(target, hist, opts)
+            .map_err(|e| comp_err(ErrorCode::BadValue, "planning the move", e))
+    }
+
+    /// Records an executed plan.
+    pub fn commit_plan(&self, plan: &MovePlan, time_s: f64) {
+        if let Some(h) = lock(&self.history).as_mut() {
+            if let Err(e) = h.commit(plan, time_s, crate::model::state::DEFAULT_TEMP_C) {
+                tracing::warn!("motion history: {e}");
+            }
+        }
+    }
+
+    /// The last target, if the history knows one.
+    pub fn last_target(&self) -> Option<XyUm> {
+        lock(&self.history).as_ref().map(|h| h.last_target())
+    }
+}
+
+/// Which compensator a planned move uses.
+pub fn compensator_for(rig: &Rig, compensated: bool) -> Result<Arc<dyn Compensator>, ProtoError> {
+    match rig.comp.active() {
+        Some(a) => Ok(a.comp),
+        None if compensated => Err(ProtoError::new(
+            ErrorCode::NoActiveTable,
+            "no compensation table is active: tables load NAME, tables activate NAME (or use mode raw)",
+        )),
+        None => Ok(Arc::new(Uncompensated)),
+    }
+}
+
+/// Maps a closed-loop failure to its error.
+pub fn failure(reason: FailReason, residual: Option<[f64; 2]>, corrections: u32) -> ProtoError {
+    let (code, what) = match reason {
+        FailReason::RetryLimit => (
+            ErrorCode::RetryLimit,
+            "the correction limit was reached outside tolerance".to_owned(),
+        ),
+        FailReason::Diverging => (
+            ErrorCode::Diverging,
+            "the residual grew between corrections; stopped instead of chasing it".to_owned(),
+        ),
+        FailReason::Frames(RejectReason::LowQuality)
+        | FailReason::Frames(RejectReason::NonFinite) => (
+            ErrorCode::LowQuality,
+            "frames decode below camera.min_quality".to_owned(),
+        ),
+        FailReason::Frames(r) => (
+            ErrorCode::CameraStalled,
+            format!("no fresh frame after the move settled ({r:?})"),
+        ),
+    };
+    ProtoError::new(
+        code,
+        format!("closed loop failed after {corrections} corrections: {what}; last residual {residual:?} µm"),
+    )
+}
+
+/// Closed-loop parameters from the daemon configuration.
+pub fn loop_config(rig: &Rig, tolerance_um: Option<f64>) -> ClosedLoopConfig {
+    let d = ClosedLoopConfig::default();
+    ClosedLoopConfig {
+        tolerance_um: tolerance_um.unwrap_or(rig.cfg.closed_loop.tolerance_um),
+        max_corrections: rig.cfg.closed_loop.max_iterations,
+        min_quality: rig.cfg.camera.min_quality,
+        ..d
+    }
+}
+
+/// Waits for the next vision measurement usable by the loop: exposed after
+/// the move settled (a frame whose grab was in flight at settle time is
+/// skipped by sequence), converted to the stage frame by `frame`.
+///
+/// The wait for the camera itself is bounded in wall time
+/// (`camera.timeout_ms`): it guards an I/O stall, not a physical duration.
+/// A frame that never comes fails as `camera_stalled`; frames that come but
+/// do not decode fail as `low_quality`.
+pub async fn next_frame(
+    rig: &Rig,
+    frame: &VisionFrame,
+    min_sequence: u64,
+) -> Result<FrameMeasurement, ProtoError> {
+    let Some(v) = &rig.vision else {
+        return Err(ProtoError::new(
+            ErrorCode::CameraUnavailable,
+            "no camera is configured (camera.source)",
+        ));
+    };
+    let mut rx = v.latest.clone();
+    let failed_before = v.stats.failed.load(std::sync::atomic::Ordering::Relaxed);
+    let timeout = Duration::from_millis(rig.cfg.camera.timeout_ms);
+    let deadline = tokio::time::Instant::now() + timeout;
+    loop {
+        if let Some(m) = *rx.borrow_and_update() {
+            if m.sequence >= min_sequence {
+                let p = frame.to_stage(XyUm {
+                    x_um: m.x_um,
+                    y_um: m.y_um,
+                });
+                return Ok(FrameMeasurement {
+                    position: p,
+                    timestamp_s: m.t_s,
+                    quality: m.quality,
+                    frame_seq: m.sequence,
+                });
+            }
+        }
+        match tokio::time::timeout_at(deadline, rx.changed()).await {
+            Ok(Ok(())) => continue,
+            Ok(Err(_)) | Err(_) => {
+                let failed = v.stats.failed.load(std::sync::atomic::Ordering::Relaxed);
+                let last = lock(&v.last_error).clone().unwrap_or_default();
+                return Err(if failed > failed_before {
+                    ProtoError::new(
+                        ErrorCode::LowQuality,
+                        format!(
+                            "frames arrive but do not decode ({} failed in {} ms; last: {last}); the stage was not corrected on old data",
+                            failed - failed_before,
+                            timeout.as_millis()
+                        ),
+                    )
+                } else {
+                    ProtoError::new(
+                        ErrorCode::CameraStalled,
+                        format!(
+                            "no new frame from the camera within {} ms after the move settled (last error: {last}); the stage was not corrected on old data",
+                            timeout.as_millis()
+                        ),
+                    )
+                });
+            }
+        }
+    }
+}
+
+/// The sequence number a frame must reach to have been grabbed entirely
+/// after now: the newest known + 2 (the one in flight may predate now).
+pub fn min_sequence_after_now(rig: &Rig) -> u64 {
+    rig.vision
+        .as_ref()
+        .and_then(|v| *v.latest.borrow())
+        .map_or(0, |m| m.sequence + 2)
+}
+
+/// Runs the closed loop after the first planned move settled.
+pub async fn run_loop(
+    rig: &Arc<Rig>,
+    mut cl: ClosedLoop,
+    frame: VisionFrame,
+    mut execute: impl FnMut(Vec<XyUm>) -> futures_like::BoxFut<'static>,
+) -> Result<Value, ProtoError> {
+    cl.settled(rig.clock.now_s());
+    let mut min_seq = min_sequence_after_now(rig);
+    loop {
+        let m = next_frame(rig, &frame, min_seq).await?;
+        min_seq = m.frame_seq + 1;
+        match cl.on_frame(&m) {
+            Action::AwaitFrame { .. } => continue,
+            Action::Move { waypoints } => {
+                execute(waypoints).await?;
+                cl.settled(rig.clock.now_s());
+                min_seq = min_sequence_after_now(rig).max(min_seq);
+            }
+            Action::Done {
+                residual_um,
+                corrections,
+            } => {
+                return Ok(json!({
+                    "residual_um": {"x_um": residual_um[0], "y_um": residual_um[1]},
+                    "corrections": corrections,
+                    "measured": {"x_um": m.position.x_um, "y_um": m.position.y_um,
+                                 "t_s": m.timestamp_s, "quality": m.quality},
+                    "commanded": {"x_um": cl.cmd().x_um, "y_um": cl.cmd().y_um},
+                }))
+            }
+            Action::Failed {
+                reason,
+                residual_um,
+                corrections,
+            } => return Err(failure(reason, residual_um, corrections)),
+        }
+    }
+}
+
+/// A boxed future alias, so the executor closure can be async.
+pub mod futures_like {
+    use super::ProtoError;
+    /// A boxed, sendable future of a move result.
+    pub type BoxFut<'a> =
+        std::pin::Pin<Box<dyn std::future::Future<Output = Result<(), ProtoError>> + Send + 'a>>;
+}
