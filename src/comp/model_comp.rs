@@ -90,9 +90,10 @@ impl Compensator for ModelCompensator {
 }
 
 /// The template a characterization fits: the structure of `model` (its
-/// terms, periods, harmonic counts and Abbe arms, which are geometry and
-/// are not fitted) with every other parameter reset to zero (backlash
-/// starts at 1 µm), and without the thermal and observation terms (they
+/// terms, periods, harmonic counts, and the parameters that say *where* an
+/// effect is rather than how large it is — Abbe arms, the centre and width
+/// of a localized feature; see [`is_geometry`]) with every other parameter
+/// reset to zero (backlash starts at 1 µm), and without the thermal and observation terms (they
 /// need a temperature history the scans do not resolve; see
 /// `docs/compensation-tables.md`).
 pub fn compensation_template(model: &StageModel) -> Result<StageModel, CompError> {
@@ -114,7 +115,7 @@ pub fn compensation_template(model: &StageModel) -> Result<StageModel, CompError
         .params()
         .iter()
         .map(|p| {
-            if p.info.name.starts_with("arm_") {
+            if is_geometry(&p.info.name) {
                 p.info.value
             } else if p.info.name == "backlash_um" {
                 1.0
@@ -125,6 +126,17 @@ pub fn compensation_template(model: &StageModel) -> Result<StageModel, CompError
         .collect();
     m.set_parameter_vector(&values)?;
     Ok(m)
+}
+
+/// Whether a parameter is geometry (kept from the model in a template)
+/// rather than a magnitude (fitted from zero). Zeroing a geometry parameter
+/// would make the term meaningless or invalid (a localized feature of zero
+/// width), and the scans of a characterization cannot re-discover it.
+pub fn is_geometry(param_name: &str) -> bool {
+    param_name.starts_with("arm_")
+        || param_name == "position_um"
+        || param_name == "width_um"
+        || param_name.contains("period")
 }
 
 /// How to fit a model to a log.
@@ -230,4 +242,29 @@ pub fn scan_samples(
         }
     }
     Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn template_keeps_geometry_and_zeroes_magnitudes() {
+        let model = StageModel::paper_default().unwrap();
+        let tmpl = compensation_template(&model).unwrap();
+        for p in tmpl.params() {
+            let original = model.param(&p.full_name).unwrap();
+            if is_geometry(&p.info.name) {
+                assert_eq!(p.info.value, original, "{}", p.full_name);
+            } else if p.info.name == "backlash_um" {
+                assert_eq!(p.info.value, 1.0);
+            } else {
+                assert_eq!(p.info.value, 0.0, "{}", p.full_name);
+            }
+        }
+        // The template is a valid model file (a zero width would not be).
+        let text = tmpl.to_toml().unwrap();
+        StageModel::from_toml(&text).unwrap();
+        assert!(is_geometry("width_um") && is_geometry("arm_y_um") && !is_geometry("sin_um"));
+    }
 }
