@@ -52,6 +52,12 @@ pub struct Grid {
     /// RMS of the tile phase residuals about the fitted plane, rad, worst of
     /// the two directions (lens distortion and noise show here).
     pub phase_rms_rad: f64,
+    /// β_d = d ln B̂/d|k| of one dot's spectrum B̂ at the fundamental of
+    /// direction d, px (negative: blur and the dot size make B̂ fall with
+    /// |k|). Estimated from the 3rd/1st harmonic ratio of the peak search
+    /// (square dots of side p/2 convolved with a Gaussian), kept while
+    /// tracking. The missing-dot correction of the centre phase scales with it.
+    pub blob_slope_px: [f64; 2],
 }
 
 /// Side of the FFT block for the peak search.
@@ -86,6 +92,9 @@ pub(crate) struct FineStage {
     cen_y: Vec<f64>,
     win_w: usize,
     win_h: usize,
+    /// Last estimate of [`Grid::blob_slope_px`] as s² (effective Gaussian
+    /// variance, px²) per direction; NaN until a peak search ran.
+    blob_var: [f64; 2],
 }
 
 impl std::fmt::Debug for FineStage {
@@ -182,6 +191,7 @@ impl FineStage {
             cen_y: Vec::new(),
             win_w: 0,
             win_h: 0,
+            blob_var: [f64::NAN; 2],
         }
     }
 
@@ -393,6 +403,9 @@ impl FineStage {
             ));
         }
         let kb = self.refine_peak(best2.1, best2.2, n);
+        for (d, kd) in [ka, kb].into_iter().enumerate() {
+            self.blob_var[d] = self.blob_variance(kd, n);
+        }
         let s = std::f64::consts::TAU / n as f64;
         let a = [ka.0 * s, ka.1 * s];
         let mut b = [kb.0 * s, kb.1 * s];
@@ -400,6 +413,52 @@ impl FineStage {
             b = [-b[0], -b[1]];
         }
         Ok([a, b])
+    }
+
+    /// Effective Gaussian variance s² (px²) of one dot's blur from the ratio
+    /// r of the 3rd harmonic to the fundamental at peak `f` (cycles per
+    /// block): a square dot of side p/2 has |B̂(3k)/B̂(k)| = 1/3 unblurred and
+    /// a Gaussian of variance s² multiplies that by exp(−4 s² k²). Summed
+    /// 3 × 3 bin powers make the ratio independent of the sub-bin offset.
+    /// NaN when the 3rd harmonic lies beyond the usable band.
+    fn blob_variance(&self, f: (f64, f64), n: usize) -> f64 {
+        let f3 = (3.0 * f.0, 3.0 * f.1);
+        if f3.0.hypot(f3.1) > n as f64 / 2.0 - 2.0 {
+            return f64::NAN;
+        }
+        let e1 = self.bin_energy(f, n);
+        let e3 = self.bin_energy(f3, n);
+        if !(e1 > 0.0) {
+            return f64::NAN;
+        }
+        let r = (e3 / e1).sqrt();
+        let k = std::f64::consts::TAU * f.0.hypot(f.1) / n as f64;
+        // Pixel aperture alone gives s² ≈ 1/12 px²; ratios at the noise floor
+        // are capped at a blur of 4 px.
+        (-(3.0 * r).max(1e-12).ln() / (4.0 * k * k)).clamp(1.0 / 12.0, 16.0)
+    }
+
+    /// Sum of the powers in the 3 × 3 bins around frequency `f`.
+    fn bin_energy(&self, f: (f64, f64), n: usize) -> f64 {
+        let nc = n / 2 + 1;
+        let (x, y) = if f.0 < 0.0 { (-f.0, -f.1) } else { f };
+        let (cx, cy) = (x.round() as i64, y.round() as i64);
+        let mut e = 0.0;
+        for dy in -1..=1i64 {
+            for dx in -1..=1i64 {
+                let (mut bx, mut by) = (cx + dx, cy + dy);
+                if bx < 0 {
+                    bx = -bx;
+                    by = -by;
+                }
+                if bx >= nc as i64 {
+                    continue;
+                }
+                let fy = by.rem_euclid(n as i64) as usize;
+                e += f64::from(self.power[fy * nc + bx as usize]);
+            }
+        }
+        e
     }
 
     /// Largest power in the 3 × 3 bins around frequency `f` (cycles per
@@ -645,6 +704,17 @@ impl FineStage {
                 amplitude: amp,
                 coherence: fa.2.min(fb.2),
                 phase_rms_rad: fa.3.max(fb.3),
+                blob_slope_px: [0, 1].map(|d| {
+                    let kk = k[d][0].hypot(k[d][1]);
+                    // Without an estimate assume σ ≈ 0.8 px blur plus the
+                    // pixel aperture.
+                    let var = if self.blob_var[d].is_finite() {
+                        self.blob_var[d]
+                    } else {
+                        0.72
+                    };
+                    -1.0 / kk - var * kk
+                }),
             };
             let step = (fa.0[0].hypot(fa.0[1])).max(fb.0[0].hypot(fb.0[1])) * TILE as f64;
             out = Some(grid);

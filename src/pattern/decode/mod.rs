@@ -130,6 +130,88 @@ impl DecodeOptions {
     }
 }
 
+/// Phase error (rad, per lattice direction) that the missing (coded) dots
+/// cause in the globally windowed demodulation; subtract it from the measured
+/// phase.
+///
+/// Each dot at u_s adds e^{iφ}·B̂·[w(u_s) + i β k̂·∇w(u_s)] to the windowed
+/// sum (first order in the window's variation across the dot; β =
+/// [`Grid::blob_slope_px`]). Over a full lattice Σ∇w cancels, but the coded
+/// dots are missing asymmetrically about the centre, so the phase is off by
+/// β k̂·Σ_present ∇w / Σ_present w — constant under sub-period motion,
+/// ~2e-3 px at some views. Once the code is known the present sites are
+/// known, so the sums are evaluated exactly (O(sites), no pixel pass).
+/// `phi` are the dot phases at the centre (π removed for dark dots);
+/// `present(m_a, m_b)` says whether lattice site (m_a, m_b) holds a dot.
+fn missing_dot_correction(
+    grid: &Grid,
+    phi: [f64; 2],
+    w: usize,
+    h: usize,
+    present: impl Fn(i64, i64) -> bool,
+) -> [f64; 2] {
+    use std::f64::consts::{PI, TAU};
+    let k = grid.k;
+    let det = k[0][0] * k[1][1] - k[0][1] * k[1][0];
+    if !(det.abs() > 1e-12) {
+        return [0.0; 2];
+    }
+    // u − c = K⁻¹ (2π m − φ).
+    let inv = [
+        [k[1][1] / det, -k[0][1] / det],
+        [-k[1][0] / det, k[0][0] / det],
+    ];
+    let (wf, hf) = (w as f64, h as f64);
+    let (cx, cy) = (wf / 2.0, hf / 2.0);
+    let mut lo = [f64::MAX; 2];
+    let mut hi = [f64::MIN; 2];
+    for (x, y) in [(-cx, -cy), (cx, -cy), (-cx, cy), (cx, cy)] {
+        for d in 0..2 {
+            let m = (k[d][0] * x + k[d][1] * y + phi[d]) / TAU;
+            lo[d] = lo[d].min(m);
+            hi[d] = hi[d].max(m);
+        }
+    }
+    // A frame spans at most a few thousand periods; bound the loop anyway.
+    if !(lo.iter().chain(hi.iter()).all(|v| v.is_finite()))
+        || (hi[0] - lo[0]) * (hi[1] - lo[1]) > 4e6
+    {
+        return [0.0; 2];
+    }
+    let (ax, ay) = (PI / wf, PI / hf);
+    let (mut s0, mut sx, mut sy) = (0.0, 0.0, 0.0);
+    for mb in lo[1].floor() as i64..=hi[1].ceil() as i64 {
+        let pb = TAU * mb as f64 - phi[1];
+        for ma in lo[0].floor() as i64..=hi[0].ceil() as i64 {
+            let pa = TAU * ma as f64 - phi[0];
+            let x = inv[0][0] * pa + inv[0][1] * pb + cx;
+            let y = inv[1][0] * pa + inv[1][1] * pb + cy;
+            if !(x > 0.0 && x < wf && y > 0.0 && y < hf) || !present(ma, mb) {
+                continue;
+            }
+            let (sxa, cxa) = (ax * x).sin_cos();
+            let (sya, cya) = (ay * y).sin_cos();
+            let (wx, wy) = (sxa * sxa, sya * sya);
+            s0 += wx * wy;
+            // d/dx sin²(πx/W) = (π/W)·2 sin cos.
+            sx += 2.0 * ax * sxa * cxa * wy;
+            sy += 2.0 * ay * sya * cya * wx;
+        }
+    }
+    if !(s0 > 0.0) {
+        return [0.0; 2];
+    }
+    [0, 1].map(|d| {
+        let kk = k[d][0].hypot(k[d][1]);
+        let c = grid.blob_slope_px[d] * (k[d][0] * sx + k[d][1] * sy) / (kk * s0);
+        if c.is_finite() {
+            c
+        } else {
+            0.0
+        }
+    })
+}
+
 /// Diagnostics of one decode.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Quality {
@@ -273,14 +355,23 @@ impl Decoder {
             .coarse
             .run(frame, grid, &self.seq, polarity, &self.opts.thresholds)?;
         let tau = std::f64::consts::TAU;
-        let mut line_c = [0.0; 2];
+        let mut phi = [0.0; 2];
         for d in 0..2 {
-            let phi = if fix.dark_dots {
+            phi[d] = if fix.dark_dots {
                 grid.phi[d] - std::f64::consts::PI
             } else {
                 grid.phi[d]
             };
-            line_c[d] = fix.origin[d] as f64 + fix.sigma[d] as f64 * phi / tau;
+        }
+        let corr = missing_dot_correction(grid, phi, frame.width(), frame.height(), |ma, mb| {
+            self.seq.dot(
+                fix.origin[0] + fix.sigma[0] * ma,
+                fix.origin[1] + fix.sigma[1] * mb,
+            )
+        });
+        let mut line_c = [0.0; 2];
+        for d in 0..2 {
+            line_c[d] = fix.origin[d] as f64 + fix.sigma[d] as f64 * (phi[d] - corr[d]) / tau;
         }
         let mirrored = self.opts.mirrored;
         let x_is_a = (fix.sigma[0] == fix.sigma[1]) ^ mirrored;
