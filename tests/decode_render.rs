@@ -111,10 +111,48 @@ fn tracking_matches_cold_decode() {
         let f = r.render(&pose, i, 0.0, i).unwrap();
         let t = d.track(&f).unwrap();
         assert_eq!(t.tracked, i > 0);
+        assert_eq!(t.code_predicted, i > 0, "tracking fast path not taken");
         assert!(
             (t.x_um - pose.x_um).abs() < 2e-3 && (t.y_um - pose.y_um).abs() < 2e-3,
             "{t:?}"
         );
+    }
+}
+
+#[test]
+fn tracking_survives_jumps_and_rotation() {
+    // A move of many periods between frames defeats the continuity
+    // prediction; the check must notice and fall back to the full search.
+    let mut r = Renderer::new(cfg_1024()).unwrap();
+    let mut d = Decoder::new(DecodeOptions::new(P, 12)).unwrap();
+    let poses = [
+        (5_000.0, 7_000.0, 1.0),
+        (5_000.4, 7_000.2, 1.0),
+        (5_000.4 + 3.0 * P, 7_000.2, 1.0),
+        (5_000.4 + 3.0 * P, 7_000.2 - 40.0 * P, 1.0),
+        (9_100.0, 3_000.0, 1.0),
+        (9_100.0, 3_000.0, 1.0 + std::f64::consts::FRAC_PI_2),
+    ];
+    for (i, &(x, y, t)) in poses.iter().enumerate() {
+        let pose = Pose {
+            x_um: x,
+            y_um: y,
+            theta_rad: t,
+            pixel_um: PX,
+            mirrored: false,
+        };
+        let f = r.render(&pose, i as u64, 0.0, i as u64).unwrap();
+        let o = d.track(&f).unwrap();
+        assert!(
+            (o.x_um - x).abs() < 2e-3 && (o.y_um - y).abs() < 2e-3,
+            "frame {i}: {o:?}"
+        );
+        if i == 1 {
+            assert!(o.code_predicted);
+        }
+        if i >= 2 {
+            assert!(!o.code_predicted, "frame {i} accepted a wrong prediction");
+        }
     }
 }
 

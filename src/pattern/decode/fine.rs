@@ -744,11 +744,16 @@ impl FineStage {
 /// Solves the symmetric 3×3 system for (p0, hx, hy), fixing hx or hy to 0
 /// when that dimension has a single tile.
 fn solve3(m: [[f64; 3]; 3], r: [f64; 3], use_x: bool, use_y: bool) -> [f64; 3] {
-    let idx: Vec<usize> = [Some(0), use_x.then_some(1), use_y.then_some(2)]
-        .into_iter()
-        .flatten()
-        .collect();
-    let k = idx.len();
+    // Fixed-size index list: this runs per frame and must not allocate.
+    let mut idx = [0usize; 3];
+    let mut k = 1;
+    for (on, i) in [(use_x, 1), (use_y, 2)] {
+        if on {
+            idx[k] = i;
+            k += 1;
+        }
+    }
+    let idx = &idx[..k];
     let mut a = [[0.0; 4]; 3];
     for (ii, &i) in idx.iter().enumerate() {
         for (jj, &j) in idx.iter().enumerate() {

@@ -254,6 +254,9 @@ pub struct Decoded {
     pub grid: Grid,
     /// True when this result came from the tracking path.
     pub tracked: bool,
+    /// True when the code position was the previous frame's prediction,
+    /// verified (tracking fast path), rather than searched.
+    pub code_predicted: bool,
 }
 
 /// A reusable decoder: FFT plans and all buffers survive across frames, so a
@@ -265,6 +268,8 @@ pub struct Decoder {
     fine: fine::FineStage,
     coarse: coarse::CoarseStage,
     last: Option<Grid>,
+    /// Code fix of the last decoded frame and its centre line coordinates.
+    last_fix: Option<(coarse::CodeFix, [f64; 2])>,
 }
 
 impl Decoder {
@@ -289,6 +294,7 @@ impl Decoder {
             fine: fine::FineStage::new(),
             coarse: coarse::CoarseStage::default(),
             last: None,
+            last_fix: None,
         })
     }
 
@@ -354,6 +360,16 @@ impl Decoder {
         let fix = self
             .coarse
             .run(frame, grid, &self.seq, polarity, &self.opts.thresholds)?;
+        self.finish(frame, grid, &fix)
+    }
+
+    /// The pose from a fine grid and a code fix.
+    fn finish(
+        &mut self,
+        frame: &Frame,
+        grid: &Grid,
+        fix: &coarse::CodeFix,
+    ) -> Result<Decoded, DecodeError> {
         let tau = std::f64::consts::TAU;
         let mut phi = [0.0; 2];
         for d in 0..2 {
@@ -412,6 +428,7 @@ impl Decoder {
             },
             grid: *grid,
             tracked: false,
+            code_predicted: false,
         };
         if ![out.x_um, out.y_um, out.theta_rad, out.pixel_um]
             .iter()
@@ -419,42 +436,81 @@ impl Decoder {
         {
             return Err(DecodeError::NoGrid("non-finite pose".into()));
         }
+        self.last_fix = Some((*fix, line_c));
         Ok(out)
     }
 
     /// Decodes a frame from scratch (peak search included).
     pub fn decode(&mut self, frame: &Frame) -> Result<Decoded, DecodeError> {
         self.last = None;
+        self.last_fix = None;
         let g = self.fine_stage(frame)?;
         let d = self.dot_stage(frame, &g)?;
         self.last = Some(d.grid);
         Ok(d)
     }
 
-    /// Decodes a frame of a stream: reuses the previous frame's grid
-    /// frequencies (no peak search) and falls back to [`Decoder::decode`]
-    /// when there is no previous grid or tracking fails.
+    /// Decodes a frame of a stream. Reuses the previous frame's grid
+    /// frequencies (no peak search), polarity, axis directions and code
+    /// position: the new fine phase tells how many whole periods the view
+    /// moved (assuming less than half a period of motion between frames), and
+    /// the predicted code offset is verified against the visible code lines
+    /// (see the tracking check in [`coarse`]). A failed check runs the full
+    /// per-dot search on the tracked grid; a failed grid falls back to
+    /// [`Decoder::decode`]. A tracked result is therefore held to the same
+    /// orientation and code margins as a cold one.
     pub fn track(&mut self, frame: &Frame) -> Result<Decoded, DecodeError> {
         if let Some(last) = self.last {
-            let tracked = self
-                .fine
-                .refine(frame, last.k, 2)
-                .and_then(|g| {
-                    self.check_grid(&g)?;
-                    if g.amplitude[0] < 0.5 * last.amplitude[0]
-                        || g.amplitude[1] < 0.5 * last.amplitude[1]
-                    {
-                        return Err(DecodeError::NoGrid("grid amplitude collapsed".into()));
-                    }
-                    Ok(g)
-                })
-                .and_then(|g| self.dot_stage(frame, &g));
-            if let Ok(mut d) = tracked {
-                d.tracked = true;
-                self.last = Some(d.grid);
-                return Ok(d);
+            let grid = self.fine.refine(frame, last.k, 2).and_then(|g| {
+                self.check_grid(&g)?;
+                if g.amplitude[0] < 0.5 * last.amplitude[0]
+                    || g.amplitude[1] < 0.5 * last.amplitude[1]
+                {
+                    return Err(DecodeError::NoGrid("grid amplitude collapsed".into()));
+                }
+                Ok(g)
+            });
+            if let Ok(g) = grid {
+                let mut out = self.predict_fix(&g).and_then(|pred| {
+                    let fix =
+                        self.coarse
+                            .verify(frame, &g, &self.seq, &pred, &self.opts.thresholds)?;
+                    let mut d = self.finish(frame, &g, &fix)?;
+                    d.code_predicted = true;
+                    Ok(d)
+                });
+                if out.is_err() {
+                    out = self.dot_stage(frame, &g);
+                }
+                if let Ok(mut d) = out {
+                    d.tracked = true;
+                    self.last = Some(d.grid);
+                    return Ok(d);
+                }
             }
         }
         self.decode(frame)
+    }
+
+    /// The code fix expected for a tracked grid: the previous fix with the
+    /// line origins moved so that the centre's line coordinate changes by
+    /// less than half a period.
+    fn predict_fix(&self, g: &Grid) -> Result<coarse::CodeFix, DecodeError> {
+        let Some((mut fix, line_c)) = self.last_fix else {
+            return Err(DecodeError::NoGrid("no previous code fix".into()));
+        };
+        for d in 0..2 {
+            let phi = if fix.dark_dots {
+                g.phi[d] - std::f64::consts::PI
+            } else {
+                g.phi[d]
+            };
+            let o = (line_c[d] - fix.sigma[d] as f64 * phi / std::f64::consts::TAU).round();
+            if !(o.abs() < 1e12) {
+                return Err(DecodeError::NoGrid("non-finite tracking prediction".into()));
+            }
+            fix.origin[d] = o as i64;
+        }
+        Ok(fix)
     }
 }
