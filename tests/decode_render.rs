@@ -165,6 +165,7 @@ fn absolute(bits: u32, n: usize, seed: u64) {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let (w, h) = (1024usize, 768usize);
     let (mut ok, mut wrong, mut err_inside, mut err_edge) = (0, 0, 0, 0);
+    let mut unexplained = 0;
     let mut worst = 0.0f64;
     for i in 0..n {
         let mirrored = rng.gen_bool(0.3);
@@ -182,7 +183,7 @@ fn absolute(bits: u32, n: usize, seed: u64) {
             read_noise: rng.gen_range(0.005..0.02),
             dust_fraction: rng.gen_range(0.0..0.15),
             dust_seed: rng.gen(),
-            oversample: 1,
+            oversample: oversample(),
             ..RenderConfig::default()
         };
         let pose = Pose {
@@ -231,6 +232,23 @@ fn absolute(bits: u32, n: usize, seed: u64) {
             Err(e) => {
                 if inside {
                     err_inside += 1;
+                    // Failures must have a stated reason: too few readable
+                    // code lines (< n + 4), or a grid stage failure under
+                    // heavy blur (σ·k ≥ 0.6: the fundamental is attenuated
+                    // to ≤ 84 % while the pattern's 2k/3 component, which
+                    // the 64-px demodulation tiles do not fully reject,
+                    // survives better, so tile phases beat).
+                    let sigma_k = cfg_dbg.0 * std::f64::consts::TAU * pixel / P;
+                    let explained = match &e {
+                        DecodeError::CodeAmbiguous { readable_bits, .. } => {
+                            *readable_bits < bits as usize + 4
+                        }
+                        DecodeError::NoGrid(_) => sigma_k >= 0.6,
+                        _ => false,
+                    };
+                    if !explained {
+                        unexplained += 1;
+                    }
                     eprintln!(
                         "error inside pattern: #{i} {pose:?} blur {:.2} dust {:.3} vign {:.2} grad {:?}: {e}",
                         cfg_dbg.0, cfg_dbg.1, cfg_dbg.2, cfg_dbg.3
@@ -238,7 +256,6 @@ fn absolute(bits: u32, n: usize, seed: u64) {
                 } else {
                     err_edge += 1;
                 }
-                let _: &DecodeError = &e;
             }
         }
     }
@@ -247,14 +264,28 @@ fn absolute(bits: u32, n: usize, seed: u64) {
     );
     assert_eq!(wrong, 0);
     // 1024×768 (the camera) at 7–11 px/period. Measured over 1000
-    // poses: 10 (10-bit) and 11 (12-bit) on-pattern failures, all in the
-    // full-frame stage at exactly commensurate periods with heavy blur
-    // (renderer aliasing with oversample 1, see notes/vision.md) — never a
-    // code ambiguity from too few bits. They must fail as errors.
+    // poses: 10 (10-bit) and 11 (12-bit) on-pattern failures with the
+    // renderer at oversample 1 and the same counts at oversample 2 (so not a
+    // renderer artifact): all but one in the grid stage under heavy blur,
+    // one code shortage (7 readable lines). They must fail as errors, rarely,
+    // and only for a stated reason.
+    assert_eq!(
+        unexplained, 0,
+        "on-pattern failures without a stated reason"
+    );
     assert!(
         err_inside * 50 <= n.max(100),
         "too many failures on on-pattern views: {err_inside}/{n}"
     );
+}
+
+/// Renderer oversampling of the pose test: 1 (fast, default) or
+/// `MICROPOS_OVERSAMPLE`.
+fn oversample() -> usize {
+    std::env::var("MICROPOS_OVERSAMPLE")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(1)
 }
 
 fn pose_count() -> usize {

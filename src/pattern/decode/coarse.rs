@@ -436,11 +436,12 @@ impl CoarseStage {
             let kk = self.lines.len();
             nbits[axis] = self.lines.iter().filter(|t| t.abs() > 0.2).count();
             if nbits[axis] < seq.bits() as usize + 1 {
-                return Err(DecodeError::CodeAmbiguous(format!(
-                    "only {} readable code lines along lattice axis {axis}, need {}",
-                    nbits[axis],
-                    seq.bits() + 1
-                )));
+                return Err(DecodeError::CodeAmbiguous {
+                    axis,
+                    readable_bits: nbits[axis],
+                    code_bits: seq.bits(),
+                    reason: format!("need at least {} readable code lines", seq.bits() + 1),
+                });
             }
             if s_this < 0 {
                 self.lines.reverse();
@@ -466,10 +467,15 @@ impl CoarseStage {
             margins[axis] = margin;
             errs[axis] = f64::from(total - b1.0) / 2.0;
             if !(margin >= th.min_code_margin_bits) {
-                return Err(DecodeError::CodeAmbiguous(format!(
-                    "code position along lattice axis {axis} not unique: best offset leads by {margin:.2} bits, need {:.2}",
-                    th.min_code_margin_bits
-                )));
+                return Err(DecodeError::CodeAmbiguous {
+                    axis,
+                    readable_bits: nbits[axis],
+                    code_bits: seq.bits(),
+                    reason: format!(
+                        "best offset leads by {margin:.2} bits, need {:.2}",
+                        th.min_code_margin_bits
+                    ),
+                });
             }
             // Global line of the visible code line with the lowest slot.
             let q0 = b1.1;
@@ -605,10 +611,12 @@ impl CoarseStage {
             };
             nbits[axis] = self.lines.iter().filter(|t| t.abs() > 0.2).count();
             if nbits[axis] < seq.bits() as usize + 1 {
-                return Err(DecodeError::CodeAmbiguous(format!(
-                    "tracking: only {} readable code lines along lattice axis {axis}",
-                    nbits[axis]
-                )));
+                return Err(DecodeError::CodeAmbiguous {
+                    axis,
+                    readable_bits: nbits[axis],
+                    code_bits: seq.bits(),
+                    reason: "tracking: too few readable code lines".into(),
+                });
             }
             let step = 3 * s_this;
             let score = |shift: i64| -> f32 {
@@ -630,10 +638,15 @@ impl CoarseStage {
             errs[axis] = f64::from(total - s0) / 2.0;
             if !(margins[axis] >= th.min_code_margin_bits && errs[axis] <= 0.2 * nbits[axis] as f64)
             {
-                return Err(DecodeError::CodeAmbiguous(format!(
-                    "tracking: predicted code offset along lattice axis {axis} leads by {:.2} bits with {:.2} disagreeing",
-                    margins[axis], errs[axis]
-                )));
+                return Err(DecodeError::CodeAmbiguous {
+                    axis,
+                    readable_bits: nbits[axis],
+                    code_bits: seq.bits(),
+                    reason: format!(
+                        "tracking: predicted code offset leads by {:.2} bits with {:.2} disagreeing",
+                        margins[axis], errs[axis]
+                    ),
+                });
             }
         }
         Ok(CodeFix {

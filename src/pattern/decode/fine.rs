@@ -58,6 +58,11 @@ pub struct Grid {
     /// (square dots of side p/2 convolved with a Gaussian), kept while
     /// tracking. The missing-dot correction of the centre phase scales with it.
     pub blob_slope_px: [f64; 2],
+    /// Largest non-affine phase displacement over the tile centres, px,
+    /// worst direction: a cubic polynomial fitted to the tile phases minus its
+    /// affine part (lens distortion; 0 when the frame has fewer than 4 × 4
+    /// tiles).
+    pub distortion_px: f64,
 }
 
 /// Side of the FFT block for the peak search.
@@ -95,6 +100,9 @@ pub(crate) struct FineStage {
     /// Last estimate of [`Grid::blob_slope_px`] as s² (effective Gaussian
     /// variance, px²) per direction; NaN until a peak search ran.
     blob_var: [f64; 2],
+    /// Take the centre phase and wave vector from the cubic tile-phase model
+    /// (see `DecodeOptions::distortion`).
+    pub(crate) model_distortion: bool,
 }
 
 impl std::fmt::Debug for FineStage {
@@ -192,6 +200,7 @@ impl FineStage {
             win_w: 0,
             win_h: 0,
             blob_var: [f64::NAN; 2],
+            model_distortion: false,
         }
     }
 
@@ -578,8 +587,10 @@ impl FineStage {
     }
 
     /// Plane fit of the tile phases of direction `d`: returns (δk, phase at
-    /// the centre from the tile sum, coherence, residual rms, |Σ|).
-    fn fit(&self, d: usize) -> ([f64; 2], f64, f64, f64, f64) {
+    /// the centre from the tile sum — or from the cubic model when
+    /// distortion modelling is on —, coherence, residual rms, |Σ|,
+    /// largest non-affine phase, rad).
+    fn fit(&self, d: usize) -> ([f64; 2], f64, f64, f64, f64, f64) {
         let ntx = self.tile_x.len() - 1;
         let nty = self.tile_y.len() - 1;
         let z = &self.tiles[d];
@@ -664,6 +675,20 @@ impl FineStage {
             f64::INFINITY
         };
         let coherence = if mag > 0.0 { zs.norm() / mag } else { 0.0 };
+        let (cub, distortion_px) = self.cubic_fit(d, g, r0);
+        if let (true, Some(c)) = (self.model_distortion, cub) {
+            // Phase and local wave vector of the centre point from the cubic
+            // model (the polynomial is in units of half the frame width).
+            let sc = 2.0 / self.win_w as f64;
+            return (
+                [g[0] + c[1] * sc, g[1] + c[2] * sc],
+                wrap(r0 + c[0]),
+                coherence,
+                rms,
+                zs.norm(),
+                distortion_px,
+            );
+        }
         // Centre phase: the tile phasors brought to the centre with the
         // refined k correction, summed (weights ∝ the symmetric window, so a
         // residual error in the correction cancels to first order).
@@ -675,7 +700,90 @@ impl FineStage {
                 zc += z[ty * ntx + tx] * Complex::from_polar(1.0, -(dk[0] * x + dk[1] * y));
             }
         }
-        (dk, zc.arg(), coherence, rms, zc.norm())
+        (dk, zc.arg(), coherence, rms, zc.norm(), distortion_px)
+    }
+
+    /// Weighted LS fit of a cubic polynomial (10 terms, coordinates in units
+    /// of half the frame width) to the tile phases of direction `d` after
+    /// removing the gradient `g` and reference `r0`. Returns the coefficients
+    /// (constant, x, y, x², xy, y², x³, x²y, xy², y³) and the largest
+    /// non-affine phase over the tiles in rad; `None` with fewer than
+    /// 4 × 4 tiles.
+    fn cubic_fit(&self, d: usize, g: [f64; 2], r0: f64) -> (Option<[f64; 10]>, f64) {
+        let ntx = self.tile_x.len() - 1;
+        let nty = self.tile_y.len() - 1;
+        if ntx < 4 || nty < 4 {
+            return (None, 0.0);
+        }
+        let z = &self.tiles[d];
+        let sc = 2.0 / self.win_w as f64;
+        let basis = |x: f64, y: f64| {
+            [
+                1.0,
+                x,
+                y,
+                x * x,
+                x * y,
+                y * y,
+                x * x * x,
+                x * x * y,
+                x * y * y,
+                y * y * y,
+            ]
+        };
+        let mut a = [[0.0f64; 11]; 10];
+        for ty in 0..nty {
+            for tx in 0..ntx {
+                let (x, y) = (self.cen_x[tx], self.cen_y[ty]);
+                let v = z[ty * ntx + tx];
+                let wt = v.norm_sqr();
+                let p = wrap(v.arg() - (g[0] * x + g[1] * y) - r0);
+                let b = basis(x * sc, y * sc);
+                for i in 0..10 {
+                    for j in 0..10 {
+                        a[i][j] += wt * b[i] * b[j];
+                    }
+                    a[i][10] += wt * b[i] * p;
+                }
+            }
+        }
+        // Gaussian elimination with partial pivoting.
+        for c in 0..10 {
+            let mut piv = c;
+            for r in c + 1..10 {
+                if a[r][c].abs() > a[piv][c].abs() {
+                    piv = r;
+                }
+            }
+            a.swap(c, piv);
+            if !(a[c][c].abs() > 1e-300) {
+                return (None, 0.0);
+            }
+            for r in 0..10 {
+                if r != c {
+                    let f = a[r][c] / a[c][c];
+                    for cc in c..11 {
+                        a[r][cc] -= f * a[c][cc];
+                    }
+                }
+            }
+        }
+        let mut coef = [0.0; 10];
+        for i in 0..10 {
+            coef[i] = a[i][10] / a[i][i];
+        }
+        let mut worst = 0.0f64;
+        for ty in 0..nty {
+            for tx in 0..ntx {
+                let b = basis(self.cen_x[tx] * sc, self.cen_y[ty] * sc);
+                let q: f64 = (3..10).map(|i| coef[i] * b[i]).sum();
+                worst = worst.max(q.abs());
+            }
+        }
+        if !coef.iter().all(|c| c.is_finite()) {
+            return (None, 0.0);
+        }
+        (Some(coef), worst)
     }
 
     /// Demodulates at `k0`, refines k, and (if the refinement was not
@@ -704,6 +812,7 @@ impl FineStage {
                 amplitude: amp,
                 coherence: fa.2.min(fb.2),
                 phase_rms_rad: fa.3.max(fb.3),
+                distortion_px: (fa.5 / k[0][0].hypot(k[0][1])).max(fb.5 / k[1][0].hypot(k[1][1])),
                 blob_slope_px: [0, 1].map(|d| {
                     let kk = k[d][0].hypot(k[d][1]);
                     // Without an estimate assume σ ≈ 0.8 px blur plus the

@@ -37,6 +37,7 @@
 pub mod coarse;
 pub mod fine;
 
+use realfft::num_complex::Complex;
 use thiserror::Error;
 
 pub use coarse::CoarseThresholds;
@@ -77,9 +78,21 @@ pub enum DecodeError {
     /// The line structure does not give a unique orientation.
     #[error("orientation: {0}")]
     Orientation(String),
-    /// The code does not give a unique position.
-    #[error("code ambiguous: {0}")]
-    CodeAmbiguous(String),
+    /// The code does not give a unique position. Carries how many code lines
+    /// were readable along the failing lattice axis, so a caller (or a test)
+    /// can tell a view short of code bits (fewer than n + a few) from a
+    /// decoder weakness.
+    #[error("code ambiguous along lattice axis {axis} ({readable_bits} readable code lines, code depth {code_bits}): {reason}")]
+    CodeAmbiguous {
+        /// Lattice axis (0 = a, 1 = b) that failed.
+        axis: usize,
+        /// Code lines read with confidence along that axis.
+        readable_bits: usize,
+        /// Code depth n of the pattern.
+        code_bits: u32,
+        /// What went wrong.
+        reason: String,
+    },
 }
 
 /// Which way the dots are contrasted.
@@ -112,6 +125,12 @@ pub struct DecodeOptions {
     pub min_coherence: f64,
     /// Per-dot stage thresholds.
     pub thresholds: CoarseThresholds,
+    /// Model lens distortion: take the centre phase and the local wave
+    /// vectors from a cubic polynomial fitted to the tile phases instead of
+    /// the affine (windowed-sum) estimate. The reported position stays the
+    /// image centre point's; [`Grid::distortion_px`] is reported either way.
+    /// Off by default: on undistorted frames the cubic fit costs precision.
+    pub distortion: bool,
 }
 
 impl DecodeOptions {
@@ -126,6 +145,7 @@ impl DecodeOptions {
             min_period_px: 3.0,
             min_coherence: 0.5,
             thresholds: CoarseThresholds::default(),
+            distortion: false,
         }
     }
 }
@@ -180,17 +200,31 @@ fn missing_dot_correction(
     }
     let (ax, ay) = (PI / wf, PI / hf);
     let (mut s0, mut sx, mut sy) = (0.0, 0.0, 0.0);
+    // Along a lattice row x and y step by constants, so sin/cos of the
+    // window arguments follow by complex rotation (no per-site trig).
+    let (dxa, dya) = (inv[0][0] * TAU, inv[1][0] * TAU);
+    let (rx, ry) = (
+        Complex::from_polar(1.0, ax * dxa),
+        Complex::from_polar(1.0, ay * dya),
+    );
+    let ma0 = lo[0].floor() as i64;
     for mb in lo[1].floor() as i64..=hi[1].ceil() as i64 {
         let pb = TAU * mb as f64 - phi[1];
-        for ma in lo[0].floor() as i64..=hi[0].ceil() as i64 {
-            let pa = TAU * ma as f64 - phi[0];
-            let x = inv[0][0] * pa + inv[0][1] * pb + cx;
-            let y = inv[1][0] * pa + inv[1][1] * pb + cy;
-            if !(x > 0.0 && x < wf && y > 0.0 && y < hf) || !present(ma, mb) {
+        let pa = TAU * ma0 as f64 - phi[0];
+        let mut x = inv[0][0] * pa + inv[0][1] * pb + cx;
+        let mut y = inv[1][0] * pa + inv[1][1] * pb + cy;
+        let mut zx = Complex::from_polar(1.0, ax * x);
+        let mut zy = Complex::from_polar(1.0, ay * y);
+        for ma in ma0..=hi[0].ceil() as i64 {
+            let inside = x > 0.0 && x < wf && y > 0.0 && y < hf;
+            let (sxa, cxa, sya, cya) = (zx.im, zx.re, zy.im, zy.re);
+            x += dxa;
+            y += dya;
+            zx *= rx;
+            zy *= ry;
+            if !inside || !present(ma, mb) {
                 continue;
             }
-            let (sxa, cxa) = (ax * x).sin_cos();
-            let (sya, cya) = (ay * y).sin_cos();
             let (wx, wy) = (sxa * sxa, sya * sya);
             s0 += wx * wy;
             // d/dx sin²(πx/W) = (π/W)·2 sin cos.
@@ -288,10 +322,12 @@ impl Decoder {
                 opts.min_period_px
             )));
         }
+        let mut fine = fine::FineStage::new();
+        fine.model_distortion = opts.distortion;
         Ok(Self {
             opts,
             seq,
-            fine: fine::FineStage::new(),
+            fine,
             coarse: coarse::CoarseStage::default(),
             last: None,
             last_fix: None,
@@ -342,8 +378,14 @@ impl Decoder {
         }
         if !(g.coherence >= self.opts.min_coherence) {
             return Err(DecodeError::NoGrid(format!(
-                "grid phase incoherent across the frame ({:.2} < {:.2})",
-                g.coherence, self.opts.min_coherence
+                "grid phase incoherent across the frame ({:.2} < {:.2}; period {period:.2} px, \
+                 amplitudes {:.3}/{:.3} of full scale, tile phase rms {:.2} rad: blur, \
+                 occlusion or a second periodic component beating with the grid)",
+                g.coherence,
+                self.opts.min_coherence,
+                g.amplitude[0],
+                g.amplitude[1],
+                g.phase_rms_rad
             )));
         }
         Ok(())
