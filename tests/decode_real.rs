@@ -48,10 +48,13 @@ fn rot90(f: &Frame, times: usize) -> Frame {
 }
 
 fn decode(f: &Frame) -> Decoded {
-    Decoder::new(DecodeOptions::new(9.0, 12))
-        .unwrap()
-        .decode(f)
-        .unwrap()
+    decode_with(f, false)
+}
+
+fn decode_with(f: &Frame, distortion: bool) -> Decoded {
+    let mut o = DecodeOptions::new(9.0, 12);
+    o.distortion = distortion;
+    Decoder::new(o).unwrap().decode(f).unwrap()
 }
 
 #[test]
@@ -72,21 +75,26 @@ fn matches_reference_decoder() {
 fn shifted_crops_move_by_the_offset() {
     let f = real();
     let (w, h) = (896, 728);
-    let base = decode(&crop(&f, 0, 0, w, h));
-    let mut worst = 0.0f64;
-    for (ox, oy) in [(128i64, 0i64), (0, 128), (128, 128)] {
-        let d = decode(&crop(&f, ox as usize, oy as usize, w, h));
-        // Expected pattern displacement of the centre: s·R·(ox, oy).
-        let (s, t) = (base.pixel_um, base.theta_rad);
-        let ex = s * (t.cos() * ox as f64 + t.sin() * oy as f64);
-        let ey = s * (-t.sin() * ox as f64 + t.cos() * oy as f64);
-        let rx = (d.x_um - base.x_um - ex) / s;
-        let ry = (d.y_um - base.y_um - ey) / s;
-        eprintln!("offset ({ox},{oy}) px: residual ({rx:.3}, {ry:.3}) px");
-        worst = worst.max(rx.abs()).max(ry.abs());
+    for distortion in [false, true] {
+        let base = decode_with(&crop(&f, 0, 0, w, h), distortion);
+        let mut worst = 0.0f64;
+        for (ox, oy) in [(128i64, 0i64), (0, 128), (128, 128)] {
+            let d = decode_with(&crop(&f, ox as usize, oy as usize, w, h), distortion);
+            // Expected pattern displacement of the centre: s·R·(ox, oy).
+            let (s, t) = (base.pixel_um, base.theta_rad);
+            let ex = s * (t.cos() * ox as f64 + t.sin() * oy as f64);
+            let ey = s * (-t.sin() * ox as f64 + t.cos() * oy as f64);
+            let rx = (d.x_um - base.x_um - ex) / s;
+            let ry = (d.y_um - base.y_um - ey) / s;
+            eprintln!(
+                "distortion model {distortion}: offset ({ox},{oy}) px: residual ({rx:.3}, {ry:.3}) px, distortion {:.3} px",
+                d.grid.distortion_px
+            );
+            worst = worst.max(rx.abs()).max(ry.abs());
+        }
+        // Lens distortion leaves a few tenths of a pixel; a period slip would be 14.7 px.
+        assert!(worst < 1.0, "worst residual {worst} px");
     }
-    // Lens distortion leaves a few tenths of a pixel; a period slip would be 14.7 px.
-    assert!(worst < 1.0, "worst residual {worst} px");
 }
 
 #[test]

@@ -90,10 +90,9 @@ fn bias_sub_period_sweep_and_angle() {
         }
     }
     eprintln!("bias: worst |error| {worst:.2e} px, worst |dθ| {worst_t:.2e} rad");
-    // Measured worst ≈ 2.3e-3 px (θ = 2.0 rad: a constant offset over the
-    // sweep, independent of the renderer's oversampling, so not aliasing);
-    // the 1e-3 px goal is not met yet at every view, see docs/design/vision.md.
-    assert!(worst <= 2.5e-3, "bias {worst} px");
+    // Without the missing-dot correction the worst was 2.3e-3 px (θ = 2.0
+    // rad, a constant offset over the sweep); with it ≈ 5e-4 px.
+    assert!(worst <= 1e-3, "bias {worst} px");
     assert!(worst_t <= 1e-4, "theta error {worst_t} rad");
 }
 
@@ -112,10 +111,48 @@ fn tracking_matches_cold_decode() {
         let f = r.render(&pose, i, 0.0, i).unwrap();
         let t = d.track(&f).unwrap();
         assert_eq!(t.tracked, i > 0);
+        assert_eq!(t.code_predicted, i > 0, "tracking fast path not taken");
         assert!(
             (t.x_um - pose.x_um).abs() < 2e-3 && (t.y_um - pose.y_um).abs() < 2e-3,
             "{t:?}"
         );
+    }
+}
+
+#[test]
+fn tracking_survives_jumps_and_rotation() {
+    // A move of many periods between frames defeats the continuity
+    // prediction; the check must notice and fall back to the full search.
+    let mut r = Renderer::new(cfg_1024()).unwrap();
+    let mut d = Decoder::new(DecodeOptions::new(P, 12)).unwrap();
+    let poses = [
+        (5_000.0, 7_000.0, 1.0),
+        (5_000.4, 7_000.2, 1.0),
+        (5_000.4 + 3.0 * P, 7_000.2, 1.0),
+        (5_000.4 + 3.0 * P, 7_000.2 - 40.0 * P, 1.0),
+        (9_100.0, 3_000.0, 1.0),
+        (9_100.0, 3_000.0, 1.0 + std::f64::consts::FRAC_PI_2),
+    ];
+    for (i, &(x, y, t)) in poses.iter().enumerate() {
+        let pose = Pose {
+            x_um: x,
+            y_um: y,
+            theta_rad: t,
+            pixel_um: PX,
+            mirrored: false,
+        };
+        let f = r.render(&pose, i as u64, 0.0, i as u64).unwrap();
+        let o = d.track(&f).unwrap();
+        assert!(
+            (o.x_um - x).abs() < 2e-3 && (o.y_um - y).abs() < 2e-3,
+            "frame {i}: {o:?}"
+        );
+        if i == 1 {
+            assert!(o.code_predicted);
+        }
+        if i >= 2 {
+            assert!(!o.code_predicted, "frame {i} accepted a wrong prediction");
+        }
     }
 }
 
@@ -128,6 +165,7 @@ fn absolute(bits: u32, n: usize, seed: u64) {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let (w, h) = (1024usize, 768usize);
     let (mut ok, mut wrong, mut err_inside, mut err_edge) = (0, 0, 0, 0);
+    let mut unexplained = 0;
     let mut worst = 0.0f64;
     for i in 0..n {
         let mirrored = rng.gen_bool(0.3);
@@ -145,7 +183,7 @@ fn absolute(bits: u32, n: usize, seed: u64) {
             read_noise: rng.gen_range(0.005..0.02),
             dust_fraction: rng.gen_range(0.0..0.15),
             dust_seed: rng.gen(),
-            oversample: 1,
+            oversample: oversample(),
             ..RenderConfig::default()
         };
         let pose = Pose {
@@ -194,6 +232,23 @@ fn absolute(bits: u32, n: usize, seed: u64) {
             Err(e) => {
                 if inside {
                     err_inside += 1;
+                    // Failures must have a stated reason: too few readable
+                    // code lines (< n + 4), or a grid stage failure under
+                    // heavy blur (σ·k ≥ 0.6: the fundamental is attenuated
+                    // to ≤ 84 % while the pattern's 2k/3 component, which
+                    // the 64-px demodulation tiles do not fully reject,
+                    // survives better, so tile phases beat).
+                    let sigma_k = cfg_dbg.0 * std::f64::consts::TAU * pixel / P;
+                    let explained = match &e {
+                        DecodeError::CodeAmbiguous { readable_bits, .. } => {
+                            *readable_bits < bits as usize + 4
+                        }
+                        DecodeError::NoGrid(_) => sigma_k >= 0.6,
+                        _ => false,
+                    };
+                    if !explained {
+                        unexplained += 1;
+                    }
                     eprintln!(
                         "error inside pattern: #{i} {pose:?} blur {:.2} dust {:.3} vign {:.2} grad {:?}: {e}",
                         cfg_dbg.0, cfg_dbg.1, cfg_dbg.2, cfg_dbg.3
@@ -201,7 +256,6 @@ fn absolute(bits: u32, n: usize, seed: u64) {
                 } else {
                     err_edge += 1;
                 }
-                let _: &DecodeError = &e;
             }
         }
     }
@@ -210,14 +264,28 @@ fn absolute(bits: u32, n: usize, seed: u64) {
     );
     assert_eq!(wrong, 0);
     // 1024×768 (the camera) at 7–11 px/period. Measured over 1000
-    // poses: 10 (10-bit) and 11 (12-bit) on-pattern failures, all in the
-    // full-frame stage at exactly commensurate periods with heavy blur
-    // (renderer aliasing with oversample 1, see docs/design/vision.md) — never a
-    // code ambiguity from too few bits. They must fail as errors.
+    // poses: 10 (10-bit) and 11 (12-bit) on-pattern failures with the
+    // renderer at oversample 1 and the same counts at oversample 2 (so not a
+    // renderer artifact): all but one in the grid stage under heavy blur,
+    // one code shortage (7 readable lines). They must fail as errors, rarely,
+    // and only for a stated reason.
+    assert_eq!(
+        unexplained, 0,
+        "on-pattern failures without a stated reason"
+    );
     assert!(
         err_inside * 50 <= n.max(100),
         "too many failures on on-pattern views: {err_inside}/{n}"
     );
+}
+
+/// Renderer oversampling of the pose test: 1 (fast, default) or
+/// `MICROPOS_OVERSAMPLE`.
+fn oversample() -> usize {
+    std::env::var("MICROPOS_OVERSAMPLE")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(1)
 }
 
 fn pose_count() -> usize {

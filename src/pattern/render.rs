@@ -141,6 +141,10 @@ pub struct RenderConfig {
     /// 10 px, θ = 0) aliased harmonics bias phase-based decoders by ~6e-3 px.
     /// 2 removes that for any PSF with σ ≥ 0.3 px.
     pub oversample: usize,
+    /// Put a dot on every lattice site (no code, no empty crossings): a plain
+    /// grid. Decoder tests use it to separate effects of the missing (coded)
+    /// dots from everything else; such frames cannot be decoded absolutely.
+    pub plain_grid: bool,
 }
 
 impl Default for RenderConfig {
@@ -167,6 +171,7 @@ impl Default for RenderConfig {
             dust_transmission: 0.1,
             dust_seed: 1,
             oversample: 2,
+            plain_grid: false,
         }
     }
 }
@@ -457,12 +462,13 @@ impl Renderer {
                                    // Half extent of a pixel square projected on a dot axis.
         let rp = 0.5 * (cs.abs() + sn.abs());
         let ext = hside * (cs.abs() + sn.abs()) + 1.0;
+        let plain = self.cfg.plain_grid;
         for r in r0..r1 {
-            if !self.seq.line(r) {
+            if !plain && !self.seq.line(r) {
                 continue;
             }
             for c in c0..c1 {
-                if !self.seq.dot(c, r) {
+                if !plain && !self.seq.dot(c, r) {
                     continue;
                 }
                 let (uc, vc) = to_img(c as f64 * p, r as f64 * p);

@@ -52,6 +52,13 @@ pub(crate) struct CodeFix {
     pub code_errors: [f64; 2],
 }
 
+/// Code slots (3 lines each) either side of a tracked prediction that the
+/// tracking check scores against: motions of up to ±24 periods between
+/// frames that the continuity prediction missed show up as a better
+/// neighbour; larger ones as a prediction that disagrees on about half the
+/// bits.
+const TRACK_SLOTS: i64 = 8;
+
 /// Decision thresholds of the per-dot stage.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct CoarseThresholds {
@@ -82,6 +89,8 @@ pub(crate) struct CoarseStage {
     /// Samples on the half lattice (α+½, β+½), [nb+1][na+1].
     g1: Vec<f32>,
     pres: Vec<f32>,
+    /// Presence of the best hypothesis so far (swapped with `pres`).
+    best_pres: Vec<f32>,
     tmp: Vec<f32>,
     lmax: Vec<f32>,
     sel: Vec<f32>,
@@ -171,15 +180,15 @@ impl CoarseStage {
         self.epad.resize(q + 2 * pad, 0.0);
     }
 
-    /// Runs the stage on `frame` with the fine `grid`.
-    pub(crate) fn run(
+    /// Samples every dot site and background point of the view into `g0`
+    /// and `g1`; returns (na, nb, a0, b0): the integer lattice's size and
+    /// first lattice coordinates.
+    fn sample(
         &mut self,
         frame: &Frame,
         grid: &Grid,
         seq: &LineSequence,
-        polarity: Option<bool>,
-        th: &CoarseThresholds,
-    ) -> Result<CodeFix, DecodeError> {
+    ) -> Result<(usize, usize, i64, i64), DecodeError> {
         let (w, h) = (frame.width(), frame.height());
         let tau = std::f64::consts::TAU;
         let k = grid.k;
@@ -296,6 +305,19 @@ impl CoarseStage {
                 );
             }
         }
+        Ok((na, nb, a0, b0))
+    }
+
+    /// Runs the stage on `frame` with the fine `grid`.
+    pub(crate) fn run(
+        &mut self,
+        frame: &Frame,
+        grid: &Grid,
+        seq: &LineSequence,
+        polarity: Option<bool>,
+        th: &CoarseThresholds,
+    ) -> Result<CodeFix, DecodeError> {
+        let (na, nb, a0, b0) = self.sample(frame, grid, seq)?;
         // Both polarity hypotheses, unless fixed.
         let hyps: &[bool] = match polarity {
             Some(false) => &[false],
@@ -304,7 +326,7 @@ impl CoarseStage {
         };
         let mut best: Option<(f64, bool, [usize; 2], [i64; 2])> = None;
         let mut second = f64::MIN;
-        let mut chosen_pres: Vec<f32> = Vec::new();
+        let mut chosen_pres = std::mem::take(&mut self.best_pres);
         let mut dims = (0, 0, 0i64, 0i64);
         for &dark in hyps {
             let (sa0, sb0, sna, snb) = self.presence(dark, na, nb, a0, b0);
@@ -347,6 +369,7 @@ impl CoarseStage {
             )));
         }
         std::mem::swap(&mut self.pres, &mut chosen_pres);
+        self.best_pres = chosen_pres;
         let (sna, snb, sa0, sb0) = dims;
         // Code lines of each axis.
         let need = seq.min_periods_in_view();
@@ -413,11 +436,12 @@ impl CoarseStage {
             let kk = self.lines.len();
             nbits[axis] = self.lines.iter().filter(|t| t.abs() > 0.2).count();
             if nbits[axis] < seq.bits() as usize + 1 {
-                return Err(DecodeError::CodeAmbiguous(format!(
-                    "only {} readable code lines along lattice axis {axis}, need {}",
-                    nbits[axis],
-                    seq.bits() + 1
-                )));
+                return Err(DecodeError::CodeAmbiguous {
+                    axis,
+                    readable_bits: nbits[axis],
+                    code_bits: seq.bits(),
+                    reason: format!("need at least {} readable code lines", seq.bits() + 1),
+                });
             }
             if s_this < 0 {
                 self.lines.reverse();
@@ -443,10 +467,15 @@ impl CoarseStage {
             margins[axis] = margin;
             errs[axis] = f64::from(total - b1.0) / 2.0;
             if !(margin >= th.min_code_margin_bits) {
-                return Err(DecodeError::CodeAmbiguous(format!(
-                    "code position along lattice axis {axis} not unique: best offset leads by {margin:.2} bits, need {:.2}",
-                    th.min_code_margin_bits
-                )));
+                return Err(DecodeError::CodeAmbiguous {
+                    axis,
+                    readable_bits: nbits[axis],
+                    code_bits: seq.bits(),
+                    reason: format!(
+                        "best offset leads by {margin:.2} bits, need {:.2}",
+                        th.min_code_margin_bits
+                    ),
+                });
             }
             // Global line of the visible code line with the lowest slot.
             let q0 = b1.1;
@@ -457,6 +486,168 @@ impl CoarseStage {
                 (last_code, 3 * q0 + 1)
             };
             origin[axis] = g_low - s_this * l_low;
+        }
+        Ok(CodeFix {
+            dark_dots: dark,
+            sigma,
+            origin,
+            orientation_score: oscore,
+            orientation_margin: omargin,
+            code_margin_bits: margins,
+            code_bits: nbits,
+            code_errors: errs,
+        })
+    }
+
+    /// Tracking check of a predicted code fix (polarity, axis directions and
+    /// line origins carried over from the previous frame, the origins moved by
+    /// the whole periods the new fine phase implies): samples the sites as
+    /// [`CoarseStage::run`] does, but builds presence for the predicted
+    /// polarity only and, instead of correlating the code lines with the
+    /// whole sequence, scores the predicted code offset against its
+    /// neighbours ±`TRACK_SLOTS` code slots. Accepts only when the predicted
+    /// orientation hypothesis is the best of all 36 by the usual margin, the
+    /// predicted offset beats every neighbour by the usual code margin and at
+    /// most a fifth of the readable code bits disagree (a wrong offset of an
+    /// m-sequence disagrees on about half). Any failure means "do the full
+    /// search", never a guess.
+    pub(crate) fn verify(
+        &mut self,
+        frame: &Frame,
+        grid: &Grid,
+        seq: &LineSequence,
+        pred: &CodeFix,
+        th: &CoarseThresholds,
+    ) -> Result<CodeFix, DecodeError> {
+        let (na, nb, a0, b0) = self.sample(frame, grid, seq)?;
+        let dark = pred.dark_dots;
+        let sigma = pred.sigma;
+        let origin = pred.origin;
+        let (sa0, sb0, sna, snb) = self.presence(dark, na, nb, a0, b0);
+        let table = self.class_table(sna, snb, sa0, sb0);
+        // Global line g = origin + σ·l is a crossing line when g ≡ 0 (mod 3),
+        // i.e. l ≡ −σ·origin: the crossing residue of the class table.
+        let res0 = [
+            (-sigma[0] * origin[0]).rem_euclid(3) as usize,
+            (-sigma[1] * origin[1]).rem_euclid(3) as usize,
+        ];
+        let oscore = template_corr(&table, res0[0], sigma[0], res0[1], sigma[1]);
+        let mut second = f64::MIN;
+        for i0 in 0..3usize {
+            for j0 in 0..3usize {
+                for sa in [1i64, -1] {
+                    for sb in [1i64, -1] {
+                        if [i0, j0] == res0 && [sa, sb] == sigma {
+                            continue;
+                        }
+                        second = second.max(template_corr(&table, i0, sa, j0, sb));
+                    }
+                }
+            }
+        }
+        let omargin = oscore - second;
+        if !(oscore >= th.min_orientation_score && omargin >= th.min_orientation_margin) {
+            return Err(DecodeError::Orientation(format!(
+                "tracking: predicted orientation scores {oscore:.3} (margin {omargin:.3})"
+            )));
+        }
+        let need = seq.min_periods_in_view();
+        let len = seq.len() as i64;
+        let code = |g: i64| -> f32 {
+            if g < 0 || g >= len {
+                0.0
+            } else if seq.line(g) {
+                1.0
+            } else {
+                -1.0
+            }
+        };
+        let mut margins = [0.0; 2];
+        let mut nbits = [0usize; 2];
+        let mut errs = [0.0; 2];
+        for axis in 0..2 {
+            let (n_this, n_other, l0, o0) = if axis == 0 {
+                (sna, snb, sa0, sb0)
+            } else {
+                (snb, sna, sb0, sa0)
+            };
+            if n_this < need {
+                return Err(DecodeError::TooFewPeriods { got: n_this, need });
+            }
+            let (s_this, s_other) = (sigma[axis], sigma[1 - axis]);
+            let (g_this, g_other) = (origin[axis], origin[1 - axis]);
+            self.lines.clear();
+            let mut first: Option<i64> = None;
+            for li in 0..n_this {
+                let g = g_this + s_this * (l0 + li as i64);
+                if g.rem_euclid(3) != 1 {
+                    continue;
+                }
+                first.get_or_insert(g);
+                let (mut sum, mut cnt) = (0.0f32, 0.0f32);
+                for oi in 0..n_other {
+                    if (g_other + s_other * (o0 + oi as i64)).rem_euclid(3) == 1 {
+                        continue;
+                    }
+                    let idx = if axis == 0 {
+                        oi * sna + li
+                    } else {
+                        li * sna + oi
+                    };
+                    let v = self.pres[idx];
+                    if v.is_finite() {
+                        sum += v;
+                        cnt += 1.0;
+                    }
+                }
+                self.lines.push(if cnt >= 3.0 {
+                    (2.0 * sum / cnt - 1.0).clamp(-1.0, 1.0) * (cnt / 8.0).min(1.0)
+                } else {
+                    0.0
+                });
+            }
+            let Some(g_first) = first else {
+                return Err(DecodeError::TooFewPeriods { got: n_this, need });
+            };
+            nbits[axis] = self.lines.iter().filter(|t| t.abs() > 0.2).count();
+            if nbits[axis] < seq.bits() as usize + 1 {
+                return Err(DecodeError::CodeAmbiguous {
+                    axis,
+                    readable_bits: nbits[axis],
+                    code_bits: seq.bits(),
+                    reason: "tracking: too few readable code lines".into(),
+                });
+            }
+            let step = 3 * s_this;
+            let score = |shift: i64| -> f32 {
+                self.lines
+                    .iter()
+                    .enumerate()
+                    .map(|(i, t)| t * code(g_first + step * i as i64 + 3 * shift))
+                    .sum()
+            };
+            let s0 = score(0);
+            let mut s2 = f32::MIN;
+            for shift in -TRACK_SLOTS..=TRACK_SLOTS {
+                if shift != 0 {
+                    s2 = s2.max(score(shift));
+                }
+            }
+            let total: f32 = self.lines.iter().map(|t| t.abs()).sum();
+            margins[axis] = f64::from(s0 - s2) / 2.0;
+            errs[axis] = f64::from(total - s0) / 2.0;
+            if !(margins[axis] >= th.min_code_margin_bits && errs[axis] <= 0.2 * nbits[axis] as f64)
+            {
+                return Err(DecodeError::CodeAmbiguous {
+                    axis,
+                    readable_bits: nbits[axis],
+                    code_bits: seq.bits(),
+                    reason: format!(
+                        "tracking: predicted code offset leads by {:.2} bits with {:.2} disagreeing",
+                        margins[axis], errs[axis]
+                    ),
+                });
+            }
         }
         Ok(CodeFix {
             dark_dots: dark,

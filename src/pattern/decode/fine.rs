@@ -52,6 +52,17 @@ pub struct Grid {
     /// RMS of the tile phase residuals about the fitted plane, rad, worst of
     /// the two directions (lens distortion and noise show here).
     pub phase_rms_rad: f64,
+    /// β_d = d ln B̂/d|k| of one dot's spectrum B̂ at the fundamental of
+    /// direction d, px (negative: blur and the dot size make B̂ fall with
+    /// |k|). Estimated from the 3rd/1st harmonic ratio of the peak search
+    /// (square dots of side p/2 convolved with a Gaussian), kept while
+    /// tracking. The missing-dot correction of the centre phase scales with it.
+    pub blob_slope_px: [f64; 2],
+    /// Largest non-affine phase displacement over the tile centres, px,
+    /// worst direction: a cubic polynomial fitted to the tile phases minus its
+    /// affine part (lens distortion; 0 when the frame has fewer than 4 × 4
+    /// tiles).
+    pub distortion_px: f64,
 }
 
 /// Side of the FFT block for the peak search.
@@ -86,6 +97,12 @@ pub(crate) struct FineStage {
     cen_y: Vec<f64>,
     win_w: usize,
     win_h: usize,
+    /// Last estimate of [`Grid::blob_slope_px`] as s² (effective Gaussian
+    /// variance, px²) per direction; NaN until a peak search ran.
+    blob_var: [f64; 2],
+    /// Take the centre phase and wave vector from the cubic tile-phase model
+    /// (see `DecodeOptions::distortion`).
+    pub(crate) model_distortion: bool,
 }
 
 impl std::fmt::Debug for FineStage {
@@ -182,6 +199,8 @@ impl FineStage {
             cen_y: Vec::new(),
             win_w: 0,
             win_h: 0,
+            blob_var: [f64::NAN; 2],
+            model_distortion: false,
         }
     }
 
@@ -393,6 +412,9 @@ impl FineStage {
             ));
         }
         let kb = self.refine_peak(best2.1, best2.2, n);
+        for (d, kd) in [ka, kb].into_iter().enumerate() {
+            self.blob_var[d] = self.blob_variance(kd, n);
+        }
         let s = std::f64::consts::TAU / n as f64;
         let a = [ka.0 * s, ka.1 * s];
         let mut b = [kb.0 * s, kb.1 * s];
@@ -400,6 +422,52 @@ impl FineStage {
             b = [-b[0], -b[1]];
         }
         Ok([a, b])
+    }
+
+    /// Effective Gaussian variance s² (px²) of one dot's blur from the ratio
+    /// r of the 3rd harmonic to the fundamental at peak `f` (cycles per
+    /// block): a square dot of side p/2 has |B̂(3k)/B̂(k)| = 1/3 unblurred and
+    /// a Gaussian of variance s² multiplies that by exp(−4 s² k²). Summed
+    /// 3 × 3 bin powers make the ratio independent of the sub-bin offset.
+    /// NaN when the 3rd harmonic lies beyond the usable band.
+    fn blob_variance(&self, f: (f64, f64), n: usize) -> f64 {
+        let f3 = (3.0 * f.0, 3.0 * f.1);
+        if f3.0.hypot(f3.1) > n as f64 / 2.0 - 2.0 {
+            return f64::NAN;
+        }
+        let e1 = self.bin_energy(f, n);
+        let e3 = self.bin_energy(f3, n);
+        if !(e1 > 0.0) {
+            return f64::NAN;
+        }
+        let r = (e3 / e1).sqrt();
+        let k = std::f64::consts::TAU * f.0.hypot(f.1) / n as f64;
+        // Pixel aperture alone gives s² ≈ 1/12 px²; ratios at the noise floor
+        // are capped at a blur of 4 px.
+        (-(3.0 * r).max(1e-12).ln() / (4.0 * k * k)).clamp(1.0 / 12.0, 16.0)
+    }
+
+    /// Sum of the powers in the 3 × 3 bins around frequency `f`.
+    fn bin_energy(&self, f: (f64, f64), n: usize) -> f64 {
+        let nc = n / 2 + 1;
+        let (x, y) = if f.0 < 0.0 { (-f.0, -f.1) } else { f };
+        let (cx, cy) = (x.round() as i64, y.round() as i64);
+        let mut e = 0.0;
+        for dy in -1..=1i64 {
+            for dx in -1..=1i64 {
+                let (mut bx, mut by) = (cx + dx, cy + dy);
+                if bx < 0 {
+                    bx = -bx;
+                    by = -by;
+                }
+                if bx >= nc as i64 {
+                    continue;
+                }
+                let fy = by.rem_euclid(n as i64) as usize;
+                e += f64::from(self.power[fy * nc + bx as usize]);
+            }
+        }
+        e
     }
 
     /// Largest power in the 3 × 3 bins around frequency `f` (cycles per
@@ -519,8 +587,10 @@ impl FineStage {
     }
 
     /// Plane fit of the tile phases of direction `d`: returns (δk, phase at
-    /// the centre from the tile sum, coherence, residual rms, |Σ|).
-    fn fit(&self, d: usize) -> ([f64; 2], f64, f64, f64, f64) {
+    /// the centre from the tile sum — or from the cubic model when
+    /// distortion modelling is on —, coherence, residual rms, |Σ|,
+    /// largest non-affine phase, rad).
+    fn fit(&self, d: usize) -> ([f64; 2], f64, f64, f64, f64, f64) {
         let ntx = self.tile_x.len() - 1;
         let nty = self.tile_y.len() - 1;
         let z = &self.tiles[d];
@@ -605,6 +675,20 @@ impl FineStage {
             f64::INFINITY
         };
         let coherence = if mag > 0.0 { zs.norm() / mag } else { 0.0 };
+        let (cub, distortion_px) = self.cubic_fit(d, g, r0);
+        if let (true, Some(c)) = (self.model_distortion, cub) {
+            // Phase and local wave vector of the centre point from the cubic
+            // model (the polynomial is in units of half the frame width).
+            let sc = 2.0 / self.win_w as f64;
+            return (
+                [g[0] + c[1] * sc, g[1] + c[2] * sc],
+                wrap(r0 + c[0]),
+                coherence,
+                rms,
+                zs.norm(),
+                distortion_px,
+            );
+        }
         // Centre phase: the tile phasors brought to the centre with the
         // refined k correction, summed (weights ∝ the symmetric window, so a
         // residual error in the correction cancels to first order).
@@ -616,7 +700,90 @@ impl FineStage {
                 zc += z[ty * ntx + tx] * Complex::from_polar(1.0, -(dk[0] * x + dk[1] * y));
             }
         }
-        (dk, zc.arg(), coherence, rms, zc.norm())
+        (dk, zc.arg(), coherence, rms, zc.norm(), distortion_px)
+    }
+
+    /// Weighted LS fit of a cubic polynomial (10 terms, coordinates in units
+    /// of half the frame width) to the tile phases of direction `d` after
+    /// removing the gradient `g` and reference `r0`. Returns the coefficients
+    /// (constant, x, y, x², xy, y², x³, x²y, xy², y³) and the largest
+    /// non-affine phase over the tiles in rad; `None` with fewer than
+    /// 4 × 4 tiles.
+    fn cubic_fit(&self, d: usize, g: [f64; 2], r0: f64) -> (Option<[f64; 10]>, f64) {
+        let ntx = self.tile_x.len() - 1;
+        let nty = self.tile_y.len() - 1;
+        if ntx < 4 || nty < 4 {
+            return (None, 0.0);
+        }
+        let z = &self.tiles[d];
+        let sc = 2.0 / self.win_w as f64;
+        let basis = |x: f64, y: f64| {
+            [
+                1.0,
+                x,
+                y,
+                x * x,
+                x * y,
+                y * y,
+                x * x * x,
+                x * x * y,
+                x * y * y,
+                y * y * y,
+            ]
+        };
+        let mut a = [[0.0f64; 11]; 10];
+        for ty in 0..nty {
+            for tx in 0..ntx {
+                let (x, y) = (self.cen_x[tx], self.cen_y[ty]);
+                let v = z[ty * ntx + tx];
+                let wt = v.norm_sqr();
+                let p = wrap(v.arg() - (g[0] * x + g[1] * y) - r0);
+                let b = basis(x * sc, y * sc);
+                for i in 0..10 {
+                    for j in 0..10 {
+                        a[i][j] += wt * b[i] * b[j];
+                    }
+                    a[i][10] += wt * b[i] * p;
+                }
+            }
+        }
+        // Gaussian elimination with partial pivoting.
+        for c in 0..10 {
+            let mut piv = c;
+            for r in c + 1..10 {
+                if a[r][c].abs() > a[piv][c].abs() {
+                    piv = r;
+                }
+            }
+            a.swap(c, piv);
+            if !(a[c][c].abs() > 1e-300) {
+                return (None, 0.0);
+            }
+            for r in 0..10 {
+                if r != c {
+                    let f = a[r][c] / a[c][c];
+                    for cc in c..11 {
+                        a[r][cc] -= f * a[c][cc];
+                    }
+                }
+            }
+        }
+        let mut coef = [0.0; 10];
+        for i in 0..10 {
+            coef[i] = a[i][10] / a[i][i];
+        }
+        let mut worst = 0.0f64;
+        for ty in 0..nty {
+            for tx in 0..ntx {
+                let b = basis(self.cen_x[tx] * sc, self.cen_y[ty] * sc);
+                let q: f64 = (3..10).map(|i| coef[i] * b[i]).sum();
+                worst = worst.max(q.abs());
+            }
+        }
+        if !coef.iter().all(|c| c.is_finite()) {
+            return (None, 0.0);
+        }
+        (Some(coef), worst)
     }
 
     /// Demodulates at `k0`, refines k, and (if the refinement was not
@@ -645,6 +812,18 @@ impl FineStage {
                 amplitude: amp,
                 coherence: fa.2.min(fb.2),
                 phase_rms_rad: fa.3.max(fb.3),
+                distortion_px: (fa.5 / k[0][0].hypot(k[0][1])).max(fb.5 / k[1][0].hypot(k[1][1])),
+                blob_slope_px: [0, 1].map(|d| {
+                    let kk = k[d][0].hypot(k[d][1]);
+                    // Without an estimate assume σ ≈ 0.8 px blur plus the
+                    // pixel aperture.
+                    let var = if self.blob_var[d].is_finite() {
+                        self.blob_var[d]
+                    } else {
+                        0.72
+                    };
+                    -1.0 / kk - var * kk
+                }),
             };
             let step = (fa.0[0].hypot(fa.0[1])).max(fb.0[0].hypot(fb.0[1])) * TILE as f64;
             out = Some(grid);
@@ -674,11 +853,16 @@ impl FineStage {
 /// Solves the symmetric 3×3 system for (p0, hx, hy), fixing hx or hy to 0
 /// when that dimension has a single tile.
 fn solve3(m: [[f64; 3]; 3], r: [f64; 3], use_x: bool, use_y: bool) -> [f64; 3] {
-    let idx: Vec<usize> = [Some(0), use_x.then_some(1), use_y.then_some(2)]
-        .into_iter()
-        .flatten()
-        .collect();
-    let k = idx.len();
+    // Fixed-size index list: this runs per frame and must not allocate.
+    let mut idx = [0usize; 3];
+    let mut k = 1;
+    for (on, i) in [(use_x, 1), (use_y, 2)] {
+        if on {
+            idx[k] = i;
+            k += 1;
+        }
+    }
+    let idx = &idx[..k];
     let mut a = [[0.0; 4]; 3];
     for (ii, &i) in idx.iter().enumerate() {
         for (jj, &j) in idx.iter().enumerate() {

@@ -1,0 +1,65 @@
+//! A warm decoder allocates nothing per frame: a counting global allocator
+//! watches `decode` and `track` on frames of a size the decoder has seen.
+
+use std::alloc::{GlobalAlloc, Layout, System};
+use std::sync::atomic::{AtomicUsize, Ordering};
+
+use micropos::pattern::decode::{DecodeOptions, Decoder};
+use micropos::pattern::render::{Pose, RenderConfig, Renderer};
+
+struct Counting;
+
+static ALLOCS: AtomicUsize = AtomicUsize::new(0);
+
+// SAFETY: forwards to the system allocator unchanged; only counts calls.
+unsafe impl GlobalAlloc for Counting {
+    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
+        ALLOCS.fetch_add(1, Ordering::SeqCst);
+        // SAFETY: same contract as the caller's.
+        unsafe { System.alloc(layout) }
+    }
+    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
+        // SAFETY: same contract as the caller's.
+        unsafe { System.dealloc(ptr, layout) }
+    }
+    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
+        ALLOCS.fetch_add(1, Ordering::SeqCst);
+        // SAFETY: same contract as the caller's.
+        unsafe { System.realloc(ptr, layout, new_size) }
+    }
+}
+
+#[global_allocator]
+static GLOBAL: Counting = Counting;
+
+#[test]
+fn warm_decoder_does_not_allocate() {
+    let mut r = Renderer::new(RenderConfig::default()).unwrap();
+    let pose = |i: u64| Pose {
+        x_um: 20_000.0 + 0.4 * i as f64,
+        y_um: 9_000.0 - 0.3 * i as f64,
+        theta_rad: 0.3,
+        pixel_um: 0.9,
+        mirrored: false,
+    };
+    let frames: Vec<_> = (0..6)
+        .map(|i| r.render(&pose(i), i, 0.0, i).unwrap())
+        .collect();
+    let mut d = Decoder::new(DecodeOptions::new(9.0, 12)).unwrap();
+    // Warm up: cold decode and a few tracked frames size every buffer.
+    d.decode(&frames[0]).unwrap();
+    d.track(&frames[1]).unwrap();
+    d.track(&frames[2]).unwrap();
+    let before = ALLOCS.load(Ordering::SeqCst);
+    let t = d.track(&frames[3]).unwrap();
+    let after_track = ALLOCS.load(Ordering::SeqCst);
+    let c = d.decode(&frames[4]).unwrap();
+    let after_cold = ALLOCS.load(Ordering::SeqCst);
+    assert!(t.tracked && t.code_predicted && !c.tracked);
+    assert_eq!(after_track - before, 0, "allocations in a warm track()");
+    assert_eq!(
+        after_cold - after_track,
+        0,
+        "allocations in a warm decode()"
+    );
+}
