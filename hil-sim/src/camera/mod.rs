@@ -270,6 +270,7 @@ impl CameraConfig {
             dust_transmission: self.dust_transmission,
             dust_seed: self.dust_seed,
             oversample: 2,
+            plain_grid: false,
         }
     }
 }
