@@ -201,6 +201,87 @@ fn check(name: &'static str, value: f64, ok: bool, why: &'static str) -> Result<
     }
 }
 
+/// What multiplies the pattern's light before noise: illumination gradient,
+/// vignetting and occluding dust, all fixed to the image.
+///
+/// Why shared: the exact renderer here and the simulator's fast renderer
+/// must put the same dust in the same place for the same seed, so tests can
+/// compare them pixel for pixel.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Shading {
+    /// Frame width, px.
+    pub width: usize,
+    /// Frame height, px.
+    pub height: usize,
+    /// Linear illumination change across the frame (x, y), fraction of the
+    /// centre value from the centre to the edge.
+    pub gradient: [f64; 2],
+    /// Light lost in the corners, fraction (quadratic in the radius).
+    pub vignetting: f64,
+    /// Fraction of the frame covered by dust.
+    pub dust_fraction: f64,
+    /// Dust blob radius range, px.
+    pub dust_radius_px: (f64, f64),
+    /// Light a dust blob lets through, fraction.
+    pub dust_transmission: f64,
+    /// Seed of the dust layout.
+    pub dust_seed: u64,
+}
+
+/// The per-pixel light factor of [`Shading`], row-major.
+pub fn shading_map(sh: &Shading) -> Vec<f32> {
+    let (w, h) = (sh.width, sh.height);
+    let (cx, cy) = (w as f64 / 2.0, h as f64 / 2.0);
+    let r2max = (cx * cx + cy * cy).max(f64::MIN_POSITIVE);
+    let mut shade = Vec::with_capacity(w * h);
+    for i in 0..h {
+        let y = i as f64 + 0.5 - cy;
+        for j in 0..w {
+            let x = j as f64 + 0.5 - cx;
+            let g = 1.0 + sh.gradient[0] * x / w as f64 + sh.gradient[1] * y / h as f64;
+            let v = 1.0 - sh.vignetting * (x * x + y * y) / r2max;
+            shade.push((g * v).max(0.0) as f32);
+        }
+    }
+    if sh.dust_fraction > 0.0 {
+        let mut rng = ChaCha8Rng::seed_from_u64(sh.dust_seed);
+        let mut dust = vec![0f32; w * h];
+        let target = sh.dust_fraction * (w * h) as f64;
+        let mut covered = 0.0;
+        let (rmin, rmax) = sh.dust_radius_px;
+        // Bounded: each blob covers at least one pixel's worth of area
+        // on average, so the loop ends; the cap guards tiny frames.
+        let mut tries = 0;
+        while covered < target && tries < 100_000 {
+            tries += 1;
+            let rad = rng.gen_range(rmin..=rmax);
+            let bx = rng.gen_range(0.0..w as f64);
+            let by = rng.gen_range(0.0..h as f64);
+            let i0 = (by - rad - 1.0).floor().max(0.0) as usize;
+            let i1 = ((by + rad + 1.0).ceil() as usize).min(h);
+            let j0 = (bx - rad - 1.0).floor().max(0.0) as usize;
+            let j1 = ((bx + rad + 1.0).ceil() as usize).min(w);
+            for i in i0..i1 {
+                for j in j0..j1 {
+                    let d = ((j as f64 + 0.5 - bx).powi(2) + (i as f64 + 0.5 - by).powi(2)).sqrt();
+                    // Soft 1-px edge.
+                    let m = (rad + 0.5 - d).clamp(0.0, 1.0) as f32;
+                    let cell = &mut dust[i * w + j];
+                    if m > *cell {
+                        covered += f64::from(m - *cell);
+                        *cell = m;
+                    }
+                }
+            }
+        }
+        let t = sh.dust_transmission as f32;
+        for (s, d) in shade.iter_mut().zip(&dust) {
+            *s *= 1.0 - d * (1.0 - t);
+        }
+    }
+    shade
+}
+
 impl Renderer {
     /// Builds a renderer, checking the configuration.
     pub fn new(cfg: RenderConfig) -> Result<Self, RenderError> {
@@ -322,58 +403,16 @@ impl Renderer {
     }
 
     fn build_shade(&mut self) {
-        let (w, h) = (self.cfg.width, self.cfg.height);
-        let (cx, cy) = (w as f64 / 2.0, h as f64 / 2.0);
-        let r2max = cx * cx + cy * cy;
-        self.shade.clear();
-        self.shade.reserve(w * h);
-        for i in 0..h {
-            let y = i as f64 + 0.5 - cy;
-            for j in 0..w {
-                let x = j as f64 + 0.5 - cx;
-                let g =
-                    1.0 + self.cfg.gradient[0] * x / w as f64 + self.cfg.gradient[1] * y / h as f64;
-                let v = 1.0 - self.cfg.vignetting * (x * x + y * y) / r2max;
-                self.shade.push((g * v).max(0.0) as f32);
-            }
-        }
-        if self.cfg.dust_fraction > 0.0 {
-            let mut rng = ChaCha8Rng::seed_from_u64(self.cfg.dust_seed);
-            let mut dust = vec![0f32; w * h];
-            let target = self.cfg.dust_fraction * (w * h) as f64;
-            let mut covered = 0.0;
-            let (rmin, rmax) = self.cfg.dust_radius_px;
-            // Bounded: each blob covers at least one pixel's worth of area
-            // on average, so the loop ends; the cap guards tiny frames.
-            let mut tries = 0;
-            while covered < target && tries < 100_000 {
-                tries += 1;
-                let rad = rng.gen_range(rmin..=rmax);
-                let bx = rng.gen_range(0.0..w as f64);
-                let by = rng.gen_range(0.0..h as f64);
-                let i0 = (by - rad - 1.0).floor().max(0.0) as usize;
-                let i1 = ((by + rad + 1.0).ceil() as usize).min(h);
-                let j0 = (bx - rad - 1.0).floor().max(0.0) as usize;
-                let j1 = ((bx + rad + 1.0).ceil() as usize).min(w);
-                for i in i0..i1 {
-                    for j in j0..j1 {
-                        let d =
-                            ((j as f64 + 0.5 - bx).powi(2) + (i as f64 + 0.5 - by).powi(2)).sqrt();
-                        // Soft 1-px edge.
-                        let m = (rad + 0.5 - d).clamp(0.0, 1.0) as f32;
-                        let cell = &mut dust[i * w + j];
-                        if m > *cell {
-                            covered += f64::from(m - *cell);
-                            *cell = m;
-                        }
-                    }
-                }
-            }
-            let t = self.cfg.dust_transmission as f32;
-            for (s, d) in self.shade.iter_mut().zip(&dust) {
-                *s *= 1.0 - d * (1.0 - t);
-            }
-        }
+        self.shade = shading_map(&Shading {
+            width: self.cfg.width,
+            height: self.cfg.height,
+            gradient: self.cfg.gradient,
+            vignetting: self.cfg.vignetting,
+            dust_fraction: self.cfg.dust_fraction,
+            dust_radius_px: self.cfg.dust_radius_px,
+            dust_transmission: self.cfg.dust_transmission,
+            dust_seed: self.cfg.dust_seed,
+        });
     }
 
     /// Renders the pattern seen at `pose`; `noise_seed` seeds this frame's

@@ -24,6 +24,7 @@
 
 use super::CameraConfig;
 use micropos::frame::{Frame, Pixels};
+use micropos::pattern::render::{shading_map, Shading};
 use micropos::pattern::sequence::LineSequence;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -162,54 +163,16 @@ impl FastRenderer {
     }
 
     fn build_shade(&mut self) {
-        let (w, h) = (self.cfg.width, self.cfg.height);
-        let (cx, cy) = (w as f64 / 2.0, h as f64 / 2.0);
-        let r2max = cx * cx + cy * cy;
-        self.shade = Vec::with_capacity(w * h);
-        for i in 0..h {
-            let y = i as f64 + 0.5 - cy;
-            for j in 0..w {
-                let x = j as f64 + 0.5 - cx;
-                let gr =
-                    1.0 + self.cfg.gradient[0] * x / w as f64 + self.cfg.gradient[1] * y / h as f64;
-                let v = 1.0 - self.cfg.vignetting * (x * x + y * y) / r2max;
-                self.shade.push((gr * v).max(0.0) as f32);
-            }
-        }
-        if self.cfg.dust_fraction > 0.0 {
-            let mut rng = ChaCha8Rng::seed_from_u64(self.cfg.dust_seed);
-            let mut dust = vec![0f32; w * h];
-            let target = self.cfg.dust_fraction * (w * h) as f64;
-            let mut covered = 0.0;
-            let (rmin, rmax) = (self.cfg.dust_radius_px[0], self.cfg.dust_radius_px[1]);
-            let mut tries = 0;
-            while covered < target && tries < 100_000 {
-                tries += 1;
-                let rad = rng.gen_range(rmin..=rmax);
-                let bx = rng.gen_range(0.0..w as f64);
-                let by = rng.gen_range(0.0..h as f64);
-                let i0 = (by - rad - 1.0).floor().max(0.0) as usize;
-                let i1 = ((by + rad + 1.0).ceil() as usize).min(h);
-                let j0 = (bx - rad - 1.0).floor().max(0.0) as usize;
-                let j1 = ((bx + rad + 1.0).ceil() as usize).min(w);
-                for i in i0..i1 {
-                    for j in j0..j1 {
-                        let d =
-                            ((j as f64 + 0.5 - bx).powi(2) + (i as f64 + 0.5 - by).powi(2)).sqrt();
-                        let m = (rad + 0.5 - d).clamp(0.0, 1.0) as f32;
-                        let cell = &mut dust[i * w + j];
-                        if m > *cell {
-                            covered += f64::from(m - *cell);
-                            *cell = m;
-                        }
-                    }
-                }
-            }
-            let t = self.cfg.dust_transmission as f32;
-            for (s, d) in self.shade.iter_mut().zip(&dust) {
-                *s *= 1.0 - d * (1.0 - t);
-            }
-        }
+        self.shade = shading_map(&Shading {
+            width: self.cfg.width,
+            height: self.cfg.height,
+            gradient: self.cfg.gradient,
+            vignetting: self.cfg.vignetting,
+            dust_fraction: self.cfg.dust_fraction,
+            dust_radius_px: (self.cfg.dust_radius_px[0], self.cfg.dust_radius_px[1]),
+            dust_transmission: self.cfg.dust_transmission,
+            dust_seed: self.cfg.dust_seed,
+        });
     }
 
     /// Sums the dot stamps for the pattern point `(x_um, y_um)` at the image
