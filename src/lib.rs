@@ -2,8 +2,9 @@
 //!
 //! The library holds everything that is not process plumbing: the GCS 2.0
 //! protocol core (sans-IO), the async C-863 driver, the Megarena pattern
-//! (layout, rendering, decoding), the stage error model and, later, compensation
-//! and metrology. The binaries `microposd` and `micropos` and the simulator
+//! (layout, rendering, decoding), camera sources, the stage error model,
+//! compensation, metrology (ISO 9283, ISO 230-2), discrepancy diagnosis and
+//! the daemon's runtime. The binaries `microposd` and `micropos` and the simulator
 //! `hil-sim` are thin shells around it. See `ARCHITECTURE.md`.
 
 #![forbid(unsafe_code)]

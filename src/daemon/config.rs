@@ -123,7 +123,7 @@ pub struct Limits {
 #[serde(deny_unknown_fields, default)]
 pub struct CameraSection {
     /// Frame source (`v4l2:/dev/video0`, `genicam[:ID]`, `files:GLOB`,
-    /// `sim:PATH` once available); empty = no camera (vision features
+    /// `sim:PATH` for hil-sim's camera socket); empty = no camera (vision features
     /// answer `camera_unavailable`).
     pub source: String,
     /// Longest wait for a frame, ms.

@@ -1,7 +1,9 @@
-//! `micropos`: the command-line tool (offline tools and, later, the daemon
-//! client). Each subcommand lives in its own module; this file only wires
-//! them up and maps outcomes to exit codes scripts can rely on:
-//! 0 success, 1 a runtime failure (device, decode, I/O), 2 a usage error.
+//! `micropos`: the command-line tool — offline tools (decode, pattern,
+//! diagnose, simlog), hardware bring-up (gcs, axes, camera) and the client of
+//! the `microposd` daemon. Each subcommand lives in its own module; this file
+//! only wires them up and maps outcomes to exit codes scripts can rely on:
+//! 0 success, 1 a runtime failure or refusal, 2 a usage error, 3 daemon
+//! unreachable.
 
 mod axes;
 mod camera;
