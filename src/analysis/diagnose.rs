@@ -720,34 +720,78 @@ fn dot_rows(a: &[f64], b: &[f64], train: &[bool]) -> f64 {
 /// unit norm and small eigenvalues truncated (unidentifiable combinations
 /// get no coefficient instead of a huge one).
 fn solve_normal(g: &DMatrix<f64>, r: &DVector<f64>) -> DVector<f64> {
-    let p = g.nrows();
-    if p == 0 {
+    if g.nrows() == 0 {
         return DVector::zeros(0);
     }
-    let scale: Vec<f64> = (0..p)
-        .map(|i| {
-            let v = g[(i, i)];
-            if v > 0.0 {
-                1.0 / v.sqrt()
-            } else {
-                0.0
-            }
-        })
-        .collect();
-    let gs = DMatrix::from_fn(p, p, |i, j| g[(i, j)] * scale[i] * scale[j]);
-    let rs = DVector::from_fn(p, |i, _| r[i] * scale[i]);
-    let eig = nalgebra::SymmetricEigen::new(gs);
-    let lmax = eig.eigenvalues.iter().cloned().fold(0.0, f64::max);
-    let mut x = DVector::zeros(p);
-    for k in 0..p {
-        let l = eig.eigenvalues[k];
-        if l > 1e-10 * lmax && l > 0.0 {
-            let v = eig.eigenvectors.column(k);
-            let c = v.dot(&rs) / l;
-            x += v * c;
-        }
+    ScaledEigen::new(g).solve(r)
+}
+
+/// The eigendecomposition of a Gram matrix with its columns scaled to unit
+/// norm: computed once, it gives both the truncated minimum-norm solution
+/// and the parameter variances.
+struct ScaledEigen {
+    scale: Vec<f64>,
+    eig: nalgebra::SymmetricEigen<f64, nalgebra::Dyn>,
+    lmax: f64,
+}
+
+impl ScaledEigen {
+    fn new(g: &DMatrix<f64>) -> Self {
+        let p = g.nrows();
+        let scale: Vec<f64> = (0..p)
+            .map(|i| {
+                let v = g[(i, i)];
+                if v > 0.0 {
+                    1.0 / v.sqrt()
+                } else {
+                    0.0
+                }
+            })
+            .collect();
+        let gs = DMatrix::from_fn(p, p, |i, j| g[(i, j)] * scale[i] * scale[j]);
+        let eig = nalgebra::SymmetricEigen::new(gs);
+        let lmax = eig.eigenvalues.iter().cloned().fold(0.0, f64::max);
+        Self { scale, eig, lmax }
     }
-    DVector::from_fn(p, |i, _| x[i] * scale[i])
+
+    /// Whether eigenvalue `l` is kept (the rest are unidentifiable).
+    fn kept(&self, l: f64) -> bool {
+        l > 1e-10 * self.lmax && l > 0.0
+    }
+
+    fn solve(&self, r: &DVector<f64>) -> DVector<f64> {
+        let p = self.scale.len();
+        let rs = DVector::from_fn(p, |i, _| r[i] * self.scale[i]);
+        let mut x = DVector::zeros(p);
+        for k in 0..p {
+            let l = self.eig.eigenvalues[k];
+            if self.kept(l) {
+                let v = self.eig.eigenvectors.column(k);
+                let c = v.dot(&rs) / l;
+                x += v * c;
+            }
+        }
+        DVector::from_fn(p, |i, _| x[i] * self.scale[i])
+    }
+
+    /// Diagonal of the pseudo-inverse of the unscaled Gram matrix.
+    fn inverse_diagonal(&self) -> Vec<f64> {
+        let p = self.scale.len();
+        let mut diag = vec![0.0; p];
+        for k in 0..p {
+            let l = self.eig.eigenvalues[k];
+            if self.kept(l) {
+                for (i, dv) in diag.iter_mut().enumerate() {
+                    let v = self.eig.eigenvectors[(i, k)];
+                    *dv += v * v / l;
+                }
+            }
+        }
+        for (i, dv) in diag.iter_mut().enumerate() {
+            *dv *= self.scale[i] * self.scale[i];
+        }
+        diag
+    }
 }
 
 /// Per fold: the base Gram matrix and right-hand side on the training rows.
@@ -1167,35 +1211,11 @@ fn base_kinds_of(model: &StageModel, names: &[String]) -> Vec<String> {
 /// [`solve_normal`] plus the diagonal of the pseudo-inverse of `g` (the
 /// parameter variances per unit residual variance).
 fn solve_with_cov(g: &DMatrix<f64>, r: &DVector<f64>) -> (DVector<f64>, Vec<f64>) {
-    let p = g.nrows();
-    let beta = solve_normal(g, r);
-    let scale: Vec<f64> = (0..p)
-        .map(|i| {
-            let v = g[(i, i)];
-            if v > 0.0 {
-                1.0 / v.sqrt()
-            } else {
-                0.0
-            }
-        })
-        .collect();
-    let gs = DMatrix::from_fn(p, p, |i, j| g[(i, j)] * scale[i] * scale[j]);
-    let eig = nalgebra::SymmetricEigen::new(gs);
-    let lmax = eig.eigenvalues.iter().cloned().fold(0.0, f64::max);
-    let mut diag = vec![0.0; p];
-    for k in 0..p {
-        let l = eig.eigenvalues[k];
-        if l > 1e-10 * lmax && l > 0.0 {
-            for (i, dv) in diag.iter_mut().enumerate() {
-                let v = eig.eigenvectors[(i, k)];
-                *dv += v * v / l;
-            }
-        }
+    if g.nrows() == 0 {
+        return (DVector::zeros(0), Vec::new());
     }
-    for (i, dv) in diag.iter_mut().enumerate() {
-        *dv *= scale[i] * scale[i];
-    }
-    (beta, diag)
+    let se = ScaledEigen::new(g);
+    (se.solve(r), se.inverse_diagonal())
 }
 
 /// Adds the term for an accepted candidate; returns its name.
