@@ -74,7 +74,19 @@ fn block_on<F: Future<Output = anyhow::Result<ExitCode>>>(f: F) -> anyhow::Resul
     rt.block_on(f)
 }
 
+/// Restores the default SIGPIPE action, so `micropos … | head` ends quietly
+/// like any Unix filter instead of panicking in `println!` when the reader
+/// goes away (Rust ignores SIGPIPE and turns EPIPE into a panic).
+fn default_sigpipe() {
+    // SAFETY: called first thing in main, before any thread exists; setting a
+    // signal disposition to SIG_DFL installs no handler code.
+    unsafe {
+        libc::signal(libc::SIGPIPE, libc::SIG_DFL);
+    }
+}
+
 fn main() -> ExitCode {
+    default_sigpipe();
     let cli = Cli::parse();
     tracing_subscriber::fmt()
         .with_writer(std::io::stderr)
