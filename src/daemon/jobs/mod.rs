@@ -44,6 +44,10 @@ pub fn columns() -> Columns {
     }
 }
 
+/// Distance below the first point from which the held axis is parked, µm
+/// (10× the M-111's 2 µm backlash, as `charact::scan`'s approach).
+pub const PARK_APPROACH_UM: f64 = 20.0;
+
 /// Progress of the current or last job.
 #[derive(Debug, Clone)]
 pub struct Progress {
@@ -427,6 +431,28 @@ async fn run(
         .map_err(|e| ProtoError::new(ErrorCode::LogError, format!("cannot create {name}: {e}")))?;
         writer = Arc::new(Mutex::new(w));
         origin = clock.now_s();
+    }
+    // Park the held axis by a forward approach (what the tables and the
+    // model fit assume; measured without it: the X scan's y held after a
+    // backward arrival put the Y backlash, 1.7 µm, into every table value).
+    if let Some(p0) = points.get(start) {
+        let (x, y) = if p0.segment.starts_with("scan_x") {
+            (p0.x_um, p0.y_um - PARK_APPROACH_UM)
+        } else {
+            (p0.x_um - PARK_APPROACH_UM, p0.y_um)
+        };
+        let req = MoveRequest {
+            x_um: Some(x),
+            y_um: Some(y),
+            relative: false,
+            mode: MoveMode::Raw,
+            wait: true,
+            tolerance_um: None,
+        };
+        tokio::select! {
+            r = rig.move_to(&req, true) => { r?; }
+            _ = cancel.changed() => return Ok("cancelled"),
+        }
     }
     let began = clock.now_s();
     for (i, p) in points.iter().enumerate().skip(start) {
