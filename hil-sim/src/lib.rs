@@ -26,6 +26,7 @@ pub mod experiment;
 pub mod motion;
 pub mod params;
 pub mod rig;
+pub mod run;
 pub mod serve;
 
 pub use serve::{AxisName, Fault, ServeConfig, SimError, SimHandle};

@@ -60,6 +60,37 @@ enum Cmd {
         #[arg(long)]
         rig: Option<PathBuf>,
     },
+    /// The main job: the simulated rig plus microposd in-process, then as a
+    /// socket client: reference, characterize (paper plan), a 10× shorter
+    /// characterization, tables build, validate (square + Table II in raw,
+    /// table, model, closed_loop); prints AP/RP next to the paper's figures.
+    Run {
+        /// Seed of the simulation.
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// Stage model file for the rig (default: config/stage-model.toml).
+        #[arg(long)]
+        model: Option<PathBuf>,
+        /// Rig file (default: the paper's rig).
+        #[arg(long)]
+        rig: Option<PathBuf>,
+        /// Print exactly one JSON object on stdout (progress stays on stderr).
+        #[arg(long)]
+        json: bool,
+        /// Directory for plots of the characterization and validation logs.
+        #[arg(long)]
+        plots: Option<PathBuf>,
+        /// Keep the rig sockets, the daemon's data (logs, tables) and
+        /// run.json here (default: a temporary directory, removed).
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// Reduced plan (50 µm steps, 1 cycle): a quick look, not the paper.
+        #[arg(long)]
+        short: bool,
+        /// Simulated seconds per wall second besides the explicit advances.
+        #[arg(long, default_value_t = 100.0)]
+        time_scale: f64,
+    },
 }
 
 #[tokio::main(flavor = "multi_thread", worker_threads = 2)]
@@ -148,5 +179,81 @@ async fn main() -> anyhow::Result<()> {
                 .await
                 .map_err(anyhow::Error::from)
         }
+        Cmd::Run {
+            seed,
+            model,
+            rig,
+            json,
+            plots,
+            out,
+            short,
+            time_scale,
+        } => main_job(seed, model, rig, json, plots, out, short, time_scale).await,
     }
+}
+
+/// `hil-sim run`; see `hil_sim::run`.
+#[allow(clippy::too_many_arguments)]
+async fn main_job(
+    seed: u64,
+    model: Option<PathBuf>,
+    rig: Option<PathBuf>,
+    json: bool,
+    plots: Option<PathBuf>,
+    out: Option<PathBuf>,
+    short: bool,
+    time_scale: f64,
+) -> anyhow::Result<()> {
+    use hil_sim::run::{format_table, run, RunOptions, RunPlan};
+    let rig = match rig {
+        Some(p) => hil_sim::rig::RigConfig::load(&p).map_err(anyhow::Error::msg)?,
+        None => hil_sim::rig::RigConfig::default(),
+    };
+    // Plots are drawn from the logs, so they must be kept: with --plots and
+    // no --out the run directory is DIR/run.
+    let out = out.or_else(|| plots.as_ref().map(|p| p.join("run")));
+    let opts = RunOptions {
+        seed,
+        rig,
+        model,
+        out_dir: out.clone(),
+        time_scale,
+        plan: if short {
+            RunPlan::reduced()
+        } else {
+            RunPlan::paper()
+        },
+    };
+    let mut progress = |l: &str| eprintln!("hil-sim run: {l}");
+    let report = run(opts, &mut progress).await?;
+    eprintln!("hil-sim run: finished in {:.1} wall s", report.wall_s);
+    if let Some(dir) = &report.data_dir {
+        let full = serde_json::json!({"summary": report.summary, "validation": report.validation,
+                                      "wall_s": report.wall_s, "files": report.files});
+        std::fs::write(dir.join("run.json"), format!("{full:#}\n"))
+            .with_context(|| format!("writing {}", dir.join("run.json").display()))?;
+        eprintln!(
+            "hil-sim run: logs, tables and run.json in {}",
+            dir.display()
+        );
+    }
+    if let (Some(plots), Some(dir)) = (&plots, &report.data_dir) {
+        std::fs::create_dir_all(plots).with_context(|| format!("creating {}", plots.display()))?;
+        // PLOTS CALL SITE (branch s2-plots): draw the paper's figures from the
+        // logs in `dir` — charact-paper.csv (Figs. 4-6: errors along each
+        // axis forward/backward, coupling, repeatability) and validate.csv
+        // (Figs. 10, 11: AP per pose with and without compensation; columns
+        // mode and pose) — into `plots`, as PNG and SVG. Until then the run
+        // keeps the logs in `dir` for them.
+        eprintln!(
+            "hil-sim run: plots: the logs to draw from are in {} (plot functions: branch s2-plots)",
+            dir.display()
+        );
+    }
+    if json {
+        println!("{}", report.summary);
+    } else {
+        print!("{}", format_table(&report.summary));
+    }
+    Ok(())
 }

@@ -356,6 +356,22 @@ pub fn square_segment_name(index: usize, total: usize) -> &'static str {
     }
 }
 
+/// The label of pose `index` of [`square_poses`] with `per_side` poses per
+/// side: the corners are `A` (10, 10), `B` (4010, 10), `C` (4010, 4010),
+/// `D` (10, 4010); the poses between are the side's name and their
+/// 1-based place on it (`AB1`, `AB2`, …, `DA7`). Validation logs use it in
+/// their `pose` column.
+pub fn square_pose_label(index: usize, per_side: usize) -> String {
+    let per = per_side.max(1);
+    let side = (index / per).min(3);
+    let k = index - side * per;
+    if k == 0 {
+        ["A", "B", "C", "D"][side].to_owned()
+    } else {
+        format!("{}{k}", ["AB", "BC", "CD", "DA"][side])
+    }
+}
+
 /// Table II of the paper: the ten random targets, µm, visited in this order.
 pub const RANDOM_TARGETS_UM: [(f64, f64); 10] = [
     (3471.0, 2311.0),
@@ -461,6 +477,11 @@ mod tests {
         assert_eq!((p[40].target.x_um, p[40].target.y_um), (4010.0, 4010.0));
         assert_eq!((p[60].target.x_um, p[60].target.y_um), (10.0, 4010.0));
         assert_eq!(square_segment_name(25, 80), "BC");
+        assert_eq!(square_pose_label(0, 20), "A");
+        assert_eq!(square_pose_label(20, 20), "B");
+        assert_eq!(square_pose_label(41, 20), "CD1");
+        assert_eq!(square_pose_label(79, 20), "DA19");
+        assert_eq!(square_pose_label(60, 20), "D");
         assert_eq!(random_targets().len(), 10);
     }
 }

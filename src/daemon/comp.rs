@@ -43,6 +43,8 @@ pub struct Active {
 #[derive(Debug, Default)]
 pub struct CompState {
     loaded: Mutex<BTreeMap<String, Arc<CompFile>>>,
+    /// Load order with kinds (newest last).
+    order: Mutex<Vec<(String, crate::comp::CompKind)>>,
     active: Mutex<Option<Active>>,
     history: Mutex<Option<MotionHistory>>,
 }
@@ -97,6 +99,11 @@ impl CompState {
         file.compensator()
             .map_err(|e| comp_err(ErrorCode::BadValue, &format!("table {name}"), e))?;
         let out = json!({"loaded": name, "kind": file.kind, "records": file.source.records});
+        {
+            let mut order = lock(&self.order);
+            order.retain(|(n, _)| n != name);
+            order.push((name.to_owned(), file.kind));
+        }
         lock(&self.loaded).insert(name.to_owned(), Arc::new(file));
         Ok(out)
     }
@@ -123,6 +130,35 @@ impl CompState {
             frame: file.frame,
         });
         Ok(json!({"active": name, "kind": file.kind}))
+    }
+
+    /// A loaded table as a compensator with its frame, without activating
+    /// it (a job that names its table, e.g. validation per mode).
+    pub fn loaded(&self, name: &str) -> Result<Active, ProtoError> {
+        let file = lock(&self.loaded).get(name).cloned().ok_or_else(|| {
+            ProtoError::new(
+                ErrorCode::BadValue,
+                format!("table {name:?} is not loaded; tables load it first"),
+            )
+        })?;
+        let comp = file
+            .compensator()
+            .map_err(|e| comp_err(ErrorCode::BadValue, &format!("table {name}"), e))?;
+        Ok(Active {
+            name: name.to_owned(),
+            comp: Arc::from(comp),
+            frame: file.frame,
+        })
+    }
+
+    /// The most recently loaded table of `kind`, by name (validation's
+    /// default table per mode: `tables build` loads what it wrote).
+    pub fn latest_of_kind(&self, kind: crate::comp::CompKind) -> Option<String> {
+        lock(&self.order)
+            .iter()
+            .rev()
+            .find(|(_, k)| *k == kind)
+            .map(|(n, _)| n.clone())
     }
 
     /// Records a move made without a plan (raw moves, job steps).

@@ -9,7 +9,8 @@
 //! - [`state`]: the safe-state machine (pure);
 //! - [`rig`]: motion coordinator, soft limits, positions, event bus;
 //! - [`vision`]: capture and decode threads (never on the runtime);
-//! - [`jobs`]: characterization with resume;
+//! - [`jobs`]: characterization with resume (and its own camera tie),
+//!   validation, `tables build`;
 //! - [`config`]: the validated configuration;
 //! - [`notify`]: systemd readiness, status and a health-fed watchdog.
 //!
@@ -141,16 +142,15 @@ impl Daemon {
                 CharacterizeAction::Cancel => self.jobs.cancel().await.map(|j| json!({"job": j})),
             },
             Command::Validate(v) => match v {
-                ValidateAction::Status => Ok(json!({"validation": null})),
-                ValidateAction::Start { .. } | ValidateAction::Cancel => Err(ProtoError::new(
-                    ErrorCode::NotAvailable,
-                    "validation (square and random-points tests) needs the compensation library, not in this build",
-                )),
+                ValidateAction::Status => Ok(self.jobs.validation_status()),
+                ValidateAction::Start(p) => self.jobs.start_validation(rig, p).await,
+                ValidateAction::Cancel => self.jobs.cancel().await.map(|j| json!({"job": j})),
             },
             Command::Tables(t) => match t {
                 TablesAction::List => rig.comp.list(&rig.cfg.daemon.data_dir).await,
                 TablesAction::Load { name } => rig.comp.load(&rig.cfg.daemon.data_dir, &name).await,
                 TablesAction::Activate { name } => rig.comp.activate(name.as_deref()),
+                TablesAction::Build(p) => jobs::tables::build(rig, p).await,
             },
             Command::Subscribe(_) => Err(ProtoError::new(
                 ErrorCode::Internal,

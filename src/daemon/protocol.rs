@@ -251,16 +251,90 @@ pub enum TablesAction {
         /// Table name.
         name: Option<String>,
     },
+    /// Build the paper's tables and a model table from a characterization
+    /// log, write them into the data directory and load them.
+    Build(TablesBuildParams),
+}
+
+/// Parameters of `tables build`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct TablesBuildParams {
+    /// The characterization log (file name in the data directory).
+    pub log: String,
+    /// Output name stem: writes `STEM-paper.toml` and `STEM-model.toml`
+    /// (default: the log's stem).
+    pub name: Option<String>,
+    /// Which tables: `paper`, `model` (default both).
+    pub kinds: Vec<String>,
+    /// Activate the paper table (or the model table if only that is built).
+    pub activate: bool,
+}
+
+/// How a validation mode moves to a pose.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ValidateMode {
+    /// Plain controller moves.
+    Raw,
+    /// Compensated by the paper's lookup tables.
+    Table,
+    /// Compensated by a fitted stage model.
+    Model,
+    /// Compensated, then corrected on the camera.
+    ClosedLoop,
+}
+
+impl ValidateMode {
+    /// Every mode, in report order.
+    pub const ALL: [ValidateMode; 4] = [
+        ValidateMode::Raw,
+        ValidateMode::Table,
+        ValidateMode::Model,
+        ValidateMode::ClosedLoop,
+    ];
+
+    /// The mode as sent on the wire.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            ValidateMode::Raw => "raw",
+            ValidateMode::Table => "table",
+            ValidateMode::Model => "model",
+            ValidateMode::ClosedLoop => "closed_loop",
+        }
+    }
+}
+
+/// Parameters of `validate start`; `None` = the default.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ValidateParams {
+    /// `square`, `random` (in this order when both).
+    pub tests: Vec<String>,
+    /// Modes, in the order run.
+    pub modes: Vec<ValidateMode>,
+    /// Cycles per test and mode.
+    pub cycles: Option<u32>,
+    /// Log file name.
+    pub log: Option<String>,
+    /// Stage position of the paper's (0, 0), µm.
+    pub origin_x_um: Option<f64>,
+    /// Stage position of the paper's (0, 0), µm.
+    pub origin_y_um: Option<f64>,
+    /// Distance between square poses along a side, µm.
+    pub square_step_um: Option<f64>,
+    /// Lookup table file for mode `table` (loaded or in the data directory).
+    pub table: Option<String>,
+    /// Model table file for mode `model`.
+    pub model_table: Option<String>,
+    /// Frames averaged per pose.
+    pub frames_per_point: Option<u32>,
+    /// Settle time after each move, s.
+    pub settle_s: Option<f64>,
 }
 
 /// Sub-commands of `validate`.
 #[derive(Debug, Clone, PartialEq)]
 pub enum ValidateAction {
     /// Start a validation run.
-    Start {
-        /// `square` or `random`.
-        test: String,
-    },
+    Start(ValidateParams),
     /// Progress.
     Status,
     /// Cancel.
@@ -414,8 +488,21 @@ fn parse_command(obj: &Map<String, Value>) -> Result<Command, ProtoError> {
             "frames_per_point",
             "settle_s",
         ],
-        "validate" => &["action", "test"],
-        "tables" => &["action", "name"],
+        "validate" => &[
+            "action",
+            "test",
+            "modes",
+            "cycles",
+            "log",
+            "origin_x_um",
+            "origin_y_um",
+            "square_step_um",
+            "table",
+            "model_table",
+            "frames_per_point",
+            "settle_s",
+        ],
+        "tables" => &["action", "name", "log", "kinds", "activate"],
         other => {
             return Err(ProtoError::new(
                 ErrorCode::UnknownCommand,
@@ -592,19 +679,93 @@ fn parse_characterize(obj: &Map<String, Value>) -> Result<CharacterizeAction, Pr
 fn parse_validate(obj: &Map<String, Value>) -> Result<ValidateAction, ProtoError> {
     match opt_str(obj, "action")?.unwrap_or("status") {
         "start" => {
-            let test = opt_str(obj, "test")?.unwrap_or("square");
-            if test != "square" && test != "random" {
-                return Err(ProtoError::new(
-                    ErrorCode::BadValue,
-                    format!(
-                        "test {:?} unknown; use square or random",
-                        truncate(test, 64)
-                    ),
-                ));
+            let tests = match opt_str(obj, "test")?.unwrap_or("both") {
+                "square" => vec!["square".to_owned()],
+                "random" => vec!["random".to_owned()],
+                "both" => vec!["square".to_owned(), "random".to_owned()],
+                test => {
+                    return Err(ProtoError::new(
+                        ErrorCode::BadValue,
+                        format!(
+                            "test {:?} unknown; use square, random or both",
+                            truncate(test, 64)
+                        ),
+                    ))
+                }
+            };
+            let modes = match obj.get("modes") {
+                None | Some(Value::Null) => ValidateMode::ALL.to_vec(),
+                Some(Value::Array(items)) => {
+                    let mut modes = Vec::new();
+                    for item in items {
+                        let Value::String(m) = item else {
+                            return Err(wrong_type("modes[]", "a string", item));
+                        };
+                        let m = ValidateMode::ALL
+                            .into_iter()
+                            .find(|k| k.as_str() == m)
+                            .ok_or_else(|| {
+                                ProtoError::new(
+                                    ErrorCode::BadValue,
+                                    format!(
+                                        "mode {:?} unknown; use raw, table, model, closed_loop",
+                                        truncate(m, 64)
+                                    ),
+                                )
+                            })?;
+                        if !modes.contains(&m) {
+                            modes.push(m);
+                        }
+                    }
+                    if modes.is_empty() {
+                        return Err(ProtoError::new(
+                            ErrorCode::BadValue,
+                            "modes is empty; give at least one of raw, table, model, closed_loop",
+                        ));
+                    }
+                    modes
+                }
+                Some(v) => return Err(wrong_type("modes", "an array of strings", v)),
+            };
+            let mut names = [None, None, None];
+            for (slot, key) in names.iter_mut().zip(["log", "table", "model_table"]) {
+                if let Some(n) = opt_str(obj, key)? {
+                    check_file_name(key, n)?;
+                    *slot = Some(n.to_owned());
+                }
             }
-            Ok(ValidateAction::Start {
-                test: test.to_owned(),
-            })
+            let [log, table, model_table] = names;
+            let square_step_um = opt_f64(obj, "square_step_um")?;
+            if let Some(s) = square_step_um {
+                if !(1.0..=4000.0).contains(&s) {
+                    return Err(ProtoError::new(
+                        ErrorCode::BadValue,
+                        format!("square_step_um must be within 1..4000, got {s}"),
+                    ));
+                }
+            }
+            let settle_s = opt_f64(obj, "settle_s")?;
+            if let Some(s) = settle_s {
+                if !(0.0..=3600.0).contains(&s) {
+                    return Err(ProtoError::new(
+                        ErrorCode::BadValue,
+                        format!("settle_s must be within 0..3600, got {s}"),
+                    ));
+                }
+            }
+            Ok(ValidateAction::Start(ValidateParams {
+                tests,
+                modes,
+                cycles: opt_count(obj, "cycles", 1, 1000)?,
+                log,
+                origin_x_um: opt_f64(obj, "origin_x_um")?,
+                origin_y_um: opt_f64(obj, "origin_y_um")?,
+                square_step_um,
+                table,
+                model_table,
+                frames_per_point: opt_count(obj, "frames_per_point", 1, 1000)?,
+                settle_s,
+            }))
         }
         "status" => Ok(ValidateAction::Status),
         "cancel" => Ok(ValidateAction::Cancel),
@@ -637,10 +798,58 @@ fn parse_tables(obj: &Map<String, Value>) -> Result<TablesAction, ProtoError> {
         "activate" => Ok(TablesAction::Activate {
             name: name.map(str::to_owned),
         }),
+        "build" => {
+            let Some(log) = opt_str(obj, "log")? else {
+                return Err(ProtoError::new(
+                    ErrorCode::MissingField,
+                    "tables build needs log (a characterization log in the data directory)",
+                ));
+            };
+            check_file_name("log", log)?;
+            if let Some(n) = name {
+                check_file_name("name", n)?;
+            }
+            let kinds = match obj.get("kinds") {
+                None | Some(Value::Null) => vec!["paper".to_owned(), "model".to_owned()],
+                Some(Value::Array(items)) => {
+                    let mut kinds: Vec<String> = Vec::new();
+                    for item in items {
+                        match item {
+                            Value::String(k) if k == "paper" || k == "model" => {
+                                if !kinds.contains(k) {
+                                    kinds.push(k.clone());
+                                }
+                            }
+                            Value::String(k) => {
+                                return Err(ProtoError::new(
+                                    ErrorCode::BadValue,
+                                    format!(
+                                        "table kind {:?} unknown; use paper, model",
+                                        truncate(k, 64)
+                                    ),
+                                ))
+                            }
+                            other => return Err(wrong_type("kinds[]", "a string", other)),
+                        }
+                    }
+                    if kinds.is_empty() {
+                        return Err(ProtoError::new(ErrorCode::BadValue, "kinds is empty"));
+                    }
+                    kinds
+                }
+                Some(v) => return Err(wrong_type("kinds", "an array of strings", v)),
+            };
+            Ok(TablesAction::Build(TablesBuildParams {
+                log: log.to_owned(),
+                name: name.map(str::to_owned),
+                kinds,
+                activate: opt_bool(obj, "activate")?.unwrap_or(false),
+            }))
+        }
         other => Err(ProtoError::new(
             ErrorCode::BadValue,
             format!(
-                "tables action {:?} unknown; use list, load, activate",
+                "tables action {:?} unknown; use list, load, activate, build",
                 truncate(other, 64)
             ),
         )),

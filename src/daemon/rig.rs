@@ -365,9 +365,24 @@ impl Rig {
         req: &MoveRequest,
         from_job: bool,
     ) -> Result<Value, ProtoError> {
+        self.move_with(req, from_job, None).await
+    }
+
+    /// [`Rig::move_to`] with the compensator (and the vision frame for
+    /// closed loop) named by the caller instead of the active table: the
+    /// validation job compares several tables without changing which one
+    /// client moves use.
+    pub async fn move_with(
+        self: &Arc<Self>,
+        req: &MoveRequest,
+        from_job: bool,
+        comp: Option<super::comp::Active>,
+    ) -> Result<Value, ProtoError> {
         match req.mode {
             MoveMode::Raw => self.raw_move(req, from_job, true).await,
-            MoveMode::Compensated | MoveMode::ClosedLoop => self.planned_move(req, from_job).await,
+            MoveMode::Compensated | MoveMode::ClosedLoop => {
+                self.planned_move(req, from_job, comp).await
+            }
         }
     }
 
@@ -394,9 +409,14 @@ impl Rig {
         self: &Arc<Self>,
         req: &MoveRequest,
         from_job: bool,
+        named: Option<super::comp::Active>,
     ) -> Result<Value, ProtoError> {
         use super::comp as c;
-        let comp = c::compensator_for(self, req.mode == MoveMode::Compensated)?;
+        let active = named.or_else(|| self.comp.active());
+        let comp = match &active {
+            Some(a) => a.comp.clone(),
+            None => c::compensator_for(self, req.mode == MoveMode::Compensated)?,
+        };
         let frame = if req.mode == MoveMode::ClosedLoop {
             if self.vision.is_none() {
                 return Err(ProtoError::new(
@@ -404,7 +424,7 @@ impl Rig {
                     "closed_loop needs a camera (camera.source)",
                 ));
             }
-            let f = self.comp.active().and_then(|a| a.frame).ok_or_else(|| {
+            let f = active.as_ref().and_then(|a| a.frame).ok_or_else(|| {
                 ProtoError::new(
                     ErrorCode::NoActiveTable,
                     "closed_loop needs the vision → stage transform: activate a table built from a characterization (it records the frame)",

@@ -1,11 +1,15 @@
 //! Long jobs: one at a time, owning the axes through the state machine.
-//! Characterization now; validation later (answers `not_available`).
+//! Characterization ([`Jobs::start`]), validation ([`validate`]); `tables
+//! build` ([`tables`]) is a request, not a job.
 //!
 //! A job stops at the first of: done, `cancel`, `stop`, a fault (the stop
 //! generation of the rig moved), or an error. Its log stays resumable in
 //! every case: each point is appended and flushed before the next move.
 
 pub mod plan;
+pub mod tables;
+pub mod tie;
+pub mod validate;
 
 use super::protocol::{
     Axes, CharacterizeParams, ErrorCode, MoveMode, MoveRequest, ProtoError, Topic,
@@ -13,6 +17,8 @@ use super::protocol::{
 use super::rig::Rig;
 use super::vision::Measurement;
 use crate::charact::log::{self, Columns, LogWriter, Metadata, Record, SyncPolicy};
+use crate::comp::VisionFrame;
+use crate::model::XyUm;
 use plan::ScanPlan;
 use serde_json::{json, Value};
 use std::fs::File;
@@ -37,6 +43,10 @@ pub fn columns() -> Columns {
         ],
     }
 }
+
+/// Distance below the first point from which the held axis is parked, µm
+/// (10× the M-111's 2 µm backlash, as `charact::scan`'s approach).
+pub const PARK_APPROACH_UM: f64 = 20.0;
 
 /// Progress of the current or last job.
 #[derive(Debug, Clone)]
@@ -76,6 +86,8 @@ struct Running {
 pub struct Jobs {
     running: Mutex<Option<Running>>,
     progress: Arc<Mutex<Option<Progress>>>,
+    /// Results of the current or last validation (see [`validate`]).
+    validation: Arc<Mutex<Option<Value>>>,
 }
 
 impl Jobs {
@@ -216,17 +228,27 @@ impl Jobs {
         .map_err(|e| ProtoError::new(ErrorCode::LogError, format!("cannot resume {name}: {e}")))?;
         let plan = ScanPlan::from_metadata(&resume.metadata)
             .map_err(|e| ProtoError::new(ErrorCode::LogError, format!("{name}: {e}")))?;
-        let offset = (|| {
+        // The frame the job started with: its own tie (vision_frame_*), or
+        // for logs of earlier versions the configured rotation plus the
+        // first point's offset.
+        let legacy = (|| {
             let x = resume.metadata.get("vision_offset_x_um")?.parse().ok()?;
             let y = resume.metadata.get("vision_offset_y_um")?.parse().ok()?;
-            Some((x, y))
-        })()
-        .ok_or_else(|| {
-            ProtoError::new(
-                ErrorCode::LogError,
-                format!("{name}: vision_offset_x_um/y missing in the metadata"),
-            )
-        })?;
+            Some(VisionFrame {
+                rotation_rad: rig.cfg.camera.rotation_rad,
+                mirrored: false,
+                translation_um: [x, y],
+            })
+        })();
+        let offset = tables::frame_from_metadata(&resume.metadata)
+            .map_err(|e| ProtoError::new(ErrorCode::LogError, format!("{name}: {e}")))?
+            .or(legacy)
+            .ok_or_else(|| {
+                ProtoError::new(
+                    ErrorCode::LogError,
+                    format!("{name}: the vision frame (vision_frame_*) is missing in the metadata"),
+                )
+            })?;
         let total = plan.points().len();
         let done = usize::try_from(resume.records).unwrap_or(usize::MAX);
         if done >= total {
@@ -252,7 +274,7 @@ impl Jobs {
         rig: &Arc<Rig>,
         plan: ScanPlan,
         name: String,
-        resumed: Option<(LogWriter<File>, (f64, f64), f64)>,
+        resumed: Option<(LogWriter<File>, VisionFrame, f64)>,
         done: usize,
         total: usize,
     ) -> Result<Value, ProtoError> {
@@ -358,7 +380,7 @@ async fn run(
     rig: &Arc<Rig>,
     plan: &ScanPlan,
     name: &str,
-    resumed: Option<(LogWriter<File>, (f64, f64), f64)>,
+    resumed: Option<(LogWriter<File>, VisionFrame, f64)>,
     start: usize,
     progress: &Arc<Mutex<Option<Progress>>>,
     mut cancel: watch::Receiver<bool>,
@@ -367,13 +389,70 @@ async fn run(
     let gen = rig.stop_generation();
     let clock = rig.clock.clone();
     let settle = Duration::try_from_secs_f64(plan.settle_s).unwrap_or_default();
-    let mut writer: Option<Arc<Mutex<LogWriter<File>>>> = None;
-    let mut offset = (0.0, 0.0);
-    let mut origin = clock.now_s();
-    if let Some((w, off, t0)) = resumed {
-        writer = Some(Arc::new(Mutex::new(w)));
-        offset = off;
+    let writer: Arc<Mutex<LogWriter<File>>>;
+    let frame: VisionFrame;
+    let origin;
+    if let Some((w, f, t0)) = resumed {
+        writer = Arc::new(Mutex::new(w));
+        frame = f;
         origin = clock.now_s() - t0;
+    } else {
+        // A new job ties the vision frame to the stage frame on its own
+        // data first (see `tie`), then writes the frame into the metadata.
+        let lines = [
+            tie::TieLine {
+                x_axis: true,
+                start_um: plan.x_start_um,
+                range_um: plan.x_range_um,
+                hold_um: plan.y_start_um + plan.y_range_um / 2.0,
+            },
+            tie::TieLine {
+                x_axis: false,
+                start_um: plan.y_start_um,
+                range_um: plan.y_range_um,
+                hold_um: plan.x_start_um + plan.x_range_um / 2.0,
+            },
+        ];
+        let tied = tokio::select! {
+            r = tie::measure_frame(rig, lines, plan.frames_per_point, plan.settle_s) => r?,
+            _ = cancel.changed() => return Ok("cancelled"),
+        };
+        frame = tied.0;
+        let mut md = Metadata::new();
+        plan.to_metadata(&mut md);
+        tie::to_metadata(&mut md, &tied.0, &tied.1);
+        md.insert("daemon_version", env!("CARGO_PKG_VERSION"));
+        let path = rig.cfg.daemon.data_dir.join(name);
+        let w = tokio::task::spawn_blocking(move || {
+            log::create_file(&path, &md, columns(), SyncPolicy::default())
+        })
+        .await
+        .map_err(|e| ProtoError::new(ErrorCode::Internal, e.to_string()))?
+        .map_err(|e| ProtoError::new(ErrorCode::LogError, format!("cannot create {name}: {e}")))?;
+        writer = Arc::new(Mutex::new(w));
+        origin = clock.now_s();
+    }
+    // Park the held axis by a forward approach (what the tables and the
+    // model fit assume; measured without it: the X scan's y held after a
+    // backward arrival put the Y backlash, 1.7 µm, into every table value).
+    if let Some(p0) = points.get(start) {
+        let (x, y) = if p0.segment.starts_with("scan_x") {
+            (p0.x_um, p0.y_um - PARK_APPROACH_UM)
+        } else {
+            (p0.x_um - PARK_APPROACH_UM, p0.y_um)
+        };
+        let req = MoveRequest {
+            x_um: Some(x),
+            y_um: Some(y),
+            relative: false,
+            mode: MoveMode::Raw,
+            wait: true,
+            tolerance_um: None,
+        };
+        tokio::select! {
+            r = rig.move_to(&req, true) => { r?; }
+            _ = cancel.changed() => return Ok("cancelled"),
+        }
     }
     let began = clock.now_s();
     for (i, p) in points.iter().enumerate().skip(start) {
@@ -397,27 +476,10 @@ async fn run(
         };
         clock.sleep(settle).await;
         let (m, quality) = measure(rig, plan.frames_per_point, clock.now_s()).await?;
-        let (vx, vy) = rig.vision_to_stage(&m);
-        if writer.is_none() {
-            // The first point of a new job ties the vision frame to the
-            // stage frame: meas = R·vision + offset, offset kept in the log.
-            offset = (p.x_um - vx, p.y_um - vy);
-            let mut md = Metadata::new();
-            plan.to_metadata(&mut md);
-            md.insert("vision_offset_x_um", offset.0.to_string());
-            md.insert("vision_offset_y_um", offset.1.to_string());
-            md.insert("daemon_version", env!("CARGO_PKG_VERSION"));
-            let path = rig.cfg.daemon.data_dir.join(name);
-            let w = tokio::task::spawn_blocking(move || {
-                log::create_file(&path, &md, columns(), SyncPolicy::default())
-            })
-            .await
-            .map_err(|e| ProtoError::new(ErrorCode::Internal, e.to_string()))?
-            .map_err(|e| {
-                ProtoError::new(ErrorCode::LogError, format!("cannot create {name}: {e}"))
-            })?;
-            writer = Some(Arc::new(Mutex::new(w)));
-        }
+        let meas = frame.to_stage(XyUm {
+            x_um: m.x_um,
+            y_um: m.y_um,
+        });
         let rep = |axis: &str| moved["reported"][axis].as_f64();
         let rec = Record {
             t_s: clock.now_s() - origin,
@@ -427,8 +489,8 @@ async fn run(
             y_target_um: p.y_um,
             x_cmd_um: p.x_um,
             y_cmd_um: p.y_um,
-            x_meas_um: vx + offset.0,
-            y_meas_um: vy + offset.1,
+            x_meas_um: meas.x_um,
+            y_meas_um: meas.y_um,
             temp_c: None,
             extra: vec![
                 rep("x_um").map_or(String::new(), |v| format!("{v:.4}")),
@@ -436,15 +498,13 @@ async fn run(
                 format!("{quality:.3}"),
             ],
         };
-        if let Some(w) = &writer {
-            let w = w.clone();
-            tokio::task::spawn_blocking(move || lock(&w).append(&rec))
-                .await
-                .map_err(|e| ProtoError::new(ErrorCode::Internal, e.to_string()))?
-                .map_err(|e| {
-                    ProtoError::new(ErrorCode::LogError, format!("cannot append to {name}: {e}"))
-                })?;
-        }
+        let w = writer.clone();
+        tokio::task::spawn_blocking(move || lock(&w).append(&rec))
+            .await
+            .map_err(|e| ProtoError::new(ErrorCode::Internal, e.to_string()))?
+            .map_err(|e| {
+                ProtoError::new(ErrorCode::LogError, format!("cannot append to {name}: {e}"))
+            })?;
         let done = i + 1;
         let per_point = (clock.now_s() - began) / (done - start) as f64;
         let eta = per_point * (points.len() - done) as f64;

@@ -1,0 +1,567 @@
+//! `hil-sim run`: the README's main job. The whole micropos pipeline on the
+//! simulated rig, through the daemon, as a user runs it:
+//!
+//! 1. the simulated rig is served as `hil-sim serve` serves it (controllers
+//!    on ptys, camera socket, control socket with the simulated clock);
+//! 2. microposd is started in-process on a real Unix socket, configured for
+//!    that rig (as `config/microposd-sim.toml`: clock `sim:`, camera `sim:`);
+//! 3. from then on this module is only a socket client: reference, the
+//!    paper's characterization, a characterization ten times shorter (for
+//!    the model table), `tables build` (paper tables from the first, model
+//!    table from the second), `validate` (square and Table II in the modes
+//!    raw, table, model, closed_loop), and it reports AP and RP per
+//!    trajectory and mode next to the paper's figures.
+//!
+//! Speed: the rig runs on simulated time (`time_scale` × wall plus the
+//! daemon's settle advances) and the driver polls on-target every
+//! millisecond, so a paper-size run (≈ 17 500 points, ≈ 9 simulated hours)
+//! takes minutes of wall time; the frame rendering and decoding dominate.
+
+use crate::rig::RigConfig;
+use crate::serve::{AxisName, ServeConfig, SimHandle};
+use micropos::camera::{open_source, OpenOptions};
+use micropos::clock::{RigClock, SimClock};
+use micropos::daemon::config::DaemonConfig;
+use micropos::daemon::{Daemon, Running};
+use serde_json::{json, Value};
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+use tokio::io::{AsyncBufReadExt, AsyncWriteExt, BufReader};
+use tokio::net::UnixStream;
+
+/// Why the main job failed.
+#[derive(Debug, thiserror::Error)]
+pub enum RunError {
+    /// Setting up the rig, the daemon or the directories failed.
+    #[error("setup: {0}")]
+    Setup(String),
+    /// The daemon refused or failed a command.
+    #[error("microposd refused {cmd}: {code}: {message}")]
+    Refused {
+        /// The command.
+        cmd: String,
+        /// Its stable error code.
+        code: String,
+        /// The daemon's message.
+        message: String,
+    },
+    /// A job ended other than `done`.
+    #[error("{kind} job ended {state}: {error}")]
+    Job {
+        /// `characterize` or `validate`.
+        kind: String,
+        /// Its final state.
+        state: String,
+        /// Why.
+        error: String,
+    },
+    /// The socket connection failed.
+    #[error("socket: {0}")]
+    Io(#[from] std::io::Error),
+}
+
+/// The experiment plan: the paper's (default) or a reduced one.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RunPlan {
+    /// Characterization step, µm (paper 5).
+    pub step_um: f64,
+    /// X scan range, µm (paper 9500).
+    pub x_range_um: f64,
+    /// Y scan range, µm (paper 4200).
+    pub y_range_um: f64,
+    /// Characterization cycles (paper 3).
+    pub cycles: u32,
+    /// Step of the short characterization for the model table, µm
+    /// (ten times the paper's).
+    pub short_step_um: f64,
+    /// Validation cycles per test and mode.
+    pub validate_cycles: u32,
+    /// Distance between square poses, µm.
+    pub square_step_um: f64,
+    /// Frames averaged per point.
+    pub frames_per_point: u32,
+    /// Settle time after each move, s.
+    pub settle_s: f64,
+    /// Stage position of the paper's validation (0, 0), µm, both axes. The
+    /// scans start at 0 (the travel's end); the stage frame's origin is the
+    /// tie's mean, so near the scan start a compensated command can fall
+    /// below 0 (measured: ≈ 12 µm of squareness-driven x error at y = 0).
+    /// 100 µm keeps every compensated command inside the travel and every
+    /// target inside the characterized area (random up to 8296 × 4091 µm).
+    pub validate_origin_um: f64,
+}
+
+impl RunPlan {
+    /// The paper's plan: 5 µm steps over 9500 × 4200 µm, 3 cycles; the
+    /// short characterization at 50 µm; validation 3 cycles, square poses
+    /// every 500 µm.
+    pub fn paper() -> Self {
+        RunPlan {
+            step_um: 5.0,
+            x_range_um: 9500.0,
+            y_range_um: 4200.0,
+            cycles: 3,
+            short_step_um: 50.0,
+            validate_cycles: 3,
+            square_step_um: 500.0,
+            frames_per_point: 1,
+            settle_s: 0.3,
+            validate_origin_um: 100.0,
+        }
+    }
+
+    /// A reduced plan for tests and a quick look (`--short`): 50 µm steps
+    /// (500 µm for the short characterization), one cycle, square poses
+    /// every 1000 µm, two validation cycles (RP needs two visits).
+    pub fn reduced() -> Self {
+        RunPlan {
+            step_um: 50.0,
+            cycles: 1,
+            short_step_um: 500.0,
+            validate_cycles: 2,
+            square_step_um: 1000.0,
+            ..Self::paper()
+        }
+    }
+}
+
+/// How to run.
+#[derive(Debug, Clone)]
+pub struct RunOptions {
+    /// Seed of the simulation.
+    pub seed: u64,
+    /// The rig.
+    pub rig: RigConfig,
+    /// Stage model file overriding the rig's.
+    pub model: Option<PathBuf>,
+    /// Where the rig sockets, the daemon's data (logs, tables) and
+    /// `run.json` go; `None`: a temporary directory, removed afterwards.
+    pub out_dir: Option<PathBuf>,
+    /// Simulated seconds per wall second besides the explicit advances.
+    pub time_scale: f64,
+    /// The plan.
+    pub plan: RunPlan,
+}
+
+impl Default for RunOptions {
+    fn default() -> Self {
+        RunOptions {
+            seed: 1,
+            rig: RigConfig::default(),
+            model: None,
+            out_dir: None,
+            time_scale: 100.0,
+            plan: RunPlan::paper(),
+        }
+    }
+}
+
+/// What the run produced.
+#[derive(Debug, Clone)]
+pub struct RunReport {
+    /// The one JSON object of `--json` (see the README).
+    pub summary: Value,
+    /// Full validation results (per pose) as the daemon reported them.
+    pub validation: Value,
+    /// The daemon's data directory (logs and tables), if kept.
+    pub data_dir: Option<PathBuf>,
+    /// Log and table file names in `data_dir`.
+    pub files: Vec<String>,
+    /// Wall time, s.
+    pub wall_s: f64,
+}
+
+/// A JSON-lines client of the daemon's socket.
+struct Client {
+    r: BufReader<tokio::net::unix::OwnedReadHalf>,
+    w: tokio::net::unix::OwnedWriteHalf,
+    next: u64,
+}
+
+impl Client {
+    async fn connect(p: &Path) -> Result<Client, RunError> {
+        let (r, w) = UnixStream::connect(p).await?.into_split();
+        Ok(Client {
+            r: BufReader::new(r),
+            w,
+            next: 0,
+        })
+    }
+
+    /// Sends a request; its reply's fields, or the refusal as an error.
+    async fn call(&mut self, mut req: Value) -> Result<Value, RunError> {
+        self.next += 1;
+        req["id"] = json!(self.next);
+        self.w.write_all(format!("{req}\n").as_bytes()).await?;
+        loop {
+            let mut l = String::new();
+            if self.r.read_line(&mut l).await? == 0 {
+                return Err(RunError::Setup("the daemon closed the connection".into()));
+            }
+            let v: Value = serde_json::from_str(&l)
+                .map_err(|e| RunError::Setup(format!("unreadable reply {l:?}: {e}")))?;
+            if v.get("event").is_some() || v["id"] != json!(self.next) {
+                continue;
+            }
+            if v["ok"] == json!(true) {
+                return Ok(v);
+            }
+            return Err(RunError::Refused {
+                cmd: req["cmd"].as_str().unwrap_or("?").to_owned(),
+                code: v["error"]["code"].as_str().unwrap_or("?").to_owned(),
+                message: v["error"]["message"].as_str().unwrap_or("?").to_owned(),
+            });
+        }
+    }
+
+    /// Polls a job's status until it leaves `running`; reports progress.
+    async fn follow(
+        &mut self,
+        status_req: Value,
+        what: &str,
+        progress: &mut dyn FnMut(&str),
+    ) -> Result<Value, RunError> {
+        let mut last_print = Instant::now();
+        loop {
+            let s = self.call(status_req.clone()).await?;
+            let job = &s["job"];
+            let state = job["state"].as_str().unwrap_or("?");
+            if state != "running" {
+                if state != "done" {
+                    return Err(RunError::Job {
+                        kind: what.to_owned(),
+                        state: state.to_owned(),
+                        error: job["error"].as_str().unwrap_or("").to_owned(),
+                    });
+                }
+                progress(&format!(
+                    "{what}: done ({} points)",
+                    job["done"].as_u64().unwrap_or(0)
+                ));
+                return Ok(s);
+            }
+            if last_print.elapsed() >= Duration::from_secs(5) {
+                last_print = Instant::now();
+                progress(&format!(
+                    "{what}: {}/{} points, ETA {:.0} simulated s",
+                    job["done"].as_u64().unwrap_or(0),
+                    job["total"].as_u64().unwrap_or(0),
+                    job["eta_s"].as_f64().unwrap_or(f64::NAN)
+                ));
+            }
+            tokio::time::sleep(Duration::from_millis(100)).await;
+        }
+    }
+}
+
+/// The daemon's configuration for the rig served in `rig_dir`.
+pub fn daemon_config(
+    rig_dir: &Path,
+    data_dir: &Path,
+    socket: &Path,
+    rig: &RigConfig,
+    plan: &RunPlan,
+) -> Result<DaemonConfig, RunError> {
+    let mut c = DaemonConfig::default();
+    c.daemon.socket = socket.to_owned();
+    c.daemon.data_dir = data_dir.to_owned();
+    c.daemon.poll_interval_ms = 200;
+    c.rig.clock = format!("sim:{}", rig_dir.join("control.sock").display());
+    c.driver.x.port = rig_dir.join("x");
+    c.driver.y.port = rig_dir.join("y");
+    for a in [&mut c.driver.x, &mut c.driver.y] {
+        a.timeout_ms = 1000;
+        a.poll_interval_ms = 1;
+        a.reference_timeout_s = 120.0;
+        a.motion_timeout_s = 120.0;
+    }
+    c.driver.reconnect_min_ms = 20;
+    c.driver.reconnect_max_ms = 500;
+    c.camera.source = format!("sim:{}", rig_dir.join("camera.sock").display());
+    c.camera.period_um = rig.camera.period_um;
+    c.camera.bits = rig.camera.bits;
+    c.camera.timeout_ms = 5000;
+    // The paper's frame: scans from (0, 0), where the pattern is in view
+    // (config/sim-rig.toml keeps stage x, y in about [−80, 11890] µm on it).
+    c.characterize.x_start_um = Some(0.0);
+    c.characterize.y_start_um = Some(0.0);
+    c.characterize.x_range_um = plan.x_range_um;
+    c.characterize.y_range_um = plan.y_range_um;
+    c.characterize.step_um = plan.step_um;
+    c.characterize.cycles = plan.cycles;
+    c.characterize.frames_per_point = plan.frames_per_point;
+    c.characterize.settle_s = plan.settle_s;
+    c.validate()
+        .map_err(|e| RunError::Setup(format!("daemon config: {e}")))?;
+    Ok(c)
+}
+
+struct Started {
+    sim: SimHandle,
+    daemon: Running,
+    socket: PathBuf,
+    data_dir: PathBuf,
+}
+
+async fn start(opts: &RunOptions, dir: &Path) -> Result<Started, RunError> {
+    let setup = |what: &str, e: &dyn std::fmt::Display| RunError::Setup(format!("{what}: {e}"));
+    let rig_dir = dir.join("rig");
+    let data_dir = dir.join("data");
+    for d in [&rig_dir, &data_dir] {
+        std::fs::create_dir_all(d).map_err(|e| setup(&d.display().to_string(), &e))?;
+    }
+    let cfg = ServeConfig {
+        link_dir: rig_dir.clone(),
+        time_scale: opts.time_scale,
+        control_socket: Some(rig_dir.join("control.sock")),
+        camera_socket: Some(rig_dir.join("camera.sock")),
+        seed: opts.seed,
+        rig: opts.rig.clone(),
+        model: opts.model.clone(),
+        ..ServeConfig::default()
+    };
+    let sim = tokio::task::spawn_blocking(move || SimHandle::start(cfg))
+        .await
+        .map_err(|e| setup("simulator start task", &e))?
+        .map_err(|e| setup("simulator", &e))?;
+    debug_assert_eq!(sim.link(AxisName::X), rig_dir.join("x"));
+    let socket = dir.join("micropos.sock");
+    let c = daemon_config(&rig_dir, &data_dir, &socket, &opts.rig, &opts.plan)?;
+    let control = rig_dir.join("control.sock");
+    let clock = tokio::task::spawn_blocking(move || SimClock::connect(&control))
+        .await
+        .map_err(|e| setup("clock task", &e))?
+        .map_err(|e| setup("sim clock", &e))?;
+    let clock: Arc<dyn RigClock> = Arc::new(clock);
+    let spec = c
+        .camera_source()
+        .map_err(|e| setup("camera.source", &e))?
+        .ok_or_else(|| RunError::Setup("no camera source".into()))?;
+    let oo = OpenOptions {
+        timeout: Duration::from_millis(c.camera.timeout_ms),
+        ..OpenOptions::default()
+    };
+    let camera = tokio::task::spawn_blocking(move || open_source(&spec, &oo))
+        .await
+        .map_err(|e| setup("camera task", &e))?
+        .map_err(|e| setup("camera", &e))?;
+    let _ = std::fs::remove_file(&socket);
+    let listener = tokio::net::UnixListener::bind(&socket).map_err(|e| setup("socket", &e))?;
+    let daemon =
+        Daemon::start(c, clock, Some(camera), listener).map_err(|e| setup("daemon", &e))?;
+    Ok(Started {
+        sim,
+        daemon,
+        socket,
+        data_dir,
+    })
+}
+
+/// The paper's figures next to which results are printed (AP, µm).
+pub fn paper_ap_um(test: &str, mode: &str) -> Option<f64> {
+    match (test, mode) {
+        (_, "raw") => Some(22.0),
+        ("square", "table") => Some(3.5),
+        ("random", "table") => Some(7.0),
+        _ => None,
+    }
+}
+
+/// Runs the main job. `progress` receives one line per step (stderr in the
+/// binary).
+pub async fn run(opts: RunOptions, progress: &mut dyn FnMut(&str)) -> Result<RunReport, RunError> {
+    let wall = Instant::now();
+    let (dir, keep) = match &opts.out_dir {
+        Some(d) => (d.clone(), true),
+        None => (
+            std::env::temp_dir().join(format!("hil-sim-run-{}", std::process::id())),
+            false,
+        ),
+    };
+    std::fs::create_dir_all(&dir)
+        .map_err(|e| RunError::Setup(format!("{}: {e}", dir.display())))?;
+    progress(&format!(
+        "starting the simulated rig (seed {}) and microposd in {}",
+        opts.seed,
+        dir.display()
+    ));
+    let st = start(&opts, &dir).await?;
+    let r = pipeline(&opts, &st, progress).await;
+    st.daemon.shutdown().await;
+    let sim = st.sim;
+    let _ = tokio::task::spawn_blocking(move || sim.shutdown()).await;
+    let (summary, validation, files) = r?;
+    if !keep {
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+    Ok(RunReport {
+        summary,
+        validation,
+        data_dir: keep.then_some(st.data_dir),
+        files,
+        wall_s: wall.elapsed().as_secs_f64(),
+    })
+}
+
+async fn pipeline(
+    opts: &RunOptions,
+    st: &Started,
+    progress: &mut dyn FnMut(&str),
+) -> Result<(Value, Value, Vec<String>), RunError> {
+    let p = &opts.plan;
+    let mut c = Client::connect(&st.socket).await?;
+    let t0 = Instant::now();
+    loop {
+        let s = c.call(json!({"cmd": "status"})).await?;
+        if s["rig"]["connected"]["x"] == true && s["rig"]["connected"]["y"] == true {
+            break;
+        }
+        if t0.elapsed() > Duration::from_secs(30) {
+            return Err(RunError::Setup(format!(
+                "controllers not connected after 30 s: {s}"
+            )));
+        }
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    progress("referencing both axes");
+    c.call(json!({"cmd": "reference", "axes": "xy"})).await?;
+    let mut chars = Vec::new();
+    for (log, step) in [
+        ("charact-paper.csv", p.step_um),
+        ("charact-short.csv", p.short_step_um),
+    ] {
+        progress(&format!(
+            "characterize {log}: {step} µm steps over {} × {} µm, {} cycles",
+            p.x_range_um, p.y_range_um, p.cycles
+        ));
+        let t_start = c.call(json!({"cmd": "status"})).await?["t_s"]
+            .as_f64()
+            .unwrap_or(0.0);
+        c.call(json!({"cmd": "characterize", "action": "start", "log": log,
+                      "step_um": step, "x_range_um": p.x_range_um, "y_range_um": p.y_range_um,
+                      "cycles": p.cycles, "frames_per_point": p.frames_per_point,
+                      "settle_s": p.settle_s}))
+            .await?;
+        let s = c
+            .follow(
+                json!({"cmd": "characterize", "action": "status"}),
+                "characterize",
+                progress,
+            )
+            .await?;
+        let t_end = c.call(json!({"cmd": "status"})).await?["t_s"]
+            .as_f64()
+            .unwrap_or(0.0);
+        chars.push((s["job"]["done"].as_u64().unwrap_or(0), t_end - t_start));
+    }
+    progress(
+        "tables build: paper tables from charact-paper.csv, model table from charact-short.csv",
+    );
+    let paper = c
+        .call(
+            json!({"cmd": "tables", "action": "build", "log": "charact-paper.csv",
+                     "name": "run", "kinds": ["paper"], "activate": true}),
+        )
+        .await?;
+    let model = c
+        .call(
+            json!({"cmd": "tables", "action": "build", "log": "charact-short.csv",
+                     "name": "run-short", "kinds": ["model"]}),
+        )
+        .await?;
+    progress(&format!(
+        "  paper tables: squareness {:.1} µrad; model fit residual rms {} µm",
+        paper["paper"]["report"]["squareness_urad"]
+            .as_f64()
+            .unwrap_or(f64::NAN),
+        model["model"]["rms_residual_um"]
+    ));
+    progress("validate: square and Table II in raw, table, model, closed_loop");
+    c.call(json!({"cmd": "validate", "action": "start", "test": "both",
+                  "log": "validate.csv", "cycles": p.validate_cycles,
+                  "square_step_um": p.square_step_um, "origin_x_um": p.validate_origin_um, "origin_y_um": p.validate_origin_um,
+                  "table": "run-paper.toml", "model_table": "run-short-model.toml",
+                  "frames_per_point": p.frames_per_point, "settle_s": p.settle_s}))
+        .await?;
+    let v = c
+        .follow(
+            json!({"cmd": "validate", "action": "status"}),
+            "validate",
+            progress,
+        )
+        .await?;
+    let results = v["validation"]["results"].clone();
+    let mut summary = json!({});
+    for test in ["square", "random"] {
+        let mut t = json!({});
+        for mode in ["raw", "table", "model", "closed_loop"] {
+            let r = &results[test][mode];
+            t[mode] = json!({"ap_um": r["ap_um"], "rp_um": r["rp_um"],
+                             "ap_mean_um": r["ap_mean_um"], "rp_mean_um": r["rp_mean_um"]});
+        }
+        summary[test] = t;
+    }
+    summary["characterization"] = json!({
+        "points": chars[0].0, "simulated_s": chars[0].1,
+        "short_points": chars[1].0, "short_simulated_s": chars[1].1,
+    });
+    let files = [
+        "charact-paper.csv",
+        "charact-short.csv",
+        "validate.csv",
+        "run-paper.toml",
+        "run-short-model.toml",
+    ]
+    .map(str::to_owned)
+    .to_vec();
+    Ok((summary, results, files))
+}
+
+/// The human-readable table of AP and RP per trajectory and mode.
+pub fn format_table(summary: &Value) -> String {
+    let mut s =
+        String::from("trajectory  mode         AP max µm  AP mean µm  RP max µm   paper AP µm\n");
+    let f = |v: &Value| v.as_f64().map_or("-".to_owned(), |x| format!("{x:.3}"));
+    for test in ["square", "random"] {
+        for mode in ["raw", "table", "model", "closed_loop"] {
+            let r = &summary[test][mode];
+            s.push_str(&format!(
+                "{test:<11} {mode:<12} {:>9}  {:>10}  {:>9}   {:>11}\n",
+                f(&r["ap_um"]),
+                f(&r["ap_mean_um"]),
+                f(&r["rp_um"]),
+                paper_ap_um(test, mode).map_or("-".to_owned(), |x| format!("≈{x}"))
+            ));
+        }
+    }
+    let ch = &summary["characterization"];
+    s.push_str(&format!(
+        "characterization: {} points, {:.0} simulated s; short: {} points, {:.0} simulated s\n",
+        ch["points"],
+        ch["simulated_s"].as_f64().unwrap_or(f64::NAN),
+        ch["short_points"],
+        ch["short_simulated_s"].as_f64().unwrap_or(f64::NAN)
+    ));
+    s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn plans_and_paper_figures() {
+        let p = RunPlan::paper();
+        assert_eq!(
+            (p.step_um, p.x_range_um, p.y_range_um, p.cycles),
+            (5.0, 9500.0, 4200.0, 3)
+        );
+        assert_eq!(p.short_step_um, 10.0 * p.step_um);
+        assert_eq!(paper_ap_um("square", "table"), Some(3.5));
+        assert_eq!(paper_ap_um("random", "table"), Some(7.0));
+        assert_eq!(paper_ap_um("random", "raw"), Some(22.0));
+        let t = format_table(&json!({}));
+        assert!(t.contains("closed_loop"));
+    }
+}

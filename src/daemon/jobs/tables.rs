@@ -1,0 +1,269 @@
+//! `tables build`: from a characterization log in the data directory, the
+//! paper's lookup tables (`f_xx … b_yy`, `δx(y)`) and a model table (the
+//! stage model fitted to the same scans), written as compensation files
+//! (`crate::comp::file`) next to the log and loaded, ready for `tables
+//! activate` or for the validation modes `table` and `model`.
+//!
+//! Why a request and not a job: building takes seconds (the model fit
+//! dominates) and moves nothing, so it runs on a blocking thread and the
+//! reply carries the result.
+//!
+//! The daemon's scan log names its passes `scan_x_fwd`, `scan_x_bwd`, …
+//! (see [`super::plan`]); the builders read one segment per axis with the
+//! direction inferred from the command order. So the passes are merged
+//! back into `scan_x` / `scan_y` in log order, and a record whose command
+//! equals the previous one (the turn point of a pass, measured twice without
+//! a move) is dropped: it adds no arrival and its direction cannot be told
+//! from the commands.
+//!
+//! The vision → stage frame the log's `meas` columns were mapped with is
+//! read from the log's metadata (`vision_frame_*`, written by the
+//! characterization's own tie, see [`super::tie`]) and recorded in both
+//! files, so closed loop can map fresh frames the same way.
+
+use super::super::protocol::{ErrorCode, ProtoError, TablesBuildParams};
+use super::super::rig::Rig;
+use crate::charact::log::{self, Metadata, Record};
+use crate::charact::scan::{SEGMENT_SCAN_X, SEGMENT_SCAN_Y};
+use crate::comp::model_comp::{compensation_template, ModelBuildOptions};
+use crate::comp::table::{CompTable, TableBuildOptions};
+use crate::comp::{fnv1a64_hex, CompFile, ModelCompensator, SourceInfo, VisionFrame};
+use crate::model::StageModel;
+use serde_json::{json, Value};
+use std::path::Path;
+
+/// The scan records of a daemon log as the builders expect them: passes
+/// merged per axis, zero-motion repeats dropped (see the module docs).
+/// Records of other segments (and of foreign writers already using
+/// `scan_x` / `scan_y`) pass through unchanged.
+pub fn merged_scan_records(records: &[Record]) -> Vec<Record> {
+    let mut out: Vec<Record> = Vec::with_capacity(records.len());
+    let mut last: [Option<(f64, f64)>; 2] = [None, None];
+    for r in records {
+        let (axis, seg) = match r.segment.as_str() {
+            "scan_x_fwd" | "scan_x_bwd" | SEGMENT_SCAN_X => (0, SEGMENT_SCAN_X),
+            "scan_y_fwd" | "scan_y_bwd" | SEGMENT_SCAN_Y => (1, SEGMENT_SCAN_Y),
+            _ => {
+                out.push(r.clone());
+                continue;
+            }
+        };
+        let cmd = (r.x_cmd_um, r.y_cmd_um);
+        if last[axis] == Some(cmd) {
+            continue;
+        }
+        last[axis] = Some(cmd);
+        let mut m = r.clone();
+        m.segment = seg.to_owned();
+        out.push(m);
+    }
+    out
+}
+
+/// The vision frame recorded in a log's metadata by the characterization
+/// tie, if any.
+pub fn frame_from_metadata(md: &Metadata) -> Result<Option<VisionFrame>, String> {
+    let Some(rot) = md.get("vision_frame_rotation_rad") else {
+        return Ok(None);
+    };
+    let num = |k: &str| -> Result<f64, String> {
+        md.get(k)
+            .ok_or_else(|| format!("metadata {k} missing"))?
+            .parse::<f64>()
+            .map_err(|_| format!("metadata {k} is not a number"))
+    };
+    let rotation_rad: f64 = rot
+        .parse()
+        .map_err(|_| "metadata vision_frame_rotation_rad is not a number".to_owned())?;
+    let f = VisionFrame {
+        rotation_rad,
+        mirrored: md.get("vision_frame_mirrored") == Some("true"),
+        translation_um: [
+            num("vision_frame_translation_x_um")?,
+            num("vision_frame_translation_y_um")?,
+        ],
+    };
+    f.validate().map_err(|e| e.to_string())?;
+    Ok(Some(f))
+}
+
+/// Seconds since the Unix epoch as RFC 3339 UTC text (civil-from-days, so no
+/// date crate is needed for one timestamp).
+pub fn rfc3339_utc(unix_s: u64) -> String {
+    let days = (unix_s / 86_400) as i64;
+    let secs = unix_s % 86_400;
+    let z = days + 719_468;
+    let era = z.div_euclid(146_097);
+    let doe = z - era * 146_097;
+    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
+    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
+    let mp = (5 * doy + 2) / 153;
+    let d = doy - (153 * mp + 2) / 5 + 1;
+    let m = if mp < 10 { mp + 3 } else { mp - 9 };
+    let y = yoe + era * 400 + i64::from(m <= 2);
+    format!(
+        "{y:04}-{m:02}-{d:02}T{:02}:{:02}:{:02}Z",
+        secs / 3600,
+        secs / 60 % 60,
+        secs % 60
+    )
+}
+
+fn bad(what: String) -> ProtoError {
+    ProtoError::new(ErrorCode::BadValue, what)
+}
+
+/// Builds the requested tables from `params.log` (blocking: reads the log,
+/// fits, writes files). Returns the reply fields and the written names.
+pub fn build_blocking(
+    data_dir: &Path,
+    params: &TablesBuildParams,
+) -> Result<(Value, Vec<String>), ProtoError> {
+    let path = data_dir.join(&params.log);
+    let bytes = std::fs::read(&path).map_err(|e| {
+        ProtoError::new(
+            ErrorCode::LogError,
+            format!("cannot read log {}: {e}", params.log),
+        )
+    })?;
+    let parsed = log::parse_bytes(&bytes)
+        .map_err(|e| ProtoError::new(ErrorCode::LogError, format!("log {}: {e}", params.log)))?;
+    let frame = frame_from_metadata(&parsed.metadata)
+        .map_err(|e| ProtoError::new(ErrorCode::LogError, format!("log {}: {e}", params.log)))?;
+    let records = merged_scan_records(&parsed.records);
+    let stem = params.name.clone().unwrap_or_else(|| {
+        params
+            .log
+            .strip_suffix(".csv")
+            .unwrap_or(&params.log)
+            .to_owned()
+    });
+    let unix_s = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_secs());
+    let mut source = SourceInfo {
+        log_path: Some(params.log.clone()),
+        log_fnv1a64: Some(fnv1a64_hex(&bytes)),
+        records: parsed.records.len() as u64,
+        metadata: parsed
+            .metadata
+            .iter()
+            .map(|(k, v)| (format!("log.{k}"), v.to_owned()))
+            .collect(),
+    };
+    let mut written = Vec::new();
+    let mut out = json!({"log": params.log, "frame": frame});
+    for kind in &params.kinds {
+        let name = format!("{stem}-{kind}.toml");
+        let mut file = if kind == "paper" {
+            let (table, report) = CompTable::from_records(&records, &TableBuildOptions::default())
+                .map_err(|e| bad(format!("paper tables from {}: {e}", params.log)))?;
+            out["paper"] = json!({"name": name, "report": report});
+            let mut f = CompFile::lookup(table, rfc3339_utc(unix_s), source.clone());
+            f.description = "the paper's lookup tables (eqs. 4, 5) built by microposd".into();
+            f
+        } else {
+            let template = StageModel::paper_default()
+                .map_err(|e| bad(e.to_string()))
+                .and_then(|m| compensation_template(&m).map_err(|e| bad(e.to_string())))?;
+            let (comp, report) =
+                ModelCompensator::fit_records(template, &records, &ModelBuildOptions::default())
+                    .map_err(|e| bad(format!("model fit to {}: {e}", params.log)))?;
+            let rms = report.residual_rms_um;
+            source
+                .metadata
+                .insert("fit.rms_residual_um".into(), format!("{rms:?}"));
+            out["model"] = json!({"name": name, "rms_residual_um": rms,
+                                  "unidentifiable": report.unidentifiable});
+            let mut f = CompFile::model(comp.model(), rfc3339_utc(unix_s), source.clone())
+                .map_err(|e| bad(e.to_string()))?;
+            f.description = "stage model fitted to the scans by microposd".into();
+            f
+        };
+        file.frame = frame;
+        let p = data_dir.join(&name);
+        file.write_path(&p)
+            .map_err(|e| ProtoError::new(ErrorCode::LogError, format!("writing {name}: {e}")))?;
+        written.push(name);
+    }
+    out["written"] = json!(written);
+    Ok((out, written))
+}
+
+/// `tables build`: builds on a blocking thread, loads what it wrote,
+/// optionally activates the first.
+pub async fn build(rig: &Rig, params: TablesBuildParams) -> Result<Value, ProtoError> {
+    let dir = rig.cfg.daemon.data_dir.clone();
+    let p = params.clone();
+    let (mut out, written) = tokio::task::spawn_blocking(move || build_blocking(&dir, &p))
+        .await
+        .map_err(|e| ProtoError::new(ErrorCode::Internal, e.to_string()))??;
+    for name in &written {
+        rig.comp.load(&rig.cfg.daemon.data_dir, name).await?;
+    }
+    if params.activate {
+        if let Some(first) = written.first() {
+            out["active"] = rig.comp.activate(Some(first))?["active"].clone();
+        }
+    }
+    Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn rec(seg: &str, x: f64, y: f64) -> Record {
+        Record {
+            t_s: 0.0,
+            segment: seg.into(),
+            cycle: 1,
+            x_target_um: x,
+            y_target_um: y,
+            x_cmd_um: x,
+            y_cmd_um: y,
+            x_meas_um: x,
+            y_meas_um: y,
+            temp_c: None,
+            extra: vec![],
+        }
+    }
+
+    #[test]
+    fn passes_merge_and_turn_repeats_drop() {
+        let r = vec![
+            rec("scan_x_fwd", 0.0, 5.0),
+            rec("scan_x_fwd", 10.0, 5.0),
+            rec("scan_x_bwd", 10.0, 5.0),
+            rec("scan_x_bwd", 0.0, 5.0),
+            rec("scan_y_fwd", 5.0, 0.0),
+            rec("square", 1.0, 1.0),
+        ];
+        let m = merged_scan_records(&r);
+        let segs: Vec<&str> = m.iter().map(|r| r.segment.as_str()).collect();
+        assert_eq!(segs, ["scan_x", "scan_x", "scan_x", "scan_y", "square"]);
+        assert_eq!(m[2].x_cmd_um, 0.0);
+    }
+
+    #[test]
+    fn rfc3339_of_known_instants() {
+        assert_eq!(rfc3339_utc(0), "1970-01-01T00:00:00Z");
+        assert_eq!(rfc3339_utc(951_782_400), "2000-02-29T00:00:00Z");
+        assert_eq!(rfc3339_utc(1_795_000_000), "2026-11-18T11:06:40Z");
+    }
+
+    #[test]
+    fn frame_metadata_round_trip_and_errors() {
+        let mut md = Metadata::new();
+        assert_eq!(frame_from_metadata(&md), Ok(None));
+        md.insert("vision_frame_rotation_rad", "3.1");
+        assert!(frame_from_metadata(&md).is_err());
+        md.insert("vision_frame_translation_x_um", "1");
+        md.insert("vision_frame_translation_y_um", "-2");
+        md.insert("vision_frame_mirrored", "false");
+        let f = frame_from_metadata(&md).unwrap().unwrap();
+        assert_eq!(f.translation_um, [1.0, -2.0]);
+        md.insert("vision_frame_rotation_rad", "9");
+        assert!(frame_from_metadata(&md).is_err());
+    }
+}
