@@ -300,6 +300,82 @@ struct Line {
     withhold: Vec<bool>,
     /// Delayed replies: (due, bytes), sorted by due time.
     pending: Vec<(Instant, Vec<u8>)>,
+    /// Arrival times for latency measurements.
+    probe: Arc<RxProbe>,
+}
+
+/// When host bytes reached a simulated line: the far end of a
+/// command-to-first-serial-byte latency measurement (`benches/daemon.rs`).
+///
+/// Why in the simulator: only the line thread sees the instant a byte
+/// leaves the pty; timing it from the host side would measure the host's
+/// own write call. Arm it with [`RxProbe::arm`] just before sending a
+/// command to the system under test; the line thread stamps the wall-clock
+/// [`Instant`] of the first chunk read after that, and of the chunk that
+/// completes `needle` (e.g. `b"MOV"`), so unrelated traffic (status polls)
+/// can be told apart. Costs one relaxed atomic load per chunk when unarmed.
+#[derive(Debug, Default)]
+pub struct RxProbe {
+    armed: AtomicBool,
+    state: Mutex<ProbeState>,
+}
+
+#[derive(Debug, Default)]
+struct ProbeState {
+    needle: Vec<u8>,
+    seen: Vec<u8>,
+    first: Option<Instant>,
+    matched: Option<Instant>,
+}
+
+/// Bytes kept after arming to find a needle split across chunks.
+const PROBE_WINDOW: usize = 4096;
+
+impl RxProbe {
+    fn state(&self) -> MutexGuard<'_, ProbeState> {
+        self.state.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    /// Clears previous stamps and starts watching for `needle` (an empty
+    /// needle matches the first chunk).
+    pub fn arm(&self, needle: &[u8]) {
+        let mut st = self.state();
+        *st = ProbeState {
+            needle: needle.to_vec(),
+            ..ProbeState::default()
+        };
+        self.armed.store(true, Ordering::SeqCst);
+    }
+
+    /// When the first byte after [`RxProbe::arm`] was read, if any.
+    pub fn first_byte(&self) -> Option<Instant> {
+        self.state().first
+    }
+
+    /// When the bytes read since [`RxProbe::arm`] first contained the
+    /// needle, if they have.
+    pub fn matched(&self) -> Option<Instant> {
+        self.state().matched
+    }
+
+    fn observe(&self, bytes: &[u8], at: Instant) {
+        if !self.armed.load(Ordering::Relaxed) || bytes.is_empty() {
+            return;
+        }
+        let mut st = self.state();
+        st.first.get_or_insert(at);
+        if st.matched.is_none() {
+            let room = PROBE_WINDOW.saturating_sub(st.seen.len());
+            st.seen.extend_from_slice(&bytes[..bytes.len().min(room)]);
+            let n = st.needle.len();
+            if n == 0 || st.seen.windows(n).any(|w| w == st.needle.as_slice()) {
+                st.matched = Some(at);
+            }
+        }
+        if st.matched.is_some() {
+            self.armed.store(false, Ordering::Relaxed);
+        }
+    }
 }
 
 fn lock(bus: &Mutex<Bus>) -> MutexGuard<'_, Bus> {
@@ -409,6 +485,7 @@ impl Line {
             match pty.master.read(&mut buf) {
                 Ok(0) => return,
                 Ok(n) => {
+                    self.probe.observe(&buf[..n], Instant::now());
                     let bytes = buf[..n].to_vec();
                     self.on_bytes(&bytes);
                 }
@@ -487,6 +564,7 @@ struct Route {
 struct LineCtl {
     axis: AxisName,
     link: PathBuf,
+    probe: Arc<RxProbe>,
     tx: Mutex<mpsc::Sender<(LineCmd, Ack)>>,
     thread: Option<JoinHandle<()>>,
 }
@@ -721,6 +799,7 @@ impl SimHandle {
                 .unwrap_or_else(|e| e.into_inner())
                 .controllers()
                 .len();
+            let probe = Arc::new(RxProbe::default());
             let line = Line {
                 axis: *axis,
                 link: link.clone(),
@@ -730,6 +809,7 @@ impl SimHandle {
                 delay: vec![Duration::ZERO; n],
                 withhold: vec![false; n],
                 pending: Vec::new(),
+                probe: probe.clone(),
             };
             let (tx, rx) = mpsc::channel();
             let stop2 = stop.clone();
@@ -747,6 +827,7 @@ impl SimHandle {
             lines.push(LineCtl {
                 axis: *axis,
                 link,
+                probe,
                 tx: Mutex::new(tx),
                 thread: Some(thread),
             });
@@ -825,6 +906,13 @@ impl SimHandle {
     /// Injects a fault; it is in effect when this returns.
     pub fn inject(&self, axis: AxisName, fault: Fault) -> Result<(), SimError> {
         self.core.inject(axis, fault)
+    }
+
+    /// The arrival probe of the line serving `axis` (shared with the other
+    /// axis on a daisy chain).
+    pub fn rx_probe(&self, axis: AxisName) -> Arc<RxProbe> {
+        let r = self.core.routes[axis.index()];
+        self.core.lines[r.line].probe.clone()
     }
 
     /// Ground truth: where the platform of `axis` really is now (mm).

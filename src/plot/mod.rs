@@ -17,7 +17,14 @@ use plotters::coord::Shift;
 use plotters::prelude::*;
 use thiserror::Error;
 
+pub mod charact;
 pub mod diagnosis;
+pub mod figure;
+pub mod report;
+pub mod validation;
+
+pub use figure::Format;
+pub use report::{plot_logs, read_logs, write_all, NamedLog, Plotted};
 
 /// The shipped font (DejaVu Sans; license in `assets/fonts/LICENSE-DejaVu.txt`).
 const FONT: &[u8] = include_bytes!("../../assets/fonts/DejaVuSans.ttf");
@@ -37,6 +44,20 @@ pub enum PlotError {
         path: PathBuf,
         /// What went wrong.
         message: String,
+    },
+    /// A measurement log could not be read.
+    #[error("cannot read log {path}: {source}")]
+    Log {
+        /// The log file.
+        path: PathBuf,
+        /// Why (names the line and the reason).
+        source: crate::charact::log::LogError,
+    },
+    /// Nothing to plot (no log, or a log without any plottable segment).
+    #[error("nothing to plot: {what}")]
+    Nothing {
+        /// What was missing.
+        what: String,
     },
     /// The output directory could not be created.
     #[error("cannot create {path}: {source}")]

@@ -12,6 +12,7 @@ mod decode;
 mod diagnose;
 mod gcs;
 mod pattern;
+mod plot;
 mod simlog;
 
 use std::future::Future;
@@ -56,6 +57,8 @@ enum Commands {
     Diagnose(diagnose::Args),
     /// Synthetic characterization log with one hidden effect (try diagnose).
     Simlog(simlog::Args),
+    /// The paper's figures (4, 5, 6, 10, 11) from measurement logs, PNG/SVG.
+    Plot(plot::Args),
 }
 
 /// Maps a subcommand that only succeeds or fails to an exit code.
@@ -111,6 +114,7 @@ fn main() -> ExitCode {
         }
         Commands::Diagnose(a) => (diagnose::run(&a), 1),
         Commands::Simlog(a) => (simlog::run(&a), 1),
+        Commands::Plot(a) => (plot::run(&a), 1),
     };
     match result {
         Ok(code) => code,
