@@ -63,40 +63,28 @@ pub enum ExperimentError {
 
 /// The paper's square (Fig. 10): corners A (10, 10), B (4010, 10),
 /// C (4010, 4010), D (10, 4010) µm; `per_segment` poses on each of AB, BC,
-/// CD, DA (starting at its first corner).
+/// CD, DA (starting at its first corner). The one definition is
+/// `micropos::charact::scan::square_poses` (the daemon's validation uses it
+/// too).
 pub fn square_poses(per_segment: usize) -> Vec<[f64; 2]> {
-    let (lo, hi) = (10.0, 4010.0);
     let n = per_segment.max(1);
-    let step = (hi - lo) / n as f64;
-    let mut p = Vec::new();
-    for i in 0..n {
-        p.push([lo + step * i as f64, lo]);
-    }
-    for i in 0..n {
-        p.push([hi, lo + step * i as f64]);
-    }
-    for i in 0..n {
-        p.push([hi - step * i as f64, hi]);
-    }
-    for i in 0..n {
-        p.push([lo, hi - step * i as f64]);
-    }
-    p
+    micropos::charact::scan::square_poses(4000.0 / n as f64)
+        .map(|v| v.iter().map(|p| [p.target.x_um, p.target.y_um]).collect())
+        .unwrap_or_default()
 }
 
-/// Table II of the paper: the ten random targets, µm.
-pub const RANDOM_TARGETS: [[f64; 2]; 10] = [
-    [3471.0, 2311.0],
-    [6044.0, 3991.0],
-    [3673.0, 39.0],
-    [5118.0, 2738.0],
-    [3643.0, 2071.0],
-    [8196.0, 186.0],
-    [1702.0, 756.0],
-    [3776.0, 3815.0],
-    [3903.0, 1390.0],
-    [1035.0, 35.0],
-];
+/// Table II of the paper: the ten random targets, µm
+/// (= `micropos::charact::scan::RANDOM_TARGETS_UM`, the one definition).
+pub const RANDOM_TARGETS: [[f64; 2]; 10] = {
+    let t = micropos::charact::scan::RANDOM_TARGETS_UM;
+    let mut out = [[0.0; 2]; 10];
+    let mut i = 0;
+    while i < 10 {
+        out[i] = [t[i].0, t[i].1];
+        i += 1;
+    }
+    out
+};
 
 /// Rigid map from decoded pattern positions to the stage frame:
 /// `stage = Rot(φ)·(−P) + b` (the point under the image centre moves

@@ -271,7 +271,9 @@ pub fn daemon_config(
     c.driver.x.port = rig_dir.join("x");
     c.driver.y.port = rig_dir.join("y");
     for a in [&mut c.driver.x, &mut c.driver.y] {
-        a.timeout_ms = 1000;
+        // Generous: the rig shares the machine with the daemon and the
+        // decoder (and, in CI, with builds); a late answer is a fault.
+        a.timeout_ms = 3000;
         a.poll_interval_ms = 1;
         a.reference_timeout_s = 120.0;
         a.motion_timeout_s = 120.0;
@@ -358,6 +360,9 @@ async fn start(opts: &RunOptions, dir: &Path) -> Result<Started, RunError> {
     })
 }
 
+/// How often a failed characterization is resumed before the run gives up.
+pub const MAX_RESUMES: u32 = 3;
+
 /// The paper's figures next to which results are printed (AP, µm).
 pub fn paper_ap_um(test: &str, mode: &str) -> Option<f64> {
     match (test, mode) {
@@ -443,13 +448,31 @@ async fn pipeline(
                       "cycles": p.cycles, "frames_per_point": p.frames_per_point,
                       "settle_s": p.settle_s}))
             .await?;
-        let s = c
-            .follow(
-                json!({"cmd": "characterize", "action": "status"}),
-                "characterize",
-                progress,
-            )
-            .await?;
+        // A job that fails on a transient fault (a late serial answer on a
+        // loaded machine) is resumed from its log, as a user would: every
+        // point is logged once (see the daemon's resume).
+        let mut attempts = 0;
+        let s = loop {
+            match c
+                .follow(
+                    json!({"cmd": "characterize", "action": "status"}),
+                    "characterize",
+                    progress,
+                )
+                .await
+            {
+                Err(RunError::Job { state, error, .. }) if attempts < MAX_RESUMES => {
+                    attempts += 1;
+                    progress(&format!(
+                        "characterize {log} {state} ({error}); resuming it from its log ({attempts}/{MAX_RESUMES})"
+                    ));
+                    tokio::time::sleep(Duration::from_millis(500)).await;
+                    c.call(json!({"cmd": "characterize", "action": "resume", "log": log}))
+                        .await?;
+                }
+                other => break other?,
+            }
+        };
         let t_end = c.call(json!({"cmd": "status"})).await?["t_s"]
             .as_f64()
             .unwrap_or(0.0);

@@ -82,22 +82,58 @@ pub enum ClientCommand {
         #[arg(long)]
         follow: bool,
     },
-    /// Validation tests: start (square | random), status, cancel.
+    /// Validation job (the paper's square and Table II): start, status, cancel.
     Validate {
         /// start | status | cancel
         #[arg(default_value = "status")]
         action: String,
-        /// square or random.
+        /// square, random or both (default both).
         #[arg(long)]
         test: Option<String>,
+        /// Modes, comma-separated: raw,table,model,closed_loop (default all).
+        #[arg(long, value_delimiter = ',')]
+        modes: Vec<String>,
+        /// Cycles per test and mode (default 3).
+        #[arg(long)]
+        cycles: Option<u32>,
+        /// Log file name (in the daemon's data directory).
+        #[arg(long)]
+        log: Option<String>,
+        /// Stage position of the paper's (0, 0), µm.
+        #[arg(long, allow_hyphen_values = true)]
+        origin_x_um: Option<f64>,
+        /// Stage position of the paper's (0, 0), µm.
+        #[arg(long, allow_hyphen_values = true)]
+        origin_y_um: Option<f64>,
+        /// Distance between square poses, µm (default 500).
+        #[arg(long)]
+        square_step_um: Option<f64>,
+        /// Lookup table for mode table (default: the latest loaded).
+        #[arg(long)]
+        table: Option<String>,
+        /// Model table for mode model (default: the latest loaded).
+        #[arg(long)]
+        model_table: Option<String>,
+        /// Follow progress with a progress bar until the job ends.
+        #[arg(long)]
+        follow: bool,
     },
-    /// Compensation tables: list, load NAME, activate [NAME].
+    /// Compensation tables: list, load NAME, activate [NAME], build LOG.
     Tables {
-        /// list | load | activate
+        /// list | load | activate | build
         #[arg(default_value = "list")]
         action: String,
-        /// Table name.
+        /// Table name (load, activate) or characterization log (build).
         name: Option<String>,
+        /// build: output stem (writes STEM-paper.toml, STEM-model.toml).
+        #[arg(long)]
+        out: Option<String>,
+        /// build: which tables, comma-separated: paper,model (default both).
+        #[arg(long, value_delimiter = ',')]
+        kinds: Vec<String>,
+        /// build: activate the (first) table built.
+        #[arg(long)]
+        activate: bool,
     },
     /// The daemon's effective configuration.
     Config,
@@ -206,11 +242,62 @@ fn build(cmd: &ClientCommand) -> Value {
             }
             v
         }
-        ClientCommand::Validate { action, test } => {
-            json!({"cmd": "validate", "action": action, "test": test})
+        ClientCommand::Validate {
+            action,
+            test,
+            modes,
+            cycles,
+            log,
+            origin_x_um,
+            origin_y_um,
+            square_step_um,
+            table,
+            model_table,
+            ..
+        } => {
+            let mut v = json!({"cmd": "validate", "action": action});
+            if action == "start" {
+                let fields = [
+                    ("test", json!(test)),
+                    ("cycles", json!(cycles)),
+                    ("log", json!(log)),
+                    ("origin_x_um", json!(origin_x_um)),
+                    ("origin_y_um", json!(origin_y_um)),
+                    ("square_step_um", json!(square_step_um)),
+                    ("table", json!(table)),
+                    ("model_table", json!(model_table)),
+                ];
+                for (k, x) in fields {
+                    if !x.is_null() {
+                        v[k] = x;
+                    }
+                }
+                if !modes.is_empty() {
+                    v["modes"] = json!(modes);
+                }
+            }
+            v
         }
-        ClientCommand::Tables { action, name } => {
-            json!({"cmd": "tables", "action": action, "name": name})
+        ClientCommand::Tables {
+            action,
+            name,
+            out,
+            kinds,
+            activate,
+        } => {
+            if action == "build" {
+                let mut v = json!({"cmd": "tables", "action": "build", "log": name,
+                                   "activate": activate});
+                if let Some(o) = out {
+                    v["name"] = json!(o);
+                }
+                if !kinds.is_empty() {
+                    v["kinds"] = json!(kinds);
+                }
+                v
+            } else {
+                json!({"cmd": "tables", "action": action, "name": name})
+            }
         }
         ClientCommand::Config => json!({"cmd": "config"}),
         ClientCommand::Version => json!({"cmd": "version"}),
@@ -297,8 +384,46 @@ async fn run_inner(opts: &GlobalOpts, cmd: &ClientCommand) -> Result<ExitCode, U
             action,
             ..
         } if action == "start" || action == "resume" => follow(&mut conn, &reply).await,
+        ClientCommand::Validate {
+            follow: true,
+            action,
+            ..
+        } if action == "start" => {
+            let code = follow(&mut conn, &reply).await?;
+            // The results with the job-done state: print them like a reply.
+            let s = conn
+                .request(json!({"cmd": "validate", "action": "status"}))
+                .await?;
+            if opts.json {
+                let _ = writeln!(out.lock(), "{s}");
+            } else {
+                let _ = write!(out.lock(), "{}", validation_table(&s["validation"]));
+            }
+            Ok(code)
+        }
         _ => Ok(ExitCode::SUCCESS),
     }
+}
+
+/// AP and RP per trajectory and mode from `validate status`'s results.
+fn validation_table(v: &Value) -> String {
+    let mut s = String::from("trajectory  mode         AP max µm  AP mean µm  RP max µm\n");
+    let f = |v: &Value| v.as_f64().map_or("-".to_owned(), |x| format!("{x:.3}"));
+    if let Some(tests) = v["results"].as_object() {
+        for (test, modes) in tests {
+            if let Some(modes) = modes.as_object() {
+                for (mode, r) in modes {
+                    s.push_str(&format!(
+                        "{test:<11} {mode:<12} {:>9}  {:>10}  {:>9}\n",
+                        f(&r["ap_um"]),
+                        f(&r["ap_mean_um"]),
+                        f(&r["rp_um"])
+                    ));
+                }
+            }
+        }
+    }
+    s
 }
 
 /// Shows job progress with a bar until the job ends; exit 0 only if done.
