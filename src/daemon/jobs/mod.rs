@@ -404,13 +404,14 @@ async fn run(
                 x_axis: true,
                 start_um: plan.x_start_um,
                 range_um: plan.x_range_um,
-                hold_um: plan.y_start_um + plan.y_range_um / 2.0,
+                // Through the start corner: the frame's origin line.
+                hold_um: plan.y_start_um,
             },
             tie::TieLine {
                 x_axis: false,
                 start_um: plan.y_start_um,
                 range_um: plan.y_range_um,
-                hold_um: plan.x_start_um + plan.x_range_um / 2.0,
+                hold_um: plan.x_start_um,
             },
         ];
         let tied = tokio::select! {

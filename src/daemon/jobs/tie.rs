@@ -3,8 +3,10 @@
 //! and one line of Y, measures with the camera, and fits the rigid frame
 //! with [`crate::comp::estimate_vision_frame`] (rotation from the direction
 //! of X motion, mirror from the turn to Y motion, translation so the mean of
-//! `command − stage(vision)` over the tie points is zero; no scale, so lead
-//! errors stay in the data; squareness stays in the Y scan).
+//! `command − stage(vision)` over the X tie line is zero; no scale, so lead
+//! errors stay in the data; squareness stays in the Y scan). The X line runs
+//! through the start corner of the scanned area, so the frame's origin is
+//! that corner's X axis, as the paper's.
 //!
 //! Why a pre-scan rather than a fit on the finished log: the log is
 //! appended point by point in the stage frame, so the frame must be known
