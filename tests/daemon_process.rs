@@ -549,3 +549,37 @@ fn camera_faults_fail_clearly_and_never_use_stale_data() {
         assert!((after[i] - before[i]).abs() < 0.5, "{before:?} {after:?}");
     }
 }
+
+#[test]
+fn line_drop_mid_move_halts_the_other_axis_and_reconnects() {
+    let dir = tempfile::tempdir().unwrap();
+    // Slow simulated time: the moves last wall seconds.
+    let sim = Sim::start(dir.path(), 2.0);
+    let d = Daemon::start(dir.path(), 0);
+    let mut c = d.client();
+    c.ok(json!({"cmd": "reference"}));
+    let mut sub = d.client();
+    sub.ok(json!({"cmd": "subscribe", "topics": ["fault"]}));
+    c.ok(json!({"cmd": "move", "x_um": 9000.0, "y_um": 14000.0}));
+    let t = Instant::now();
+    while sim.control(json!({"query": "truth"}))["moving"] != true {
+        assert!(t.elapsed() < DEADLINE, "no move seen");
+    }
+    sim.control(json!({"axis": "x", "fault": "drop_line"}));
+    let ev = sub.event(|e| e["event"] == "fault");
+    assert!(ev["reason"].as_str().unwrap().contains("axis x"), "{ev}");
+    // Y halts well before its target.
+    let t = Instant::now();
+    while sim.control(json!({"query": "truth"}))["moving"] == true {
+        assert!(t.elapsed() < DEADLINE, "y never halted");
+    }
+    let y = sim.control(json!({"query": "truth"}))["true_y_um"]
+        .as_f64()
+        .unwrap();
+    assert!(y < 13_900.0, "y reached its target: {y}");
+    let m = c.call(json!({"cmd": "move", "y_um": 8000.0}));
+    assert_eq!(code(&m), "not_connected", "{m}");
+    sim.control(json!({"axis": "x", "fault": "restore_line"}));
+    c.wait_for(|s| s["rig"]["connected"]["x"] == true);
+    c.ok(json!({"cmd": "move", "x_um": 8000.0, "y_um": 8000.0, "wait": true}));
+}
