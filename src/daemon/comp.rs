@@ -288,7 +288,8 @@ pub fn loop_config(rig: &Rig, tolerance_um: Option<f64>) -> ClosedLoopConfig {
 }
 
 /// Waits for the next vision measurement usable by the loop: exposed after
-/// the move settled (a frame whose grab was in flight at settle time is
+/// the move settled (its grab was requested at or after `after_s`, the
+/// settle time; a frame whose grab was in flight at settle time is also
 /// skipped by sequence), converted to the stage frame by `frame`.
 ///
 /// The wait for the camera itself is bounded in wall time
@@ -299,6 +300,7 @@ pub async fn next_frame(
     rig: &Rig,
     frame: &VisionFrame,
     min_sequence: u64,
+    after_s: f64,
 ) -> Result<FrameMeasurement, ProtoError> {
     let Some(v) = &rig.vision else {
         return Err(ProtoError::new(
@@ -312,7 +314,7 @@ pub async fn next_frame(
     let deadline = tokio::time::Instant::now() + timeout;
     loop {
         if let Some(m) = *rx.borrow_and_update() {
-            if m.sequence >= min_sequence {
+            if m.sequence >= min_sequence && m.t_s >= after_s {
                 let p = frame.to_stage(XyUm {
                     x_um: m.x_um,
                     y_um: m.y_um,
@@ -369,16 +371,18 @@ pub async fn run_loop(
     frame: VisionFrame,
     mut execute: impl FnMut(Vec<XyUm>) -> futures_like::BoxFut<'static>,
 ) -> Result<Value, ProtoError> {
-    cl.settled(rig.clock.now_s());
+    let mut settled_s = rig.clock.now_s();
+    cl.settled(settled_s);
     let mut min_seq = min_sequence_after_now(rig);
     loop {
-        let m = next_frame(rig, &frame, min_seq).await?;
+        let m = next_frame(rig, &frame, min_seq, settled_s).await?;
         min_seq = m.frame_seq + 1;
         match cl.on_frame(&m) {
             Action::AwaitFrame { .. } => continue,
             Action::Move { waypoints } => {
                 execute(waypoints).await?;
-                cl.settled(rig.clock.now_s());
+                settled_s = rig.clock.now_s();
+                cl.settled(settled_s);
                 min_seq = min_sequence_after_now(rig).max(min_seq);
             }
             Action::Done {

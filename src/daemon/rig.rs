@@ -289,13 +289,40 @@ impl Rig {
     /// watchdog heartbeat.
     pub async fn poll_loop(self: Arc<Self>, mut shutdown: broadcast::Receiver<()>) {
         let period = Duration::from_millis(self.cfg.daemon.poll_interval_ms);
+        let window = Duration::from_millis(self.cfg.camera.timeout_ms);
         let mut last_vision_seq = None;
+        let mut health = self
+            .vision
+            .as_ref()
+            .map(|v| super::vision::HealthWatch::new(v, std::time::Instant::now()));
         loop {
             tokio::select! {
                 _ = tokio::time::sleep(period) => {},
                 _ = shutdown.recv() => return,
             }
             let t = self.clock.now_s();
+            if let (Some(v), Some(h)) = (&self.vision, health.as_mut()) {
+                let s = &v.stats;
+                if let Some(state) = h.update(
+                    s.frames.load(Ordering::Relaxed),
+                    s.decoded.load(Ordering::Relaxed),
+                    window,
+                    std::time::Instant::now(),
+                ) {
+                    let reason = match state {
+                        super::vision::Health::Ok => "frames decode again".to_owned(),
+                        _ => lock(&v.last_error)
+                            .clone()
+                            .unwrap_or_else(|| "no frame".to_owned()),
+                    };
+                    tracing::warn!("camera {}: {reason}", state.as_str());
+                    self.push(
+                        Topic::Fault,
+                        "camera",
+                        json!({"t_s": t, "state": state.as_str(), "reason": reason}),
+                    );
+                }
+            }
             if let Some(v) = &self.vision {
                 let m = *v.latest.borrow();
                 if let Some(m) = m {

@@ -3,10 +3,17 @@
 //! frame, so a slow decoder drops frames instead of building a backlog) and
 //! publishes [`Measurement`]s on a `watch` channel.
 //!
-//! Each measurement carries the rig time at which its frame arrived, so a
-//! consumer can refuse stale data, and the decoder's quality, so it can
+//! Each measurement carries the rig time at which its grab was requested,
+//! so a consumer can refuse stale data, and the decoder's quality, so it can
 //! refuse doubtful data. A failed decode publishes nothing new: the last
 //! measurement simply ages.
+//!
+//! Why the request time and not the arrival time: a grab that was already
+//! in flight when a move settled (exposed before or during the move) arrives
+//! *after* the settle, because rendering/transfer and decoding take time. A
+//! consumer that wants a frame exposed after time `T` must ask for
+//! `t_s >= T`; stamping arrival times let such frames through (a
+//! characterization logged the previous point's position).
 
 use crate::camera::FrameSource;
 use crate::clock::RigClock;
@@ -21,7 +28,9 @@ use tokio::sync::watch;
 /// One vision measurement of the pattern point under the image centre.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Measurement {
-    /// Rig time the frame arrived, s.
+    /// Rig time at which the frame's grab was requested, s. On a triggered
+    /// camera (the simulator, a software-triggered grab) the exposure
+    /// began no earlier, so `t_s >= T` means "exposed after `T`".
     pub t_s: f64,
     /// Camera frame sequence number.
     pub sequence: u64,
@@ -91,19 +100,11 @@ impl Vision {
                 .name("microposd-capture".into())
                 .spawn(move || {
                     while !stop.load(Ordering::Relaxed) {
-                        // The rig time *before* the request: the frame was
-                        // exposed no earlier (request-driven sources such as
-                        // the simulator's socket), so "fresh after t" checks
-                        // never accept a frame exposed before a settle ended.
-                        // Stamping on arrival did: a 1.5 MB frame requested
-                        // before a move arrived after the settle advance and
-                        // passed as fresh (measured: one point in three of a
-                        // sim characterization showed the previous point).
-                        let t_request = clock.now_s();
+                        // Before the grab: see the module docs.
+                        let t = clock.now_s();
                         match source.next_frame() {
                             Ok(frame) => {
                                 stats.frames.fetch_add(1, Ordering::Relaxed);
-                                let t = t_request;
                                 if let Err(mpsc::TrySendError::Full(_)) = ftx.try_send((t, frame)) {
                                     stats.dropped.fetch_add(1, Ordering::Relaxed);
                                 }
@@ -199,8 +200,122 @@ impl Drop for Vision {
     }
 }
 
+/// What the camera pipeline delivers, judged over a window of wall time
+/// (`camera` events: a lab wants to hear that the camera stopped, not find
+/// out when a job or a closed-loop move fails).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Health {
+    /// Frames decode.
+    Ok,
+    /// No frame arrived during the window.
+    Stalled,
+    /// Frames arrived during the window but none decoded.
+    Undecodable,
+}
+
+impl Health {
+    /// The name sent in `camera` events.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Health::Ok => "ok",
+            Health::Stalled => "stalled",
+            Health::Undecodable => "undecodable",
+        }
+    }
+}
+
+/// Turns the pipeline's counters into [`Health`] transitions. Pure: the
+/// caller passes the counters and the time.
+#[derive(Debug, Clone)]
+pub struct HealthWatch {
+    frames: u64,
+    decoded: u64,
+    since: std::time::Instant,
+    state: Health,
+}
+
+impl HealthWatch {
+    /// Starts watching at `now` with the counters as they are (healthy
+    /// until a window passes without a decoded frame).
+    pub fn new(v: &Vision, now: std::time::Instant) -> Self {
+        HealthWatch {
+            frames: v.stats.frames.load(Ordering::Relaxed),
+            decoded: v.stats.decoded.load(Ordering::Relaxed),
+            since: now,
+            state: Health::Ok,
+        }
+    }
+
+    /// The new state if it changed: `Ok` as soon as a frame decodes;
+    /// `Stalled` / `Undecodable` once `window` passed without one.
+    pub fn update(
+        &mut self,
+        frames: u64,
+        decoded: u64,
+        window: std::time::Duration,
+        now: std::time::Instant,
+    ) -> Option<Health> {
+        let new = if decoded != self.decoded {
+            Health::Ok
+        } else if now.duration_since(self.since) >= window {
+            if frames != self.frames {
+                Health::Undecodable
+            } else {
+                Health::Stalled
+            }
+        } else {
+            return None;
+        };
+        // Each window is judged on its own counters.
+        self.frames = frames;
+        self.decoded = decoded;
+        self.since = now;
+        if new == self.state {
+            return None;
+        }
+        self.state = new;
+        Some(new)
+    }
+}
+
 fn set(slot: &std::sync::Mutex<Option<String>>, msg: String) {
     if let Ok(mut g) = slot.lock() {
         *g = Some(msg);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::time::{Duration, Instant};
+
+    #[test]
+    fn health_transitions() {
+        let t0 = Instant::now();
+        let w = Duration::from_secs(2);
+        let mut h = HealthWatch {
+            frames: 0,
+            decoded: 0,
+            since: t0,
+            state: Health::Ok,
+        };
+        assert_eq!(h.update(3, 3, w, t0 + Duration::from_secs(1)), None);
+        // Frames keep coming, none decode: undecodable after the window.
+        assert_eq!(h.update(6, 3, w, t0 + Duration::from_secs(2)), None);
+        assert_eq!(
+            h.update(9, 3, w, t0 + Duration::from_secs(4)),
+            Some(Health::Undecodable)
+        );
+        // Then nothing arrives at all: stalled.
+        assert_eq!(
+            h.update(9, 3, w, t0 + Duration::from_secs(6)),
+            Some(Health::Stalled)
+        );
+        assert_eq!(h.update(9, 3, w, t0 + Duration::from_secs(9)), None);
+        // One decoded frame: ok at once.
+        assert_eq!(
+            h.update(10, 4, w, t0 + Duration::from_millis(9100)),
+            Some(Health::Ok)
+        );
     }
 }

@@ -318,28 +318,50 @@ fn unix_seconds() -> u64 {
         .map_or(0, |d| d.as_secs())
 }
 
-/// Waits for `n` fresh, good measurements after `after_s` and averages them.
+/// Waits for `n` fresh, good measurements and averages them. Fresh: the
+/// grab was requested at or after `after_s` (so the frame was exposed after
+/// the settle; see `daemon::vision`) and the frame is newer than any taken
+/// before the call. Good: quality ≥ `camera.min_quality`.
+///
+/// Each accepted frame must come within `camera.timeout_ms` (wall time: it
+/// guards an I/O stall, not a physical duration) of the previous one, or of
+/// the call; otherwise the point fails with `camera_stalled` (no frame
+/// arrived) or `low_quality` (frames arrived but did not decode, or decoded
+/// below the minimum quality). Nothing is made up: the caller logs only what
+/// this returns.
 async fn measure(rig: &Rig, n: u32, after_s: f64) -> Result<(Measurement, f64), ProtoError> {
     let Some(v) = &rig.vision else {
         return Err(ProtoError::new(ErrorCode::CameraUnavailable, "no camera"));
     };
     let mut rx = v.latest.clone();
     let timeout = Duration::from_millis(rig.cfg.camera.timeout_ms);
+    let counters = || {
+        use std::sync::atomic::Ordering::Relaxed;
+        (
+            v.stats.frames.load(Relaxed),
+            v.stats.failed.load(Relaxed),
+            v.stats.decoded.load(Relaxed),
+        )
+    };
     let mut got: Vec<Measurement> = Vec::new();
     let mut last_seq = None;
+    let mut below_quality = false;
+    let mut deadline = tokio::time::Instant::now() + timeout;
+    let mut at_start = counters();
     while got.len() < n as usize {
         let m = *rx.borrow_and_update();
         if let Some(m) = m {
-            if m.t_s >= after_s
-                && Some(m.sequence) != last_seq
-                && m.quality >= rig.cfg.camera.min_quality
-            {
+            let fresh = m.t_s >= after_s && Some(m.sequence) != last_seq;
+            below_quality |= fresh && m.quality < rig.cfg.camera.min_quality;
+            if fresh && m.quality >= rig.cfg.camera.min_quality {
                 last_seq = Some(m.sequence);
                 got.push(m);
+                deadline = tokio::time::Instant::now() + timeout;
+                at_start = counters();
                 continue;
             }
         }
-        match tokio::time::timeout(timeout, rx.changed()).await {
+        match tokio::time::timeout_at(deadline, rx.changed()).await {
             Ok(Ok(())) => {}
             Ok(Err(_)) => {
                 return Err(ProtoError::new(
@@ -348,16 +370,42 @@ async fn measure(rig: &Rig, n: u32, after_s: f64) -> Result<(Measurement, f64), 
                 ))
             }
             Err(_) => {
-                let why = v
-                    .last_error
-                    .lock()
-                    .ok()
-                    .and_then(|g| g.clone())
-                    .unwrap_or_else(|| "no frame".to_owned());
+                let why = lock(&v.last_error)
+                    .clone()
+                    .unwrap_or_else(|| "no error reported".to_owned());
+                // A frame in flight when the camera stalled may still
+                // arrive (and be refused as too old): only frames that fail
+                // to decode, or fresh ones below the quality, mean that the
+                // camera delivers but the data is unusable.
+                let (_, failed, _) = counters();
+                let (code, what) = if failed > at_start.1 {
+                    (
+                        ErrorCode::LowQuality,
+                        format!(
+                            "frames arrive but do not decode ({} failed)",
+                            failed - at_start.1
+                        ),
+                    )
+                } else if below_quality {
+                    (
+                        ErrorCode::LowQuality,
+                        format!(
+                            "frames decode below camera.min_quality = {}",
+                            rig.cfg.camera.min_quality
+                        ),
+                    )
+                } else {
+                    (
+                        ErrorCode::CameraStalled,
+                        "no frame exposed after the settle arrived from the camera".to_owned(),
+                    )
+                };
                 return Err(ProtoError::new(
-                    ErrorCode::StaleMeasurement,
+                    code,
                     format!(
-                        "no fresh measurement of sufficient quality within {timeout:?} ({why})"
+                        "{what} within {} ms (last error: {why}); {} of {n} frames measured, the point was not logged",
+                        timeout.as_millis(),
+                        got.len()
                     ),
                 ));
             }
