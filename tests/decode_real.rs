@@ -121,3 +121,50 @@ fn rotations_decode_to_the_same_point() {
         assert!(e.abs() < 1e-3, "rot {k}: dθ {dt}");
     }
 }
+
+/// 768×640 crops (about 16 × 13 code lines, 1–4 beyond the code depth):
+/// the confidence-weighted code correlation must place every one of them,
+/// consistently with the whole image, without a period slip; a crop it
+/// cannot place must fail as an error, never as a wrong position.
+#[test]
+fn small_crops_decode_consistently() {
+    let f = real();
+    let base = decode(&f);
+    let (w, h) = (768usize, 640usize);
+    let (s, t) = (base.pixel_um, base.theta_rad);
+    let (mut ok, mut worst) = (0, 0.0f64);
+    let mut fails = Vec::new();
+    for y0 in [0usize, 108, 216] {
+        for x0 in [0usize, 128, 256] {
+            let c = crop(&f, x0, y0, w, h);
+            // Crop centre relative to the whole image's centre, px.
+            let du = (x0 + w / 2) as f64 - f.width() as f64 / 2.0;
+            let dv = (y0 + h / 2) as f64 - f.height() as f64 / 2.0;
+            let ex = s * (t.cos() * du + t.sin() * dv);
+            let ey = s * (-t.sin() * du + t.cos() * dv);
+            match Decoder::new(DecodeOptions::new(9.0, 12))
+                .unwrap()
+                .decode(&c)
+            {
+                Ok(d) => {
+                    let rx = (d.x_um - base.x_um - ex) / s;
+                    let ry = (d.y_um - base.y_um - ey) / s;
+                    eprintln!(
+                        "crop 768×640 at ({x0},{y0}): residual ({rx:.3}, {ry:.3}) px, code margins {:?} bits, readable lines {:?}",
+                        d.details.code_margin_bits, d.details.code_bits
+                    );
+                    // A slip would be a whole period, 14.7 px.
+                    assert!(rx.abs() < 2.0 && ry.abs() < 2.0, "crop ({x0},{y0}) slipped");
+                    worst = worst.max(rx.abs()).max(ry.abs());
+                    ok += 1;
+                }
+                Err(e) => {
+                    eprintln!("crop 768×640 at ({x0},{y0}): {e}");
+                    fails.push((x0, y0));
+                }
+            }
+        }
+    }
+    eprintln!("768×640 crops: {ok}/9 decode, worst residual {worst:.3} px");
+    assert!(fails.is_empty(), "crops that did not decode: {fails:?}");
+}

@@ -59,6 +59,9 @@ pub(crate) struct CodeFix {
 /// bits.
 const TRACK_SLOTS: i64 = 8;
 
+/// Largest evidence one dot contributes to its code line, nats.
+const DOT_LLR_CAP_NATS: f32 = 2.0;
+
 /// Decision thresholds of the per-dot stage.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct CoarseThresholds {
@@ -66,8 +69,11 @@ pub struct CoarseThresholds {
     pub min_orientation_score: f64,
     /// Minimum lead of the best orientation hypothesis over the runner-up.
     pub min_orientation_margin: f64,
-    /// Minimum lead of the best code offset over the runner-up, in bits
-    /// (one clean bit flip moves the score by one unit).
+    /// Minimum lead of the best code offset over the runner-up, in bits of
+    /// evidence: log₂ of the likelihood ratio of the two offsets given the
+    /// per-dot presence values (each dot contributes at most
+    /// 2 nats ≈ 2.9 bits, so the default asks for about six clearly read
+    /// dots net on the code lines that tell the two offsets apart).
     pub min_code_margin_bits: f64,
 }
 
@@ -76,7 +82,7 @@ impl Default for CoarseThresholds {
         Self {
             min_orientation_score: 0.7,
             min_orientation_margin: 0.1,
-            min_code_margin_bits: 1.0,
+            min_code_margin_bits: 16.0,
         }
     }
 }
@@ -95,6 +101,10 @@ pub(crate) struct CoarseStage {
     lmax: Vec<f32>,
     sel: Vec<f32>,
     lines: Vec<f32>,
+    /// Per-site log-likelihood ratio present vs absent, nats (0 = unread).
+    llr: Vec<f32>,
+    /// Per code line: summed dot log-likelihood ratios (bit 1 vs 0), nats.
+    line_llr: Vec<f32>,
     counts: Vec<f32>,
     epad: Vec<f32>,
     epad_bits: u32,
@@ -371,6 +381,14 @@ impl CoarseStage {
         std::mem::swap(&mut self.pres, &mut chosen_pres);
         self.best_pres = chosen_pres;
         let (sna, snb, sa0, sb0) = dims;
+        self.fill_llr(
+            sna,
+            snb,
+            sa0,
+            sb0,
+            |l| (sigma[0] * (l - res0[0] as i64)).rem_euclid(3),
+            |l| (sigma[1] * (l - res0[1] as i64)).rem_euclid(3),
+        );
         // Code lines of each axis.
         let need = seq.min_periods_in_view();
         let mut origin = [0i64; 2];
@@ -393,6 +411,7 @@ impl CoarseStage {
             let class = |l: i64, r0: i64, s: i64| (s * (l - r0)).rem_euclid(3);
             // Soft line values of this axis's code lines.
             self.lines.clear();
+            self.line_llr.clear();
             self.counts.clear();
             let mut first_code: Option<i64> = None;
             let o0 = if axis == 0 { sb0 } else { sa0 };
@@ -406,6 +425,7 @@ impl CoarseStage {
                 }
                 let mut sum = 0.0f32;
                 let mut cnt = 0.0f32;
+                let mut ll = 0.0f32;
                 for oi in 0..n_other {
                     let o = o0 + oi as i64;
                     if class(o, r_other, s_other) == 1 {
@@ -420,8 +440,10 @@ impl CoarseStage {
                     if v.is_finite() {
                         sum += v;
                         cnt += 1.0;
+                        ll += self.llr[idx];
                     }
                 }
+                self.line_llr.push(ll);
                 let t = if cnt >= 3.0 {
                     let mean = sum / cnt;
                     (2.0 * mean - 1.0).clamp(-1.0, 1.0) * (cnt / 8.0).min(1.0)
@@ -445,17 +467,20 @@ impl CoarseStage {
             }
             if s_this < 0 {
                 self.lines.reverse();
+                self.line_llr.reverse();
             }
             self.prepare_code(seq, kk);
             let qn = seq.len() / 3;
-            // Candidate q0 (code slot of the lowest-slot visible code line) from −(kk−1) to qn−1.
+            // Candidate q0 (code slot of the lowest-slot visible code line)
+            // from −(kk−1) to qn−1, scored by log-likelihood: code bits c = ±1
+            // at that offset give ln P(dots | c) = const + Σ c·L/2 with L the
+            // lines' summed dot log-likelihood ratios.
             let mut b1 = (f32::MIN, 0i64);
             let mut b2 = f32::MIN;
-            let total: f32 = self.lines.iter().map(|t| t.abs()).sum();
             for q0 in -(kk as i64 - 1)..qn as i64 {
                 let st = (q0 + kk as i64) as usize;
                 let e = &self.epad[st..st + kk];
-                let sc: f32 = e.iter().zip(&self.lines).map(|(a, b)| a * b).sum();
+                let sc: f32 = e.iter().zip(&self.line_llr).map(|(a, b)| a * b).sum();
                 if sc > b1.0 {
                     b2 = b2.max(b1.0);
                     b1 = (sc, q0);
@@ -463,16 +488,23 @@ impl CoarseStage {
                     b2 = sc;
                 }
             }
-            let margin = f64::from(b1.0 - b2) / 2.0;
+            let margin = f64::from(b1.0 - b2) / (2.0 * std::f64::consts::LN_2);
             margins[axis] = margin;
-            errs[axis] = f64::from(total - b1.0) / 2.0;
+            let st = (b1.1 + kk as i64) as usize;
+            let agree: f32 = self.epad[st..st + kk]
+                .iter()
+                .zip(&self.lines)
+                .map(|(a, b)| a * b)
+                .sum();
+            let total: f32 = self.lines.iter().map(|t| t.abs()).sum();
+            errs[axis] = f64::from(total - agree) / 2.0;
             if !(margin >= th.min_code_margin_bits) {
                 return Err(DecodeError::CodeAmbiguous {
                     axis,
                     readable_bits: nbits[axis],
                     code_bits: seq.bits(),
                     reason: format!(
-                        "best offset leads by {margin:.2} bits, need {:.2}",
+                        "best offset leads the runner-up by {margin:.1} bits of evidence, need {:.1}",
                         th.min_code_margin_bits
                     ),
                 });
@@ -524,6 +556,14 @@ impl CoarseStage {
         let sigma = pred.sigma;
         let origin = pred.origin;
         let (sa0, sb0, sna, snb) = self.presence(dark, na, nb, a0, b0);
+        self.fill_llr(
+            sna,
+            snb,
+            sa0,
+            sb0,
+            |l| (origin[0] + sigma[0] * l).rem_euclid(3),
+            |l| (origin[1] + sigma[1] * l).rem_euclid(3),
+        );
         let table = self.class_table(sna, snb, sa0, sb0);
         // Global line g = origin + σ·l is a crossing line when g ≡ 0 (mod 3),
         // i.e. l ≡ −σ·origin: the crossing residue of the class table.
@@ -577,6 +617,7 @@ impl CoarseStage {
             let (s_this, s_other) = (sigma[axis], sigma[1 - axis]);
             let (g_this, g_other) = (origin[axis], origin[1 - axis]);
             self.lines.clear();
+            self.line_llr.clear();
             let mut first: Option<i64> = None;
             for li in 0..n_this {
                 let g = g_this + s_this * (l0 + li as i64);
@@ -584,7 +625,7 @@ impl CoarseStage {
                     continue;
                 }
                 first.get_or_insert(g);
-                let (mut sum, mut cnt) = (0.0f32, 0.0f32);
+                let (mut sum, mut cnt, mut ll) = (0.0f32, 0.0f32, 0.0f32);
                 for oi in 0..n_other {
                     if (g_other + s_other * (o0 + oi as i64)).rem_euclid(3) == 1 {
                         continue;
@@ -598,8 +639,10 @@ impl CoarseStage {
                     if v.is_finite() {
                         sum += v;
                         cnt += 1.0;
+                        ll += self.llr[idx];
                     }
                 }
+                self.line_llr.push(ll);
                 self.lines.push(if cnt >= 3.0 {
                     (2.0 * sum / cnt - 1.0).clamp(-1.0, 1.0) * (cnt / 8.0).min(1.0)
                 } else {
@@ -619,23 +662,22 @@ impl CoarseStage {
                 });
             }
             let step = 3 * s_this;
-            let score = |shift: i64| -> f32 {
-                self.lines
-                    .iter()
+            let score = |v: &[f32], shift: i64| -> f32 {
+                v.iter()
                     .enumerate()
                     .map(|(i, t)| t * code(g_first + step * i as i64 + 3 * shift))
                     .sum()
             };
-            let s0 = score(0);
+            let s0 = score(&self.line_llr, 0);
             let mut s2 = f32::MIN;
             for shift in -TRACK_SLOTS..=TRACK_SLOTS {
                 if shift != 0 {
-                    s2 = s2.max(score(shift));
+                    s2 = s2.max(score(&self.line_llr, shift));
                 }
             }
             let total: f32 = self.lines.iter().map(|t| t.abs()).sum();
-            margins[axis] = f64::from(s0 - s2) / 2.0;
-            errs[axis] = f64::from(total - s0) / 2.0;
+            margins[axis] = f64::from(s0 - s2) / (2.0 * std::f64::consts::LN_2);
+            errs[axis] = f64::from(total - score(&self.lines, 0)) / 2.0;
             if !(margins[axis] >= th.min_code_margin_bits && errs[axis] <= 0.2 * nbits[axis] as f64)
             {
                 return Err(DecodeError::CodeAmbiguous {
@@ -761,6 +803,65 @@ impl CoarseStage {
         (sa0, sb0, sna, snb)
     }
 
+    /// Per-site log-likelihood ratio "dot present" vs "dot absent" into
+    /// `self.llr` (0 for unread sites), given the line classes of the chosen
+    /// orientation (`ca`, `cb`: lattice line → 0 crossing, 1 code, 2 plain).
+    ///
+    /// The sites whose state the layout fixes calibrate the model: sites on
+    /// two non-code lines are present unless both are crossing lines, where
+    /// they are absent. Presence is modelled as Gaussian about the median of
+    /// each group with the pooled robust spread (MAD); the ratio is linear in
+    /// the presence value and capped at ±[`DOT_LLR_CAP_NATS`] so that no
+    /// single dot (dust edge, defect) can carry a code line alone.
+    fn fill_llr(
+        &mut self,
+        sna: usize,
+        snb: usize,
+        sa0: i64,
+        sb0: i64,
+        ca: impl Fn(i64) -> i64,
+        cb: impl Fn(i64) -> i64,
+    ) {
+        self.sel.clear();
+        self.tmp.clear();
+        for j in 0..snb {
+            let cj = cb(sb0 + j as i64);
+            if cj == 1 {
+                continue;
+            }
+            for i in 0..sna {
+                let ci = ca(sa0 + i as i64);
+                let v = self.pres[j * sna + i];
+                if ci == 1 || !v.is_finite() {
+                    continue;
+                }
+                if ci == 0 && cj == 0 {
+                    self.tmp.push(v);
+                } else {
+                    self.sel.push(v);
+                }
+            }
+        }
+        self.llr.clear();
+        let stats = median_mad(&mut self.sel).zip(median_mad(&mut self.tmp));
+        let Some(((m1, s1), (m0, s0))) = stats else {
+            self.llr.resize(sna * snb, 0.0);
+            return;
+        };
+        let gap = m1 - m0;
+        // Floor the spread: a frame rendered without noise has MAD ≈ 0.
+        let sd = (1.4826 * 0.5 * (s1 + s0)).max(0.05);
+        let slope = if gap > 0.0 { gap / (sd * sd) } else { 0.0 };
+        let mid = 0.5 * (m0 + m1);
+        self.llr.extend(self.pres.iter().map(|&v| {
+            if v.is_finite() {
+                (slope * (v - mid)).clamp(-DOT_LLR_CAP_NATS, DOT_LLR_CAP_NATS)
+            } else {
+                0.0
+            }
+        }));
+    }
+
     /// Mean presence by (a mod 3, b mod 3), rows = a residue.
     fn class_table(&self, sna: usize, snb: usize, sa0: i64, sb0: i64) -> [[f64; 3]; 3] {
         let mut s = [[0.0f64; 3]; 3];
@@ -786,6 +887,22 @@ impl CoarseStage {
         }
         t
     }
+}
+
+/// Median and median absolute deviation of `v` (reordered); `None` when
+/// fewer than 4 values.
+fn median_mad(v: &mut [f32]) -> Option<(f32, f32)> {
+    if v.len() < 4 {
+        return None;
+    }
+    let k = v.len() / 2;
+    let (_, m, _) = v.select_nth_unstable_by(k, |a, b| a.total_cmp(b));
+    let m = *m;
+    for x in v.iter_mut() {
+        *x = (*x - m).abs();
+    }
+    let (_, d, _) = v.select_nth_unstable_by(k, |a, b| a.total_cmp(b));
+    Some((m, *d))
 }
 
 /// Pearson correlation of the class table with the template under the
