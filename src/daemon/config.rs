@@ -138,7 +138,10 @@ pub struct CameraSection {
     pub mirrored: bool,
     /// Oldest measurement a closed-loop move or a job point may use, s.
     pub max_age_s: f64,
-    /// Lowest decode quality (code margin, bits) accepted.
+    /// Lowest decode quality accepted: the code evidence in bits (log₂
+    /// likelihood ratio of the best code position over the runner-up). The
+    /// decoder itself refuses less than 16 bits; clean frames score hundreds,
+    /// so a lab can raise this to reject marginal frames (dust, defocus).
     pub min_quality: f64,
     /// Angle from the pattern frame to the stage frame, rad
     /// (counter-clockwise positive): stage = R(angle)·vision + offset.
@@ -155,7 +158,7 @@ impl Default for CameraSection {
             bits: 12,
             mirrored: false,
             max_age_s: 1.0,
-            min_quality: 1.0,
+            min_quality: 16.0,
             rotation_rad: 0.0,
         }
     }
