@@ -50,8 +50,8 @@ enum Cmd {
         camera_socket: Option<PathBuf>,
         /// Also serve the camera as a GigE Vision camera through aravis's
         /// fake GV camera (needs a build with the `genicam` feature); the
-        /// ready line gains `genicam=DEVICE_ID` (open it as
-        /// `genicam:DEVICE_ID`).
+        /// ready line gains `genicam=ADDRESS` (open it as `genicam:ADDRESS`,
+        /// e.g. `genicam:127.0.0.1`).
         #[arg(long)]
         genicam: bool,
         /// Interface (name or IPv4 address) the GigE Vision camera listens on.
@@ -163,7 +163,11 @@ async fn main() -> anyhow::Result<()> {
             };
             #[cfg(feature = "genicam")]
             let line = match &gige {
-                Some(g) => format!("{line} genicam={}", g.device_id()),
+                // The address, not the discovered id: a client in another
+                // process may discover the camera through a non-loopback
+                // interface and then cannot receive its stream; opened by
+                // address, aravis uses the interface that reaches it.
+                Some(g) => format!("{line} genicam={}", g.interface()),
                 None => line,
             };
             {

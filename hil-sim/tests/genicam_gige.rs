@@ -163,8 +163,9 @@ fn the_daemons_genicam_source_decodes_the_served_simulator_to_its_ground_truth()
         started.elapsed().as_secs_f64()
     );
 
-    // micropos's GenICam source, exactly as `--source genicam:ID` opens it.
-    let spec: SourceSpec = format!("genicam:{}", served.device_id()).parse().unwrap();
+    // micropos's GenICam source, exactly as `--source genicam:127.0.0.1`
+    // opens it (by address: see `hil-sim serve`'s ready line).
+    let spec: SourceSpec = format!("genicam:{}", served.interface()).parse().unwrap();
     let options = OpenOptions {
         timeout: Duration::from_secs(5),
         ..OpenOptions::default()

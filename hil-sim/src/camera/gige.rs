@@ -266,8 +266,8 @@ fn discover(serial: &str) -> Option<String> {
 
 impl GigeCamera {
     /// Serves `camera` as a GigE Vision camera on `cfg.interface`, and
-    /// returns once aravis's own discovery lists it (its device id is what
-    /// clients open: `micropos camera grab --source genicam:ID`). Blocks
+    /// returns once aravis's own discovery lists it. Clients open it by
+    /// address: `micropos camera grab --source genicam:127.0.0.1`. Blocks
     /// for up to a few seconds (discovery); call it from a plain thread or
     /// `spawn_blocking`.
     pub fn start(camera: Arc<SimCamera>, cfg: &GigeConfig) -> Result<GigeCamera, GigeError> {
@@ -351,7 +351,12 @@ impl GigeCamera {
         Ok(served)
     }
 
-    /// The aravis device id clients open (`genicam:ID`).
+    /// The aravis device id discovery lists (`Aravis-Fake-SERIAL`). Clients
+    /// in other processes should open the camera by its address
+    /// ([`GigeCamera::interface`], `genicam:127.0.0.1`): on a host with
+    /// other interfaces, aravis may discover the loopback camera through
+    /// one of them and then stream to an address the camera cannot reach
+    /// (seen here: interface 192.0.2.2, no frames).
     pub fn device_id(&self) -> &str {
         &self.device_id
     }
