@@ -14,7 +14,10 @@
 //! - [`clock`]: scaled wall time or manual time;
 //! - [`serve`]: ptys, threads, faults; [`control`]: the JSON control socket.
 
-#![forbid(unsafe_code)]
+// No unsafe code, except the aravis fill callback of the GigE Vision camera
+// (feature `genicam`, `camera::gige::ffi`, which allows it for itself).
+#![cfg_attr(not(feature = "genicam"), forbid(unsafe_code))]
+#![cfg_attr(feature = "genicam", deny(unsafe_code))]
 #![warn(missing_docs)]
 
 pub mod bus;

@@ -48,6 +48,15 @@ enum Cmd {
         /// Unix socket for the simulated camera (default: DIR/camera.sock).
         #[arg(long)]
         camera_socket: Option<PathBuf>,
+        /// Also serve the camera as a GigE Vision camera through aravis's
+        /// fake GV camera (needs a build with the `genicam` feature); the
+        /// ready line gains `genicam=ADDRESS` (open it as `genicam:ADDRESS`,
+        /// e.g. `genicam:127.0.0.1`).
+        #[arg(long)]
+        genicam: bool,
+        /// Interface (name or IPv4 address) the GigE Vision camera listens on.
+        #[arg(long, default_value = "127.0.0.1", requires = "genicam")]
+        genicam_interface: String,
     },
     /// Start the rig in-process, bring both axes up through the micropos
     /// driver over the ptys, move through a few targets and print commanded,
@@ -113,7 +122,15 @@ async fn main() -> anyhow::Result<()> {
             rig,
             model,
             camera_socket,
+            genicam,
+            genicam_interface,
         } => {
+            #[cfg(not(feature = "genicam"))]
+            if genicam {
+                anyhow::bail!(
+                    "--genicam needs hil-sim built with the `genicam` feature (cargo build -p hil-sim --features genicam; needs libaravis-dev)"
+                );
+            }
             let rig = match rig {
                 Some(p) => hil_sim::rig::RigConfig::load(&p).map_err(anyhow::Error::msg)?,
                 None => hil_sim::rig::RigConfig::default(),
@@ -140,6 +157,25 @@ async fn main() -> anyhow::Result<()> {
                 .await
                 .context("simulator start task")?
                 .context("start simulator")?;
+            #[cfg(feature = "genicam")]
+            let gige = if genicam {
+                let camera = sim.camera().clone();
+                let cfg = hil_sim::camera::gige::GigeConfig {
+                    interface: genicam_interface.clone(),
+                    ..Default::default()
+                };
+                let served = tokio::task::spawn_blocking(move || {
+                    hil_sim::camera::gige::GigeCamera::start(camera, &cfg)
+                })
+                .await
+                .context("GigE Vision camera start task")?
+                .context("serve the GigE Vision camera")?;
+                Some(served)
+            } else {
+                None
+            };
+            #[cfg(not(feature = "genicam"))]
+            let _ = genicam_interface;
             let line = if daisy_chain {
                 format!(
                     "hil-sim ready bus={} camera={} control={}",
@@ -156,6 +192,15 @@ async fn main() -> anyhow::Result<()> {
                     control.display()
                 )
             };
+            #[cfg(feature = "genicam")]
+            let line = match &gige {
+                // The address, not the discovered id: a client in another
+                // process may discover the camera through a non-loopback
+                // interface and then cannot receive its stream; opened by
+                // address, aravis uses the interface that reaches it.
+                Some(g) => format!("{line} genicam={}", g.interface()),
+                None => line,
+            };
             {
                 let mut out = std::io::stdout().lock();
                 writeln!(out, "{line}").context("write ready line")?;
@@ -164,6 +209,19 @@ async fn main() -> anyhow::Result<()> {
             tokio::select! {
                 _ = int.recv() => {}
                 _ = term.recv() => {}
+            }
+            #[cfg(feature = "genicam")]
+            if let Some(g) = gige {
+                let stats = g.stats();
+                tracing::info!(
+                    "GigE Vision camera served {} frames ({:.1} frames/s, {} black)",
+                    stats.frames,
+                    stats.frame_rate_hz(),
+                    stats.failures
+                );
+                tokio::task::spawn_blocking(move || g.stop())
+                    .await
+                    .context("GigE Vision camera stop task")?;
             }
             tokio::task::spawn_blocking(move || sim.shutdown())
                 .await

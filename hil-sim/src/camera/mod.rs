@@ -17,6 +17,8 @@
 //! position from outside the pattern.
 
 pub mod fast;
+#[cfg(feature = "genicam")]
+pub mod gige;
 pub mod server;
 
 use crate::clock::Clock;
@@ -387,6 +389,31 @@ impl SimCamera {
         }
         st.last_start_s = Some(start);
         let mid = start + exposure / 2.0;
+        self.render_locked(&mut st, &cfg, mid)
+    }
+
+    /// Renders the platform's pose at the clock's current time, without the
+    /// frame-slot timing of [`SimCamera::grab`] and without advancing the
+    /// clock: for a free-running camera paced by wall time (the GigE Vision
+    /// server), whose frames observe the rig rather than drive its clock.
+    pub fn render_now(&self) -> Result<Grab, GrabError> {
+        let mut st = self.lock();
+        if st.mode == CameraMode::Stall {
+            return Err(GrabError::Stalled);
+        }
+        let cfg = st.renderer.config().clone();
+        let now = self.clock.now().as_secs_f64();
+        self.render_locked(&mut st, &cfg, now)
+    }
+
+    /// Renders the truth at simulated time `at_s` (mode: normal or garbage).
+    fn render_locked(
+        &self,
+        st: &mut CameraState,
+        cfg: &CameraConfig,
+        at_s: f64,
+    ) -> Result<Grab, GrabError> {
+        let mid = at_s;
         let truth = self
             .rig
             .truth(Duration::try_from_secs_f64(mid).unwrap_or_default());
