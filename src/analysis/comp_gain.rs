@@ -152,11 +152,13 @@ fn run(
     let first = targets
         .first()
         .ok_or_else(|| AnalysisError::Invalid("validation without targets".into()))?;
-    let mut sim = StageSimulator::new(
-        rig.clone(),
-        MotionState::at_rest(first.x_um, first.y_um),
-        opts.seed,
-    )?;
+    // The stage starts at rest at the first target, at the validation's
+    // time and room temperature (the compensator reads both from the
+    // history: a 20 °C default would miscompensate the first visit).
+    let mut start = MotionState::at_rest(first.x_um, first.y_um);
+    start.time_s = t0;
+    start.temp_c = rig.environment().temperature_at(t0);
+    let mut sim = StageSimulator::new(rig.clone(), start, opts.seed)?;
     let min_move = rig.stochastic().min_incremental_motion_um;
     let mut hist = MotionHistory::new(*sim.state(), min_move)?;
     let plan_opts = PlanOptions::default();
