@@ -51,8 +51,8 @@ use crate::model::terms::{
     TimePeriodicConfig,
 };
 use crate::model::{
-    Axis, Direction, FitOptions, MotionState, MotionTracker, Sample, StageModel, Term, Waypoint,
-    DEFAULT_TEMP_C,
+    Axis, Direction, Environment, FitOptions, Interpolation, MotionState, MotionTracker, Sample,
+    StageModel, TemperaturePoint, Term, Waypoint, DEFAULT_TEMP_C,
 };
 
 use super::periodogram::strongest_peak;
@@ -189,9 +189,16 @@ pub struct Diagnosis {
     pub base_free_params: Vec<String>,
     /// Options used.
     pub options: DiagnoseOptions,
-    /// The extended model (base fit + findings, refitted).
+    /// The extended model (base fit + findings, refitted), with the log's
+    /// temperature record as its environment (so a simulator running it
+    /// replays the log under the same conditions).
     #[serde(skip)]
     pub extended_model: StageModel,
+    /// The model as given with only the base fit applied (no findings), same
+    /// environment: what compensation from the original model uses, the
+    /// reference the extended model is compared against.
+    #[serde(skip)]
+    pub base_model: StageModel,
     /// Residual series for plots.
     #[serde(skip)]
     pub series: ResidualSeries,
@@ -1069,7 +1076,12 @@ pub fn diagnose(
     // Every linear coefficient from the centred solve (block constants of
     // static axes profiled out, which the plain model fit cannot do), with
     // standard errors from the same normal equations.
-    let (fitted, term_names, lin_se) = extended_with_se(&d, model, &base_names, &specs)?;
+    let (mut fitted, term_names, lin_se) = extended_with_se(&d, model, &base_names, &specs)?;
+    let (mut base_model, _) = extended(&d, model, &base_names, &[])?;
+    if let Some(env) = log_environment(log)? {
+        fitted.set_environment(env.clone())?;
+        base_model.set_environment(env)?;
+    }
     std_errs.extend(lin_se);
     let std_err = |name: &str| -> Option<f64> { std_errs.get(name).copied() };
     let accepted: Vec<(Spec, Verdict)> = specs
@@ -1123,9 +1135,47 @@ pub fn diagnose(
         base_free_params: base_names,
         options: opts.clone(),
         extended_model: fitted,
+        base_model,
         series,
     })
 }
+
+/// The log's temperature record as a model environment (linear between
+/// points at least [`ENV_STEP_S`] apart), or `None` when the log holds no
+/// usable temperature. Why: the extended model's thermal and temperature
+/// terms need the temperature the log was taken at; with it, a simulator
+/// running the extended model (`hil-sim --model`) sees the same room.
+fn log_environment(log: &MeasurementLog) -> Result<Option<Environment>, AnalysisError> {
+    let mut pts: Vec<TemperaturePoint> = Vec::new();
+    for r in &log.records {
+        let Some(temp_c) = r.temp_c.filter(|t| t.is_finite()) else {
+            continue;
+        };
+        if !r.t_s.is_finite() {
+            continue;
+        }
+        match pts.last() {
+            Some(l) if r.t_s < l.time_s + ENV_STEP_S => {}
+            _ => pts.push(TemperaturePoint {
+                time_s: r.t_s,
+                temp_c,
+            }),
+        }
+    }
+    if pts.is_empty() {
+        return Ok(None);
+    }
+    let env = Environment {
+        temperature_interpolation: Interpolation::Linear,
+        temperature: pts,
+    };
+    env.validate()?;
+    Ok(Some(env))
+}
+
+/// Spacing of the temperature points taken from a log, s (room temperature
+/// changes over minutes; 30 s keeps a 9.5 h log to ~1000 points).
+const ENV_STEP_S: f64 = 30.0;
 
 /// Linear-parameter names of a spec's columns, in column order.
 fn spec_param_names(spec: &Spec) -> &'static [&'static str] {

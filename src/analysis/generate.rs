@@ -174,6 +174,37 @@ pub fn draw_effect(
         None => GENERATED_KINDS[rng.gen_range(0..GENERATED_KINDS.len())],
     };
     let size = log_uniform(&mut rng, 0.1, 1.5);
+    draw_with(rng, kind, size, plan)
+}
+
+/// [`draw_effect`] with the effect's peak error fixed at `size_um` (the
+/// other parameters still drawn from `seed`): for tests that need an effect
+/// large enough to matter, e.g. the compensation comparison.
+pub fn draw_effect_sized(
+    seed: u64,
+    kind: FindingKind,
+    size_um: f64,
+    plan: &SimPlan,
+) -> Result<InjectedEffect, AnalysisError> {
+    plan.validate()?;
+    if !(size_um.is_finite() && size_um > 0.0) {
+        return Err(AnalysisError::Invalid(format!(
+            "effect size must be a finite number > 0 µm, got {size_um}"
+        )));
+    }
+    let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x5eed_effe_c700_0000);
+    // The same draws as `draw_effect` with a given kind (the size), so the
+    // other parameters agree for a seed.
+    let _ = log_uniform(&mut rng, 0.1, 1.5);
+    draw_with(rng, kind, size_um, plan)
+}
+
+fn draw_with(
+    mut rng: ChaCha8Rng,
+    kind: FindingKind,
+    size: f64,
+    plan: &SimPlan,
+) -> Result<InjectedEffect, AnalysisError> {
     let range = |a: Axis| match a {
         Axis::X => plan.x_range_um,
         Axis::Y => plan.y_range_um,

@@ -9,6 +9,9 @@
 //!   sampled data (positions and times of a log are not a regular grid).
 //! * [`generate`]: synthetic characterization logs with one hidden effect,
 //!   the analysis's test bench (`micropos simlog`).
+//! * [`comp_gain`]: closing the loop: compensation from the extended model
+//!   against compensation from the original one, ISO 9283 AP on a simulated
+//!   stage that has the effect.
 //! * [`drift`]: drift estimation from re-measurements of a reference point
 //!   (static vs adaptive), for long runs.
 //!
@@ -19,6 +22,7 @@
 use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
+pub mod comp_gain;
 pub mod diagnose;
 pub mod drift;
 pub mod generate;
@@ -32,6 +36,9 @@ pub enum AnalysisError {
     /// The model refused something (bad state, bad parameter).
     #[error(transparent)]
     Model(#[from] crate::model::ModelError),
+    /// Compensation refused something (plan, inverse).
+    #[error(transparent)]
+    Comp(#[from] crate::comp::CompError),
     /// The log could not be read or written.
     #[error(transparent)]
     Log(#[from] crate::charact::log::LogError),

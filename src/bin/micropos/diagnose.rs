@@ -6,6 +6,7 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use anyhow::{Context, Result};
+use micropos::analysis::comp_gain::{compare_compensation, CompGainOptions};
 use micropos::analysis::{diagnose, DiagnoseOptions};
 use micropos::charact::log::read_file;
 use micropos::model::StageModel;
@@ -28,6 +29,13 @@ pub struct Args {
     /// Write the extended model (base fit + findings) to this file.
     #[arg(long)]
     pub out: Option<PathBuf>,
+    /// Close the loop on a simulated rig: run the paper's square and
+    /// random-target validations on a stage running this model file (the
+    /// rig that has the effect, e.g. `micropos simlog --truth`), compensated
+    /// by the original (base-fitted) and by the extended model, and report
+    /// ISO 9283 AP/RP of both.
+    #[arg(long, value_name = "RIG_MODEL.toml")]
+    pub validate_on: Option<PathBuf>,
     /// Held-out z-score a finding must reach.
     #[arg(long, default_value_t = DiagnoseOptions::default().z_threshold)]
     pub z: f64,
@@ -73,10 +81,42 @@ pub fn run(args: &Args) -> Result<ExitCode> {
             println!("extended model written to {}", out.display());
         }
     }
+    let gain = match &args.validate_on {
+        Some(p) => {
+            let text = std::fs::read_to_string(p)
+                .with_context(|| format!("cannot read rig model file {}", p.display()))?;
+            let rig = StageModel::from_toml(&text)
+                .with_context(|| format!("rig model file {}", p.display()))?;
+            let end_s = log
+                .records
+                .iter()
+                .map(|r| r.t_s)
+                .filter(|t| t.is_finite())
+                .fold(0.0, f64::max);
+            let opts = CompGainOptions {
+                start_time_s: end_s + 60.0,
+                ..CompGainOptions::default()
+            };
+            Some(
+                compare_compensation(&rig, &d.base_model, &d.extended_model, &opts)
+                    .context("validation on the simulated rig")?,
+            )
+        }
+        None => None,
+    };
     let text = if args.json {
-        serde_json::to_string_pretty(&d.to_json())? + "\n"
+        let mut j = d.to_json();
+        if let Some(g) = &gain {
+            j["compensation"] = serde_json::to_value(g)?;
+        }
+        serde_json::to_string_pretty(&j)? + "\n"
     } else {
-        d.to_text()
+        let mut t = d.to_text();
+        if let Some(g) = &gain {
+            t += "\n";
+            t += &g.to_text();
+        }
+        t
     };
     // A closed pipe (`| head`) is not a reason to panic.
     use std::io::Write;
