@@ -84,9 +84,9 @@ pub fn read_logs<P: AsRef<Path>>(paths: &[P]) -> Result<Vec<NamedLog>, PlotError
         .iter()
         .map(|p| {
             let p = p.as_ref();
-            let log = read_file(p).map_err(|source| PlotError::Log {
+            let log = read_file(p).map_err(|reason| PlotError::Log {
                 path: p.to_path_buf(),
-                source,
+                reason,
             })?;
             Ok(NamedLog {
                 name: p.file_name().map_or_else(
@@ -471,7 +471,7 @@ mod tests {
         // Unreadable logs: missing file, malformed content.
         let bad = dir.path().join("bad.csv");
         std::fs::write(&bad, format!("{HEADER}\n0,scan_x,0,abc,0,0,0,0,0\n")).unwrap();
-        let e = write_all(&[bad.clone()], dir.path(), Format::Png).unwrap_err();
+        let e = write_all(std::slice::from_ref(&bad), dir.path(), Format::Png).unwrap_err();
         assert!(
             e.to_string().contains("bad.csv") && e.to_string().contains("line 2"),
             "{e}"
