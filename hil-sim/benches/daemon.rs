@@ -80,6 +80,7 @@ impl Client {
 }
 
 /// The simulated camera, counting the frames the daemon takes.
+#[derive(Debug)]
 struct Counting {
     inner: SimCameraSource,
     frames: Arc<AtomicU64>,
@@ -116,14 +117,17 @@ fn runtime(name: &'static str) -> tokio::runtime::Runtime {
         .unwrap()
 }
 
-/// Simulated rig + daemon (default poll interval) on `rt`; with the camera
-/// when `camera`.
+/// Simulated rig + daemon (default poll interval) on `rt`, referenced and
+/// parked at (5000, 5000) µm, on the pattern. With the camera the clock
+/// runs at real time (so its 30 frames per simulated second are 30 per wall
+/// second) and referencing is fast-forwarded with `SimHandle::advance`;
+/// without, the clock runs 20× (as `tests/daemon_sim.rs`).
 fn start_rig(rt: &tokio::runtime::Runtime, camera: bool) -> Rig {
     let dir = tempfile::tempdir().unwrap();
     let cfg = ServeConfig {
         link_dir: dir.path().to_owned(),
         daisy_chain: false,
-        time_scale: 1.0,
+        time_scale: if camera { 1.0 } else { 20.0 },
         control_socket: None,
         seed: 11,
         ..ServeConfig::default()
@@ -133,6 +137,9 @@ fn start_rig(rt: &tokio::runtime::Runtime, camera: bool) -> Rig {
     let mut c = DaemonConfig::default();
     c.daemon.socket = socket.clone();
     c.daemon.data_dir = dir.path().join("data");
+    // The simulated camera's pattern (hil-sim default): 4 µm, 10-bit code.
+    c.camera.period_um = 4.0;
+    c.camera.bits = 10;
     c.driver.x.port = sim.link(AxisName::X);
     c.driver.y.port = sim.link(AxisName::Y);
     for a in [&mut c.driver.x, &mut c.driver.y] {
@@ -168,10 +175,23 @@ fn start_rig(rt: &tokio::runtime::Runtime, camera: bool) -> Rig {
         assert!(t.elapsed() < Duration::from_secs(20), "{s}");
         std::thread::sleep(Duration::from_millis(50));
     }
-    let rf = cl.call(json!({"cmd":"reference"}));
-    assert_eq!(rf["ok"], true, "{rf}");
-    let m = cl.call(json!({"cmd":"move","x_um":5000.0,"y_um":5000.0,"wait":true}));
-    assert_eq!(m["ok"], true, "{m}");
+    let done = Arc::new(AtomicBool::new(false));
+    std::thread::scope(|scope| {
+        if camera {
+            let (sim, done) = (r.sim.as_ref().unwrap(), done.clone());
+            scope.spawn(move || {
+                while !done.load(Ordering::Relaxed) {
+                    sim.advance(Duration::from_millis(20));
+                    std::thread::sleep(Duration::from_millis(2));
+                }
+            });
+        }
+        let rf = cl.call(json!({"cmd":"reference"}));
+        assert_eq!(rf["ok"], true, "{rf}");
+        let m = cl.call(json!({"cmd":"move","x_um":5000.0,"y_um":5000.0,"wait":true}));
+        assert_eq!(m["ok"], true, "{m}");
+        done.store(true, Ordering::Relaxed);
+    });
     r
 }
 
@@ -280,10 +300,10 @@ fn pty_baseline(n: usize) -> Vec<f64> {
     let mut t = tcgetattr(slave.as_fd()).unwrap();
     cfmakeraw(&mut t);
     tcsetattr(slave.as_fd(), SetArg::TCSANOW, &t).unwrap();
-    let stamp = Arc::new(std::sync::Mutex::new(None::<Instant>));
+    let (tx, rx) = std::sync::mpsc::channel::<Instant>();
     let stop = Arc::new(AtomicBool::new(false));
-    let (stamp2, stop2) = (stamp.clone(), stop.clone());
-    let mut master = std::fs::File::from(std::os::fd::OwnedFd::from(master));
+    let stop2 = stop.clone();
+    let mut master = master;
     let reader = std::thread::spawn(move || {
         let mut buf = [0u8; 4096];
         while !stop2.load(Ordering::Relaxed) {
@@ -291,7 +311,7 @@ fn pty_baseline(n: usize) -> Vec<f64> {
             if poll(&mut fds, PollTimeout::from(5u16)).unwrap_or(0) > 0 {
                 if let Ok(k) = master.read(&mut buf) {
                     if k > 0 {
-                        stamp2.lock().unwrap().get_or_insert(Instant::now());
+                        let _ = tx.send(Instant::now());
                     }
                 }
             }
@@ -299,17 +319,13 @@ fn pty_baseline(n: usize) -> Vec<f64> {
     });
     let mut out = Vec::with_capacity(n);
     for i in 0..n {
-        *stamp.lock().unwrap() = None;
+        while rx.try_recv().is_ok() {}
         let t0 = Instant::now();
         slave
             .write_all(format!("MOV 1 {:.4}\n", 5.0 + 0.01 * (i % 2) as f64).as_bytes())
             .unwrap();
-        loop {
-            if let Some(t) = *stamp.lock().unwrap() {
-                out.push((t - t0).as_secs_f64() * 1e6);
-                break;
-            }
-            std::thread::yield_now();
+        if let Ok(t) = rx.recv_timeout(Duration::from_secs(1)) {
+            out.push((t - t0).as_secs_f64() * 1e6);
         }
         std::thread::sleep(Duration::from_millis(2));
     }
@@ -446,7 +462,9 @@ fn bench(c: &mut Criterion) {
     drop(sub);
     stop_rig(&rt, rig);
 
-    println!("\n=== microposd performance (in-process daemon, in-process hil-sim rig, time_scale 1) ===");
+    println!(
+        "\n=== microposd performance (in-process daemon, in-process hil-sim rig; 20× clock without camera, 1× with) ==="
+    );
     for l in &report {
         println!("{l}");
     }

@@ -1091,3 +1091,35 @@ pub fn read_answer(f: &mut File, timeout: Duration) -> io::Result<Vec<u8>> {
         }
     }
 }
+
+#[cfg(test)]
+mod probe_tests {
+    use super::*;
+
+    #[test]
+    fn probe_stamps_first_byte_and_needle_across_chunks() {
+        let p = RxProbe::default();
+        let t0 = Instant::now();
+        let (t1, t2, t3) = (
+            t0 + Duration::from_micros(1),
+            t0 + Duration::from_micros(2),
+            t0 + Duration::from_micros(3),
+        );
+        // Unarmed: nothing recorded.
+        p.observe(b"MOV 1 2\n", t0);
+        assert_eq!((p.first_byte(), p.matched()), (None, None));
+        p.arm(b"MOV");
+        p.observe(b"POS?\nM", t1);
+        assert_eq!((p.first_byte(), p.matched()), (Some(t1), None));
+        p.observe(b"O", t2);
+        p.observe(b"V 1 2\n", t3);
+        assert_eq!((p.first_byte(), p.matched()), (Some(t1), Some(t3)));
+        // Disarmed after the match; re-arming clears the stamps.
+        p.observe(b"MOV", t3 + Duration::from_micros(1));
+        assert_eq!(p.matched(), Some(t3));
+        p.arm(b"");
+        assert_eq!(p.first_byte(), None);
+        p.observe(b"x", t2);
+        assert_eq!((p.first_byte(), p.matched()), (Some(t2), Some(t2)));
+    }
+}

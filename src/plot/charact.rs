@@ -117,10 +117,13 @@ pub fn scans(log: &MeasurementLog) -> [Option<Scan>; 2] {
     ]
 }
 
+/// `(target, value)` pairs of one pass.
+type PassPoints = Vec<(f64, f64)>;
+
 /// Consecutive runs of one cycle and one direction, each as `(target, value)`
 /// pairs in target order.
-fn passes(scan: &Scan, value: impl Fn(&ScanPoint) -> f64) -> Vec<(Direction, Vec<(f64, f64)>)> {
-    let mut out: Vec<(Direction, u32, Vec<(f64, f64)>)> = Vec::new();
+fn passes(scan: &Scan, value: impl Fn(&ScanPoint) -> f64) -> Vec<(Direction, PassPoints)> {
+    let mut out: Vec<(Direction, u32, PassPoints)> = Vec::new();
     for p in &scan.points {
         match out.last_mut() {
             Some((d, c, v)) if *d == p.direction && *c == p.cycle => {

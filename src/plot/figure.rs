@@ -184,7 +184,11 @@ fn linear_ticks(lo: f64, hi: f64, n: usize) -> Vec<f64> {
 fn log_ticks(lo: f64, hi: f64) -> Vec<f64> {
     let decades = hi - lo;
     let mut out = Vec::new();
-    let mults: &[f64] = if decades <= 3.0 { &[1.0, 2.0, 5.0] } else { &[1.0] };
+    let mults: &[f64] = if decades <= 3.0 {
+        &[1.0, 2.0, 5.0]
+    } else {
+        &[1.0]
+    };
     let (d0, d1) = (lo.floor() as i64, hi.ceil() as i64);
     for d in d0..=d1 {
         for m in mults {
@@ -506,9 +510,7 @@ where
 {
     let e = |x: DrawingAreaErrorKind<DB::ErrorType>| x.to_string();
     root.fill(&WHITE).map_err(e)?;
-    let root = root
-        .titled(&fig.title, (FAMILY, 20))
-        .map_err(e)?;
+    let root = root.titled(&fig.title, (FAMILY, 20)).map_err(e)?;
     let rows = root.split_evenly((fig.rows.len().max(1), 1));
     for (row, area) in fig.rows.iter().zip(rows) {
         let cells = area.split_evenly((1, row.len().max(1)));
@@ -556,7 +558,10 @@ mod tests {
 
     #[test]
     fn ticks_are_nice_and_inside() {
-        assert_eq!(linear_ticks(0.0, 10.0, 5), vec![0.0, 2.0, 4.0, 6.0, 8.0, 10.0]);
+        assert_eq!(
+            linear_ticks(0.0, 10.0, 5),
+            vec![0.0, 2.0, 4.0, 6.0, 8.0, 10.0]
+        );
         let t = linear_ticks(-0.37, 0.91, 8);
         assert!(t.iter().all(|v| (-0.37..=0.91).contains(v)));
         assert!(t.len() >= 4 && t.len() <= 9, "{t:?}");

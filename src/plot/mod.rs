@@ -46,12 +46,13 @@ pub enum PlotError {
         message: String,
     },
     /// A measurement log could not be read.
-    #[error("cannot read log {path}: {source}")]
+    #[error("cannot read log {path}: {reason}")]
     Log {
         /// The log file.
         path: PathBuf,
-        /// Why (names the line and the reason).
-        source: crate::charact::log::LogError,
+        /// Why (names the line and the reason). Not a `source`: the
+        /// message already holds it, so error chains do not print it twice.
+        reason: crate::charact::log::LogError,
     },
     /// Nothing to plot (no log, or a log without any plottable segment).
     #[error("nothing to plot: {what}")]

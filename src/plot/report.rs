@@ -84,14 +84,15 @@ pub fn read_logs<P: AsRef<Path>>(paths: &[P]) -> Result<Vec<NamedLog>, PlotError
         .iter()
         .map(|p| {
             let p = p.as_ref();
-            let log = read_file(p).map_err(|source| PlotError::Log {
+            let log = read_file(p).map_err(|reason| PlotError::Log {
                 path: p.to_path_buf(),
-                source,
+                reason,
             })?;
             Ok(NamedLog {
-                name: p
-                    .file_name()
-                    .map_or_else(|| p.display().to_string(), |n| n.to_string_lossy().into_owned()),
+                name: p.file_name().map_or_else(
+                    || p.display().to_string(),
+                    |n| n.to_string_lossy().into_owned(),
+                ),
                 stem: safe_stem(p),
                 log,
             })
@@ -196,8 +197,8 @@ pub fn write_all<P: AsRef<Path>>(
 mod tests {
     use super::*;
     use crate::charact::log::parse_bytes;
-    use crate::plot::charact::{repeatability, scans as log_scans};
     use crate::model::Direction;
+    use crate::plot::charact::{repeatability, scans as log_scans};
     use crate::plot::validation::gather;
     use std::fmt::Write as _;
 
@@ -224,8 +225,8 @@ mod tests {
                         let along = 3.0 * (std::f64::consts::TAU * p / 400.0).sin()
                             + dir
                             + 0.05 * jitter(i);
-                        let across = 0.5 * (std::f64::consts::TAU * p / 400.0).cos()
-                            + 0.05 * jitter(i + 7);
+                        let across =
+                            0.5 * (std::f64::consts::TAU * p / 400.0).cos() + 0.05 * jitter(i + 7);
                         // error = target − meas → meas = target − error
                         let (xt, yt) = if axis == 0 { (p, 0.0) } else { (0.0, p) };
                         let (ex, ey) = if axis == 0 {
@@ -254,7 +255,12 @@ mod tests {
     /// a ±`spread` alternation over cycles in y.
     fn validation_log() -> String {
         let mut s = format!("{HEADER},mode,pose\n");
-        let modes = [("raw", 20.0), ("table", 0.8), ("model", 0.5), ("closed_loop", 0.05)];
+        let modes = [
+            ("raw", 20.0),
+            ("table", 0.8),
+            ("model", 0.5),
+            ("closed_loop", 0.05),
+        ];
         let square: Vec<(f64, f64)> = (0..8)
             .map(|k| (10.0 + 1000.0 * k as f64, 10.0))
             .chain((0..8).map(|k| (4010.0, 10.0 + 500.0 * k as f64)))
@@ -325,16 +331,28 @@ mod tests {
             check_png(&stem.with_extension("png"), 1200, 2 * 420 + 40);
             check_svg(
                 &stem.with_extension("svg"),
-                &["x target (µm)", "y target (µm)", "charact.csv", "forward", "backward"],
+                &[
+                    "x target (µm)",
+                    "y target (µm)",
+                    "charact.csv",
+                    "forward",
+                    "backward",
+                ],
             );
         }
         check_svg(
             &dir.path().join("charact_fig4_errors.svg"),
-            &["x error, target − measured (µm)", "y error, target − measured (µm)"],
+            &[
+                "x error, target − measured (µm)",
+                "y error, target − measured (µm)",
+            ],
         );
         check_svg(
             &dir.path().join("charact_fig5_coupling.svg"),
-            &["coupling error in y while x moves", "x error, target − measured (µm)"],
+            &[
+                "coupling error in y while x moves",
+                "x error, target − measured (µm)",
+            ],
         );
         check_svg(&dir.path().join("charact_fig6_repeatability.svg"), &["RP"]);
     }
@@ -351,7 +369,11 @@ mod tests {
         // Forward points carry +1 µm of backlash, backward −1 µm.
         for p in &x.points {
             let cyclic = 3.0 * (std::f64::consts::TAU * p.target_um / 400.0).sin();
-            let want = if p.direction == Direction::Forward { 1.0 } else { -1.0 };
+            let want = if p.direction == Direction::Forward {
+                1.0
+            } else {
+                -1.0
+            };
             assert!((p.along_um - cyclic - want).abs() < 0.03, "{p:?}");
         }
         // RP from two visits: l1 = l2 = d/2 → RP = d/2 (S = 0).
@@ -377,7 +399,9 @@ mod tests {
         let p = plot_logs(&logs, dir.path(), Format::Both).unwrap();
         assert_eq!(p.files.len(), 4, "{:?}", p.files);
         assert!(
-            p.notes.iter().any(|n| n.contains("other_prog.csv") && n.contains("no `mode` column")),
+            p.notes
+                .iter()
+                .any(|n| n.contains("other_prog.csv") && n.contains("no `mode` column")),
             "{:?}",
             p.notes
         );
@@ -385,11 +409,21 @@ mod tests {
         check_png(&sq.with_extension("png"), 1400, 1500);
         check_svg(
             &sq.with_extension("svg"),
-            &["x (µm)", "AP (µm)", "x_meas − x_target (µm)", "raw", "closed_loop", "valid.csv"],
+            &[
+                "x (µm)",
+                "AP (µm)",
+                "x_meas − x_target (µm)",
+                "raw",
+                "closed_loop",
+                "valid.csv",
+            ],
         );
         let rnd = dir.path().join("validation_fig11_random");
         check_png(&rnd.with_extension("png"), 1400, 1500);
-        check_svg(&rnd.with_extension("svg"), &["other_prog", "Fig. 11", "log scale"]);
+        check_svg(
+            &rnd.with_extension("svg"),
+            &["other_prog", "Fig. 11", "log scale"],
+        );
         // AP per mode is the known constant offset; the foreign file is a
         // mode of its own with AP 3 µm.
         let refs: Vec<(&str, &str, &MeasurementLog)> = logs
@@ -401,10 +435,18 @@ mod tests {
         let random = &sets[1];
         assert_eq!(random.poses.len(), 10);
         let names: Vec<&str> = random.modes.iter().map(|m| m.name.as_str()).collect();
-        assert_eq!(names, ["raw", "table", "model", "closed_loop", "other_prog"]);
+        assert_eq!(
+            names,
+            ["raw", "table", "model", "closed_loop", "other_prog"]
+        );
         for (m, want) in random.modes.iter().zip([20.0, 0.8, 0.5, 0.05, 3.0]) {
             let s = m.summary(&random.poses).unwrap();
-            assert!((s.ap_max_um - want).abs() < 1e-3, "{}: {}", m.name, s.ap_max_um);
+            assert!(
+                (s.ap_max_um - want).abs() < 1e-3,
+                "{}: {}",
+                m.name,
+                s.ap_max_um
+            );
         }
         let square = &sets[0];
         assert_eq!(square.poses.len(), 16);
@@ -421,13 +463,19 @@ mod tests {
         // Nothing plottable: refused, naming the log and what it holds.
         let other = named("o", &format!("{HEADER}\n0,warmup,0,0,0,0,0,0,0\n"));
         let e = plot_logs(&[other], dir.path(), Format::Png).unwrap_err();
-        assert!(e.to_string().contains("o.csv") && e.to_string().contains("warmup"), "{e}");
+        assert!(
+            e.to_string().contains("o.csv") && e.to_string().contains("warmup"),
+            "{e}"
+        );
         assert!(plot_logs(&[], dir.path(), Format::Png).is_err());
         // Unreadable logs: missing file, malformed content.
         let bad = dir.path().join("bad.csv");
         std::fs::write(&bad, format!("{HEADER}\n0,scan_x,0,abc,0,0,0,0,0\n")).unwrap();
-        let e = write_all(&[bad.clone()], dir.path(), Format::Png).unwrap_err();
-        assert!(e.to_string().contains("bad.csv") && e.to_string().contains("line 2"), "{e}");
+        let e = write_all(std::slice::from_ref(&bad), dir.path(), Format::Png).unwrap_err();
+        assert!(
+            e.to_string().contains("bad.csv") && e.to_string().contains("line 2"),
+            "{e}"
+        );
         let e = write_all(&[dir.path().join("missing.csv")], dir.path(), Format::Png).unwrap_err();
         assert!(e.to_string().contains("missing.csv"), "{e}");
         // Same stem twice: both kept.

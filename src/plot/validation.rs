@@ -154,7 +154,11 @@ impl Builder {
         let numeric: Option<Vec<f64>> = self
             .poses
             .iter()
-            .map(|p| p.label.as_deref().and_then(|l| l.trim().parse::<f64>().ok()))
+            .map(|p| {
+                p.label
+                    .as_deref()
+                    .and_then(|l| l.trim().parse::<f64>().ok())
+            })
             .collect();
         if let Some(keys) = numeric {
             let mut order: Vec<usize> = (0..self.poses.len()).collect();
@@ -162,7 +166,10 @@ impl Builder {
             self.poses = order.iter().map(|&i| self.poses[i].clone()).collect();
             for m in &mut self.modes {
                 m.visits.resize(order.len(), Vec::new());
-                m.visits = order.iter().map(|&i| std::mem::take(&mut m.visits[i])).collect();
+                m.visits = order
+                    .iter()
+                    .map(|&i| std::mem::take(&mut m.visits[i]))
+                    .collect();
             }
         }
         let n = self.poses.len();
@@ -332,8 +339,7 @@ pub fn validation_figure(v: &Validation) -> Figure {
     let mut scatter = Vec::new();
     let mut ap_traces = Vec::new();
     let stats: Vec<Vec<(usize, PoseStats)>> = v.modes.iter().map(|m| m.stats(&v.poses)).collect();
-    let summaries: Vec<Option<PoseSummary>> =
-        v.modes.iter().map(|m| m.summary(&v.poses)).collect();
+    let summaries: Vec<Option<PoseSummary>> = v.modes.iter().map(|m| m.summary(&v.poses)).collect();
     for (k, m) in v.modes.iter().enumerate() {
         let mut pts = Vec::new();
         let mut dev = Vec::new();
@@ -363,10 +369,7 @@ pub fn validation_figure(v: &Validation) -> Figure {
         ap_traces.push(Trace {
             label: Some(format!("{} (AP max {ap} µm)", m.name)),
             color: k,
-            points: stats[k]
-                .iter()
-                .map(|(i, s)| (*i as f64, s.ap_um))
-                .collect(),
+            points: stats[k].iter().map(|(i, s)| (*i as f64, s.ap_um)).collect(),
             style: Style::LineDots,
         });
     }
@@ -431,7 +434,10 @@ pub fn validation_figure(v: &Validation) -> Figure {
                 BarGroup {
                     label: "AP, worst pose".into(),
                     color: 0,
-                    values: summaries.iter().map(|s| s.as_ref().map(|s| s.ap_max_um)).collect(),
+                    values: summaries
+                        .iter()
+                        .map(|s| s.as_ref().map(|s| s.ap_max_um))
+                        .collect(),
                 },
                 BarGroup {
                     label: "AP, mean over poses".into(),
@@ -456,13 +462,7 @@ pub fn validation_figure(v: &Validation) -> Figure {
         .modes
         .iter()
         .zip(&summaries)
-        .map(|(m, s)| {
-            format!(
-                "{} {}",
-                m.name,
-                fmt_opt(s.as_ref().map(|s| s.ap_max_um))
-            )
-        })
+        .map(|(m, s)| format!("{} {}", m.name, fmt_opt(s.as_ref().map(|s| s.ap_max_um))))
         .collect();
     Figure {
         title: format!(
