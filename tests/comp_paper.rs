@@ -119,7 +119,7 @@ fn validate(sim: &mut StageSimulator, mode: Mode, targets: &[XyUm], cycles: u32,
                                     y_um: s.observed_um.y_um + decode.sample(&mut rng),
                                 },
                                 timestamp_s: t + 0.05,
-                                quality: 0.9,
+                                quality: 100.0,
                                 frame_seq: seq,
                             };
                             match cl.on_frame(&m) {

@@ -297,15 +297,20 @@ async fn main_job(
     }
     if let (Some(plots), Some(dir)) = (&plots, &report.data_dir) {
         std::fs::create_dir_all(plots).with_context(|| format!("creating {}", plots.display()))?;
-        // PLOTS CALL SITE (branch s2-plots): draw the paper's figures from the
-        // logs in `dir` — charact-paper.csv (Figs. 4-6: errors along each
-        // axis forward/backward, coupling, repeatability) and validate.csv
-        // (Figs. 10, 11: AP per pose with and without compensation; columns
-        // mode and pose) — into `plots`, as PNG and SVG. Until then the run
-        // keeps the logs in `dir` for them.
+        // The paper's figures from the run's own logs: Figs. 4-6 from the
+        // characterization logs, Figs. 10-11 from the validation log.
+        let logs: Vec<PathBuf> = report
+            .files
+            .iter()
+            .filter(|f| f.ends_with(".csv"))
+            .map(|f| dir.join(f))
+            .collect();
+        let written = micropos::plot::write_all(&logs, plots, micropos::plot::Format::Both)
+            .with_context(|| format!("drawing plots into {}", plots.display()))?;
         eprintln!(
-            "hil-sim run: plots: the logs to draw from are in {} (plot functions: branch s2-plots)",
-            dir.display()
+            "hil-sim run: {} plot files in {}",
+            written.len(),
+            plots.display()
         );
     }
     if json {

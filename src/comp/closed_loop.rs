@@ -39,7 +39,8 @@ pub struct ClosedLoopConfig {
     pub tolerance_um: f64,
     /// Correction moves allowed after the first move.
     pub max_corrections: u32,
-    /// Frames with a decode quality below this are not used (0..=1).
+    /// Frames with a decode quality below this are not used (≥ 0, in the
+    /// decoder's units: bits of code evidence; clean frames score hundreds).
     pub min_quality: f64,
     /// Consecutive rejected frames before failing.
     pub max_rejected_frames: u32,
@@ -54,7 +55,7 @@ impl Default for ClosedLoopConfig {
         ClosedLoopConfig {
             tolerance_um: 0.1,
             max_corrections: 10,
-            min_quality: 0.5,
+            min_quality: 16.0,
             max_rejected_frames: 5,
             divergence_factor: 2.0,
             overshoot_um: 20.0,
@@ -68,8 +69,8 @@ impl ClosedLoopConfig {
         if !(self.tolerance_um.is_finite() && self.tolerance_um > 0.0) {
             return Err(invalid("tolerance_um", "must be a finite number > 0"));
         }
-        if !(0.0..=1.0).contains(&self.min_quality) {
-            return Err(invalid("min_quality", "must be within 0..=1"));
+        if !(self.min_quality.is_finite() && self.min_quality >= 0.0) {
+            return Err(invalid("min_quality", "must be a finite number ≥ 0 (bits)"));
         }
         if !(self.divergence_factor.is_finite() && self.divergence_factor > 1.0) {
             return Err(invalid("divergence_factor", "must be a finite number > 1"));
@@ -88,7 +89,7 @@ pub struct FrameMeasurement {
     pub position: XyUm,
     /// When the frame was exposed, s (same clock as `settled_at_s`).
     pub timestamp_s: f64,
-    /// Decode quality, 0 (useless) ..= 1.
+    /// Decode quality in the decoder's units (bits of code evidence).
     pub quality: f64,
     /// Camera frame sequence number (strictly increasing).
     pub frame_seq: u64,
@@ -314,11 +315,13 @@ impl ClosedLoop {
 mod tests {
     use super::*;
 
+    /// `q` as a fraction of 50 bits of code evidence: 1.0 and 0.9 pass the
+    /// default 16-bit threshold, 0.2 (10 bits) does not.
     fn frame(x: f64, y: f64, t: f64, q: f64, seq: u64) -> FrameMeasurement {
         FrameMeasurement {
             position: XyUm { x_um: x, y_um: y },
             timestamp_s: t,
-            quality: q,
+            quality: q * 50.0,
             frame_seq: seq,
         }
     }

@@ -101,6 +101,7 @@ impl Daemon {
         let tasks = vec![
             tokio::spawn(rig.clone().connect_loop(shutdown.subscribe())),
             tokio::spawn(rig.clone().poll_loop(shutdown.subscribe())),
+            tokio::spawn(rig.clone().vision_stream_loop(shutdown.subscribe())),
             tokio::spawn(server::serve(
                 daemon.clone(),
                 listener,

@@ -284,13 +284,42 @@ impl Rig {
         }
     }
 
+    /// Streams every new vision measurement to position subscribers as it
+    /// is decoded, so the stream runs at the camera's decode rate. (It used
+    /// to ride on the controller poll tick and carried at most one vision
+    /// position per `poll_interval_ms`: measured 3.5 events/s against 56
+    /// frames/s.) A subscriber slower than the camera sees the newest
+    /// measurement, never a queue of stale ones.
+    pub async fn vision_stream_loop(self: Arc<Self>, mut shutdown: broadcast::Receiver<()>) {
+        let Some(v) = &self.vision else { return };
+        let mut latest = v.latest.clone();
+        let mut last_seq = None;
+        loop {
+            tokio::select! {
+                r = latest.changed() => if r.is_err() { return },
+                _ = shutdown.recv() => return,
+            }
+            let m = *latest.borrow_and_update();
+            let Some(m) = m else { continue };
+            if Some(m.sequence) == last_seq {
+                continue;
+            }
+            last_seq = Some(m.sequence);
+            let (sx, sy) = self.vision_to_stage(&m);
+            let mut f = m.to_json();
+            f["source"] = json!("vision");
+            f["stage_x_um"] = json!(sx);
+            f["stage_y_um"] = json!(sy);
+            self.push(Topic::Position, "position", f);
+        }
+    }
+
     /// Polls controller positions while idle or moving (not during a
     /// reference run) and streams them; each healthy round feeds the
     /// watchdog heartbeat.
     pub async fn poll_loop(self: Arc<Self>, mut shutdown: broadcast::Receiver<()>) {
         let period = Duration::from_millis(self.cfg.daemon.poll_interval_ms);
         let window = Duration::from_millis(self.cfg.camera.timeout_ms);
-        let mut last_vision_seq = None;
         let mut health = self
             .vision
             .as_ref()
@@ -321,20 +350,6 @@ impl Rig {
                         "camera",
                         json!({"t_s": t, "state": state.as_str(), "reason": reason}),
                     );
-                }
-            }
-            if let Some(v) = &self.vision {
-                let m = *v.latest.borrow();
-                if let Some(m) = m {
-                    if Some(m.sequence) != last_vision_seq {
-                        last_vision_seq = Some(m.sequence);
-                        let (sx, sy) = self.vision_to_stage(&m);
-                        let mut f = m.to_json();
-                        f["source"] = json!("vision");
-                        f["stage_x_um"] = json!(sx);
-                        f["stage_y_um"] = json!(sy);
-                        self.push(Topic::Position, "position", f);
-                    }
                 }
             }
             let Ok(stage) = self.stage() else {

@@ -70,7 +70,18 @@ fn scan_of(records: &[Record], axis: Axis) -> Option<Scan> {
         Axis::X => SEGMENT_SCAN_X,
         Axis::Y => SEGMENT_SCAN_Y,
     };
-    let recs: Vec<&Record> = records.iter().filter(|r| r.segment == segment).collect();
+    // The daemon logs its passes as `scan_x_fwd` / `scan_x_bwd`; other
+    // programs write one `scan_x` segment. Both are one scan here (direction
+    // comes from the command order either way).
+    let recs: Vec<&Record> = records
+        .iter()
+        .filter(|r| {
+            r.segment == segment
+                || r.segment
+                    .strip_prefix(segment)
+                    .is_some_and(|rest| rest == "_fwd" || rest == "_bwd")
+        })
+        .collect();
     if recs.is_empty() {
         return None;
     }
@@ -109,7 +120,8 @@ fn scan_of(records: &[Record], axis: Axis) -> Option<Scan> {
     })
 }
 
-/// The `scan_x` and `scan_y` segments of a log (absent ones are `None`).
+/// The `scan_x` and `scan_y` segments of a log (or the daemon's
+/// `scan_x_fwd`/`scan_x_bwd` passes; absent ones are `None`).
 pub fn scans(log: &MeasurementLog) -> [Option<Scan>; 2] {
     [
         scan_of(&log.records, Axis::X),
