@@ -481,13 +481,15 @@ fn camera_faults_fail_clearly_and_never_use_stale_data() {
     let l = check_log(&path, None);
 
     // Closed loop needs a table and the vision → stage transform the job
-    // established (camera.rotation_rad, the offset in the log's header).
+    // established itself (its tie pre-scan, in the log's metadata).
     let md = |k: &str| -> f64 { l.metadata.get(k).unwrap().parse().unwrap() };
-    let cfg = c.ok(json!({"cmd": "config"}));
     let frame = micropos::comp::VisionFrame {
-        rotation_rad: cfg["config"]["camera"]["rotation_rad"].as_f64().unwrap(),
-        mirrored: false,
-        translation_um: [md("vision_offset_x_um"), md("vision_offset_y_um")],
+        rotation_rad: md("vision_frame_rotation_rad"),
+        mirrored: l.metadata.get("vision_frame_mirrored").unwrap() == "true",
+        translation_um: [
+            md("vision_frame_translation_x_um"),
+            md("vision_frame_translation_y_um"),
+        ],
     };
     let model =
         micropos::model::StageModel::from_toml(micropos::model::PAPER_DEFAULT_TOML).unwrap();
