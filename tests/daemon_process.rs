@@ -614,7 +614,7 @@ fn drift_references_are_logged_and_resume_keeps_the_plan() {
         .iter()
         .filter(|r| r.segment != "drift_ref")
         .count();
-    assert!(logged >= 4 && logged < 12, "{logged}");
+    assert!((4..12).contains(&logged), "{logged}");
     let ev = sub.event(|e| e["event"] == "job" && e["state"] == "cancelled");
     assert_eq!(ev["log"], "drift.csv");
     sub.forget_events();
