@@ -1106,6 +1106,24 @@ mod tests {
                 ..
             })) if s == 5.0
         ));
+        assert!(matches!(
+            parse(r#"{"cmd":"characterize","action":"start","drift_every_s":600,"drift_reference_um":[100,200.5]}"#)
+                .unwrap()
+                .command,
+            Command::Characterize(CharacterizeAction::Start(CharacterizeParams {
+                drift_every_s: Some(e),
+                drift_reference_um: Some([x, y]),
+                ..
+            })) if e == 600.0 && x == 100.0 && y == 200.5
+        ));
+        for bad in [
+            r#"{"cmd":"characterize","action":"start","drift_every_s":-1}"#,
+            r#"{"cmd":"characterize","action":"start","drift_reference_um":[1]}"#,
+            r#"{"cmd":"characterize","action":"start","drift_reference_um":[1,"a"]}"#,
+            r#"{"cmd":"characterize","action":"start","drift_reference_um":5}"#,
+        ] {
+            assert!(parse(bad).is_err(), "{bad}");
+        }
         assert_eq!(
             parse(r#"{"cmd":"characterize","action":"resume","log":"run1.csv"}"#)
                 .unwrap()
