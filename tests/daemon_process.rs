@@ -645,4 +645,19 @@ fn drift_references_are_logged_and_resume_keeps_the_plan() {
         );
     }
     assert_eq!(l.metadata.get("drift_every_s"), Some("0.001"));
+    // `tables build` uses the references and says so.
+    let b = c.ok(
+        json!({"cmd": "tables", "action": "build", "log": "drift.csv",
+                        "kinds": ["paper"]}),
+    );
+    assert_eq!(
+        b["drift"]["references"].as_u64(),
+        Some(refs.len() as u64),
+        "{b}"
+    );
+    assert_eq!(
+        b["drift"]["corrected"].as_u64(),
+        Some(points.len() as u64),
+        "{b}"
+    );
 }
