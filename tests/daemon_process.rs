@@ -585,3 +585,81 @@ fn line_drop_mid_move_halts_the_other_axis_and_reconnects() {
     c.wait_for(|s| s["rig"]["connected"]["x"] == true);
     c.ok(json!({"cmd": "move", "x_um": 8000.0, "y_um": 8000.0, "wait": true}));
 }
+
+/// `drift_every_s`: reference re-measurements are logged as `drift_ref`
+/// records at the reference (default: the start corner), are not plan
+/// points, and a cancelled job resumes at the right plan point with the
+/// drift plan read back from the log.
+#[test]
+fn drift_references_are_logged_and_resume_keeps_the_plan() {
+    let dir = tempfile::tempdir().unwrap();
+    let _sim = Sim::start(dir.path(), 20.0);
+    let d = Daemon::start(dir.path(), 0);
+    let mut c = d.client();
+    c.ok(json!({"cmd": "reference"}));
+    let mut sub = d.client();
+    sub.ok(json!({"cmd": "subscribe", "topics": ["job"]}));
+    // A tiny interval: a re-measurement before every point.
+    let j = c.ok(
+        json!({"cmd": "characterize", "action": "start", "log": "drift.csv",
+                        "step_um": 500.0, "x_range_um": 1000.0, "y_range_um": 1000.0,
+                        "cycles": 1, "frames_per_point": 1, "settle_s": 0.1,
+                        "drift_every_s": 0.001}),
+    );
+    assert_eq!(j["job"]["total"].as_u64(), Some(12));
+    wait_done(&mut sub, 4);
+    c.ok(json!({"cmd": "characterize", "action": "cancel"}));
+    let path = dir.path().join("data/drift.csv");
+    let l = log::read_file(&path).unwrap();
+    let logged = l
+        .records
+        .iter()
+        .filter(|r| r.segment != "drift_ref")
+        .count();
+    assert!((4..12).contains(&logged), "{logged}");
+    let ev = sub.event(|e| e["event"] == "job" && e["state"] == "cancelled");
+    assert_eq!(ev["log"], "drift.csv");
+    sub.forget_events();
+    let r = c.ok(json!({"cmd": "characterize", "action": "resume", "log": "drift.csv"}));
+    assert_eq!(r["job"]["done"].as_u64(), Some(logged as u64));
+    let ev = sub.event(|e| e["event"] == "job" && e["state"] != "running");
+    assert_eq!(ev["state"], "done", "{ev}");
+    let l = log::read_file(&path).unwrap();
+    assert!(l.is_complete() && l.warnings.is_empty(), "{:?}", l.warnings);
+    let plan = ScanPlan::from_metadata(&l.metadata).unwrap();
+    let corner = [plan.x_start_um, plan.y_start_um];
+    let (refs, scans): (Vec<_>, Vec<_>) = l.records.iter().partition(|r| r.segment == "drift_ref");
+    let points = plan.points();
+    assert_eq!(scans.len(), points.len(), "points lost or duplicated");
+    for (i, (r, p)) in scans.iter().zip(&points).enumerate() {
+        assert_eq!(
+            (r.segment.as_str(), r.x_target_um, r.y_target_um),
+            (p.segment, p.x_um, p.y_um),
+            "record {i}"
+        );
+    }
+    assert!(refs.len() >= points.len(), "{} references", refs.len());
+    for r in &refs {
+        assert_eq!([r.x_target_um, r.y_target_um], corner);
+        assert!(
+            (r.x_meas_um - corner[0]).abs() < 20.0 && (r.y_meas_um - corner[1]).abs() < 20.0,
+            "reference measured far from the corner: {r:?}"
+        );
+    }
+    assert_eq!(l.metadata.get("drift_every_s"), Some("0.001"));
+    // `tables build` uses the references and says so.
+    let b = c.ok(
+        json!({"cmd": "tables", "action": "build", "log": "drift.csv",
+                        "kinds": ["paper"]}),
+    );
+    assert_eq!(
+        b["drift"]["references"].as_u64(),
+        Some(refs.len() as u64),
+        "{b}"
+    );
+    assert_eq!(
+        b["drift"]["corrected"].as_u64(),
+        Some(points.len() as u64),
+        "{b}"
+    );
+}

@@ -163,6 +163,74 @@ impl DriftEstimator {
     }
 }
 
+/// Segment name of the reference re-measurements a characterization logs
+/// when `drift_every_s` is set (same columns as every record; target =
+/// the reference point).
+pub const DRIFT_REF_SEGMENT: &str = "drift_ref";
+
+/// The method `tables build` uses on logs with reference re-measurements:
+/// adaptive, τ = 20 min (the best of the static/adaptive comparison in
+/// `tests/diagnose_drift.rs` on the default thermal drift).
+pub const LOG_DRIFT_METHOD: DriftMethod = DriftMethod::Adaptive {
+    time_constant_s: 1200.0,
+};
+
+/// What [`correct_log_drift`] did.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct LogDriftCorrection {
+    /// Reference re-measurements used.
+    pub references: usize,
+    /// Measurements corrected (those logged before the first reference
+    /// are left alone).
+    pub corrected: usize,
+    /// Largest |drift| seen at the reference, `[x, y]` µm, relative to the
+    /// first re-measurement.
+    pub max_drift_um: [f64; 2],
+}
+
+/// Removes the [`DRIFT_REF_SEGMENT`] records from `records` and subtracts
+/// the drift they measure from every other record's measured position.
+///
+/// Drift at a re-measurement is its `measured − target` minus that of the
+/// first re-measurement: the reference's own static stage error cancels,
+/// so the log is corrected to the state of the rig at the first
+/// re-measurement (the start of the run). Causal: each record uses only
+/// the re-measurements logged at or before it. Returns the records
+/// unchanged and `None` when the log has no reference records.
+pub fn correct_log_drift(
+    records: &[Record],
+    method: DriftMethod,
+) -> Result<(Vec<Record>, Option<LogDriftCorrection>), AnalysisError> {
+    let (refs, rest): (Vec<&Record>, Vec<&Record>) =
+        records.iter().partition(|r| r.segment == DRIFT_REF_SEGMENT);
+    let Some(first) = refs.first() else {
+        return Ok((records.to_vec(), None));
+    };
+    let e0 = [first.error_x_um(), first.error_y_um()];
+    let mut est = DriftEstimator::new(method)?;
+    let mut max_drift_um = [0.0f64; 2];
+    for r in &refs {
+        // Error is target − measured, drift is measured − nominal.
+        let d = [e0[0] - r.error_x_um(), e0[1] - r.error_y_um()];
+        max_drift_um[0] = max_drift_um[0].max(d[0].abs());
+        max_drift_um[1] = max_drift_um[1].max(d[1].abs());
+        est.push(ReferenceSample {
+            t_s: r.t_s,
+            drift_um: d,
+        })?;
+    }
+    let mut out: Vec<Record> = rest.into_iter().cloned().collect();
+    let corrected = est.correct(&mut out);
+    Ok((
+        out,
+        Some(LogDriftCorrection {
+            references: refs.len(),
+            corrected,
+            max_drift_um,
+        }),
+    ))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -184,6 +184,11 @@ pub struct CharacterizeDefaults {
     pub frames_per_point: u32,
     /// Wait after on-target before measuring, s.
     pub settle_s: f64,
+    /// Re-measure the drift reference every this many s of rig time during
+    /// a characterization; 0 = off (see `docs/measurement-log.md`).
+    pub drift_every_s: f64,
+    /// Drift reference point `[x, y]`, µm; unset = the scan's start corner.
+    pub drift_reference_um: Option<[f64; 2]>,
 }
 
 impl Default for CharacterizeDefaults {
@@ -197,6 +202,8 @@ impl Default for CharacterizeDefaults {
             cycles: 3,
             frames_per_point: 4,
             settle_s: 0.5,
+            drift_every_s: 0.0,
+            drift_reference_um: None,
         }
     }
 }
@@ -374,6 +381,20 @@ impl DaemonConfig {
         }
         if !(k.settle_s.is_finite() && (0.0..=3600.0).contains(&k.settle_s)) {
             return Err(bad("characterize.settle_s", "must be within 0..=3600 s"));
+        }
+        if !(k.drift_every_s.is_finite() && (0.0..=86_400.0).contains(&k.drift_every_s)) {
+            return Err(bad(
+                "characterize.drift_every_s",
+                "must be within 0..=86400 s (0 = off)",
+            ));
+        }
+        if k.drift_reference_um
+            .is_some_and(|r| !r.iter().all(|v| v.is_finite()))
+        {
+            return Err(bad(
+                "characterize.drift_reference_um",
+                "must be two finite numbers [x, y] µm",
+            ));
         }
         let cl = &self.closed_loop;
         if !(cl.tolerance_um.is_finite() && cl.tolerance_um > 0.0) {

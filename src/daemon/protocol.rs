@@ -218,6 +218,10 @@ pub struct CharacterizeParams {
     pub frames_per_point: Option<u32>,
     /// Settle time after each move, s.
     pub settle_s: Option<f64>,
+    /// Re-measure the drift reference every this many s of rig time; 0 = off.
+    pub drift_every_s: Option<f64>,
+    /// Drift reference point `[x, y]`, µm; default: the scan's start corner.
+    pub drift_reference_um: Option<[f64; 2]>,
 }
 
 /// Sub-commands of `characterize`.
@@ -487,6 +491,8 @@ fn parse_command(obj: &Map<String, Value>) -> Result<Command, ProtoError> {
             "cycles",
             "frames_per_point",
             "settle_s",
+            "drift_every_s",
+            "drift_reference_um",
         ],
         "validate" => &[
             "action",
@@ -646,6 +652,15 @@ fn parse_characterize(obj: &Map<String, Value>) -> Result<CharacterizeAction, Pr
                     ));
                 }
             }
+            let drift_every_s = opt_f64(obj, "drift_every_s")?;
+            if let Some(s) = drift_every_s {
+                if !(0.0..=86_400.0).contains(&s) {
+                    return Err(ProtoError::new(
+                        ErrorCode::BadValue,
+                        format!("drift_every_s must be within 0..86400 (0 = off), got {s}"),
+                    ));
+                }
+            }
             Ok(CharacterizeAction::Start(CharacterizeParams {
                 log,
                 axes: opt_axes(obj, "axes")?,
@@ -655,6 +670,8 @@ fn parse_characterize(obj: &Map<String, Value>) -> Result<CharacterizeAction, Pr
                 cycles: opt_count(obj, "cycles", 1, 1000)?,
                 frames_per_point: opt_count(obj, "frames_per_point", 1, 1000)?,
                 settle_s,
+                drift_every_s,
+                drift_reference_um: opt_xy(obj, "drift_reference_um")?,
             }))
         }
         "status" => Ok(CharacterizeAction::Status),
@@ -939,6 +956,23 @@ fn opt_count(
     }
 }
 
+/// An optional `[x, y]` pair of finite numbers, µm.
+fn opt_xy(obj: &Map<String, Value>, key: &str) -> Result<Option<[f64; 2]>, ProtoError> {
+    let Some(v) = obj.get(key) else {
+        return Ok(None);
+    };
+    match v
+        .as_array()
+        .map(|a| a.iter().map(Value::as_f64).collect::<Vec<_>>())
+    {
+        Some(a) if a.len() == 2 => match (a[0], a[1]) {
+            (Some(x), Some(y)) if x.is_finite() && y.is_finite() => Ok(Some([x, y])),
+            _ => Err(wrong_type(key, "two finite numbers [x, y]", v)),
+        },
+        _ => Err(wrong_type(key, "an array [x, y] of two numbers", v)),
+    }
+}
+
 fn opt_axes(obj: &Map<String, Value>, key: &str) -> Result<Option<Axes>, ProtoError> {
     match opt_str(obj, key)? {
         None => Ok(None),
@@ -1072,6 +1106,24 @@ mod tests {
                 ..
             })) if s == 5.0
         ));
+        assert!(matches!(
+            parse(r#"{"cmd":"characterize","action":"start","drift_every_s":600,"drift_reference_um":[100,200.5]}"#)
+                .unwrap()
+                .command,
+            Command::Characterize(CharacterizeAction::Start(CharacterizeParams {
+                drift_every_s: Some(e),
+                drift_reference_um: Some([x, y]),
+                ..
+            })) if e == 600.0 && x == 100.0 && y == 200.5
+        ));
+        for bad in [
+            r#"{"cmd":"characterize","action":"start","drift_every_s":-1}"#,
+            r#"{"cmd":"characterize","action":"start","drift_reference_um":[1]}"#,
+            r#"{"cmd":"characterize","action":"start","drift_reference_um":[1,"a"]}"#,
+            r#"{"cmd":"characterize","action":"start","drift_reference_um":5}"#,
+        ] {
+            assert!(parse(bad).is_err(), "{bad}");
+        }
         assert_eq!(
             parse(r#"{"cmd":"characterize","action":"resume","log":"run1.csv"}"#)
                 .unwrap()

@@ -16,10 +16,11 @@ use super::protocol::{
 };
 use super::rig::Rig;
 use super::vision::Measurement;
+use crate::analysis::drift::DRIFT_REF_SEGMENT;
 use crate::charact::log::{self, Columns, LogWriter, Metadata, Record, SyncPolicy};
 use crate::comp::VisionFrame;
 use crate::model::XyUm;
-use plan::ScanPlan;
+use plan::{DriftPlan, ScanPlan};
 use serde_json::{json, Value};
 use std::fs::File;
 use std::path::PathBuf;
@@ -202,9 +203,17 @@ impl Jobs {
                 format!("log {name} exists already; resume it or choose another name"),
             ));
         }
+        let drift_every_s = p.drift_every_s.unwrap_or(d.drift_every_s);
+        let drift = (drift_every_s > 0.0).then(|| DriftPlan {
+            every_s: drift_every_s,
+            reference_um: p
+                .drift_reference_um
+                .or(d.drift_reference_um)
+                .unwrap_or([plan.x_start_um, plan.y_start_um]),
+        });
         rig.begin_job()?;
         let total = plan.points().len();
-        self.launch(rig, plan, name, None, 0, total)
+        self.launch(rig, plan, drift, name, None, 0, total)
     }
 
     /// Resumes a job from its log.
@@ -249,8 +258,31 @@ impl Jobs {
                     format!("{name}: the vision frame (vision_frame_*) is missing in the metadata"),
                 )
             })?;
+        let drift = DriftPlan::from_metadata(&resume.metadata)
+            .map_err(|e| ProtoError::new(ErrorCode::LogError, format!("{name}: {e}")))?;
         let total = plan.points().len();
-        let done = usize::try_from(resume.records).unwrap_or(usize::MAX);
+        let mut done = usize::try_from(resume.records).unwrap_or(usize::MAX);
+        if drift.is_some() {
+            // Reference re-measurements are not plan points: count the rest.
+            let path = Self::log_path(rig, name);
+            let refs = tokio::task::spawn_blocking(move || {
+                let bytes = std::fs::read(&path)?;
+                let parsed = log::parse_bytes(&bytes).map_err(std::io::Error::other)?;
+                Ok::<_, std::io::Error>(
+                    parsed
+                        .records
+                        .iter()
+                        .filter(|r| r.segment == DRIFT_REF_SEGMENT)
+                        .count(),
+                )
+            })
+            .await
+            .map_err(|e| ProtoError::new(ErrorCode::Internal, e.to_string()))?
+            .map_err(|e| {
+                ProtoError::new(ErrorCode::LogError, format!("cannot resume {name}: {e}"))
+            })?;
+            done = done.saturating_sub(refs);
+        }
         if done >= total {
             return Err(ProtoError::new(
                 ErrorCode::JobState,
@@ -262,6 +294,7 @@ impl Jobs {
         self.launch(
             rig,
             plan,
+            drift,
             name.to_owned(),
             Some((writer, offset, t0)),
             done,
@@ -269,10 +302,12 @@ impl Jobs {
         )
     }
 
+    #[allow(clippy::too_many_arguments)]
     fn launch(
         &self,
         rig: &Arc<Rig>,
         plan: ScanPlan,
+        drift: Option<DriftPlan>,
         name: String,
         resumed: Option<(LogWriter<File>, VisionFrame, f64)>,
         done: usize,
@@ -291,7 +326,10 @@ impl Jobs {
         let progress = self.progress.clone();
         let rig2 = rig.clone();
         let task = tokio::spawn(async move {
-            let r = run(&rig2, &plan, &name, resumed, done, &progress, cancel_rx).await;
+            let r = run(
+                &rig2, &plan, drift, &name, resumed, done, &progress, cancel_rx,
+            )
+            .await;
             rig2.end_job();
             let mut g = lock(&progress);
             if let Some(p) = g.as_mut() {
@@ -424,9 +462,11 @@ async fn measure(rig: &Rig, n: u32, after_s: f64) -> Result<(Measurement, f64), 
     Ok((m, m.quality))
 }
 
+#[allow(clippy::too_many_arguments)]
 async fn run(
     rig: &Arc<Rig>,
     plan: &ScanPlan,
+    drift: Option<DriftPlan>,
     name: &str,
     resumed: Option<(LogWriter<File>, VisionFrame, f64)>,
     start: usize,
@@ -469,6 +509,9 @@ async fn run(
         frame = tied.0;
         let mut md = Metadata::new();
         plan.to_metadata(&mut md);
+        if let Some(d) = &drift {
+            d.to_metadata(&mut md);
+        }
         tie::to_metadata(&mut md, &tied.0, &tied.1);
         md.insert("daemon_version", env!("CARGO_PKG_VERSION"));
         let path = rig.cfg.daemon.data_dir.join(name);
@@ -504,12 +547,30 @@ async fn run(
         }
     }
     let began = clock.now_s();
+    // Rig time of the last reference re-measurement (none yet: one is taken
+    // before the first point, also after a resume, to re-anchor).
+    let mut last_ref_s: Option<f64> = None;
     for (i, p) in points.iter().enumerate().skip(start) {
         if *cancel.borrow_and_update() {
             return Ok("cancelled");
         }
         if rig.stop_generation() != gen {
             return Ok("stopped");
+        }
+        if let Some(d) = &drift {
+            if last_ref_s.is_none_or(|t| clock.now_s() - t >= d.every_s) {
+                let ctx = RefContext {
+                    plan,
+                    frame: &frame,
+                    origin,
+                    writer: &writer,
+                    name,
+                };
+                if !measure_reference(rig, &ctx, d, p, &mut cancel).await? {
+                    return Ok("cancelled");
+                }
+                last_ref_s = Some(clock.now_s());
+            }
         }
         let req = MoveRequest {
             x_um: Some(p.x_um),
@@ -570,4 +631,114 @@ async fn run(
         }
     }
     Ok("done")
+}
+
+/// What a reference re-measurement needs from the running job.
+struct RefContext<'a> {
+    plan: &'a ScanPlan,
+    frame: &'a VisionFrame,
+    origin: f64,
+    writer: &'a Arc<Mutex<LogWriter<File>>>,
+    name: &'a str,
+}
+
+/// Moves to `x`, `y` (µm, raw) and waits; `Ok(None)` if cancelled meanwhile.
+async fn move_raw(
+    rig: &Arc<Rig>,
+    x: f64,
+    y: f64,
+    cancel: &mut watch::Receiver<bool>,
+) -> Result<Option<Value>, ProtoError> {
+    let req = MoveRequest {
+        x_um: Some(x),
+        y_um: Some(y),
+        relative: false,
+        mode: MoveMode::Raw,
+        wait: true,
+        tolerance_um: None,
+    };
+    tokio::select! {
+        r = rig.move_to(&req, true) => r.map(Some),
+        _ = cancel.changed() => Ok(None),
+    }
+}
+
+/// Measures the drift reference and logs it (segment `drift_ref`, cycle of
+/// the next point), then re-approaches the next scan point `next` from the
+/// side its scan comes from, so the scan's backlash state is as without the
+/// detour. The reference itself is always approached forward on both axes
+/// from [`PARK_APPROACH_UM`] below: its backlash is the same every time and
+/// cancels in the drift (differences between re-measurements).
+/// `Ok(false)` if cancelled.
+async fn measure_reference(
+    rig: &Arc<Rig>,
+    ctx: &RefContext<'_>,
+    d: &DriftPlan,
+    next: &plan::Point,
+    cancel: &mut watch::Receiver<bool>,
+) -> Result<bool, ProtoError> {
+    let clock = rig.clock.clone();
+    let [rx, ry] = d.reference_um;
+    if move_raw(rig, rx - PARK_APPROACH_UM, ry - PARK_APPROACH_UM, cancel)
+        .await?
+        .is_none()
+    {
+        return Ok(false);
+    }
+    let Some(moved) = move_raw(rig, rx, ry, cancel).await? else {
+        return Ok(false);
+    };
+    clock
+        .sleep(Duration::try_from_secs_f64(ctx.plan.settle_s).unwrap_or_default())
+        .await;
+    let (m, quality) = measure(rig, ctx.plan.frames_per_point, clock.now_s()).await?;
+    let meas = ctx.frame.to_stage(XyUm {
+        x_um: m.x_um,
+        y_um: m.y_um,
+    });
+    let rep = |axis: &str| moved["reported"][axis].as_f64();
+    let rec = Record {
+        t_s: clock.now_s() - ctx.origin,
+        segment: DRIFT_REF_SEGMENT.to_owned(),
+        cycle: next.cycle,
+        x_target_um: rx,
+        y_target_um: ry,
+        x_cmd_um: rx,
+        y_cmd_um: ry,
+        x_meas_um: meas.x_um,
+        y_meas_um: meas.y_um,
+        temp_c: None,
+        extra: vec![
+            rep("x_um").map_or(String::new(), |v| format!("{v:.4}")),
+            rep("y_um").map_or(String::new(), |v| format!("{v:.4}")),
+            format!("{quality:.3}"),
+        ],
+    };
+    let w = ctx.writer.clone();
+    let name = ctx.name.to_owned();
+    tokio::task::spawn_blocking(move || lock(&w).append(&rec))
+        .await
+        .map_err(|e| ProtoError::new(ErrorCode::Internal, e.to_string()))?
+        .map_err(|e| {
+            ProtoError::new(ErrorCode::LogError, format!("cannot append to {name}: {e}"))
+        })?;
+    // Back to the scan: held axis from below (as the initial park), scanned
+    // axis from the side of the pass (below forward, above backward).
+    let dir = if next.segment.ends_with("_bwd") {
+        -1.0
+    } else {
+        1.0
+    };
+    let (x, y) = if next.segment.starts_with("scan_x") {
+        (
+            next.x_um - dir * PARK_APPROACH_UM,
+            next.y_um - PARK_APPROACH_UM,
+        )
+    } else {
+        (
+            next.x_um - PARK_APPROACH_UM,
+            next.y_um - dir * PARK_APPROACH_UM,
+        )
+    };
+    Ok(move_raw(rig, x, y, cancel).await?.is_some())
 }

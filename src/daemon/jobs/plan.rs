@@ -204,6 +204,70 @@ impl ScanPlan {
     }
 }
 
+/// Reference re-measurements during a characterization (`drift_every_s`):
+/// every `every_s` of rig time the job measures `reference_um` and logs it
+/// with segment [`crate::analysis::drift::DRIFT_REF_SEGMENT`], so that
+/// `tables build` can subtract the drift. Stored in the log metadata so a
+/// resumed job keeps doing it; absent keys = off (logs of earlier versions).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct DriftPlan {
+    /// Interval between re-measurements, s of rig time (> 0).
+    pub every_s: f64,
+    /// Reference point `[x, y]`, µm (controller coordinates); always
+    /// approached forward on both axes from [`super::PARK_APPROACH_UM`]
+    /// below, so backlash is the same at every re-measurement.
+    pub reference_um: [f64; 2],
+}
+
+impl DriftPlan {
+    /// Writes the drift plan into log metadata.
+    pub fn to_metadata(&self, md: &mut Metadata) {
+        md.insert("drift_every_s", self.every_s.to_string());
+        md.insert("drift_reference_x_um", self.reference_um[0].to_string());
+        md.insert("drift_reference_y_um", self.reference_um[1].to_string());
+    }
+
+    /// Reads it back; `Ok(None)` when the log has no `drift_every_s` (or 0).
+    pub fn from_metadata(md: &Metadata) -> Result<Option<DriftPlan>, PlanError> {
+        let get = |key: &str| -> Result<Option<f64>, PlanError> {
+            match md.get(key) {
+                None => Ok(None),
+                Some(v) => match v.parse::<f64>() {
+                    Ok(x) if x.is_finite() => Ok(Some(x)),
+                    _ => Err(PlanError {
+                        key: key.to_owned(),
+                        problem: format!("{v:?} is not a finite number"),
+                    }),
+                },
+            }
+        };
+        let every_s = match get("drift_every_s")? {
+            None => return Ok(None),
+            Some(0.0) => return Ok(None),
+            Some(v) if v < 0.0 => {
+                return Err(PlanError {
+                    key: "drift_every_s".to_owned(),
+                    problem: format!("{v} is negative"),
+                })
+            }
+            Some(v) => v,
+        };
+        let coord = |key: &str| {
+            get(key)?.ok_or_else(|| PlanError {
+                key: key.to_owned(),
+                problem: "missing while drift_every_s is set".to_owned(),
+            })
+        };
+        Ok(Some(DriftPlan {
+            every_s,
+            reference_um: [
+                coord("drift_reference_x_um")?,
+                coord("drift_reference_y_um")?,
+            ],
+        }))
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -255,5 +319,26 @@ mod tests {
         let mut md2 = Metadata::new();
         md2.insert("step_um", "x");
         assert!(ScanPlan::from_metadata(&md2).is_err());
+    }
+
+    #[test]
+    fn drift_plan_round_trips_and_is_off_by_default() {
+        let mut md = Metadata::new();
+        plan().to_metadata(&mut md);
+        assert_eq!(DriftPlan::from_metadata(&md).unwrap(), None);
+        let d = DriftPlan {
+            every_s: 600.0,
+            reference_um: [2750.0, 5400.5],
+        };
+        d.to_metadata(&mut md);
+        assert_eq!(DriftPlan::from_metadata(&md).unwrap(), Some(d));
+        // The scan plan is unaffected by the extra keys.
+        assert_eq!(ScanPlan::from_metadata(&md).unwrap(), plan());
+        md.insert("drift_reference_y_um", "nan");
+        assert!(DriftPlan::from_metadata(&md).is_err());
+        md.insert("drift_every_s", "-1");
+        assert!(DriftPlan::from_metadata(&md).is_err());
+        md.insert("drift_every_s", "0");
+        assert_eq!(DriftPlan::from_metadata(&md).unwrap(), None);
     }
 }

@@ -23,6 +23,7 @@
 
 use super::super::protocol::{ErrorCode, ProtoError, TablesBuildParams};
 use super::super::rig::Rig;
+use crate::analysis::drift::{correct_log_drift, LOG_DRIFT_METHOD};
 use crate::charact::log::{self, Metadata, Record};
 use crate::charact::scan::{SEGMENT_SCAN_X, SEGMENT_SCAN_Y};
 use crate::comp::model_comp::{compensation_template, ModelBuildOptions};
@@ -130,7 +131,11 @@ pub fn build_blocking(
         .map_err(|e| ProtoError::new(ErrorCode::LogError, format!("log {}: {e}", params.log)))?;
     let frame = frame_from_metadata(&parsed.metadata)
         .map_err(|e| ProtoError::new(ErrorCode::LogError, format!("log {}: {e}", params.log)))?;
-    let records = merged_scan_records(&parsed.records);
+    // Reference re-measurements (`drift_every_s`): subtract the drift they
+    // measure from every point before fitting; logs without them unchanged.
+    let (undrifted, drift) = correct_log_drift(&parsed.records, LOG_DRIFT_METHOD)
+        .map_err(|e| bad(format!("drift correction of {}: {e}", params.log)))?;
+    let records = merged_scan_records(&undrifted);
     let stem = params.name.clone().unwrap_or_else(|| {
         params
             .log
@@ -152,7 +157,7 @@ pub fn build_blocking(
             .collect(),
     };
     let mut written = Vec::new();
-    let mut out = json!({"log": params.log, "frame": frame});
+    let mut out = json!({"log": params.log, "frame": frame, "drift": drift});
     for kind in &params.kinds {
         let name = format!("{stem}-{kind}.toml");
         let mut file = if kind == "paper" {
