@@ -553,7 +553,7 @@ fn camera_faults_fail_clearly_and_never_use_stale_data() {
 }
 
 #[test]
-fn line_drop_mid_move_halts_the_other_axis_and_reconnects() {
+fn line_drop_mid_move_halts_the_other_axis_reconnects_and_power_cycle_needs_reference() {
     let dir = tempfile::tempdir().unwrap();
     // Slow simulated time: the moves last wall seconds.
     let sim = Sim::start(dir.path(), 2.0);
@@ -584,6 +584,20 @@ fn line_drop_mid_move_halts_the_other_axis_and_reconnects() {
     sim.control(json!({"axis": "x", "fault": "restore_line"}));
     c.wait_for(|s| s["rig"]["connected"]["x"] == true);
     c.ok(json!({"cmd": "move", "x_um": 8000.0, "y_um": 8000.0, "wait": true}));
+    // A power cycle loses the reference: moves are refused (before any byte
+    // reaches the controller) until the axis is referenced again.
+    sim.control(json!({"axis": "y", "fault": "power_cycle"}));
+    let t = Instant::now();
+    loop {
+        let m = c.call(json!({"cmd": "move", "y_um": 7000.0}));
+        if code(&m) == "not_referenced" {
+            break;
+        }
+        assert!(t.elapsed() < DEADLINE, "power cycle unnoticed: {m}");
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    c.ok(json!({"cmd": "reference", "axes": "y"}));
+    c.ok(json!({"cmd": "move", "y_um": 7000.0, "wait": true}));
 }
 
 /// `drift_every_s`: reference re-measurements are logged as `drift_ref`
