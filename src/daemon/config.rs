@@ -40,6 +40,8 @@ pub struct DaemonConfig {
     pub characterize: CharacterizeDefaults,
     /// Closed-loop moves.
     pub closed_loop: ClosedLoop,
+    /// How compensated and closed-loop moves approach their target.
+    pub compensation: CompensationSection,
     /// The rig's clock.
     pub rig: RigSection,
 }
@@ -227,6 +229,62 @@ impl Default for ClosedLoop {
     }
 }
 
+/// `[compensation]`: the backlash strategy of compensated and closed-loop
+/// moves. Why a choice: direction-aware tables (the paper) correct the lost
+/// motion of either arrival direction, but a unidirectional final approach
+/// makes the backlash the same at every target, which is what a lab wants
+/// when repeatability matters more than the extra move.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct CompensationSection {
+    /// `"direction_aware"` (each axis arrives in the direction from its
+    /// previous target, corrected by the table of that direction) or
+    /// `"unidirectional"` (each axis always arrives moving forward, +µm,
+    /// from `overshoot_um` below the target when it comes from above).
+    pub approach: Approach,
+    /// Distance below the target from which a wrong-side arrival is
+    /// re-approached, µm (≥ 10, well beyond the ≈ 2 µm backlash).
+    pub overshoot_um: f64,
+}
+
+/// The backlash strategy (`[compensation] approach`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum Approach {
+    /// Arrive in the direction of travel (the paper).
+    #[default]
+    DirectionAware,
+    /// Always arrive moving forward.
+    Unidirectional,
+}
+
+impl Default for CompensationSection {
+    fn default() -> Self {
+        Self {
+            approach: Approach::DirectionAware,
+            overshoot_um: 20.0,
+        }
+    }
+}
+
+impl CompensationSection {
+    /// The planner options this section stands for.
+    pub fn plan_options(&self) -> crate::comp::PlanOptions {
+        use crate::comp::ApproachPolicy;
+        use crate::model::Direction;
+        crate::comp::PlanOptions {
+            policy: match self.approach {
+                Approach::DirectionAware => ApproachPolicy::DirectionAware,
+                Approach::Unidirectional => {
+                    ApproachPolicy::Unidirectional([Direction::Forward, Direction::Forward])
+                }
+            },
+            overshoot_um: self.overshoot_um,
+            ..crate::comp::PlanOptions::default()
+        }
+    }
+}
+
 impl DaemonConfig {
     /// Parses and validates a TOML text.
     pub fn from_toml(text: &str) -> Result<Self, ConfigError> {
@@ -406,6 +464,13 @@ impl DaemonConfig {
         if !(1..=100).contains(&cl.max_iterations) {
             return Err(bad("closed_loop.max_iterations", "must be within 1..=100"));
         }
+        let o = self.compensation.overshoot_um;
+        if !(o.is_finite() && (10.0..=1000.0).contains(&o)) {
+            return Err(bad(
+                "compensation.overshoot_um",
+                format!("must be within 10..=1000 µm (beyond the backlash), got {o}"),
+            ));
+        }
         Ok(())
     }
 }
@@ -447,6 +512,34 @@ mod tests {
         assert_eq!(e.key, "driver");
         let e = DaemonConfig::from_toml(&format!("{MIN}[daemon]\nsokcet = \"/x\"\n")).unwrap_err();
         assert!(e.problem.contains("sokcet"), "{e}");
+    }
+
+    #[test]
+    fn compensation_approach_selects_the_backlash_strategy() {
+        use crate::comp::ApproachPolicy;
+        use crate::model::Direction;
+        let c = DaemonConfig::from_toml(MIN).unwrap();
+        assert_eq!(
+            c.compensation.plan_options().policy,
+            ApproachPolicy::DirectionAware
+        );
+        let c = DaemonConfig::from_toml(&format!(
+            "{MIN}[compensation]\napproach = \"unidirectional\"\novershoot_um = 30\n"
+        ))
+        .unwrap();
+        let o = c.compensation.plan_options();
+        assert_eq!(
+            o.policy,
+            ApproachPolicy::Unidirectional([Direction::Forward, Direction::Forward])
+        );
+        assert_eq!(o.overshoot_um, 30.0);
+        o.validate().unwrap();
+        let e = DaemonConfig::from_toml(&format!("{MIN}[compensation]\napproach = \"sideways\"\n"))
+            .unwrap_err();
+        assert!(e.problem.contains("sideways"), "{e}");
+        let e = DaemonConfig::from_toml(&format!("{MIN}[compensation]\novershoot_um = 1\n"))
+            .unwrap_err();
+        assert_eq!(e.key, "compensation.overshoot_um");
     }
 
     #[test]

@@ -487,7 +487,7 @@ impl Rig {
             x_um: pick(req.x_um, base[0]),
             y_um: pick(req.y_um, base[1]),
         };
-        let opts = crate::comp::PlanOptions::default();
+        let opts = self.cfg.compensation.plan_options();
         let plan = self.comp.plan(&*comp, target, start, &opts)?;
         for w in &plan.waypoints {
             let r = MoveRequest {
