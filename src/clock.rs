@@ -236,3 +236,55 @@ mod tests {
         assert!(dynamic.now_s() >= 0.005);
     }
 }
+
+/// A UTC calendar time (proleptic Gregorian), for the few timestamps micropos
+/// writes into files (compensation tables, GDSII headers). Why here and not a
+/// date crate: one conversion, civil-from-days, is all that is needed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct UtcTime {
+    /// Year.
+    pub year: i64,
+    /// 1..=12.
+    pub month: u32,
+    /// 1..=31.
+    pub day: u32,
+    /// 0..=23.
+    pub hour: u32,
+    /// 0..=59.
+    pub minute: u32,
+    /// 0..=59.
+    pub second: u32,
+}
+
+impl UtcTime {
+    /// The UTC time of `unix_s` seconds since 1970-01-01T00:00:00Z.
+    pub fn from_unix(unix_s: u64) -> Self {
+        let days = (unix_s / 86_400) as i64;
+        let rem = unix_s % 86_400;
+        // Civil-from-days, era-based (400-year eras of 146 097 days).
+        let z = days + 719_468;
+        let era = z.div_euclid(146_097);
+        let doe = z - era * 146_097;
+        let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
+        let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
+        let mp = (5 * doy + 2) / 153;
+        let day = doy - (153 * mp + 2) / 5 + 1;
+        let month = if mp < 10 { mp + 3 } else { mp - 9 };
+        UtcTime {
+            year: yoe + era * 400 + i64::from(month <= 2),
+            month: month as u32,
+            day: day as u32,
+            hour: (rem / 3600) as u32,
+            minute: (rem % 3600 / 60) as u32,
+            second: (rem % 60) as u32,
+        }
+    }
+
+    /// RFC 3339 text, e.g. `2026-11-18T11:06:40Z`.
+    pub fn rfc3339(&self) -> String {
+        format!(
+            "{:04}-{:02}-{:02}T{:02}:{:02}:{:02}Z",
+            self.year, self.month, self.day, self.hour, self.minute, self.second
+        )
+    }
+}

@@ -643,24 +643,9 @@ fn parse_characterize(obj: &Map<String, Value>) -> Result<CharacterizeAction, Pr
                     v => Ok(v),
                 }
             };
-            let settle_s = opt_f64(obj, "settle_s")?;
-            if let Some(s) = settle_s {
-                if !(0.0..=3600.0).contains(&s) {
-                    return Err(ProtoError::new(
-                        ErrorCode::BadValue,
-                        format!("settle_s must be within 0..3600, got {s}"),
-                    ));
-                }
-            }
-            let drift_every_s = opt_f64(obj, "drift_every_s")?;
-            if let Some(s) = drift_every_s {
-                if !(0.0..=86_400.0).contains(&s) {
-                    return Err(ProtoError::new(
-                        ErrorCode::BadValue,
-                        format!("drift_every_s must be within 0..86400 (0 = off), got {s}"),
-                    ));
-                }
-            }
+            let settle_s = opt_f64_within(obj, "settle_s", 0.0, 3600.0, "0..3600")?;
+            let drift_every_s =
+                opt_f64_within(obj, "drift_every_s", 0.0, 86_400.0, "0..86400 (0 = off)")?;
             Ok(CharacterizeAction::Start(CharacterizeParams {
                 log,
                 axes: opt_axes(obj, "axes")?,
@@ -752,24 +737,8 @@ fn parse_validate(obj: &Map<String, Value>) -> Result<ValidateAction, ProtoError
                 }
             }
             let [log, table, model_table] = names;
-            let square_step_um = opt_f64(obj, "square_step_um")?;
-            if let Some(s) = square_step_um {
-                if !(1.0..=4000.0).contains(&s) {
-                    return Err(ProtoError::new(
-                        ErrorCode::BadValue,
-                        format!("square_step_um must be within 1..4000, got {s}"),
-                    ));
-                }
-            }
-            let settle_s = opt_f64(obj, "settle_s")?;
-            if let Some(s) = settle_s {
-                if !(0.0..=3600.0).contains(&s) {
-                    return Err(ProtoError::new(
-                        ErrorCode::BadValue,
-                        format!("settle_s must be within 0..3600, got {s}"),
-                    ));
-                }
-            }
+            let square_step_um = opt_f64_within(obj, "square_step_um", 1.0, 4000.0, "1..4000")?;
+            let settle_s = opt_f64_within(obj, "settle_s", 0.0, 3600.0, "0..3600")?;
             Ok(ValidateAction::Start(ValidateParams {
                 tests,
                 modes,
@@ -934,6 +903,25 @@ fn opt_f64(obj: &Map<String, Value>, key: &str) -> Result<Option<f64>, ProtoErro
             )),
         },
         Some(v) => Err(wrong_type(key, "a number", v)),
+    }
+}
+
+/// An optional number that must lie in `lo..=hi`; `shown` is the range as
+/// the error message states it.
+fn opt_f64_within(
+    obj: &Map<String, Value>,
+    key: &str,
+    lo: f64,
+    hi: f64,
+    shown: &str,
+) -> Result<Option<f64>, ProtoError> {
+    let v = opt_f64(obj, key)?;
+    match v {
+        Some(x) if !(lo..=hi).contains(&x) => Err(ProtoError::new(
+            ErrorCode::BadValue,
+            format!("{key} must be within {shown}, got {x}"),
+        )),
+        _ => Ok(v),
     }
 }
 

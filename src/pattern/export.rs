@@ -371,25 +371,14 @@ pub struct GdsDate {
 impl GdsDate {
     /// The UTC date of a Unix time (seconds since 1970-01-01).
     pub fn from_unix(secs: u64) -> Self {
-        let days = (secs / 86_400) as i64;
-        let rem = secs % 86_400;
-        // Civil-from-days (proleptic Gregorian), era-based.
-        let z = days + 719_468;
-        let era = z.div_euclid(146_097);
-        let doe = z - era * 146_097;
-        let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
-        let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
-        let mp = (5 * doy + 2) / 153;
-        let day = doy - (153 * mp + 2) / 5 + 1;
-        let month = if mp < 10 { mp + 3 } else { mp - 9 };
-        let year = yoe + era * 400 + i64::from(month <= 2);
+        let t = crate::clock::UtcTime::from_unix(secs);
         Self {
-            year: year.clamp(0, i64::from(u16::MAX)) as u16,
-            month: month as u16,
-            day: day as u16,
-            hour: (rem / 3600) as u16,
-            minute: (rem % 3600 / 60) as u16,
-            second: (rem % 60) as u16,
+            year: t.year.clamp(0, i64::from(u16::MAX)) as u16,
+            month: t.month as u16,
+            day: t.day as u16,
+            hour: t.hour as u16,
+            minute: t.minute as u16,
+            second: t.second as u16,
         }
     }
 
