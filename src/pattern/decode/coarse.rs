@@ -172,6 +172,43 @@ fn sample_lattice<T: Copy + Into<f32>>(
 }
 
 impl CoarseStage {
+    /// The soft evidence of code line `li` of `axis`: its value in −1..=1
+    /// (2·mean presence − 1, weighted down below 8 readable dots; 0 with
+    /// fewer than 3) and its summed per-dot log-likelihood, over the dots
+    /// whose cross line is not a code line itself (`skip(oi)`).
+    fn line_evidence(
+        &self,
+        axis: usize,
+        li: usize,
+        sna: usize,
+        n_other: usize,
+        skip: impl Fn(usize) -> bool,
+    ) -> (f32, f32) {
+        let (mut sum, mut cnt, mut ll) = (0.0f32, 0.0f32, 0.0f32);
+        for oi in 0..n_other {
+            if skip(oi) {
+                continue;
+            }
+            let idx = if axis == 0 {
+                oi * sna + li
+            } else {
+                li * sna + oi
+            };
+            let v = self.pres[idx];
+            if v.is_finite() {
+                sum += v;
+                cnt += 1.0;
+                ll += self.llr[idx];
+            }
+        }
+        let t = if cnt >= 3.0 {
+            (2.0 * (sum / cnt) - 1.0).clamp(-1.0, 1.0) * (cnt / 8.0).min(1.0)
+        } else {
+            0.0
+        };
+        (t, ll)
+    }
+
     fn prepare_code(&mut self, seq: &LineSequence, pad: usize) {
         let q = seq.len() / 3;
         if self.epad_bits == seq.bits() && self.epad.len() == q + 2 * pad {
@@ -423,33 +460,10 @@ impl CoarseStage {
                 if first_code.is_none() {
                     first_code = Some(l);
                 }
-                let mut sum = 0.0f32;
-                let mut cnt = 0.0f32;
-                let mut ll = 0.0f32;
-                for oi in 0..n_other {
-                    let o = o0 + oi as i64;
-                    if class(o, r_other, s_other) == 1 {
-                        continue;
-                    }
-                    let idx = if axis == 0 {
-                        oi * sna + li
-                    } else {
-                        li * sna + oi
-                    };
-                    let v = self.pres[idx];
-                    if v.is_finite() {
-                        sum += v;
-                        cnt += 1.0;
-                        ll += self.llr[idx];
-                    }
-                }
+                let (t, ll) = self.line_evidence(axis, li, sna, n_other, |oi| {
+                    class(o0 + oi as i64, r_other, s_other) == 1
+                });
                 self.line_llr.push(ll);
-                let t = if cnt >= 3.0 {
-                    let mean = sum / cnt;
-                    (2.0 * mean - 1.0).clamp(-1.0, 1.0) * (cnt / 8.0).min(1.0)
-                } else {
-                    0.0
-                };
                 self.lines.push(t);
             }
             let Some(first) = first_code else {
@@ -625,29 +639,11 @@ impl CoarseStage {
                     continue;
                 }
                 first.get_or_insert(g);
-                let (mut sum, mut cnt, mut ll) = (0.0f32, 0.0f32, 0.0f32);
-                for oi in 0..n_other {
-                    if (g_other + s_other * (o0 + oi as i64)).rem_euclid(3) == 1 {
-                        continue;
-                    }
-                    let idx = if axis == 0 {
-                        oi * sna + li
-                    } else {
-                        li * sna + oi
-                    };
-                    let v = self.pres[idx];
-                    if v.is_finite() {
-                        sum += v;
-                        cnt += 1.0;
-                        ll += self.llr[idx];
-                    }
-                }
-                self.line_llr.push(ll);
-                self.lines.push(if cnt >= 3.0 {
-                    (2.0 * sum / cnt - 1.0).clamp(-1.0, 1.0) * (cnt / 8.0).min(1.0)
-                } else {
-                    0.0
+                let (t, ll) = self.line_evidence(axis, li, sna, n_other, |oi| {
+                    (g_other + s_other * (o0 + oi as i64)).rem_euclid(3) == 1
                 });
+                self.line_llr.push(ll);
+                self.lines.push(t);
             }
             let Some(g_first) = first else {
                 return Err(DecodeError::TooFewPeriods { got: n_this, need });
