@@ -20,7 +20,7 @@ use hil_sim::clock::{Clock, ManualClock};
 use hil_sim::controller::ActuatorPath;
 use hil_sim::rig::{Rig, RigConfig, RigTruth};
 use micropos::camera::{open_source, OpenOptions, PixelFormat, SourceSpec};
-use micropos::frame::Frame;
+use micropos::frame::{Frame, Pixels};
 use micropos::model::{Axis, StageModel};
 use micropos::pattern::decode::{DecodeOptions, Decoded, Decoder};
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -124,6 +124,43 @@ impl Checker {
         self.worst_um = self.worst_um.max(p[0].abs().max(p[1].abs()));
         self.checked += 1;
     }
+}
+
+/// Mean grey level of a frame.
+fn mean_grey(f: &Frame) -> f64 {
+    let (sum, n) = match f.pixels() {
+        Pixels::U8(v) => (v.iter().map(|&p| f64::from(p)).sum::<f64>(), v.len()),
+        Pixels::U16(v) => (v.iter().map(|&p| f64::from(p)).sum::<f64>(), v.len()),
+    };
+    sum / n.max(1) as f64
+}
+
+/// The mean grey level once a setting change has reached the frames: the
+/// frames already queued are skipped, the next three must agree and decode
+/// to `truth`.
+fn settled_mean(
+    cam: &mut Box<dyn micropos::camera::FrameSource>,
+    check: &mut Checker,
+    truth: &RigTruth,
+    what: &str,
+) -> f64 {
+    for _ in 0..MAX_STALE {
+        cam.next_frame().unwrap();
+    }
+    let means: Vec<f64> = (0..3)
+        .map(|i| {
+            let f = cam.next_frame().unwrap();
+            let d = check.decode(&f);
+            check.assert_matches(&d, truth, &format!("{what}, frame {i}"));
+            mean_grey(&f)
+        })
+        .collect();
+    let m = means.iter().sum::<f64>() / 3.0;
+    assert!(
+        means.iter().all(|v| (v / m - 1.0).abs() < 0.01),
+        "{what}: frames disagree {means:?}"
+    );
+    m
 }
 
 #[test]
@@ -238,6 +275,38 @@ fn the_daemons_genicam_source_decodes_the_served_simulator_to_its_ground_truth()
         let d = check.decode(&f);
         check.assert_matches(&d, &truth_b, &format!("Mono8, frame {i}"));
     }
+
+    // 3b. Exposure and gain change the image as on a sensor: half the
+    // exposure halves the grey levels, +6 dB of gain doubles them back; the
+    // pattern decodes to the same pose throughout.
+    let base_exposure_us = cam.exposure_us().unwrap();
+    let base = settled_mean(&mut cam, &mut check, &truth_b, "nominal exposure");
+    let half = cam.set_exposure_us(base_exposure_us / 2.0).unwrap();
+    assert!(
+        (half - base_exposure_us / 2.0).abs() <= 1.0,
+        "applied {half} µs"
+    );
+    let dim = settled_mean(&mut cam, &mut check, &truth_b, "half exposure");
+    let gain_db = cam.set_gain_db(6.0).unwrap();
+    assert!((gain_db - 6.0).abs() < 1e-9, "applied gain {gain_db} dB");
+    let bright = settled_mean(&mut cam, &mut check, &truth_b, "half exposure, +6 dB");
+    let served_sensor = served.stats().last.map(|l| l.sensor);
+    println!(
+        "mean grey: nominal {base:.1}, half exposure {dim:.1} ({:.3}×), +6 dB {bright:.1} ({:.3}×); camera reports {served_sensor:?}",
+        dim / base,
+        bright / base
+    );
+    assert!(
+        (dim / base - 0.5).abs() < 0.03,
+        "half exposure: {dim} vs {base}"
+    );
+    let want = 0.5 * 10f64.powf(6.0 / 20.0);
+    assert!(
+        (bright / base - want).abs() < 0.03,
+        "+6 dB: {bright} vs {base}"
+    );
+    cam.set_gain_db(0.0).unwrap();
+    cam.set_exposure_us(base_exposure_us).unwrap();
 
     // 4. Faults: garbage frames are errors, never positions.
     camera.set_mode(CameraMode::Garbage);

@@ -272,11 +272,36 @@ impl FastRenderer {
         timestamp_s: f64,
         sequence: u64,
     ) -> Result<Frame, String> {
+        self.render_exposed(x_um, y_um, gain, 1.0, noise_seed, timestamp_s, sequence)
+    }
+
+    /// [`FastRenderer::render`] with the sensor's two settings apart:
+    /// `light` scales the collected signal (illumination × exposure time
+    /// relative to the configured exposure), `analog_gain` amplifies signal,
+    /// shot noise and read noise alike after collection. Why apart: a longer
+    /// exposure improves the signal-to-noise ratio, more gain only makes the
+    /// image brighter (and saturates sooner), as on a real sensor.
+    #[allow(clippy::too_many_arguments)]
+    pub fn render_exposed(
+        &mut self,
+        x_um: f64,
+        y_um: f64,
+        light: f64,
+        analog_gain: f64,
+        noise_seed: u64,
+        timestamp_s: f64,
+        sequence: u64,
+    ) -> Result<Frame, String> {
         if !(x_um.is_finite() && y_um.is_finite() && x_um.abs() < 1e9 && y_um.abs() < 1e9) {
             return Err(format!("pattern position ({x_um}, {y_um}) is not finite"));
         }
+        if !(light.is_finite() && light >= 0.0 && analog_gain.is_finite() && analog_gain > 0.0) {
+            return Err(format!(
+                "sensor settings: light {light} and analog gain {analog_gain} must be finite, light ≥ 0, gain > 0"
+            ));
+        }
         self.accumulate(x_um, y_um);
-        self.finish(gain, noise_seed, timestamp_s, sequence)
+        self.finish(light, analog_gain, noise_seed, timestamp_s, sequence)
     }
 
     /// A frame with no pattern: background (with shading and noise) when
@@ -308,12 +333,13 @@ impl FastRenderer {
             .map_err(|e| e.to_string());
         }
         self.acc.iter_mut().for_each(|v| *v = 0.0);
-        self.finish(1.0, noise_seed, timestamp_s, sequence)
+        self.finish(1.0, 1.0, noise_seed, timestamp_s, sequence)
     }
 
     fn finish(
         &mut self,
         gain: f64,
+        analog_gain: f64,
         noise_seed: u64,
         timestamp_s: f64,
         sequence: u64,
@@ -326,6 +352,7 @@ impl FastRenderer {
             (self.cfg.background as f32, self.cfg.foreground as f32)
         };
         let g = gain as f32;
+        let ag = analog_gain as f32;
         let inv_fw = if self.cfg.full_well_e > 0.0 {
             (1.0 / self.cfg.full_well_e) as f32
         } else {
@@ -342,7 +369,7 @@ impl FastRenderer {
             out16.extend(acc.iter().zip(shade).zip(noise_row).map(|((&c, &sh), &n)| {
                 let v = (bg + (fg - bg) * c) * sh * g;
                 let var = v.max(0.0) * inv_fw + rn2;
-                let v = v + n * var.sqrt();
+                let v = ag * (v + n * var.sqrt());
                 // +0.5 and truncation: round half up, cheaper than round().
                 (v * fs + 0.5).clamp(0.0, fs) as u16
             }));

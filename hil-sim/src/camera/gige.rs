@@ -28,8 +28,12 @@
 //!   `camera.fps`; aravis's thread sleeps to each frame slot); each frame
 //!   shows the rig's truth at the simulated time of its fill (no frame-slot
 //!   bookkeeping and no clock advance, unlike the socket camera's grab:
-//!   a free-running camera does not drive the rig's clock). Exposure and
-//!   gain set by the client are accepted and do not change the image.
+//!   a free-running camera does not drive the rig's clock).
+//! - Exposure and gain: the rig's `[camera]` grey levels hold at its
+//!   configured `exposure_us` and 0 dB. A client's `ExposureTime` scales
+//!   the collected signal (and with it the shot noise), its `Gain` (whole
+//!   dB, the fake camera's `GainRaw`) amplifies signal and noise alike;
+//!   the sensor saturates at full scale ([`super::SensorSettings`]).
 //!   A render slower than the frame period lowers the frame rate.
 //! - Faults: `garbage` serves undecodable frames; `stall` blocks the
 //!   camera's thread (no frames *and* no control answers, as a hung camera)
@@ -40,7 +44,7 @@
 
 mod ffi;
 
-use super::{CameraMode, SimCamera};
+use super::{CameraMode, SensorSettings, SimCamera};
 use crate::rig::RigTruth;
 use aravis::prelude::*;
 use micropos::frame::{Frame, Pixels};
@@ -139,6 +143,9 @@ pub struct ServedFrame {
     pub frame_id: u64,
     /// The rig's ground truth the frame was rendered from.
     pub truth: RigTruth,
+    /// The exposure and gain the frame was rendered with (the client's
+    /// `ExposureTime` and `Gain` at that frame).
+    pub sensor: SensorSettings,
 }
 
 /// What the camera has served so far (ground truth for tests and logs).
@@ -404,8 +411,9 @@ fn fill_frame(
     if stop.load(Ordering::SeqCst) {
         return;
     }
+    let sensor = sensor_settings(&req, camera.config().exposure_us);
     let result = camera
-        .render_now()
+        .render_now(Some(sensor))
         .map_err(|e| e.to_string())
         .and_then(|grab| {
             pack_region(
@@ -427,6 +435,7 @@ fn fill_frame(
             cell.stats.last = Some(ServedFrame {
                 frame_id: req.frame_id,
                 truth,
+                sensor,
             });
         }
         Err(e) => {
@@ -441,6 +450,21 @@ fn fill_frame(
             }
             cell.stats.last_error = Some(e);
         }
+    }
+}
+
+/// The sensor settings of a fill request. An exposure register of 0 (never
+/// set, or a client that wrote nonsense) renders at the rig's configured
+/// `exposure_us` rather than black. The fake camera's `Gain` feature is the
+/// `GainRaw` register in whole dB.
+fn sensor_settings(req: &ffi::FillRequest<'_>, configured_exposure_us: f64) -> SensorSettings {
+    SensorSettings {
+        exposure_us: if req.exposure_us > 0 {
+            f64::from(req.exposure_us)
+        } else {
+            configured_exposure_us
+        },
+        gain_db: f64::from(req.gain_raw),
     }
 }
 

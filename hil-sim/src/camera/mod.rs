@@ -389,21 +389,23 @@ impl SimCamera {
         }
         st.last_start_s = Some(start);
         let mid = start + exposure / 2.0;
-        self.render_locked(&mut st, &cfg, mid)
+        self.render_locked(&mut st, &cfg, mid, None)
     }
 
     /// Renders the platform's pose at the clock's current time, without the
     /// frame-slot timing of [`SimCamera::grab`] and without advancing the
     /// clock: for a free-running camera paced by wall time (the GigE Vision
     /// server), whose frames observe the rig rather than drive its clock.
-    pub fn render_now(&self) -> Result<Grab, GrabError> {
+    /// `sensor` is what the client set (exposure, gain); `None` renders at
+    /// the rig's configured exposure and unity gain.
+    pub fn render_now(&self, sensor: Option<SensorSettings>) -> Result<Grab, GrabError> {
         let mut st = self.lock();
         if st.mode == CameraMode::Stall {
             return Err(GrabError::Stalled);
         }
         let cfg = st.renderer.config().clone();
         let now = self.clock.now().as_secs_f64();
-        self.render_locked(&mut st, &cfg, now)
+        self.render_locked(&mut st, &cfg, now, sensor)
     }
 
     /// Renders the truth at simulated time `at_s` (mode: normal or garbage).
@@ -412,6 +414,7 @@ impl SimCamera {
         st: &mut CameraState,
         cfg: &CameraConfig,
         at_s: f64,
+        sensor: Option<SensorSettings>,
     ) -> Result<Grab, GrabError> {
         let mid = at_s;
         let truth = self
@@ -423,15 +426,49 @@ impl SimCamera {
         let frame = match st.mode {
             CameraMode::Garbage => st.renderer.garbage(seq % 2 == 0, noise_seed, mid, seq),
             _ => {
-                let gain = 1.0
+                let illumination = 1.0
                     + cfg.illumination_drift
                         * (2.0 * std::f64::consts::PI * mid / cfg.illumination_period_s).sin();
+                let (exposure, analog_gain) = match sensor {
+                    Some(s) => (s.exposure_us / cfg.exposure_us, s.analog_gain()),
+                    None => (1.0, 1.0),
+                };
                 let [x, y] = truth.observed_pattern_um;
-                st.renderer.render(x, y, gain, noise_seed, mid, seq)
+                st.renderer.render_exposed(
+                    x,
+                    y,
+                    illumination * exposure,
+                    analog_gain,
+                    noise_seed,
+                    mid,
+                    seq,
+                )
             }
         }
         .map_err(GrabError::Render)?;
         Ok(Grab { frame, truth })
+    }
+}
+
+/// Exposure and gain as a client set them on the camera (GenICam
+/// `ExposureTime`, `Gain`). Why a type: the rig's `[camera]` levels
+/// (`background`, `foreground`) are defined at the configured exposure and
+/// unity gain; these settings scale the image from there, so that a lab's
+/// bring-up (`micropos camera grab --exposure-us … --gain-db …`) sees
+/// what a real sensor would do: signal ∝ exposure time, shot noise grows
+/// with the signal, gain amplifies signal and noise alike, saturation clips.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SensorSettings {
+    /// Exposure time, µs (> 0).
+    pub exposure_us: f64,
+    /// Analog gain, dB (0 dB = unity; +6.02 dB doubles the output).
+    pub gain_db: f64,
+}
+
+impl SensorSettings {
+    /// The gain as an amplitude factor, 10^(dB/20).
+    pub fn analog_gain(&self) -> f64 {
+        10f64.powf(self.gain_db / 20.0)
     }
 }
 

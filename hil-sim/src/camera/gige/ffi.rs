@@ -56,6 +56,11 @@ pub struct FillRequest<'a> {
     pub pixel_format: u32,
     /// Frame id aravis gave this frame (GVSP block id).
     pub frame_id: u64,
+    /// The camera's `ExposureTime` register at this frame, µs.
+    pub exposure_us: u32,
+    /// The camera's `GainRaw` register at this frame (the fake camera's
+    /// `Gain` feature writes it in whole dB).
+    pub gain_raw: u32,
     /// The frame's bytes (the payload aravis sends: width × height × bytes
     /// per pixel).
     pub data: &'a mut [u8],
@@ -137,8 +142,8 @@ fn non_negative(v: std::ffi::c_int) -> usize {
 unsafe extern "C" fn trampoline(
     buffer: *mut ArvBuffer,
     user_data: *mut c_void,
-    _exposure_us: u32,
-    _gain_raw: u32,
+    exposure_us: u32,
+    gain_raw: u32,
     pixel_format: ArvPixelFormat,
 ) {
     if buffer.is_null() || user_data.is_null() {
@@ -182,6 +187,8 @@ unsafe extern "C" fn trampoline(
             offset: [x, y],
             pixel_format,
             frame_id,
+            exposure_us,
+            gain_raw,
             data: bytes,
         });
     }));
