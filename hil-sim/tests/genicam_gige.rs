@@ -324,6 +324,53 @@ fn the_daemons_genicam_source_decodes_the_served_simulator_to_its_ground_truth()
     );
     camera.set_mode(CameraMode::Normal);
 
+    // 5. A stalled camera (no frames, no control answers) is a timeout
+    // error, never an old frame passed off as new; frames showing the truth
+    // resume when it recovers.
+    for _ in 0..MAX_STALE {
+        cam.next_frame().unwrap();
+    }
+    camera.set_mode(CameraMode::Stall);
+    let stall_start = Instant::now();
+    let mut before_stall = 0;
+    let stall_err = loop {
+        match cam.next_frame() {
+            Ok(f) => {
+                // Frames already in flight when the stall began.
+                before_stall += 1;
+                assert!(
+                    before_stall <= MAX_STALE,
+                    "frames keep coming from a stalled camera"
+                );
+                let d = check.decode(&f);
+                check.assert_matches(&d, &truth_b, "a frame sent before the stall");
+            }
+            Err(e) => break e,
+        }
+    };
+    println!(
+        "stall: {before_stall} frames in flight, then after {:.1} s: {stall_err}",
+        stall_start.elapsed().as_secs_f64()
+    );
+    assert!(
+        matches!(stall_err, micropos::camera::CameraError::Timeout { .. }),
+        "a stall is a timeout: {stall_err:?}"
+    );
+    camera.set_mode(CameraMode::Normal);
+    let mut resumed = None;
+    for attempt in 0..5 {
+        match cam.next_frame() {
+            Ok(f) => {
+                let d = check.decode(&f);
+                check.assert_matches(&d, &truth_b, "after the stall");
+                resumed = Some(attempt);
+                break;
+            }
+            Err(e) => println!("after the stall, attempt {attempt}: {e}"),
+        }
+    }
+    assert!(resumed.is_some(), "no frames after the stall ended");
+
     let stats = served.stats();
     drop(cam);
     served.stop();
