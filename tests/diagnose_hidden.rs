@@ -76,6 +76,7 @@ fn check(e: &InjectedEffect, d: &Diagnosis) -> Result<(), String> {
         ("rate_um_per_h", (0.15, 0.02)),
         ("value_um", (0.10, 0.03)),
         ("um_per_c", (0.10, 0.02)),
+        ("length_um", (0.35, 15.0)),
     ]
     .into_iter()
     .collect();

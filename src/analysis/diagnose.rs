@@ -20,7 +20,11 @@
 //!    generalized Lomb–Scargle periodogram; slope; a localized Gaussian
 //!    feature at any place and width), time (linear and quadratic drift,
 //!    periodic), direction of motion (extra play on reversal, through the
-//!    model's own play operator), temperature.
+//!    model's own play operator), the length of the preceding move (lost
+//!    motion `A·(1 − exp(−L/λ))` against the move's direction, λ on a log
+//!    grid refined by golden section, `A` linear; searched only when the
+//!    log has moves of clearly different lengths, else it is the same column
+//!    as extra play), temperature.
 //! 5. **Held-out judging.** Folds are whole cycles (contiguous time chunks
 //!    when the log has one cycle). For each fold the base is fitted and the
 //!    candidate's period/place is searched **on the other folds only**, then
@@ -35,8 +39,9 @@
 //! 7. **Extension.** Accepted candidates become model terms
 //!    ([`crate::model::terms::discovered`], or more play in the model's
 //!    backlash term); the extended model is refitted with the model's own
-//!    Levenberg–Marquardt ([`StageModel::fit`]), which also refines a
-//!    localized feature's place and width and gives standard errors.
+//!    Levenberg–Marquardt ([`StageModel::fit`]), which gives the standard
+//!    errors of the nonlinear parameters (a localized feature's place and
+//!    width, a step-size term's length).
 
 use std::collections::{BTreeMap, HashMap};
 use std::fmt::Write as _;
@@ -46,9 +51,9 @@ use serde::{Deserialize, Serialize};
 
 use crate::charact::log::MeasurementLog;
 use crate::model::terms::{
-    BacklashConfig, BacklashTerm, DiscoveredConfig, DiscoveredTerm, LocalizedConfig,
-    PositionPeriodicConfig, PositionSlopeConfig, TemperatureConfig, TimeDriftConfig,
-    TimePeriodicConfig,
+    discovered::step_size_shape, BacklashConfig, BacklashTerm, DiscoveredConfig, DiscoveredTerm,
+    LocalizedConfig, PositionPeriodicConfig, PositionSlopeConfig, StepSizeConfig,
+    TemperatureConfig, TimeDriftConfig, TimePeriodicConfig,
 };
 use crate::model::{
     Axis, Direction, Environment, FitOptions, Interpolation, MotionState, MotionTracker, Sample,
@@ -386,6 +391,10 @@ enum Spec {
     Reversal {
         axis: Axis,
     },
+    StepSize {
+        axis: Axis,
+        length_um: f64,
+    },
 }
 
 /// A search family (what varies, before the search fixes it).
@@ -398,6 +407,7 @@ enum Family {
     TimePeriodic { comp: Axis },
     Temperature { comp: Axis },
     Reversal { axis: Axis },
+    StepSize { axis: Axis },
 }
 
 impl Family {
@@ -409,7 +419,7 @@ impl Family {
             | Family::Drift { comp, .. }
             | Family::TimePeriodic { comp }
             | Family::Temperature { comp } => comp,
-            Family::Reversal { axis } => axis,
+            Family::Reversal { axis } | Family::StepSize { axis } => axis,
         }
     }
 }
@@ -437,8 +447,116 @@ fn families(d: &Data) -> Vec<Family> {
     }
     for axis in Axis::ALL {
         out.push(Family::Reversal { axis });
+        out.push(Family::StepSize { axis });
     }
     out
+}
+
+/// Range of the step-size length λ worth searching for `axis`, µm, or
+/// `None` when the log cannot tell a step-size effect from extra play: too
+/// few moves, or (nearly) all of the same length (a log of constant-step
+/// scans), where `1 − exp(−L/λ)` is one number times the direction.
+fn step_length_range(d: &Data, axis: Axis) -> Option<(f64, f64)> {
+    let mut lens = move_lengths(d, axis);
+    if lens.len() < 16 {
+        return None;
+    }
+    lens.sort_by(f64::total_cmp);
+    let med = lens[lens.len() / 2];
+    let distinct = lens
+        .iter()
+        .filter(|&&l| l >= 3.0 * med || l <= med / 3.0)
+        .count();
+    if distinct < STEP_MIN_DISTINCT {
+        return None;
+    }
+    let lo = (0.5 * lens[lens.len() / 20]).max(1e-3);
+    let hi = (2.0 * lens[lens.len() - 1]).max(4.0 * lo);
+    Some((lo, hi))
+}
+
+/// Moves whose length differs at least 3× from the median a log needs
+/// before the step-size family is searched.
+const STEP_MIN_DISTINCT: usize = 8;
+
+/// The step-size length λ whose column best explains `resid` on the
+/// training rows (largest squared projection), log grid then golden
+/// section.
+fn step_size_search(d: &Data, axis: Axis, resid: &[f64], train: &[bool]) -> Option<Spec> {
+    let (lo, hi) = step_length_range(d, axis)?;
+    let c = axis.index();
+    let mut col = vec![0.0; 2 * d.n];
+    let mut score = |log_l: f64| -> f64 {
+        let l = log_l.exp();
+        col.iter_mut().for_each(|v| *v = 0.0);
+        for (i, s) in d.states.iter().enumerate() {
+            let m = s.axes[c];
+            col[2 * i + c] = step_size_shape(m.dir.sign(), m.last_move_um, l);
+        }
+        d.center(&mut col);
+        let (mut br, mut bb) = (0.0, 0.0);
+        for i in 0..d.n {
+            if train[i] {
+                br += col[2 * i + c] * resid[2 * i + c];
+                bb += col[2 * i + c] * col[2 * i + c];
+            }
+        }
+        if bb > 0.0 {
+            br * br / bb
+        } else {
+            0.0
+        }
+    };
+    let (a, b) = (lo.ln(), hi.ln());
+    let n = 40;
+    let grid: Vec<(f64, f64)> = (0..=n)
+        .map(|k| {
+            let x = a + (b - a) * k as f64 / n as f64;
+            (x, score(x))
+        })
+        .collect();
+    let (kbest, _) = grid
+        .iter()
+        .enumerate()
+        .max_by(|p, q| p.1 .1.total_cmp(&q.1 .1))?;
+    if grid[kbest].1 <= 0.0 {
+        return None;
+    }
+    // Golden section between the best point's neighbours.
+    let mut l = grid[kbest.saturating_sub(1)].0;
+    let mut h = grid[(kbest + 1).min(n)].0;
+    let g = 0.5 * (5f64.sqrt() - 1.0);
+    let mut x1 = h - g * (h - l);
+    let mut x2 = l + g * (h - l);
+    let (mut f1, mut f2) = (score(x1), score(x2));
+    for _ in 0..25 {
+        if f1 >= f2 {
+            h = x2;
+            x2 = x1;
+            f2 = f1;
+            x1 = h - g * (h - l);
+            f1 = score(x1);
+        } else {
+            l = x1;
+            x1 = x2;
+            f1 = f2;
+            x2 = l + g * (h - l);
+            f2 = score(x2);
+        }
+    }
+    let best = if f1.max(f2) >= grid[kbest].1 {
+        if f1 >= f2 {
+            x1
+        } else {
+            x2
+        }
+    } else {
+        grid[kbest].0
+    };
+    Some(Spec::StepSize {
+        axis,
+        length_um: best.exp(),
+    })
 }
 
 fn median(mut v: Vec<f64>) -> Option<f64> {
@@ -582,6 +700,7 @@ fn search(f: Family, d: &Data, resid: &[f64], train: &[bool]) -> Option<Spec> {
                 && (0..d.n).any(|i| d.states[i].axes[axis.index()].dir == Direction::Backward);
             has_both.then_some(Spec::Reversal { axis })
         }
+        Family::StepSize { axis } => step_size_search(d, axis, resid, train),
         Family::TimePeriodic { comp } => {
             let idx: Vec<usize> = (0..d.n).filter(|&i| train[i]).collect();
             let x: Vec<f64> = idx.iter().map(|&i| d.states[i].time_s).collect();
@@ -677,6 +796,10 @@ fn columns(spec: &Spec, d: &Data, model: &StageModel) -> Vec<Vec<f64>> {
             }
             None => one(axis, &|s| -0.5 * s.axis(axis).dir.sign()),
         },
+        Spec::StepSize { axis, length_um } => one(axis, &|s| {
+            let m = s.axis(axis);
+            step_size_shape(m.dir.sign(), m.last_move_um, length_um)
+        }),
     }
     for c in &mut cols {
         d.center(c);
@@ -1049,11 +1172,12 @@ pub fn diagnose(
     // model's own Levenberg–Marquardt (the only nonlinear candidate). Its
     // values are not taken: it cannot profile out the block constants of
     // static axes, and the centred search already refined place and width.
-    if specs.iter().any(|s| matches!(s, Spec::Localized { .. })) {
+    let nonlinear = |s: &Spec| matches!(s, Spec::Localized { .. } | Spec::StepSize { .. });
+    if specs.iter().any(nonlinear) {
         let (ext, names) = extended(&d, model, &base_names, &specs)?;
         let mut free = base_names.clone();
         for (spec, name) in specs.iter().zip(&names) {
-            if matches!(spec, Spec::Localized { .. }) {
+            if nonlinear(spec) {
                 free.push(format!("{name}.*"));
             }
         }
@@ -1065,7 +1189,10 @@ pub fn diagnose(
         };
         if let Ok(report) = fitted.fit(&samples, &fo) {
             for p in &report.params {
-                if p.name.ends_with(".position_um") || p.name.ends_with(".width_um") {
+                if p.name.ends_with(".position_um")
+                    || p.name.ends_with(".width_um")
+                    || p.name.ends_with(".length_um")
+                {
                     if let Some(e) = p.std_error {
                         std_errs.insert(p.name.clone(), e);
                     }
@@ -1189,6 +1316,7 @@ fn spec_param_names(spec: &Spec) -> &'static [&'static str] {
         Spec::Drift { .. } => &["rate_um_per_h"],
         Spec::Temperature { .. } => &["um_per_c"],
         Spec::Reversal { .. } => &["backlash_um"],
+        Spec::StepSize { .. } => &["amplitude_um"],
     }
 }
 
@@ -1340,6 +1468,14 @@ fn add_term(
                 component: comp,
                 reference_temp_c: DEFAULT_TEMP_C,
                 um_per_c: c0,
+            }),
+        ),
+        Spec::StepSize { axis, length_um } => (
+            format!("found{k}_{axis}_step_size"),
+            DiscoveredConfig::StepSize(StepSizeConfig {
+                axis,
+                amplitude_um: c0,
+                length_um,
             }),
         ),
         Spec::Reversal { axis } => {
@@ -1547,6 +1683,33 @@ fn describe(
             );
             cause = "more (or less) play between screw and nut than the model: wear, preload lost, or friction in the guide".into();
         }
+        Spec::StepSize { axis: a, .. } => {
+            let amp = p("amplitude_um")?;
+            let len = p("length_um")?;
+            params.insert("amplitude_um".into(), amp);
+            params.insert("length_um".into(), len);
+            for k in ["amplitude_um", "length_um"] {
+                if let Some(e) = se(k) {
+                    unc.insert(k.into(), e);
+                }
+            }
+            let typical = typical_move_um(d, a);
+            let at_typical = amp * -(-typical / len.max(1e-9)).exp_m1();
+            kind = FindingKind::StepSize;
+            axis = a;
+            comp = a;
+            explanation = format!(
+                "{a} {} by an amount that depends on the length of the preceding move: {:.3} µm after long moves, building up over about {len:.0} µm of move ({:.3} µm after the log's typical {typical:.0} µm move)",
+                if amp >= 0.0 {
+                    "falls short of its target (lost motion)"
+                } else {
+                    "overshoots its target"
+                },
+                amp.abs(),
+                at_typical.abs()
+            );
+            cause = "elastic wind-up of screw, coupling or nut, or guide friction, that is only fully loaded after a long move (the play of the model depends on the direction only); a nut preload that yields over a travel of about the build-up length".into();
+        }
     }
     Ok(Finding {
         kind,
@@ -1575,6 +1738,22 @@ fn reversal_value(
     let full = format!("{term}.backlash_um");
     let before = original.param(&full).unwrap_or(0.0);
     Ok(fitted.param(&full)? - before)
+}
+
+/// Lengths of the moves axis `a` made in the log (rows where it moved),
+/// µm.
+fn move_lengths(d: &Data, a: Axis) -> Vec<f64> {
+    d.states
+        .windows(2)
+        .filter(|w| w[1].cmd_um(a) != w[0].cmd_um(a))
+        .map(|w| w[1].axis(a).last_move_um)
+        .filter(|l| l.is_finite() && *l > 0.0)
+        .collect()
+}
+
+/// Median length of the moves of axis `a` in the log, µm (0 without moves).
+fn typical_move_um(d: &Data, a: Axis) -> f64 {
+    median(move_lengths(d, a)).unwrap_or(0.0)
 }
 
 fn span_of(d: &Data, a: Axis) -> f64 {

@@ -24,8 +24,8 @@ use serde::Serialize;
 use crate::charact::log::{Columns, Metadata, Record};
 use crate::model::terms::{
     BacklashConfig, BacklashTerm, DiscoveredConfig, DiscoveredTerm, LocalizedConfig,
-    PositionPeriodicConfig, PositionSlopeConfig, TemperatureConfig, TimeDriftConfig,
-    TimePeriodicConfig,
+    PositionPeriodicConfig, PositionSlopeConfig, StepSizeConfig, TemperatureConfig,
+    TimeDriftConfig, TimePeriodicConfig,
 };
 use crate::model::{
     Axis, Environment, Interpolation, MotionState, StageModel, StageSimulator, TemperaturePoint,
@@ -120,7 +120,8 @@ pub struct InjectedEffect {
     pub component: Axis,
     /// Parameters under the names the analysis reports (`period_um`,
     /// `amplitude_um`, `ppm`, `slope_urad`, `position_um`, `width_um`,
-    /// `rate_um_per_h`, `period_s`, `value_um`, `um_per_c`), model sign.
+    /// `rate_um_per_h`, `period_s`, `value_um`, `um_per_c`, `length_um`),
+    /// model sign.
     pub params: BTreeMap<String, f64>,
     /// The extra model term.
     #[serde(skip)]
@@ -128,7 +129,7 @@ pub struct InjectedEffect {
 }
 
 /// Kinds the generator can hide.
-pub const GENERATED_KINDS: [FindingKind; 8] = [
+pub const GENERATED_KINDS: [FindingKind; 9] = [
     FindingKind::PositionPeriodic,
     FindingKind::Scale,
     FindingKind::Localized,
@@ -137,6 +138,7 @@ pub const GENERATED_KINDS: [FindingKind; 8] = [
     FindingKind::Reversal,
     FindingKind::CrossAxis,
     FindingKind::Temperature,
+    FindingKind::StepSize,
 ];
 
 fn log_uniform(rng: &mut ChaCha8Rng, lo: f64, hi: f64) -> f64 {
@@ -348,7 +350,26 @@ fn draw_with(
                 term: Box::new(term),
             });
         }
-        FindingKind::StepSize | FindingKind::Other => {
+        FindingKind::StepSize => {
+            let axis = axis_of(&mut rng);
+            // Lost motion (> 0) reached after moves ≫ λ; λ from 50 µm (a
+            // 20 µm scan step already loses a third of it) to 1.5 mm (scan
+            // steps lose ~1 %, the random moves of the plan, 0–9.5 mm,
+            // span the build-up).
+            let length = log_uniform(&mut rng, 50.0, 1500.0);
+            params.insert("amplitude_um".into(), size);
+            params.insert("length_um".into(), length);
+            (
+                axis,
+                axis,
+                DiscoveredConfig::StepSize(StepSizeConfig {
+                    axis,
+                    amplitude_um: size,
+                    length_um: length,
+                }),
+            )
+        }
+        FindingKind::Other => {
             return Err(AnalysisError::Invalid(format!(
                 "the generator cannot hide a `{}` effect (it can: {})",
                 kind.as_str(),
