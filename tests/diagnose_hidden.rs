@@ -3,8 +3,9 @@
 //! held-out gain; and must find nothing in logs without one.
 //!
 //! Every log also carries an extra numeric column with no effect
-//! (`pressure_hpa`) and a text column (`focus`): neither may produce a
-//! finding. A separate test hides an error that follows an extra column
+//! (`pressure_hpa`), a text column (`focus`) and a reported position that
+//! repeats the commanded x (`x_reported_um`, which the analysis must leave
+//! to the position families): none may produce a finding. A separate test hides an error that follows an extra column
 //! (`humidity_pct`) and requires an `other` finding naming that column, not
 //! carried into the extended model.
 //!
@@ -30,15 +31,18 @@ fn full() -> bool {
 /// Noise of the default plan: settling σ ⊕ camera σ.
 const NOISE_UM: f64 = 0.046;
 
-/// A log column no analysis may use: a wandering number with no effect,
-/// and a text column.
+/// Log columns no finding may name: a wandering number with no effect, a
+/// text column, and the commanded x as a controller would report it.
 fn add_distractors(log: &mut SimLog, seed: u64) {
     add_extra_column(log, "pressure_hpa", seed ^ 0x77, None).unwrap();
     let mut extra = log.columns.extra.clone();
     extra.push("focus".into());
+    extra.push("x_reported_um".into());
     log.columns = Columns::new(log.columns.temp_c, extra).unwrap();
-    for r in &mut log.records {
+    for (i, r) in log.records.iter_mut().enumerate() {
         r.extra.push("ok".into());
+        r.extra
+            .push(format!("{:.4}", r.x_cmd_um + 0.002 * (i % 5) as f64));
     }
 }
 

@@ -117,13 +117,12 @@ proptest! {
             let before = *tracker.state();
             let target = [before.axes[0].cmd_um + dx, before.axes[1].cmd_um + dy];
             let st = tracker.step(Waypoint::at(target[0], target[1])).unwrap();
-            for a in 0..2 {
-                let moved = st.axes[a].cmd_um != before.axes[a].cmd_um;
-                if moved {
-                    expected[a] = (st.axes[a].cmd_um - before.axes[a].cmd_um).abs();
+            for (a, want) in expected.iter_mut().enumerate() {
+                let (ax, prev) = (&st.axes[a], &before.axes[a]);
+                if ax.cmd_um != prev.cmd_um {
+                    *want = (ax.cmd_um - prev.cmd_um).abs();
                 }
-                let ax = &st.axes[a];
-                prop_assert_eq!(ax.last_move_um, expected[a]);
+                prop_assert_eq!(ax.last_move_um, *want);
                 if ax.dir == Direction::Unknown {
                     prop_assert_eq!(ax.last_move_um, 0.0);
                 } else {
