@@ -2,18 +2,27 @@
 //! component and parameters within stated tolerances, with a positive
 //! held-out gain; and must find nothing in logs without one.
 //!
-//! Default: 16 seeds with an effect (2 per kind) and 6 without.
-//! `MICROPOS_FULL=1`: 96 with (12 per kind) and 40 without. Each run prints
-//! a table (kind, size/noise, recovered vs true) for the report.
+//! Every log also carries an extra numeric column with no effect
+//! (`pressure_hpa`), a text column (`focus`) and a reported position that
+//! repeats the commanded x (`x_reported_um`, which the analysis must leave
+//! to the position families): none may produce a finding. A separate test hides an error that follows an extra column
+//! (`humidity_pct`) and requires an `other` finding naming that column, not
+//! carried into the extended model.
+//!
+//! Default: 18 seeds with an effect (2 per kind), 6 without, 4 with a
+//! column effect. `MICROPOS_FULL=1`: 108 with (12 per kind), 40 without,
+//! 10 with a column effect. Each run prints a table (kind, size/noise,
+//! recovered vs true) for the report.
 
 use std::collections::BTreeMap;
 
 use micropos::analysis::generate::{
-    draw_effect, simulate_log, truth_model, InjectedEffect, SimPlan, GENERATED_KINDS,
+    add_extra_column, draw_effect, simulate_log, truth_model, InjectedEffect, SimLog, SimPlan,
+    GENERATED_KINDS,
 };
 use micropos::analysis::{diagnose, DiagnoseOptions, Diagnosis, FindingKind};
-use micropos::charact::log::parse_bytes;
-use micropos::model::StageModel;
+use micropos::charact::log::{parse_bytes, Columns};
+use micropos::model::{Axis, StageModel};
 
 fn full() -> bool {
     std::env::var("MICROPOS_FULL").is_ok_and(|v| v == "1")
@@ -22,11 +31,27 @@ fn full() -> bool {
 /// Noise of the default plan: settling σ ⊕ camera σ.
 const NOISE_UM: f64 = 0.046;
 
+/// Log columns no finding may name: a wandering number with no effect, a
+/// text column, and the commanded x as a controller would report it.
+fn add_distractors(log: &mut SimLog, seed: u64) {
+    add_extra_column(log, "pressure_hpa", seed ^ 0x77, None).unwrap();
+    let mut extra = log.columns.extra.clone();
+    extra.push("focus".into());
+    extra.push("x_reported_um".into());
+    log.columns = Columns::new(log.columns.temp_c, extra).unwrap();
+    for (i, r) in log.records.iter_mut().enumerate() {
+        r.extra.push("ok".into());
+        r.extra
+            .push(format!("{:.4}", r.x_cmd_um + 0.002 * (i % 5) as f64));
+    }
+}
+
 fn run(seed: u64, effect: Option<&InjectedEffect>) -> Diagnosis {
     let base = StageModel::paper_default().unwrap();
     let plan = SimPlan::default();
     let truth = truth_model(&base, effect, &plan, seed).unwrap();
-    let log = simulate_log(&truth, &plan, seed).unwrap();
+    let mut log = simulate_log(&truth, &plan, seed).unwrap();
+    add_distractors(&mut log, seed);
     // Through the file format, as a user would.
     let parsed = parse_bytes(&log.to_bytes().unwrap()).unwrap();
     diagnose(&parsed, &base, &DiagnoseOptions::default()).unwrap()
@@ -76,6 +101,7 @@ fn check(e: &InjectedEffect, d: &Diagnosis) -> Result<(), String> {
         ("rate_um_per_h", (0.15, 0.02)),
         ("value_um", (0.10, 0.03)),
         ("um_per_c", (0.10, 0.02)),
+        ("length_um", (0.35, 15.0)),
     ]
     .into_iter()
     .collect();
@@ -241,4 +267,125 @@ fn extended_model_loads_and_reproduces_the_log_to_the_noise() {
     assert!(f["gain_pct"].as_f64().unwrap() > 0.0);
     assert!(json["baseline_rms_um"]["x"].as_f64().is_some());
     assert!(json["extended_rms_um"]["y"].as_f64().is_some());
+}
+
+/// An error that follows a logged column the model has no input for is
+/// named `other` with that column and its slope, and is not claimed by the
+/// extended model.
+#[test]
+fn log_column_effect_is_named_other_with_its_variable() {
+    let n: u64 = if full() { 10 } else { 4 };
+    let sizes = [1.5, 0.1, 0.6, 0.25, 1.0];
+    let results: Vec<Result<String, String>> = std::thread::scope(|s| {
+        let handles: Vec<_> = (0..2u64)
+            .map(|half| {
+                s.spawn(move || {
+                    (0..n)
+                        .filter(|i| i % 2 == half)
+                        .map(|i| {
+                            let seed = 9000 + i;
+                            let size = sizes[i as usize % sizes.len()];
+                            let comp = if i % 2 == 0 { Axis::X } else { Axis::Y };
+                            let sign = if i % 3 == 0 { -1.0 } else { 1.0 };
+                            column_case(seed, comp, sign, size)
+                        })
+                        .collect::<Vec<_>>()
+                })
+            })
+            .collect();
+        handles
+            .into_iter()
+            .flat_map(|h| h.join().unwrap())
+            .collect()
+    });
+    let mut failures = Vec::new();
+    for r in &results {
+        match r {
+            Ok(line) => println!("{line} ok"),
+            Err(line) => {
+                println!("{line}");
+                failures.push(line.clone());
+            }
+        }
+    }
+    println!(
+        "other: recovered {}/{} column effects",
+        results.len() - failures.len(),
+        results.len()
+    );
+    assert!(failures.is_empty(), "{failures:#?}");
+}
+
+/// One log with an error of `size` µm peak (over the column's excursion)
+/// following `humidity_pct`.
+fn column_case(seed: u64, comp: Axis, sign: f64, size: f64) -> Result<String, String> {
+    let base = StageModel::paper_default().unwrap();
+    let plan = SimPlan::default();
+    let truth = truth_model(&base, None, &plan, seed).unwrap();
+    let mut log = simulate_log(&truth, &plan, seed).unwrap();
+    add_distractors(&mut log, seed);
+    // The series first (same seed, no effect) to size the slope.
+    let mut probe = log.clone();
+    let v = add_extra_column(&mut probe, "humidity_pct", seed, None).unwrap();
+    let mean = v.iter().sum::<f64>() / v.len() as f64;
+    let excursion = v.iter().map(|x| (x - mean).abs()).fold(0.0, f64::max);
+    let k = sign * size / excursion;
+    add_extra_column(&mut log, "humidity_pct", seed, Some((comp, k))).unwrap();
+    let parsed = parse_bytes(&log.to_bytes().unwrap()).unwrap();
+    let d = diagnose(&parsed, &base, &DiagnoseOptions::default()).unwrap();
+    let line = format!(
+        "seed {seed} {comp} error, {k:+.4} µm/unit, size/noise {:.1}:",
+        size / NOISE_UM
+    );
+    let f = d
+        .findings
+        .first()
+        .ok_or(format!("{line} FAIL nothing found"))?;
+    if f.kind != FindingKind::Other
+        || f.component != comp
+        || f.variable.as_deref() != Some("humidity_pct")
+    {
+        return Err(format!(
+            "{line} FAIL named {} ({} error, variable {:?})",
+            f.kind, f.component, f.variable
+        ));
+    }
+    let got = f.params["um_per_unit"];
+    let allowed = 0.10 * k.abs() + 0.01 / excursion;
+    if (got - k).abs() > allowed {
+        return Err(format!("{line} FAIL um_per_unit {got:.4} (± {allowed:.4})"));
+    }
+    if f.in_extended_model || !f.term.is_empty() || !f.explanation.contains("does not include") {
+        return Err(format!("{line} FAIL claimed by the model: {f:?}"));
+    }
+    // The extended model has no term for it, and says so in its numbers.
+    let in_model = d.findings.iter().filter(|f| f.in_extended_model).count();
+    if d.extended_model.terms().len() > d.base_model.terms().len() + in_model
+        || d.extended_model
+            .terms()
+            .iter()
+            .any(|t| t.name().contains("humidity"))
+    {
+        return Err(format!("{line} FAIL extended model terms"));
+    }
+    let w = d
+        .with_unmodelled_rms_um
+        .ok_or(format!("{line} FAIL no with_unmodelled_rms_um"))?;
+    if w.get(comp) >= d.extended_rms_um.get(comp) {
+        return Err(format!(
+            "{line} FAIL unmodelled rms {w:?} vs {:?}",
+            d.extended_rms_um
+        ));
+    }
+    let json = d.to_json();
+    if json["findings"][0]["variable"] != "humidity_pct" || json["findings"][0]["kind"] != "other" {
+        return Err(format!("{line} FAIL json {}", json["findings"][0]));
+    }
+    Ok(format!(
+        "{line} got {got:+.4} ± {:.4}",
+        f.uncertainty
+            .get("um_per_unit")
+            .copied()
+            .unwrap_or(f64::NAN)
+    ))
 }

@@ -22,13 +22,17 @@ fn axis_motion() -> impl Strategy<Value = AxisMotion> {
         direction(),
         0.0..1e6f64,
         proptest::option::of(0.0..1e6f64),
+        0.0..1e6f64,
     )
-        .prop_map(|(cmd_um, dir, run_um, prev_run_um)| AxisMotion {
-            cmd_um,
-            dir,
-            run_um,
-            prev_run_um,
-        })
+        .prop_map(
+            |(cmd_um, dir, run_um, prev_run_um, last_move_um)| AxisMotion {
+                cmd_um,
+                dir,
+                run_um,
+                prev_run_um,
+                last_move_um,
+            },
+        )
 }
 
 fn state() -> impl Strategy<Value = MotionState> {
@@ -92,6 +96,39 @@ proptest! {
                 prop_assert!((model - exact).abs() < 1e-9, "model {} exact {} runs {:?}", model, exact, runs);
             } else {
                 prop_assert!((model - exact).abs() <= b + 1e-12);
+            }
+        }
+    }
+
+    /// The tracker's last-move length is the length of the last move that
+    /// happened (moves below the minimum incremental motion do not), never
+    /// more than the run since the reversal, and 0 only before any motion.
+    #[test]
+    fn last_move_is_the_last_real_move_and_within_the_run(
+        min_move in 0.0..0.5f64,
+        moves in proptest::collection::vec((-50.0..50.0f64, -50.0..50.0f64), 1..40),
+    ) {
+        let mut tracker = MotionTracker::new(MotionState::at_rest(0.0, 0.0))
+            .unwrap()
+            .with_min_move(min_move)
+            .unwrap();
+        let mut expected = [0.0f64; 2];
+        for (dx, dy) in moves {
+            let before = *tracker.state();
+            let target = [before.axes[0].cmd_um + dx, before.axes[1].cmd_um + dy];
+            let st = tracker.step(Waypoint::at(target[0], target[1])).unwrap();
+            for (a, want) in expected.iter_mut().enumerate() {
+                let (ax, prev) = (&st.axes[a], &before.axes[a]);
+                if ax.cmd_um != prev.cmd_um {
+                    *want = (ax.cmd_um - prev.cmd_um).abs();
+                }
+                prop_assert_eq!(ax.last_move_um, *want);
+                if ax.dir == Direction::Unknown {
+                    prop_assert_eq!(ax.last_move_um, 0.0);
+                } else {
+                    prop_assert!(ax.last_move_um > 0.0);
+                    prop_assert!(ax.last_move_um <= ax.run_um + 1e-9 * ax.run_um);
+                }
             }
         }
     }

@@ -20,7 +20,12 @@
 //!    generalized Lomb–Scargle periodogram; slope; a localized Gaussian
 //!    feature at any place and width), time (linear and quadratic drift,
 //!    periodic), direction of motion (extra play on reversal, through the
-//!    model's own play operator), temperature.
+//!    model's own play operator), the length of the preceding move (lost
+//!    motion `A·(1 − exp(−L/λ))` against the move's direction, λ on a log
+//!    grid refined by golden section, `A` linear; searched only when the
+//!    log has moves of clearly different lengths, else it is the same column
+//!    as extra play), temperature, and every extra column of the log that
+//!    is numeric in (nearly) all rows (linear dependence; kind `other`).
 //! 5. **Held-out judging.** Folds are whole cycles (contiguous time chunks
 //!    when the log has one cycle). For each fold the base is fitted and the
 //!    candidate's period/place is searched **on the other folds only**, then
@@ -35,8 +40,29 @@
 //! 7. **Extension.** Accepted candidates become model terms
 //!    ([`crate::model::terms::discovered`], or more play in the model's
 //!    backlash term); the extended model is refitted with the model's own
-//!    Levenberg–Marquardt ([`StageModel::fit`]), which also refines a
-//!    localized feature's place and width and gives standard errors.
+//!    Levenberg–Marquardt ([`StageModel::fit`]), which gives the standard
+//!    errors of the nonlinear parameters (a localized feature's place and
+//!    width, a step-size term's length).
+//!
+//! # Extra columns (`other`)
+//! A log may carry columns the model has no input for (humidity, motor
+//! current, a quality figure, ...). Each one that parses as a finite number
+//! in at least 95 % of the rows (the rest take its mean) and is not constant
+//! is searched like any family: the error component linear in the column,
+//! judged on the held-out folds. Columns that nearly repeat a variable the
+//! analysis already has (|correlation| ≥ 0.98 with a commanded position,
+//! time or temperature, e.g. a reported position) are left out: a
+//! dependence on them is named by that variable's own family. A finding of
+//! kind `other` names its column (`variable`) and slope (`um_per_unit`).
+//! **The extended model does not include it**: a model is evaluated on a
+//! [`MotionState`] (commanded position, history, time, temperature) and
+//! cannot read an arbitrary column, so no model term could reproduce the
+//! effect in a simulation or compensate it. The finding says so
+//! (`in_extended_model = false`), its column is still fitted jointly (so
+//! the other findings are not biased by it), and the report's extended
+//! held-out RMS and in-sample RMS are those of the model-expressible
+//! findings only; the held-out RMS with the `other` findings as well is
+//! reported separately (`with_unmodelled_rms_um`).
 
 use std::collections::{BTreeMap, HashMap};
 use std::fmt::Write as _;
@@ -46,9 +72,9 @@ use serde::{Deserialize, Serialize};
 
 use crate::charact::log::MeasurementLog;
 use crate::model::terms::{
-    BacklashConfig, BacklashTerm, DiscoveredConfig, DiscoveredTerm, LocalizedConfig,
-    PositionPeriodicConfig, PositionSlopeConfig, TemperatureConfig, TimeDriftConfig,
-    TimePeriodicConfig,
+    discovered::step_size_shape, BacklashConfig, BacklashTerm, DiscoveredConfig, DiscoveredTerm,
+    LocalizedConfig, PositionPeriodicConfig, PositionSlopeConfig, StepSizeConfig,
+    TemperatureConfig, TimeDriftConfig, TimePeriodicConfig,
 };
 use crate::model::{
     Axis, Direction, Environment, FitOptions, Interpolation, MotionState, MotionTracker, Sample,
@@ -140,8 +166,20 @@ pub struct Finding {
     pub explanation: String,
     /// Likely physical cause.
     pub cause: String,
-    /// Name of the term that models it in the extended model.
+    /// Name of the term that models it in the extended model (empty when
+    /// the model cannot express it: kind `other`).
     pub term: String,
+    /// The log column the error follows (kind `other`); absent otherwise.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub variable: Option<String>,
+    /// Whether the extended model includes the effect (false for `other`:
+    /// the model has no input for a log's extra column).
+    #[serde(default = "yes")]
+    pub in_extended_model: bool,
+}
+
+fn yes() -> bool {
+    true
 }
 
 /// Residual series for plots: one entry per log point.
@@ -159,6 +197,13 @@ pub struct ResidualSeries {
     pub x_dir: Vec<f64>,
     /// Direction sign of the y axis.
     pub y_dir: Vec<f64>,
+    /// Length of the last move of the x axis, µm.
+    pub x_last_move_um: Vec<f64>,
+    /// Length of the last move of the y axis, µm.
+    pub y_last_move_um: Vec<f64>,
+    /// The log's numeric extra columns that were searched: name and value
+    /// per point (unparsable cells hold the column mean).
+    pub extra: Vec<(String, Vec<f64>)>,
     /// Residual (measured − model) after the base fit, `[x, y]` µm, block
     /// constants of static axes removed.
     pub before_um: [Vec<f64>; 2],
@@ -179,8 +224,12 @@ pub struct Diagnosis {
     pub baseline_rms_um: RmsXy,
     /// Findings in order of acceptance.
     pub findings: Vec<Finding>,
-    /// Held-out RMS with every finding, µm.
+    /// Held-out RMS with every finding the extended model includes, µm.
     pub extended_rms_um: RmsXy,
+    /// Held-out RMS with the `other` findings (log columns the model cannot
+    /// read) as well, µm; absent when there are none.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub with_unmodelled_rms_um: Option<RmsXy>,
     /// In-sample RMS of the refitted extended model, µm (what a replay of
     /// the log through the extended model leaves: the noise floor when
     /// everything is explained).
@@ -220,6 +269,20 @@ struct Data {
     moving: Vec<[bool; 2]>,
     t0: f64,
     temp_varies: bool,
+    /// Numeric extra columns searched by the `other` family.
+    extra: Vec<ExtraVar>,
+}
+
+/// A numeric extra column of the log.
+struct ExtraVar {
+    name: String,
+    /// Value per row (unparsable cells: the column mean).
+    values: Vec<f64>,
+    /// Mean over the rows: the column is `value − mean` (a model has no
+    /// intercept to absorb a column's offset).
+    mean: f64,
+    min: f64,
+    max: f64,
 }
 
 impl Data {
@@ -335,6 +398,7 @@ fn prepare(
     let temps: Vec<f64> = states.iter().map(|s| s.temp_c).collect();
     let tmean = temps.iter().sum::<f64>() / n as f64;
     let tsd = (temps.iter().map(|t| (t - tmean).powi(2)).sum::<f64>() / n as f64).sqrt();
+    let extra = numeric_extra_columns(log, &states);
     let mut d = Data {
         n,
         t0: states[0].time_s,
@@ -347,11 +411,94 @@ fn prepare(
         ngroups: 2 * nb,
         moving,
         temp_varies: tsd > 0.02,
+        extra,
     };
     let mut r = std::mem::take(&mut d.r0);
     d.center(&mut r);
     d.r0 = r;
     Ok(d)
+}
+
+/// Share of rows in which an extra column must be a finite number to be
+/// searched.
+const EXTRA_MIN_NUMERIC: f64 = 0.95;
+
+/// |correlation| with a commanded position, time or temperature from which
+/// an extra column counts as a repeat of that variable (not searched).
+const EXTRA_MAX_CORRELATION: f64 = 0.98;
+
+fn correlation(a: &[f64], b: &[f64]) -> f64 {
+    let n = a.len().min(b.len()) as f64;
+    if n < 2.0 {
+        return 0.0;
+    }
+    let ma = a.iter().sum::<f64>() / n;
+    let mb = b.iter().sum::<f64>() / n;
+    let (mut sab, mut saa, mut sbb) = (0.0, 0.0, 0.0);
+    for (x, y) in a.iter().zip(b) {
+        sab += (x - ma) * (y - mb);
+        saa += (x - ma) * (x - ma);
+        sbb += (y - mb) * (y - mb);
+    }
+    if saa > 0.0 && sbb > 0.0 {
+        sab / (saa * sbb).sqrt()
+    } else {
+        0.0
+    }
+}
+
+/// The log's extra columns worth searching (see the module docs): numeric
+/// in ≥ [`EXTRA_MIN_NUMERIC`] of the rows, not constant, not a repeat of a
+/// variable the other families already cover.
+fn numeric_extra_columns(log: &MeasurementLog, states: &[MotionState]) -> Vec<ExtraVar> {
+    let n = log.records.len();
+    let known: [Vec<f64>; 4] = [
+        states.iter().map(|s| s.cmd_um(Axis::X)).collect(),
+        states.iter().map(|s| s.cmd_um(Axis::Y)).collect(),
+        states.iter().map(|s| s.time_s).collect(),
+        states.iter().map(|s| s.temp_c).collect(),
+    ];
+    let mut out = Vec::new();
+    for (j, name) in log.columns.extra.iter().enumerate() {
+        let parsed: Vec<Option<f64>> = log
+            .records
+            .iter()
+            .map(|r| {
+                r.extra
+                    .get(j)
+                    .and_then(|t| t.trim().parse::<f64>().ok())
+                    .filter(|v| v.is_finite() && v.abs() < 1e15)
+            })
+            .collect();
+        let ok: Vec<f64> = parsed.iter().flatten().copied().collect();
+        if (ok.len() as f64) < EXTRA_MIN_NUMERIC * n as f64 || ok.len() < 20 {
+            continue;
+        }
+        let mean = ok.iter().sum::<f64>() / ok.len() as f64;
+        let values: Vec<f64> = parsed.iter().map(|v| v.unwrap_or(mean)).collect();
+        let (min, max) = values
+            .iter()
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), v| {
+                (l.min(*v), h.max(*v))
+            });
+        if max <= min {
+            continue;
+        }
+        if known
+            .iter()
+            .any(|k| correlation(k, &values).abs() >= EXTRA_MAX_CORRELATION)
+        {
+            continue;
+        }
+        out.push(ExtraVar {
+            name: name.clone(),
+            values,
+            mean,
+            min,
+            max,
+        });
+    }
+    out
 }
 
 /// A concrete candidate term (its nonlinear hyper-parameters chosen).
@@ -386,6 +533,16 @@ enum Spec {
     Reversal {
         axis: Axis,
     },
+    StepSize {
+        axis: Axis,
+        length_um: f64,
+    },
+    /// Linear in extra column `var` (index into `Data::extra`); no model
+    /// term can carry it.
+    Other {
+        comp: Axis,
+        var: usize,
+    },
 }
 
 /// A search family (what varies, before the search fixes it).
@@ -398,6 +555,8 @@ enum Family {
     TimePeriodic { comp: Axis },
     Temperature { comp: Axis },
     Reversal { axis: Axis },
+    StepSize { axis: Axis },
+    Other { comp: Axis, var: usize },
 }
 
 impl Family {
@@ -408,8 +567,9 @@ impl Family {
             | Family::Slope { comp, .. }
             | Family::Drift { comp, .. }
             | Family::TimePeriodic { comp }
-            | Family::Temperature { comp } => comp,
-            Family::Reversal { axis } => axis,
+            | Family::Temperature { comp }
+            | Family::Other { comp, .. } => comp,
+            Family::Reversal { axis } | Family::StepSize { axis } => axis,
         }
     }
 }
@@ -434,11 +594,124 @@ fn families(d: &Data) -> Vec<Family> {
         if d.temp_varies {
             out.push(Family::Temperature { comp });
         }
+        for var in 0..d.extra.len() {
+            out.push(Family::Other { comp, var });
+        }
     }
     for axis in Axis::ALL {
         out.push(Family::Reversal { axis });
+        out.push(Family::StepSize { axis });
     }
     out
+}
+
+/// Range of the step-size length λ worth searching for `axis`, µm, or
+/// `None` when the log cannot tell a step-size effect from extra play: too
+/// few moves, or (nearly) all of the same length (a log of constant-step
+/// scans), where `1 − exp(−L/λ)` is one number times the direction.
+fn step_length_range(d: &Data, axis: Axis) -> Option<(f64, f64)> {
+    let mut lens = move_lengths(d, axis);
+    if lens.len() < 16 {
+        return None;
+    }
+    lens.sort_by(f64::total_cmp);
+    let med = lens[lens.len() / 2];
+    let distinct = lens
+        .iter()
+        .filter(|&&l| l >= 3.0 * med || l <= med / 3.0)
+        .count();
+    if distinct < STEP_MIN_DISTINCT.max(lens.len() / 50) {
+        return None;
+    }
+    let lo = (0.5 * lens[lens.len() / 20]).max(1e-3);
+    let hi = (2.0 * lens[lens.len() - 1]).max(4.0 * lo);
+    Some((lo, hi))
+}
+
+/// Moves whose length differs at least 3× from the median a log needs
+/// before the step-size family is searched (and at least 2 % of its
+/// moves: the few repositioning moves between constant-step scans do not
+/// make a step-size effect identifiable).
+const STEP_MIN_DISTINCT: usize = 8;
+
+/// The step-size length λ whose column best explains `resid` on the
+/// training rows (largest squared projection), log grid then golden
+/// section.
+fn step_size_search(d: &Data, axis: Axis, resid: &[f64], train: &[bool]) -> Option<Spec> {
+    let (lo, hi) = step_length_range(d, axis)?;
+    let c = axis.index();
+    let mut col = vec![0.0; 2 * d.n];
+    let mut score = |log_l: f64| -> f64 {
+        let l = log_l.exp();
+        col.iter_mut().for_each(|v| *v = 0.0);
+        for (i, s) in d.states.iter().enumerate() {
+            let m = s.axes[c];
+            col[2 * i + c] = step_size_shape(m.dir.sign(), m.last_move_um, l);
+        }
+        d.center(&mut col);
+        let (mut br, mut bb) = (0.0, 0.0);
+        for i in 0..d.n {
+            if train[i] {
+                br += col[2 * i + c] * resid[2 * i + c];
+                bb += col[2 * i + c] * col[2 * i + c];
+            }
+        }
+        if bb > 0.0 {
+            br * br / bb
+        } else {
+            0.0
+        }
+    };
+    let (a, b) = (lo.ln(), hi.ln());
+    let n = 40;
+    let grid: Vec<(f64, f64)> = (0..=n)
+        .map(|k| {
+            let x = a + (b - a) * k as f64 / n as f64;
+            (x, score(x))
+        })
+        .collect();
+    let (kbest, _) = grid
+        .iter()
+        .enumerate()
+        .max_by(|p, q| p.1 .1.total_cmp(&q.1 .1))?;
+    if grid[kbest].1 <= 0.0 {
+        return None;
+    }
+    // Golden section between the best point's neighbours.
+    let mut l = grid[kbest.saturating_sub(1)].0;
+    let mut h = grid[(kbest + 1).min(n)].0;
+    let g = 0.5 * (5f64.sqrt() - 1.0);
+    let mut x1 = h - g * (h - l);
+    let mut x2 = l + g * (h - l);
+    let (mut f1, mut f2) = (score(x1), score(x2));
+    for _ in 0..25 {
+        if f1 >= f2 {
+            h = x2;
+            x2 = x1;
+            f2 = f1;
+            x1 = h - g * (h - l);
+            f1 = score(x1);
+        } else {
+            l = x1;
+            x1 = x2;
+            f1 = f2;
+            x2 = l + g * (h - l);
+            f2 = score(x2);
+        }
+    }
+    let best = if f1.max(f2) >= grid[kbest].1 {
+        if f1 >= f2 {
+            x1
+        } else {
+            x2
+        }
+    } else {
+        grid[kbest].0
+    };
+    Some(Spec::StepSize {
+        axis,
+        length_um: best.exp(),
+    })
 }
 
 fn median(mut v: Vec<f64>) -> Option<f64> {
@@ -582,6 +855,8 @@ fn search(f: Family, d: &Data, resid: &[f64], train: &[bool]) -> Option<Spec> {
                 && (0..d.n).any(|i| d.states[i].axes[axis.index()].dir == Direction::Backward);
             has_both.then_some(Spec::Reversal { axis })
         }
+        Family::StepSize { axis } => step_size_search(d, axis, resid, train),
+        Family::Other { comp, var } => Some(Spec::Other { comp, var }),
         Family::TimePeriodic { comp } => {
             let idx: Vec<usize> = (0..d.n).filter(|&i| train[i]).collect();
             let x: Vec<f64> = idx.iter().map(|&i| d.states[i].time_s).collect();
@@ -677,6 +952,19 @@ fn columns(spec: &Spec, d: &Data, model: &StageModel) -> Vec<Vec<f64>> {
             }
             None => one(axis, &|s| -0.5 * s.axis(axis).dir.sign()),
         },
+        Spec::StepSize { axis, length_um } => one(axis, &|s| {
+            let m = s.axis(axis);
+            step_size_shape(m.dir.sign(), m.last_move_um, length_um)
+        }),
+        Spec::Other { comp, var } => {
+            let mut v = vec![0.0; 2 * n];
+            if let Some(x) = d.extra.get(var) {
+                for (i, val) in x.values.iter().enumerate().take(n) {
+                    v[2 * i + comp.index()] = *val - x.mean;
+                }
+            }
+            cols.push(v);
+        }
     }
     for c in &mut cols {
         d.center(c);
@@ -1036,6 +1324,35 @@ pub fn diagnose(
         accepted.push((spec, verdict));
     }
 
+    // The extended model cannot carry `other` findings (log columns it has
+    // no input for): its held-out RMS is that of the other findings only.
+    let unmodelled = |s: &Spec| matches!(s, Spec::Other { .. });
+    let (extended_heldout, with_unmodelled) = if accepted.iter().any(|(s, _)| unmodelled(s)) {
+        let mut cols: Vec<Vec<f64>> = base[..n_base].to_vec();
+        for (s, _) in &accepted {
+            if !unmodelled(s) {
+                cols.extend(columns(s, &d, model));
+            }
+        }
+        let mut ho = vec![0.0; 2 * d.n];
+        for f in 0..d.nfolds {
+            let train: Vec<bool> = d.fold.iter().map(|&k| k != f).collect();
+            let fb = fold_base(&d, &cols, train);
+            for i in 0..d.n {
+                if !fb.train[i] {
+                    ho[2 * i] = fb.resid[2 * i];
+                    ho[2 * i + 1] = fb.resid[2 * i + 1];
+                }
+            }
+        }
+        (
+            [rms_comp(&ho, 0), rms_comp(&ho, 1)],
+            Some(RmsXy::from(last_heldout)),
+        )
+    } else {
+        (last_heldout, None)
+    };
+
     let samples: Vec<Sample> = (0..d.n)
         .map(|i| Sample {
             state: d.states[i],
@@ -1049,11 +1366,12 @@ pub fn diagnose(
     // model's own Levenberg–Marquardt (the only nonlinear candidate). Its
     // values are not taken: it cannot profile out the block constants of
     // static axes, and the centred search already refined place and width.
-    if specs.iter().any(|s| matches!(s, Spec::Localized { .. })) {
+    let nonlinear = |s: &Spec| matches!(s, Spec::Localized { .. } | Spec::StepSize { .. });
+    if specs.iter().any(nonlinear) {
         let (ext, names) = extended(&d, model, &base_names, &specs)?;
         let mut free = base_names.clone();
         for (spec, name) in specs.iter().zip(&names) {
-            if matches!(spec, Spec::Localized { .. }) {
+            if nonlinear(spec) {
                 free.push(format!("{name}.*"));
             }
         }
@@ -1065,7 +1383,10 @@ pub fn diagnose(
         };
         if let Ok(report) = fitted.fit(&samples, &fo) {
             for p in &report.params {
-                if p.name.ends_with(".position_um") || p.name.ends_with(".width_um") {
+                if p.name.ends_with(".position_um")
+                    || p.name.ends_with(".width_um")
+                    || p.name.ends_with(".length_um")
+                {
                     if let Some(e) = p.std_error {
                         std_errs.insert(p.name.clone(), e);
                     }
@@ -1076,7 +1397,8 @@ pub fn diagnose(
     // Every linear coefficient from the centred solve (block constants of
     // static axes profiled out, which the plain model fit cannot do), with
     // standard errors from the same normal equations.
-    let (mut fitted, term_names, lin_se) = extended_with_se(&d, model, &base_names, &specs)?;
+    let (mut fitted, term_names, lin_se, unmodelled_values) =
+        extended_with_se(&d, model, &base_names, &specs)?;
     let (mut base_model, _) = extended(&d, model, &base_names, &[])?;
     if let Some(env) = log_environment(log)? {
         fitted.set_environment(env.clone())?;
@@ -1107,16 +1429,24 @@ pub fn diagnose(
         series.temp_c.push(s.temp_c);
         series.x_dir.push(s.axes[0].dir.sign());
         series.y_dir.push(s.axes[1].dir.sign());
+        series.x_last_move_um.push(s.axes[0].last_move_um);
+        series.y_last_move_um.push(s.axes[1].last_move_um);
         for c in 0..2 {
             series.before_um[c].push(base_only.resid[2 * i + c]);
             series.after_um[c].push(after[2 * i + c]);
         }
     }
+    series.extra = d
+        .extra
+        .iter()
+        .map(|x| (x.name.clone(), x.values.clone()))
+        .collect();
     let fit_rms = [rms_comp(&after, 0), rms_comp(&after, 1)];
+    let value = |name: &str| -> Option<f64> { unmodelled_values.get(name).copied() };
     let findings = accepted
         .iter()
         .zip(&term_names)
-        .map(|((spec, v), name)| describe(spec, v, name, &fitted, model, &std_err, &d))
+        .map(|((spec, v), name)| describe(spec, v, name, &fitted, model, &std_err, &value, &d))
         .collect::<Result<Vec<_>, _>>()?;
     let mut r0 = vec![0.0; 2 * d.n];
     for i in 0..d.n {
@@ -1130,7 +1460,8 @@ pub fn diagnose(
         model_rms_um: RmsXy::from([rms_comp(&r0, 0), rms_comp(&r0, 1)]),
         baseline_rms_um: RmsXy::from(baseline_rms),
         findings,
-        extended_rms_um: RmsXy::from(last_heldout),
+        extended_rms_um: RmsXy::from(extended_heldout),
+        with_unmodelled_rms_um: with_unmodelled,
         extended_fit_rms_um: RmsXy::from(fit_rms),
         base_free_params: base_names,
         options: opts.clone(),
@@ -1189,6 +1520,8 @@ fn spec_param_names(spec: &Spec) -> &'static [&'static str] {
         Spec::Drift { .. } => &["rate_um_per_h"],
         Spec::Temperature { .. } => &["um_per_c"],
         Spec::Reversal { .. } => &["backlash_um"],
+        Spec::StepSize { .. } => &["amplitude_um"],
+        Spec::Other { .. } => &["um_per_unit"],
     }
 }
 
@@ -1200,11 +1533,18 @@ fn extended(
     base_names: &[String],
     specs: &[Spec],
 ) -> Result<(StageModel, Vec<String>), AnalysisError> {
-    extended_with_se(d, model, base_names, specs).map(|(m, n, _)| (m, n))
+    extended_with_se(d, model, base_names, specs).map(|(m, n, _, _)| (m, n))
 }
 
-/// Extended model, its new term names, and standard errors by full name.
-type Extended = (StageModel, Vec<String>, HashMap<String, f64>);
+/// Extended model, its new term names, standard errors by full name, and
+/// the coefficients of the findings no model term can carry (`other`), by
+/// `name.parameter`.
+type Extended = (
+    StageModel,
+    Vec<String>,
+    HashMap<String, f64>,
+    HashMap<String, f64>,
+);
 
 /// [`extended`] plus the standard error of every linear parameter, by full
 /// name.
@@ -1232,17 +1572,29 @@ fn extended_with_se(
     }
     let mut col = base_names.len();
     let mut term_names = Vec::new();
+    let mut unmodelled = HashMap::new();
     for (k, spec) in specs.iter().enumerate() {
         let pn = spec_param_names(spec);
         let coef: Vec<f64> = (col..col + pn.len()).map(|j| beta[j]).collect();
-        let name = add_term(&mut ext, spec, &coef, k + 1, d.t0)?;
+        let name = if let Spec::Other { comp, var } = *spec {
+            // Fitted jointly, but no model term: the model has no input for
+            // a log column (see the module docs).
+            let vname = d.extra.get(var).map_or("?", |x| x.name.as_str());
+            let name = format!("unmodelled{}_{comp}_vs_{vname}", k + 1);
+            for (m, p) in pn.iter().enumerate() {
+                unmodelled.insert(format!("{name}.{p}"), coef[m]);
+            }
+            name
+        } else {
+            add_term(&mut ext, spec, &coef, k + 1, d.t0)?
+        };
         for (m, p) in pn.iter().enumerate() {
             se.insert(format!("{name}.{p}"), (sigma2 * pdiag[col + m]).sqrt());
         }
         col += pn.len();
         term_names.push(name);
     }
-    Ok((ext, term_names, se))
+    Ok((ext, term_names, se, unmodelled))
 }
 
 /// The term kinds owning `names` (to rebuild the same base columns).
@@ -1342,6 +1694,19 @@ fn add_term(
                 um_per_c: c0,
             }),
         ),
+        Spec::StepSize { axis, length_um } => (
+            format!("found{k}_{axis}_step_size"),
+            DiscoveredConfig::StepSize(StepSizeConfig {
+                axis,
+                amplitude_um: c0,
+                length_um,
+            }),
+        ),
+        Spec::Other { comp, .. } => {
+            return Err(AnalysisError::Invalid(format!(
+                "a dependence of the {comp} error on a log column cannot become a model term (the model has no input for it)"
+            )))
+        }
         Spec::Reversal { axis } => {
             if let Some(t) = backlash_term_of(m, axis) {
                 let name = t.name().to_string();
@@ -1365,6 +1730,7 @@ fn add_term(
     Ok(name)
 }
 
+#[allow(clippy::too_many_arguments)]
 fn describe(
     spec: &Spec,
     v: &Verdict,
@@ -1372,6 +1738,7 @@ fn describe(
     fitted: &StageModel,
     original: &StageModel,
     std_err: &dyn Fn(&str) -> Option<f64>,
+    unmodelled_value: &dyn Fn(&str) -> Option<f64>,
     d: &Data,
 ) -> Result<Finding, AnalysisError> {
     let p = |k: &str| fitted.param(&format!("{term}.{k}"));
@@ -1379,6 +1746,8 @@ fn describe(
     let mut params = BTreeMap::new();
     let mut unc = BTreeMap::new();
     let mut shape = None;
+    let mut variable = None;
+    let mut in_model = true;
     let (kind, axis, comp, explanation, cause);
     match *spec {
         Spec::PosPeriodic {
@@ -1547,6 +1916,64 @@ fn describe(
             );
             cause = "more (or less) play between screw and nut than the model: wear, preload lost, or friction in the guide".into();
         }
+        Spec::StepSize { axis: a, .. } => {
+            let amp = p("amplitude_um")?;
+            let len = p("length_um")?;
+            params.insert("amplitude_um".into(), amp);
+            params.insert("length_um".into(), len);
+            for k in ["amplitude_um", "length_um"] {
+                if let Some(e) = se(k) {
+                    unc.insert(k.into(), e);
+                }
+            }
+            let typical = typical_move_um(d, a);
+            let at_typical = amp * -(-typical / len.max(1e-9)).exp_m1();
+            kind = FindingKind::StepSize;
+            axis = a;
+            comp = a;
+            explanation = format!(
+                "{a} {} by an amount that depends on the length of the preceding move: {:.3} µm after long moves, building up over about {len:.0} µm of move ({:.3} µm after the log's typical {typical:.0} µm move)",
+                if amp >= 0.0 {
+                    "falls short of its target (lost motion)"
+                } else {
+                    "overshoots its target"
+                },
+                amp.abs(),
+                at_typical.abs()
+            );
+            cause = "elastic wind-up of screw, coupling or nut, or guide friction, that is only fully loaded after a long move (the play of the model depends on the direction only); a nut preload that yields over a travel of about the build-up length".into();
+        }
+        Spec::Other { comp: c, var } => {
+            let x = d
+                .extra
+                .get(var)
+                .ok_or_else(|| AnalysisError::Invalid(format!("extra column {var} vanished")))?;
+            let k = unmodelled_value(&format!("{term}.um_per_unit")).ok_or_else(|| {
+                AnalysisError::Invalid(format!("no coefficient for `{}`", x.name))
+            })?;
+            params.insert("um_per_unit".into(), k);
+            if let Some(e) = se("um_per_unit") {
+                unc.insert("um_per_unit".into(), e);
+            }
+            params.insert("variable_min".into(), x.min);
+            params.insert("variable_max".into(), x.max);
+            kind = FindingKind::Other;
+            axis = c;
+            comp = c;
+            explanation = format!(
+                "{c} error follows the log column `{}`: {k:+.4} µm per unit ({:.3} µm over its logged range {} … {}); the model has no input for this column, so the extended model does not include it (its simulation and compensation still miss this error)",
+                x.name,
+                (k * (x.max - x.min)).abs(),
+                x.min,
+                x.max
+            );
+            cause = format!(
+                "whatever `{}` measures (or something that varies with it) moves the platform or the camera: humidity, motor current or load, air pressure; log and control that quantity, or model it outside the stage model",
+                x.name
+            );
+            variable = Some(x.name.clone());
+            in_model = false;
+        }
     }
     Ok(Finding {
         kind,
@@ -1561,7 +1988,13 @@ fn describe(
         gain_pct: v.gain_pct,
         explanation,
         cause,
-        term: term.to_string(),
+        term: if in_model {
+            term.to_string()
+        } else {
+            String::new()
+        },
+        variable,
+        in_extended_model: in_model,
     })
 }
 
@@ -1575,6 +2008,22 @@ fn reversal_value(
     let full = format!("{term}.backlash_um");
     let before = original.param(&full).unwrap_or(0.0);
     Ok(fitted.param(&full)? - before)
+}
+
+/// Lengths of the moves axis `a` made in the log (rows where it moved),
+/// µm.
+fn move_lengths(d: &Data, a: Axis) -> Vec<f64> {
+    d.states
+        .windows(2)
+        .filter(|w| w[1].cmd_um(a) != w[0].cmd_um(a))
+        .map(|w| w[1].axis(a).last_move_um)
+        .filter(|l| l.is_finite() && *l > 0.0)
+        .collect()
+}
+
+/// Median length of the moves of axis `a` in the log, µm (0 without moves).
+fn typical_move_um(d: &Data, a: Axis) -> f64 {
+    median(move_lengths(d, a)).unwrap_or(0.0)
 }
 
 fn span_of(d: &Data, a: Axis) -> f64 {
@@ -1650,7 +2099,7 @@ impl Diagnosis {
                 i + 1,
                 f.kind,
                 f.component,
-                f.axis
+                f.variable.as_deref().unwrap_or(f.axis.as_str())
             );
             let _ = writeln!(out, "  {}", f.explanation);
             let _ = writeln!(out, "  likely cause: {}", f.cause);
@@ -1666,13 +2115,17 @@ impl Diagnosis {
             }
             let _ = writeln!(
                 out,
-                "  held-out rms {}: {:.4} → {:.4} µm ({:.1} % better, z = {:.1}); model term `{}`",
+                "  held-out rms {}: {:.4} → {:.4} µm ({:.1} % better, z = {:.1}); {}",
                 f.component,
                 f.heldout_rms_before_um,
                 f.heldout_rms_after_um,
                 f.gain_pct,
                 f.significance,
-                f.term
+                if f.in_extended_model {
+                    format!("model term `{}`", f.term)
+                } else {
+                    "NOT in the extended model (no model input for this column)".to_string()
+                }
             );
         }
         let gx = pct(self.baseline_rms_um.x, self.extended_rms_um.x);
@@ -1685,6 +2138,13 @@ impl Diagnosis {
             self.extended_fit_rms_um.x,
             self.extended_fit_rms_um.y
         );
+        if let Some(w) = &self.with_unmodelled_rms_um {
+            let _ = writeln!(
+                out,
+                "with the log-column findings the model cannot carry, held out: rms x {:.4} µm, y {:.4} µm",
+                w.x, w.y
+            );
+        }
         out
     }
 
@@ -1698,6 +2158,7 @@ impl Diagnosis {
             "findings": self.findings,
             "extended_rms_um": self.extended_rms_um,
             "extended_fit_rms_um": self.extended_fit_rms_um,
+            "with_unmodelled_rms_um": self.with_unmodelled_rms_um,
             "gain_pct": {
                 "x": pct(self.baseline_rms_um.x, self.extended_rms_um.x),
                 "y": pct(self.baseline_rms_um.y, self.extended_rms_um.y),
@@ -1713,5 +2174,74 @@ fn pct(before: f64, after: f64) -> f64 {
         100.0 * (1.0 - after / before)
     } else {
         0.0
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::analysis::generate::{add_extra_column, simulate_log, truth_model, SimPlan};
+    use crate::charact::log::{parse_bytes, Columns};
+
+    fn small_plan(random_points: usize) -> SimPlan {
+        SimPlan {
+            x_range_um: [250.0, 1250.0],
+            x_scan_y_um: 600.0,
+            y_range_um: [250.0, 1050.0],
+            y_scan_x_um: 700.0,
+            cycles: 2,
+            random_points,
+            ..SimPlan::default()
+        }
+    }
+
+    #[test]
+    fn only_numeric_varying_new_columns_are_searched() {
+        let base = StageModel::paper_default().unwrap();
+        let plan = small_plan(20);
+        let truth = truth_model(&base, None, &plan, 3).unwrap();
+        let mut log = simulate_log(&truth, &plan, 3).unwrap();
+        add_extra_column(&mut log, "humidity_pct", 3, None).unwrap();
+        let mut extra = log.columns.extra.clone();
+        for name in ["focus", "mostly_text", "constant", "x_reported_um"] {
+            extra.push(name.to_string());
+        }
+        log.columns = Columns::new(true, extra).unwrap();
+        let n = log.records.len();
+        for (i, r) in log.records.iter_mut().enumerate() {
+            r.extra.push("ok".into());
+            r.extra
+                .push(if i % 2 == 0 { "1.5" } else { "n/a" }.to_string());
+            r.extra.push("7".into());
+            r.extra.push(format!("{:.4}", r.x_cmd_um + 0.001));
+            if i == n / 2 {
+                r.extra[0] = "garbage".into();
+            }
+        }
+        let parsed = parse_bytes(&log.to_bytes().unwrap()).unwrap();
+        let d = prepare(&parsed, &base, 4).unwrap();
+        let names: Vec<&str> = d.extra.iter().map(|x| x.name.as_str()).collect();
+        assert_eq!(names, ["humidity_pct"]);
+        let h = &d.extra[0];
+        // One unparsable cell takes the mean (no effect on the fit).
+        assert!((h.values[n / 2] - h.mean).abs() < 1e-12);
+        assert!(h.min < h.max);
+    }
+
+    #[test]
+    fn step_size_is_searched_only_with_moves_of_different_lengths() {
+        let base = StageModel::paper_default().unwrap();
+        for (random, want) in [(0usize, false), (40, true)] {
+            let plan = small_plan(random);
+            let truth = truth_model(&base, None, &plan, 5).unwrap();
+            let log = simulate_log(&truth, &plan, 5).unwrap();
+            let parsed = parse_bytes(&log.to_bytes().unwrap()).unwrap();
+            let d = prepare(&parsed, &base, 4).unwrap();
+            assert_eq!(
+                step_length_range(&d, Axis::X).is_some(),
+                want,
+                "{random} random points"
+            );
+        }
     }
 }

@@ -13,6 +13,12 @@
 //! analysis never sees; sizes go from clearly visible down to about twice
 //! the measurement noise (settling σ ⊕ camera σ ≈ 0.046 µm with the
 //! defaults).
+//!
+//! [`add_extra_column`] adds a logged quantity the model has no input for
+//! (a humidity-like series wandering in time) as an extra column, with or
+//! without an error proportional to it: the test bench of the `other`
+//! finding. That effect lives only in the log (no model can carry it), so a
+//! truth model replayed by `hil-sim` does not have it.
 
 use std::collections::BTreeMap;
 
@@ -24,8 +30,8 @@ use serde::Serialize;
 use crate::charact::log::{Columns, Metadata, Record};
 use crate::model::terms::{
     BacklashConfig, BacklashTerm, DiscoveredConfig, DiscoveredTerm, LocalizedConfig,
-    PositionPeriodicConfig, PositionSlopeConfig, TemperatureConfig, TimeDriftConfig,
-    TimePeriodicConfig,
+    PositionPeriodicConfig, PositionSlopeConfig, StepSizeConfig, TemperatureConfig,
+    TimeDriftConfig, TimePeriodicConfig,
 };
 use crate::model::{
     Axis, Environment, Interpolation, MotionState, StageModel, StageSimulator, TemperaturePoint,
@@ -120,7 +126,8 @@ pub struct InjectedEffect {
     pub component: Axis,
     /// Parameters under the names the analysis reports (`period_um`,
     /// `amplitude_um`, `ppm`, `slope_urad`, `position_um`, `width_um`,
-    /// `rate_um_per_h`, `period_s`, `value_um`, `um_per_c`), model sign.
+    /// `rate_um_per_h`, `period_s`, `value_um`, `um_per_c`, `length_um`),
+    /// model sign.
     pub params: BTreeMap<String, f64>,
     /// The extra model term.
     #[serde(skip)]
@@ -128,7 +135,7 @@ pub struct InjectedEffect {
 }
 
 /// Kinds the generator can hide.
-pub const GENERATED_KINDS: [FindingKind; 8] = [
+pub const GENERATED_KINDS: [FindingKind; 9] = [
     FindingKind::PositionPeriodic,
     FindingKind::Scale,
     FindingKind::Localized,
@@ -137,6 +144,7 @@ pub const GENERATED_KINDS: [FindingKind; 8] = [
     FindingKind::Reversal,
     FindingKind::CrossAxis,
     FindingKind::Temperature,
+    FindingKind::StepSize,
 ];
 
 fn log_uniform(rng: &mut ChaCha8Rng, lo: f64, hi: f64) -> f64 {
@@ -348,7 +356,26 @@ fn draw_with(
                 term: Box::new(term),
             });
         }
-        FindingKind::StepSize | FindingKind::Other => {
+        FindingKind::StepSize => {
+            let axis = axis_of(&mut rng);
+            // Lost motion (> 0) reached after moves ≫ λ; λ from 50 µm (a
+            // 20 µm scan step already loses a third of it) to 1.5 mm (scan
+            // steps lose ~1 %, the random moves of the plan, 0–9.5 mm,
+            // span the build-up).
+            let length = log_uniform(&mut rng, 50.0, 1500.0);
+            params.insert("amplitude_um".into(), size);
+            params.insert("length_um".into(), length);
+            (
+                axis,
+                axis,
+                DiscoveredConfig::StepSize(StepSizeConfig {
+                    axis,
+                    amplitude_um: size,
+                    length_um: length,
+                }),
+            )
+        }
+        FindingKind::Other => {
             return Err(AnalysisError::Invalid(format!(
                 "the generator cannot hide a `{}` effect (it can: {})",
                 kind.as_str(),
@@ -498,6 +525,80 @@ pub fn simulate_log(
         columns: Columns::new(true, Vec::new())?,
         metadata,
     })
+}
+
+/// A wandering logged quantity (e.g. relative humidity, %), seeded: mean
+/// 45, knots every 300 s with σ 1.5 steps and mean reversion, linear in
+/// between. Independent of the temperature walk (other seed stream).
+fn wandering_series(times_s: &[f64], seed: u64) -> Vec<f64> {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x0e47_a000_0000_0003);
+    let t0 = times_s.first().copied().unwrap_or(0.0);
+    let t1 = times_s.last().copied().unwrap_or(0.0);
+    let mut knots = Vec::new();
+    let mut v = 0.0;
+    let mut t = t0;
+    loop {
+        knots.push((t, v));
+        if t > t1 {
+            break;
+        }
+        let z: f64 = StandardNormal.sample(&mut rng);
+        v += 1.5 * z - 0.15 * v;
+        t += 300.0;
+    }
+    times_s
+        .iter()
+        .map(|&t| {
+            let k = knots.partition_point(|(kt, _)| *kt <= t).max(1) - 1;
+            let (ta, va) = knots[k];
+            let (tb, vb) = knots.get(k + 1).copied().unwrap_or((ta + 300.0, va));
+            let w = ((t - ta) / (tb - ta)).clamp(0.0, 1.0);
+            45.0 + va + w * (vb - va)
+        })
+        .collect()
+}
+
+/// Adds an extra numeric column `name` to `log`: a wandering quantity
+/// (humidity-like, see the module docs) drawn from `seed`, written with 3
+/// decimals. With `effect = Some((component, um_per_unit))` the measured
+/// position of that component also moves by `um_per_unit·(value − mean)`
+/// (model sign: added to the platform position). Returns the values as
+/// written. Errors: a name the log format refuses (empty, repeated, a
+/// standard column) or a non-finite slope.
+pub fn add_extra_column(
+    log: &mut SimLog,
+    name: &str,
+    seed: u64,
+    effect: Option<(Axis, f64)>,
+) -> Result<Vec<f64>, AnalysisError> {
+    if let Some((_, k)) = effect {
+        if !k.is_finite() {
+            return Err(AnalysisError::Invalid(format!(
+                "extra column effect must be finite, got {k} µm per unit"
+            )));
+        }
+    }
+    let mut extra = log.columns.extra.clone();
+    extra.push(name.to_string());
+    let columns = Columns::new(log.columns.temp_c, extra)?;
+    let times: Vec<f64> = log.records.iter().map(|r| r.t_s).collect();
+    // Rounded as written, so the effect follows the logged value exactly.
+    let values: Vec<f64> = wandering_series(&times, seed)
+        .into_iter()
+        .map(|v| (v * 1000.0).round() / 1000.0)
+        .collect();
+    let mean = values.iter().sum::<f64>() / values.len().max(1) as f64;
+    for (r, v) in log.records.iter_mut().zip(&values) {
+        r.extra.push(format!("{v:.3}"));
+        if let Some((c, k)) = effect {
+            match c {
+                Axis::X => r.x_meas_um += k * (v - mean),
+                Axis::Y => r.y_meas_um += k * (v - mean),
+            }
+        }
+    }
+    log.columns = columns;
+    Ok(values)
 }
 
 impl SimLog {

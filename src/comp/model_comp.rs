@@ -115,6 +115,9 @@ pub fn compensation_template(model: &StageModel) -> Result<StageModel, CompError
                 || t.kind() == crate::model::terms::discovered::TIME_DRIFT_KIND
                 || t.kind() == crate::model::terms::discovered::TIME_PERIODIC_KIND
                 || t.kind() == crate::model::terms::discovered::TEMPERATURE_KIND
+                // On constant-step scans a step-size term's amplitude is one
+                // number times the direction: the same column as the play.
+                || t.kind() == crate::model::terms::discovered::STEP_SIZE_KIND
                 // Angular errors act through Abbe arms: on a 1-DoF scan line
                 // a yaw slope × arm is the same straight line as squareness
                 // or lead, and its periodic part the same as the cyclic and

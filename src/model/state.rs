@@ -4,7 +4,9 @@
 //! Why history and not just position: a leadscrew stage does not land in the
 //! same place when it arrives from the left or from the right (backlash,
 //! direction-dependent cyclic error), and after a short move the play between
-//! screw and nut may not be fully taken up. [`MotionState`] carries exactly
+//! screw and nut may not be fully taken up; and the lost motion itself may
+//! depend on how long the last single move was (elastic wind-up, friction
+//! that is only fully loaded after a long move). [`MotionState`] carries exactly
 //! the history those effects need, expressed in commanded quantities only, so
 //! that the simulator (which knows everything) and the analysis (which only
 //! has a log of targets) build the same state with the same code:
@@ -103,6 +105,15 @@ pub struct AxisMotion {
     /// current run is the first motion since the history started (the
     /// platform was taken as centred in its play then).
     pub prev_run_um: Option<f64>,
+    /// Length of the last single commanded move of this axis, µm (≥ 0; 0
+    /// when it has not moved since the history started). Unlike `run_um`
+    /// it does not add up over consecutive moves in one direction: it is
+    /// what the `step_size` term needs (lost motion that depends on the
+    /// length of the preceding move). Invariant kept by [`MotionTracker`]:
+    /// `0 < last_move_um ≤ run_um` once the direction is known. Absent in
+    /// states serialized before it existed: read as 0.
+    #[serde(default)]
+    pub last_move_um: f64,
 }
 
 impl AxisMotion {
@@ -113,18 +124,20 @@ impl AxisMotion {
             dir: Direction::Unknown,
             run_um: 0.0,
             prev_run_um: None,
+            last_move_um: 0.0,
         }
     }
 
     /// An axis at `cmd_um` that arrived there by a long move in `dir` (long
-    /// enough to take up any play): the usual state after a characterization
-    /// step.
+    /// enough to take up any play, and long enough that any effect of the
+    /// move length has saturated).
     pub const fn arrived(cmd_um: f64, dir: Direction) -> Self {
         AxisMotion {
             cmd_um,
             dir,
             run_um: f64::MAX,
             prev_run_um: None,
+            last_move_um: f64::MAX,
         }
     }
 
@@ -147,6 +160,11 @@ impl AxisMotion {
         if self.run_um.is_nan() || self.run_um < 0.0 {
             return Err(ModelError::NonFinite {
                 what: format!("{} (must be ≥ 0)", what("run_um")),
+            });
+        }
+        if self.last_move_um.is_nan() || self.last_move_um < 0.0 {
+            return Err(ModelError::NonFinite {
+                what: format!("{} (must be ≥ 0)", what("last_move_um")),
             });
         }
         if let Some(p) = self.prev_run_um {
@@ -231,7 +249,7 @@ impl MotionState {
     /// Rejects states a term could turn into NaN or infinity: non-finite
     /// positions, temperatures or times, positions beyond
     /// [`MAX_POSITION_UM`], temperatures outside −273.15..=[`MAX_TEMP_C`],
-    /// negative run lengths.
+    /// negative (or NaN) run and move lengths.
     pub fn validate(&self) -> Result<(), ModelError> {
         for axis in Axis::ALL {
             self.axis(axis).validate(axis)?;
@@ -384,6 +402,7 @@ fn advance(axis: &mut AxisMotion, target_um: f64, min_move_um: f64) {
     } else {
         Direction::Backward
     };
+    axis.last_move_um = delta.abs();
     if dir == axis.dir {
         axis.run_um += delta.abs();
     } else {
@@ -407,20 +426,27 @@ mod tests {
         let s = t.step(Waypoint::at(10.0, 0.0)).unwrap();
         assert_eq!(s.axes[0].dir, Direction::Forward);
         assert_eq!(s.axes[0].run_um, 10.0);
+        assert_eq!(s.axes[0].last_move_um, 10.0);
         assert_eq!(s.axes[0].prev_run_um, None);
+        assert_eq!(s.axes[1].last_move_um, 0.0);
         assert_eq!(s.axes[1].dir, Direction::Unknown);
         let s = t.step(Waypoint::at(15.0, 0.0)).unwrap();
         assert_eq!(s.axes[0].run_um, 15.0);
+        // The run adds up, the last move does not.
+        assert_eq!(s.axes[0].last_move_um, 5.0);
         let s = t.step(Waypoint::at(14.0, -3.0)).unwrap();
         assert_eq!(s.axes[0].dir, Direction::Backward);
         assert_eq!(s.axes[0].run_um, 1.0);
         assert_eq!(s.axes[0].prev_run_um, Some(15.0));
+        assert_eq!(s.axes[0].last_move_um, 1.0);
         assert_eq!(s.axes[1].dir, Direction::Backward);
         assert_eq!(s.axes[1].run_um, 3.0);
-        // A zero move keeps the history.
+        assert_eq!(s.axes[1].last_move_um, 3.0);
+        // A zero move keeps the history, including the last move's length.
         let s = t.step(Waypoint::at(14.0, -3.0)).unwrap();
         assert_eq!(s.axes[0].dir, Direction::Backward);
         assert_eq!(s.axes[0].run_um, 1.0);
+        assert_eq!(s.axes[0].last_move_um, 1.0);
     }
 
     #[test]
@@ -432,6 +458,7 @@ mod tests {
         t.step(Waypoint::at(10.0, 0.0)).unwrap();
         let s = t.step(Waypoint::at(9.97, 0.0)).unwrap();
         assert_eq!(s.axes[0].cmd_um, 10.0);
+        assert_eq!(s.axes[0].last_move_um, 10.0);
         assert_eq!(s.axes[0].dir, Direction::Forward);
         let s = t.step(Waypoint::at(9.94, 0.0)).unwrap();
         assert_eq!(s.axes[0].cmd_um, 9.94);
@@ -451,5 +478,21 @@ mod tests {
         wp.temp_c = f64::NAN;
         assert!(t.step(wp).is_err());
         assert_eq!(t.state().cmd_xy_um(), [1.0, 2.0]);
+    }
+
+    #[test]
+    fn last_move_is_validated_and_defaults_when_absent() {
+        let mut s = MotionState::at_rest(0.0, 0.0);
+        s.axes[1].last_move_um = -1.0;
+        assert!(s.validate().is_err());
+        s.axes[1].last_move_um = f64::NAN;
+        assert!(s.validate().is_err());
+        s.axes[1].last_move_um = 5.0;
+        assert!(s.validate().is_ok());
+        // A state serialized before the field existed still loads.
+        let json = r#"{"cmd_um":1.0,"dir":"forward","run_um":3.0,"prev_run_um":null}"#;
+        let a: AxisMotion = serde_json::from_str(json).unwrap();
+        assert_eq!(a.last_move_um, 0.0);
+        assert_eq!(a.run_um, 3.0);
     }
 }

@@ -17,27 +17,52 @@ pub fn write_all(d: &Diagnosis, dir: &Path) -> Result<Vec<PathBuf>, PlotError> {
     ensure_dir(dir)?;
     let s = &d.series;
     let mut files = Vec::new();
-    let vars: [(&str, &str, &[f64]); 6] = [
-        ("x", "commanded x (µm)", &s.x_um),
-        ("y", "commanded y (µm)", &s.y_um),
-        ("time", "time (s)", &s.t_s),
-        ("temperature", "temperature (°C)", &s.temp_c),
+    let mut vars: Vec<(String, String, &[f64])> = vec![
+        ("x".into(), "commanded x (µm)".into(), &s.x_um),
+        ("y".into(), "commanded y (µm)".into(), &s.y_um),
+        ("time".into(), "time (s)".into(), &s.t_s),
+        ("temperature".into(), "temperature (°C)".into(), &s.temp_c),
         (
-            "xdir",
-            "direction of x motion (−1 backward, +1 forward)",
+            "xdir".into(),
+            "direction of x motion (−1 backward, +1 forward)".into(),
             &s.x_dir,
         ),
         (
-            "ydir",
-            "direction of y motion (−1 backward, +1 forward)",
+            "ydir".into(),
+            "direction of y motion (−1 backward, +1 forward)".into(),
             &s.y_dir,
         ),
+        (
+            "xmove".into(),
+            "length of the last x move (µm)".into(),
+            &s.x_last_move_um,
+        ),
+        (
+            "ymove".into(),
+            "length of the last y move (µm)".into(),
+            &s.y_last_move_um,
+        ),
     ];
+    for (name, v) in &s.extra {
+        // File names from a log's column name: keep it to safe characters.
+        let safe: String = name
+            .chars()
+            .map(|ch| {
+                if ch.is_ascii_alphanumeric() || ch == '_' || ch == '-' {
+                    ch
+                } else {
+                    '_'
+                }
+            })
+            .take(60)
+            .collect();
+        vars.push((format!("col_{safe}"), format!("log column `{name}`"), v));
+    }
     for (c, comp) in ["x", "y"].iter().enumerate() {
-        for (name, label, v) in vars {
+        for (name, label, v) in &vars {
             let chart = Chart {
                 title: format!("{comp} residual (measured − model) vs {name}"),
-                x_label: label.to_string(),
+                x_label: label.clone(),
                 y_label: format!("{comp} residual (µm)"),
                 series: vec![
                     Series {

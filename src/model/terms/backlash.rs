@@ -188,6 +188,7 @@ mod tests {
             dir,
             run_um: run,
             prev_run_um: prev,
+            last_move_um: run,
         }
     }
 

@@ -278,6 +278,7 @@ mod tests {
             dir,
             run_um: 100.0,
             prev_run_um: None,
+            last_move_um: 100.0,
         };
         s
     }

@@ -19,9 +19,22 @@
 //! time_drift:         d = r·h + q·h²,  h = (t − t0)/3600 s          (zero at t0)
 //! time_periodic:      d = s·sin(2π·t/T) + c·cos(2π·t/T)
 //! temperature_linear: d = k·(temp − reference)
+//! step_size:          d = −dir·A·(1 − exp(−L/λ))                   L = last move of `axis`
 //! ```
 //! All are linear in their parameters except `localized` (position and
-//! width).
+//! width) and `step_size` (length λ).
+//!
+//! `step_size` is lost motion that depends on the length `L` of the axis's
+//! last single commanded move ([`crate::model::AxisMotion::last_move_um`]):
+//! a short move leaves the platform short by little, a move much longer than
+//! λ by the full `A` (µm, > 0 = lost motion: the platform trails the command
+//! in the direction it moved, `dir` = +1 forward, −1 backward, 0 before any
+//! motion). Physically: elastic wind-up of screw, coupling or nut, or guide
+//! friction, that is only fully loaded after a long move. It differs from
+//! the `backlash` play, which depends on the direction and on the travel
+//! since the last reversal (and is fully taken up after a few µm), not on
+//! the length of one move: ten 20 µm steps in one direction have a 200 µm
+//! run but a 20 µm last move. The error sits on the axis's own component.
 
 use serde::{Deserialize, Serialize};
 
@@ -44,6 +57,8 @@ pub const TIME_DRIFT_KIND: &str = "time_drift";
 pub const TIME_PERIODIC_KIND: &str = "time_periodic";
 /// Kind name: error proportional to the temperature difference.
 pub const TEMPERATURE_KIND: &str = "temperature_linear";
+/// Kind name: lost motion that saturates with the length of the last move.
+pub const STEP_SIZE_KIND: &str = "step_size";
 
 fn default_reference_temp_c() -> f64 {
     DEFAULT_TEMP_C
@@ -137,6 +152,22 @@ pub struct TemperatureConfig {
     pub um_per_c: f64,
 }
 
+/// `step_size` table: lost motion `A·(1 − exp(−L/λ))` against the direction
+/// of the last move, `L` its length (see the module docs).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct StepSizeConfig {
+    /// Axis whose last move sets the error; the error is on this axis's own
+    /// component.
+    pub axis: Axis,
+    /// Lost motion after a move much longer than `length_um`, µm (> 0: the
+    /// platform trails the command; < 0: it overshoots).
+    pub amplitude_um: f64,
+    /// Move length λ over which the lost motion builds up, µm (> 0): after a
+    /// move of λ it is 63 % of `amplitude_um`.
+    pub length_um: f64,
+}
+
 /// The configuration of a discovered term, one variant per kind.
 #[derive(Debug, Clone, PartialEq)]
 pub enum DiscoveredConfig {
@@ -152,6 +183,8 @@ pub enum DiscoveredConfig {
     TimePeriodic(TimePeriodicConfig),
     /// See [`TemperatureConfig`].
     Temperature(TemperatureConfig),
+    /// See [`StepSizeConfig`].
+    StepSize(StepSizeConfig),
 }
 
 impl DiscoveredConfig {
@@ -163,6 +196,7 @@ impl DiscoveredConfig {
             DiscoveredConfig::TimeDrift(_) => TIME_DRIFT_KIND,
             DiscoveredConfig::TimePeriodic(_) => TIME_PERIODIC_KIND,
             DiscoveredConfig::Temperature(_) => TEMPERATURE_KIND,
+            DiscoveredConfig::StepSize(_) => STEP_SIZE_KIND,
         }
     }
 
@@ -174,6 +208,7 @@ impl DiscoveredConfig {
             DiscoveredConfig::TimeDrift(c) => c.component,
             DiscoveredConfig::TimePeriodic(c) => c.component,
             DiscoveredConfig::Temperature(c) => c.component,
+            DiscoveredConfig::StepSize(c) => c.axis,
         }
     }
 
@@ -205,6 +240,10 @@ impl DiscoveredConfig {
             DiscoveredConfig::Temperature(c) => {
                 require_finite(name, "reference_temp_c", c.reference_temp_c)?;
                 require_finite(name, "um_per_c", c.um_per_c)?;
+            }
+            DiscoveredConfig::StepSize(c) => {
+                require_finite(name, "amplitude_um", c.amplitude_um)?;
+                require_positive(name, "length_um", c.length_um)?;
             }
         }
         Ok(())
@@ -267,7 +306,22 @@ fn linear_basis(cfg: &DiscoveredConfig, state: &MotionState) -> Vec<f64> {
                 (-0.5 * z * z).exp()
             }]
         }
+        DiscoveredConfig::StepSize(c) => vec![step_size_shape(
+            state.axis(c.axis).dir.sign(),
+            state.axis(c.axis).last_move_um,
+            c.length_um,
+        )],
     }
+}
+
+/// `−dir·(1 − exp(−L/λ))`: the `step_size` term per µm of amplitude. A
+/// non-positive λ (possible mid-fit) is read as |λ| floored at 1e-9 µm, so
+/// the value stays finite; an infinite `L` gives the saturated value.
+pub fn step_size_shape(dir_sign: f64, last_move_um: f64, length_um: f64) -> f64 {
+    let lambda = length_um.abs().max(1e-9);
+    let x = (last_move_um / lambda).max(0.0);
+    // 1 − e^(−x) = −expm1(−x), exact for small x.
+    dir_sign * (-x).exp_m1()
 }
 
 impl Term for DiscoveredTerm {
@@ -356,6 +410,23 @@ impl Term for DiscoveredTerm {
                 c.um_per_c,
                 format!("{comp} error per °C from the reference"),
             )],
+            DiscoveredConfig::StepSize(c) => vec![
+                ParamInfo::new(
+                    "amplitude_um",
+                    "µm",
+                    c.amplitude_um,
+                    format!("{comp} lost motion after a move much longer than length_um"),
+                ),
+                ParamInfo::new(
+                    "length_um",
+                    "µm",
+                    c.length_um,
+                    format!(
+                        "{} move length over which the lost motion builds up",
+                        c.axis
+                    ),
+                ),
+            ],
         }
     }
 
@@ -383,9 +454,13 @@ impl Term for DiscoveredTerm {
                 c.cos_um = values[1];
             }
             DiscoveredConfig::Temperature(c) => c.um_per_c = values[0],
+            DiscoveredConfig::StepSize(c) => {
+                c.amplitude_um = values[0];
+                c.length_um = values[1];
+            }
         }
         // Values from a fit may be anything finite (checked above); a
-        // negative or zero width is read as |w| (floored) by the evaluation,
+        // negative or zero width or length is read as |w| (floored) by the evaluation,
         // so every contribution stays finite.
         self.cfg = next;
         Ok(())
@@ -395,6 +470,7 @@ impl Term for DiscoveredTerm {
         let basis = linear_basis(&self.cfg, state);
         let v = match &self.cfg {
             DiscoveredConfig::Localized(c) => c.amplitude_um * basis[0],
+            DiscoveredConfig::StepSize(c) => c.amplitude_um * basis[0],
             _ => self
                 .params()
                 .iter()
@@ -408,7 +484,10 @@ impl Term for DiscoveredTerm {
     }
 
     fn is_linear(&self) -> bool {
-        !matches!(self.cfg, DiscoveredConfig::Localized(_))
+        !matches!(
+            self.cfg,
+            DiscoveredConfig::Localized(_) | DiscoveredConfig::StepSize(_)
+        )
     }
 
     fn jacobian(&self, state: &MotionState) -> Vec<[f64; 2]> {
@@ -434,6 +513,7 @@ impl Term for DiscoveredTerm {
             DiscoveredConfig::TimeDrift(c) => config_table(&self.name, c),
             DiscoveredConfig::TimePeriodic(c) => config_table(&self.name, c),
             DiscoveredConfig::Temperature(c) => config_table(&self.name, c),
+            DiscoveredConfig::StepSize(c) => config_table(&self.name, c),
         }
     }
 
@@ -491,10 +571,15 @@ pub(crate) fn build_temperature(
     boxed(name, DiscoveredConfig::Temperature(c))
 }
 
+pub(crate) fn build_step_size(name: &str, table: toml::Table) -> Result<Box<dyn Term>, ModelError> {
+    let c = parse_term_config(name, STEP_SIZE_KIND, table)?;
+    boxed(name, DiscoveredConfig::StepSize(c))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::model::StageModel;
+    use crate::model::{Direction, StageModel};
 
     #[test]
     fn values_and_round_trip() {
@@ -576,5 +661,60 @@ mod tests {
         .unwrap();
         assert!((p.contribution(&s)[1] - 0.1).abs() < 1e-12);
         assert_eq!(p.jacobian(&s)[0], [0.0, 2000.0e-6]);
+    }
+
+    #[test]
+    fn step_size_saturates_with_the_last_move_and_opposes_it() {
+        let t = DiscoveredTerm::new(
+            "s",
+            DiscoveredConfig::StepSize(StepSizeConfig {
+                axis: Axis::Y,
+                amplitude_um: 0.4,
+                length_um: 100.0,
+            }),
+        )
+        .unwrap();
+        let mut s = MotionState::at_rest(0.0, 500.0);
+        // Not moved yet: no lost motion.
+        assert_eq!(t.contribution(&s), [0.0, 0.0]);
+        // A forward move of λ: 63 % of A, behind the command (negative).
+        s.axes[1].dir = Direction::Forward;
+        s.axes[1].run_um = 1000.0;
+        s.axes[1].last_move_um = 100.0;
+        let c = t.contribution(&s);
+        let want = -0.4 * (1.0 - (-1.0f64).exp());
+        assert!(c[0] == 0.0 && (c[1] - want).abs() < 1e-12, "{c:?}");
+        // Same run, shorter last move: less lost motion (the play term
+        // would not tell these apart).
+        s.axes[1].last_move_um = 20.0;
+        let want20 = -0.4 * (1.0 - (-0.2f64).exp());
+        assert!((t.contribution(&s)[1] - want20).abs() < 1e-12);
+        // Backward, very long (and infinite) move: +A.
+        s.axes[1].dir = Direction::Backward;
+        s.axes[1].last_move_um = 1e6;
+        assert!((t.contribution(&s)[1] - 0.4).abs() < 1e-12);
+        let arrived = MotionState::arrived(0.0, Direction::Forward, 0.0, Direction::Backward);
+        assert!((t.contribution(&arrived)[1] - 0.4).abs() < 1e-12);
+        // Jacobian: amplitude column is the shape, length column numeric.
+        s.axes[1].last_move_um = 50.0;
+        let j = t.jacobian(&s);
+        let shape = 1.0 - (-0.5f64).exp();
+        assert!((j[0][1] - shape).abs() < 1e-6, "{j:?}");
+        // d/dλ of A(1 − e^(−L/λ)) = −A·L/λ²·e^(−L/λ), times −dir = +1.
+        let dl = -0.4 * 50.0 / 1e4 * (-0.5f64).exp();
+        assert!((j[1][1] - dl).abs() < 1e-6, "{j:?} vs {dl}");
+        // Round trip through a model file; a zero length is refused.
+        let mut m = StageModel::ideal();
+        m.push_term(Box::new(t)).unwrap();
+        let text = m.to_toml().unwrap();
+        assert!(text.contains("kind = \"step_size\""), "{text}");
+        let back = StageModel::from_toml(&text).unwrap();
+        assert_eq!(back.parameter_vector(), m.parameter_vector());
+        assert!(
+            StageModel::from_toml(&text.replace("length_um = 100.0", "length_um = 0.0")).is_err()
+        );
+        let mut odd = back.clone();
+        odd.set_param("s.length_um", 0.0).unwrap();
+        assert!(odd.observed_error_um(&s)[1].is_finite());
     }
 }

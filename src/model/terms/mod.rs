@@ -17,7 +17,7 @@ pub use backlash::{play_offset_um, BacklashConfig, BacklashTerm, PlayOperator};
 pub use cyclic::{CyclicConfig, CyclicTerm};
 pub use discovered::{
     DiscoveredConfig, DiscoveredTerm, LocalizedConfig, PositionPeriodicConfig, PositionSlopeConfig,
-    TemperatureConfig, TimeDriftConfig, TimePeriodicConfig,
+    StepSizeConfig, TemperatureConfig, TimeDriftConfig, TimePeriodicConfig,
 };
 pub use lead::{LeadConfig, LeadTerm};
 pub use squareness::{SquarenessConfig, SquarenessTerm};
@@ -96,6 +96,11 @@ pub(crate) const BUILTIN: &[(&str, &str, TermBuilder)] = &[
         discovered::TEMPERATURE_KIND,
         "error proportional to the temperature difference from a reference",
         discovered::build_temperature,
+    ),
+    (
+        discovered::STEP_SIZE_KIND,
+        "lost motion that grows with the length of the last move (found by `micropos diagnose`)",
+        discovered::build_step_size,
     ),
 ];
 
