@@ -99,7 +99,8 @@ impl Jobs {
             .map_or(Value::Null, Progress::to_json)
     }
 
-    fn is_running(&self) -> bool {
+    /// Whether a job is running.
+    pub fn is_running(&self) -> bool {
         lock(&self.running)
             .as_ref()
             .is_some_and(|r| !r.task.is_finished())
@@ -367,7 +368,7 @@ fn unix_seconds() -> u64 {
 /// arrived) or `low_quality` (frames arrived but did not decode, or decoded
 /// below the minimum quality). Nothing is made up: the caller logs only what
 /// this returns.
-async fn measure(rig: &Rig, n: u32, after_s: f64) -> Result<(Measurement, f64), ProtoError> {
+pub(crate) async fn measure(rig: &Rig, n: u32, after_s: f64) -> Result<(Measurement, f64), ProtoError> {
     let Some(v) = &rig.vision else {
         return Err(ProtoError::new(ErrorCode::CameraUnavailable, "no camera"));
     };
