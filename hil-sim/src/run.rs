@@ -10,7 +10,12 @@
 //!    the model table), `tables build` (paper tables from the first, model
 //!    table from the second), `validate` (square and Table II in the modes
 //!    raw, table, model, closed_loop), and it reports AP and RP per
-//!    trajectory and mode next to the paper's figures.
+//!    trajectory and mode next to the paper's figures;
+//! 4. drift (issue 7): the characterizations re-measure a reference point
+//!    every `drift_every_s` (tables are built drift-corrected, with their
+//!    baseline), the validation runs with live drift correction
+//!    (`drift set`), and `table` mode is validated again with live drift
+//!    off, static and adaptive to report what each gains.
 //!
 //! Speed: the rig runs on simulated time (`time_scale` × wall plus the
 //! daemon's settle advances) and the driver polls on-target every
@@ -517,9 +522,11 @@ async fn pipeline(
             .unwrap_or(f64::NAN),
         model["model"]["rms_residual_um"]
     ));
-    c.call(json!({"cmd": "drift", "action": "set", "method": p.live_drift,
-                  "every_s": p.live_drift_every_s}))
-        .await?;
+    c.call(
+        json!({"cmd": "drift", "action": "set", "method": p.live_drift,
+                  "every_s": p.live_drift_every_s}),
+    )
+    .await?;
     progress(&format!(
         "validate: square and Table II in raw, table, model, closed_loop (live drift {})",
         p.live_drift

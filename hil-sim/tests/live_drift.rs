@@ -92,8 +92,7 @@ async fn live_drift_correction_removes_the_thermal_offset() {
     }
     // The re-measurements are in the validation logs with the drift.
     let data = report.data_dir.unwrap();
-    let log =
-        micropos::charact::log::read_file(data.join("validate-drift-adaptive.csv")).unwrap();
+    let log = micropos::charact::log::read_file(data.join("validate-drift-adaptive.csv")).unwrap();
     let refs: Vec<_> = log
         .records
         .iter()

@@ -297,9 +297,8 @@ impl DriftBaseline {
         }
         let mut v = [0.0; 4];
         for ((slot, r), k) in v.iter_mut().zip(&raw).zip(BASELINE_KEYS) {
-            let text = r.ok_or_else(|| {
-                AnalysisError::Invalid(format!("drift baseline: {k} is missing"))
-            })?;
+            let text =
+                r.ok_or_else(|| AnalysisError::Invalid(format!("drift baseline: {k} is missing")))?;
             *slot = text
                 .trim()
                 .parse::<f64>()
@@ -496,11 +495,7 @@ impl LiveDrift {
     /// Records a successful re-measurement; returns it with its drift.
     /// The first one of a session without a table baseline becomes the
     /// baseline (drift 0).
-    pub fn record(
-        &mut self,
-        t_s: f64,
-        measured_um: [f64; 2],
-    ) -> Result<LiveSample, AnalysisError> {
+    pub fn record(&mut self, t_s: f64, measured_um: [f64; 2]) -> Result<LiveSample, AnalysisError> {
         if !measured_um.iter().all(|v| v.is_finite()) {
             return Err(AnalysisError::Invalid(
                 "reference re-measurement: position must be finite".into(),
@@ -655,7 +650,10 @@ mod tests {
             assert!(!d.due(t + 50.0) && d.due(t + 100.0));
         }
         let c = d.correction(450.0).unwrap();
-        assert!((c[0] - 0.95).abs() < 1e-9 && (c[1] + 0.45).abs() < 1e-9, "{c:?}");
+        assert!(
+            (c[0] - 0.95).abs() < 1e-9 && (c[1] + 0.45).abs() < 1e-9,
+            "{c:?}"
+        );
         // Extrapolation stops two intervals after the last good sample.
         let far = d.correction(10_000.0).unwrap();
         assert!((far[0] - 1.1).abs() < 1e-9, "{far:?}");

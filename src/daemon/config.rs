@@ -539,7 +539,9 @@ impl DaemonConfig {
                 "must be a positive number of s",
             ));
         }
-        if d.reference_um.is_some_and(|r| !r.iter().all(|v| v.is_finite())) {
+        if d.reference_um
+            .is_some_and(|r| !r.iter().all(|v| v.is_finite()))
+        {
             return Err(bad(
                 "drift.reference_um",
                 "must be two finite numbers [x, y] µm",
@@ -656,8 +658,8 @@ mod tests {
             let e = DaemonConfig::from_toml(&format!("{MIN}[drift]\n{text}\n")).unwrap_err();
             assert_eq!(e.key, key);
         }
-        let e = DaemonConfig::from_toml(&format!("{MIN}[drift]\nmethod = \"kalman\"\n"))
-            .unwrap_err();
+        let e =
+            DaemonConfig::from_toml(&format!("{MIN}[drift]\nmethod = \"kalman\"\n")).unwrap_err();
         assert!(e.problem.contains("kalman"), "{e}");
     }
 

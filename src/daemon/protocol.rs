@@ -623,7 +623,12 @@ fn parse_move(obj: &Map<String, Value>) -> Result<MoveRequest, ProtoError> {
 
 fn parse_topics(obj: &Map<String, Value>) -> Result<Vec<Topic>, ProtoError> {
     let Some(v) = obj.get("topics") else {
-        return Ok(vec![Topic::Position, Topic::Job, Topic::Fault, Topic::Drift]);
+        return Ok(vec![
+            Topic::Position,
+            Topic::Job,
+            Topic::Fault,
+            Topic::Drift,
+        ]);
     };
     let Value::Array(items) = v else {
         return Err(wrong_type("topics", "an array of strings", v));
@@ -732,13 +737,7 @@ fn parse_drift(obj: &Map<String, Value>) -> Result<DriftAction, ProtoError> {
             Ok(DriftAction::Set {
                 method,
                 every_s: opt_f64_within(obj, "every_s", 0.001, 86_400.0, "0.001..86400")?,
-                time_constant_s: opt_f64_within(
-                    obj,
-                    "time_constant_s",
-                    1.0,
-                    1e7,
-                    "1..10000000",
-                )?,
+                time_constant_s: opt_f64_within(obj, "time_constant_s", 1.0, 1e7, "1..10000000")?,
             })
         }
         other => Err(ProtoError::new(
@@ -1126,6 +1125,51 @@ mod tests {
 
     fn code(s: &str) -> ErrorCode {
         parse(s).unwrap_err().error.code
+    }
+
+    #[test]
+    fn drift_command_and_topic() {
+        use crate::daemon::config::DriftMethodName;
+        assert_eq!(
+            parse(r#"{"cmd":"drift"}"#).unwrap().command,
+            Command::Drift(DriftAction::Show)
+        );
+        assert_eq!(
+            parse(r#"{"cmd":"drift","action":"set","method":"adaptive","every_s":60}"#)
+                .unwrap()
+                .command,
+            Command::Drift(DriftAction::Set {
+                method: Some(DriftMethodName::Adaptive),
+                every_s: Some(60.0),
+                time_constant_s: None,
+            })
+        );
+        for (a, want) in [
+            ("reset", DriftAction::Reset),
+            ("measure", DriftAction::Measure),
+        ] {
+            assert_eq!(
+                parse(&format!(r#"{{"cmd":"drift","action":"{a}"}}"#))
+                    .unwrap()
+                    .command,
+                Command::Drift(want)
+            );
+        }
+        for bad in [
+            r#"{"cmd":"drift","action":"set","method":"kalman"}"#,
+            r#"{"cmd":"drift","action":"set","every_s":0}"#,
+            r#"{"cmd":"drift","action":"set","time_constant_s":-5}"#,
+            r#"{"cmd":"drift","action":"undo"}"#,
+            r#"{"cmd":"drift","every":5}"#,
+        ] {
+            assert_eq!(code(bad), ErrorCode::BadValue, "{bad}");
+        }
+        assert_eq!(
+            parse(r#"{"cmd":"subscribe","topics":["drift"]}"#)
+                .unwrap()
+                .command,
+            Command::Subscribe(vec![Topic::Drift])
+        );
     }
 
     #[test]

@@ -368,7 +368,11 @@ fn unix_seconds() -> u64 {
 /// arrived) or `low_quality` (frames arrived but did not decode, or decoded
 /// below the minimum quality). Nothing is made up: the caller logs only what
 /// this returns.
-pub(crate) async fn measure(rig: &Rig, n: u32, after_s: f64) -> Result<(Measurement, f64), ProtoError> {
+pub(crate) async fn measure(
+    rig: &Rig,
+    n: u32,
+    after_s: f64,
+) -> Result<(Measurement, f64), ProtoError> {
     let Some(v) = &rig.vision else {
         return Err(ProtoError::new(ErrorCode::CameraUnavailable, "no camera"));
     };

@@ -24,13 +24,13 @@
 //! itself first ([`super::tie`]).
 
 use super::super::comp::Active;
+use super::super::drift::is_measurement_error;
 use super::super::protocol::{
     ErrorCode, MoveMode, MoveRequest, ProtoError, Topic, ValidateMode, ValidateParams,
 };
-use super::super::drift::is_measurement_error;
 use super::super::rig::Rig;
-use crate::analysis::drift::DRIFT_REF_SEGMENT;
 use super::{lock, measure, tie, Jobs, Progress, Running};
+use crate::analysis::drift::DRIFT_REF_SEGMENT;
 use crate::charact::log::{self, Columns, LogWriter, Metadata, Record, SyncPolicy};
 use crate::charact::scan::{
     random_targets, square_pose_label, square_poses, SEGMENT_RANDOM, SEGMENT_SQUARE,
@@ -526,7 +526,9 @@ async fn drift_reference(
     tokio::task::spawn_blocking(move || lock(&w).append(&rec))
         .await
         .map_err(|e| ProtoError::new(ErrorCode::Internal, e.to_string()))?
-        .map_err(|e| ProtoError::new(ErrorCode::LogError, format!("cannot append to {name}: {e}")))?;
+        .map_err(|e| {
+            ProtoError::new(ErrorCode::LogError, format!("cannot append to {name}: {e}"))
+        })?;
     Ok(true)
 }
 
