@@ -98,8 +98,12 @@ pub struct RunPlan {
     /// Reference re-measurements during both characterizations, every this
     /// many s of rig time (0 = off): `tables build` then corrects the logs
     /// to the rig's state at their start and records that baseline with
-    /// the tables (the reference is the scans' start corner).
+    /// the tables.
     pub drift_every_s: f64,
+    /// The drift reference point, `[x, y]` µm. Not the scans' start corner
+    /// (0, 0): the reference is approached from 20 µm below on both axes,
+    /// outside the travel there.
+    pub drift_reference_um: [f64; 2],
     /// Live drift correction of the validation's `table` and `model` modes
     /// (`drift set method`): `off`, `static` or `adaptive`.
     pub live_drift: String,
@@ -127,6 +131,7 @@ impl RunPlan {
             settle_s: 0.3,
             validate_origin_um: 100.0,
             drift_every_s: 600.0,
+            drift_reference_um: [100.0, 100.0],
             live_drift: "adaptive".to_owned(),
             live_drift_every_s: 120.0,
             drift_compare: true,
@@ -468,7 +473,8 @@ async fn pipeline(
         c.call(json!({"cmd": "characterize", "action": "start", "log": log,
                       "step_um": step, "x_range_um": p.x_range_um, "y_range_um": p.y_range_um,
                       "cycles": p.cycles, "frames_per_point": p.frames_per_point,
-                      "settle_s": p.settle_s, "drift_every_s": p.drift_every_s}))
+                      "settle_s": p.settle_s, "drift_every_s": p.drift_every_s,
+                      "drift_reference_um": p.drift_reference_um}))
             .await?;
         // A job that fails on a transient fault (a late serial answer on a
         // loaded machine) is resumed from its log, as a user would: every

@@ -192,7 +192,8 @@ impl Rig {
         let [rx, ry] = reference;
         let approach = super::jobs::PARK_APPROACH_UM;
         let mut moved = Value::Null;
-        for (x, y) in [(rx - approach, ry - approach), (rx, ry)] {
+        let below = super::jobs::clamp_to_travel(self, rx - approach, ry - approach);
+        for (x, y) in [below, (rx, ry)] {
             let req = MoveRequest {
                 x_um: Some(x),
                 y_um: Some(y),
