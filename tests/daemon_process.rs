@@ -607,7 +607,7 @@ fn line_drop_mid_move_halts_the_other_axis_reconnects_and_power_cycle_needs_refe
 #[test]
 fn drift_references_are_logged_and_resume_keeps_the_plan() {
     let dir = tempfile::tempdir().unwrap();
-    let _sim = Sim::start(dir.path(), 20.0);
+    let sim = Sim::start(dir.path(), 20.0);
     let d = Daemon::start(dir.path(), 0);
     let mut c = d.client();
     c.ok(json!({"cmd": "reference"}));
@@ -676,4 +676,62 @@ fn drift_references_are_logged_and_resume_keeps_the_plan() {
         Some(points.len() as u64),
         "{b}"
     );
+
+    // Live drift correction against the table's baseline (issue 7): the
+    // table records where the reference was at the start of the run.
+    let name = b["paper"]["name"].as_str().unwrap().to_owned();
+    c.ok(json!({"cmd": "tables", "action": "activate", "name": name}));
+    let mut dsub = d.client();
+    dsub.ok(json!({"cmd": "subscribe", "topics": ["drift"]}));
+    // Off by default: compensated moves say nothing about drift.
+    let target = [corner[0] + 500.0, corner[1] + 500.0];
+    let m = c.ok(json!({"cmd": "move", "x_um": target[0], "y_um": target[1],
+                        "mode": "compensated", "wait": true}));
+    assert!(m.get("drift").is_none(), "{m}");
+    let r = c.ok(
+        json!({"cmd": "drift", "action": "set", "method": "adaptive",
+                        "every_s": 0.001}),
+    );
+    assert_eq!(r["drift"]["method"], "adaptive", "{r}");
+    // Due before the move: re-measured, then corrected.
+    let m = c.ok(json!({"cmd": "move", "x_um": target[0], "y_um": target[1],
+                        "mode": "compensated", "wait": true}));
+    let corr = &m["drift"]["correction_um"];
+    assert!(m["drift"]["measured"].is_object(), "{m}");
+    assert!(corr[0].is_f64() && corr[1].is_f64(), "{m}");
+    // The command is the table's for the target shifted by the drift: the
+    // target itself is reported as asked.
+    assert_eq!(m["target"]["x_um"].as_f64(), Some(target[0]), "{m}");
+    let ev = dsub.event(|e| e["event"] == "drift" && e["state"] == "measured");
+    assert_eq!(ev["drift"]["baseline"], "table", "{ev}");
+    assert_eq!(ev["drift"]["reference_um"], json!(corner), "{ev}");
+    // A relative move continues from the user's target, not the shifted one
+    // (and not from the reference point the re-measurement visited).
+    let m = c.ok(json!({"cmd": "move", "x_um": 100.0, "relative": true,
+                        "mode": "compensated", "wait": true}));
+    assert_eq!(m["target"]["x_um"].as_f64(), Some(target[0] + 100.0), "{m}");
+    assert_eq!(m["target"]["y_um"].as_f64(), Some(target[1]), "{m}");
+    let before = c.ok(json!({"cmd": "status"}))["drift"].clone();
+    assert_eq!(before["references"], 2, "{before}");
+    // A failing re-measurement (undecodable frames) leaves the estimate:
+    // the move goes on with the last good one and says why.
+    dsub.forget_events();
+    sim.camera("garbage");
+    let m = c.ok(json!({"cmd": "move", "x_um": target[0], "y_um": target[1],
+                        "mode": "compensated", "wait": true}));
+    let err = m["drift"]["error"].as_str().unwrap_or("");
+    assert!(err.starts_with("low_quality"), "{m}");
+    assert!(m["drift"]["correction_um"][0].is_f64(), "{m}");
+    let ev = dsub.event(|e| e["event"] == "drift");
+    assert_eq!(ev["state"], "failed", "{ev}");
+    let after = c.ok(json!({"cmd": "status"}))["drift"].clone();
+    assert_eq!(after["references"], 2, "{after}");
+    assert_eq!(after["last"], before["last"], "estimate unchanged");
+    assert_eq!(after["failures"], 1, "{after}");
+    sim.camera("normal");
+    let r = c.ok(json!({"cmd": "drift", "action": "measure"}));
+    assert_eq!(r["drift"]["references"], 3, "{r}");
+    assert_eq!(r["drift"]["failures"], 0, "{r}");
+    let r = c.ok(json!({"cmd": "drift", "action": "reset"}));
+    assert_eq!(r["drift"]["references"], 0, "{r}");
 }

@@ -10,7 +10,12 @@
 //!    the model table), `tables build` (paper tables from the first, model
 //!    table from the second), `validate` (square and Table II in the modes
 //!    raw, table, model, closed_loop), and it reports AP and RP per
-//!    trajectory and mode next to the paper's figures.
+//!    trajectory and mode next to the paper's figures;
+//! 4. drift (issue 7): the characterizations re-measure a reference point
+//!    every `drift_every_s` (tables are built drift-corrected, with their
+//!    baseline), the validation runs with live drift correction
+//!    (`drift set`), and `table` mode is validated again with live drift
+//!    off, static and adaptive to report what each gains.
 //!
 //! Speed: the rig runs on simulated time (`time_scale` × wall plus the
 //! daemon's settle advances) and the driver polls on-target every
@@ -90,6 +95,23 @@ pub struct RunPlan {
     /// 100 µm keeps every compensated command inside the travel and every
     /// target inside the characterized area (random up to 8296 × 4091 µm).
     pub validate_origin_um: f64,
+    /// Reference re-measurements during both characterizations, every this
+    /// many s of rig time (0 = off): `tables build` then corrects the logs
+    /// to the rig's state at their start and records that baseline with
+    /// the tables.
+    pub drift_every_s: f64,
+    /// The drift reference point, `[x, y]` µm. Not the scans' start corner
+    /// (0, 0): the reference is approached from 20 µm below on both axes,
+    /// outside the travel there.
+    pub drift_reference_um: [f64; 2],
+    /// Live drift correction of the validation's `table` and `model` modes
+    /// (`drift set method`): `off`, `static` or `adaptive`.
+    pub live_drift: String,
+    /// Interval of the live re-measurements, s of rig time.
+    pub live_drift_every_s: f64,
+    /// After the validation, validate `table` mode again with live drift
+    /// off, static and adaptive (the `drift` block of the summary).
+    pub drift_compare: bool,
 }
 
 impl RunPlan {
@@ -108,6 +130,11 @@ impl RunPlan {
             frames_per_point: 1,
             settle_s: 0.3,
             validate_origin_um: 100.0,
+            drift_every_s: 600.0,
+            drift_reference_um: [100.0, 100.0],
+            live_drift: "adaptive".to_owned(),
+            live_drift_every_s: 120.0,
+            drift_compare: true,
         }
     }
 
@@ -446,7 +473,8 @@ async fn pipeline(
         c.call(json!({"cmd": "characterize", "action": "start", "log": log,
                       "step_um": step, "x_range_um": p.x_range_um, "y_range_um": p.y_range_um,
                       "cycles": p.cycles, "frames_per_point": p.frames_per_point,
-                      "settle_s": p.settle_s}))
+                      "settle_s": p.settle_s, "drift_every_s": p.drift_every_s,
+                      "drift_reference_um": p.drift_reference_um}))
             .await?;
         // A job that fails on a transient fault (a late serial answer on a
         // loaded machine) is resumed from its log, as a user would: every
@@ -500,7 +528,15 @@ async fn pipeline(
             .unwrap_or(f64::NAN),
         model["model"]["rms_residual_um"]
     ));
-    progress("validate: square and Table II in raw, table, model, closed_loop");
+    c.call(
+        json!({"cmd": "drift", "action": "set", "method": p.live_drift,
+                  "every_s": p.live_drift_every_s}),
+    )
+    .await?;
+    progress(&format!(
+        "validate: square and Table II in raw, table, model, closed_loop (live drift {})",
+        p.live_drift
+    ));
     c.call(json!({"cmd": "validate", "action": "start", "test": "both",
                   "log": "validate.csv", "cycles": p.validate_cycles,
                   "square_step_um": p.square_step_um, "origin_x_um": p.validate_origin_um, "origin_y_um": p.validate_origin_um,
@@ -529,7 +565,7 @@ async fn pipeline(
         "points": chars[0].0, "simulated_s": chars[0].1,
         "short_points": chars[1].0, "short_simulated_s": chars[1].1,
     });
-    let files = [
+    let mut files = [
         "charact-paper.csv",
         "charact-short.csv",
         "validate.csv",
@@ -538,7 +574,64 @@ async fn pipeline(
     ]
     .map(str::to_owned)
     .to_vec();
+    let mut drift = json!({
+        "characterization_every_s": p.drift_every_s,
+        "tables_drift": paper["drift"],
+        "live": p.live_drift, "live_every_s": p.live_drift_every_s,
+        "validation": {"square": table_offset(&results["square"]["table"]),
+                       "random": table_offset(&results["random"]["table"])},
+    });
+    if p.drift_compare {
+        let mut cmp = json!({});
+        for method in DRIFT_METHODS {
+            progress(&format!(
+                "validate: table mode with live drift {method} (the drift comparison)"
+            ));
+            c.call(json!({"cmd": "drift", "action": "set", "method": method,
+                          "every_s": p.live_drift_every_s}))
+                .await?;
+            c.call(json!({"cmd": "drift", "action": "reset"})).await?;
+            let log = format!("validate-drift-{method}.csv");
+            c.call(json!({"cmd": "validate", "action": "start", "test": "both",
+                          "modes": ["table"], "log": log, "cycles": p.validate_cycles,
+                          "square_step_um": p.square_step_um, "origin_x_um": p.validate_origin_um,
+                          "origin_y_um": p.validate_origin_um, "table": "run-paper.toml",
+                          "frames_per_point": p.frames_per_point, "settle_s": p.settle_s}))
+                .await?;
+            let v = c
+                .follow(
+                    json!({"cmd": "validate", "action": "status"}),
+                    "validate",
+                    progress,
+                )
+                .await?;
+            let r = &v["validation"]["results"];
+            cmp[method] = json!({"square": table_offset(&r["square"]["table"]),
+                                 "random": table_offset(&r["random"]["table"])});
+            files.push(log);
+        }
+        drift["compare"] = cmp;
+    }
+    summary["drift"] = drift;
     Ok((summary, results, files))
+}
+
+/// The live drift methods the comparison runs, in this order.
+pub const DRIFT_METHODS: [&str; 3] = ["off", "static", "adaptive"];
+
+/// AP of one validation result and its constant part: the mean over poses
+/// of the signed APx, APy (measured − target, µm), i.e. the offset common
+/// to every pose that drift between the characterization and the
+/// validation leaves.
+pub fn table_offset(r: &Value) -> Value {
+    let poses = r["poses"].as_array().map_or(&[][..], |v| v.as_slice());
+    let mean = |k: &str| -> Option<f64> {
+        let v: Vec<f64> = poses.iter().filter_map(|p| p[k].as_f64()).collect();
+        (!v.is_empty()).then(|| v.iter().sum::<f64>() / v.len() as f64)
+    };
+    json!({"ap_um": r["ap_um"], "ap_mean_um": r["ap_mean_um"],
+           "offset_um": [mean("apx_um"), mean("apy_um")],
+           "references": r["drift"]["references_logged"]})
 }
 
 /// The human-readable table of AP and RP per trajectory and mode.
@@ -556,6 +649,30 @@ pub fn format_table(summary: &Value) -> String {
                 f(&r["rp_um"]),
                 paper_ap_um(test, mode).map_or("-".to_owned(), |x| format!("≈{x}"))
             ));
+        }
+    }
+    let d = &summary["drift"];
+    if !d.is_null() {
+        s.push_str(&format!(
+            "drift: references every {} s in the characterizations; live {} every {} s\n",
+            d["characterization_every_s"], d["live"], d["live_every_s"]
+        ));
+        let cmp = &d["compare"];
+        if cmp.is_object() {
+            s.push_str("table mode by live drift  AP max µm (square / random)  offset x, y µm (square / random)\n");
+            for m in DRIFT_METHODS {
+                let off = |t: &str| {
+                    let o = &cmp[m][t]["offset_um"];
+                    format!("{}, {}", f(&o[0]), f(&o[1]))
+                };
+                s.push_str(&format!(
+                    "  {m:<9}               {:>7} / {:<7}            {} / {}\n",
+                    f(&cmp[m]["square"]["ap_um"]),
+                    f(&cmp[m]["random"]["ap_um"]),
+                    off("square"),
+                    off("random")
+                ));
+            }
         }
     }
     let ch = &summary["characterization"];

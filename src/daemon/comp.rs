@@ -11,6 +11,7 @@
 
 use super::protocol::{ErrorCode, ProtoError};
 use super::rig::Rig;
+use crate::analysis::drift::DriftBaseline;
 use crate::comp::closed_loop::{
     Action, ClosedLoop, ClosedLoopConfig, FailReason, FrameMeasurement, RejectReason,
 };
@@ -37,6 +38,16 @@ pub struct Active {
     pub comp: Arc<dyn Compensator>,
     /// Vision → stage transform recorded with the table (closed loop needs it).
     pub frame: Option<VisionFrame>,
+    /// Where the drift reference was measured when the table's data were
+    /// taken (live drift correction measures against it); `None` for
+    /// tables built from logs without reference re-measurements.
+    pub drift_baseline: Option<DriftBaseline>,
+}
+
+/// The drift baseline a table file records (`tables build` writes it).
+fn baseline_of(name: &str, file: &CompFile) -> Result<Option<DriftBaseline>, ProtoError> {
+    DriftBaseline::from_metadata(|k| file.source.metadata.get(k).map(String::as_str))
+        .map_err(|e| comp_err(ErrorCode::BadValue, &format!("table {name}"), e))
 }
 
 /// Loaded tables, the active one, the motion history.
@@ -47,6 +58,10 @@ pub struct CompState {
     order: Mutex<Vec<(String, crate::comp::CompKind)>>,
     active: Mutex<Option<Active>>,
     history: Mutex<Option<MotionHistory>>,
+    /// Drift correction subtracted from the last planned target, `[x, y]`
+    /// µm: the user's target was `last_target + this` (relative moves
+    /// continue from the user's target, not from the shifted one).
+    target_offset: Mutex<[f64; 2]>,
 }
 
 fn comp_err(code: ErrorCode, what: &str, e: impl std::fmt::Display) -> ProtoError {
@@ -98,6 +113,7 @@ impl CompState {
         // Building the compensator checks the content, not only the syntax.
         file.compensator()
             .map_err(|e| comp_err(ErrorCode::BadValue, &format!("table {name}"), e))?;
+        baseline_of(name, &file)?;
         let out = json!({"loaded": name, "kind": file.kind, "records": file.source.records});
         {
             let mut order = lock(&self.order);
@@ -128,6 +144,7 @@ impl CompState {
             name: name.to_owned(),
             comp: Arc::from(comp),
             frame: file.frame,
+            drift_baseline: baseline_of(name, &file)?,
         });
         Ok(json!({"active": name, "kind": file.kind}))
     }
@@ -148,6 +165,7 @@ impl CompState {
             name: name.to_owned(),
             comp: Arc::from(comp),
             frame: file.frame,
+            drift_baseline: baseline_of(name, &file)?,
         })
     }
 
@@ -163,6 +181,7 @@ impl CompState {
 
     /// Records a move made without a plan (raw moves, job steps).
     pub fn commit_raw(&self, cmd: [Option<f64>; 2], time_s: f64) {
+        *lock(&self.target_offset) = [0.0, 0.0];
         let mut h = lock(&self.history);
         let hist = match h.as_mut() {
             Some(h) => h,
@@ -234,6 +253,22 @@ impl CompState {
     /// The last target, if the history knows one.
     pub fn last_target(&self) -> Option<XyUm> {
         lock(&self.history).as_ref().map(|h| h.last_target())
+    }
+
+    /// Records the drift correction of the plan just committed (see
+    /// `target_offset`).
+    pub fn set_target_offset(&self, offset_um: [f64; 2]) {
+        *lock(&self.target_offset) = offset_um;
+    }
+
+    /// The last target the user asked for: the planned one plus the drift
+    /// correction it was shifted by.
+    pub fn last_user_target(&self) -> Option<XyUm> {
+        let o = *lock(&self.target_offset);
+        self.last_target().map(|t| XyUm {
+            x_um: t.x_um + o[0],
+            y_um: t.y_um + o[1],
+        })
     }
 }
 

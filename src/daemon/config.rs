@@ -44,6 +44,81 @@ pub struct DaemonConfig {
     pub compensation: CompensationSection,
     /// The rig's clock.
     pub rig: RigSection,
+    /// Live drift correction of compensated moves.
+    pub drift: DriftSection,
+}
+
+/// `[drift]`: live drift correction of compensated moves (see
+/// `docs/design/daemon.md`, "Live drift correction"). Why: over hours the
+/// room's temperature moves the platform and the optics by more than the
+/// tables' accuracy; re-measuring one reference point at intervals
+/// measures that drift, and compensated targets are shifted by it.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct DriftSection {
+    /// `"off"` (default), `"static"` (the offset of the first
+    /// re-measurement, held) or `"adaptive"` (local line with forgetting
+    /// `time_constant_s`, extrapolated to each move).
+    pub method: DriftMethodName,
+    /// Re-measure the reference every this many s of rig time (checked
+    /// before compensated moves and between validation points), > 0.
+    pub every_s: f64,
+    /// Forgetting time constant of the adaptive model, s (> 0).
+    pub time_constant_s: f64,
+    /// Reference point `[x, y]` µm for tables that record none (built from
+    /// logs without `drift_every_s`); unset = `characterize.drift_reference_um`,
+    /// else the characterization's start corner. A table's own reference
+    /// always wins: drift is only meaningful against its baseline.
+    pub reference_um: Option<[f64; 2]>,
+}
+
+/// `[drift] method`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum DriftMethodName {
+    /// No live correction.
+    #[default]
+    Off,
+    /// First offset, held.
+    Static,
+    /// Local line with forgetting.
+    Adaptive,
+}
+
+impl DriftMethodName {
+    /// As written in the config and the protocol.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            DriftMethodName::Off => "off",
+            DriftMethodName::Static => "static",
+            DriftMethodName::Adaptive => "adaptive",
+        }
+    }
+}
+
+impl Default for DriftSection {
+    fn default() -> Self {
+        Self {
+            method: DriftMethodName::Off,
+            every_s: 300.0,
+            time_constant_s: crate::analysis::drift::LIVE_TIME_CONSTANT_S,
+            reference_um: None,
+        }
+    }
+}
+
+impl DriftSection {
+    /// The live method this section stands for.
+    pub fn live_method(&self) -> crate::analysis::drift::LiveMethod {
+        use crate::analysis::drift::LiveMethod;
+        match self.method {
+            DriftMethodName::Off => LiveMethod::Off,
+            DriftMethodName::Static => LiveMethod::Static,
+            DriftMethodName::Adaptive => LiveMethod::Adaptive {
+                time_constant_s: self.time_constant_s,
+            },
+        }
+    }
 }
 
 /// `[rig]`: where the rig's time comes from.
@@ -454,6 +529,24 @@ impl DaemonConfig {
                 "must be two finite numbers [x, y] µm",
             ));
         }
+        let d = &self.drift;
+        if !(d.every_s.is_finite() && (0.001..=86_400.0).contains(&d.every_s)) {
+            return Err(bad("drift.every_s", "must be within 0.001..=86400 s"));
+        }
+        if !(d.time_constant_s.is_finite() && d.time_constant_s > 0.0) {
+            return Err(bad(
+                "drift.time_constant_s",
+                "must be a positive number of s",
+            ));
+        }
+        if d.reference_um
+            .is_some_and(|r| !r.iter().all(|v| v.is_finite()))
+        {
+            return Err(bad(
+                "drift.reference_um",
+                "must be two finite numbers [x, y] µm",
+            ));
+        }
         let cl = &self.closed_loop;
         if !(cl.tolerance_um.is_finite() && cl.tolerance_um > 0.0) {
             return Err(bad(
@@ -540,6 +633,34 @@ mod tests {
         let e = DaemonConfig::from_toml(&format!("{MIN}[compensation]\novershoot_um = 1\n"))
             .unwrap_err();
         assert_eq!(e.key, "compensation.overshoot_um");
+    }
+
+    #[test]
+    fn drift_section_defaults_off_and_is_checked() {
+        use crate::analysis::drift::LiveMethod;
+        let c = DaemonConfig::from_toml(MIN).unwrap();
+        assert_eq!(c.drift.live_method(), LiveMethod::Off);
+        let c = DaemonConfig::from_toml(&format!(
+            "{MIN}[drift]\nmethod = \"adaptive\"\nevery_s = 60\ntime_constant_s = 600\n"
+        ))
+        .unwrap();
+        assert_eq!(
+            c.drift.live_method(),
+            LiveMethod::Adaptive {
+                time_constant_s: 600.0
+            }
+        );
+        assert_eq!(c.drift.every_s, 60.0);
+        for (text, key) in [
+            ("every_s = 0", "drift.every_s"),
+            ("time_constant_s = -1", "drift.time_constant_s"),
+        ] {
+            let e = DaemonConfig::from_toml(&format!("{MIN}[drift]\n{text}\n")).unwrap_err();
+            assert_eq!(e.key, key);
+        }
+        let e =
+            DaemonConfig::from_toml(&format!("{MIN}[drift]\nmethod = \"kalman\"\n")).unwrap_err();
+        assert!(e.problem.contains("kalman"), "{e}");
     }
 
     #[test]

@@ -11,6 +11,7 @@
 //! - [`vision`]: capture and decode threads (never on the runtime);
 //! - [`jobs`]: characterization with resume (and its own camera tie),
 //!   validation, `tables build`;
+//! - [`drift`]: live drift correction of compensated moves;
 //! - [`config`]: the validated configuration;
 //! - [`notify`]: systemd readiness, status and a health-fed watchdog.
 //!
@@ -21,6 +22,7 @@
 pub mod comp;
 pub mod config;
 pub mod connection;
+pub mod drift;
 pub mod jobs;
 pub mod notify;
 pub mod protocol;
@@ -33,7 +35,9 @@ use crate::camera::FrameSource;
 use crate::clock::RigClock;
 use crate::pattern::decode::DecodeOptions;
 use config::DaemonConfig;
-use protocol::{CharacterizeAction, Command, ErrorCode, ProtoError, TablesAction, ValidateAction};
+use protocol::{
+    CharacterizeAction, Command, DriftAction, ErrorCode, ProtoError, TablesAction, ValidateAction,
+};
 use serde_json::{json, Value};
 use std::sync::Arc;
 use tokio::net::UnixListener;
@@ -126,6 +130,7 @@ impl Daemon {
                 s["job"] = self.jobs.status();
                 Ok(s)
             }
+            Command::Drift(a) => self.drift(a).await,
             Command::Position => Ok(rig.position().await),
             Command::Move(m) => rig.move_to(&m, false).await,
             Command::Stop => {
@@ -158,5 +163,41 @@ impl Daemon {
                 "subscribe is handled by the connection",
             )),
         }
+    }
+
+    /// `drift show|set|reset|measure`.
+    async fn drift(&self, a: DriftAction) -> Result<Value, ProtoError> {
+        let rig = &self.rig;
+        let mut out = json!({});
+        match a {
+            DriftAction::Show => {}
+            DriftAction::Set {
+                method,
+                every_s,
+                time_constant_s,
+            } => rig.drift.set(&rig.cfg, method, every_s, time_constant_s)?,
+            DriftAction::Reset => rig.drift.reset(),
+            DriftAction::Measure => {
+                if self.jobs.is_running() {
+                    return Err(ProtoError::new(
+                        ErrorCode::Busy,
+                        "a job is running; it re-measures the reference itself",
+                    ));
+                }
+                let active = rig.comp.active().ok_or_else(|| {
+                    ProtoError::new(
+                        ErrorCode::NoActiveTable,
+                        "drift is measured against the active table's baseline: tables activate NAME",
+                    )
+                })?;
+                let k = &rig.cfg.characterize;
+                let r = rig
+                    .drift_measure(&active, k.frames_per_point, k.settle_s, false)
+                    .await?;
+                out["measured"] = json!(r.sample);
+            }
+        }
+        out["drift"] = rig.drift.to_json(rig.clock.now_s());
+        Ok(out)
     }
 }

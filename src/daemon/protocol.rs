@@ -260,6 +260,26 @@ pub enum TablesAction {
     Build(TablesBuildParams),
 }
 
+/// Sub-commands of `drift` (live drift correction).
+#[derive(Debug, Clone, PartialEq)]
+pub enum DriftAction {
+    /// The live drift state.
+    Show,
+    /// Change the method and/or the interval (unset fields stay).
+    Set {
+        /// `off`, `static` or `adaptive`.
+        method: Option<crate::daemon::config::DriftMethodName>,
+        /// Interval between re-measurements, s.
+        every_s: Option<f64>,
+        /// Adaptive forgetting time constant, s.
+        time_constant_s: Option<f64>,
+    },
+    /// Forget the re-measurements (the next compensated move measures).
+    Reset,
+    /// Re-measure the reference now (with the active table).
+    Measure,
+}
+
 /// Parameters of `tables build`.
 #[derive(Debug, Clone, PartialEq)]
 pub struct TablesBuildParams {
@@ -354,6 +374,8 @@ pub enum Topic {
     Job,
     /// Faults and state changes.
     Fault,
+    /// Live drift re-measurements and their failures.
+    Drift,
 }
 
 impl Topic {
@@ -363,6 +385,7 @@ impl Topic {
             Topic::Position => "position",
             Topic::Job => "job",
             Topic::Fault => "fault",
+            Topic::Drift => "drift",
         }
     }
 }
@@ -388,6 +411,8 @@ pub enum Command {
     Validate(ValidateAction),
     /// Compensation tables.
     Tables(TablesAction),
+    /// Live drift correction.
+    Drift(DriftAction),
     /// The effective configuration.
     Config,
     /// Daemon and protocol version.
@@ -405,6 +430,7 @@ pub const COMMANDS: &[&str] = &[
     "characterize",
     "validate",
     "tables",
+    "drift",
     "config",
     "version",
 ];
@@ -509,6 +535,7 @@ fn parse_command(obj: &Map<String, Value>) -> Result<Command, ProtoError> {
             "settle_s",
         ],
         "tables" => &["action", "name", "log", "kinds", "activate"],
+        "drift" => &["action", "method", "every_s", "time_constant_s"],
         other => {
             return Err(ProtoError::new(
                 ErrorCode::UnknownCommand,
@@ -547,6 +574,7 @@ fn parse_command(obj: &Map<String, Value>) -> Result<Command, ProtoError> {
         "subscribe" => Command::Subscribe(parse_topics(obj)?),
         "characterize" => Command::Characterize(parse_characterize(obj)?),
         "validate" => Command::Validate(parse_validate(obj)?),
+        "drift" => Command::Drift(parse_drift(obj)?),
         _ => Command::Tables(parse_tables(obj)?),
     })
 }
@@ -595,7 +623,12 @@ fn parse_move(obj: &Map<String, Value>) -> Result<MoveRequest, ProtoError> {
 
 fn parse_topics(obj: &Map<String, Value>) -> Result<Vec<Topic>, ProtoError> {
     let Some(v) = obj.get("topics") else {
-        return Ok(vec![Topic::Position, Topic::Job, Topic::Fault]);
+        return Ok(vec![
+            Topic::Position,
+            Topic::Job,
+            Topic::Fault,
+            Topic::Drift,
+        ]);
     };
     let Value::Array(items) = v else {
         return Err(wrong_type("topics", "an array of strings", v));
@@ -609,11 +642,12 @@ fn parse_topics(obj: &Map<String, Value>) -> Result<Vec<Topic>, ProtoError> {
             "position" => Topic::Position,
             "job" => Topic::Job,
             "fault" => Topic::Fault,
+            "drift" => Topic::Drift,
             other => {
                 return Err(ProtoError::new(
                     ErrorCode::BadValue,
                     format!(
-                        "topic {:?} unknown; use position, job, fault",
+                        "topic {:?} unknown; use position, job, fault, drift",
                         truncate(other, 64)
                     ),
                 ))
@@ -672,6 +706,44 @@ fn parse_characterize(obj: &Map<String, Value>) -> Result<CharacterizeAction, Pr
             ErrorCode::BadValue,
             format!(
                 "characterize action {:?} unknown; use start, status, cancel, resume",
+                truncate(other, 64)
+            ),
+        )),
+    }
+}
+
+fn parse_drift(obj: &Map<String, Value>) -> Result<DriftAction, ProtoError> {
+    use crate::daemon::config::DriftMethodName;
+    match opt_str(obj, "action")?.unwrap_or("show") {
+        "show" => Ok(DriftAction::Show),
+        "reset" => Ok(DriftAction::Reset),
+        "measure" => Ok(DriftAction::Measure),
+        "set" => {
+            let method = match opt_str(obj, "method")? {
+                None => None,
+                Some("off") => Some(DriftMethodName::Off),
+                Some("static") => Some(DriftMethodName::Static),
+                Some("adaptive") => Some(DriftMethodName::Adaptive),
+                Some(m) => {
+                    return Err(ProtoError::new(
+                        ErrorCode::BadValue,
+                        format!(
+                            "drift method {:?} unknown; use off, static or adaptive",
+                            truncate(m, 64)
+                        ),
+                    ))
+                }
+            };
+            Ok(DriftAction::Set {
+                method,
+                every_s: opt_f64_within(obj, "every_s", 0.001, 86_400.0, "0.001..86400")?,
+                time_constant_s: opt_f64_within(obj, "time_constant_s", 1.0, 1e7, "1..10000000")?,
+            })
+        }
+        other => Err(ProtoError::new(
+            ErrorCode::BadValue,
+            format!(
+                "drift action {:?} unknown; use show, set, reset, measure",
                 truncate(other, 64)
             ),
         )),
@@ -1053,6 +1125,51 @@ mod tests {
 
     fn code(s: &str) -> ErrorCode {
         parse(s).unwrap_err().error.code
+    }
+
+    #[test]
+    fn drift_command_and_topic() {
+        use crate::daemon::config::DriftMethodName;
+        assert_eq!(
+            parse(r#"{"cmd":"drift"}"#).unwrap().command,
+            Command::Drift(DriftAction::Show)
+        );
+        assert_eq!(
+            parse(r#"{"cmd":"drift","action":"set","method":"adaptive","every_s":60}"#)
+                .unwrap()
+                .command,
+            Command::Drift(DriftAction::Set {
+                method: Some(DriftMethodName::Adaptive),
+                every_s: Some(60.0),
+                time_constant_s: None,
+            })
+        );
+        for (a, want) in [
+            ("reset", DriftAction::Reset),
+            ("measure", DriftAction::Measure),
+        ] {
+            assert_eq!(
+                parse(&format!(r#"{{"cmd":"drift","action":"{a}"}}"#))
+                    .unwrap()
+                    .command,
+                Command::Drift(want)
+            );
+        }
+        for bad in [
+            r#"{"cmd":"drift","action":"set","method":"kalman"}"#,
+            r#"{"cmd":"drift","action":"set","every_s":0}"#,
+            r#"{"cmd":"drift","action":"set","time_constant_s":-5}"#,
+            r#"{"cmd":"drift","action":"undo"}"#,
+            r#"{"cmd":"drift","every":5}"#,
+        ] {
+            assert_eq!(code(bad), ErrorCode::BadValue, "{bad}");
+        }
+        assert_eq!(
+            parse(r#"{"cmd":"subscribe","topics":["drift"]}"#)
+                .unwrap()
+                .command,
+            Command::Subscribe(vec![Topic::Drift])
+        );
     }
 
     #[test]

@@ -53,6 +53,8 @@ pub struct Rig {
     pub heartbeat: AtomicU64,
     /// Compensation tables, the active compensator, the motion history.
     pub comp: super::comp::CompState,
+    /// Live drift correction (`[drift]`, the `drift` command).
+    pub drift: super::drift::DriftControl,
 }
 
 fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
@@ -103,7 +105,9 @@ impl Rig {
     /// A rig with no stage yet.
     pub fn new(cfg: DaemonConfig, clock: Arc<dyn RigClock>, vision: Option<Vision>) -> Rig {
         let (events, _) = broadcast::channel(1024);
+        let drift = super::drift::DriftControl::new(&cfg);
         Rig {
+            drift,
             cfg,
             clock,
             stage: Mutex::new(None),
@@ -477,7 +481,10 @@ impl Rig {
             None
         };
         let start = self.current_cmd().await?;
-        let base = self.comp.last_target().map_or(start, |t| [t.x_um, t.y_um]);
+        let base = self
+            .comp
+            .last_user_target()
+            .map_or(start, |t| [t.x_um, t.y_um]);
         let pick = |v: Option<f64>, b: f64| match v {
             Some(v) if req.relative => b + v,
             Some(v) => v,
@@ -487,8 +494,26 @@ impl Rig {
             x_um: pick(req.x_um, base[0]),
             y_um: pick(req.y_um, base[1]),
         };
+        // Live drift: the table's command for `target − drift` lands on
+        // `target` in today's state of the rig (see `daemon::drift`).
+        let drift = if req.mode == MoveMode::Compensated {
+            self.drift_correction(active.as_ref(), !from_job).await?
+        } else {
+            super::drift::Correction::default()
+        };
+        let offset = drift.offset_um.unwrap_or([0.0, 0.0]);
+        let planned_target = crate::model::XyUm {
+            x_um: target.x_um - offset[0],
+            y_um: target.y_um - offset[1],
+        };
+        // A re-measurement moved the stage: plan from where it is now.
+        let start = if drift.info.get("measured").is_some() {
+            self.current_cmd().await?
+        } else {
+            start
+        };
         let opts = self.cfg.compensation.plan_options();
-        let plan = self.comp.plan(&*comp, target, start, &opts)?;
+        let plan = self.comp.plan(&*comp, planned_target, start, &opts)?;
         for w in &plan.waypoints {
             let r = MoveRequest {
                 x_um: Some(w.x_um),
@@ -501,6 +526,7 @@ impl Rig {
             self.raw_move(&r, from_job, false).await?;
         }
         self.comp.commit_plan(&plan, self.clock.now_s());
+        self.comp.set_target_offset(offset);
         let mut out = json!({
             "mode": req.mode.as_str(),
             "compensator": comp.kind(),
@@ -510,6 +536,9 @@ impl Rig {
             "predicted_offset_um": plan.predicted_offset_um,
             "on_target": true,
         });
+        if self.drift.enabled() && req.mode == MoveMode::Compensated {
+            out["drift"] = drift.info;
+        }
         if let Some(frame) = frame {
             let cl = crate::comp::closed_loop::ClosedLoop::new(
                 target,
@@ -544,7 +573,7 @@ impl Rig {
 
     /// A raw move (also each waypoint of a planned move). `commit` records
     /// it in the motion history (planned moves commit their whole plan).
-    async fn raw_move(
+    pub(super) async fn raw_move(
         self: &Arc<Self>,
         req: &MoveRequest,
         from_job: bool,
@@ -786,6 +815,7 @@ impl Rig {
             "rig": lock(&self.state).to_json(),
             "limits": travel,
             "camera": self.vision.as_ref().map(|v| v.to_json()),
+            "drift": self.drift.to_json(self.clock.now_s()),
         })
     }
 

@@ -99,7 +99,8 @@ impl Jobs {
             .map_or(Value::Null, Progress::to_json)
     }
 
-    fn is_running(&self) -> bool {
+    /// Whether a job is running.
+    pub fn is_running(&self) -> bool {
         lock(&self.running)
             .as_ref()
             .is_some_and(|r| !r.task.is_finished())
@@ -367,7 +368,11 @@ fn unix_seconds() -> u64 {
 /// arrived) or `low_quality` (frames arrived but did not decode, or decoded
 /// below the minimum quality). Nothing is made up: the caller logs only what
 /// this returns.
-async fn measure(rig: &Rig, n: u32, after_s: f64) -> Result<(Measurement, f64), ProtoError> {
+pub(crate) async fn measure(
+    rig: &Rig,
+    n: u32,
+    after_s: f64,
+) -> Result<(Measurement, f64), ProtoError> {
     let Some(v) = &rig.vision else {
         return Err(ProtoError::new(ErrorCode::CameraUnavailable, "no camera"));
     };
@@ -679,10 +684,8 @@ async fn measure_reference(
 ) -> Result<bool, ProtoError> {
     let clock = rig.clock.clone();
     let [rx, ry] = d.reference_um;
-    if move_raw(rig, rx - PARK_APPROACH_UM, ry - PARK_APPROACH_UM, cancel)
-        .await?
-        .is_none()
-    {
+    let (ax, ay) = clamp_to_travel(rig, rx - PARK_APPROACH_UM, ry - PARK_APPROACH_UM);
+    if move_raw(rig, ax, ay, cancel).await?.is_none() {
         return Ok(false);
     }
     let Some(moved) = move_raw(rig, rx, ry, cancel).await? else {
@@ -740,5 +743,23 @@ async fn measure_reference(
             next.y_um - dir * PARK_APPROACH_UM,
         )
     };
+    // A scan starting at the end of the travel (the paper's frame: 0) has no
+    // room below: approach from the end itself (the plain scan arrives
+    // there the same way after its park).
+    let (x, y) = clamp_to_travel(rig, x, y);
     Ok(move_raw(rig, x, y, cancel).await?.is_some())
+}
+
+/// `(x, y)` clamped into the allowed travel (soft limits ∩ controller
+/// travel, as `status.limits`); unchanged when the limits are unknown.
+pub(crate) fn clamp_to_travel(rig: &Rig, x: f64, y: f64) -> (f64, f64) {
+    let status = rig.status();
+    let clamp = |v: f64, axis: &str| {
+        let l = &status["limits"][axis];
+        match (l[0].as_f64(), l[1].as_f64()) {
+            (Some(lo), Some(hi)) if lo <= hi => v.clamp(lo, hi),
+            _ => v,
+        }
+    };
+    (clamp(x, "x_um"), clamp(y, "y_um"))
 }

@@ -141,6 +141,11 @@ pub fn build_blocking(
             .map(|(k, v)| (format!("log.{k}"), v.to_owned()))
             .collect(),
     };
+    // The state of the rig the tables refer to: what live drift correction
+    // measures against (`daemon::drift`).
+    if let Some(d) = &drift {
+        source.metadata.extend(d.baseline.to_metadata());
+    }
     let mut written = Vec::new();
     let mut out = json!({"log": params.log, "frame": frame, "drift": drift});
     for kind in &params.kinds {

@@ -24,11 +24,13 @@
 //! itself first ([`super::tie`]).
 
 use super::super::comp::Active;
+use super::super::drift::is_measurement_error;
 use super::super::protocol::{
     ErrorCode, MoveMode, MoveRequest, ProtoError, Topic, ValidateMode, ValidateParams,
 };
 use super::super::rig::Rig;
 use super::{lock, measure, tie, Jobs, Progress, Running};
+use crate::analysis::drift::DRIFT_REF_SEGMENT;
 use crate::charact::log::{self, Columns, LogWriter, Metadata, Record, SyncPolicy};
 use crate::charact::scan::{
     random_targets, square_pose_label, square_poses, SEGMENT_RANDOM, SEGMENT_SQUARE,
@@ -88,7 +90,9 @@ pub fn random() -> Vec<Pose> {
 }
 
 /// The log's columns: the standard ones, then the mode, the pose label,
-/// the controller-reported position and the decode quality.
+/// the controller-reported position, the decode quality and the live drift
+/// correction subtracted from the target (empty when none; on `drift_ref`
+/// rows: the drift measured there).
 pub fn columns() -> Columns {
     Columns {
         temp_c: false,
@@ -98,6 +102,8 @@ pub fn columns() -> Columns {
             "x_reported_um",
             "y_reported_um",
             "vision_quality",
+            "drift_x_um",
+            "drift_y_um",
         ]
         .map(str::to_owned)
         .to_vec(),
@@ -400,7 +406,7 @@ async fn reach(
     plan: &Plan,
     mode: ValidateMode,
     target: XyUm,
-) -> Result<(XyUm, Value, Option<String>), ProtoError> {
+) -> Result<(XyUm, Value, Option<String>, Option<[f64; 2]>), ProtoError> {
     let move_mode = match mode {
         ValidateMode::Raw => MoveMode::Raw,
         ValidateMode::Table | ValidateMode::Model => MoveMode::Compensated,
@@ -431,7 +437,12 @@ async fn reach(
                 x_um: c["x_um"].as_f64().unwrap_or(target.x_um),
                 y_um: c["y_um"].as_f64().unwrap_or(target.y_um),
             };
-            return Ok((cmd, pos["controller"].clone(), Some(e.code.to_string())));
+            return Ok((
+                cmd,
+                pos["controller"].clone(),
+                Some(e.code.to_string()),
+                None,
+            ));
         }
         Err(e) => return Err(e),
     };
@@ -449,10 +460,77 @@ async fn reach(
     } else {
         rig.position().await["controller"].clone()
     };
-    Ok((cmd, reported, None))
+    let c = &r["drift"]["correction_um"];
+    let correction = c[0].as_f64().zip(c[1].as_f64()).map(|(x, y)| [x, y]);
+    Ok((cmd, reported, None, correction))
 }
 
 type Visits = Vec<Vec<Xy>>;
+
+/// Before a `table` or `model` point: re-measures the drift reference if
+/// live correction is on and due, and logs it as a
+/// [`DRIFT_REF_SEGMENT`] row (pose `ref`, drift columns = the drift
+/// measured). A camera failure is recorded by the live state (estimate
+/// untouched, `drift` event) and logs nothing; motion errors end the job.
+/// Returns whether a row was logged.
+async fn drift_reference(
+    rig: &Arc<Rig>,
+    plan: &Plan,
+    mode: ValidateMode,
+    cycle: u32,
+    origin_t: f64,
+    writer: &Arc<Mutex<LogWriter<File>>>,
+    name: &str,
+) -> Result<bool, ProtoError> {
+    if !rig.drift.enabled() {
+        return Ok(false);
+    }
+    let Some(active) = plan.comps.for_mode(mode) else {
+        return Ok(false);
+    };
+    if !matches!(rig.drift_due(&active), Ok(true)) {
+        return Ok(false);
+    }
+    let r = match rig
+        .drift_measure(&active, plan.frames, plan.settle_s, true)
+        .await
+    {
+        Ok(r) => r,
+        Err(e) if is_measurement_error(e.code) => return Ok(false),
+        Err(e) => return Err(e),
+    };
+    let num = |v: &Value| v.as_f64().map_or(String::new(), |v| format!("{v:.4}"));
+    let rec = Record {
+        t_s: r.sample.t_s - origin_t,
+        segment: DRIFT_REF_SEGMENT.to_owned(),
+        cycle,
+        x_target_um: r.reference_um[0],
+        y_target_um: r.reference_um[1],
+        x_cmd_um: r.reference_um[0],
+        y_cmd_um: r.reference_um[1],
+        x_meas_um: r.sample.measured_um[0],
+        y_meas_um: r.sample.measured_um[1],
+        temp_c: None,
+        extra: vec![
+            mode.as_str().to_owned(),
+            "ref".to_owned(),
+            num(&r.reported["x_um"]),
+            num(&r.reported["y_um"]),
+            format!("{:.3}", r.quality),
+            format!("{:.4}", r.sample.drift_um[0]),
+            format!("{:.4}", r.sample.drift_um[1]),
+        ],
+    };
+    let w = writer.clone();
+    let name = name.to_owned();
+    tokio::task::spawn_blocking(move || lock(&w).append(&rec))
+        .await
+        .map_err(|e| ProtoError::new(ErrorCode::Internal, e.to_string()))?
+        .map_err(|e| {
+            ProtoError::new(ErrorCode::LogError, format!("cannot append to {name}: {e}"))
+        })?;
+    Ok(true)
+}
 
 async fn run(
     rig: &Arc<Rig>,
@@ -526,6 +604,12 @@ async fn run(
         "vision_frame_translation_y_um",
         frame.translation_um[1].to_string(),
     );
+    let live = rig.drift.to_json(clock.now_s());
+    md.insert(
+        "live_drift_method",
+        live["method"].as_str().unwrap_or("off").to_owned(),
+    );
+    md.insert("live_drift_every_s", live["every_s"].to_string());
     md.insert("daemon_version", env!("CARGO_PKG_VERSION"));
     let path = rig.cfg.daemon.data_dir.join(name);
     let writer: Arc<Mutex<LogWriter<File>>> = Arc::new(Mutex::new(
@@ -551,6 +635,7 @@ async fn run(
         let mut per_mode = Map::new();
         for &mode in &plan.modes {
             let mut visits: Visits = vec![Vec::new(); poses.len()];
+            let mut drift_refs = 0usize;
             let mut loop_failures = 0u32;
             for cycle in 1..=plan.cycles {
                 for (i, pose) in poses.iter().enumerate() {
@@ -560,8 +645,15 @@ async fn run(
                     if rig.stop_generation() != gen {
                         return Ok(("stopped", None));
                     }
+                    if matches!(mode, ValidateMode::Table | ValidateMode::Model) {
+                        let logged = tokio::select! {
+                            r = drift_reference(rig, plan, mode, cycle, origin_t, &writer, name) => r?,
+                            _ = cancel.changed() => return Ok(("cancelled", None)),
+                        };
+                        drift_refs += usize::from(logged);
+                    }
                     let target = plan.target(pose);
-                    let (cmd, reported, failure) = tokio::select! {
+                    let (cmd, reported, failure, correction) = tokio::select! {
                         r = reach(rig, plan, mode, target) => r?,
                         _ = cancel.changed() => return Ok(("cancelled", None)),
                     };
@@ -593,6 +685,8 @@ async fn run(
                             num(&reported["x_um"]),
                             num(&reported["y_um"]),
                             format!("{quality:.3}"),
+                            correction.map_or(String::new(), |c| format!("{:.4}", c[0])),
+                            correction.map_or(String::new(), |c| format!("{:.4}", c[1])),
                         ],
                     };
                     let w = writer.clone();
@@ -630,6 +724,11 @@ async fn run(
             }
             if let Some(a) = plan.comps.for_mode(mode) {
                 r["table"] = json!(a.name);
+            }
+            if rig.drift.enabled() && matches!(mode, ValidateMode::Table | ValidateMode::Model) {
+                let mut d = rig.drift.to_json(clock.now_s());
+                d["references_logged"] = json!(drift_refs);
+                r["drift"] = d;
             }
             per_mode.insert(mode.as_str().to_owned(), r);
         }
