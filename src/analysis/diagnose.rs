@@ -15,6 +15,12 @@
 //!    one settling error for the whole line; that block constant is profiled
 //!    out (the residual and every column are centred within the block for
 //!    that component), otherwise it would look like structure in time.
+//!    Likewise one constant per component over the rows where its axis
+//!    moves: a camera log's frame origin is a convention (the daemon's tie
+//!    pre-scan puts the mean of command − measured along its X tie line at
+//!    zero), not something the model predicts, so an absolute offset is
+//!    profiled out rather than reported as structure (measured on the
+//!    simulated rig: a 3.5 µm offset was named a 6.7 mm wide "dip").
 //! 4. **Search.** For each error component, candidate families against every
 //!    variable of the log: each axis position (periodic at any period by a
 //!    generalized Lomb–Scargle periodogram; slope; a localized Gaussian
@@ -390,9 +396,13 @@ fn prepare(
             let b = block[i];
             let still = hi[b][a] - lo[b][a] <= tol;
             moving[i][a] = !still;
-            if still {
-                group[i][a] = Some(2 * b + a);
-            }
+            group[i][a] = Some(if still {
+                2 * b + a
+            } else {
+                // Frame gauge: one constant per component over the rows
+                // where it moves (see the module docs, step 3).
+                2 * nb + a
+            });
         }
     }
     let temps: Vec<f64> = states.iter().map(|s| s.temp_c).collect();
@@ -408,7 +418,7 @@ fn prepare(
         fold,
         nfolds,
         group,
-        ngroups: 2 * nb,
+        ngroups: 2 * nb + 2,
         moving,
         temp_varies: tsd > 0.02,
         extra,
