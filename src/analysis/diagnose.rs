@@ -2208,7 +2208,13 @@ mod tests {
     #[test]
     fn only_numeric_varying_new_columns_are_searched() {
         let base = StageModel::paper_default().unwrap();
-        let plan = small_plan(20);
+        // Long enough (3.4 h) for the wandering column to wander: over a
+        // few of its 300 s knots it is a straight line in time, which the
+        // selection rightly leaves to the time families.
+        let plan = SimPlan {
+            dwell_s: 30.0,
+            ..small_plan(20)
+        };
         let truth = truth_model(&base, None, &plan, 3).unwrap();
         let mut log = simulate_log(&truth, &plan, 3).unwrap();
         add_extra_column(&mut log, "humidity_pct", 3, None).unwrap();
