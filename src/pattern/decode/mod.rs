@@ -256,6 +256,19 @@ fn missing_dot_correction(
     })
 }
 
+/// True when the wave-vector pairs `a` and `b` (rad/px) describe the same
+/// lattice: every vector of `b` is within 5 % of |k| of a vector of `a` or
+/// its negative (the axis labels and signs do not matter).
+fn same_lattice(a: &[[f64; 2]; 2], b: &[[f64; 2]; 2]) -> bool {
+    b.iter().all(|v| {
+        let r = v[0].hypot(v[1]);
+        a.iter().any(|u| {
+            (u[0] - v[0]).hypot(u[1] - v[1]) < 0.05 * r
+                || (u[0] + v[0]).hypot(u[1] + v[1]) < 0.05 * r
+        })
+    })
+}
+
 /// Diagnostics of one decode.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Quality {
@@ -304,6 +317,9 @@ pub struct Decoded {
     pub code_predicted: bool,
 }
 
+/// The code fix of a decoded frame and its centre line coordinates.
+type LastFix = (coarse::CodeFix, [f64; 2]);
+
 /// A reusable decoder: FFT plans and all buffers survive across frames, so a
 /// warm decoder does not allocate per frame (for frames of a fixed size).
 #[derive(Debug)]
@@ -314,7 +330,7 @@ pub struct Decoder {
     coarse: coarse::CoarseStage,
     last: Option<Grid>,
     /// Code fix of the last decoded frame and its centre line coordinates.
-    last_fix: Option<(coarse::CodeFix, [f64; 2])>,
+    last_fix: Option<LastFix>,
 }
 
 impl Decoder {
@@ -353,12 +369,7 @@ impl Decoder {
     /// Cold full-frame stage: FFT peak search, then demodulation and plane
     /// fit. Public so the stages can be benchmarked separately.
     pub fn fine_stage(&mut self, frame: &Frame) -> Result<Grid, DecodeError> {
-        let (w, h) = (frame.width(), frame.height());
-        let need = self.seq.min_periods_in_view() as f64;
-        let max_period = (w.min(h) as f64 / need).max(self.opts.min_period_px * 1.01);
-        let k0 = self
-            .fine
-            .peak_search(frame, self.opts.min_period_px, max_period)?;
+        let k0 = self.peak_search(frame)?;
         let g = self.fine.refine(frame, k0, 2)?;
         self.check_grid(&g)?;
         Ok(g)
@@ -494,13 +505,97 @@ impl Decoder {
     }
 
     /// Decodes a frame from scratch (peak search included).
+    ///
+    /// Lattice hypotheses: the peak search's reading of the spectrum (which
+    /// peak is the fundamental) is tried first. If it yields no grid, an
+    /// incoherent one, or a dot layout without the pattern's line structure —
+    /// under heavy blur the 3-period structure's k/3 or diagonal
+    /// (k_a ± k_b)/3 components can outshine the fundamental and the search
+    /// locks onto them — the other readings of the strongest peak (see
+    /// `fine::LATTICE_READINGS`), strongest fundamental first, are each held
+    /// to the same grid, orientation and code checks, and the first that
+    /// passes all of them is the answer. A frame that decodes at once costs
+    /// nothing extra; when every reading fails, the first reading's error is
+    /// returned.
     pub fn decode(&mut self, frame: &Frame) -> Result<Decoded, DecodeError> {
         self.last = None;
         self.last_fix = None;
-        let g = self.fine_stage(frame)?;
-        let d = self.dot_stage(frame, &g)?;
-        self.last = Some(d.grid);
-        Ok(d)
+        let k0 = self.peak_search(frame);
+        let first = match k0 {
+            Ok(k) => self.decode_at(frame, k),
+            Err(ref e) => Err(e.clone()),
+        };
+        let err = match first {
+            Ok(d) => {
+                self.last = Some(d.grid);
+                return Ok(d);
+            }
+            Err(e) => e,
+        };
+        if !matches!(
+            err,
+            DecodeError::NoGrid(_)
+                | DecodeError::Orientation(_)
+                | DecodeError::TooFewPeriods { .. }
+        ) {
+            return Err(err);
+        }
+        // Every alternative reading is scored by its full decode; the one
+        // with the most code evidence wins. Two readings that both pass but
+        // put the view in different places are a contradiction: refuse.
+        let mut best: Option<(usize, Decoded, Option<LastFix>)> = None;
+        let mut contradiction = false;
+        for i in 0..self.fine.alternatives() {
+            let Some(k) = self.fine.alternative(i) else {
+                break;
+            };
+            if k0.as_ref().is_ok_and(|k0| same_lattice(k0, &k)) {
+                continue;
+            }
+            let Ok(d) = self.decode_at(frame, k) else {
+                continue;
+            };
+            if let Some((_, b, _)) = &best {
+                let apart = (b.x_um - d.x_um).hypot(b.y_um - d.y_um) > 0.25 * self.opts.period_um;
+                contradiction |= apart;
+                if d.quality <= b.quality {
+                    continue;
+                }
+            }
+            best = Some((i, d, self.last_fix));
+        }
+        match best {
+            Some((i, d, fix)) if !contradiction => {
+                // Make the winner's blob estimate and code fix current for
+                // tracking.
+                let _ = self.fine.alternative(i);
+                self.last_fix = fix;
+                self.last = Some(d.grid);
+                Ok(d)
+            }
+            Some(_) => Err(DecodeError::NoGrid(format!(
+                "lattice readings of the spectrum decode to different positions ({err})"
+            ))),
+            None => Err(err),
+        }
+    }
+
+    /// The peak search with the admissible period range of the options and
+    /// the code depth.
+    fn peak_search(&mut self, frame: &Frame) -> Result<[[f64; 2]; 2], DecodeError> {
+        let (w, h) = (frame.width(), frame.height());
+        let need = self.seq.min_periods_in_view() as f64;
+        let max_period = (w.min(h) as f64 / need).max(self.opts.min_period_px * 1.01);
+        self.fine
+            .peak_search(frame, self.opts.min_period_px, max_period)
+    }
+
+    /// Refinement, grid checks and the per-dot stage from approximate wave
+    /// vectors `k0`.
+    fn decode_at(&mut self, frame: &Frame, k0: [[f64; 2]; 2]) -> Result<Decoded, DecodeError> {
+        let g = self.fine.refine(frame, k0, 2)?;
+        self.check_grid(&g)?;
+        self.dot_stage(frame, &g)
     }
 
     /// Decodes a frame of a stream. Reuses the previous frame's grid
