@@ -21,6 +21,7 @@ use super::table::infer_directions;
 use super::{invalid, CompError, Compensator};
 use crate::charact::log::Record;
 use crate::charact::scan::{SEGMENT_SCAN_X, SEGMENT_SCAN_Y};
+use crate::model::terms::offset::{OriginOffsetConfig, OriginOffsetTerm, KIND as OFFSET_KIND};
 use crate::model::{
     Axis, Direction, Effect, FitOptions, FitReport, MotionState, MotionTracker, Sample, StageModel,
     Waypoint, DEFAULT_TEMP_C,
@@ -133,6 +134,27 @@ pub fn compensation_template(model: &StageModel) -> Result<StageModel, CompError
         .collect();
     for name in drop {
         m.remove_term(&name);
+    }
+    // A camera log's origin is the tie's, not the controllers' zero: the fit
+    // needs a constant to take it (see `terms::offset`).
+    if !m.terms().iter().any(|t| t.kind() == OFFSET_KIND) {
+        let name = (0..)
+            .map(|i| {
+                if i == 0 {
+                    "origin".to_string()
+                } else {
+                    format!("origin_{i}")
+                }
+            })
+            .find(|n| m.terms().iter().all(|t| t.name() != n))
+            .unwrap_or_else(|| "origin".to_string());
+        m.push_term(Box::new(OriginOffsetTerm::new(
+            &name,
+            OriginOffsetConfig {
+                x_um: 0.0,
+                y_um: 0.0,
+            },
+        )?))?;
     }
     let values: Vec<f64> = m
         .params()

@@ -9,6 +9,7 @@ pub mod backlash;
 pub mod cyclic;
 pub mod discovered;
 pub mod lead;
+pub mod offset;
 pub mod squareness;
 pub mod thermal;
 
@@ -20,6 +21,7 @@ pub use discovered::{
     StepSizeConfig, TemperatureConfig, TimeDriftConfig, TimePeriodicConfig,
 };
 pub use lead::{LeadConfig, LeadTerm};
+pub use offset::{OriginOffsetConfig, OriginOffsetTerm};
 pub use squareness::{SquarenessConfig, SquarenessTerm};
 pub use thermal::{
     OpticsDriftConfig, OpticsDriftTerm, ThermalExpansionConfig, ThermalExpansionTerm,
@@ -51,6 +53,11 @@ pub(crate) const BUILTIN: &[(&str, &str, TermBuilder)] = &[
         lead::KIND,
         "cumulative lead (scale) error of an axis, ppm",
         lead::build,
+    ),
+    (
+        offset::KIND,
+        "constant offset between the commanded frame and the measuring frame (the camera tie's origin)",
+        offset::build,
     ),
     (
         angular::KIND,
