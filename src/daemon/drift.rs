@@ -35,7 +35,7 @@
 
 use super::comp::Active;
 use super::config::{DaemonConfig, DriftMethodName};
-use super::protocol::{ErrorCode, MoveMode, MoveRequest, ProtoError, Topic};
+use super::protocol::{ErrorCode, MoveRequest, ProtoError, Topic};
 use super::rig::Rig;
 use crate::analysis::drift::{LiveDrift, LiveSample};
 use crate::comp::VisionFrame;
@@ -194,14 +194,7 @@ impl Rig {
         let mut moved = Value::Null;
         let below = super::jobs::clamp_to_travel(self, rx - approach, ry - approach);
         for (x, y) in [below, (rx, ry)] {
-            let req = MoveRequest {
-                x_um: Some(x),
-                y_um: Some(y),
-                relative: false,
-                mode: MoveMode::Raw,
-                wait: true,
-                tolerance_um: None,
-            };
+            let req = MoveRequest::raw_to(x, y);
             moved = self.raw_move(&req, from_job, true).await?;
         }
         self.clock

@@ -199,6 +199,22 @@ pub struct MoveRequest {
     pub tolerance_um: Option<f64>,
 }
 
+impl MoveRequest {
+    /// An absolute, uncompensated move of both axes that replies once on
+    /// target: what jobs and drift references use to place the stage
+    /// exactly where their plan says.
+    pub fn raw_to(x_um: f64, y_um: f64) -> Self {
+        MoveRequest {
+            x_um: Some(x_um),
+            y_um: Some(y_um),
+            relative: false,
+            mode: MoveMode::Raw,
+            wait: true,
+            tolerance_um: None,
+        }
+    }
+}
+
 /// Parameters of a characterization job; `None` = the configured default.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct CharacterizeParams {

@@ -515,14 +515,7 @@ impl Rig {
         let opts = self.cfg.compensation.plan_options();
         let plan = self.comp.plan(&*comp, planned_target, start, &opts)?;
         for w in &plan.waypoints {
-            let r = MoveRequest {
-                x_um: Some(w.x_um),
-                y_um: Some(w.y_um),
-                relative: false,
-                mode: MoveMode::Raw,
-                wait: true,
-                tolerance_um: None,
-            };
+            let r = MoveRequest::raw_to(w.x_um, w.y_um);
             self.raw_move(&r, from_job, false).await?;
         }
         self.comp.commit_plan(&plan, self.clock.now_s());
@@ -552,14 +545,7 @@ impl Rig {
                 let me = me.clone();
                 Box::pin(async move {
                     for w in wps {
-                        let r = MoveRequest {
-                            x_um: Some(w.x_um),
-                            y_um: Some(w.y_um),
-                            relative: false,
-                            mode: MoveMode::Raw,
-                            wait: true,
-                            tolerance_um: None,
-                        };
+                        let r = MoveRequest::raw_to(w.x_um, w.y_um);
                         me.raw_move(&r, from_job, true).await?;
                     }
                     Ok(())

@@ -11,9 +11,7 @@ pub mod tables;
 pub mod tie;
 pub mod validate;
 
-use super::protocol::{
-    Axes, CharacterizeParams, ErrorCode, MoveMode, MoveRequest, ProtoError, Topic,
-};
+use super::protocol::{Axes, CharacterizeParams, ErrorCode, MoveRequest, ProtoError, Topic};
 use super::rig::Rig;
 use super::vision::Measurement;
 use crate::analysis::drift::DRIFT_REF_SEGMENT;
@@ -538,17 +536,8 @@ async fn run(
         } else {
             (p0.x_um - PARK_APPROACH_UM, p0.y_um)
         };
-        let req = MoveRequest {
-            x_um: Some(x),
-            y_um: Some(y),
-            relative: false,
-            mode: MoveMode::Raw,
-            wait: true,
-            tolerance_um: None,
-        };
-        tokio::select! {
-            r = rig.move_to(&req, true) => { r?; }
-            _ = cancel.changed() => return Ok("cancelled"),
+        if move_raw(rig, x, y, &mut cancel).await?.is_none() {
+            return Ok("cancelled");
         }
     }
     let began = clock.now_s();
@@ -577,17 +566,8 @@ async fn run(
                 last_ref_s = Some(clock.now_s());
             }
         }
-        let req = MoveRequest {
-            x_um: Some(p.x_um),
-            y_um: Some(p.y_um),
-            relative: false,
-            mode: MoveMode::Raw,
-            wait: true,
-            tolerance_um: None,
-        };
-        let moved = tokio::select! {
-            r = rig.move_to(&req, true) => r?,
-            _ = cancel.changed() => return Ok("cancelled"),
+        let Some(moved) = move_raw(rig, p.x_um, p.y_um, &mut cancel).await? else {
+            return Ok("cancelled");
         };
         clock.sleep(settle).await;
         let (m, quality) = measure(rig, plan.frames_per_point, clock.now_s()).await?;
@@ -613,13 +593,7 @@ async fn run(
                 format!("{quality:.3}"),
             ],
         };
-        let w = writer.clone();
-        tokio::task::spawn_blocking(move || lock(&w).append(&rec))
-            .await
-            .map_err(|e| ProtoError::new(ErrorCode::Internal, e.to_string()))?
-            .map_err(|e| {
-                ProtoError::new(ErrorCode::LogError, format!("cannot append to {name}: {e}"))
-            })?;
+        append_record(&writer, rec, name).await?;
         let done = i + 1;
         let per_point = (clock.now_s() - began) / (done - start) as f64;
         let eta = per_point * (points.len() - done) as f64;
@@ -647,6 +621,21 @@ struct RefContext<'a> {
     name: &'a str,
 }
 
+/// Appends `rec` to a job's log on a blocking thread; the record is written,
+/// flushed and synced before this returns (every logged point survives a
+/// crash). `name` is the log's file name, for the error.
+pub(super) async fn append_record(
+    writer: &Arc<Mutex<LogWriter<File>>>,
+    rec: Record,
+    name: &str,
+) -> Result<(), ProtoError> {
+    let w = writer.clone();
+    tokio::task::spawn_blocking(move || lock(&w).append(&rec))
+        .await
+        .map_err(|e| ProtoError::new(ErrorCode::Internal, e.to_string()))?
+        .map_err(|e| ProtoError::new(ErrorCode::LogError, format!("cannot append to {name}: {e}")))
+}
+
 /// Moves to `x`, `y` (µm, raw) and waits; `Ok(None)` if cancelled meanwhile.
 async fn move_raw(
     rig: &Arc<Rig>,
@@ -654,14 +643,7 @@ async fn move_raw(
     y: f64,
     cancel: &mut watch::Receiver<bool>,
 ) -> Result<Option<Value>, ProtoError> {
-    let req = MoveRequest {
-        x_um: Some(x),
-        y_um: Some(y),
-        relative: false,
-        mode: MoveMode::Raw,
-        wait: true,
-        tolerance_um: None,
-    };
+    let req = MoveRequest::raw_to(x, y);
     tokio::select! {
         r = rig.move_to(&req, true) => r.map(Some),
         _ = cancel.changed() => Ok(None),
@@ -717,14 +699,7 @@ async fn measure_reference(
             format!("{quality:.3}"),
         ],
     };
-    let w = ctx.writer.clone();
-    let name = ctx.name.to_owned();
-    tokio::task::spawn_blocking(move || lock(&w).append(&rec))
-        .await
-        .map_err(|e| ProtoError::new(ErrorCode::Internal, e.to_string()))?
-        .map_err(|e| {
-            ProtoError::new(ErrorCode::LogError, format!("cannot append to {name}: {e}"))
-        })?;
+    append_record(ctx.writer, rec, ctx.name).await?;
     // Back to the scan: held axis from below (as the initial park), scanned
     // axis from the side of the pass (below forward, above backward).
     let dir = if next.segment.ends_with("_bwd") {

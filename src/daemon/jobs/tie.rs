@@ -19,7 +19,7 @@
 //! tie point is reached forward (the line starts with an unmeasured move to
 //! its first position), so backlash does not either.
 
-use super::super::protocol::{ErrorCode, MoveMode, MoveRequest, ProtoError};
+use super::super::protocol::{ErrorCode, MoveRequest, ProtoError};
 use super::super::rig::Rig;
 use super::measure;
 use crate::charact::log::Metadata;
@@ -59,14 +59,7 @@ pub struct TieLine {
 }
 
 async fn raw_move(rig: &Arc<Rig>, x_um: f64, y_um: f64) -> Result<(), ProtoError> {
-    let req = MoveRequest {
-        x_um: Some(x_um),
-        y_um: Some(y_um),
-        relative: false,
-        mode: MoveMode::Raw,
-        wait: true,
-        tolerance_um: None,
-    };
+    let req = MoveRequest::raw_to(x_um, y_um);
     rig.move_to(&req, true).await.map(|_| ())
 }
 

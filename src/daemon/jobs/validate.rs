@@ -29,7 +29,7 @@ use super::super::protocol::{
     ErrorCode, MoveMode, MoveRequest, ProtoError, Topic, ValidateMode, ValidateParams,
 };
 use super::super::rig::Rig;
-use super::{lock, measure, tie, Jobs, Progress, Running};
+use super::{append_record, lock, measure, tie, Jobs, Progress, Running};
 use crate::analysis::drift::DRIFT_REF_SEGMENT;
 use crate::charact::log::{self, Columns, LogWriter, Metadata, Record, SyncPolicy};
 use crate::charact::scan::{
@@ -521,14 +521,7 @@ async fn drift_reference(
             format!("{:.4}", r.sample.drift_um[1]),
         ],
     };
-    let w = writer.clone();
-    let name = name.to_owned();
-    tokio::task::spawn_blocking(move || lock(&w).append(&rec))
-        .await
-        .map_err(|e| ProtoError::new(ErrorCode::Internal, e.to_string()))?
-        .map_err(|e| {
-            ProtoError::new(ErrorCode::LogError, format!("cannot append to {name}: {e}"))
-        })?;
+    append_record(writer, rec, name).await?;
     Ok(true)
 }
 
@@ -689,16 +682,7 @@ async fn run(
                             correction.map_or(String::new(), |c| format!("{:.4}", c[1])),
                         ],
                     };
-                    let w = writer.clone();
-                    tokio::task::spawn_blocking(move || lock(&w).append(&rec))
-                        .await
-                        .map_err(|e| ProtoError::new(ErrorCode::Internal, e.to_string()))?
-                        .map_err(|e| {
-                            ProtoError::new(
-                                ErrorCode::LogError,
-                                format!("cannot append to {name}: {e}"),
-                            )
-                        })?;
+                    append_record(&writer, rec, name).await?;
                     done += 1;
                     let per_point = (clock.now_s() - origin_t) / done as f64;
                     let snapshot = {
