@@ -243,6 +243,22 @@ impl Client {
     }
 
     /// Polls a job's status until it leaves `running`; reports progress.
+    /// Starts the validation job `req` and follows it to its end; returns
+    /// its final status.
+    async fn validate(
+        &mut self,
+        req: Value,
+        progress: &mut dyn FnMut(&str),
+    ) -> Result<Value, RunError> {
+        self.call(req).await?;
+        self.follow(
+            json!({"cmd": "validate", "action": "status"}),
+            "validate",
+            progress,
+        )
+        .await
+    }
+
     async fn follow(
         &mut self,
         status_req: Value,
@@ -331,6 +347,17 @@ struct Started {
     daemon: Running,
     socket: PathBuf,
     data_dir: PathBuf,
+}
+
+/// The validation request every run makes (both tests, the plan's cycles,
+/// poses, frames and settling, the paper table); callers add modes and the
+/// model table.
+fn validate_request(p: &RunPlan, log: &str) -> Value {
+    json!({"cmd": "validate", "action": "start", "test": "both",
+           "log": log, "cycles": p.validate_cycles,
+           "square_step_um": p.square_step_um, "origin_x_um": p.validate_origin_um,
+           "origin_y_um": p.validate_origin_um, "table": "run-paper.toml",
+           "frames_per_point": p.frames_per_point, "settle_s": p.settle_s})
 }
 
 async fn start(opts: &RunOptions, dir: &Path) -> Result<Started, RunError> {
@@ -537,19 +564,9 @@ async fn pipeline(
         "validate: square and Table II in raw, table, model, closed_loop (live drift {})",
         p.live_drift
     ));
-    c.call(json!({"cmd": "validate", "action": "start", "test": "both",
-                  "log": "validate.csv", "cycles": p.validate_cycles,
-                  "square_step_um": p.square_step_um, "origin_x_um": p.validate_origin_um, "origin_y_um": p.validate_origin_um,
-                  "table": "run-paper.toml", "model_table": "run-short-model.toml",
-                  "frames_per_point": p.frames_per_point, "settle_s": p.settle_s}))
-        .await?;
-    let v = c
-        .follow(
-            json!({"cmd": "validate", "action": "status"}),
-            "validate",
-            progress,
-        )
-        .await?;
+    let mut req = validate_request(p, "validate.csv");
+    req["model_table"] = json!("run-short-model.toml");
+    let v = c.validate(req, progress).await?;
     let results = v["validation"]["results"].clone();
     let mut summary = json!({});
     for test in ["square", "random"] {
@@ -592,19 +609,9 @@ async fn pipeline(
                 .await?;
             c.call(json!({"cmd": "drift", "action": "reset"})).await?;
             let log = format!("validate-drift-{method}.csv");
-            c.call(json!({"cmd": "validate", "action": "start", "test": "both",
-                          "modes": ["table"], "log": log, "cycles": p.validate_cycles,
-                          "square_step_um": p.square_step_um, "origin_x_um": p.validate_origin_um,
-                          "origin_y_um": p.validate_origin_um, "table": "run-paper.toml",
-                          "frames_per_point": p.frames_per_point, "settle_s": p.settle_s}))
-                .await?;
-            let v = c
-                .follow(
-                    json!({"cmd": "validate", "action": "status"}),
-                    "validate",
-                    progress,
-                )
-                .await?;
+            let mut req = validate_request(p, &log);
+            req["modes"] = json!(["table"]);
+            let v = c.validate(req, progress).await?;
             let r = &v["validation"]["results"];
             cmp[method] = json!({"square": table_offset(&r["square"]["table"]),
                                  "random": table_offset(&r["random"]["table"])});
