@@ -32,6 +32,7 @@ fn bench(c: &mut Criterion) {
     let mut d = Decoder::new(DecodeOptions::new(9.0, 12)).expect("decoder");
     let g = d.fine_stage(&f).expect("grid");
     d.decode(&f).expect("decode");
+    eprintln!("decoder SIMD kernels: {}", d.simd_kernels());
     let mut grp = c.benchmark_group("decode_1024x768");
     grp.sample_size(20);
     grp.bench_function("cold", |b| b.iter(|| d.decode(&f).expect("decode")));

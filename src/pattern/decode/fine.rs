@@ -28,7 +28,7 @@ use realfft::num_complex::Complex;
 use realfft::{RealFftPlanner, RealToComplex};
 use rustfft::{Fft, FftPlanner};
 
-use super::DecodeError;
+use super::{simd, DecodeError};
 use crate::frame::{Frame, Pixels};
 
 /// The grid found by the full-frame stage, in image coordinates relative to
@@ -101,7 +101,8 @@ pub(crate) struct FineStage {
     planner_c: FftPlanner<f32>,
     crop: Vec<f32>,
     spec: Vec<Complex<f32>>,
-    col: Vec<Complex<f32>>,
+    /// The half spectrum transposed: column `fx` at `fx * n..`.
+    cols: Vec<Complex<f32>>,
     scratch: Vec<Complex<f32>>,
     rscratch: Vec<Complex<f32>>,
     power: Vec<f32>,
@@ -113,8 +114,10 @@ pub(crate) struct FineStage {
     /// `tab` and `tab_dc` without the 1/full-scale factor, quantised to
     /// i16 (scaled by [`Q16`]): the 8-bit path's integer dot products.
     tab16: [Vec<i16>; 5],
-    /// One 8-bit row widened to i16.
-    row16: Vec<i16>,
+    /// Per tile of the current row: the 8-bit path's five dot products.
+    dots: Vec<[i32; simd::TABLES]>,
+    /// SIMD kernels of this CPU.
+    kernels: simd::Kernels,
     /// `wx / full_scale`: the per-tile windowed intensity sum (local mean).
     tab_dc: Vec<f32>,
     /// Per tile: windowed intensity sum, window sum, and per direction the
@@ -158,17 +161,6 @@ impl std::fmt::Debug for FineStage {
     }
 }
 
-/// Writes row `i` of `frame` as intensities in [0, 1].
-pub(crate) fn row_f32(frame: &Frame, i: usize, out: &mut Vec<f32>) {
-    let w = frame.width();
-    let scale = 1.0 / frame.full_scale() as f32;
-    out.clear();
-    match frame.pixels() {
-        Pixels::U8(p) => out.extend(p[i * w..(i + 1) * w].iter().map(|&v| f32::from(v) * scale)),
-        Pixels::U16(p) => out.extend(p[i * w..(i + 1) * w].iter().map(|&v| f32::from(v) * scale)),
-    }
-}
-
 /// Writes row `i` of `frame` as raw pixel values (no scaling: the
 /// demodulation tables carry the 1/full-scale factor).
 fn row_raw(frame: &Frame, i: usize, out: &mut Vec<f32>) {
@@ -208,20 +200,6 @@ fn dot4(x: &[f32], a0: &[f32], a1: &[f32], a2: &[f32], a3: &[f32]) -> [f32; 4] {
     [dot(x, a0), dot(x, a1), dot(x, a2), dot(x, a3)]
 }
 
-/// Exact integer dot product of 8-bit pixels (widened to i16) with a table quantised
-/// to i16. Integer addition is associative, so the compiler vectorises the
-/// reduction freely (16-bit multiply-adds: eight products per instruction on
-/// baseline x86-64, twice the f32 rate). No overflow: |product| ≤ 255·32767
-/// and a tile row is far shorter than the 257 products that would reach
-/// 2³¹ (a tile is under 2·[`TILE`] wide).
-#[inline]
-fn dot_i16(x: &[i16], a: &[i16]) -> i32 {
-    x.iter()
-        .zip(a)
-        .map(|(&x, &a)| i32::from(x) * i32::from(a))
-        .fold(0i32, i32::wrapping_add)
-}
-
 /// Full scale of the quantised demodulation tables: the window times a
 /// unit phasor is at most 1 in magnitude. Quantisation error ≤ 1.5e-5 per
 /// entry, the same for every row, moves a tile phase by ~1e-6 rad.
@@ -247,7 +225,7 @@ impl FineStage {
             planner_c: FftPlanner::new(),
             crop: Vec::new(),
             spec: Vec::new(),
-            col: Vec::new(),
+            cols: Vec::new(),
             scratch: Vec::new(),
             rscratch: Vec::new(),
             power: Vec::new(),
@@ -257,7 +235,8 @@ impl FineStage {
             wy: Vec::new(),
             tab: [Vec::new(), Vec::new(), Vec::new(), Vec::new()],
             tab16: [Vec::new(), Vec::new(), Vec::new(), Vec::new(), Vec::new()],
-            row16: Vec::new(),
+            dots: Vec::new(),
+            kernels: simd::Kernels::detect(),
             tab_dc: Vec::new(),
             tile_dc: Vec::new(),
             tile_wsum: Vec::new(),
@@ -279,6 +258,11 @@ impl FineStage {
         }
     }
 
+    /// Name of the SIMD kernel set in use.
+    pub(crate) fn kernels_name(&self) -> &'static str {
+        self.kernels.name()
+    }
+
     fn prepare_fft(&mut self, n: usize) {
         if self.n == n && self.r2c.is_some() {
             return;
@@ -290,7 +274,7 @@ impl FineStage {
         self.scratch = vec![Complex::new(0.0, 0.0); c2c.get_inplace_scratch_len()];
         self.crop = vec![0.0; n * n];
         self.spec = vec![Complex::new(0.0, 0.0); n * (n / 2 + 1)];
-        self.col = vec![Complex::new(0.0, 0.0); n];
+        self.cols = vec![Complex::new(0.0, 0.0); n * (n / 2 + 1)];
         self.power = vec![0.0; n * (n / 2 + 1)];
         self.hann = (0..n)
             .map(|i| {
@@ -363,15 +347,31 @@ impl FineStage {
         };
         let x0 = (w - n) / 2;
         let y0 = (h - n) / 2;
-        // Crop, mean removal, window.
-        let mut sum = 0.0f64;
+        // Crop (only the block's pixels are converted), mean from the exact
+        // integer pixel sum, window.
+        let scale = 1.0 / frame.full_scale() as f32;
+        let mut sum = 0u64;
         for i in 0..n {
-            row_f32(frame, y0 + i, &mut self.row);
             let dst = &mut self.crop[i * n..(i + 1) * n];
-            dst.copy_from_slice(&self.row[x0..x0 + n]);
-            sum += dst.iter().map(|&v| f64::from(v)).sum::<f64>();
+            let at = (y0 + i) * w + x0;
+            match frame.pixels() {
+                Pixels::U8(p) => {
+                    let src = &p[at..at + n];
+                    sum += src.iter().map(|&v| u64::from(v)).sum::<u64>();
+                    for (d, &v) in dst.iter_mut().zip(src) {
+                        *d = f32::from(v) * scale;
+                    }
+                }
+                Pixels::U16(p) => {
+                    let src = &p[at..at + n];
+                    sum += src.iter().map(|&v| u64::from(v)).sum::<u64>();
+                    for (d, &v) in dst.iter_mut().zip(src) {
+                        *d = f32::from(v) * scale;
+                    }
+                }
+            }
         }
-        let mean = (sum / (n * n) as f64) as f32;
+        let mean = (sum as f64 / (n * n) as f64) as f32 * scale;
         for i in 0..n {
             let wy = self.hann[i];
             for (v, &wx) in self.crop[i * n..(i + 1) * n].iter_mut().zip(&self.hann) {
@@ -387,13 +387,17 @@ impl FineStage {
             r2c.process_with_scratch(input, output, &mut self.rscratch)
                 .map_err(|e| DecodeError::NoGrid(format!("FFT failed: {e}")))?;
         }
-        for fx in 0..nc {
-            for i in 0..n {
-                self.col[i] = self.spec[i * nc + fx];
+        // Columns: transpose into one buffer (row-contiguous reads), one
+        // batched column FFT call over all of them, power back row-major.
+        for (i, row) in self.spec.chunks_exact(nc).enumerate() {
+            for (fx, &v) in row.iter().enumerate() {
+                self.cols[fx * n + i] = v;
             }
-            c2c.process_with_scratch(&mut self.col, &mut self.scratch);
-            for fy in 0..n {
-                self.power[fy * nc + fx] = self.col[fy].norm_sqr();
+        }
+        c2c.process_with_scratch(&mut self.cols, &mut self.scratch);
+        for (fx, col) in self.cols.chunks_exact(n).enumerate() {
+            for (fy, v) in col.iter().enumerate() {
+                self.power[fy * nc + fx] = v.norm_sqr();
             }
         }
         let fmin = (n as f64 / max_period_px).max(2.0);
@@ -793,18 +797,29 @@ impl FineStage {
         self.tile_dc.resize(ntx * nty, 0.0);
         self.tile_wsum.clear();
         self.tile_wsum.resize(ntx * nty, 0.0);
+        // e^{−i ky·y} of each row by the same recurrence as the columns.
+        let y0 = 0.5 - cy;
+        let mut rz = [0, 1].map(|d| Complex::from_polar(1.0, -k[d][1] * y0));
+        let rstep = [0, 1].map(|d| Complex::from_polar(1.0, -k[d][1]));
         let mut ty = 0;
+        self.dots.clear();
+        self.dots.resize(ntx, [0; simd::TABLES]);
         for i in 0..h {
             while ty + 1 < nty && i >= self.tile_y[ty + 1] {
                 ty += 1;
             }
-            // 8-bit frames: exact integer products on the raw row; deeper
-            // frames: f32 on a converted row.
+            // 8-bit frames: exact integer products on the raw row, all
+            // tiles in one kernel call; deeper frames: f32 on a converted
+            // row.
             let row8 = match frame.pixels() {
                 Pixels::U8(p) => {
-                    self.row16.clear();
-                    self.row16
-                        .extend(p[i * w..(i + 1) * w].iter().map(|&v| i16::from(v)));
+                    let t = &self.tab16;
+                    self.kernels.tile_dots_u8(
+                        &p[i * w..(i + 1) * w],
+                        [&t[0], &t[1], &t[2], &t[3], &t[4]],
+                        &self.tile_x,
+                        &mut self.dots,
+                    );
                     true
                 }
                 Pixels::U16(_) => {
@@ -812,21 +827,17 @@ impl FineStage {
                     false
                 }
             };
-            let y = i as f64 + 0.5 - cy;
             let wy = self.wy[i];
-            let ph = [
-                Complex::from_polar(wy, -k[0][1] * y),
-                Complex::from_polar(wy, -k[1][1] * y),
-            ];
+            let ph = [rz[0] * wy, rz[1] * wy];
+            rz[0] *= rstep[0];
+            rz[1] *= rstep[1];
             self.leak_y[0][ty] += ph[0];
             self.leak_y[1][ty] += ph[1];
             for tx in 0..ntx {
                 let (j0, j1) = (self.tile_x[tx], self.tile_x[tx + 1]);
                 let (s, dc) = if row8 {
-                    let x = &self.row16[j0..j1];
-                    let t = &self.tab16;
-                    let f = |a: &[i16]| f64::from(dot_i16(x, &a[j0..j1])) * scale16;
-                    ([f(&t[0]), f(&t[1]), f(&t[2]), f(&t[3])], f(&t[4]))
+                    let d = self.dots[tx].map(|v| f64::from(v) * scale16);
+                    ([d[0], d[1], d[2], d[3]], d[4])
                 } else {
                     let x = &self.row[j0..j1];
                     let s = dot4(

@@ -41,6 +41,7 @@
 
 pub mod coarse;
 pub mod fine;
+mod simd;
 
 use realfft::num_complex::Complex;
 use thiserror::Error;
@@ -364,6 +365,12 @@ impl Decoder {
     /// The options in use.
     pub fn options(&self) -> &DecodeOptions {
         &self.opts
+    }
+
+    /// Which SIMD kernels the decoder runs on this CPU (`"avx2"` or
+    /// `"portable"`): a benchmark figure means little without it.
+    pub fn simd_kernels(&self) -> &'static str {
+        self.fine.kernels_name()
     }
 
     /// Cold full-frame stage: FFT peak search, then demodulation and plane
