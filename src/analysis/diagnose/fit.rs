@@ -176,6 +176,18 @@ pub(super) fn fit_with(
     (resid, beta.iter().skip(p).cloned().collect())
 }
 
+/// Copies the held-out rows (`!train[i]`, both components, index `2i + c`)
+/// of `src` into `dst`: pooled over the folds, this assembles every point's
+/// held-out residual.
+pub(super) fn keep_heldout(dst: &mut [f64], src: &[f64], train: &[bool]) {
+    for (i, &t) in train.iter().enumerate() {
+        if !t {
+            dst[2 * i] = src[2 * i];
+            dst[2 * i + 1] = src[2 * i + 1];
+        }
+    }
+}
+
 /// Held-out verdict on one family.
 pub(super) struct Verdict {
     pub(super) family: Family,

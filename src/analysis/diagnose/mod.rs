@@ -107,7 +107,7 @@ use super::{AnalysisError, FindingKind};
 use data::prepare;
 use describe::describe;
 use extend::{extended, extended_with_se};
-use fit::{fit_with, fold_base, paired_z, rms_comp, Verdict};
+use fit::{fit_with, fold_base, keep_heldout, paired_z, rms_comp, Verdict};
 use search::{base_columns, columns, families, search, Family, Spec};
 
 /// How to diagnose.
@@ -304,12 +304,7 @@ pub fn diagnose(
         for f in 0..d.nfolds {
             let train: Vec<bool> = d.fold.iter().map(|&k| k != f).collect();
             let fb = fold_base(&d, &base, train);
-            for i in 0..d.n {
-                if !fb.train[i] {
-                    before[2 * i] = fb.resid[2 * i];
-                    before[2 * i + 1] = fb.resid[2 * i + 1];
-                }
-            }
+            keep_heldout(&mut before, &fb.resid, &fb.train);
             if round == opts.max_findings {
                 continue;
             }
@@ -318,12 +313,7 @@ pub fn diagnose(
                     Some(spec) => fit_with(&d, &base, &fb, &columns(&spec, &d, model)),
                     None => (fb.resid.clone(), Vec::new()),
                 };
-                for i in 0..d.n {
-                    if !fb.train[i] {
-                        after[fi][2 * i] = resid[2 * i];
-                        after[fi][2 * i + 1] = resid[2 * i + 1];
-                    }
-                }
+                keep_heldout(&mut after[fi], &resid, &fb.train);
             }
         }
         let heldout = [rms_comp(&before, 0), rms_comp(&before, 1)];
@@ -410,12 +400,7 @@ pub fn diagnose(
         for f in 0..d.nfolds {
             let train: Vec<bool> = d.fold.iter().map(|&k| k != f).collect();
             let fb = fold_base(&d, &cols, train);
-            for i in 0..d.n {
-                if !fb.train[i] {
-                    ho[2 * i] = fb.resid[2 * i];
-                    ho[2 * i + 1] = fb.resid[2 * i + 1];
-                }
-            }
+            keep_heldout(&mut ho, &fb.resid, &fb.train);
         }
         (
             [rms_comp(&ho, 0), rms_comp(&ho, 1)],
