@@ -1,0 +1,285 @@
+//! The controller's observable state, evaluated in closed form at any
+//! simulated time: positions in the three frames, the status register,
+//! on-target and referencing state, and finished activities brought to
+//! rest (`tick`).
+//!
+//! Why a file of its own: there is no periodic tick; every query and every
+//! command evaluates the planned profile here, so this is the one place
+//! that defines what the controller reports at a given time.
+
+use super::{
+    Activity, ActuatorPath, Controller, ControllerConfig, Platform, RefKind, E, SETTLE_TIME,
+};
+use crate::motion::Limits;
+use crate::params::{self, ParamSet};
+use micropos::gcs::Address;
+use std::time::Duration;
+
+impl Controller {
+    /// A controller just powered up (servo off, unreferenced, encoder 0).
+    pub fn new(cfg: ControllerConfig) -> Self {
+        Self {
+            address: cfg.address,
+            serial: cfg.serial,
+            stage: cfg.stage,
+            platform: cfg.platform,
+            offset_mm: cfg.initial_actuator_mm,
+            encoder_mm: 0.0,
+            activity: Activity::Idle,
+            target_mm: 0.0,
+            servo: false,
+            referenced: false,
+            reference_mode: true,
+            error: E::NO_ERROR,
+            settled_at: Duration::ZERO,
+            params: ParamSet::default(),
+            last_now: Duration::ZERO,
+            reported: None,
+        }
+    }
+
+    /// The actuator path of the current activity.
+    pub fn actuator_path(&self) -> ActuatorPath {
+        let profile = match &self.activity {
+            Activity::Idle => None,
+            Activity::Moving(p) => Some(p.clone()),
+            Activity::Referencing { profile, .. } => Some(profile.clone()),
+        };
+        ActuatorPath {
+            offset_mm: self.offset_mm,
+            profile,
+            rest_encoder_mm: self.encoder_mm,
+        }
+    }
+
+    /// Reports the current path to the platform (at power-up, once the
+    /// platform is shared).
+    pub fn power_up_report(&mut self) {
+        self.reported = None;
+        let now = self.last_now;
+        self.sync_platform(now);
+    }
+
+    /// Tells the platform about a changed actuator path.
+    pub(super) fn sync_platform(&mut self, now: Duration) {
+        let p = self.actuator_path();
+        if self.reported.as_ref() != Some(&p) {
+            self.platform.actuator_path(&p, now);
+            self.reported = Some(p);
+        }
+    }
+
+    /// Daisy-chain address.
+    pub fn address(&self) -> Address {
+        self.address
+    }
+
+    /// Serial number.
+    pub fn serial(&self) -> &str {
+        &self.serial
+    }
+
+    /// Replaces the platform model (the stage error model of later issues).
+    pub fn set_platform(&mut self, platform: Box<dyn Platform>) {
+        self.platform = platform;
+        self.reported = None;
+        let now = self.last_now;
+        self.sync_platform(now);
+    }
+
+    /// Whether this controller takes a request with this address prefix
+    /// (no prefix = address 1).
+    pub fn accepts(&self, addr: Option<Address>) -> bool {
+        addr.unwrap_or(Address::DEFAULT) == self.address
+    }
+
+    /// Power cycle: everything the controller knows is reset (servo off,
+    /// unreferenced, encoder 0, no error, default parameters, motion cut);
+    /// the carriage stays physically where it is.
+    pub fn power_cycle(&mut self, now: Duration) {
+        let now = self.tick(now);
+        let actuator = self.actuator_mm(now);
+        self.offset_mm = actuator;
+        self.encoder_mm = 0.0;
+        self.activity = Activity::Idle;
+        self.target_mm = 0.0;
+        self.servo = false;
+        self.referenced = false;
+        self.reference_mode = true;
+        self.error = E::NO_ERROR;
+        self.settled_at = now;
+        self.params = ParamSet::default();
+        self.sync_platform(now);
+    }
+
+    /// Encoder position (what `POS?` says) at `now`, in mm.
+    pub fn encoder_mm(&self, now: Duration) -> f64 {
+        self.state_at(now).0
+    }
+
+    /// Actuator position at `now` (mm from the negative hard limit).
+    pub fn actuator_mm(&self, now: Duration) -> f64 {
+        self.encoder_mm(now) + self.offset_mm
+    }
+
+    /// Ground truth: the true platform position at `now` (mm).
+    pub fn true_position_mm(&self, now: Duration) -> f64 {
+        let now = now.max(self.last_now);
+        self.platform
+            .platform_position_mm(self.actuator_mm(now), now)
+    }
+
+    /// The pending error code, without clearing it (for tests and logs).
+    pub fn peek_error(&self) -> E {
+        self.error
+    }
+
+    /// Whether a referencing move is running at `now`.
+    pub fn is_referencing(&self, now: Duration) -> bool {
+        matches!(&self.activity, Activity::Referencing { done_at, .. } if now < *done_at)
+    }
+
+    /// Whether the axis is moving at `now` (a move or referencing move).
+    pub fn is_moving(&self, now: Duration) -> bool {
+        match &self.activity {
+            Activity::Idle => false,
+            Activity::Moving(p) => !p.is_done(now),
+            Activity::Referencing { done_at, .. } => now < *done_at,
+        }
+    }
+
+    /// Whether `ONT?` reports on target at `now`.
+    pub fn on_target(&self, now: Duration) -> bool {
+        if !self.servo {
+            return false;
+        }
+        match &self.activity {
+            Activity::Idle => now >= self.settled_at,
+            Activity::Moving(p) => now >= p.end_time() + SETTLE_TIME,
+            Activity::Referencing { .. } => false,
+        }
+    }
+
+    /// Whether the axis is referenced at `now`.
+    pub fn is_referenced(&self, now: Duration) -> bool {
+        match &self.activity {
+            Activity::Referencing { done_at, .. } if now >= *done_at => true,
+            _ => self.referenced,
+        }
+    }
+
+    /// The `#4` status word at `now` (bit layout in the module docs).
+    pub fn status_register(&self, now: Duration) -> u16 {
+        let act = self.actuator_mm(now);
+        let eps = 1e-9;
+        let mut s = 0u16;
+        if act <= self.stage.negative_limit_mm + eps {
+            s |= 1;
+        }
+        if act > self.stage.reference_mm {
+            s |= 1 << 1;
+        }
+        if act >= self.stage.positive_limit_mm - eps {
+            s |= 1 << 2;
+        }
+        if !self.error.is_ok() {
+            s |= 1 << 8;
+        }
+        if self.servo {
+            s |= 1 << 12;
+        }
+        if self.is_moving(now) {
+            s |= 1 << 13;
+        }
+        if self.is_referencing(now) {
+            s |= 1 << 14;
+        }
+        if self.on_target(now) {
+            s |= 1 << 15;
+        }
+        s
+    }
+
+    /// (encoder position, velocity) at `now`.
+    pub(super) fn state_at(&self, now: Duration) -> (f64, f64) {
+        match &self.activity {
+            Activity::Idle => (self.encoder_mm, 0.0),
+            Activity::Moving(p) => p.state_at(now),
+            Activity::Referencing {
+                profile,
+                done_at,
+                kind,
+            } => {
+                if now >= *done_at {
+                    (self.reference_value(*kind), 0.0)
+                } else {
+                    profile.state_at(now)
+                }
+            }
+        }
+    }
+
+    /// Encoder value assigned at the switch a referencing move finds.
+    pub(super) fn reference_value(&self, kind: RefKind) -> f64 {
+        let at_ref = self.params.number(params::VALUE_AT_REFERENCE, 7.5);
+        match kind {
+            RefKind::Reference => at_ref,
+            RefKind::NegativeLimit => {
+                at_ref - self.params.number(params::DIST_NEG_LIMIT_TO_REF, 7.5)
+            }
+            RefKind::PositiveLimit => {
+                at_ref + self.params.number(params::DIST_REF_TO_POS_LIMIT, 7.5)
+            }
+        }
+    }
+
+    /// Brings finished activities to rest. Returns the (monotonic) time.
+    pub(super) fn tick(&mut self, now: Duration) -> Duration {
+        let now = now.max(self.last_now);
+        self.last_now = now;
+        match &self.activity {
+            Activity::Idle => {}
+            Activity::Moving(p) => {
+                if p.is_done(now) {
+                    self.encoder_mm = p.end_mm();
+                    self.settled_at = p.end_time() + SETTLE_TIME;
+                    self.activity = Activity::Idle;
+                }
+            }
+            Activity::Referencing {
+                profile,
+                done_at,
+                kind,
+            } => {
+                if now >= *done_at {
+                    let value = self.reference_value(*kind);
+                    // The carriage stands at the switch; from now on the
+                    // encoder reads `value` there.
+                    let actuator = profile.end_mm() + self.offset_mm;
+                    self.offset_mm = actuator - value;
+                    self.encoder_mm = value;
+                    self.target_mm = value;
+                    self.referenced = true;
+                    self.settled_at = *done_at + SETTLE_TIME;
+                    self.activity = Activity::Idle;
+                }
+            }
+        }
+        now
+    }
+
+    pub(super) fn set_error(&mut self, e: E) {
+        // A C-863 keeps the first error until ERR? reads it.
+        if self.error.is_ok() {
+            self.error = e;
+        }
+    }
+
+    pub(super) fn limits(&self) -> Limits {
+        Limits {
+            velocity: self.params.number(params::VELOCITY, 1.0),
+            acceleration: self.params.number(params::ACCELERATION, 10.0),
+            deceleration: self.params.number(params::DECELERATION, 10.0),
+        }
+    }
+}

@@ -1,0 +1,322 @@
+//! A finding in words: its parameters (in the finding's own units, model
+//! sign), their uncertainty, the sentence a person understands and the
+//! likely physical cause.
+//!
+//! Why a file of its own: the wording is long and changes for reasons of
+//! its own (what a lab needs to read), apart from the numerics.
+
+use std::collections::BTreeMap;
+
+use crate::model::{Axis, StageModel};
+
+use super::data::{span_of, typical_move_um, Data};
+use super::fit::Verdict;
+use super::search::Spec;
+use super::{AnalysisError, Finding, FindingKind};
+
+#[allow(clippy::too_many_arguments)]
+pub(super) fn describe(
+    spec: &Spec,
+    v: &Verdict,
+    term: &str,
+    fitted: &StageModel,
+    original: &StageModel,
+    std_err: &dyn Fn(&str) -> Option<f64>,
+    unmodelled_value: &dyn Fn(&str) -> Option<f64>,
+    d: &Data,
+) -> Result<Finding, AnalysisError> {
+    let p = |k: &str| fitted.param(&format!("{term}.{k}"));
+    let se = |k: &str| std_err(&format!("{term}.{k}"));
+    let mut params = BTreeMap::new();
+    let mut unc = BTreeMap::new();
+    let mut shape = None;
+    let mut variable = None;
+    let mut in_model = true;
+    let (kind, axis, comp, explanation, cause);
+    match *spec {
+        Spec::PosPeriodic {
+            axis: a,
+            comp: c,
+            period_um,
+        } => {
+            let (s, co) = (p("sin_um")?, p("cos_um")?);
+            let amp = s.hypot(co);
+            params.insert("period_um".into(), period_um);
+            params.insert("amplitude_um".into(), amp);
+            params.insert("phase_deg".into(), co.atan2(s).to_degrees());
+            if let (Some(es), Some(ec)) = (se("sin_um"), se("cos_um")) {
+                let ea = ((s * es).powi(2) + (co * ec).powi(2)).sqrt() / amp.max(1e-12);
+                unc.insert("amplitude_um".into(), ea);
+                // Period precision of a sinusoid fit: √6·σ/(π·A·span·√N)·P².
+                let span = span_of(d, a);
+                let noise = v.rms_after;
+                let nn = d.n as f64;
+                unc.insert(
+                    "period_um".into(),
+                    6f64.sqrt() * noise
+                        / (std::f64::consts::PI * amp.max(1e-12) * span * nn.sqrt())
+                        * period_um
+                        * period_um,
+                );
+            }
+            let screw = nearest_screw_multiple(fitted, a, period_um);
+            kind = FindingKind::PositionPeriodic;
+            axis = a;
+            comp = c;
+            explanation = format!(
+                "{c} error repeats every {:.3} mm of {a} travel, amplitude {amp:.3} µm{}",
+                period_um / 1000.0,
+                screw
+            );
+            cause = if a == c {
+                "a periodic error at a period the model lacks: a bearing, gear or motor-step period, or a periodic error of the pattern".into()
+            } else {
+                "guideway waviness or a periodic wobble of the carriage seen across the axis".into()
+            };
+        }
+        Spec::Localized {
+            axis: a, comp: c, ..
+        } => {
+            for k in ["position_um", "width_um", "amplitude_um"] {
+                params.insert(k.into(), p(k)?);
+                if let Some(e) = se(k) {
+                    unc.insert(k.into(), e);
+                }
+            }
+            kind = FindingKind::Localized;
+            axis = a;
+            comp = c;
+            explanation = format!(
+                "{c} error has a local {} of {:.3} µm around {a} = {:.1} µm (σ {:.0} µm)",
+                if params["amplitude_um"] >= 0.0 {
+                    "bump"
+                } else {
+                    "dip"
+                },
+                params["amplitude_um"].abs(),
+                params["position_um"],
+                params["width_um"]
+            );
+            cause = "a local defect: damaged screw thread, dent or debris on the guideway, or a defect of the pattern at that place".into();
+        }
+        Spec::Slope { axis: a, comp: c } => {
+            let ppm = p("ppm")?;
+            if a == c {
+                params.insert("ppm".into(), ppm);
+                if let Some(e) = se("ppm") {
+                    unc.insert("ppm".into(), e);
+                }
+                kind = FindingKind::Scale;
+                explanation = format!(
+                    "{c} error grows linearly with {a}: {ppm:+.1} ppm beyond the model's scale ({:+.3} µm over 10 mm)",
+                    ppm * 1e-2
+                );
+                cause = "lead error of the screw differs from the model, a wrong counts-per-unit setting, or the pattern's scale (its thermal expansion)".into();
+            } else {
+                params.insert("slope_urad".into(), ppm);
+                if let Some(e) = se("ppm") {
+                    unc.insert("slope_urad".into(), e);
+                }
+                kind = FindingKind::CrossAxis;
+                explanation = format!(
+                    "{c} error changes with the position of {a}: {ppm:+.1} µrad ({:+.3} µm per 10 mm of {a}) the model does not have",
+                    ppm * 1e-2
+                );
+                cause = "out-of-squareness of the axes (or rotation of the camera/pattern against the stage) different from the model".into();
+            }
+            axis = a;
+            comp = c;
+        }
+        Spec::Drift { comp: c, quadratic } => {
+            let r = p("rate_um_per_h")?;
+            params.insert("rate_um_per_h".into(), r);
+            if let Some(e) = se("rate_um_per_h") {
+                unc.insert("rate_um_per_h".into(), e);
+            }
+            if quadratic {
+                params.insert("curvature_um_per_h2".into(), p("curvature_um_per_h2")?);
+                if let Some(e) = se("curvature_um_per_h2") {
+                    unc.insert("curvature_um_per_h2".into(), e);
+                }
+            }
+            shape = Some(if quadratic { "quadratic" } else { "linear" }.to_string());
+            kind = FindingKind::TimeDrift;
+            axis = c;
+            comp = c;
+            explanation = format!(
+                "{c} error drifts with time at {r:+.3} µm/h{} independently of position and temperature",
+                if quadratic { " (curving)" } else { "" }
+            );
+            cause = "slow thermal drift of stage or microscope not explained by the logged temperature, creep, or a drifting camera mount".into();
+        }
+        Spec::TimePeriodic { comp: c, period_s } => {
+            let (s, co) = (p("sin_um")?, p("cos_um")?);
+            let amp = s.hypot(co);
+            params.insert("period_s".into(), period_s);
+            params.insert("amplitude_um".into(), amp);
+            if let (Some(es), Some(ec)) = (se("sin_um"), se("cos_um")) {
+                unc.insert(
+                    "amplitude_um".into(),
+                    ((s * es).powi(2) + (co * ec).powi(2)).sqrt() / amp.max(1e-12),
+                );
+            }
+            kind = FindingKind::TimePeriodic;
+            axis = c;
+            comp = c;
+            explanation = format!(
+                "{c} error oscillates in time every {:.1} min, amplitude {amp:.3} µm",
+                period_s / 60.0
+            );
+            cause =
+                "an air-conditioning or heater cycle, or another periodic disturbance of the room"
+                    .into();
+        }
+        Spec::Temperature { comp: c } => {
+            let k = p("um_per_c")?;
+            params.insert("um_per_c".into(), k);
+            if let Some(e) = se("um_per_c") {
+                unc.insert("um_per_c".into(), e);
+            }
+            kind = FindingKind::Temperature;
+            axis = c;
+            comp = c;
+            explanation = format!(
+                "{c} error follows the logged temperature: {k:+.3} µm/°C beyond the model's thermal terms"
+            );
+            cause = "thermal expansion or drift of stage, mount or microscope larger than the model says".into();
+        }
+        Spec::Reversal { axis: a } => {
+            let v0 = reversal_value(original, fitted, term)?;
+            params.insert("value_um".into(), v0);
+            if let Some(e) = se("backlash_um") {
+                unc.insert("value_um".into(), e);
+            }
+            kind = FindingKind::Reversal;
+            axis = a;
+            comp = a;
+            explanation = format!(
+                "{a} lands differently depending on the direction it came from: {:+.3} µm of lost motion on reversal beyond the model's play",
+                v0
+            );
+            cause = "more (or less) play between screw and nut than the model: wear, preload lost, or friction in the guide".into();
+        }
+        Spec::StepSize { axis: a, .. } => {
+            let amp = p("amplitude_um")?;
+            let len = p("length_um")?;
+            params.insert("amplitude_um".into(), amp);
+            params.insert("length_um".into(), len);
+            for k in ["amplitude_um", "length_um"] {
+                if let Some(e) = se(k) {
+                    unc.insert(k.into(), e);
+                }
+            }
+            let typical = typical_move_um(d, a);
+            let at_typical = amp * -(-typical / len.max(1e-9)).exp_m1();
+            kind = FindingKind::StepSize;
+            axis = a;
+            comp = a;
+            explanation = format!(
+                "{a} {} by an amount that depends on the length of the preceding move: {:.3} µm after long moves, building up over about {len:.0} µm of move ({:.3} µm after the log's typical {typical:.0} µm move)",
+                if amp >= 0.0 {
+                    "falls short of its target (lost motion)"
+                } else {
+                    "overshoots its target"
+                },
+                amp.abs(),
+                at_typical.abs()
+            );
+            cause = "elastic wind-up of screw, coupling or nut, or guide friction, that is only fully loaded after a long move (the play of the model depends on the direction only); a nut preload that yields over a travel of about the build-up length".into();
+        }
+        Spec::Other { comp: c, var } => {
+            let x = d
+                .extra
+                .get(var)
+                .ok_or_else(|| AnalysisError::Invalid(format!("extra column {var} vanished")))?;
+            let k = unmodelled_value(&format!("{term}.um_per_unit")).ok_or_else(|| {
+                AnalysisError::Invalid(format!("no coefficient for `{}`", x.name))
+            })?;
+            params.insert("um_per_unit".into(), k);
+            if let Some(e) = se("um_per_unit") {
+                unc.insert("um_per_unit".into(), e);
+            }
+            params.insert("variable_min".into(), x.min);
+            params.insert("variable_max".into(), x.max);
+            kind = FindingKind::Other;
+            axis = c;
+            comp = c;
+            explanation = format!(
+                "{c} error follows the log column `{}`: {k:+.4} µm per unit ({:.3} µm over its logged range {} … {}); the model has no input for this column, so the extended model does not include it (its simulation and compensation still miss this error)",
+                x.name,
+                (k * (x.max - x.min)).abs(),
+                x.min,
+                x.max
+            );
+            cause = format!(
+                "whatever `{}` measures (or something that varies with it) moves the platform or the camera: humidity, motor current or load, air pressure; log and control that quantity, or model it outside the stage model",
+                x.name
+            );
+            variable = Some(x.name.clone());
+            in_model = false;
+        }
+    }
+    Ok(Finding {
+        kind,
+        axis,
+        component: comp,
+        params,
+        uncertainty: unc,
+        shape,
+        significance: v.z,
+        heldout_rms_before_um: v.rms_before,
+        heldout_rms_after_um: v.rms_after,
+        gain_pct: v.gain_pct,
+        explanation,
+        cause,
+        term: if in_model {
+            term.to_string()
+        } else {
+            String::new()
+        },
+        variable,
+        in_extended_model: in_model,
+    })
+}
+
+/// Extra play found for a reversal: the fitted play minus the play of the
+/// model as given (zero when the model had no play term for the axis).
+fn reversal_value(
+    original: &StageModel,
+    fitted: &StageModel,
+    term: &str,
+) -> Result<f64, AnalysisError> {
+    let full = format!("{term}.backlash_um");
+    let before = original.param(&full).unwrap_or(0.0);
+    Ok(fitted.param(&full)? - before)
+}
+
+/// " (not the 0.4 mm screw pitch)" or " (3× the 0.4 mm screw pitch)".
+fn nearest_screw_multiple(m: &StageModel, a: Axis, period_um: f64) -> String {
+    let pitch = m
+        .terms()
+        .iter()
+        .filter(|t| t.kind() == crate::model::terms::cyclic::LEADSCREW_KIND)
+        .filter_map(|t| t.to_config().ok())
+        .find(|c| c.get("axis").and_then(|v| v.as_str()) == Some(a.as_str()))
+        .and_then(|c| c.get("period_um").and_then(|v| v.as_float()));
+    match pitch {
+        Some(p) if p > 0.0 => {
+            let ratio = period_um / p;
+            if (ratio - ratio.round()).abs() < 0.03 && ratio.round() >= 2.0 {
+                format!(
+                    ": {}× the {:.3} mm screw pitch (a once-per-{}-turns error: gear or coupling)",
+                    ratio.round(),
+                    p / 1000.0,
+                    ratio.round()
+                )
+            } else {
+                format!(": not the {:.3} mm screw pitch", p / 1000.0)
+            }
+        }
+        _ => String::new(),
+    }
+}

@@ -1,0 +1,233 @@
+//! Step 7 of the analysis: the accepted candidates turned into model terms
+//! (discovered terms, or more play in the model's backlash term), with
+//! their linear coefficients and standard errors from the centred
+//! full-data solve.
+//!
+//! Why a file of its own: this is the one place that knows how a candidate
+//! maps to a term configuration and parameter names.
+
+use std::collections::HashMap;
+
+use crate::model::terms::{
+    BacklashConfig, BacklashTerm, DiscoveredConfig, DiscoveredTerm, LocalizedConfig,
+    PositionPeriodicConfig, PositionSlopeConfig, StepSizeConfig, TemperatureConfig,
+    TimeDriftConfig, TimePeriodicConfig,
+};
+use crate::model::{StageModel, DEFAULT_TEMP_C};
+
+use super::data::Data;
+use super::fit::{fold_base, solve_with_cov};
+use super::search::{backlash_term_of, base_columns, columns, Spec};
+use super::AnalysisError;
+
+/// Linear-parameter names of a spec's columns, in column order.
+fn spec_param_names(spec: &Spec) -> &'static [&'static str] {
+    match spec {
+        Spec::PosPeriodic { .. } | Spec::TimePeriodic { .. } => &["sin_um", "cos_um"],
+        Spec::Localized { .. } => &["amplitude_um"],
+        Spec::Slope { .. } => &["ppm"],
+        Spec::Drift {
+            quadratic: true, ..
+        } => &["rate_um_per_h", "curvature_um_per_h2"],
+        Spec::Drift { .. } => &["rate_um_per_h"],
+        Spec::Temperature { .. } => &["um_per_c"],
+        Spec::Reversal { .. } => &["backlash_um"],
+        Spec::StepSize { .. } => &["amplitude_um"],
+        Spec::Other { .. } => &["um_per_unit"],
+    }
+}
+
+/// The model extended by `specs`, linear coefficients from the centred
+/// full-data solve; also the term names.
+pub(super) fn extended(
+    d: &Data,
+    model: &StageModel,
+    base_names: &[String],
+    specs: &[Spec],
+) -> Result<(StageModel, Vec<String>), AnalysisError> {
+    extended_with_se(d, model, base_names, specs).map(|(m, n, _, _)| (m, n))
+}
+
+/// Extended model, its new term names, standard errors by full name, and
+/// the coefficients of the findings no model term can carry (`other`), by
+/// `name.parameter`.
+type Extended = (
+    StageModel,
+    Vec<String>,
+    HashMap<String, f64>,
+    HashMap<String, f64>,
+);
+
+/// [`extended`] plus the standard error of every linear parameter, by full
+/// name.
+pub(super) fn extended_with_se(
+    d: &Data,
+    model: &StageModel,
+    base_names: &[String],
+    specs: &[Spec],
+) -> Result<Extended, AnalysisError> {
+    let (names_check, mut cols) = base_columns(d, model, &base_kinds_of(model, base_names));
+    debug_assert_eq!(names_check, base_names);
+    for s in specs {
+        cols.extend(columns(s, d, model));
+    }
+    let fb = fold_base(d, &cols, vec![true; d.n]);
+    let (beta, pdiag) = solve_with_cov(&fb.gbb, &fb.rb);
+    let dof = (2 * d.n).saturating_sub(cols.len()).max(1) as f64;
+    let sigma2 = fb.resid.iter().map(|v| v * v).sum::<f64>() / dof;
+    let mut se: HashMap<String, f64> = HashMap::new();
+    let mut ext = model.clone();
+    for (j, name) in base_names.iter().enumerate() {
+        let v = ext.param(name)? + beta[j];
+        ext.set_param(name, v)?;
+        se.insert(name.clone(), (sigma2 * pdiag[j]).sqrt());
+    }
+    let mut col = base_names.len();
+    let mut term_names = Vec::new();
+    let mut unmodelled = HashMap::new();
+    for (k, spec) in specs.iter().enumerate() {
+        let pn = spec_param_names(spec);
+        let coef: Vec<f64> = (col..col + pn.len()).map(|j| beta[j]).collect();
+        let name = if let Spec::Other { comp, var } = *spec {
+            // Fitted jointly, but no model term: the model has no input for
+            // a log column (see the module docs).
+            let vname = d.extra.get(var).map_or("?", |x| x.name.as_str());
+            let name = format!("unmodelled{}_{comp}_vs_{vname}", k + 1);
+            for (m, p) in pn.iter().enumerate() {
+                unmodelled.insert(format!("{name}.{p}"), coef[m]);
+            }
+            name
+        } else {
+            add_term(&mut ext, spec, &coef, k + 1, d.t0)?
+        };
+        for (m, p) in pn.iter().enumerate() {
+            se.insert(format!("{name}.{p}"), (sigma2 * pdiag[col + m]).sqrt());
+        }
+        col += pn.len();
+        term_names.push(name);
+    }
+    Ok((ext, term_names, se, unmodelled))
+}
+
+/// The term kinds owning `names` (to rebuild the same base columns).
+fn base_kinds_of(model: &StageModel, names: &[String]) -> Vec<String> {
+    let mut kinds: Vec<String> = model
+        .params()
+        .into_iter()
+        .filter(|p| names.contains(&p.full_name))
+        .map(|p| p.kind)
+        .collect();
+    kinds.sort();
+    kinds.dedup();
+    kinds
+}
+
+/// Adds the term for an accepted candidate; returns its name.
+fn add_term(
+    m: &mut StageModel,
+    spec: &Spec,
+    coef: &[f64],
+    k: usize,
+    t0: f64,
+) -> Result<String, AnalysisError> {
+    let c0 = coef.first().copied().unwrap_or(0.0);
+    let c1 = coef.get(1).copied().unwrap_or(0.0);
+    let (name, cfg) = match *spec {
+        Spec::PosPeriodic {
+            axis,
+            comp,
+            period_um,
+        } => (
+            format!("found{k}_{comp}_periodic_in_{axis}"),
+            DiscoveredConfig::PositionPeriodic(PositionPeriodicConfig {
+                axis,
+                component: comp,
+                period_um,
+                sin_um: c0,
+                cos_um: c1,
+            }),
+        ),
+        Spec::Localized {
+            axis,
+            comp,
+            position_um,
+            width_um,
+        } => (
+            format!("found{k}_{comp}_localized_in_{axis}"),
+            DiscoveredConfig::Localized(LocalizedConfig {
+                axis,
+                component: comp,
+                position_um,
+                width_um,
+                amplitude_um: c0,
+            }),
+        ),
+        Spec::Slope { axis, comp } => (
+            format!("found{k}_{comp}_slope_in_{axis}"),
+            DiscoveredConfig::PositionSlope(PositionSlopeConfig {
+                axis,
+                component: comp,
+                ppm: c0,
+            }),
+        ),
+        Spec::Drift { comp, .. } => (
+            format!("found{k}_{comp}_time_drift"),
+            DiscoveredConfig::TimeDrift(TimeDriftConfig {
+                component: comp,
+                start_time_s: t0,
+                rate_um_per_h: c0,
+                curvature_um_per_h2: c1,
+            }),
+        ),
+        Spec::TimePeriodic { comp, period_s } => (
+            format!("found{k}_{comp}_time_periodic"),
+            DiscoveredConfig::TimePeriodic(TimePeriodicConfig {
+                component: comp,
+                period_s,
+                sin_um: c0,
+                cos_um: c1,
+            }),
+        ),
+        Spec::Temperature { comp } => (
+            format!("found{k}_{comp}_temperature"),
+            DiscoveredConfig::Temperature(TemperatureConfig {
+                component: comp,
+                reference_temp_c: DEFAULT_TEMP_C,
+                um_per_c: c0,
+            }),
+        ),
+        Spec::StepSize { axis, length_um } => (
+            format!("found{k}_{axis}_step_size"),
+            DiscoveredConfig::StepSize(StepSizeConfig {
+                axis,
+                amplitude_um: c0,
+                length_um,
+            }),
+        ),
+        Spec::Other { comp, .. } => {
+            return Err(AnalysisError::Invalid(format!(
+                "a dependence of the {comp} error on a log column cannot become a model term (the model has no input for it)"
+            )))
+        }
+        Spec::Reversal { axis } => {
+            if let Some(t) = backlash_term_of(m, axis) {
+                let name = t.name().to_string();
+                let full = format!("{name}.backlash_um");
+                let v = (m.param(&full)? + c0).max(0.0);
+                m.set_param(&full, v)?;
+                return Ok(name);
+            }
+            let name = format!("found{k}_{axis}_backlash");
+            m.push_term(Box::new(BacklashTerm::new(
+                &name,
+                BacklashConfig {
+                    axis,
+                    backlash_um: c0.max(0.0),
+                },
+            )?))?;
+            return Ok(name);
+        }
+    };
+    m.push_term(Box::new(DiscoveredTerm::new(&name, cfg)?))?;
+    Ok(name)
+}

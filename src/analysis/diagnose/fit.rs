@@ -1,0 +1,244 @@
+//! Step 5 of the analysis: the centred least squares (base fit per fold,
+//! joint fit with a candidate) and the held-out verdict on a candidate.
+//!
+//! Why a file of its own: the numerics (scaled, truncated normal equations)
+//! are shared by the judging and by the extended model's linear
+//! coefficients and their standard errors.
+
+use nalgebra::{DMatrix, DVector};
+
+use super::data::Data;
+use super::search::Family;
+
+fn dot_rows(a: &[f64], b: &[f64], train: &[bool]) -> f64 {
+    let mut s = 0.0;
+    for (i, &t) in train.iter().enumerate() {
+        if t {
+            s += a[2 * i] * b[2 * i] + a[2 * i + 1] * b[2 * i + 1];
+        }
+    }
+    s
+}
+
+/// Minimum-norm least squares from the normal equations, columns scaled to
+/// unit norm and small eigenvalues truncated (unidentifiable combinations
+/// get no coefficient instead of a huge one).
+fn solve_normal(g: &DMatrix<f64>, r: &DVector<f64>) -> DVector<f64> {
+    if g.nrows() == 0 {
+        return DVector::zeros(0);
+    }
+    ScaledEigen::new(g).solve(r)
+}
+
+/// The eigendecomposition of a Gram matrix with its columns scaled to unit
+/// norm: computed once, it gives both the truncated minimum-norm solution
+/// and the parameter variances.
+struct ScaledEigen {
+    scale: Vec<f64>,
+    eig: nalgebra::SymmetricEigen<f64, nalgebra::Dyn>,
+    lmax: f64,
+}
+
+impl ScaledEigen {
+    fn new(g: &DMatrix<f64>) -> Self {
+        let p = g.nrows();
+        let scale: Vec<f64> = (0..p)
+            .map(|i| {
+                let v = g[(i, i)];
+                if v > 0.0 {
+                    1.0 / v.sqrt()
+                } else {
+                    0.0
+                }
+            })
+            .collect();
+        let gs = DMatrix::from_fn(p, p, |i, j| g[(i, j)] * scale[i] * scale[j]);
+        let eig = nalgebra::SymmetricEigen::new(gs);
+        let lmax = eig.eigenvalues.iter().cloned().fold(0.0, f64::max);
+        Self { scale, eig, lmax }
+    }
+
+    /// Whether eigenvalue `l` is kept (the rest are unidentifiable).
+    fn kept(&self, l: f64) -> bool {
+        l > 1e-10 * self.lmax && l > 0.0
+    }
+
+    fn solve(&self, r: &DVector<f64>) -> DVector<f64> {
+        let p = self.scale.len();
+        let rs = DVector::from_fn(p, |i, _| r[i] * self.scale[i]);
+        let mut x = DVector::zeros(p);
+        for k in 0..p {
+            let l = self.eig.eigenvalues[k];
+            if self.kept(l) {
+                let v = self.eig.eigenvectors.column(k);
+                let c = v.dot(&rs) / l;
+                x += v * c;
+            }
+        }
+        DVector::from_fn(p, |i, _| x[i] * self.scale[i])
+    }
+
+    /// Diagonal of the pseudo-inverse of the unscaled Gram matrix.
+    fn inverse_diagonal(&self) -> Vec<f64> {
+        let p = self.scale.len();
+        let mut diag = vec![0.0; p];
+        for k in 0..p {
+            let l = self.eig.eigenvalues[k];
+            if self.kept(l) {
+                for (i, dv) in diag.iter_mut().enumerate() {
+                    let v = self.eig.eigenvectors[(i, k)];
+                    *dv += v * v / l;
+                }
+            }
+        }
+        for (i, dv) in diag.iter_mut().enumerate() {
+            *dv *= self.scale[i] * self.scale[i];
+        }
+        diag
+    }
+}
+
+/// Per fold: the base Gram matrix and right-hand side on the training rows.
+pub(super) struct FoldBase {
+    pub(super) train: Vec<bool>,
+    pub(super) gbb: DMatrix<f64>,
+    pub(super) rb: DVector<f64>,
+    /// Residual of every row after the fold's base fit.
+    pub(super) resid: Vec<f64>,
+}
+
+pub(super) fn fold_base(d: &Data, base: &[Vec<f64>], train: Vec<bool>) -> FoldBase {
+    let p = base.len();
+    let mut gbb = DMatrix::zeros(p, p);
+    for j in 0..p {
+        for k in j..p {
+            let v = dot_rows(&base[j], &base[k], &train);
+            gbb[(j, k)] = v;
+            gbb[(k, j)] = v;
+        }
+    }
+    let rb = DVector::from_fn(p, |j, _| dot_rows(&base[j], &d.r0, &train));
+    let beta = solve_normal(&gbb, &rb);
+    let mut resid = d.r0.clone();
+    for (j, col) in base.iter().enumerate() {
+        let b = beta[j];
+        if b != 0.0 {
+            for (r, c) in resid.iter_mut().zip(col) {
+                *r -= b * c;
+            }
+        }
+    }
+    FoldBase {
+        train,
+        gbb,
+        rb,
+        resid,
+    }
+}
+
+/// Joint fit of base + candidate columns on the fold's training rows;
+/// returns the residual of every row and the candidate's coefficients.
+pub(super) fn fit_with(
+    d: &Data,
+    base: &[Vec<f64>],
+    fb: &FoldBase,
+    cand: &[Vec<f64>],
+) -> (Vec<f64>, Vec<f64>) {
+    let p = base.len();
+    let k = cand.len();
+    let mut g = DMatrix::zeros(p + k, p + k);
+    g.view_mut((0, 0), (p, p)).copy_from(&fb.gbb);
+    let mut r = DVector::zeros(p + k);
+    r.rows_mut(0, p).copy_from(&fb.rb);
+    for a in 0..k {
+        for j in 0..p {
+            let v = dot_rows(&cand[a], &base[j], &fb.train);
+            g[(p + a, j)] = v;
+            g[(j, p + a)] = v;
+        }
+        for b in a..k {
+            let v = dot_rows(&cand[a], &cand[b], &fb.train);
+            g[(p + a, p + b)] = v;
+            g[(p + b, p + a)] = v;
+        }
+        r[p + a] = dot_rows(&cand[a], &d.r0, &fb.train);
+    }
+    let beta = solve_normal(&g, &r);
+    let mut resid = d.r0.clone();
+    for (j, col) in base.iter().chain(cand.iter()).enumerate() {
+        let b = beta[j];
+        if b != 0.0 {
+            for (rr, c) in resid.iter_mut().zip(col) {
+                *rr -= b * c;
+            }
+        }
+    }
+    (resid, beta.iter().skip(p).cloned().collect())
+}
+
+/// Copies the held-out rows (`!train[i]`, both components, index `2i + c`)
+/// of `src` into `dst`: pooled over the folds, this assembles every point's
+/// held-out residual.
+pub(super) fn keep_heldout(dst: &mut [f64], src: &[f64], train: &[bool]) {
+    for (i, &t) in train.iter().enumerate() {
+        if !t {
+            dst[2 * i] = src[2 * i];
+            dst[2 * i + 1] = src[2 * i + 1];
+        }
+    }
+}
+
+/// Held-out verdict on one family.
+pub(super) struct Verdict {
+    pub(super) family: Family,
+    /// Pooled held-out residual after, `2i + c`.
+    pub(super) after: Vec<f64>,
+    pub(super) reduction: f64,
+    pub(super) z: f64,
+    pub(super) gain_pct: f64,
+    pub(super) rms_before: f64,
+    pub(super) rms_after: f64,
+}
+
+pub(super) fn paired_z(before: &[f64], after: &[f64], c: usize) -> (f64, f64) {
+    let diffs: Vec<f64> = before
+        .iter()
+        .zip(after)
+        .skip(c)
+        .step_by(2)
+        .map(|(b, a)| b * b - a * a)
+        .filter(|v| *v != 0.0)
+        .collect();
+    let m = diffs.len();
+    if m < 3 {
+        return (0.0, 0.0);
+    }
+    let sum: f64 = diffs.iter().sum();
+    let mean = sum / m as f64;
+    let var = diffs.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / (m - 1) as f64;
+    let z = if var > 0.0 {
+        mean / (var / m as f64).sqrt()
+    } else {
+        0.0
+    };
+    (sum, z)
+}
+
+pub(super) fn rms_comp(v: &[f64], c: usize) -> f64 {
+    let (s, k) = v
+        .iter()
+        .skip(c)
+        .step_by(2)
+        .fold((0.0, 0usize), |(s, k), x| (s + x * x, k + 1));
+    (s / k.max(1) as f64).sqrt()
+}
+
+/// [`solve_normal`] plus the diagonal of the pseudo-inverse of `g` (the
+/// parameter variances per unit residual variance).
+pub(super) fn solve_with_cov(g: &DMatrix<f64>, r: &DVector<f64>) -> (DVector<f64>, Vec<f64>) {
+    if g.nrows() == 0 {
+        return (DVector::zeros(0), Vec::new());
+    }
+    let se = ScaledEigen::new(g);
+    (se.solve(r), se.inverse_diagonal())
+}

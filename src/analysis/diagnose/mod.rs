@@ -1,0 +1,566 @@
+//! The discrepancy analysis: what the model (the simulation) gets wrong
+//! about a measurement log.
+//!
+//! # Method
+//! 1. **Replay.** The log's commanded positions go through the model's
+//!    [`MotionTracker`] (with the model's minimum incremental motion), so
+//!    each point gets the state the simulator would have had; the logged
+//!    temperature is used when present (else the model's environment).
+//! 2. **Base fit.** The parameters of the terms a characterization measures
+//!    anyway (by default the cyclic look-up tables: kinds `leadscrew_cyclic`
+//!    and `cross_coupling`; all linear) are identified from the log by least
+//!    squares; every other parameter of the model is a claim the log can
+//!    refute. Residual = measured − model.
+//! 3. **Nuisance.** An axis that does not move during a segment-cycle keeps
+//!    one settling error for the whole line; that block constant is profiled
+//!    out (the residual and every column are centred within the block for
+//!    that component), otherwise it would look like structure in time.
+//!    Likewise one constant per component over the rows where its axis
+//!    moves: a camera log's frame origin is a convention (the daemon's tie
+//!    pre-scan puts the mean of command − measured along its X tie line at
+//!    zero), not something the model predicts, so an absolute offset is
+//!    profiled out rather than reported as structure (measured on the
+//!    simulated rig: a 3.5 µm offset was named a 6.7 mm wide "dip").
+//! 4. **Search.** For each error component, candidate families against every
+//!    variable of the log: each axis position (periodic at any period by a
+//!    generalized Lomb–Scargle periodogram; slope; a localized Gaussian
+//!    feature at any place and width), time (linear and quadratic drift,
+//!    periodic), direction of motion (extra play on reversal, through the
+//!    model's own play operator), the length of the preceding move (lost
+//!    motion `A·(1 − exp(−L/λ))` against the move's direction, λ on a log
+//!    grid refined by golden section, `A` linear; searched only when the
+//!    log has moves of clearly different lengths, else it is the same column
+//!    as extra play), temperature, and every extra column of the log that
+//!    is numeric in (nearly) all rows (linear dependence; kind `other`).
+//! 5. **Held-out judging.** Folds are whole cycles (contiguous time chunks
+//!    when the log has one cycle). For each fold the base is fitted and the
+//!    candidate's period/place is searched **on the other folds only**, then
+//!    the joint fit predicts the held-out fold. Pooled over folds this gives
+//!    every point's held-out error before and after; a family is significant
+//!    when the paired mean reduction of squared error is at least
+//!    `z_threshold` standard errors above zero and the held-out RMS drops by
+//!    at least `min_gain_pct`. A term that only fits noise predicts held-out
+//!    data worse, so it fails.
+//! 6. **Greedy.** The most useful significant candidate (largest held-out
+//!    reduction) is accepted, added to the base, and the search repeats.
+//! 7. **Extension.** Accepted candidates become model terms
+//!    ([`crate::model::terms::discovered`], or more play in the model's
+//!    backlash term); the extended model is refitted with the model's own
+//!    Levenberg–Marquardt ([`StageModel::fit`]), which gives the standard
+//!    errors of the nonlinear parameters (a localized feature's place and
+//!    width, a step-size term's length).
+//!
+//! # Extra columns (`other`)
+//! A log may carry columns the model has no input for (humidity, motor
+//! current, a quality figure, ...). Each one that parses as a finite number
+//! in at least 95 % of the rows (the rest take its mean) and is not constant
+//! is searched like any family: the error component linear in the column,
+//! judged on the held-out folds. Columns that nearly repeat a variable the
+//! analysis already has (|correlation| ≥ 0.98 with a commanded position,
+//! time or temperature, e.g. a reported position) are left out: a
+//! dependence on them is named by that variable's own family. A finding of
+//! kind `other` names its column (`variable`) and slope (`um_per_unit`).
+//! **The extended model does not include it**: a model is evaluated on a
+//! [`MotionState`] (commanded position, history, time, temperature) and
+//! cannot read an arbitrary column, so no model term could reproduce the
+//! effect in a simulation or compensate it. The finding says so
+//! (`in_extended_model = false`), its column is still fitted jointly (so
+//! the other findings are not biased by it), and the report's extended
+//! held-out RMS and in-sample RMS are those of the model-expressible
+//! findings only; the held-out RMS with the `other` findings as well is
+//! reported separately (`with_unmodelled_rms_um`).
+//!
+//! # Layout
+//! This file holds the public types, [`diagnose`] (the greedy loop of
+//! steps 4–6) and the log's temperature record; each step's machinery has
+//! its own file:
+//! * `data`: step 1 and 3, the log replayed into model states, residual
+//!   rows, folds, centring groups, and the extra columns worth searching.
+//! * `search`: step 4, the candidate families and the search that fixes a
+//!   family's period, place, width or length; a candidate's design columns.
+//! * `fit`: step 5, the centred least squares per fold and the held-out
+//!   verdict (paired z, RMS).
+//! * `extend`: step 7, accepted candidates turned into model terms.
+//! * `describe`: a finding's parameters, uncertainty, sentence and likely
+//!   cause.
+//! * `report`: the text and JSON reports of a [`Diagnosis`].
+
+mod data;
+mod describe;
+mod extend;
+mod fit;
+mod report;
+mod search;
+#[cfg(test)]
+mod tests;
+
+use std::collections::{BTreeMap, HashMap};
+
+use serde::{Deserialize, Serialize};
+
+use crate::charact::log::MeasurementLog;
+use crate::model::{
+    Axis, Environment, FitOptions, Interpolation, Sample, StageModel, TemperaturePoint,
+};
+
+use super::{AnalysisError, FindingKind};
+use data::prepare;
+use describe::describe;
+use extend::{extended, extended_with_se};
+use fit::{fit_with, fold_base, keep_heldout, paired_z, rms_comp, Verdict};
+use search::{base_columns, columns, families, search, Family, Spec};
+
+/// How to diagnose.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct DiagnoseOptions {
+    /// A candidate is significant when its held-out reduction of squared
+    /// error is at least this many standard errors above zero.
+    pub z_threshold: f64,
+    /// ... and the held-out RMS of its component drops by at least this, %.
+    pub min_gain_pct: f64,
+    /// At most this many findings.
+    pub max_findings: usize,
+    /// At most this many folds (whole cycles) for held-out judging.
+    pub max_folds: usize,
+    /// Kinds of model terms whose parameters the base fit identifies from
+    /// the log (must be linear terms).
+    pub base_free_kinds: Vec<String>,
+}
+
+impl Default for DiagnoseOptions {
+    fn default() -> Self {
+        DiagnoseOptions {
+            z_threshold: 5.0,
+            min_gain_pct: 1.0,
+            max_findings: 4,
+            max_folds: 4,
+            base_free_kinds: vec!["leadscrew_cyclic".into(), "cross_coupling".into()],
+        }
+    }
+}
+
+/// RMS per error component, µm.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct RmsXy {
+    /// x component, µm.
+    pub x: f64,
+    /// y component, µm.
+    pub y: f64,
+}
+
+impl RmsXy {
+    fn from(v: [f64; 2]) -> Self {
+        RmsXy { x: v[0], y: v[1] }
+    }
+
+    /// The component's value.
+    pub fn get(&self, c: Axis) -> f64 {
+        match c {
+            Axis::X => self.x,
+            Axis::Y => self.y,
+        }
+    }
+}
+
+/// One named discrepancy.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Finding {
+    /// What kind of effect.
+    pub kind: FindingKind,
+    /// The variable axis (`x`/`y`); for time and temperature kinds, the
+    /// component.
+    pub axis: Axis,
+    /// The error component it affects.
+    pub component: Axis,
+    /// Parameters (names carry their unit), model sign.
+    pub params: BTreeMap<String, f64>,
+    /// 1-σ uncertainty of each parameter (same keys, where known).
+    pub uncertainty: BTreeMap<String, f64>,
+    /// Shape of a drift (`linear`/`quadratic`); absent otherwise.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub shape: Option<String>,
+    /// Held-out z-score: paired mean reduction of squared error over its
+    /// standard error.
+    pub significance: f64,
+    /// Held-out RMS of the component before adding this term, µm.
+    pub heldout_rms_before_um: f64,
+    /// ... and after, µm.
+    pub heldout_rms_after_um: f64,
+    /// `100·(1 − after/before)`, %.
+    pub gain_pct: f64,
+    /// A sentence a person understands.
+    pub explanation: String,
+    /// Likely physical cause.
+    pub cause: String,
+    /// Name of the term that models it in the extended model (empty when
+    /// the model cannot express it: kind `other`).
+    pub term: String,
+    /// The log column the error follows (kind `other`); absent otherwise.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub variable: Option<String>,
+    /// Whether the extended model includes the effect (false for `other`:
+    /// the model has no input for a log's extra column).
+    #[serde(default = "yes")]
+    pub in_extended_model: bool,
+}
+
+fn yes() -> bool {
+    true
+}
+
+/// Residual series for plots: one entry per log point.
+#[derive(Debug, Clone, Default, PartialEq, Serialize)]
+pub struct ResidualSeries {
+    /// Commanded x, µm.
+    pub x_um: Vec<f64>,
+    /// Commanded y, µm.
+    pub y_um: Vec<f64>,
+    /// Time, s.
+    pub t_s: Vec<f64>,
+    /// Temperature, °C.
+    pub temp_c: Vec<f64>,
+    /// Direction sign of the x axis (+1, −1, 0).
+    pub x_dir: Vec<f64>,
+    /// Direction sign of the y axis.
+    pub y_dir: Vec<f64>,
+    /// Length of the last move of the x axis, µm.
+    pub x_last_move_um: Vec<f64>,
+    /// Length of the last move of the y axis, µm.
+    pub y_last_move_um: Vec<f64>,
+    /// The log's numeric extra columns that were searched: name and value
+    /// per point (unparsable cells hold the column mean).
+    pub extra: Vec<(String, Vec<f64>)>,
+    /// Residual (measured − model) after the base fit, `[x, y]` µm, block
+    /// constants of static axes removed.
+    pub before_um: [Vec<f64>; 2],
+    /// Residual after the extended fit, µm.
+    pub after_um: [Vec<f64>; 2],
+}
+
+/// Everything `diagnose` found.
+#[derive(Debug, Clone, Serialize)]
+pub struct Diagnosis {
+    /// Points analysed.
+    pub points: usize,
+    /// Folds used for held-out judging.
+    pub folds: usize,
+    /// RMS of measured − model as given (nothing fitted), µm.
+    pub model_rms_um: RmsXy,
+    /// Held-out RMS after the base fit, µm.
+    pub baseline_rms_um: RmsXy,
+    /// Findings in order of acceptance.
+    pub findings: Vec<Finding>,
+    /// Held-out RMS with every finding the extended model includes, µm.
+    pub extended_rms_um: RmsXy,
+    /// Held-out RMS with the `other` findings (log columns the model cannot
+    /// read) as well, µm; absent when there are none.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub with_unmodelled_rms_um: Option<RmsXy>,
+    /// In-sample RMS of the refitted extended model, µm (what a replay of
+    /// the log through the extended model leaves: the noise floor when
+    /// everything is explained).
+    pub extended_fit_rms_um: RmsXy,
+    /// Parameters the base fit identified.
+    pub base_free_params: Vec<String>,
+    /// Options used.
+    pub options: DiagnoseOptions,
+    /// The extended model (base fit + findings, refitted), with the log's
+    /// temperature record as its environment (so a simulator running it
+    /// replays the log under the same conditions).
+    #[serde(skip)]
+    pub extended_model: StageModel,
+    /// The model as given with only the base fit applied (no findings), same
+    /// environment: what compensation from the original model uses, the
+    /// reference the extended model is compared against.
+    #[serde(skip)]
+    pub base_model: StageModel,
+    /// Residual series for plots.
+    #[serde(skip)]
+    pub series: ResidualSeries,
+}
+
+/// Runs the analysis of `log` against `model`. See the module docs.
+pub fn diagnose(
+    log: &MeasurementLog,
+    model: &StageModel,
+    opts: &DiagnoseOptions,
+) -> Result<Diagnosis, AnalysisError> {
+    if !(opts.z_threshold.is_finite() && opts.min_gain_pct.is_finite()) {
+        return Err(AnalysisError::Invalid(
+            "z_threshold and min_gain_pct must be finite".into(),
+        ));
+    }
+    let d = prepare(log, model, opts.max_folds)?;
+    let (base_names, mut base) = base_columns(&d, model, &opts.base_free_kinds);
+    let n_base = base.len();
+    let fams = families(&d);
+    let mut accepted: Vec<(Spec, Verdict)> = Vec::new();
+    let mut baseline_rms = [0.0; 2];
+    let mut last_heldout = [0.0; 2];
+    for round in 0..=opts.max_findings {
+        // Held-out residuals of the current base, and each family's verdict.
+        let mut before = vec![0.0; 2 * d.n];
+        let mut after: Vec<Vec<f64>> = vec![vec![0.0; 2 * d.n]; fams.len()];
+        for f in 0..d.nfolds {
+            let train: Vec<bool> = d.fold.iter().map(|&k| k != f).collect();
+            let fb = fold_base(&d, &base, train);
+            keep_heldout(&mut before, &fb.resid, &fb.train);
+            if round == opts.max_findings {
+                continue;
+            }
+            for (fi, fam) in fams.iter().enumerate() {
+                let (resid, _) = match search(*fam, &d, &fb.resid, &fb.train) {
+                    Some(spec) => fit_with(&d, &base, &fb, &columns(&spec, &d, model)),
+                    None => (fb.resid.clone(), Vec::new()),
+                };
+                keep_heldout(&mut after[fi], &resid, &fb.train);
+            }
+        }
+        let heldout = [rms_comp(&before, 0), rms_comp(&before, 1)];
+        if round == 0 {
+            baseline_rms = heldout;
+        }
+        last_heldout = heldout;
+        if round == opts.max_findings {
+            break;
+        }
+        let mut verdicts: Vec<Verdict> = fams
+            .iter()
+            .zip(after)
+            .map(|(fam, after)| {
+                let c = fam.comp().index();
+                let (reduction, z) = paired_z(&before, &after, c);
+                let rb = rms_comp(&before, c);
+                let ra = rms_comp(&after, c);
+                Verdict {
+                    family: *fam,
+                    after,
+                    reduction,
+                    z,
+                    gain_pct: if rb > 0.0 {
+                        100.0 * (1.0 - ra / rb)
+                    } else {
+                        0.0
+                    },
+                    rms_before: rb,
+                    rms_after: ra,
+                }
+            })
+            .filter(|v| v.z >= opts.z_threshold && v.gain_pct >= opts.min_gain_pct)
+            .collect();
+        verdicts.sort_by(|a, b| b.reduction.total_cmp(&a.reduction));
+        let Some(mut best) = verdicts.first().map(|v| v.family) else {
+            break;
+        };
+        // A quadratic drift must beat the linear one on held-out data.
+        if let Family::Drift {
+            comp,
+            quadratic: true,
+        } = best
+        {
+            let lin = Family::Drift {
+                comp,
+                quadratic: false,
+            };
+            if let (Some(q), Some(l)) = (
+                verdicts.iter().find(|v| v.family == best),
+                verdicts.iter().find(|v| v.family == lin),
+            ) {
+                let (_, z) = paired_z(&l.after, &q.after, comp.index());
+                if z < opts.z_threshold {
+                    best = lin;
+                }
+            }
+        }
+        let Some(pos) = verdicts.iter().position(|v| v.family == best) else {
+            break;
+        };
+        let verdict = verdicts.swap_remove(pos);
+        // The accepted term's hyper-parameters from all the data.
+        let all = vec![true; d.n];
+        let fb = fold_base(&d, &base, all.clone());
+        let Some(spec) = search(best, &d, &fb.resid, &all) else {
+            break;
+        };
+        base.extend(columns(&spec, &d, model));
+        accepted.push((spec, verdict));
+    }
+
+    // The extended model cannot carry `other` findings (log columns it has
+    // no input for): its held-out RMS is that of the other findings only.
+    let unmodelled = |s: &Spec| matches!(s, Spec::Other { .. });
+    let (extended_heldout, with_unmodelled) = if accepted.iter().any(|(s, _)| unmodelled(s)) {
+        let mut cols: Vec<Vec<f64>> = base[..n_base].to_vec();
+        for (s, _) in &accepted {
+            if !unmodelled(s) {
+                cols.extend(columns(s, &d, model));
+            }
+        }
+        let mut ho = vec![0.0; 2 * d.n];
+        for f in 0..d.nfolds {
+            let train: Vec<bool> = d.fold.iter().map(|&k| k != f).collect();
+            let fb = fold_base(&d, &cols, train);
+            keep_heldout(&mut ho, &fb.resid, &fb.train);
+        }
+        (
+            [rms_comp(&ho, 0), rms_comp(&ho, 1)],
+            Some(RmsXy::from(last_heldout)),
+        )
+    } else {
+        (last_heldout, None)
+    };
+
+    let samples: Vec<Sample> = (0..d.n)
+        .map(|i| Sample {
+            state: d.states[i],
+            measured_x_um: d.meas[i][0],
+            measured_y_um: d.meas[i][1],
+        })
+        .collect();
+    let specs: Vec<Spec> = accepted.iter().map(|(s, _)| s.clone()).collect();
+    let mut std_errs: HashMap<String, f64> = HashMap::new();
+    // Localized features: standard errors of place and width from the
+    // model's own Levenberg–Marquardt (the only nonlinear candidate). Its
+    // values are not taken: it cannot profile out the block constants of
+    // static axes, and the centred search already refined place and width.
+    let nonlinear = |s: &Spec| matches!(s, Spec::Localized { .. } | Spec::StepSize { .. });
+    if specs.iter().any(nonlinear) {
+        let (ext, names) = extended(&d, model, &base_names, &specs)?;
+        let mut free = base_names.clone();
+        for (spec, name) in specs.iter().zip(&names) {
+            if nonlinear(spec) {
+                free.push(format!("{name}.*"));
+            }
+        }
+        let mut fitted = ext.clone();
+        let fo = FitOptions {
+            free,
+            max_iterations: 30,
+            ..FitOptions::default()
+        };
+        if let Ok(report) = fitted.fit(&samples, &fo) {
+            for p in &report.params {
+                if p.name.ends_with(".position_um")
+                    || p.name.ends_with(".width_um")
+                    || p.name.ends_with(".length_um")
+                {
+                    if let Some(e) = p.std_error {
+                        std_errs.insert(p.name.clone(), e);
+                    }
+                }
+            }
+        }
+    }
+    // Every linear coefficient from the centred solve (block constants of
+    // static axes profiled out, which the plain model fit cannot do), with
+    // standard errors from the same normal equations.
+    let (mut fitted, term_names, lin_se, unmodelled_values) =
+        extended_with_se(&d, model, &base_names, &specs)?;
+    let (mut base_model, _) = extended(&d, model, &base_names, &[])?;
+    if let Some(env) = log_environment(log)? {
+        fitted.set_environment(env.clone())?;
+        base_model.set_environment(env)?;
+    }
+    std_errs.extend(lin_se);
+    let std_err = |name: &str| -> Option<f64> { std_errs.get(name).copied() };
+    let accepted: Vec<(Spec, Verdict)> = specs
+        .into_iter()
+        .zip(accepted)
+        .map(|(s, (_, v))| (s, v))
+        .collect();
+    // Residual series and in-sample RMS of the extended model.
+    let mut series = ResidualSeries::default();
+    let mut after = vec![0.0; 2 * d.n];
+    for i in 0..d.n {
+        let o = fitted.observed_position(&d.states[i]);
+        after[2 * i] = d.meas[i][0] - o.x_um;
+        after[2 * i + 1] = d.meas[i][1] - o.y_um;
+    }
+    d.center(&mut after);
+    let base_only = fold_base(&d, &base[..n_base], vec![true; d.n]);
+    for i in 0..d.n {
+        let s = &d.states[i];
+        series.x_um.push(s.cmd_um(Axis::X));
+        series.y_um.push(s.cmd_um(Axis::Y));
+        series.t_s.push(s.time_s);
+        series.temp_c.push(s.temp_c);
+        series.x_dir.push(s.axes[0].dir.sign());
+        series.y_dir.push(s.axes[1].dir.sign());
+        series.x_last_move_um.push(s.axes[0].last_move_um);
+        series.y_last_move_um.push(s.axes[1].last_move_um);
+        for c in 0..2 {
+            series.before_um[c].push(base_only.resid[2 * i + c]);
+            series.after_um[c].push(after[2 * i + c]);
+        }
+    }
+    series.extra = d
+        .extra
+        .iter()
+        .map(|x| (x.name.clone(), x.values.clone()))
+        .collect();
+    let fit_rms = [rms_comp(&after, 0), rms_comp(&after, 1)];
+    let value = |name: &str| -> Option<f64> { unmodelled_values.get(name).copied() };
+    let findings = accepted
+        .iter()
+        .zip(&term_names)
+        .map(|((spec, v), name)| describe(spec, v, name, &fitted, model, &std_err, &value, &d))
+        .collect::<Result<Vec<_>, _>>()?;
+    let mut r0 = vec![0.0; 2 * d.n];
+    for i in 0..d.n {
+        let o = model.observed_position(&d.states[i]);
+        r0[2 * i] = d.meas[i][0] - o.x_um;
+        r0[2 * i + 1] = d.meas[i][1] - o.y_um;
+    }
+    Ok(Diagnosis {
+        points: d.n,
+        folds: d.nfolds,
+        model_rms_um: RmsXy::from([rms_comp(&r0, 0), rms_comp(&r0, 1)]),
+        baseline_rms_um: RmsXy::from(baseline_rms),
+        findings,
+        extended_rms_um: RmsXy::from(extended_heldout),
+        with_unmodelled_rms_um: with_unmodelled,
+        extended_fit_rms_um: RmsXy::from(fit_rms),
+        base_free_params: base_names,
+        options: opts.clone(),
+        extended_model: fitted,
+        base_model,
+        series,
+    })
+}
+
+/// The log's temperature record as a model environment (linear between
+/// points at least [`ENV_STEP_S`] apart), or `None` when the log holds no
+/// usable temperature. Why: the extended model's thermal and temperature
+/// terms need the temperature the log was taken at; with it, a simulator
+/// running the extended model (`hil-sim --model`) sees the same room.
+fn log_environment(log: &MeasurementLog) -> Result<Option<Environment>, AnalysisError> {
+    let mut pts: Vec<TemperaturePoint> = Vec::new();
+    for r in &log.records {
+        let Some(temp_c) = r.temp_c.filter(|t| t.is_finite()) else {
+            continue;
+        };
+        if !r.t_s.is_finite() {
+            continue;
+        }
+        match pts.last() {
+            Some(l) if r.t_s < l.time_s + ENV_STEP_S => {}
+            _ => pts.push(TemperaturePoint {
+                time_s: r.t_s,
+                temp_c,
+            }),
+        }
+    }
+    if pts.is_empty() {
+        return Ok(None);
+    }
+    let env = Environment {
+        temperature_interpolation: Interpolation::Linear,
+        temperature: pts,
+    };
+    env.validate()?;
+    Ok(Some(env))
+}
+
+/// Spacing of the temperature points taken from a log, s (room temperature
+/// changes over minutes; 30 s keeps a 9.5 h log to ~1000 points).
+const ENV_STEP_S: f64 = 30.0;

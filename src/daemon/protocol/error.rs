@@ -1,0 +1,126 @@
+//! Stable error codes and the error a refusal carries.
+//!
+//! Why a file of its own: scripts match on these codes, so the list and
+//! its wire spelling are the protocol's most stable part, used by the
+//! parser and by every daemon module that refuses a request.
+
+use std::fmt;
+
+/// Stable, machine-readable error codes (`"error": {"code": ...}`). Scripts
+/// match on these; the message is for people and may change.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ErrorCode {
+    /// The line is not valid JSON (or not UTF-8).
+    BadJson,
+    /// The line exceeds [`MAX_REQUEST_BYTES`](super::MAX_REQUEST_BYTES).
+    RequestTooLarge,
+    /// The JSON is not an object.
+    NotAnObject,
+    /// A required field is missing.
+    MissingField,
+    /// A field has the wrong JSON type.
+    WrongType,
+    /// A field has the right type but an unusable value.
+    BadValue,
+    /// `cmd` names no command.
+    UnknownCommand,
+    /// A target is outside the soft limits or the controllers' travel.
+    OutOfTravel,
+    /// An axis is not referenced: positions are unknown, moves refused.
+    NotReferenced,
+    /// A controller is not connected.
+    NotConnected,
+    /// The rig is busy (a job or a reference run owns the axes).
+    Busy,
+    /// The move was halted by `stop` or a fault.
+    Halted,
+    /// The controller or its line failed during the command.
+    DriverError,
+    /// The camera gives no usable measurement.
+    CameraUnavailable,
+    /// The newest measurement is too old or of too low quality.
+    StaleMeasurement,
+    /// A closed-loop move did not converge within its retries.
+    NotConverged,
+    /// `compensated` move without an active compensation table.
+    NoActiveTable,
+    /// Closed loop: no fresh frame arrived after the move settled.
+    CameraStalled,
+    /// Closed loop: frames arrive but do not decode, or decode below
+    /// `camera.min_quality`.
+    LowQuality,
+    /// Closed loop: the correction limit was reached outside tolerance.
+    RetryLimit,
+    /// Closed loop: the residual grew; the loop stopped instead of chasing it.
+    Diverging,
+    /// The feature exists in the protocol but not in this build yet.
+    NotAvailable,
+    /// No such job, or the job is not in a state that allows the action.
+    JobState,
+    /// The measurement log could not be created, read or resumed.
+    LogError,
+    /// The daemon is shutting down.
+    ShuttingDown,
+    /// A bug or an unexpected internal failure.
+    Internal,
+}
+
+impl ErrorCode {
+    /// The code as sent on the wire.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            ErrorCode::BadJson => "bad_json",
+            ErrorCode::RequestTooLarge => "request_too_large",
+            ErrorCode::NotAnObject => "not_an_object",
+            ErrorCode::MissingField => "missing_field",
+            ErrorCode::WrongType => "wrong_type",
+            ErrorCode::BadValue => "bad_value",
+            ErrorCode::UnknownCommand => "unknown_command",
+            ErrorCode::OutOfTravel => "out_of_travel",
+            ErrorCode::NotReferenced => "not_referenced",
+            ErrorCode::NotConnected => "not_connected",
+            ErrorCode::Busy => "busy",
+            ErrorCode::Halted => "halted",
+            ErrorCode::DriverError => "driver_error",
+            ErrorCode::CameraUnavailable => "camera_unavailable",
+            ErrorCode::StaleMeasurement => "stale_measurement",
+            ErrorCode::NotConverged => "not_converged",
+            ErrorCode::NoActiveTable => "no_active_table",
+            ErrorCode::CameraStalled => "camera_stalled",
+            ErrorCode::LowQuality => "low_quality",
+            ErrorCode::RetryLimit => "retry_limit",
+            ErrorCode::Diverging => "diverging",
+            ErrorCode::NotAvailable => "not_available",
+            ErrorCode::JobState => "job_state",
+            ErrorCode::LogError => "log_error",
+            ErrorCode::ShuttingDown => "shutting_down",
+            ErrorCode::Internal => "internal",
+        }
+    }
+}
+
+impl fmt::Display for ErrorCode {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
+/// An error reply: a stable code and a message for a person.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("{code}: {message}")]
+pub struct ProtoError {
+    /// Machine-readable code.
+    pub code: ErrorCode,
+    /// What went wrong and, where possible, what to do.
+    pub message: String,
+}
+
+impl ProtoError {
+    /// An error with this code and message.
+    pub fn new(code: ErrorCode, message: impl Into<String>) -> Self {
+        Self {
+            code,
+            message: message.into(),
+        }
+    }
+}

@@ -1,0 +1,44 @@
+//! The socket protocol, sans-IO: one request line in, one typed request or a
+//! typed error out; replies and events serialized to one line each.
+//!
+//! Why hand-written parsing over `serde(deserialize)`: every refusal must
+//! name the field and the problem with a stable error code, and a request
+//! whose `id` is readable must get that `id` back even when the rest is
+//! wrong. Nothing here does I/O; `fuzz/fuzz_targets/socket_request.rs`
+//! drives [`parse_request`] with arbitrary bytes. Format: docs/socket-protocol.md.
+//!
+//! # Layout
+//! * `error`: the stable error codes and [`ProtoError`], shared by every
+//!   other part of the daemon that refuses a request.
+//! * `command`: the typed requests ([`Request`], [`Command`] and each
+//!   command's parameters): what the rest of the daemon consumes.
+//! * `parse`: one request line into a [`Request`] or a [`Refusal`], command
+//!   by command; the only code that reads client JSON.
+//! * `fields`: the field readers `parse` is built from (type, range and
+//!   file-name checks with their error messages).
+//! * `reply`: replies and events serialized to one line each.
+
+mod command;
+mod error;
+mod fields;
+mod parse;
+mod reply;
+#[cfg(test)]
+mod tests;
+
+pub use command::{
+    Axes, CharacterizeAction, CharacterizeParams, Command, DriftAction, MoveMode, MoveRequest,
+    Refusal, Request, TablesAction, TablesBuildParams, Topic, ValidateAction, ValidateMode,
+    ValidateParams, COMMANDS,
+};
+pub use error::{ErrorCode, ProtoError};
+pub use parse::{parse_request, too_large};
+pub use reply::{error_reply, event_line, ok_reply};
+
+/// Version of the protocol this daemon speaks (the `version` command reports
+/// it; a client refuses a major version it does not know).
+pub const PROTOCOL_VERSION: u32 = 1;
+
+/// Longest request line accepted, bytes (without the newline). Larger
+/// requests are answered with `request_too_large` and skipped.
+pub const MAX_REQUEST_BYTES: usize = 64 * 1024;

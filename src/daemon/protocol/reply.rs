@@ -1,0 +1,54 @@
+//! Replies and events, serialized to one line each.
+//!
+//! Why a file of its own: the daemon's connection tasks write only these
+//! lines; their shape (`id` echoed, `ok`, `error.code`) is the other half
+//! of the protocol.
+
+use serde_json::{Map, Value};
+
+use super::ProtoError;
+
+/// A success reply: `{"id":…,"ok":true, …fields}` plus newline.
+pub fn ok_reply(id: &Value, fields: Map<String, Value>) -> String {
+    let mut obj = Map::new();
+    obj.insert("id".to_owned(), id.clone());
+    obj.insert("ok".to_owned(), Value::Bool(true));
+    for (k, v) in fields {
+        if k != "id" && k != "ok" {
+            obj.insert(k, v);
+        }
+    }
+    line(Value::Object(obj))
+}
+
+/// An error reply: `{"id":…,"ok":false,"error":{"code":…,"message":…}}`.
+pub fn error_reply(id: &Value, e: &ProtoError) -> String {
+    let mut err = Map::new();
+    err.insert("code".to_owned(), Value::from(e.code.as_str()));
+    err.insert("message".to_owned(), Value::from(e.message.clone()));
+    let mut obj = Map::new();
+    obj.insert("id".to_owned(), id.clone());
+    obj.insert("ok".to_owned(), Value::Bool(false));
+    obj.insert("error".to_owned(), Value::Object(err));
+    line(Value::Object(obj))
+}
+
+/// A pushed event: `{"event":name, …fields}` plus newline.
+pub fn event_line(name: &str, fields: Map<String, Value>) -> String {
+    let mut obj = Map::new();
+    obj.insert("event".to_owned(), Value::from(name));
+    for (k, v) in fields {
+        if k != "event" {
+            obj.insert(k, v);
+        }
+    }
+    line(Value::Object(obj))
+}
+
+fn line(v: Value) -> String {
+    // Serializing a Value cannot fail (string keys, no non-finite floats:
+    // serde_json turns those into null).
+    let mut s = v.to_string();
+    s.push('\n');
+    s
+}
