@@ -417,6 +417,33 @@ fn fmt_params(p: &BTreeMap<String, f64>) -> String {
         .join(" ")
 }
 
+/// The tie the daemon made (from the log's metadata): its rotation's error
+/// against the simulator's mounting (vision = offset − R(θ)·stage, so the
+/// true rotation is θ + π), with and without its drift correction.
+fn tie_summary(log: &MeasurementLog) -> String {
+    let md = &log.metadata;
+    let get = |k: &str| md.get(k).and_then(|v| v.parse::<f64>().ok());
+    let truth = RigConfig::default().mounting.theta_deg.to_radians() + std::f64::consts::PI;
+    let err = |r: f64| {
+        let d = (r - truth).rem_euclid(std::f64::consts::TAU);
+        let d = if d > std::f64::consts::PI {
+            d - std::f64::consts::TAU
+        } else {
+            d
+        };
+        format!("{:.1} µrad", d * 1e6)
+    };
+    format!(
+        "tie: rotation error {} (uncorrected {}), anchor drift ({}, {}) µm, {} measurements in {} s",
+        get("vision_frame_rotation_rad").map_or("?".to_owned(), err),
+        get("tie_uncorrected_rotation_rad").map_or("?".to_owned(), err),
+        md.get("tie_drift_x_um").unwrap_or("?"),
+        md.get("tie_drift_y_um").unwrap_or("?"),
+        md.get("tie_measurements").unwrap_or("?"),
+        md.get("tie_duration_s").unwrap_or("?"),
+    )
+}
+
 /// Draws the effect of `seed` (kind given), serves the truth, characterizes
 /// through the daemon, diagnoses with the nominal model.
 async fn hidden_case(seed: u64, kind: FindingKind) -> (InjectedEffect, Diagnosis, RigRun) {
@@ -437,11 +464,15 @@ async fn hidden_case(seed: u64, kind: FindingKind) -> (InjectedEffect, Diagnosis
 async fn hidden_effects_through_the_rig_are_named_and_recovered() {
     let kinds = rig_kinds();
     // Default: one seed (its kind from the seed); full: one seed per kind.
+    // `MICROPOS_RIG_KIND=time_periodic` (with the sweep): only that kind's
+    // seed, to re-check one case without the whole ≈ 6 min sweep.
+    let only = std::env::var("MICROPOS_RIG_KIND").ok();
     let cases: Vec<(u64, FindingKind)> = if sweep() {
         kinds
             .iter()
             .enumerate()
             .map(|(i, k)| (2000 + i as u64, *k))
+            .filter(|(_, k)| only.as_deref().is_none_or(|o| o == k.as_str()))
             .collect()
     } else {
         let seed = 2024;
@@ -481,6 +512,7 @@ async fn hidden_effects_through_the_rig_are_named_and_recovered() {
                 Err(m) => format!("FAIL {m}"),
             }
         );
+        println!("     {}", tie_summary(&run.log));
         if let Err(m) = r {
             println!("{}", d.to_text());
             if d.findings.is_empty() && snr < MISS_ALLOWED_BELOW_SNR {
