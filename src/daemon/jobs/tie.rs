@@ -18,8 +18,8 @@
 //! same at every tie point and does not tilt the fitted direction. Every
 //! measured point is reached forward (a line's first point, and every
 //! anchor visit, from [`crate::daemon::jobs::PARK_APPROACH_UM`] below on
-//! both axes; the line's next points by forward steps), so backlash does
-//! not tilt it either.
+//! the axes that move; the line's next points by forward steps), so
+//! backlash does not tilt it either.
 //!
 //! # Drift during the tie
 //!
@@ -37,7 +37,13 @@
 //! on the stage, so the anchor's apparent motion is the drift; the drift
 //! model is the quadratic in time through the three visits ([`AnchorDrift`]),
 //! and every tie sample is corrected to the state of the last visit (the end
-//! of the tie, just before the first logged point) before the fit. That is
+//! of the tie, just before the first logged point) before the fit. The
+//! return to the anchor moves only the line's axis ([`tie_plan`]): the held
+//! axis keeps its settling error from the first visit through the line and
+//! back, so the anchor reads drift, not a new settling draw (measured on
+//! the plain simulated rig with both axes re-approached: a 5 µrad tilt
+//! from that noise, enough for a spurious `cross_axis` finding; the
+//! uncorrected tie there is within 0.2 µrad). That is
 //! exact for any drift linear or quadratic in time; for a periodic one of
 //! period `P` the residual tilt falls as `(line duration / P)³` (model
 //! calculation with the rig's dwell of 7–16 s per point and the 419 s
@@ -256,12 +262,87 @@ pub fn fit_tie(
     Ok((frame, report, drift, uncorrected))
 }
 
-/// Moves to `p` (raw) from [`PARK_APPROACH_UM`] below on both axes (clamped
-/// into the travel), so both axes arrive forward, as at every other visit.
-async fn approach(rig: &Arc<Rig>, p: XyUm) -> Result<(), ProtoError> {
-    let (ax, ay) = clamp_to_travel(rig, p.x_um - PARK_APPROACH_UM, p.y_um - PARK_APPROACH_UM);
-    raw_move(rig, ax, ay).await?;
-    raw_move(rig, p.x_um, p.y_um).await
+/// One measurement of the tie, in the order [`measure_frame`] takes them.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TieVisit {
+    /// Approach point (commanded, µm; clamped into the travel when moving):
+    /// [`PARK_APPROACH_UM`] below `at` on every axis whose position
+    /// changes, `at` itself on an axis that stays. `None`: `at` is the next
+    /// forward step of a line.
+    pub via: Option<XyUm>,
+    /// The measured position (commanded, µm).
+    pub at: XyUm,
+    /// The line (0: X, 1: Y) this measurement is a sample of, if any.
+    pub line: Option<usize>,
+    /// Whether this is a visit of the anchor.
+    pub anchor: bool,
+}
+
+/// The tie's measurements in order (see the module docs): the anchor (the
+/// X line's first point), the X line, the anchor, the Y line (its first
+/// point is the anchor visit when both lines start at the corner), the
+/// anchor.
+///
+/// The held axis is never moved during a line and its return to the
+/// anchor (an axis that stays is commanded to the same position, which
+/// the controller does not move): a re-approach would give it a new
+/// settling error (σ 0.035 µm on the M-111), which the anchor would read
+/// as drift. Measured on the simulated rig before this rule: the plain
+/// rig's tie tilted by 5 µrad (0.2 µrad without the correction) and the
+/// analysis named a spurious `cross_axis`.
+pub fn tie_plan(lines: &[TieLine; 2]) -> Vec<TieVisit> {
+    let anchor = lines[0].point(lines[0].start_um);
+    let approach = |from: Option<XyUm>, p: XyUm| {
+        let stays = |a: Option<f64>, v: f64| a.is_some_and(|a| (a - v).abs() < 1e-6);
+        let below = |a: Option<f64>, v: f64| {
+            if stays(a, v) {
+                v
+            } else {
+                v - PARK_APPROACH_UM
+            }
+        };
+        XyUm {
+            x_um: below(from.map(|f| f.x_um), p.x_um),
+            y_um: below(from.map(|f| f.y_um), p.y_um),
+        }
+    };
+    let mut plan: Vec<TieVisit> = Vec::new();
+    let mut at: Option<XyUm> = None;
+    for (i, l) in lines.iter().enumerate() {
+        for (k, p) in tie_positions(l.start_um, l.range_um)
+            .into_iter()
+            .enumerate()
+        {
+            let cmd = l.point(p);
+            let via = if k == 0 {
+                if at.is_some_and(|a| same_point(a, cmd)) {
+                    // Already measured here (the anchor visit before).
+                    if let Some(last) = plan.last_mut() {
+                        last.line = Some(i);
+                    }
+                    continue;
+                }
+                Some(approach(at, cmd))
+            } else {
+                None
+            };
+            plan.push(TieVisit {
+                via,
+                at: cmd,
+                line: Some(i),
+                anchor: i == 0 && k == 0,
+            });
+            at = Some(cmd);
+        }
+        plan.push(TieVisit {
+            via: Some(approach(at, anchor)),
+            at: anchor,
+            line: None,
+            anchor: true,
+        });
+        at = Some(anchor);
+    }
+    plan
 }
 
 async fn raw_move(rig: &Arc<Rig>, x_um: f64, y_um: f64) -> Result<(), ProtoError> {
@@ -292,8 +373,8 @@ async fn sample_here(
 }
 
 /// Measures the two tie lines (`lines[0]` the X line) with the anchor
-/// visits and fits the frame (see the module docs for the order and why).
-/// `frames` frames are averaged per point after `settle_s`.
+/// visits ([`tie_plan`]) and fits the frame (see the module docs for the
+/// order and why). `frames` frames are averaged per point after `settle_s`.
 pub async fn measure_frame(
     rig: &Arc<Rig>,
     lines: [TieLine; 2],
@@ -302,39 +383,26 @@ pub async fn measure_frame(
 ) -> Result<Tie, ProtoError> {
     let settle = Duration::try_from_secs_f64(settle_s).unwrap_or_default();
     let began_s = rig.clock.now_s();
-    let pos = lines.map(|l| tie_positions(l.start_um, l.range_um));
+    let plan = tie_plan(&lines);
     let mut samples: [Vec<TimedSample>; 2] = [Vec::new(), Vec::new()];
     let mut visits: Vec<TimedSample> = Vec::with_capacity(3);
-    let mut measurements = 0;
-    let anchor = lines[0].point(lines[0].start_um);
-    for (i, l) in lines.iter().enumerate() {
-        for (k, p) in pos[i].iter().enumerate() {
-            let cmd = l.point(*p);
-            let s = if k == 0 && i == 1 && same_point(cmd, anchor) {
-                // The visit between the lines is this line's first sample.
-                match visits.last() {
-                    Some(v) => *v,
-                    None => continue,
-                }
-            } else {
-                if k == 0 {
-                    approach(rig, cmd).await?;
-                } else {
-                    raw_move(rig, cmd.x_um, cmd.y_um).await?;
-                }
-                measurements += 1;
-                sample_here(rig, cmd, frames, settle).await?
-            };
-            if k == 0 && i == 0 {
-                // The first visit of the anchor.
-                visits.push(s);
+    for v in &plan {
+        if let Some(via) = v.via {
+            let (x, y) = clamp_to_travel(rig, via.x_um, via.y_um);
+            if !same_point(XyUm { x_um: x, y_um: y }, v.at) {
+                raw_move(rig, x, y).await?;
             }
-            samples[i].push(s);
         }
-        // The visit after each line.
-        approach(rig, anchor).await?;
-        measurements += 1;
-        visits.push(sample_here(rig, anchor, frames, settle).await?);
+        raw_move(rig, v.at.x_um, v.at.y_um).await?;
+        let s = sample_here(rig, v.at, frames, settle).await?;
+        if let Some(i) = v.line {
+            if let Some(l) = samples.get_mut(i) {
+                l.push(s);
+            }
+        }
+        if v.anchor {
+            visits.push(s);
+        }
     }
     let duration_s = rig.clock.now_s() - began_s;
     let tie_err = |e: CompError| {
@@ -356,7 +424,7 @@ pub async fn measure_frame(
         report,
         drift,
         uncorrected_rotation_rad,
-        measurements,
+        measurements: plan.len(),
         duration_s,
     })
 }
@@ -476,6 +544,77 @@ mod tests {
         t += return_s;
         let a2 = see(anchor, t);
         (xs, ys, [a0, a1, a2])
+    }
+
+    /// The job's tie (X 2400 µm, Y 2000 µm from the corner (500, 500)):
+    /// three anchor visits, 14 measurements, every measured point reached
+    /// forward on the axes that moved, and the held axis never commanded
+    /// elsewhere during a line and its return.
+    #[test]
+    fn the_plan_visits_the_anchor_three_times_and_keeps_the_held_axis() {
+        let lines = [
+            TieLine {
+                x_axis: true,
+                start_um: 500.0,
+                range_um: 2400.0,
+                hold_um: 500.0,
+            },
+            TieLine {
+                x_axis: false,
+                start_um: 500.0,
+                range_um: 2000.0,
+                hold_um: 500.0,
+            },
+        ];
+        let plan = tie_plan(&lines);
+        assert_eq!(plan.len(), 14);
+        let anchor = XyUm {
+            x_um: 500.0,
+            y_um: 500.0,
+        };
+        let visits: Vec<usize> = (0..plan.len()).filter(|&i| plan[i].anchor).collect();
+        assert_eq!(visits, vec![0, 7, 13]);
+        assert!(visits.iter().all(|&i| plan[i].at == anchor));
+        // Samples: 7 X (the first visit is the first), 6 Y (the middle
+        // visit is the first).
+        let n = |l: usize| plan.iter().filter(|v| v.line == Some(l)).count();
+        assert_eq!((n(0), n(1)), (7, 6));
+        assert_eq!(plan[7].line, Some(1));
+        // y stays at 500 from the first visit to the middle one, x from the
+        // middle one to the last.
+        for v in &plan[1..=7] {
+            assert_eq!(v.at.y_um, 500.0);
+            assert!(v.via.is_none_or(|p| p.y_um == 500.0), "{v:?}");
+        }
+        for v in &plan[8..] {
+            assert_eq!(v.at.x_um, 500.0);
+            assert!(v.via.is_none_or(|p| p.x_um == 500.0), "{v:?}");
+        }
+        // Forward arrivals: the last move onto every measured point is
+        // positive on each axis it changes.
+        let mut prev: Option<XyUm> = None;
+        for v in &plan {
+            let from = v.via.or(prev);
+            if let Some(f) = from {
+                assert!(
+                    f.x_um <= v.at.x_um && f.y_um <= v.at.y_um,
+                    "{v:?} from {f:?}"
+                );
+            }
+            if v.via.is_none() {
+                let p = prev.unwrap();
+                assert!(v.at.x_um > p.x_um || v.at.y_um > p.y_um, "{v:?}");
+            }
+            prev = Some(v.at);
+        }
+        // The first approach: both axes from below.
+        assert_eq!(
+            plan[0].via,
+            Some(XyUm {
+                x_um: 500.0 - PARK_APPROACH_UM,
+                y_um: 500.0 - PARK_APPROACH_UM
+            })
+        );
     }
 
     #[test]
