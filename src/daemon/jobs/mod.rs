@@ -509,13 +509,13 @@ async fn run(
             r = tie::measure_frame(rig, lines, plan.frames_per_point, plan.settle_s) => r?,
             _ = cancel.changed() => return Ok("cancelled"),
         };
-        frame = tied.0;
+        frame = tied.frame;
         let mut md = Metadata::new();
         plan.to_metadata(&mut md);
         if let Some(d) = &drift {
             d.to_metadata(&mut md);
         }
-        tie::to_metadata(&mut md, &tied.0, &tied.1);
+        tie::to_metadata(&mut md, &tied);
         md.insert("daemon_version", env!("CARGO_PKG_VERSION"));
         let path = rig.cfg.daemon.data_dir.join(name);
         let w = tokio::task::spawn_blocking(move || {

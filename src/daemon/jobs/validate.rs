@@ -553,7 +553,7 @@ async fn run(
                 },
             ];
             tokio::select! {
-                r = tie::measure_frame(rig, lines, plan.frames, plan.settle_s) => r?.0,
+                r = tie::measure_frame(rig, lines, plan.frames, plan.settle_s) => r?.frame,
                 _ = cancel.changed() => return Ok(("cancelled", None)),
             }
         }
