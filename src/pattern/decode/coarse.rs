@@ -145,6 +145,12 @@ fn sample_lattice<T: Copy + Into<f32>>(
         out.resize(ni * nj, f32::NAN);
         return;
     }
+    // Signed 32-bit pixel indices: f64 ↔ i32 conversions are single
+    // instructions, f64 ↔ usize ones are not on x86-64.
+    let (Ok(w2), Ok(h2)) = (i32::try_from(w - 2), i32::try_from(h - 2)) else {
+        out.resize(ni * nj, f32::NAN);
+        return;
+    };
     let xmax = (w - 1) as f64;
     let ymax = (h - 1) as f64;
     let lo = offs
@@ -170,11 +176,11 @@ fn sample_lattice<T: Copy + Into<f32>>(
                 let (x, y) = (xc + o[0], yc + o[1]);
                 // Inside the frame (box test above), so non-negative:
                 // truncation is floor.
-                let jx = (x as usize).min(w - 2);
-                let iy = (y as usize).min(h - 2);
-                let fx = (x - jx as f64) as f32;
-                let fy = (y - iy as f64) as f32;
-                let q = iy * w + jx;
+                let jx = (x as i32).min(w2);
+                let iy = (y as i32).min(h2);
+                let fx = (x - f64::from(jx)) as f32;
+                let fy = (y - f64::from(iy)) as f32;
+                let q = iy as usize * w + jx as usize;
                 let Some(win) = p.get(q..q + w + 2) else {
                     acc = f32::NAN;
                     break;

@@ -106,6 +106,8 @@ pub(crate) struct FineStage {
     scratch: Vec<Complex<f32>>,
     rscratch: Vec<Complex<f32>>,
     power: Vec<f32>,
+    /// `power` column-major, as the column FFTs leave it.
+    power_t: Vec<f32>,
     hann: Vec<f32>,
     row: Vec<f32>,
     wx: Vec<f32>,
@@ -229,6 +231,7 @@ impl FineStage {
             scratch: Vec::new(),
             rscratch: Vec::new(),
             power: Vec::new(),
+            power_t: Vec::new(),
             hann: Vec::new(),
             row: Vec::new(),
             wx: Vec::new(),
@@ -276,6 +279,7 @@ impl FineStage {
         self.spec = vec![Complex::new(0.0, 0.0); n * (n / 2 + 1)];
         self.cols = vec![Complex::new(0.0, 0.0); n * (n / 2 + 1)];
         self.power = vec![0.0; n * (n / 2 + 1)];
+        self.power_t = vec![0.0; n * (n / 2 + 1)];
         self.hann = (0..n)
             .map(|i| {
                 let s = (std::f64::consts::PI * (i as f64 + 0.5) / n as f64).sin();
@@ -387,19 +391,14 @@ impl FineStage {
             r2c.process_with_scratch(input, output, &mut self.rscratch)
                 .map_err(|e| DecodeError::NoGrid(format!("FFT failed: {e}")))?;
         }
-        // Columns: transpose into one buffer (row-contiguous reads), one
-        // batched column FFT call over all of them, power back row-major.
-        for (i, row) in self.spec.chunks_exact(nc).enumerate() {
-            for (fx, &v) in row.iter().enumerate() {
-                self.cols[fx * n + i] = v;
-            }
-        }
+        // Columns: a cache-blocked transpose, one batched column FFT call
+        // over all of them, the power transposed back to row-major.
+        transpose::transpose(&self.spec, &mut self.cols, nc, n);
         c2c.process_with_scratch(&mut self.cols, &mut self.scratch);
-        for (fx, col) in self.cols.chunks_exact(n).enumerate() {
-            for (fy, v) in col.iter().enumerate() {
-                self.power[fy * nc + fx] = v.norm_sqr();
-            }
+        for (p, v) in self.power_t.iter_mut().zip(&self.cols) {
+            *p = v.norm_sqr();
         }
+        transpose::transpose(&self.power_t, &mut self.power, n, nc);
         let fmin = (n as f64 / max_period_px).max(2.0);
         let fmax = (n as f64 / min_period_px).min(n as f64 / 2.0 - 1.0);
         if fmin >= fmax {
