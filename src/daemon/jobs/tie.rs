@@ -19,9 +19,9 @@
 //! tie point is reached forward (the line starts with an unmeasured move to
 //! its first position), so backlash does not either.
 
-use super::super::protocol::{ErrorCode, MoveRequest, ProtoError};
+use super::super::protocol::{ErrorCode, ProtoError};
 use super::super::rig::Rig;
-use super::measure;
+use super::measure_retrying;
 use crate::charact::log::Metadata;
 use crate::comp::{estimate_vision_frame, FrameReport, FrameSample, VisionFrame};
 use crate::model::XyUm;
@@ -59,8 +59,7 @@ pub struct TieLine {
 }
 
 async fn raw_move(rig: &Arc<Rig>, x_um: f64, y_um: f64) -> Result<(), ProtoError> {
-    let req = MoveRequest::raw_to(x_um, y_um);
-    rig.move_to(&req, true).await.map(|_| ())
+    super::move_raw_retrying(rig, x_um, y_um).await.map(|_| ())
 }
 
 /// Measures the two tie lines and fits the frame. `frames` frames are
@@ -90,7 +89,7 @@ pub async fn measure_frame(
                 continue;
             }
             rig.clock.sleep(settle).await;
-            let (m, _) = measure(rig, frames, rig.clock.now_s()).await?;
+            let (m, _) = measure_retrying(rig, frames).await?;
             samples[i].push(FrameSample {
                 cmd: XyUm { x_um: x, y_um: y },
                 vision: XyUm {
