@@ -759,8 +759,9 @@ impl Rig {
                 return Err(ProtoError::new(
                     e.code,
                     format!(
-                        "{operation}: {} (a transient fault, but it persisted through {attempt} retries; daemon.job_retries = {max})",
-                        e.message
+                        "{operation}: {} (a transient fault, but it persisted through {attempt} {}; daemon.job_retries = {max})",
+                        e.message,
+                        if attempt == 1 { "retry" } else { "retries" }
                     ),
                 ));
             }
