@@ -71,7 +71,12 @@ async fn rig() -> Rig {
     // belongs to the job, so a corrupted one lands on the job.
     c.daemon.poll_interval_ms = 60_000;
     for a in [&mut c.driver.x, &mut c.driver.y] {
-        a.timeout_ms = 500;
+        // A lost answer costs this much wall time; shorter fails the
+        // reference run on a loaded machine.
+        a.timeout_ms = 2000;
+        // A power cycle during a wait leaves the axis stopped off target:
+        // the driver only notices at the motion timeout (wall time).
+        a.motion_timeout_s = 5.0;
     }
     c.camera.timeout_ms = 1000;
     c.daemon.job_retries = 3;
@@ -303,7 +308,11 @@ async fn a_permanent_fault_is_not_retried() {
     if end["state"] == "failed" {
         let e = end["error"].as_str().unwrap();
         assert!(
-            e.starts_with("not_referenced") || e.starts_with("halted"),
+            e.starts_with("not_referenced")
+                || e.starts_with("halted")
+                || (e.starts_with("driver_error") && e.contains("not on target"))
+                // The reset can also swallow the ERR? that follows.
+                || (e.starts_with("not_connected") && e.contains("not even to ERR?")),
             "{e}"
         );
         assert!(!e.contains("persisted through"), "{e}");
