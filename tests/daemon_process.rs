@@ -171,6 +171,9 @@ fn daemon_config(dir: &Path) -> PathBuf {
     // A frame may take long on a loaded machine; a stall is detected
     // after this much wall time.
     set(&mut t, "camera", "timeout_ms", 6000);
+    // One retry of a failed job operation (each camera retry waits the
+    // timeout above again).
+    set(&mut t, "daemon", "job_retries", 1);
     let p = dir.join("microposd.toml");
     std::fs::write(&p, toml::to_string(&t).unwrap()).unwrap();
     p
@@ -466,6 +469,7 @@ fn camera_faults_fail_clearly_and_never_use_stale_data() {
         let err = ev["error"].as_str().unwrap();
         assert!(err.starts_with(want_code), "{fault}: {err}");
         assert!(err.contains("not logged"), "{err}");
+        assert!(err.contains("persisted through 1 retry;"), "{err}");
         let cam = sub.event(|e| e["event"] == "camera");
         assert_eq!(cam["state"], want_state, "{cam}");
         let l = log::read_file(&path).unwrap();

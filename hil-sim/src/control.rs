@@ -20,7 +20,7 @@
 //! `{"ok":false,"error":"<what and why>"}`; a bad request never closes the
 //! connection.
 
-use crate::serve::{AxisName, Fault, SimError};
+use crate::serve::{AxisName, Corruption, Fault, SimError};
 use serde_json::{json, Value};
 use std::io::{self, BufRead, BufReader, Write};
 use std::os::unix::net::{UnixListener, UnixStream};
@@ -163,9 +163,22 @@ pub fn parse_request(line: &str) -> Result<ControlRequest, String> {
                 .ok_or("withhold_replies needs \"on\": true or false")?;
             Fault::WithholdReplies(on)
         }
+        "corrupt_replies" => {
+            let how = match obj.get("how").and_then(Value::as_str) {
+                Some("garble") => Corruption::Garble,
+                Some("drop") => Corruption::Drop,
+                _ => return Err("corrupt_replies needs \"how\": \"garble\" or \"drop\"".into()),
+            };
+            let count = obj
+                .get("count")
+                .and_then(Value::as_u64)
+                .and_then(|c| u32::try_from(c).ok())
+                .ok_or("corrupt_replies needs \"count\": a non-negative integer (≤ 2³²−1)")?;
+            Fault::CorruptReplies { how, count }
+        }
         other => {
             return Err(format!(
-                "unknown fault {other:?} (known: drop_line, restore_line, power_cycle, garbage, delay_replies, withhold_replies)"
+                "unknown fault {other:?} (known: drop_line, restore_line, power_cycle, garbage, delay_replies, withhold_replies, corrupt_replies)"
             ))
         }
     };
@@ -406,6 +419,16 @@ mod tests {
             })
         );
         assert_eq!(
+            parse_request(r#"{"axis":"x","fault":"corrupt_replies","how":"drop","count":2}"#),
+            Ok(ControlRequest::Fault {
+                axis: Some(AxisName::X),
+                fault: Fault::CorruptReplies {
+                    how: Corruption::Drop,
+                    count: 2
+                }
+            })
+        );
+        assert_eq!(
             parse_request(r#"{"axis":"y","fault":"withhold_replies","on":true}"#),
             Ok(ControlRequest::Fault {
                 axis: Some(AxisName::Y),
@@ -432,6 +455,8 @@ mod tests {
             ("nope", "not JSON"),
             ("[1]", "object"),
             (r#"{"fault":"melt"}"#, "unknown fault"),
+            (r#"{"fault":"corrupt_replies","count":1}"#, "how"),
+            (r#"{"fault":"corrupt_replies","how":"garble"}"#, "count"),
             (r#"{"axis":"z","fault":"drop_line"}"#, "unknown axis"),
             (r#"{"fault":"garbage","hex":"f"}"#, "odd"),
             (r#"{"fault":"garbage","hex":"zz"}"#, "hex byte"),

@@ -32,4 +32,4 @@ pub mod rig;
 pub mod run;
 pub mod serve;
 
-pub use serve::{AxisName, Fault, ServeConfig, SimError, SimHandle};
+pub use serve::{AxisName, Corruption, Fault, ServeConfig, SimError, SimHandle};

@@ -145,6 +145,28 @@ pub enum Fault {
     DelayReplies(Duration),
     /// true: the controller reads and executes but never answers.
     WithholdReplies(bool),
+    /// The next `count` value answers (replies with an `=`, as to `POS?`,
+    /// `ONT?`) of the controller are corrupted as `how` says; other replies
+    /// (`ERR?`, `*IDN?`) pass. Why value answers only: a transient glitch
+    /// that hits one query is what a host must ride through (the
+    /// daemon's job retries), and targeting them makes the glitch land on
+    /// a known exchange so tests are deterministic.
+    CorruptReplies {
+        /// What happens to each of them.
+        how: Corruption,
+        /// How many value answers are hit (0 clears a pending fault).
+        count: u32,
+    },
+}
+
+/// How [`Fault::CorruptReplies`] corrupts a reply.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Corruption {
+    /// The value is replaced by unparsable bytes (line noise inside an
+    /// answer); the terminating newline stays, so the answer ends on time.
+    Garble,
+    /// The reply is lost (the host's query times out; `ERR?` still answers).
+    Drop,
 }
 
 /// What can go wrong while serving.
@@ -278,6 +300,28 @@ fn relink(link: &Path, target: &Path) -> Result<(), SimError> {
     std::fs::rename(&tmp, link).map_err(io_err(format!("rename symlink to {}", link.display())))
 }
 
+/// `answer` with everything after each `=` replaced by bytes no GCS value
+/// parses as (the line structure, `=` and newlines, kept).
+fn garble(answer: &[u8]) -> Vec<u8> {
+    let mut out = Vec::with_capacity(answer.len() + 4);
+    let mut in_value = false;
+    for &b in answer {
+        match b {
+            b'=' => {
+                in_value = true;
+                out.extend_from_slice(b"=#?\x7f");
+            }
+            b'\n' | b' ' => {
+                in_value = false;
+                out.push(b);
+            }
+            _ if in_value => {}
+            _ => out.push(b),
+        }
+    }
+    out
+}
+
 /// Commands to a line thread.
 enum LineCmd {
     Drop,
@@ -285,6 +329,7 @@ enum LineCmd {
     Garbage(Vec<u8>),
     Delay(usize, Duration),
     Withhold(usize, bool),
+    Corrupt(usize, Corruption, u32),
 }
 
 type Ack = mpsc::Sender<Result<(), SimError>>;
@@ -298,6 +343,8 @@ struct Line {
     clock: Arc<dyn Clock>,
     delay: Vec<Duration>,
     withhold: Vec<bool>,
+    /// Pending [`Fault::CorruptReplies`] per controller.
+    corrupt: Vec<(Corruption, u32)>,
     /// Delayed replies: (due, bytes), sorted by due time.
     pending: Vec<(Instant, Vec<u8>)>,
     /// Arrival times for latency measurements.
@@ -422,6 +469,12 @@ impl Line {
                 }
                 Ok(())
             }
+            LineCmd::Corrupt(i, how, n) => {
+                if let Some(slot) = self.corrupt.get_mut(i) {
+                    *slot = (how, n);
+                }
+                Ok(())
+            }
         }
     }
 
@@ -464,13 +517,23 @@ impl Line {
             if self.withhold.get(r.from).copied().unwrap_or(false) {
                 continue;
             }
+            let mut bytes = r.bytes;
+            if let Some((how, n)) = self.corrupt.get_mut(r.from) {
+                if *n > 0 && bytes.contains(&b'=') {
+                    *n -= 1;
+                    match how {
+                        Corruption::Drop => continue,
+                        Corruption::Garble => bytes = garble(&bytes),
+                    }
+                }
+            }
             let delay = self.delay.get(r.from).copied().unwrap_or_default();
             if delay.is_zero() && self.pending.is_empty() {
-                self.write(&r.bytes);
+                self.write(&bytes);
             } else {
                 let due = Instant::now() + delay;
                 let at = self.pending.partition_point(|(d, _)| *d <= due);
-                self.pending.insert(at, (due, r.bytes));
+                self.pending.insert(at, (due, bytes));
             }
         }
     }
@@ -611,6 +674,9 @@ impl Core {
             Fault::Garbage(b) => self.send(r.line, LineCmd::Garbage(b)),
             Fault::DelayReplies(d) => self.send(r.line, LineCmd::Delay(r.controller, d)),
             Fault::WithholdReplies(on) => self.send(r.line, LineCmd::Withhold(r.controller, on)),
+            Fault::CorruptReplies { how, count } => {
+                self.send(r.line, LineCmd::Corrupt(r.controller, how, count))
+            }
             Fault::PowerCycle => {
                 let now = self.clock.now();
                 let mut bus = lock(&self.buses[r.line]);
@@ -808,6 +874,7 @@ impl SimHandle {
                 clock: clock.clone(),
                 delay: vec![Duration::ZERO; n],
                 withhold: vec![false; n],
+                corrupt: vec![(Corruption::Garble, 0); n],
                 pending: Vec::new(),
                 probe: probe.clone(),
             };

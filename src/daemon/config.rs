@@ -166,6 +166,18 @@ pub struct DaemonSection {
     pub poll_interval_ms: u64,
     /// Most clients served at once (more wait in the accept queue).
     pub max_clients: usize,
+    /// How often a job retries one operation (a move, a measurement) after
+    /// a *transient* fault: a lost or late controller reply, a garbled
+    /// reply, a camera that delivered no decodable frame in time. Why: a
+    /// characterization runs for hours, and one glitch on the serial line
+    /// must not throw the rest away. Permanent faults (controller error
+    /// codes, limits, servo off, lost reference, a dropped line) are never
+    /// retried. 0 = fail at the first fault, as before.
+    pub job_retries: u32,
+    /// Back-off before the first retry, rig seconds (simulated seconds
+    /// under a `sim:` clock); doubled for each further retry of the same
+    /// operation, so a line that needs a moment to fall quiet gets it.
+    pub job_retry_backoff_s: f64,
 }
 
 impl Default for DaemonSection {
@@ -176,6 +188,8 @@ impl Default for DaemonSection {
             data_dir: PathBuf::from("/var/lib/micropos"),
             poll_interval_ms: 200,
             max_clients: 256,
+            job_retries: 3,
+            job_retry_backoff_s: 0.5,
         }
     }
 }
@@ -440,6 +454,18 @@ impl DaemonConfig {
         }
         if self.daemon.max_clients == 0 {
             return Err(bad("daemon.max_clients", "must be at least 1"));
+        }
+        if self.daemon.job_retries > 100 {
+            return Err(bad(
+                "daemon.job_retries",
+                "must be within 0..=100 (a fault that persists over 100 retries is not transient)",
+            ));
+        }
+        if !(0.0..=60.0).contains(&self.daemon.job_retry_backoff_s) {
+            return Err(bad(
+                "daemon.job_retry_backoff_s",
+                "must be within 0..=60 s (finite)",
+            ));
         }
         self.driver
             .validate()

@@ -55,6 +55,9 @@ pub struct Rig {
     pub comp: super::comp::CompState,
     /// Live drift correction (`[drift]`, the `drift` command).
     pub drift: super::drift::DriftControl,
+    /// Retries after transient faults in the current (or last) job, reset
+    /// when a job begins; the job's progress reads it (`retries`).
+    pub job_retries: Arc<AtomicU64>,
 }
 
 fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
@@ -84,7 +87,12 @@ pub fn driver_error(e: DriverError) -> ProtoError {
         e if e.is_link_fault() => ErrorCode::NotConnected,
         _ => ErrorCode::DriverError,
     };
-    ProtoError::new(code, e.to_string())
+    let p = ProtoError::new(code, e.to_string());
+    if e.is_transient() {
+        p.into_transient()
+    } else {
+        p
+    }
 }
 
 fn refusal(r: Refusal) -> ProtoError {
@@ -120,6 +128,7 @@ impl Rig {
             vision,
             heartbeat: AtomicU64::new(0),
             comp: super::comp::CompState::default(),
+            job_retries: Arc::default(),
         }
     }
 
@@ -271,6 +280,16 @@ impl Rig {
             }
             AxisEvent::Noise { line, text } => {
                 tracing::debug!("noise on {line}: {text:?}");
+            }
+            AxisEvent::Garbled { source, error } => {
+                // The call that got it fails and decides; the controller
+                // is alive, so nothing is halted (see `AxisEvent::Garbled`).
+                tracing::warn!("garbled answer from {source}: {error}");
+                self.push(
+                    Topic::Fault,
+                    "garbled",
+                    json!({"t_s": self.clock.now_s(), "source": source, "error": error}),
+                );
             }
             AxisEvent::Fault { source, error } => {
                 self.apply(Input::Fault(format!("{source}: {error}")));
@@ -701,7 +720,79 @@ impl Rig {
         let mut s = lock(&self.state);
         s.may_take_axes().map_err(refusal)?;
         s.apply(Input::Begin(Activity::Job), t);
+        self.job_retries.store(0, Ordering::SeqCst);
         Ok(())
+    }
+
+    /// Runs one job operation (a move, a measurement), retrying it after a
+    /// transient fault ([`ProtoError::transient`]) up to `daemon.job_retries`
+    /// times, with a back-off of `daemon.job_retry_backoff_s` on the rig's
+    /// clock, doubled per retry. Each retry is counted in
+    /// [`Rig::job_retries`] and pushed as a `job_retry` event on the `job`
+    /// topic. A permanent fault returns at once; so does a stop or fault of
+    /// the rig during the back-off (`halted`: the job must notice it, not
+    /// carry on). `op` must be idempotent: jobs retry absolute moves (the
+    /// commanded position is re-queried after a failed move, see
+    /// `raw_move`) and measurements, never relative moves.
+    pub async fn retry_transient<T, F, Fut>(
+        &self,
+        operation: &str,
+        mut op: F,
+    ) -> Result<T, ProtoError>
+    where
+        F: FnMut() -> Fut,
+        Fut: std::future::Future<Output = Result<T, ProtoError>>,
+    {
+        let max = self.cfg.daemon.job_retries;
+        let mut backoff_s = self.cfg.daemon.job_retry_backoff_s;
+        let gen = self.stop_generation();
+        let mut attempt = 0u32;
+        loop {
+            let e = match op().await {
+                Ok(v) => return Ok(v),
+                Err(e) => e,
+            };
+            if !e.transient {
+                return Err(e);
+            }
+            if attempt >= max {
+                return Err(ProtoError::new(
+                    e.code,
+                    format!(
+                        "{operation}: {} (a transient fault, but it persisted through {attempt} {}; daemon.job_retries = {max})",
+                        e.message,
+                        if attempt == 1 { "retry" } else { "retries" }
+                    ),
+                ));
+            }
+            attempt += 1;
+            let total = self.job_retries.fetch_add(1, Ordering::SeqCst) + 1;
+            tracing::warn!(
+                "{operation}: transient fault ({}: {}); retry {attempt} of {max} in {backoff_s} s",
+                e.code,
+                e.message
+            );
+            self.push(
+                Topic::Job,
+                "job_retry",
+                json!({"t_s": self.clock.now_s(), "operation": operation, "attempt": attempt,
+                       "max": max, "code": e.code.as_str(), "error": e.message,
+                       "backoff_s": backoff_s, "retries": total}),
+            );
+            self.clock
+                .sleep(Duration::try_from_secs_f64(backoff_s).unwrap_or_default())
+                .await;
+            backoff_s *= 2.0;
+            if self.stop_generation() != gen {
+                return Err(ProtoError::new(
+                    ErrorCode::Halted,
+                    format!(
+                        "{operation}: a stop or fault came while waiting to retry after: {}",
+                        e.message
+                    ),
+                ));
+            }
+        }
     }
 
     /// Ends a job's ownership of the axes.

@@ -301,7 +301,7 @@ impl Controller {
             detail: e.to_string(),
             text: short(&a.text()),
         };
-        let _ = self.events.send(AxisEvent::Fault {
+        let _ = self.events.send(AxisEvent::Garbled {
             source: self.label.to_string(),
             error: err.to_string(),
         });

@@ -201,6 +201,19 @@ impl DriverError {
         }
     }
 
+    /// Whether the same call may well succeed if simply sent again: the
+    /// controller is alive and nothing it reported says the rig is wrong,
+    /// but one reply was lost, late or garbled, or the line reconnected in
+    /// the middle of the exchange. Why separate from
+    /// [`DriverError::is_link_fault`]: a line that is down or a controller
+    /// that answers nothing at all is not a glitch a retry rides through.
+    pub fn is_transient(&self) -> bool {
+        matches!(
+            self,
+            Self::Timeout { .. } | Self::BadAnswer { .. } | Self::Interrupted { .. }
+        )
+    }
+
     /// Whether the failure is a property of the line or the controller's
     /// liveness (so a retry after recovery may succeed) rather than of the
     /// request itself.

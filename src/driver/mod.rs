@@ -66,7 +66,18 @@ pub enum AxisEvent {
         /// The bytes as text (truncated).
         text: String,
     },
-    /// A controller stopped answering, answered nonsense, or changed.
+    /// One answer could not be parsed (line noise inside an answer, a late
+    /// answer to an earlier command). The call that got it failed with
+    /// [`DriverError::BadAnswer`] and the line was drained; the controller
+    /// is alive, so this is not a [`AxisEvent::Fault`]: the caller decides
+    /// (a daemon job retries, an interactive move fails).
+    Garbled {
+        /// Line and address.
+        source: String,
+        /// The error, readable.
+        error: String,
+    },
+    /// A controller stopped answering, or changed.
     Fault {
         /// Axis name or line and address.
         source: String,

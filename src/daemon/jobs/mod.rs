@@ -22,6 +22,7 @@ use plan::{DriftPlan, ScanPlan};
 use serde_json::{json, Value};
 use std::fs::File;
 use std::path::PathBuf;
+use std::sync::atomic::AtomicU64;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 use tokio::sync::watch;
@@ -64,13 +65,17 @@ pub struct Progress {
     pub eta_s: Option<f64>,
     /// Why it failed or stopped.
     pub error: Option<String>,
+    /// Operations retried after transient faults so far in this run of the
+    /// job (the rig's [`Rig::job_retries`], shared so status is live).
+    pub retries: Arc<AtomicU64>,
 }
 
 impl Progress {
     /// As JSON.
     pub fn to_json(&self) -> Value {
         json!({"kind": self.kind, "log": self.log, "state": self.state, "done": self.done,
-               "total": self.total, "eta_s": self.eta_s, "error": self.error})
+               "total": self.total, "eta_s": self.eta_s, "error": self.error,
+               "retries": self.retries.load(std::sync::atomic::Ordering::SeqCst)})
     }
 }
 
@@ -321,6 +326,7 @@ impl Jobs {
             total,
             eta_s: None,
             error: None,
+            retries: rig.job_retries.clone(),
         });
         let progress = self.progress.clone();
         let rig2 = rig.clone();
@@ -441,6 +447,8 @@ pub(crate) async fn measure(
                         "no frame exposed after the settle arrived from the camera".to_owned(),
                     )
                 };
+                // Transient: the next frames may well decode (a stalled
+                // grab, a blurred or garbled frame); jobs retry it.
                 return Err(ProtoError::new(
                     code,
                     format!(
@@ -448,7 +456,8 @@ pub(crate) async fn measure(
                         timeout.as_millis(),
                         got.len()
                     ),
-                ));
+                )
+                .into_transient());
             }
         }
     }
@@ -570,7 +579,7 @@ async fn run(
             return Ok("cancelled");
         };
         clock.sleep(settle).await;
-        let (m, quality) = measure(rig, plan.frames_per_point, clock.now_s()).await?;
+        let (m, quality) = measure_retrying(rig, plan.frames_per_point).await?;
         let meas = frame.to_stage(XyUm {
             x_um: m.x_um,
             y_um: m.y_um,
@@ -637,17 +646,34 @@ pub(super) async fn append_record(
 }
 
 /// Moves to `x`, `y` (µm, raw) and waits; `Ok(None)` if cancelled meanwhile.
+/// Transient faults are retried (an absolute move: sending it again is
+/// harmless; see [`Rig::retry_transient`]).
 async fn move_raw(
     rig: &Arc<Rig>,
     x: f64,
     y: f64,
     cancel: &mut watch::Receiver<bool>,
 ) -> Result<Option<Value>, ProtoError> {
-    let req = MoveRequest::raw_to(x, y);
     tokio::select! {
-        r = rig.move_to(&req, true) => r.map(Some),
+        r = move_raw_retrying(rig, x, y) => r.map(Some),
         _ = cancel.changed() => Ok(None),
     }
+}
+
+/// An absolute raw move and wait, retried after transient faults.
+pub(crate) async fn move_raw_retrying(rig: &Arc<Rig>, x: f64, y: f64) -> Result<Value, ProtoError> {
+    let req = MoveRequest::raw_to(x, y);
+    rig.retry_transient(&format!("move to ({x}, {y}) µm"), || {
+        rig.move_to(&req, true)
+    })
+    .await
+}
+
+/// [`measure`] of `n` frames exposed from now on, retried after transient
+/// camera faults (each retry waits for frames exposed after it began).
+pub(crate) async fn measure_retrying(rig: &Rig, n: u32) -> Result<(Measurement, f64), ProtoError> {
+    rig.retry_transient("measure", || measure(rig, n, rig.clock.now_s()))
+        .await
 }
 
 /// Measures the drift reference and logs it (segment `drift_ref`, cycle of
@@ -676,7 +702,7 @@ async fn measure_reference(
     clock
         .sleep(Duration::try_from_secs_f64(ctx.plan.settle_s).unwrap_or_default())
         .await;
-    let (m, quality) = measure(rig, ctx.plan.frames_per_point, clock.now_s()).await?;
+    let (m, quality) = measure_retrying(rig, ctx.plan.frames_per_point).await?;
     let meas = ctx.frame.to_stage(XyUm {
         x_um: m.x_um,
         y_um: m.y_um,

@@ -63,9 +63,9 @@
 //! drift the anchor showed and the rotation the uncorrected samples would
 //! have given ([`to_metadata`]), so a user sees what the correction did.
 
-use super::super::protocol::{ErrorCode, MoveRequest, ProtoError};
+use super::super::protocol::{ErrorCode, ProtoError};
 use super::super::rig::Rig;
-use super::{clamp_to_travel, measure, PARK_APPROACH_UM};
+use super::{clamp_to_travel, measure_retrying, PARK_APPROACH_UM};
 use crate::charact::log::Metadata;
 use crate::comp::{estimate_vision_frame, CompError, FrameReport, FrameSample, VisionFrame};
 use crate::model::XyUm;
@@ -346,8 +346,7 @@ pub fn tie_plan(lines: &[TieLine; 2]) -> Vec<TieVisit> {
 }
 
 async fn raw_move(rig: &Arc<Rig>, x_um: f64, y_um: f64) -> Result<(), ProtoError> {
-    let req = MoveRequest::raw_to(x_um, y_um);
-    rig.move_to(&req, true).await.map(|_| ())
+    super::move_raw_retrying(rig, x_um, y_um).await.map(|_| ())
 }
 
 /// Settles, measures `frames` frames at the current position (commanded
@@ -359,7 +358,7 @@ async fn sample_here(
     settle: Duration,
 ) -> Result<TimedSample, ProtoError> {
     rig.clock.sleep(settle).await;
-    let (m, _) = measure(rig, frames, rig.clock.now_s()).await?;
+    let (m, _) = measure_retrying(rig, frames).await?;
     Ok(TimedSample {
         sample: FrameSample {
             cmd,

@@ -29,7 +29,7 @@ use super::super::protocol::{
     ErrorCode, MoveMode, MoveRequest, ProtoError, Topic, ValidateMode, ValidateParams,
 };
 use super::super::rig::Rig;
-use super::{append_record, lock, measure, tie, Jobs, Progress, Running};
+use super::{append_record, lock, measure_retrying, tie, Jobs, Progress, Running};
 use crate::analysis::drift::DRIFT_REF_SEGMENT;
 use crate::charact::log::{self, Columns, LogWriter, Metadata, Record, SyncPolicy};
 use crate::charact::scan::{
@@ -361,6 +361,7 @@ impl Jobs {
             total,
             eta_s: None,
             error: None,
+            retries: rig.job_retries.clone(),
         });
         *lock(&self.validation) = None;
         let progress = self.progress.clone();
@@ -640,21 +641,27 @@ async fn run(
                     }
                     if matches!(mode, ValidateMode::Table | ValidateMode::Model) {
                         let logged = tokio::select! {
-                            r = drift_reference(rig, plan, mode, cycle, origin_t, &writer, name) => r?,
+                            r = rig.retry_transient("drift reference", || drift_reference(rig, plan, mode, cycle, origin_t, &writer, name)) => r?,
                             _ = cancel.changed() => return Ok(("cancelled", None)),
                         };
                         drift_refs += usize::from(logged);
                     }
                     let target = plan.target(pose);
+                    let what = format!(
+                        "{} move to ({}, {}) µm",
+                        mode.as_str(),
+                        target.x_um,
+                        target.y_um
+                    );
                     let (cmd, reported, failure, correction) = tokio::select! {
-                        r = reach(rig, plan, mode, target) => r?,
+                        r = rig.retry_transient(&what, || reach(rig, plan, mode, target)) => r?,
                         _ = cancel.changed() => return Ok(("cancelled", None)),
                     };
                     if failure.is_some() {
                         loop_failures += 1;
                     }
                     clock.sleep(settle).await;
-                    let (m, quality) = measure(rig, plan.frames, clock.now_s()).await?;
+                    let (m, quality) = measure_retrying(rig, plan.frames).await?;
                     let meas = frame.to_stage(XyUm {
                         x_um: m.x_um,
                         y_um: m.y_um,

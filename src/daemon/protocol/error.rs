@@ -113,14 +113,27 @@ pub struct ProtoError {
     pub code: ErrorCode,
     /// What went wrong and, where possible, what to do.
     pub message: String,
+    /// Whether the same request may well succeed if simply tried again (a
+    /// lost or garbled controller reply, a camera that delivered no
+    /// decodable frame in time). Jobs retry these (`daemon.job_retries`);
+    /// everything else is permanent. Not sent on the wire: the code says
+    /// what happened, this only steers the daemon's own retries.
+    pub transient: bool,
 }
 
 impl ProtoError {
-    /// An error with this code and message.
+    /// A permanent error with this code and message.
     pub fn new(code: ErrorCode, message: impl Into<String>) -> Self {
         Self {
             code,
             message: message.into(),
+            transient: false,
         }
+    }
+
+    /// The same error marked transient (see [`ProtoError::transient`]).
+    pub fn into_transient(mut self) -> Self {
+        self.transient = true;
+        self
     }
 }
