@@ -2,17 +2,18 @@
 //! ptys, daemon in-process on a Unix socket): commands, safe states, faults,
 //! malformed input floods and many concurrent clients.
 
+mod common;
+use common::Client;
 use hil_sim::{AxisName, Fault, ServeConfig, SimHandle};
 use micropos::clock::WallClock;
 use micropos::daemon::config::DaemonConfig;
 use micropos::daemon::{Daemon, Running};
 use rand::{Rng, SeedableRng};
 use serde_json::{json, Value};
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
-use tokio::io::{AsyncBufReadExt, AsyncWriteExt, BufReader};
-use tokio::net::UnixStream;
+use tokio::io::{AsyncBufReadExt, AsyncWriteExt};
 
 struct Rig {
     sim: Option<SimHandle>,
@@ -68,7 +69,7 @@ async fn rig(time_scale: f64) -> Rig {
         _dir: dir,
     };
     // Wait for the controllers to be connected.
-    let mut cl = Client::new(&r.socket).await;
+    let mut cl = Client::connect(&r.socket).await;
     let t = Instant::now();
     loop {
         let s = cl.call(json!({"cmd":"status"})).await;
@@ -81,48 +82,6 @@ async fn rig(time_scale: f64) -> Rig {
     r
 }
 
-struct Client {
-    r: BufReader<tokio::net::unix::OwnedReadHalf>,
-    w: tokio::net::unix::OwnedWriteHalf,
-    next: u64,
-}
-
-impl Client {
-    async fn new(p: &Path) -> Client {
-        let (r, w) = UnixStream::connect(p).await.unwrap().into_split();
-        Client {
-            r: BufReader::new(r),
-            w,
-            next: 0,
-        }
-    }
-    async fn send_raw(&mut self, b: &[u8]) {
-        self.w.write_all(b).await.unwrap();
-    }
-    async fn line(&mut self) -> Value {
-        let mut l = String::new();
-        let n = tokio::time::timeout(Duration::from_secs(30), self.r.read_line(&mut l))
-            .await
-            .unwrap()
-            .unwrap();
-        assert!(n > 0, "connection closed");
-        serde_json::from_str(&l).unwrap()
-    }
-    /// Sends a request, returns its reply (events in between are skipped).
-    async fn call(&mut self, mut req: Value) -> Value {
-        self.next += 1;
-        req["id"] = json!(self.next);
-        self.send_raw(format!("{req}\n").as_bytes()).await;
-        loop {
-            let v = self.line().await;
-            if v.get("event").is_none() {
-                assert_eq!(v["id"], json!(self.next), "{v}");
-                return v;
-            }
-        }
-    }
-}
-
 fn code(v: &Value) -> &str {
     v["error"]["code"].as_str().unwrap_or("")
 }
@@ -130,7 +89,7 @@ fn code(v: &Value) -> &str {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn commands_safe_states_and_limits() {
     let r = rig(20.0).await;
-    let mut c = Client::new(&r.socket).await;
+    let mut c = Client::connect(&r.socket).await;
     let v = c.call(json!({"cmd":"version"})).await;
     assert_eq!(v["protocol"], 1);
     // Fresh controllers are unreferenced: nothing moves.
@@ -187,8 +146,8 @@ async fn commands_safe_states_and_limits() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn line_drop_halts_the_other_axis_and_power_cycle_needs_reference() {
     let r = rig(2.0).await;
-    let mut c = Client::new(&r.socket).await;
-    let mut sub = Client::new(&r.socket).await;
+    let mut c = Client::connect(&r.socket).await;
+    let mut sub = Client::connect(&r.socket).await;
     assert_eq!(
         sub.call(json!({"cmd":"subscribe","topics":["fault"]}))
             .await["ok"],
@@ -262,7 +221,7 @@ async fn line_drop_halts_the_other_axis_and_power_cycle_needs_reference() {
 async fn malformed_flood_and_concurrent_clients() {
     let r = rig(20.0).await;
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
-    let c = Client::new(&r.socket).await;
+    let c = Client::connect(&r.socket).await;
     let samples: [&[u8]; 8] = [
         b"{",
         b"[]",
@@ -329,13 +288,13 @@ async fn malformed_flood_and_concurrent_clients() {
     assert_eq!(c.call(json!({"cmd":"status"})).await["ok"], true);
 
     // 64 concurrent clients: status, subscribe, moves.
-    let mut cl = Client::new(&r.socket).await;
+    let mut cl = Client::connect(&r.socket).await;
     assert_eq!(cl.call(json!({"cmd":"reference"})).await["ok"], true);
     let mut tasks = Vec::new();
     for k in 0..64u32 {
         let p = r.socket.clone();
         tasks.push(tokio::spawn(async move {
-            let mut c = Client::new(&p).await;
+            let mut c = Client::connect(&p).await;
             match k % 3 {
                 0 => {
                     for _ in 0..5 {
@@ -390,7 +349,7 @@ async fn tables_and_compensated_moves() {
             .unwrap();
     file.write_path(data.join("truth.toml")).unwrap();
     std::fs::write(data.join("bad.toml"), "format_version = 99\n").unwrap();
-    let mut c = Client::new(&r.socket).await;
+    let mut c = Client::connect(&r.socket).await;
     assert_eq!(c.call(json!({"cmd":"reference"})).await["ok"], true);
     let m = c
         .call(json!({"cmd":"move","x_um":3000.0,"y_um":3000.0,"mode":"compensated","wait":true}))

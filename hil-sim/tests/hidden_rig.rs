@@ -37,6 +37,8 @@
 //! to 8 000 s for the same plan): time effects keep their rate and period but
 //! are sampled differently; position effects are unaffected.
 
+mod common;
+use common::Client;
 use hil_sim::rig::RigConfig;
 use hil_sim::run::{daemon_config, RunPlan};
 use hil_sim::{ServeConfig, SimHandle};
@@ -47,13 +49,11 @@ use micropos::charact::log::MeasurementLog;
 use micropos::clock::{RigClock, SimClock};
 use micropos::daemon::Daemon;
 use micropos::model::{Axis, StageModel};
-use serde_json::{json, Value};
+use serde_json::json;
 use std::collections::BTreeMap;
 use std::path::Path;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
-use tokio::io::{AsyncBufReadExt, AsyncWriteExt, BufReader};
-use tokio::net::UnixStream;
 
 /// `MICROPOS_RIG_SWEEP=1`: one seed per kind and two negatives. Not part of
 /// CI (`MICROPOS_FULL`): ≈ 15 s per seed on an idle machine but 45–70 s
@@ -134,48 +134,6 @@ impl RigPlan {
     }
 }
 
-struct Client {
-    r: BufReader<tokio::net::unix::OwnedReadHalf>,
-    w: tokio::net::unix::OwnedWriteHalf,
-    next: u64,
-}
-
-impl Client {
-    async fn connect(p: &Path) -> Client {
-        let (r, w) = UnixStream::connect(p).await.unwrap().into_split();
-        Client {
-            r: BufReader::new(r),
-            w,
-            next: 0,
-        }
-    }
-
-    /// The reply to `req`; events in between are skipped. Panics on `ok:
-    /// false` with the daemon's error.
-    async fn call(&mut self, mut req: Value) -> Value {
-        self.next += 1;
-        req["id"] = json!(self.next);
-        self.w
-            .write_all(format!("{req}\n").as_bytes())
-            .await
-            .unwrap();
-        loop {
-            let mut l = String::new();
-            let n = tokio::time::timeout(Duration::from_secs(60), self.r.read_line(&mut l))
-                .await
-                .unwrap()
-                .unwrap();
-            assert!(n > 0, "the daemon closed the connection");
-            let v: Value = serde_json::from_str(&l).unwrap();
-            if v.get("event").is_some() || v["id"] != json!(self.next) {
-                continue;
-            }
-            assert_eq!(v["ok"], true, "{req} refused: {v}");
-            return v;
-        }
-    }
-}
-
 /// What one characterization on the served rig produced.
 struct RigRun {
     log: MeasurementLog,
@@ -250,19 +208,19 @@ async fn characterize_on_rig(seed: u64, model: Option<&Path>) -> RigRun {
     let mut cl = Client::connect(&socket).await;
     let t0 = Instant::now();
     loop {
-        let s = cl.call(json!({"cmd": "status"})).await;
+        let s = cl.call_ok(json!({"cmd": "status"})).await;
         if s["rig"]["connected"]["x"] == true && s["rig"]["connected"]["y"] == true {
             break;
         }
         assert!(t0.elapsed() < Duration::from_secs(30), "not connected: {s}");
         tokio::time::sleep(Duration::from_millis(20)).await;
     }
-    cl.call(json!({"cmd": "reference", "axes": "xy"})).await;
+    cl.call_ok(json!({"cmd": "reference", "axes": "xy"})).await;
     let name = "hidden.csv";
-    let t_start = cl.call(json!({"cmd": "status"})).await["t_s"]
+    let t_start = cl.call_ok(json!({"cmd": "status"})).await["t_s"]
         .as_f64()
         .unwrap();
-    cl.call(
+    cl.call_ok(
         json!({"cmd": "characterize", "action": "start", "log": name,
                    "step_um": PLAN.step_um, "x_range_um": PLAN.x_range_um,
                    "y_range_um": PLAN.y_range_um, "cycles": PLAN.cycles,
@@ -274,7 +232,7 @@ async fn characterize_on_rig(seed: u64, model: Option<&Path>) -> RigRun {
     let mut resumes = 0;
     loop {
         let s = cl
-            .call(json!({"cmd": "characterize", "action": "status"}))
+            .call_ok(json!({"cmd": "characterize", "action": "status"}))
             .await;
         let job = &s["job"];
         match job["state"].as_str().unwrap() {
@@ -284,12 +242,12 @@ async fn characterize_on_rig(seed: u64, model: Option<&Path>) -> RigRun {
                 assert!(resumes < 3, "characterization {other}: {job}");
                 resumes += 1;
                 tokio::time::sleep(Duration::from_millis(300)).await;
-                cl.call(json!({"cmd": "characterize", "action": "resume", "log": name}))
+                cl.call_ok(json!({"cmd": "characterize", "action": "resume", "log": name}))
                     .await;
             }
         }
     }
-    let t_end = cl.call(json!({"cmd": "status"})).await["t_s"]
+    let t_end = cl.call_ok(json!({"cmd": "status"})).await["t_s"]
         .as_f64()
         .unwrap();
     drop(cl);

@@ -9,6 +9,8 @@
 //! its retry of the measurement. Permanent: a controller power cycle in the
 //! middle of the job (reference lost, servo off).
 
+mod common;
+use common::Client;
 use hil_sim::camera::CameraMode;
 use hil_sim::run::{daemon_config, RunPlan};
 use hil_sim::{AxisName, Corruption, Fault, ServeConfig, SimHandle};
@@ -16,11 +18,9 @@ use micropos::camera::{open_source, OpenOptions};
 use micropos::clock::{RigClock, SimClock};
 use micropos::daemon::{Daemon, Running};
 use serde_json::{json, Value};
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
-use tokio::io::{AsyncBufReadExt, AsyncWriteExt, BufReader};
-use tokio::net::UnixStream;
 
 struct Rig {
     sim: Option<SimHandle>,
@@ -106,7 +106,7 @@ async fn rig() -> Rig {
         data,
         _dir: dir,
     };
-    let mut cl = Client::new(&r.socket).await;
+    let mut cl = Client::connect(&r.socket).await;
     let t = Instant::now();
     loop {
         let s = cl.call(json!({"cmd":"status"})).await;
@@ -119,47 +119,6 @@ async fn rig() -> Rig {
     let r0 = cl.call(json!({"cmd":"reference","axes":"xy"})).await;
     assert_eq!(r0["ok"], true, "{r0}");
     r
-}
-
-struct Client {
-    r: BufReader<tokio::net::unix::OwnedReadHalf>,
-    w: tokio::net::unix::OwnedWriteHalf,
-    next: u64,
-}
-
-impl Client {
-    async fn new(p: &Path) -> Client {
-        let (r, w) = UnixStream::connect(p).await.unwrap().into_split();
-        Client {
-            r: BufReader::new(r),
-            w,
-            next: 0,
-        }
-    }
-    async fn line(&mut self) -> Value {
-        let mut l = String::new();
-        let n = tokio::time::timeout(Duration::from_secs(30), self.r.read_line(&mut l))
-            .await
-            .unwrap()
-            .unwrap();
-        assert!(n > 0, "connection closed");
-        serde_json::from_str(&l).unwrap()
-    }
-    async fn call(&mut self, mut req: Value) -> Value {
-        self.next += 1;
-        req["id"] = json!(self.next);
-        self.w
-            .write_all(format!("{req}\n").as_bytes())
-            .await
-            .unwrap();
-        loop {
-            let v = self.line().await;
-            if v.get("event").is_none() {
-                assert_eq!(v["id"], json!(self.next), "{v}");
-                return v;
-            }
-        }
-    }
 }
 
 /// A small X characterization: tie lines, park, 2 × 3 scan points.
@@ -190,7 +149,7 @@ async fn follow(events: &mut Client, mut on_event: impl FnMut(&Value)) -> (Value
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn transient_faults_are_retried_and_counted() {
     let r = rig().await;
-    let mut events = Client::new(&r.socket).await;
+    let mut events = Client::connect(&r.socket).await;
     let s = events
         .call(json!({"cmd":"subscribe","topics":["job"]}))
         .await;
@@ -215,7 +174,7 @@ async fn transient_faults_are_retried_and_counted() {
             },
         )
         .unwrap();
-    let mut cl = Client::new(&r.socket).await;
+    let mut cl = Client::connect(&r.socket).await;
     let st = cl.call(characterize("c.csv")).await;
     assert_eq!(st["ok"], true, "{st}");
     // Once the first scan point is logged, the camera stalls; it comes back
@@ -273,12 +232,12 @@ async fn transient_faults_are_retried_and_counted() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_permanent_fault_is_not_retried() {
     let r = rig().await;
-    let mut events = Client::new(&r.socket).await;
+    let mut events = Client::connect(&r.socket).await;
     let s = events
         .call(json!({"cmd":"subscribe","topics":["job"]}))
         .await;
     assert_eq!(s["ok"], true, "{s}");
-    let mut cl = Client::new(&r.socket).await;
+    let mut cl = Client::connect(&r.socket).await;
     let st = cl.call(characterize("p.csv")).await;
     assert_eq!(st["ok"], true, "{st}");
     let sim = r.sim();

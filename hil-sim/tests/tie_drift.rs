@@ -17,18 +17,18 @@
 //! ≈ 1.2 s of wall time alone (one tie of 14 measurements), longer on a
 //! loaded machine.
 
+mod common;
+use common::Client;
 use hil_sim::rig::RigConfig;
 use hil_sim::run::{daemon_config, RunPlan};
 use hil_sim::{ServeConfig, SimHandle};
 use micropos::camera::{open_source, OpenOptions};
 use micropos::clock::{RigClock, SimClock};
 use micropos::daemon::Daemon;
-use serde_json::{json, Value};
+use serde_json::json;
 use std::path::Path;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
-use tokio::io::{AsyncBufReadExt, AsyncWriteExt, BufReader};
-use tokio::net::UnixStream;
 
 /// y drift of the truth model, µm/h: large enough that the uncorrected tie
 /// tilts by several hundred µrad at the rig's dwell per point.
@@ -68,47 +68,6 @@ fn drift_model(dir: &Path, rate_um_per_h: f64) -> std::path::PathBuf {
     let p = dir.join("drift-model.toml");
     std::fs::write(&p, format!("{head}{tail}")).unwrap();
     p
-}
-
-struct Client {
-    r: BufReader<tokio::net::unix::OwnedReadHalf>,
-    w: tokio::net::unix::OwnedWriteHalf,
-    next: u64,
-}
-
-impl Client {
-    async fn connect(p: &Path) -> Client {
-        let (r, w) = UnixStream::connect(p).await.unwrap().into_split();
-        Client {
-            r: BufReader::new(r),
-            w,
-            next: 0,
-        }
-    }
-
-    /// The reply to `req` (events skipped); panics on `ok: false`.
-    async fn call(&mut self, mut req: Value) -> Value {
-        self.next += 1;
-        req["id"] = json!(self.next);
-        self.w
-            .write_all(format!("{req}\n").as_bytes())
-            .await
-            .unwrap();
-        loop {
-            let mut l = String::new();
-            let n = tokio::time::timeout(Duration::from_secs(60), self.r.read_line(&mut l))
-                .await
-                .unwrap()
-                .unwrap();
-            assert!(n > 0, "the daemon closed the connection");
-            let v: Value = serde_json::from_str(&l).unwrap();
-            if v.get("event").is_some() || v["id"] != json!(self.next) {
-                continue;
-            }
-            assert_eq!(v["ok"], true, "{req} refused: {v}");
-            return v;
-        }
-    }
 }
 
 /// `a − b` wrapped into (−π, π], rad.
@@ -179,16 +138,16 @@ async fn a_drift_in_time_does_not_tilt_the_tie() {
     let mut cl = Client::connect(&socket).await;
     let t0 = Instant::now();
     loop {
-        let s = cl.call(json!({"cmd": "status"})).await;
+        let s = cl.call_ok(json!({"cmd": "status"})).await;
         if s["rig"]["connected"]["x"] == true && s["rig"]["connected"]["y"] == true {
             break;
         }
         assert!(t0.elapsed() < Duration::from_secs(30), "not connected: {s}");
         tokio::time::sleep(Duration::from_millis(20)).await;
     }
-    cl.call(json!({"cmd": "reference", "axes": "xy"})).await;
+    cl.call_ok(json!({"cmd": "reference", "axes": "xy"})).await;
     let name = "tie.csv";
-    cl.call(
+    cl.call_ok(
         json!({"cmd": "characterize", "action": "start", "log": name,
                    "step_um": 400.0, "x_range_um": 2400.0, "y_range_um": 2000.0,
                    "cycles": 1, "frames_per_point": 1, "settle_s": 3.0}),
@@ -201,13 +160,13 @@ async fn a_drift_in_time_does_not_tilt_the_tie() {
             break l;
         }
         let s = cl
-            .call(json!({"cmd": "characterize", "action": "status"}))
+            .call_ok(json!({"cmd": "characterize", "action": "status"}))
             .await;
         assert_eq!(s["job"]["state"], "running", "{s}");
         assert!(t0.elapsed() < Duration::from_secs(120), "no log: {s}");
         tokio::time::sleep(Duration::from_millis(20)).await;
     };
-    cl.call(json!({"cmd": "characterize", "action": "cancel"}))
+    cl.call_ok(json!({"cmd": "characterize", "action": "cancel"}))
         .await;
     drop(cl);
     daemon.shutdown().await;

@@ -1,0 +1,76 @@
+//! Helpers shared by the hil-sim integration tests that talk to a daemon
+//! over its Unix socket. Each test file is its own crate and uses a part of
+//! this, hence `dead_code` is allowed.
+#![allow(dead_code)]
+
+use serde_json::{json, Value};
+use std::path::Path;
+use std::time::Duration;
+use tokio::io::{AsyncBufReadExt, AsyncWriteExt, BufReader};
+use tokio::net::UnixStream;
+
+/// How long a test waits for one line from the daemon before failing.
+const LINE_TIMEOUT: Duration = Duration::from_secs(60);
+
+/// A JSON-lines client of the daemon's socket with numbered requests.
+/// Fields are public so a test can take the halves apart (half-close and
+/// reconnect tests).
+pub struct Client {
+    /// Reading half, line-buffered.
+    pub r: BufReader<tokio::net::unix::OwnedReadHalf>,
+    /// Writing half.
+    pub w: tokio::net::unix::OwnedWriteHalf,
+    /// Id of the last request sent.
+    pub next: u64,
+}
+
+impl Client {
+    /// Connects to the daemon's socket at `p`.
+    pub async fn connect(p: &Path) -> Client {
+        let (r, w) = UnixStream::connect(p).await.unwrap().into_split();
+        Client {
+            r: BufReader::new(r),
+            w,
+            next: 0,
+        }
+    }
+
+    /// Writes raw bytes (malformed-request tests).
+    pub async fn send_raw(&mut self, b: &[u8]) {
+        self.w.write_all(b).await.unwrap();
+    }
+
+    /// The next line from the daemon (reply or event), parsed.
+    pub async fn line(&mut self) -> Value {
+        let mut l = String::new();
+        let n = tokio::time::timeout(LINE_TIMEOUT, self.r.read_line(&mut l))
+            .await
+            .unwrap()
+            .unwrap();
+        assert!(n > 0, "the daemon closed the connection");
+        serde_json::from_str(&l).unwrap()
+    }
+
+    /// Sends `req` with the next id and returns its reply, whatever `ok`
+    /// says (events in between are skipped).
+    pub async fn call(&mut self, mut req: Value) -> Value {
+        self.next += 1;
+        req["id"] = json!(self.next);
+        self.send_raw(format!("{req}\n").as_bytes()).await;
+        loop {
+            let v = self.line().await;
+            if v.get("event").is_none() {
+                assert_eq!(v["id"], json!(self.next), "{v}");
+                return v;
+            }
+        }
+    }
+
+    /// [`Client::call`] that panics with the daemon's error unless `ok`.
+    pub async fn call_ok(&mut self, req: Value) -> Value {
+        let shown = req.to_string();
+        let v = self.call(req).await;
+        assert_eq!(v["ok"], true, "{shown} refused: {v}");
+        v
+    }
+}
