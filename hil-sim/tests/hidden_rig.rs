@@ -44,15 +44,11 @@ use hil_sim::run::{daemon_config, RunPlan};
 use hil_sim::{ServeConfig, SimHandle};
 use micropos::analysis::generate::{draw_effect, InjectedEffect, SimPlan, GENERATED_KINDS};
 use micropos::analysis::{diagnose, DiagnoseOptions, Diagnosis, FindingKind};
-use micropos::camera::{open_source, OpenOptions};
 use micropos::charact::log::MeasurementLog;
-use micropos::clock::{RigClock, SimClock};
-use micropos::daemon::Daemon;
 use micropos::model::{Axis, StageModel};
 use serde_json::json;
 use std::collections::BTreeMap;
 use std::path::Path;
-use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 /// `MICROPOS_RIG_SWEEP=1`: one seed per kind and two negatives. Not part of
@@ -188,34 +184,10 @@ async fn characterize_on_rig(seed: u64, model: Option<&Path>) -> RigRun {
     c.characterize.x_start_um = Some(PLAN.x_start_um);
     c.characterize.y_start_um = Some(PLAN.y_start_um);
     c.validate().unwrap();
-    let clock = tokio::task::spawn_blocking(move || SimClock::connect(&control))
-        .await
-        .unwrap()
-        .unwrap();
-    let clock: Arc<dyn RigClock> = Arc::new(clock);
-    let spec = c.camera_source().unwrap().unwrap();
-    let oo = OpenOptions {
-        timeout: Duration::from_millis(c.camera.timeout_ms),
-        ..OpenOptions::default()
-    };
-    let camera = tokio::task::spawn_blocking(move || open_source(&spec, &oo))
-        .await
-        .unwrap()
-        .unwrap();
-    let listener = tokio::net::UnixListener::bind(&socket).unwrap();
-    let daemon = Daemon::start(c, clock, Some(camera), listener).unwrap();
+    let daemon = common::start_daemon(c, control, &socket).await;
 
     let mut cl = Client::connect(&socket).await;
-    let t0 = Instant::now();
-    loop {
-        let s = cl.call_ok(json!({"cmd": "status"})).await;
-        if s["rig"]["connected"]["x"] == true && s["rig"]["connected"]["y"] == true {
-            break;
-        }
-        assert!(t0.elapsed() < Duration::from_secs(30), "not connected: {s}");
-        tokio::time::sleep(Duration::from_millis(20)).await;
-    }
-    cl.call_ok(json!({"cmd": "reference", "axes": "xy"})).await;
+    common::connect_and_reference(&mut cl).await;
     let name = "hidden.csv";
     let t_start = cl.call_ok(json!({"cmd": "status"})).await["t_s"]
         .as_f64()

@@ -14,12 +14,9 @@ use common::Client;
 use hil_sim::camera::CameraMode;
 use hil_sim::run::{daemon_config, RunPlan};
 use hil_sim::{AxisName, Corruption, Fault, ServeConfig, SimHandle};
-use micropos::camera::{open_source, OpenOptions};
-use micropos::clock::{RigClock, SimClock};
-use micropos::daemon::{Daemon, Running};
+use micropos::daemon::Running;
 use serde_json::{json, Value};
 use std::path::PathBuf;
-use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 struct Rig {
@@ -83,22 +80,7 @@ async fn rig() -> Rig {
     c.daemon.job_retry_backoff_s = 0.5;
     c.validate().unwrap();
     let control = rig_dir.join("control.sock");
-    let clock = tokio::task::spawn_blocking(move || SimClock::connect(&control))
-        .await
-        .unwrap()
-        .unwrap();
-    let clock: Arc<dyn RigClock> = Arc::new(clock);
-    let spec = c.camera_source().unwrap().unwrap();
-    let oo = OpenOptions {
-        timeout: Duration::from_millis(c.camera.timeout_ms),
-        ..OpenOptions::default()
-    };
-    let camera = tokio::task::spawn_blocking(move || open_source(&spec, &oo))
-        .await
-        .unwrap()
-        .unwrap();
-    let listener = tokio::net::UnixListener::bind(&socket).unwrap();
-    let daemon = Daemon::start(c, clock, Some(camera), listener).unwrap();
+    let daemon = common::start_daemon(c, control, &socket).await;
     let r = Rig {
         sim: Some(sim),
         daemon: Some(daemon),
@@ -107,17 +89,7 @@ async fn rig() -> Rig {
         _dir: dir,
     };
     let mut cl = Client::connect(&r.socket).await;
-    let t = Instant::now();
-    loop {
-        let s = cl.call(json!({"cmd":"status"})).await;
-        if s["rig"]["connected"]["x"] == true && s["rig"]["connected"]["y"] == true {
-            break;
-        }
-        assert!(t.elapsed() < Duration::from_secs(10), "{s}");
-        tokio::time::sleep(Duration::from_millis(50)).await;
-    }
-    let r0 = cl.call(json!({"cmd":"reference","axes":"xy"})).await;
-    assert_eq!(r0["ok"], true, "{r0}");
+    common::connect_and_reference(&mut cl).await;
     r
 }
 

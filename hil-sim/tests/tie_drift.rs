@@ -22,12 +22,8 @@ use common::Client;
 use hil_sim::rig::RigConfig;
 use hil_sim::run::{daemon_config, RunPlan};
 use hil_sim::{ServeConfig, SimHandle};
-use micropos::camera::{open_source, OpenOptions};
-use micropos::clock::{RigClock, SimClock};
-use micropos::daemon::Daemon;
 use serde_json::json;
 use std::path::Path;
-use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 /// y drift of the truth model, µm/h: large enough that the uncorrected tie
@@ -118,34 +114,11 @@ async fn a_drift_in_time_does_not_tilt_the_tie() {
     c.characterize.x_start_um = Some(500.0);
     c.characterize.y_start_um = Some(500.0);
     c.validate().unwrap();
-    let clock = tokio::task::spawn_blocking(move || SimClock::connect(&control))
-        .await
-        .unwrap()
-        .unwrap();
-    let clock: Arc<dyn RigClock> = Arc::new(clock);
-    let spec = c.camera_source().unwrap().unwrap();
-    let oo = OpenOptions {
-        timeout: Duration::from_millis(c.camera.timeout_ms),
-        ..OpenOptions::default()
-    };
-    let camera = tokio::task::spawn_blocking(move || open_source(&spec, &oo))
-        .await
-        .unwrap()
-        .unwrap();
-    let listener = tokio::net::UnixListener::bind(&socket).unwrap();
-    let daemon = Daemon::start(c, clock, Some(camera), listener).unwrap();
+    let daemon = common::start_daemon(c, control, &socket).await;
 
     let mut cl = Client::connect(&socket).await;
     let t0 = Instant::now();
-    loop {
-        let s = cl.call_ok(json!({"cmd": "status"})).await;
-        if s["rig"]["connected"]["x"] == true && s["rig"]["connected"]["y"] == true {
-            break;
-        }
-        assert!(t0.elapsed() < Duration::from_secs(30), "not connected: {s}");
-        tokio::time::sleep(Duration::from_millis(20)).await;
-    }
-    cl.call_ok(json!({"cmd": "reference", "axes": "xy"})).await;
+    common::connect_and_reference(&mut cl).await;
     let name = "tie.csv";
     cl.call_ok(
         json!({"cmd": "characterize", "action": "start", "log": name,

@@ -3,9 +3,14 @@
 //! this, hence `dead_code` is allowed.
 #![allow(dead_code)]
 
+use micropos::camera::{open_source, OpenOptions};
+use micropos::clock::{RigClock, SimClock};
+use micropos::daemon::config::DaemonConfig;
+use micropos::daemon::{Daemon, Running};
 use serde_json::{json, Value};
-use std::path::Path;
-use std::time::Duration;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
 use tokio::io::{AsyncBufReadExt, AsyncWriteExt, BufReader};
 use tokio::net::UnixStream;
 
@@ -73,4 +78,41 @@ impl Client {
         assert_eq!(v["ok"], true, "{shown} refused: {v}");
         v
     }
+}
+
+/// Starts microposd in-process with the validated config `c` on a served
+/// rig: the rig's simulated clock through its control socket `control`, the
+/// config's camera source, listening on `socket`.
+pub async fn start_daemon(c: DaemonConfig, control: PathBuf, socket: &Path) -> Running {
+    let clock = tokio::task::spawn_blocking(move || SimClock::connect(&control))
+        .await
+        .unwrap()
+        .unwrap();
+    let clock: Arc<dyn RigClock> = Arc::new(clock);
+    let spec = c.camera_source().unwrap().unwrap();
+    let oo = OpenOptions {
+        timeout: Duration::from_millis(c.camera.timeout_ms),
+        ..OpenOptions::default()
+    };
+    let camera = tokio::task::spawn_blocking(move || open_source(&spec, &oo))
+        .await
+        .unwrap()
+        .unwrap();
+    let listener = tokio::net::UnixListener::bind(socket).unwrap();
+    Daemon::start(c, clock, Some(camera), listener).unwrap()
+}
+
+/// Waits (up to 30 s) until the daemon reports both controllers
+/// connected, then references both axes.
+pub async fn connect_and_reference(cl: &mut Client) {
+    let t0 = Instant::now();
+    loop {
+        let s = cl.call_ok(json!({"cmd": "status"})).await;
+        if s["rig"]["connected"]["x"] == true && s["rig"]["connected"]["y"] == true {
+            break;
+        }
+        assert!(t0.elapsed() < Duration::from_secs(30), "not connected: {s}");
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+    cl.call_ok(json!({"cmd": "reference", "axes": "xy"})).await;
 }
