@@ -41,7 +41,7 @@ mod common;
 use common::Client;
 use hil_sim::rig::RigConfig;
 use hil_sim::run::{daemon_config, RunPlan};
-use hil_sim::{ServeConfig, SimHandle};
+use hil_sim::ServeConfig;
 use micropos::analysis::generate::{draw_effect, InjectedEffect, SimPlan, GENERATED_KINDS};
 use micropos::analysis::{diagnose, DiagnoseOptions, Diagnosis, FindingKind};
 use micropos::charact::log::MeasurementLog;
@@ -150,19 +150,11 @@ async fn characterize_on_rig(seed: u64, model: Option<&Path>) -> RigRun {
     std::fs::create_dir_all(&rig_dir).unwrap();
     std::fs::create_dir_all(&data_dir).unwrap();
     let control = rig_dir.join("control.sock");
-    let cfg = ServeConfig {
-        link_dir: rig_dir.clone(),
-        time_scale: TIME_SCALE,
-        control_socket: Some(control.clone()),
-        camera_socket: Some(rig_dir.join("camera.sock")),
-        seed,
+    let sim = common::serve(ServeConfig {
         model: model.map(Path::to_owned),
-        ..ServeConfig::default()
-    };
-    let sim = tokio::task::spawn_blocking(move || SimHandle::start(cfg))
-        .await
-        .unwrap()
-        .unwrap();
+        ..common::serve_config(&rig_dir, TIME_SCALE, seed)
+    })
+    .await;
     let socket = dir.path().join("micropos.sock");
     let run_plan = RunPlan {
         step_um: PLAN.step_um,

@@ -21,7 +21,7 @@ mod common;
 use common::Client;
 use hil_sim::rig::RigConfig;
 use hil_sim::run::{daemon_config, RunPlan};
-use hil_sim::{ServeConfig, SimHandle};
+use hil_sim::ServeConfig;
 use serde_json::json;
 use std::path::Path;
 use std::time::{Duration, Instant};
@@ -87,19 +87,11 @@ async fn a_drift_in_time_does_not_tilt_the_tie() {
     std::fs::create_dir_all(&data_dir).unwrap();
     let control = rig_dir.join("control.sock");
     let rig_cfg = RigConfig::default();
-    let cfg = ServeConfig {
-        link_dir: rig_dir.clone(),
-        time_scale: TIME_SCALE,
-        control_socket: Some(control.clone()),
-        camera_socket: Some(rig_dir.join("camera.sock")),
-        seed: 7,
+    let sim = common::serve(ServeConfig {
         model: Some(model),
-        ..ServeConfig::default()
-    };
-    let sim = tokio::task::spawn_blocking(move || SimHandle::start(cfg))
-        .await
-        .unwrap()
-        .unwrap();
+        ..common::serve_config(&rig_dir, TIME_SCALE, 7)
+    })
+    .await;
     let socket = dir.path().join("micropos.sock");
     let plan = RunPlan {
         step_um: 400.0,

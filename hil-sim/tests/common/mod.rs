@@ -3,6 +3,7 @@
 //! this, hence `dead_code` is allowed.
 #![allow(dead_code)]
 
+use hil_sim::{ServeConfig, SimHandle};
 use micropos::camera::{open_source, OpenOptions};
 use micropos::clock::{RigClock, SimClock};
 use micropos::daemon::config::DaemonConfig;
@@ -115,4 +116,26 @@ pub async fn connect_and_reference(cl: &mut Client) {
         tokio::time::sleep(Duration::from_millis(20)).await;
     }
     cl.call_ok(json!({"cmd": "reference", "axes": "xy"})).await;
+}
+
+/// A served rig's config in `rig_dir` with its control and camera sockets
+/// (`control.sock`, `camera.sock`) at `time_scale` and `seed`; callers set
+/// the rest by struct update.
+pub fn serve_config(rig_dir: &Path, time_scale: f64, seed: u64) -> ServeConfig {
+    ServeConfig {
+        link_dir: rig_dir.to_owned(),
+        time_scale,
+        control_socket: Some(rig_dir.join("control.sock")),
+        camera_socket: Some(rig_dir.join("camera.sock")),
+        seed,
+        ..ServeConfig::default()
+    }
+}
+
+/// Starts the served rig (on a blocking thread: it creates ptys and threads).
+pub async fn serve(cfg: ServeConfig) -> SimHandle {
+    tokio::task::spawn_blocking(move || SimHandle::start(cfg))
+        .await
+        .unwrap()
+        .unwrap()
 }
