@@ -10,7 +10,7 @@
 use std::fmt::Debug;
 use std::future::Future;
 use std::pin::Pin;
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 /// A boxed future, so [`RigClock`] stays object-safe.
 pub type ClockFuture<'a> = Pin<Box<dyn Future<Output = ()> + Send + 'a>>;
@@ -26,17 +26,28 @@ pub trait RigClock: Send + Sync + Debug {
     fn sleep(&self, d: Duration) -> ClockFuture<'_>;
 }
 
-/// The clock of real hardware: monotonic wall time.
+/// The tokio runtime's clock: monotonic wall time on hardware.
+///
+/// Why the runtime's clock and not `std::time::Instant`: the daemon's
+/// timers (poll periods, timeouts, back-offs, the frame deadline) run on
+/// `tokio::time`, and timestamps must be on the same clock as those timers.
+/// On real hardware the two are the same monotonic time. Under a *paused*
+/// current-thread runtime (the simulator's in-process rig, `hil-sim run`),
+/// tokio's clock is virtual: it stands still while any task is runnable or
+/// any blocking task runs, and jumps to the next timer when everything
+/// waits. Then this clock reads that virtual time and `sleep` costs no wall
+/// time, so one seed gives one result whatever the machine's load.
 #[derive(Debug, Clone)]
 pub struct WallClock {
-    start: Instant,
+    start: tokio::time::Instant,
 }
 
 impl WallClock {
-    /// A clock reading 0 now.
+    /// A clock reading 0 now. Call it inside the runtime whose clock it
+    /// should read (outside any runtime it reads wall time).
     pub fn new() -> Self {
         Self {
-            start: Instant::now(),
+            start: tokio::time::Instant::now(),
         }
     }
 }
@@ -49,7 +60,9 @@ impl Default for WallClock {
 
 impl RigClock for WallClock {
     fn now_s(&self) -> f64 {
-        self.start.elapsed().as_secs_f64()
+        tokio::time::Instant::now()
+            .saturating_duration_since(self.start)
+            .as_secs_f64()
     }
 
     fn sleep(&self, d: Duration) -> ClockFuture<'_> {
@@ -225,6 +238,15 @@ impl RigClock for SimClock {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[tokio::test(start_paused = true)]
+    async fn wall_clock_follows_a_paused_runtime() {
+        let c = WallClock::new();
+        let wall = std::time::Instant::now();
+        c.sleep(Duration::from_secs(3600)).await;
+        assert!((c.now_s() - 3600.0).abs() < 2e-3, "{}", c.now_s());
+        assert!(wall.elapsed() < Duration::from_secs(60));
+    }
 
     #[tokio::test]
     async fn wall_clock_advances_by_sleeping() {

@@ -22,8 +22,63 @@ pub trait Clock: Send + Sync + std::fmt::Debug {
 
     /// Jumps simulated time forward by `d` (the contract's
     /// `{"clock":"advance"}`): a client that knows it talks to the simulator
-    /// skips waits, and the camera spends frame time.
+    /// skips waits, and the camera spends frame time. A clock that does not
+    /// advance on request ([`Clock::advances_on_request`]) ignores it.
     fn advance(&self, d: Duration);
+
+    /// Whether [`Clock::advance`] moves this clock. False for
+    /// [`RuntimeClock`], whose time moves only with the runtime's timers:
+    /// there the camera renders a frame at once and reports how long its
+    /// exposure takes, and the caller sleeps that long on the same clock.
+    fn advances_on_request(&self) -> bool {
+        true
+    }
+}
+
+/// The clock of the tokio runtime it was made in: wall time on an ordinary
+/// runtime; on a *paused* current-thread runtime, virtual time, which
+/// stands still while any task is runnable or any blocking task runs and
+/// jumps to the next timer when every task waits.
+///
+/// Why: the in-process rig ([`crate::serve::SimHandle::start_in_process`])
+/// and the micropos daemon then share one clock that no wall-clock delay
+/// can move: a move, a settle, an exposure, a poll period or a timeout
+/// each take exactly their simulated time, so one seed gives one result
+/// whatever the machine's load (tokio's paused clock with auto-advance; see
+/// ARCHITECTURE.md, "Simulated time"). Reads enter the runtime, so threads
+/// outside it (the control socket) read the same time.
+#[derive(Debug, Clone)]
+pub struct RuntimeClock {
+    epoch: tokio::time::Instant,
+    handle: tokio::runtime::Handle,
+}
+
+impl RuntimeClock {
+    /// A clock at zero now, on the current runtime; `None` outside one.
+    pub fn new() -> Option<Self> {
+        let handle = tokio::runtime::Handle::try_current().ok()?;
+        Some(RuntimeClock {
+            epoch: tokio::time::Instant::now(),
+            handle,
+        })
+    }
+}
+
+impl Clock for RuntimeClock {
+    fn now(&self) -> Duration {
+        let _in_runtime = self.handle.enter();
+        tokio::time::Instant::now().saturating_duration_since(self.epoch)
+    }
+
+    fn wall_for(&self, _d: Duration) -> Option<Duration> {
+        None
+    }
+
+    fn advance(&self, _d: Duration) {}
+
+    fn advances_on_request(&self) -> bool {
+        false
+    }
 }
 
 /// Wall time scaled by a constant factor, plus explicit advances:
@@ -123,6 +178,32 @@ impl Clock for ManualClock {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn runtime_clock_follows_a_paused_runtime() {
+        assert!(RuntimeClock::new().is_none());
+        let rt = tokio::runtime::Builder::new_current_thread()
+            .enable_time()
+            .start_paused(true)
+            .build()
+            .unwrap();
+        rt.block_on(async {
+            let c = RuntimeClock::new().unwrap();
+            let wall = Instant::now();
+            tokio::time::sleep(Duration::from_secs(7200)).await;
+            let t = c.now();
+            assert!(
+                t >= Duration::from_secs(7200) && t < Duration::from_secs(7201),
+                "{t:?}"
+            );
+            assert!(wall.elapsed() < Duration::from_secs(60));
+            // Read from a thread outside the runtime: the same time.
+            let c2 = c.clone();
+            let t2 = std::thread::spawn(move || c2.now()).join().unwrap();
+            assert_eq!(t2, t);
+            assert!(!c.advances_on_request());
+        });
+    }
 
     #[test]
     fn manual_clock_moves_only_forward() {

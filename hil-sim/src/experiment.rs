@@ -160,6 +160,11 @@ pub struct SessionOptions {
     /// Take frames through the camera socket (`SimSocketSource`) instead of
     /// in process.
     pub camera_via_socket: bool,
+    /// Serve the rig in process on the current runtime's clock
+    /// ([`SimHandle::start_in_process`]; under a paused runtime, virtual
+    /// time) instead of on ptys at `time_scale`; frames then come in
+    /// process too.
+    pub in_process: bool,
 }
 
 impl Default for SessionOptions {
@@ -169,6 +174,7 @@ impl Default for SessionOptions {
             rig: RigConfig::default(),
             time_scale: 50.0,
             camera_via_socket: true,
+            in_process: false,
         }
     }
 }
@@ -200,6 +206,7 @@ pub struct Session {
     velocity_um_s: [f64; 2],
     /// The vision tie, after [`Session::calibrate`].
     pub tie: Option<VisionTie>,
+    in_process: bool,
 }
 
 impl std::fmt::Debug for Session {
@@ -222,15 +229,19 @@ impl Session {
         let cfg = ServeConfig {
             link_dir: dir.clone(),
             time_scale: opts.time_scale,
-            control_socket: Some(dir.join("control.sock")),
-            camera_socket: Some(dir.join("camera.sock")),
+            control_socket: (!opts.in_process).then(|| dir.join("control.sock")),
+            camera_socket: (!opts.in_process).then(|| dir.join("camera.sock")),
             seed: opts.seed,
             rig: opts.rig.clone(),
             ..Default::default()
         };
-        let sim = tokio::task::spawn_blocking(move || SimHandle::start(cfg))
-            .await
-            .map_err(|e| ExperimentError::Other(format!("simulator start task: {e}")))??;
+        let sim = if opts.in_process {
+            SimHandle::start_in_process(cfg)?
+        } else {
+            tokio::task::spawn_blocking(move || SimHandle::start(cfg))
+                .await
+                .map_err(|e| ExperimentError::Other(format!("simulator start task: {e}")))??
+        };
         let mut dc = DriverConfig::default();
         dc.x.port = sim.link(AxisName::X);
         dc.y.port = sim.link(AxisName::Y);
@@ -240,13 +251,13 @@ impl Session {
             a.motion_timeout_s = 60.0;
         }
         let (tx, _rx) = broadcast::channel::<AxisEvent>(256);
-        let stage = Stage::connect(&dc, tx).await?;
+        let stage = Stage::connect_via(&dc, tx, sim.link_opener().as_ref()).await?;
         let (rx, ry) = tokio::join!(stage.x.reference(), stage.y.reference());
         rx?;
         ry?;
         let vx = stage.x.velocity_um_per_s().await?;
         let vy = stage.y.velocity_um_per_s().await?;
-        let camera: Box<dyn FrameSource> = if opts.camera_via_socket {
+        let camera: Box<dyn FrameSource> = if opts.camera_via_socket && !opts.in_process {
             let path = dir.join("camera.sock");
             tokio::task::spawn_blocking(move || {
                 micropos::camera::simsocket::SimSocketSource::open(&path)
@@ -269,6 +280,7 @@ impl Session {
             dir,
             velocity_um_s: [vx, vy],
             tie: None,
+            in_process: opts.in_process,
         })
     }
 
@@ -305,8 +317,7 @@ impl Session {
             let v = self.velocity_um_s[i].max(1.0);
             wait_s = wait_s.max(d / v + v / 10_000.0);
         }
-        let sim = self.sim()?;
-        sim.advance(Duration::from_secs_f64(wait_s + 0.05));
+        self.pass(Duration::from_secs_f64(wait_s + 0.05)).await?;
         let mut polls = 0;
         loop {
             let (ox, oy) = tokio::join!(stage.x.on_target(), stage.y.on_target());
@@ -319,7 +330,7 @@ impl Session {
                     "axes not on target at {target_um:?} after {polls} polls"
                 )));
             }
-            self.sim()?.advance(Duration::from_millis(10));
+            self.pass(Duration::from_millis(10)).await?;
         }
         let reported = [stage.x.position_um().await?, stage.y.position_um().await?];
         let (frame, pattern, cam, dec) = self.grab_decode().await?;
@@ -340,6 +351,18 @@ impl Session {
         })
     }
 
+    /// Lets `d` of simulated time pass: on the runtime's clock in process
+    /// (the rig's clock is the runtime's), else by advancing the served
+    /// clock at once.
+    async fn pass(&self, d: Duration) -> Result<(), ExperimentError> {
+        if self.in_process {
+            tokio::time::sleep(d).await;
+        } else {
+            self.sim()?.advance(d);
+        }
+        Ok(())
+    }
+
     /// Grab + decode on the blocking pool (a frame costs milliseconds).
     #[allow(clippy::type_complexity)]
     async fn grab_decode(
@@ -351,6 +374,7 @@ impl Session {
         };
         let r = tokio::task::spawn_blocking(move || {
             let f = cam.next_frame();
+            let ready = cam.frame_ready_after();
             let out = match f {
                 Ok(f) => {
                     let t = f.timestamp_s;
@@ -362,11 +386,15 @@ impl Session {
                 }
                 Err(e) => Err(e),
             };
-            (out, cam, dec)
+            (out, cam, dec, ready)
         })
         .await
         .map_err(|e| ExperimentError::Other(format!("grab task: {e}")))?;
-        let (out, cam, dec) = r;
+        let (out, cam, dec, ready) = r;
+        // On the virtual clock the frame exists once its exposure is over.
+        if let Some(d) = ready {
+            tokio::time::sleep(d).await;
+        }
         match out {
             Ok((t, d)) => Ok((t, d, cam, dec)),
             Err(e) => {
@@ -477,10 +505,11 @@ pub fn accuracy(
 /// `hil-sim demo`: see the crate README.
 pub async fn demo(seed: u64, rig: RigConfig) -> Result<(), ExperimentError> {
     let wall = std::time::Instant::now();
-    println!("hil-sim demo: starting the simulated rig (seed {seed}) and bringing both axes up through the micropos driver (ptys)...");
+    println!("hil-sim demo: starting the simulated rig (seed {seed}, in process on the virtual clock) and bringing both axes up through the micropos driver...");
     let mut s = Session::start(SessionOptions {
         seed,
         rig,
+        in_process: true,
         ..Default::default()
     })
     .await?;

@@ -11,8 +11,10 @@
 //!   in, answer bytes out), with the [`controller::Platform`] seam for the
 //!   stage error model;
 //! - [`bus`]: controllers sharing one line (daisy chain);
-//! - [`clock`]: scaled wall time or manual time;
-//! - [`serve`]: ptys, threads, faults; [`control`]: the JSON control socket.
+//! - [`clock`]: scaled wall time, manual time, or the runtime's (virtual)
+//!   clock;
+//! - [`serve`]: ptys, threads, faults; [`vline`]: the same lines served in
+//!   process on a tokio runtime; [`control`]: the JSON control socket.
 
 // No unsafe code, except the aravis fill callback of the GigE Vision camera
 // (feature `genicam`, `camera::gige::ffi`, which allows it for itself).
@@ -31,5 +33,6 @@ pub mod params;
 pub mod rig;
 pub mod run;
 pub mod serve;
+pub mod vline;
 
 pub use serve::{AxisName, Corruption, Fault, ServeConfig, SimError, SimHandle};

@@ -96,14 +96,16 @@ enum Cmd {
         /// Reduced plan (50 µm steps, 1 cycle): a quick look, not the paper.
         #[arg(long)]
         short: bool,
-        /// Simulated seconds per wall second besides the explicit advances.
-        #[arg(long, default_value_t = 100.0)]
-        time_scale: f64,
+        /// Serve the rig on ptys in real time, this many simulated seconds
+        /// per wall second, instead of in process on the virtual clock
+        /// (results then depend on the machine's load; default: virtual,
+        /// one seed gives one result).
+        #[arg(long)]
+        time_scale: Option<f64>,
     },
 }
 
-#[tokio::main(flavor = "multi_thread", worker_threads = 2)]
-async fn main() -> anyhow::Result<()> {
+fn main() -> anyhow::Result<()> {
     tracing_subscriber::fmt()
         .with_env_filter(
             tracing_subscriber::EnvFilter::try_from_default_env()
@@ -113,6 +115,42 @@ async fn main() -> anyhow::Result<()> {
         .init();
     let cli = Cli::parse();
     match cli.cmd {
+        Cmd::Run {
+            seed,
+            model,
+            rig,
+            json,
+            plots,
+            out,
+            short,
+            time_scale,
+        } => main_job(seed, model, rig, json, plots, out, short, time_scale),
+        Cmd::Demo { seed, rig } => {
+            let rig = match rig {
+                Some(p) => hil_sim::rig::RigConfig::load(&p).map_err(anyhow::Error::msg)?,
+                None => hil_sim::rig::RigConfig::default(),
+            };
+            // The demo's rig runs in process on the virtual clock.
+            tokio::runtime::Builder::new_current_thread()
+                .enable_all()
+                .start_paused(true)
+                .build()
+                .context("tokio runtime")?
+                .block_on(hil_sim::experiment::demo(seed, rig))
+                .map_err(anyhow::Error::from)
+        }
+        cmd => tokio::runtime::Builder::new_multi_thread()
+            .worker_threads(2)
+            .enable_all()
+            .build()
+            .context("tokio runtime")?
+            .block_on(serve(cmd)),
+    }
+}
+
+/// `hil-sim serve`.
+async fn serve(cmd: Cmd) -> anyhow::Result<()> {
+    match cmd {
         Cmd::Serve {
             link_dir,
             daisy_chain,
@@ -147,6 +185,7 @@ async fn main() -> anyhow::Result<()> {
                 model,
                 camera_socket: Some(camera_socket.clone()),
                 stage_model: None,
+                in_process: false,
             };
             // Handlers first: a signal right after the ready line must
             // already end in a clean shutdown.
@@ -228,31 +267,15 @@ async fn main() -> anyhow::Result<()> {
                 .context("simulator shutdown task")?;
             Ok(())
         }
-        Cmd::Demo { seed, rig } => {
-            let rig = match rig {
-                Some(p) => hil_sim::rig::RigConfig::load(&p).map_err(anyhow::Error::msg)?,
-                None => hil_sim::rig::RigConfig::default(),
-            };
-            hil_sim::experiment::demo(seed, rig)
-                .await
-                .map_err(anyhow::Error::from)
+        Cmd::Demo { .. } | Cmd::Run { .. } => {
+            anyhow::bail!("demo and run start their own runtime")
         }
-        Cmd::Run {
-            seed,
-            model,
-            rig,
-            json,
-            plots,
-            out,
-            short,
-            time_scale,
-        } => main_job(seed, model, rig, json, plots, out, short, time_scale).await,
     }
 }
 
 /// `hil-sim run`; see `hil_sim::run`.
 #[allow(clippy::too_many_arguments)]
-async fn main_job(
+fn main_job(
     seed: u64,
     model: Option<PathBuf>,
     rig: Option<PathBuf>,
@@ -260,7 +283,7 @@ async fn main_job(
     plots: Option<PathBuf>,
     out: Option<PathBuf>,
     short: bool,
-    time_scale: f64,
+    time_scale: Option<f64>,
 ) -> anyhow::Result<()> {
     use hil_sim::run::{format_table, run, RunOptions, RunPlan};
     let rig = match rig {
@@ -283,7 +306,7 @@ async fn main_job(
         },
     };
     let mut progress = |l: &str| eprintln!("hil-sim run: {l}");
-    let report = run(opts, &mut progress).await?;
+    let report = run(opts, &mut progress)?;
     eprintln!("hil-sim run: finished in {:.1} wall s", report.wall_s);
     if let Some(dir) = &report.data_dir {
         let full = serde_json::json!({"summary": report.summary, "validation": report.validation,

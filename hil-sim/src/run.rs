@@ -17,17 +17,21 @@
 //!    (`drift set`), and `table` mode is validated again with live drift
 //!    off, static and adaptive to report what each gains.
 //!
-//! Speed: the rig runs on simulated time (`time_scale` × wall plus the
-//! daemon's settle advances) and the driver polls on-target every
-//! millisecond, so a paper-size run (≈ 17 500 points, ≈ 9 simulated hours)
-//! takes minutes of wall time; the frame rendering and decoding dominate.
+//! Time: by default the rig runs in process on a virtual clock (see
+//! [`run`]): every move, settle, exposure, poll period and timeout takes its
+//! simulated time and no wall time, so a paper-size run (≈ 17 500 points,
+//! ≈ 9 simulated hours) costs only the CPU of rendering and decoding its
+//! frames, and one seed gives byte-identical JSON. `time_scale` serves the
+//! rig on ptys in real time instead (not reproducible).
 
+use crate::camera::SimCameraSource;
 use crate::rig::RigConfig;
 use crate::serve::{AxisName, ServeConfig, SimHandle};
 use micropos::camera::{open_source, OpenOptions};
-use micropos::clock::{RigClock, SimClock};
+use micropos::clock::{SimClock, WallClock};
 use micropos::daemon::config::DaemonConfig;
-use micropos::daemon::{Daemon, Running};
+use micropos::daemon::vision::Capture;
+use micropos::daemon::{Daemon, Environment, Running};
 use serde_json::{json, Value};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -165,8 +169,14 @@ pub struct RunOptions {
     /// Where the rig sockets, the daemon's data (logs, tables) and
     /// `run.json` go; `None`: a temporary directory, removed afterwards.
     pub out_dir: Option<PathBuf>,
-    /// Simulated seconds per wall second besides the explicit advances.
-    pub time_scale: f64,
+    /// `None` (the default): the rig runs in process on a virtual clock
+    /// (tokio's paused clock): simulated time advances only by the rig's
+    /// own events, so the same seed gives byte-identical results.
+    /// `Some(k)`: the rig is served on ptys with its camera and control
+    /// sockets, its clock running `k` simulated seconds per wall second
+    /// besides the daemon's explicit advances (real-time mode: results
+    /// depend on the machine's load).
+    pub time_scale: Option<f64>,
     /// The plan.
     pub plan: RunPlan,
 }
@@ -178,7 +188,7 @@ impl Default for RunOptions {
             rig: RigConfig::default(),
             model: None,
             out_dir: None,
-            time_scale: 100.0,
+            time_scale: None,
             plan: RunPlan::paper(),
         }
     }
@@ -293,10 +303,16 @@ impl Client {
                     job["eta_s"].as_f64().unwrap_or(f64::NAN)
                 ));
             }
-            tokio::time::sleep(Duration::from_millis(100)).await;
+            // Rig time (virtual on the in-process rig): the job's end is
+            // seen within a second, without thousands of status calls per
+            // simulated hour.
+            tokio::time::sleep(STATUS_POLL).await;
         }
     }
 }
+
+/// How often a followed job's status is read.
+const STATUS_POLL: Duration = Duration::from_secs(1);
 
 /// The daemon's configuration for the rig served in `rig_dir`.
 pub fn daemon_config(
@@ -367,45 +383,60 @@ async fn start(opts: &RunOptions, dir: &Path) -> Result<Started, RunError> {
     for d in [&rig_dir, &data_dir] {
         std::fs::create_dir_all(d).map_err(|e| setup(&d.display().to_string(), &e))?;
     }
+    let served = opts.time_scale.is_some();
     let cfg = ServeConfig {
         link_dir: rig_dir.clone(),
-        time_scale: opts.time_scale,
-        control_socket: Some(rig_dir.join("control.sock")),
-        camera_socket: Some(rig_dir.join("camera.sock")),
+        time_scale: opts.time_scale.unwrap_or(1.0),
+        control_socket: served.then(|| rig_dir.join("control.sock")),
+        camera_socket: served.then(|| rig_dir.join("camera.sock")),
         seed: opts.seed,
         rig: opts.rig.clone(),
         model: opts.model.clone(),
         ..ServeConfig::default()
     };
-    let sim = tokio::task::spawn_blocking(move || SimHandle::start(cfg))
-        .await
-        .map_err(|e| setup("simulator start task", &e))?
-        .map_err(|e| setup("simulator", &e))?;
+    let sim = if served {
+        tokio::task::spawn_blocking(move || SimHandle::start(cfg))
+            .await
+            .map_err(|e| setup("simulator start task", &e))?
+            .map_err(|e| setup("simulator", &e))?
+    } else {
+        SimHandle::start_in_process(cfg).map_err(|e| setup("simulator", &e))?
+    };
     debug_assert_eq!(sim.link(AxisName::X), rig_dir.join("x"));
     let socket = dir.join("micropos.sock");
     let c = daemon_config(&rig_dir, &data_dir, &socket, &opts.rig, &opts.plan)?;
-    let control = rig_dir.join("control.sock");
-    let clock = tokio::task::spawn_blocking(move || SimClock::connect(&control))
-        .await
-        .map_err(|e| setup("clock task", &e))?
-        .map_err(|e| setup("sim clock", &e))?;
-    let clock: Arc<dyn RigClock> = Arc::new(clock);
-    let spec = c
-        .camera_source()
-        .map_err(|e| setup("camera.source", &e))?
-        .ok_or_else(|| RunError::Setup("no camera source".into()))?;
-    let oo = OpenOptions {
-        timeout: Duration::from_millis(c.camera.timeout_ms),
-        ..OpenOptions::default()
+    let env = if served {
+        let control = rig_dir.join("control.sock");
+        let clock = tokio::task::spawn_blocking(move || SimClock::connect(&control))
+            .await
+            .map_err(|e| setup("clock task", &e))?
+            .map_err(|e| setup("sim clock", &e))?;
+        let spec = c
+            .camera_source()
+            .map_err(|e| setup("camera.source", &e))?
+            .ok_or_else(|| RunError::Setup("no camera source".into()))?;
+        let oo = OpenOptions {
+            timeout: Duration::from_millis(c.camera.timeout_ms),
+            ..OpenOptions::default()
+        };
+        let camera = tokio::task::spawn_blocking(move || open_source(&spec, &oo))
+            .await
+            .map_err(|e| setup("camera task", &e))?
+            .map_err(|e| setup("camera", &e))?;
+        Environment::hardware(Arc::new(clock), Some(camera))
+    } else {
+        // Everything on this runtime's (virtual) clock: the daemon's timers
+        // and timestamps, the controllers' motion, the camera's exposures.
+        Environment {
+            clock: Arc::new(WallClock::new()),
+            camera: Some(Box::new(SimCameraSource::new(sim.camera().clone()))),
+            capture: Capture::OnDemand,
+            links: sim.link_opener(),
+        }
     };
-    let camera = tokio::task::spawn_blocking(move || open_source(&spec, &oo))
-        .await
-        .map_err(|e| setup("camera task", &e))?
-        .map_err(|e| setup("camera", &e))?;
     let _ = std::fs::remove_file(&socket);
     let listener = tokio::net::UnixListener::bind(&socket).map_err(|e| setup("socket", &e))?;
-    let daemon =
-        Daemon::start(c, clock, Some(camera), listener).map_err(|e| setup("daemon", &e))?;
+    let daemon = Daemon::start_in(c, env, listener).map_err(|e| setup("daemon", &e))?;
     Ok(Started {
         sim,
         daemon,
@@ -427,9 +458,37 @@ pub fn paper_ap_um(test: &str, mode: &str) -> Option<f64> {
     }
 }
 
-/// Runs the main job. `progress` receives one line per step (stderr in the
-/// binary).
-pub async fn run(opts: RunOptions, progress: &mut dyn FnMut(&str)) -> Result<RunReport, RunError> {
+/// Runs the main job on a runtime of its own, and returns when it is over.
+/// `progress` receives one line per step (stderr in the binary).
+///
+/// With `opts.time_scale` `None` the runtime is a *paused* current-thread
+/// runtime (tokio's virtual clock with auto-advance): the rig, the daemon
+/// and this client are tasks on it, decoding and file I/O run on its
+/// blocking pool (which holds the clock still), and simulated time jumps
+/// from one timer to the next only when every task waits. Nothing that
+/// happens on the machine moves it, so a seed gives one result. Must not be
+/// called from inside a tokio runtime.
+pub fn run(opts: RunOptions, progress: &mut dyn FnMut(&str)) -> Result<RunReport, RunError> {
+    let rt = if opts.time_scale.is_some() {
+        tokio::runtime::Builder::new_multi_thread()
+            .worker_threads(2)
+            .enable_all()
+            .build()
+    } else {
+        tokio::runtime::Builder::new_current_thread()
+            .enable_all()
+            .start_paused(true)
+            .build()
+    }
+    .map_err(|e| RunError::Setup(format!("tokio runtime: {e}")))?;
+    rt.block_on(run_on_this_runtime(opts, progress))
+}
+
+/// [`run`] on the caller's runtime (see there for the clock).
+pub async fn run_on_this_runtime(
+    opts: RunOptions,
+    progress: &mut dyn FnMut(&str),
+) -> Result<RunReport, RunError> {
     let wall = Instant::now();
     let (dir, keep) = match &opts.out_dir {
         Some(d) => (d.clone(), true),

@@ -109,6 +109,11 @@ pub struct ServeConfig {
     /// An in-memory stage model, overriding both model files (tests use
     /// `StageModel::ideal()` to check the controllers alone).
     pub stage_model: Option<micropos::model::StageModel>,
+    /// Serve the lines in process ([`crate::vline`]) instead of on ptys:
+    /// no links are created; the driver opens them through
+    /// [`SimHandle::link_opener`]. Needs a tokio runtime (see
+    /// [`SimHandle::start_in_process`]).
+    pub in_process: bool,
 }
 
 impl Default for ServeConfig {
@@ -123,6 +128,7 @@ impl Default for ServeConfig {
             model: None,
             camera_socket: None,
             stage_model: None,
+            in_process: false,
         }
     }
 }
@@ -323,13 +329,80 @@ fn garble(answer: &[u8]) -> Vec<u8> {
 }
 
 /// Commands to a line thread.
-enum LineCmd {
+pub(crate) enum LineCmd {
     Drop,
     Restore,
     Garbage(Vec<u8>),
     Delay(usize, Duration),
     Withhold(usize, bool),
     Corrupt(usize, Corruption, u32),
+}
+
+/// The reply faults of one line, per controller on its bus
+/// ([`Fault::DelayReplies`], [`Fault::WithholdReplies`],
+/// [`Fault::CorruptReplies`]): one definition for the pty lines and the
+/// in-process ones.
+#[derive(Debug, Clone)]
+pub(crate) struct ReplyFaults {
+    delay: Vec<Duration>,
+    withhold: Vec<bool>,
+    /// Pending [`Fault::CorruptReplies`] per controller.
+    corrupt: Vec<(Corruption, u32)>,
+}
+
+impl ReplyFaults {
+    /// No fault on any of `n` controllers.
+    pub(crate) fn new(n: usize) -> Self {
+        ReplyFaults {
+            delay: vec![Duration::ZERO; n],
+            withhold: vec![false; n],
+            corrupt: vec![(Corruption::Garble, 0); n],
+        }
+    }
+
+    /// Applies a reply-fault command; other commands are not for it.
+    pub(crate) fn set(&mut self, cmd: &LineCmd) {
+        match *cmd {
+            LineCmd::Delay(i, d) => {
+                if let Some(slot) = self.delay.get_mut(i) {
+                    *slot = d;
+                }
+            }
+            LineCmd::Withhold(i, on) => {
+                if let Some(slot) = self.withhold.get_mut(i) {
+                    *slot = on;
+                }
+            }
+            LineCmd::Corrupt(i, how, n) => {
+                if let Some(slot) = self.corrupt.get_mut(i) {
+                    *slot = (how, n);
+                }
+            }
+            LineCmd::Drop | LineCmd::Restore | LineCmd::Garbage(_) => {}
+        }
+    }
+
+    /// What reaches the host of `replies`, each with its delay.
+    pub(crate) fn apply(&mut self, replies: Vec<crate::bus::Reply>) -> Vec<(Duration, Vec<u8>)> {
+        let mut out = Vec::with_capacity(replies.len());
+        for r in replies {
+            if self.withhold.get(r.from).copied().unwrap_or(false) {
+                continue;
+            }
+            let mut bytes = r.bytes;
+            if let Some((how, n)) = self.corrupt.get_mut(r.from) {
+                if *n > 0 && bytes.contains(&b'=') {
+                    *n -= 1;
+                    match how {
+                        Corruption::Drop => continue,
+                        Corruption::Garble => bytes = garble(&bytes),
+                    }
+                }
+            }
+            out.push((self.delay.get(r.from).copied().unwrap_or_default(), bytes));
+        }
+        out
+    }
 }
 
 type Ack = mpsc::Sender<Result<(), SimError>>;
@@ -341,10 +414,7 @@ struct Line {
     pty: Option<Pty>,
     bus: Arc<Mutex<Bus>>,
     clock: Arc<dyn Clock>,
-    delay: Vec<Duration>,
-    withhold: Vec<bool>,
-    /// Pending [`Fault::CorruptReplies`] per controller.
-    corrupt: Vec<(Corruption, u32)>,
+    faults: ReplyFaults,
     /// Delayed replies: (due, bytes), sorted by due time.
     pending: Vec<(Instant, Vec<u8>)>,
     /// Arrival times for latency measurements.
@@ -457,22 +527,8 @@ impl Line {
                 self.write(&bytes);
                 Ok(())
             }
-            LineCmd::Delay(i, d) => {
-                if let Some(slot) = self.delay.get_mut(i) {
-                    *slot = d;
-                }
-                Ok(())
-            }
-            LineCmd::Withhold(i, on) => {
-                if let Some(slot) = self.withhold.get_mut(i) {
-                    *slot = on;
-                }
-                Ok(())
-            }
-            LineCmd::Corrupt(i, how, n) => {
-                if let Some(slot) = self.corrupt.get_mut(i) {
-                    *slot = (how, n);
-                }
+            other => {
+                self.faults.set(&other);
                 Ok(())
             }
         }
@@ -513,21 +569,7 @@ impl Line {
     fn on_bytes(&mut self, bytes: &[u8]) {
         let now = self.clock.now();
         let replies = lock(&self.bus).receive(now, bytes);
-        for r in replies {
-            if self.withhold.get(r.from).copied().unwrap_or(false) {
-                continue;
-            }
-            let mut bytes = r.bytes;
-            if let Some((how, n)) = self.corrupt.get_mut(r.from) {
-                if *n > 0 && bytes.contains(&b'=') {
-                    *n -= 1;
-                    match how {
-                        Corruption::Drop => continue,
-                        Corruption::Garble => bytes = garble(&bytes),
-                    }
-                }
-            }
-            let delay = self.delay.get(r.from).copied().unwrap_or_default();
+        for (delay, bytes) in self.faults.apply(replies) {
             if delay.is_zero() && self.pending.is_empty() {
                 self.write(&bytes);
             } else {
@@ -628,8 +670,29 @@ struct LineCtl {
     axis: AxisName,
     link: PathBuf,
     probe: Arc<RxProbe>,
-    tx: Mutex<mpsc::Sender<(LineCmd, Ack)>>,
-    thread: Option<JoinHandle<()>>,
+    backend: Backend,
+}
+
+/// How a line is served.
+enum Backend {
+    /// A pty owned by a thread, commanded over a channel.
+    Pty {
+        tx: Mutex<mpsc::Sender<(LineCmd, Ack)>>,
+        thread: Option<JoinHandle<()>>,
+    },
+    /// Tasks on the caller's runtime ([`crate::vline`]).
+    InProcess(Arc<crate::vline::InProcessLine>),
+}
+
+impl LineCtl {
+    /// Waits for a pty line's thread to end (after the stop flag is set).
+    fn join(&mut self) {
+        if let Backend::Pty { thread, .. } = &mut self.backend {
+            if let Some(t) = thread.take() {
+                let _ = t.join();
+            }
+        }
+    }
 }
 
 /// Shared between the handle and the control socket.
@@ -646,9 +709,12 @@ struct Core {
 impl Core {
     fn send(&self, line: usize, cmd: LineCmd) -> Result<(), SimError> {
         let ctl = &self.lines[line];
+        let tx = match &ctl.backend {
+            Backend::Pty { tx, .. } => tx,
+            Backend::InProcess(l) => return l.apply(cmd),
+        };
         let (ack_tx, ack_rx) = mpsc::channel();
-        ctl.tx
-            .lock()
+        tx.lock()
             .unwrap_or_else(|e| e.into_inner())
             .send((cmd, ack_tx))
             .map_err(|_| SimError::ThreadGone(ctl.axis))?;
@@ -754,6 +820,38 @@ impl SimHandle {
         Self::start_with_clock(cfg, clock)
     }
 
+    /// Starts the rig in process on the current tokio runtime's clock
+    /// ([`crate::clock::RuntimeClock`]): lines are served by tasks
+    /// ([`crate::vline`]), `cfg.time_scale` is ignored. Under a paused
+    /// current-thread runtime simulated time then advances only by the
+    /// rig's own events (motion, settling, exposure, the daemon's timers),
+    /// never by wall time: one seed, one result.
+    pub fn start_in_process(mut cfg: ServeConfig) -> Result<SimHandle, SimError> {
+        let clock = crate::clock::RuntimeClock::new().ok_or_else(|| {
+            SimError::Config("an in-process rig must be started inside a tokio runtime".into())
+        })?;
+        cfg.in_process = true;
+        Self::start_with_clock(cfg, Arc::new(clock))
+    }
+
+    /// Opens the in-process lines by their names (`link(axis)`) for the
+    /// micropos driver; `None` when the lines are ptys.
+    pub fn link_opener(&self) -> Option<Arc<dyn micropos::driver::LinkOpener>> {
+        let lines: Vec<_> = self
+            .core
+            .lines
+            .iter()
+            .filter_map(|l| match &l.backend {
+                Backend::InProcess(line) => Some(line.clone()),
+                Backend::Pty { .. } => None,
+            })
+            .collect();
+        (!lines.is_empty()).then(|| {
+            Arc::new(crate::vline::InProcessLinks::new(lines))
+                as Arc<dyn micropos::driver::LinkOpener>
+        })
+    }
+
     /// Like [`SimHandle::start`] but with a given clock (`cfg.time_scale` is
     /// ignored): a [`crate::clock::ManualClock`] makes served timing
     /// deterministic.
@@ -836,13 +934,27 @@ impl SimHandle {
         let core_stop_on_err = |lines: &mut Vec<LineCtl>| {
             stop.store(true, Ordering::SeqCst);
             for l in lines.iter_mut() {
-                if let Some(t) = l.thread.take() {
-                    let _ = t.join();
-                }
+                l.join();
             }
         };
         for (i, (axis, name)) in names.iter().enumerate() {
             let link = cfg.link_dir.join(name);
+            if cfg.in_process {
+                let n = lock(&buses[i]).controllers().len();
+                lines.push(LineCtl {
+                    axis: *axis,
+                    link: link.clone(),
+                    probe: Arc::new(RxProbe::default()),
+                    backend: Backend::InProcess(Arc::new(crate::vline::InProcessLine::new(
+                        *axis,
+                        link,
+                        buses[i].clone(),
+                        clock.clone(),
+                        n,
+                    ))),
+                });
+                continue;
+            }
             // Only ever replace our own kind of file: a stale symlink.
             if let Ok(meta) = std::fs::symlink_metadata(&link) {
                 if !meta.file_type().is_symlink() {
@@ -872,9 +984,7 @@ impl SimHandle {
                 pty: Some(pty),
                 bus: buses[i].clone(),
                 clock: clock.clone(),
-                delay: vec![Duration::ZERO; n],
-                withhold: vec![false; n],
-                corrupt: vec![(Corruption::Garble, 0); n],
+                faults: ReplyFaults::new(n),
                 pending: Vec::new(),
                 probe: probe.clone(),
             };
@@ -895,8 +1005,10 @@ impl SimHandle {
                 axis: *axis,
                 link,
                 probe,
-                tx: Mutex::new(tx),
-                thread: Some(thread),
+                backend: Backend::Pty {
+                    tx: Mutex::new(tx),
+                    thread: Some(thread),
+                },
             });
         }
         let core = Arc::new(Core {
@@ -924,8 +1036,10 @@ impl SimHandle {
             camera_server: None,
             down: false,
         };
-        for axis in AxisName::ALL {
-            handle.probe(axis, cfg.daisy_chain)?;
+        if !cfg.in_process {
+            for axis in AxisName::ALL {
+                handle.probe(axis, cfg.daisy_chain)?;
+            }
         }
         if let Some(path) = &cfg.control_socket {
             let injector: Arc<dyn crate::control::Injector> = handle.core.clone();
@@ -1051,11 +1165,14 @@ impl SimHandle {
         }
         self.core.stop.store(true, Ordering::SeqCst);
         // The threads are only reachable through the Arc; take them out.
+        for l in &self.core.lines {
+            if let Backend::InProcess(line) = &l.backend {
+                line.close();
+            }
+        }
         if let Some(core) = Arc::get_mut(&mut self.core) {
             for l in &mut core.lines {
-                if let Some(t) = l.thread.take() {
-                    let _ = t.join();
-                }
+                l.join();
             }
         } else {
             // The control server still holds a reference only if it failed to
@@ -1091,6 +1208,11 @@ impl crate::control::Injector for Core {
     }
 
     fn advance(&self, d: Duration) -> Result<(), SimError> {
+        if !self.clock.advances_on_request() {
+            return Err(SimError::Config(
+                "this rig runs on a virtual clock: time advances with the rig's own events, not on request".into(),
+            ));
+        }
         self.clock.advance(d);
         Ok(())
     }

@@ -37,8 +37,8 @@ fn ramp_model(dir: &std::path::Path, c_per_ks: f64) -> std::path::PathBuf {
     p
 }
 
-#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn live_drift_correction_removes_the_thermal_offset() {
+#[test]
+fn live_drift_correction_removes_the_thermal_offset() {
     let dir = tempfile::tempdir().unwrap();
     let model = ramp_model(dir.path(), 1.0);
     let plan = RunPlan {
@@ -65,7 +65,6 @@ async fn live_drift_correction_removes_the_thermal_offset() {
     };
     let mut lines = Vec::new();
     let report = run(opts, &mut |l: &str| lines.push(l.to_owned()))
-        .await
         .unwrap_or_else(|e| panic!("{e}; progress: {lines:?}"));
     let s = &report.summary;
     eprintln!("{}", hil_sim::run::format_table(s));

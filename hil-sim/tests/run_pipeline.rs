@@ -11,8 +11,8 @@
 
 use hil_sim::run::{run, RunOptions, RunPlan};
 
-#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn pipeline_through_the_daemon_improves_on_raw() {
+#[test]
+fn pipeline_through_the_daemon_improves_on_raw() {
     let dir = tempfile::tempdir().unwrap();
     let plan = RunPlan {
         step_um: 100.0,
@@ -32,7 +32,6 @@ async fn pipeline_through_the_daemon_improves_on_raw() {
     };
     let mut lines = Vec::new();
     let report = run(opts, &mut |l: &str| lines.push(l.to_owned()))
-        .await
         .unwrap_or_else(|e| panic!("{e}; progress: {lines:?}"));
     let s = &report.summary;
     for test in ["square", "random"] {

@@ -268,6 +268,20 @@ pub trait FrameSource: Send + fmt::Debug {
     /// How long [`FrameSource::next_frame`] waits before giving up.
     fn set_timeout(&mut self, timeout: Duration);
 
+    /// For a source on a virtual clock: how long after the request the frame
+    /// last returned by [`FrameSource::next_frame`] became available (the
+    /// wait for its frame slot plus its exposure), which the caller must
+    /// spend on the rig clock before using it. `None` (every real camera):
+    /// `next_frame` itself waited for the frame in real time.
+    ///
+    /// Why: the simulator's in-process camera renders a frame at once, at
+    /// the simulated instant its exposure will have reached; under a virtual
+    /// clock only the caller can let that time pass, by sleeping on the same
+    /// clock as everything else.
+    fn frame_ready_after(&self) -> Option<Duration> {
+        None
+    }
+
     /// Sets the exposure time and returns the value the camera applied
     /// (cameras round to their own increments).
     fn set_exposure_us(&mut self, exposure_us: f64) -> Result<f64, CameraError> {

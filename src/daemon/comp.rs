@@ -343,6 +343,7 @@ pub async fn next_frame(
             "no camera is configured (camera.source)",
         ));
     };
+    let _want = v.want();
     let mut rx = v.latest.clone();
     let failed_before = v.stats.failed.load(std::sync::atomic::Ordering::Relaxed);
     let timeout = Duration::from_millis(rig.cfg.camera.timeout_ms);

@@ -8,7 +8,7 @@
 //! - [`server`]: accepts clients, one task per client;
 //! - [`state`]: the safe-state machine (pure);
 //! - [`rig`]: motion coordinator, soft limits, positions, event bus;
-//! - [`vision`]: capture and decode threads (never on the runtime);
+//! - [`vision`]: capture and decoding, never blocking the runtime;
 //! - [`jobs`]: characterization with resume (and its own camera tie),
 //!   validation, `tables build`;
 //! - [`drift`]: live drift correction of compensated moves;
@@ -73,6 +73,39 @@ impl Running {
     }
 }
 
+/// What the daemon runs on besides its configuration: the rig's clock, the
+/// opened camera, how it captures, and (for the simulator's in-process rig)
+/// who opens the controller lines.
+///
+/// Why a struct the caller fills: the binary passes the hardware's (a wall
+/// clock, the configured camera, free-running capture, serial ports); the
+/// simulator's in-process rig passes its own (the paused runtime's virtual
+/// clock, its camera on demand, in-memory lines), and everything above is
+/// the same code.
+#[derive(Debug)]
+pub struct Environment {
+    /// Every wait of jobs and every timestamp.
+    pub clock: Arc<dyn RigClock>,
+    /// The opened frame source, if any.
+    pub camera: Option<Box<dyn FrameSource>>,
+    /// How frames are captured.
+    pub capture: vision::Capture,
+    /// Opens the configured controller ports; `None`: serial devices.
+    pub links: Option<Arc<dyn crate::driver::LinkOpener>>,
+}
+
+impl Environment {
+    /// Hardware: `clock`, `camera`, free-running capture, serial ports.
+    pub fn hardware(clock: Arc<dyn RigClock>, camera: Option<Box<dyn FrameSource>>) -> Self {
+        Environment {
+            clock,
+            camera,
+            capture: vision::Capture::FreeRunning,
+            links: None,
+        }
+    }
+}
+
 impl Daemon {
     /// Starts the rig tasks and the server on `listener`. `camera` is the
     /// opened frame source, if any (the caller opens it so tests can pass
@@ -83,12 +116,27 @@ impl Daemon {
         camera: Option<Box<dyn FrameSource>>,
         listener: UnixListener,
     ) -> Result<Running, ProtoError> {
+        Self::start_in(cfg, Environment::hardware(clock, camera), listener)
+    }
+
+    /// Starts the daemon in `env` (see [`Environment`]).
+    pub fn start_in(
+        cfg: DaemonConfig,
+        env: Environment,
+        listener: UnixListener,
+    ) -> Result<Running, ProtoError> {
+        let Environment {
+            clock,
+            camera,
+            capture,
+            links,
+        } = env;
         let vision = match camera {
             Some(src) => {
                 let mut opts = DecodeOptions::new(cfg.camera.period_um, cfg.camera.bits);
                 opts.mirrored = cfg.camera.mirrored;
                 Some(
-                    vision::Vision::start(src, opts, clock.clone()).map_err(|e| {
+                    vision::Vision::start_with(src, opts, clock.clone(), capture).map_err(|e| {
                         ProtoError::new(ErrorCode::CameraUnavailable, e.to_string())
                     })?,
                 )
@@ -96,7 +144,7 @@ impl Daemon {
             None => None,
         };
         let (shutdown, _) = broadcast::channel(4);
-        let rig = Arc::new(rig::Rig::new(cfg, clock, vision));
+        let rig = Arc::new(rig::Rig::new(cfg, clock, vision, links));
         let daemon = Arc::new(Daemon {
             rig: rig.clone(),
             jobs: jobs::Jobs::default(),

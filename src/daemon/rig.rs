@@ -58,6 +58,9 @@ pub struct Rig {
     /// Retries after transient faults in the current (or last) job, reset
     /// when a job begins; the job's progress reads it (`retries`).
     pub job_retries: Arc<AtomicU64>,
+    /// Opens the controller lines instead of serial devices (the
+    /// simulator's in-process rig); `None` on hardware.
+    links: Option<Arc<dyn crate::driver::LinkOpener>>,
 }
 
 fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
@@ -111,7 +114,12 @@ fn refusal(r: Refusal) -> ProtoError {
 
 impl Rig {
     /// A rig with no stage yet.
-    pub fn new(cfg: DaemonConfig, clock: Arc<dyn RigClock>, vision: Option<Vision>) -> Rig {
+    pub fn new(
+        cfg: DaemonConfig,
+        clock: Arc<dyn RigClock>,
+        vision: Option<Vision>,
+        links: Option<Arc<dyn crate::driver::LinkOpener>>,
+    ) -> Rig {
         let (events, _) = broadcast::channel(1024);
         let drift = super::drift::DriftControl::new(&cfg);
         Rig {
@@ -129,6 +137,7 @@ impl Rig {
             heartbeat: AtomicU64::new(0),
             comp: super::comp::CompState::default(),
             job_retries: Arc::default(),
+            links,
         }
     }
 
@@ -202,7 +211,7 @@ impl Rig {
         let mut reported = false;
         let stage = loop {
             tokio::select! {
-                r = Stage::connect(&self.cfg.driver, tx.clone()) => match r {
+                r = Stage::connect_via(&self.cfg.driver, tx.clone(), self.links.as_ref()) => match r {
                     Ok(s) => break s,
                     Err(e) => {
                         if !reported {
@@ -346,7 +355,7 @@ impl Rig {
         let mut health = self
             .vision
             .as_ref()
-            .map(|v| super::vision::HealthWatch::new(v, std::time::Instant::now()));
+            .map(|v| super::vision::HealthWatch::new(v, tokio::time::Instant::now()));
         loop {
             tokio::select! {
                 _ = tokio::time::sleep(period) => {},
@@ -355,12 +364,14 @@ impl Rig {
             let t = self.clock.now_s();
             if let (Some(v), Some(h)) = (&self.vision, health.as_mut()) {
                 let s = &v.stats;
-                if let Some(state) = h.update(
+                let (frames, decoded) = (
                     s.frames.load(Ordering::Relaxed),
                     s.decoded.load(Ordering::Relaxed),
-                    window,
-                    std::time::Instant::now(),
-                ) {
+                );
+                let now = tokio::time::Instant::now();
+                if v.is_idle() {
+                    h.rest(frames, decoded, now);
+                } else if let Some(state) = h.update(frames, decoded, window, now) {
                     let reason = match state {
                         super::vision::Health::Ok => "frames decode again".to_owned(),
                         _ => lock(&v.last_error)

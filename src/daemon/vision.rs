@@ -77,10 +77,123 @@ pub struct Vision {
     /// The last camera or decode error, readable.
     pub last_error: Arc<std::sync::Mutex<Option<String>>>,
     stop: Arc<AtomicBool>,
+    /// Present when frames are grabbed on demand ([`Capture::OnDemand`]).
+    demand: Option<Arc<Demand>>,
+}
+
+/// How frames are captured.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Capture {
+    /// A capture thread grabs frame after frame and a decode thread decodes
+    /// the newest: a real camera free-runs, and the position stream shows
+    /// vision between jobs.
+    #[default]
+    FreeRunning,
+    /// One task on the runtime grabs a frame only while a consumer waits for
+    /// one ([`Vision::want`]), waits on the rig clock until the source says
+    /// the frame's exposure ended, and decodes it on the blocking pool.
+    ///
+    /// Why: on the simulator's in-process rig the clock is virtual (it
+    /// advances only when every task waits on a timer), so a free-running
+    /// capture thread would render frames at whatever simulated instant the
+    /// OS scheduled it, and draw camera noise in that order: the same seed
+    /// would give different figures. Grabbing only on demand, from the
+    /// runtime, makes every frame's time and noise a function of the job's
+    /// own sequence of events. It also spends simulated time on exposures
+    /// only when someone measures (a 9.5-hour run does not render 30 frames
+    /// a simulated second).
+    OnDemand,
+}
+
+/// Consumers waiting for a frame ([`Capture::OnDemand`]).
+#[derive(Debug, Default)]
+struct Demand {
+    waiters: std::sync::atomic::AtomicUsize,
+    notify: tokio::sync::Notify,
+}
+
+/// Keeps on-demand capture grabbing while alive (see [`Vision::want`]).
+#[derive(Debug)]
+pub struct Want {
+    demand: Option<Arc<Demand>>,
+}
+
+impl Drop for Want {
+    fn drop(&mut self) {
+        if let Some(d) = &self.demand {
+            d.waiters.fetch_sub(1, Ordering::SeqCst);
+        }
+    }
 }
 
 impl Vision {
-    /// Starts capture and decode threads.
+    /// Says that the caller waits for fresh frames until the returned guard
+    /// is dropped. A free-running pipeline grabs anyway; an on-demand one
+    /// grabs only while some guard lives. Every consumer that waits for a
+    /// frame exposed after some time holds one.
+    pub fn want(&self) -> Want {
+        if let Some(d) = &self.demand {
+            d.waiters.fetch_add(1, Ordering::SeqCst);
+            d.notify.notify_one();
+        }
+        Want {
+            demand: self.demand.clone(),
+        }
+    }
+
+    /// True when frames are grabbed on demand and nobody waits for one: no
+    /// frame arriving then says nothing about the camera's health.
+    pub fn is_idle(&self) -> bool {
+        self.demand
+            .as_ref()
+            .is_some_and(|d| d.waiters.load(Ordering::SeqCst) == 0)
+    }
+
+    /// Starts the pipeline in `capture` mode. [`Capture::OnDemand`] must be
+    /// called inside a tokio runtime (it spawns its task there).
+    pub fn start_with(
+        source: Box<dyn FrameSource>,
+        opts: DecodeOptions,
+        clock: Arc<dyn RigClock>,
+        capture: Capture,
+    ) -> Result<Vision, crate::pattern::decode::DecodeError> {
+        match capture {
+            Capture::FreeRunning => Self::start(source, opts, clock),
+            Capture::OnDemand => Self::start_on_demand(source, opts, clock),
+        }
+    }
+
+    fn start_on_demand(
+        source: Box<dyn FrameSource>,
+        opts: DecodeOptions,
+        clock: Arc<dyn RigClock>,
+    ) -> Result<Vision, crate::pattern::decode::DecodeError> {
+        let decoder = Decoder::new(opts)?;
+        let (tx, rx) = watch::channel(None);
+        let stats = Arc::new(VisionStats::default());
+        let last_error = Arc::new(std::sync::Mutex::new(None::<String>));
+        let stop = Arc::new(AtomicBool::new(false));
+        let demand = Arc::new(Demand::default());
+        tokio::spawn(on_demand_loop(OnDemandLoop {
+            source,
+            decoder,
+            clock,
+            tx,
+            stats: stats.clone(),
+            last_error: last_error.clone(),
+            stop: stop.clone(),
+            demand: demand.clone(),
+        }));
+        Ok(Vision {
+            latest: rx,
+            stats,
+            last_error,
+            stop,
+            demand: Some(demand),
+        })
+    }
+
+    /// Starts capture and decode threads ([`Capture::FreeRunning`]).
     pub fn start(
         mut source: Box<dyn FrameSource>,
         opts: DecodeOptions,
@@ -176,6 +289,7 @@ impl Vision {
             stats,
             last_error,
             stop,
+            demand: None,
         })
     }
 
@@ -197,6 +311,111 @@ impl Vision {
 impl Drop for Vision {
     fn drop(&mut self) {
         self.stop.store(true, Ordering::Relaxed);
+        if let Some(d) = &self.demand {
+            d.notify.notify_one();
+        }
+    }
+}
+
+/// The state of the on-demand capture task.
+struct OnDemandLoop {
+    source: Box<dyn FrameSource>,
+    decoder: Decoder,
+    clock: Arc<dyn RigClock>,
+    tx: watch::Sender<Option<Measurement>>,
+    stats: Arc<VisionStats>,
+    last_error: Arc<std::sync::Mutex<Option<String>>>,
+    stop: Arc<AtomicBool>,
+    demand: Arc<Demand>,
+}
+
+/// Pause after a failed grab before the next one, rig time: a camera that
+/// fails at once must not spin, and a consumer's frame deadline must come.
+const RETRY_AFTER_FAILED_GRAB: std::time::Duration = std::time::Duration::from_millis(50);
+
+/// [`Capture::OnDemand`]: grab while someone waits, wait out the exposure on
+/// the rig clock, decode on the blocking pool, publish.
+async fn on_demand_loop(mut l: OnDemandLoop) {
+    loop {
+        if l.stop.load(Ordering::Relaxed) {
+            return;
+        }
+        if l.demand.waiters.load(Ordering::SeqCst) == 0 {
+            let notified = l.demand.notify.notified();
+            tokio::pin!(notified);
+            notified.as_mut().enable();
+            if l.demand.waiters.load(Ordering::SeqCst) == 0 {
+                tokio::select! {
+                    () = notified => {}
+                    () = l.tx.closed() => return,
+                }
+            }
+            continue;
+        }
+        // Before the grab: see the module docs.
+        let t = l.clock.now_s();
+        let mut source = l.source;
+        let Ok((source, grabbed)) = tokio::task::spawn_blocking(move || {
+            let r = source.next_frame();
+            let ready = source.frame_ready_after();
+            (source, r.map(|f| (f, ready)))
+        })
+        .await
+        else {
+            set(&l.last_error, "camera: the grab task failed".to_owned());
+            return;
+        };
+        l.source = source;
+        let (frame, ready) = match grabbed {
+            Ok(g) => g,
+            Err(e) => {
+                l.stats.camera_errors.fetch_add(1, Ordering::Relaxed);
+                set(&l.last_error, format!("camera: {e}"));
+                if matches!(e, crate::camera::CameraError::EndOfStream { .. }) {
+                    tracing::warn!("camera source ended: {e}");
+                    return;
+                }
+                l.clock.sleep(RETRY_AFTER_FAILED_GRAB).await;
+                continue;
+            }
+        };
+        // A source on a virtual clock renders at once; the frame exists
+        // only when its exposure has ended.
+        if let Some(d) = ready {
+            l.clock.sleep(d).await;
+        }
+        l.stats.frames.fetch_add(1, Ordering::Relaxed);
+        let mut decoder = l.decoder;
+        let Ok((decoder, decoded)) = tokio::task::spawn_blocking(move || {
+            let r = decoder.decode(&frame);
+            (decoder, r.map(|d| (d, frame.sequence)))
+        })
+        .await
+        else {
+            set(&l.last_error, "decode: the decode task failed".to_owned());
+            return;
+        };
+        l.decoder = decoder;
+        match decoded {
+            Ok((d, sequence)) => {
+                l.stats.decoded.fetch_add(1, Ordering::Relaxed);
+                let m = Measurement {
+                    t_s: t,
+                    sequence,
+                    x_um: d.x_um,
+                    y_um: d.y_um,
+                    theta_rad: d.theta_rad,
+                    quality: d.quality,
+                };
+                if l.tx.send(Some(m)).is_err() {
+                    return;
+                }
+            }
+            Err(e) => {
+                l.stats.failed.fetch_add(1, Ordering::Relaxed);
+                set(&l.last_error, format!("decode: {e}"));
+            }
+        }
     }
 }
 
@@ -230,14 +449,14 @@ impl Health {
 pub struct HealthWatch {
     frames: u64,
     decoded: u64,
-    since: std::time::Instant,
+    since: tokio::time::Instant,
     state: Health,
 }
 
 impl HealthWatch {
     /// Starts watching at `now` with the counters as they are (healthy
     /// until a window passes without a decoded frame).
-    pub fn new(v: &Vision, now: std::time::Instant) -> Self {
+    pub fn new(v: &Vision, now: tokio::time::Instant) -> Self {
         HealthWatch {
             frames: v.stats.frames.load(Ordering::Relaxed),
             decoded: v.stats.decoded.load(Ordering::Relaxed),
@@ -253,7 +472,7 @@ impl HealthWatch {
         frames: u64,
         decoded: u64,
         window: std::time::Duration,
-        now: std::time::Instant,
+        now: tokio::time::Instant,
     ) -> Option<Health> {
         let new = if decoded != self.decoded {
             Health::Ok
@@ -278,6 +497,17 @@ impl HealthWatch {
     }
 }
 
+impl HealthWatch {
+    /// Starts a new window at `now` without judging the one that ends: an
+    /// on-demand pipeline nobody asked for frames delivers none, which says
+    /// nothing about the camera.
+    pub fn rest(&mut self, frames: u64, decoded: u64, now: tokio::time::Instant) {
+        self.frames = frames;
+        self.decoded = decoded;
+        self.since = now;
+    }
+}
+
 fn set(slot: &std::sync::Mutex<Option<String>>, msg: String) {
     if let Ok(mut g) = slot.lock() {
         *g = Some(msg);
@@ -287,7 +517,8 @@ fn set(slot: &std::sync::Mutex<Option<String>>, msg: String) {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use std::time::{Duration, Instant};
+    use std::time::Duration;
+    use tokio::time::Instant;
 
     #[test]
     fn health_transitions() {

@@ -40,7 +40,10 @@ pub use controller::{ConsoleReply, Controller};
 pub use error::DriverError;
 pub use line::{Line, LineOptions};
 pub use stage::{AxisConfig, DriverConfig, Stage};
-pub use transport::{Connector, Framing, SerialConnector, SerialSettings};
+pub use transport::{
+    Connector, Framing, LinkIo, LinkOpener, OpenFuture, OpenerConnector, SerialConnector,
+    SerialSettings,
+};
 
 /// Something the watcher of the rig should know about, as it happens.
 #[derive(Debug, Clone, PartialEq, Eq)]

@@ -5,12 +5,13 @@ use super::axis::{Axis, AxisParams, ReferenceMode};
 use super::controller::Controller;
 use super::error::DriverError;
 use super::line::{Line, LineOptions};
-use super::transport::{Framing, SerialConnector, SerialSettings};
+use super::transport::{Framing, LinkOpener, OpenerConnector, SerialConnector, SerialSettings};
 use super::AxisEvent;
 use crate::gcs::frame::Address;
 use crate::gcs::AxisId;
 use serde::{Deserialize, Serialize};
 use std::path::PathBuf;
+use std::sync::Arc;
 use std::time::Duration;
 use tokio::sync::broadcast;
 
@@ -181,23 +182,35 @@ impl Stage {
         cfg: &DriverConfig,
         events: broadcast::Sender<AxisEvent>,
     ) -> Result<Stage, DriverError> {
+        Self::connect_via(cfg, events, None).await
+    }
+
+    /// Like [`Stage::connect`], but with `opener` (when given) opening the
+    /// configured ports instead of serial devices: the simulator's
+    /// in-process rig. Everything above the byte stream is the same code.
+    pub async fn connect_via(
+        cfg: &DriverConfig,
+        events: broadcast::Sender<AxisEvent>,
+        opener: Option<&Arc<dyn LinkOpener>>,
+    ) -> Result<Stage, DriverError> {
         cfg.validate()?;
         let opts = cfg.line_options();
-        let x_line = Line::open(
-            SerialConnector::new(&cfg.x.port, cfg.x.serial()),
-            opts,
-            events.clone(),
-        )
-        .await?;
+        let open = |a: &AxisConfig| {
+            let events = events.clone();
+            let opener = opener.cloned();
+            let (port, serial) = (a.port.clone(), a.serial());
+            async move {
+                match opener {
+                    Some(o) => Line::open(OpenerConnector::new(o, port), opts, events).await,
+                    None => Line::open(SerialConnector::new(port, serial), opts, events).await,
+                }
+            }
+        };
+        let x_line = open(&cfg.x).await?;
         let y_line = if cfg.y.port == cfg.x.port {
             x_line.clone()
         } else {
-            Line::open(
-                SerialConnector::new(&cfg.y.port, cfg.y.serial()),
-                opts,
-                events.clone(),
-            )
-            .await?
+            open(&cfg.y).await?
         };
         let x = bring_up_axis(x_line, &cfg.x, "x", &events).await?;
         let y = bring_up_axis(y_line, &cfg.y, "y", &events).await?;

@@ -200,6 +200,57 @@ impl Connector for SerialConnector {
     }
 }
 
+/// A byte stream of any kind, boxed: what a [`LinkOpener`] returns.
+pub trait LinkIo: AsyncRead + AsyncWrite + Unpin + Send + 'static {}
+impl<T: AsyncRead + AsyncWrite + Unpin + Send + 'static> LinkIo for T {}
+
+/// A boxed future of an opened link.
+pub type OpenFuture =
+    std::pin::Pin<Box<dyn Future<Output = Result<Box<dyn LinkIo>, DriverError>> + Send + 'static>>;
+
+/// Opens lines by their configured port path, for a caller that brings its
+/// own byte streams instead of serial devices.
+///
+/// Why an object-safe trait next to [`Connector`]: [`Connector`] is generic
+/// (its stream type is static), which is right for the driver but cannot be
+/// stored in the daemon's configuration. The simulator's in-process rig
+/// hands the daemon a `LinkOpener` whose streams are served by simulated
+/// controllers on the daemon's own runtime, so a virtual clock sees every
+/// byte in flight (see `hil-sim`'s virtual mode).
+pub trait LinkOpener: Send + Sync + std::fmt::Debug {
+    /// Opens (or reopens, after a fault) the line configured as `port`.
+    fn open(&self, port: &Path) -> OpenFuture;
+}
+
+/// A [`Connector`] over a [`LinkOpener`] and one port path.
+#[derive(Debug, Clone)]
+pub struct OpenerConnector {
+    opener: std::sync::Arc<dyn LinkOpener>,
+    port: PathBuf,
+}
+
+impl OpenerConnector {
+    /// A connector for `port` through `opener`.
+    pub fn new(opener: std::sync::Arc<dyn LinkOpener>, port: impl Into<PathBuf>) -> Self {
+        Self {
+            opener,
+            port: port.into(),
+        }
+    }
+}
+
+impl Connector for OpenerConnector {
+    type Io = Box<dyn LinkIo>;
+
+    fn connect(&mut self) -> impl Future<Output = Result<Self::Io, DriverError>> + Send {
+        self.opener.open(&self.port)
+    }
+
+    fn name(&self) -> String {
+        self.port.display().to_string()
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

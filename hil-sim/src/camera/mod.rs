@@ -5,7 +5,10 @@
 //! the next frame slot `max(now, last_start + 1/fps)`, exposes for
 //! `exposure_us` and is rendered at the exposure mid-point; the clock is
 //! advanced to the end of the exposure, so a grab costs frame time as on a
-//! real camera. Motion during the exposure is not blurred (the pose at the
+//! real camera. On a clock that does not advance on request (the in-process
+//! rig's virtual clock) the frame is rendered at once and
+//! [`SimCamera::ready_after`] says how long the caller must let pass before
+//! it exists. Motion during the exposure is not blurred (the pose at the
 //! mid-point is used).
 //!
 //! Faults (contract): [`CameraMode::Stall`] (no answer: the socket server
@@ -313,6 +316,8 @@ pub enum GrabError {
 struct CameraState {
     renderer: FastRenderer,
     last_start_s: Option<f64>,
+    /// From the last grab's request to the end of its exposure.
+    ready_after: Duration,
     sequence: u64,
     mode: CameraMode,
     seed: u64,
@@ -340,6 +345,7 @@ impl SimCamera {
             state: Mutex::new(CameraState {
                 renderer,
                 last_start_s: None,
+                ready_after: Duration::ZERO,
                 sequence: 0,
                 mode: CameraMode::Normal,
                 seed,
@@ -383,13 +389,22 @@ impl SimCamera {
         };
         let exposure = cfg.exposure_us * 1e-6;
         let end = start + exposure;
-        if end > now {
-            self.clock
-                .advance(Duration::try_from_secs_f64(end - now).unwrap_or_default());
+        let wait = Duration::try_from_secs_f64((end - now).max(0.0)).unwrap_or_default();
+        if self.clock.advances_on_request() {
+            self.clock.advance(wait);
         }
+        st.ready_after = wait;
         st.last_start_s = Some(start);
         let mid = start + exposure / 2.0;
         self.render_locked(&mut st, &cfg, mid, None)
+    }
+
+    /// From the last [`SimCamera::grab`]'s request to the end of its
+    /// exposure, when the clock does not advance on request (the in-process
+    /// rig's virtual clock): the time the caller must let pass before the
+    /// frame exists. `None` when the grab advanced the clock itself.
+    pub fn ready_after(&self) -> Option<Duration> {
+        (!self.clock.advances_on_request()).then(|| self.lock().ready_after)
     }
 
     /// Renders the platform's pose at the clock's current time, without the
@@ -520,6 +535,10 @@ impl FrameSource for SimCameraSource {
 
     fn set_timeout(&mut self, timeout: Duration) {
         self.timeout = timeout;
+    }
+
+    fn frame_ready_after(&self) -> Option<Duration> {
+        self.camera.ready_after()
     }
 
     fn exposure_us(&self) -> Result<f64, CameraError> {

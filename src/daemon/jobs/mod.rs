@@ -380,6 +380,7 @@ pub(crate) async fn measure(
     let Some(v) = &rig.vision else {
         return Err(ProtoError::new(ErrorCode::CameraUnavailable, "no camera"));
     };
+    let _want = v.want();
     let mut rx = v.latest.clone();
     let timeout = Duration::from_millis(rig.cfg.camera.timeout_ms);
     let counters = || {
