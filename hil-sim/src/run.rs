@@ -425,14 +425,7 @@ async fn start(opts: &RunOptions, dir: &Path) -> Result<Started, RunError> {
             .map_err(|e| setup("camera", &e))?;
         Environment::hardware(Arc::new(clock), Some(camera))
     } else {
-        // Everything on this runtime's (virtual) clock: the daemon's timers
-        // and timestamps, the controllers' motion, the camera's exposures.
-        Environment {
-            clock: Arc::new(WallClock::new()),
-            camera: Some(Box::new(SimCameraSource::new(sim.camera().clone()))),
-            capture: Capture::OnDemand,
-            links: sim.link_opener(),
-        }
+        in_process_environment(&sim)
     };
     let _ = std::fs::remove_file(&socket);
     let listener = tokio::net::UnixListener::bind(&socket).map_err(|e| setup("socket", &e))?;
@@ -443,6 +436,20 @@ async fn start(opts: &RunOptions, dir: &Path) -> Result<Started, RunError> {
         socket,
         data_dir,
     })
+}
+
+/// The daemon's environment on an in-process rig
+/// ([`SimHandle::start_in_process`]): everything on the current runtime's
+/// clock (the daemon's timers and timestamps, the controllers' motion, the
+/// camera's exposures), the rig's camera grabbed on demand, its lines
+/// opened in process. Call it inside the runtime the rig was started on.
+pub fn in_process_environment(sim: &SimHandle) -> Environment {
+    Environment {
+        clock: Arc::new(WallClock::new()),
+        camera: Some(Box::new(SimCameraSource::new(sim.camera().clone()))),
+        capture: Capture::OnDemand,
+        links: sim.link_opener(),
+    }
 }
 
 /// How often a failed characterization is resumed before the run gives up.

@@ -32,10 +32,11 @@
 //! time_periodic (0.934 µm, 418 s, gain 94 %). Each run prints its tie's
 //! rotation error with and without the correction.
 //!
-//! Simulated time runs at [`TIME_SCALE`] × wall plus the daemon's settle
-//! advances, so a loaded machine stretches the simulated run (measured 2 000
-//! to 8 000 s for the same plan): time effects keep their rate and period but
-//! are sampled differently; position effects are unaffected.
+//! The rig runs in process on the paused test runtime's virtual clock
+//! (`SimHandle::start_in_process`, `hil_sim::run::in_process_environment`):
+//! simulated time advances only by the rig's own events, so a seed gives the
+//! same log byte for byte (`the_same_seed_writes_the_same_log`) and the
+//! time kinds are sampled the same way on any machine.
 
 mod common;
 use common::Client;
@@ -90,17 +91,12 @@ const PLAN: RigPlan = RigPlan {
     settle_s: 3.0,
 };
 
-/// Simulated seconds per logged point (settle + move + frame + the wall
-/// time the rig runs at [`TIME_SCALE`]; measured 7 s alone, up to 16 s on
-/// a loaded machine), only to size the drawn time parameters as the
-/// generator does from its plan's duration.
+/// Simulated seconds per logged point (the 3 s settle, the move, the
+/// exposure, and the tie and drift references spread over the points), only
+/// to size the drawn time parameters as the generator does from its plan's
+/// duration. Measured on the virtual clock: the run's simulated duration
+/// divided by its points (printed by each case).
 const DWELL_S: f64 = 7.0;
-
-/// Simulated seconds per wall second besides the daemon's settle advances
-/// (as `hil-sim run`): moves and on-target polling then cost little wall
-/// time. The run's simulated duration depends on the machine's load; the
-/// time kinds' parameters (rate, period) do not.
-const TIME_SCALE: f64 = 100.0;
 
 impl RigPlan {
     fn points(&self) -> usize {
@@ -133,6 +129,8 @@ impl RigPlan {
 /// What one characterization on the served rig produced.
 struct RigRun {
     log: MeasurementLog,
+    /// The log file as the daemon wrote it.
+    text: Vec<u8>,
     wall_s: f64,
     simulated_s: f64,
     /// Times the job was resumed after a transient fault.
@@ -149,12 +147,10 @@ async fn characterize_on_rig(seed: u64, model: Option<&Path>) -> RigRun {
     let data_dir = dir.path().join("data");
     std::fs::create_dir_all(&rig_dir).unwrap();
     std::fs::create_dir_all(&data_dir).unwrap();
-    let control = rig_dir.join("control.sock");
-    let sim = common::serve(ServeConfig {
+    let sim = common::serve_in_process(ServeConfig {
         model: model.map(Path::to_owned),
-        ..common::serve_config(&rig_dir, TIME_SCALE, seed)
-    })
-    .await;
+        ..common::serve_config(&rig_dir, 1.0, seed)
+    });
     let socket = dir.path().join("micropos.sock");
     let run_plan = RunPlan {
         step_um: PLAN.step_um,
@@ -176,7 +172,7 @@ async fn characterize_on_rig(seed: u64, model: Option<&Path>) -> RigRun {
     c.characterize.x_start_um = Some(PLAN.x_start_um);
     c.characterize.y_start_um = Some(PLAN.y_start_um);
     c.validate().unwrap();
-    let daemon = common::start_daemon(c, control, &socket).await;
+    let daemon = common::start_daemon_in_process(c, &sim, &socket);
 
     let mut cl = Client::connect(&socket).await;
     common::connect_and_reference(&mut cl).await;
@@ -200,7 +196,7 @@ async fn characterize_on_rig(seed: u64, model: Option<&Path>) -> RigRun {
             .await;
         let job = &s["job"];
         match job["state"].as_str().unwrap() {
-            "running" => tokio::time::sleep(Duration::from_millis(50)).await,
+            "running" => tokio::time::sleep(Duration::from_secs(1)).await,
             "done" => break,
             other => {
                 assert!(resumes < 3, "characterization {other}: {job}");
@@ -217,10 +213,12 @@ async fn characterize_on_rig(seed: u64, model: Option<&Path>) -> RigRun {
     drop(cl);
     daemon.shutdown().await;
     let _ = tokio::task::spawn_blocking(move || sim.shutdown()).await;
+    let text = std::fs::read(data_dir.join(name)).unwrap();
     let log = micropos::charact::log::read_file(data_dir.join(name)).unwrap();
     assert_eq!(log.records.len(), PLAN.points());
     RigRun {
         log,
+        text,
         wall_s: wall.elapsed().as_secs_f64(),
         simulated_s: t_end - t_start,
         resumes,
@@ -386,7 +384,7 @@ async fn hidden_case(seed: u64, kind: FindingKind) -> (InjectedEffect, Diagnosis
     (e, d, run)
 }
 
-#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+#[tokio::test(start_paused = true)]
 async fn hidden_effects_through_the_rig_are_named_and_recovered() {
     let kinds = rig_kinds();
     // Default: one seed (its kind from the seed); full: one seed per kind.
@@ -452,7 +450,7 @@ async fn hidden_effects_through_the_rig_are_named_and_recovered() {
     assert!(failures.is_empty(), "{failures:#?}");
 }
 
-#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+#[tokio::test(start_paused = true)]
 async fn plain_rig_gives_no_finding() {
     let seeds: Vec<u64> = if sweep() {
         vec![3001, 3002]
@@ -483,4 +481,22 @@ async fn plain_rig_gives_no_finding() {
         found.is_empty(),
         "false findings on the plain rig: {found:?}"
     );
+}
+
+/// One seed, one result: the rig runs in process on the paused runtime's
+/// virtual clock, so the same seed writes the same log, byte for byte, and
+/// the diagnosis of it is the same.
+#[tokio::test(start_paused = true)]
+async fn the_same_seed_writes_the_same_log() {
+    let nominal = StageModel::paper_default().unwrap();
+    let a = characterize_on_rig(3001, None).await;
+    let b = characterize_on_rig(3001, None).await;
+    assert_eq!(a.simulated_s, b.simulated_s);
+    assert!(
+        a.text == b.text,
+        "two runs of seed 3001 wrote different logs"
+    );
+    let da = diagnose(&a.log, &nominal, &DiagnoseOptions::default()).unwrap();
+    let db = diagnose(&b.log, &nominal, &DiagnoseOptions::default()).unwrap();
+    assert_eq!(da.to_json().to_string(), db.to_json().to_string());
 }

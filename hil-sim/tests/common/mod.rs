@@ -103,6 +103,21 @@ pub async fn start_daemon(c: DaemonConfig, control: PathBuf, socket: &Path) -> R
     Daemon::start(c, clock, Some(camera), listener).unwrap()
 }
 
+/// Starts the rig in process on the current runtime (a paused one in these
+/// tests: the virtual clock, so a seed gives one result).
+pub fn serve_in_process(cfg: ServeConfig) -> SimHandle {
+    SimHandle::start_in_process(cfg).unwrap()
+}
+
+/// Starts microposd in-process with the validated config `c` on the
+/// in-process rig `sim` (its clock, camera on demand and lines), listening
+/// on `socket`.
+pub fn start_daemon_in_process(c: DaemonConfig, sim: &SimHandle, socket: &Path) -> Running {
+    let _ = std::fs::remove_file(socket);
+    let listener = tokio::net::UnixListener::bind(socket).unwrap();
+    Daemon::start_in(c, hil_sim::run::in_process_environment(sim), listener).unwrap()
+}
+
 /// Waits (up to 30 s) until the daemon reports both controllers
 /// connected, then references both axes.
 pub async fn connect_and_reference(cl: &mut Client) {
