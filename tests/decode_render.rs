@@ -90,7 +90,7 @@ fn bias_sub_period_sweep_and_angle() {
         }
     }
     eprintln!("bias: worst |error| {worst:.2e} px, worst |dθ| {worst_t:.2e} rad");
-    // Without the missing-dot correction the worst was 2.3e-3 px (θ = 2.0
+    // Without the missing-dot correction the worst is 2.3e-3 px (θ = 2.0
     // rad, a constant offset over the sweep); with it ≈ 5e-4 px.
     assert!(worst <= 1e-3, "bias {worst} px");
     assert!(worst_t <= 1e-4, "theta error {worst_t} rad");
