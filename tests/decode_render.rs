@@ -341,7 +341,7 @@ fn absolute(bits: u32, n: usize, seed: u64) {
         eprintln!("  {bits}-bit {label}: {errors} errors / {poses} on-pattern poses");
     }
     assert_eq!(wrong, 0);
-    // 1024×768 (the camera) at 7–11 px/period. They must fail as
+    // 1024×768 (the target camera) at 7–11 px/period. They must fail as
     // errors, rarely, and only for a stated reason (measured counts in
     // docs/design/vision.md).
     assert_eq!(
