@@ -1,5 +1,5 @@
 //! Reliability of microposd with the daemon and the simulator as separate
-//! processes (issue 5): the `microposd` binary against the `hil-sim serve`
+//! processes: the `microposd` binary against the `hil-sim serve`
 //! binary, through the ptys, the camera socket, the simulated clock and the
 //! control socket, exactly as in a deployment against the simulated rig.
 //!
@@ -681,7 +681,7 @@ fn drift_references_are_logged_and_resume_keeps_the_plan() {
         "{b}"
     );
 
-    // Live drift correction against the table's baseline (issue 7): the
+    // Live drift correction against the table's baseline: the
     // table records where the reference was at the start of the run.
     let name = b["paper"]["name"].as_str().unwrap().to_owned();
     c.ok(json!({"cmd": "tables", "action": "activate", "name": name}));

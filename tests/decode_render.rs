@@ -90,7 +90,7 @@ fn bias_sub_period_sweep_and_angle() {
         }
     }
     eprintln!("bias: worst |error| {worst:.2e} px, worst |dθ| {worst_t:.2e} rad");
-    // Without the missing-dot correction the worst was 2.3e-3 px (θ = 2.0
+    // Without the missing-dot correction the worst is 2.3e-3 px (θ = 2.0
     // rad, a constant offset over the sweep); with it ≈ 5e-4 px.
     assert!(worst <= 1e-3, "bias {worst} px");
     assert!(worst_t <= 1e-4, "theta error {worst_t} rad");
@@ -341,7 +341,7 @@ fn absolute(bits: u32, n: usize, seed: u64) {
         eprintln!("  {bits}-bit {label}: {errors} errors / {poses} on-pattern poses");
     }
     assert_eq!(wrong, 0);
-    // 1024×768 (the camera) at 7–11 px/period. They must fail as
+    // 1024×768 (the target camera) at 7–11 px/period. They must fail as
     // errors, rarely, and only for a stated reason (measured counts in
     // docs/design/vision.md).
     assert_eq!(

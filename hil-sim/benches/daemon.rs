@@ -1,4 +1,4 @@
-//! microposd performance (issue 5): `status` round trip over the Unix
+//! microposd performance: `status` round trip over the Unix
 //! socket, command-to-first-serial-byte latency of `move`, position stream
 //! rate against the camera frame rate, CPU use of the idle daemon.
 //!

@@ -11,7 +11,7 @@
 //!    table from the second), `validate` (square and Table II in the modes
 //!    raw, table, model, closed_loop), and it reports AP and RP per
 //!    trajectory and mode next to the paper's figures;
-//! 4. drift (issue 7): the characterizations re-measure a reference point
+//! 4. drift: the characterizations re-measure a reference point
 //!    every `drift_every_s` (tables are built drift-corrected, with their
 //!    baseline), the validation runs with live drift correction
 //!    (`drift set`), and `table` mode is validated again with live drift

@@ -1,12 +1,12 @@
-//! The hidden-effect test through the full simulated rig (issue 7).
+//! The hidden-effect test through the full simulated rig.
 //!
 //! For each seed, the generator's own seed → effect function
 //! ([`draw_effect`]) picks a kind and its parameters; the truth model is the
 //! rig's nominal model (`config/stage-model.toml`, what hil-sim runs without
 //! `--model`) plus that one term, written to a file and served with
 //! `--model truth.toml`. microposd runs in-process on a Unix socket against
-//! the served rig (controllers on ptys with servo dynamics, camera socket,
-//! simulated clock) and characterizes through its socket protocol; the log
+//! the in-process rig (controllers with servo dynamics, camera, virtual
+//! clock) and characterizes through its socket protocol; the log
 //! the daemon wrote goes to [`diagnose`] with the nominal model, which never
 //! sees the seed.
 //!
@@ -17,15 +17,14 @@
 //!
 //! Default (also under `MICROPOS_FULL`): one seed (a scale error) and one
 //! negative, ≈ 30–90 s depending on the machine's load. `MICROPOS_RIG_SWEEP=1`
-//! runs one seed per kind and two negatives (measured on a loaded 2-core
-//! machine, 356 s): position_periodic, scale, time_drift, reversal and
-//! cross_axis named and recovered; a 2.3 σ localized bump not found
-//! (allowed below 3 σ); a time_periodic effect of y (0.93 µm, 419 s) failed
-//! before the tie was drift-corrected: the daemon's tie pre-scan ran while
-//! the effect moved y, took the resulting y-vs-x trend of its X line for a
-//! camera rotation, and the whole log then carried a 300 µrad x-vs-y slope
-//! that the analysis named first. The tie now re-measures its anchor
-//! before, between and after its lines and removes the drift
+//! runs one seed per kind and two negatives (≈ 6 min on a loaded 2-core
+//! machine): position_periodic, scale, time_drift, reversal and cross_axis
+//! are named and recovered; a 2.3 σ localized bump goes unfound (allowed
+//! below 3 σ). A time_periodic effect of y (0.93 µm, 419 s) moves y during
+//! the daemon's tie pre-scan; left in, the y-vs-x trend of its X line would
+//! be taken for a camera rotation and the whole log would carry a 300 µrad
+//! x-vs-y slope that the analysis names first. The tie re-measures its
+//! anchor before, between and after its lines and removes the drift
 //! (`micropos::daemon::jobs::tie`): that seed alone
 //! (`MICROPOS_RIG_KIND=time_periodic`) gives a tie 0.7 µrad from the
 //! mounting (−216 µrad without the correction, same samples) and names
@@ -78,9 +77,9 @@ struct RigPlan {
 /// a 2-core machine running nothing else (one rendered and decoded frame
 /// per point dominates). The 3 s settle stretches the run to ≈ 40 simulated
 /// minutes for the time kinds (simulated time is cheap, frames are not).
-/// Measured with fewer points (2000 × 1600 µm, 296 points): a 167 ppm scale
-/// error and a 0.87 µm/h drift of x (9–11 σ) were not found, so the plan
-/// was not reduced further.
+/// With fewer points (2000 × 1600 µm, 296 points) a 167 ppm scale error
+/// and a 0.87 µm/h drift of x (9–11 σ) go unfound, so the plan is not
+/// smaller.
 const PLAN: RigPlan = RigPlan {
     x_start_um: 500.0,
     x_range_um: 2400.0,
@@ -329,7 +328,7 @@ fn peak_um(e: &InjectedEffect, plan: &SimPlan) -> f64 {
 
 /// Effects smaller than this many noise σ may go unnamed (nothing found)
 /// on this plan: 360 points resolve less than the model-only test's 1 600
-/// (measured: a 0.10 µm, 160 µm wide bump, 2.3 σ, was not found). Naming
+/// (e.g. a 0.10 µm, 160 µm wide bump, 2.3 σ, goes unfound). Naming
 /// something else, or wrong parameters, is never allowed.
 const MISS_ALLOWED_BELOW_SNR: f64 = 3.0;
 

@@ -1,5 +1,5 @@
-//! Daemon jobs ride through transient faults (issue: long jobs must survive
-//! a glitch) and still fail cleanly on permanent ones. The simulated rig on
+//! Daemon jobs ride through transient faults (a long job must survive a
+//! glitch) and still fail cleanly on permanent ones. The simulated rig on
 //! ptys + camera socket + sim clock, microposd in-process, a small
 //! characterization over the socket.
 //!

@@ -1,5 +1,5 @@
 //! Live drift correction on the rig's thermal drift, through the daemon
-//! (issue 7, "Also"): the main job's pipeline (`hil-sim run`) on a reduced
+//! the main job's pipeline (`hil-sim run`) on a reduced
 //! plan with a fast temperature ramp, characterizations with reference
 //! re-measurements (tables corrected to the rig's state at their start),
 //! then the `table` mode validated with live drift `off`, `static` and

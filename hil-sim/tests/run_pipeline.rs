@@ -5,9 +5,9 @@
 //!
 //! Checks the JSON shape the README documents and that compensation
 //! improves on raw by a stated factor: the lookup tables and the model by
-//! ≥ 5× in AP (measured on this plan: raw ≈ 13 µm, table ≈ 0.2-0.5 µm,
+//! ≥ 5× in AP (typical on this plan: raw ≈ 13 µm, table ≈ 0.2-0.5 µm,
 //! model ≈ 1-1.5 µm from 500 µm steps), closed loop to ≤ 0.5 µm
-//! (measured ≈ 0.1 µm; its tolerance is 0.1 µm).
+//! (typically ≈ 0.1 µm; its tolerance is 0.1 µm).
 
 use hil_sim::run::{run, RunOptions, RunPlan};
 

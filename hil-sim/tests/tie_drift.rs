@@ -6,11 +6,11 @@
 //! term (`time_drift`) set to move y by [`Y_DRIFT_UM_PER_H`]. A
 //! characterization is started and cancelled as soon as its log exists:
 //! the log's metadata holds the tied frame. The tie's X line visits its
-//! points in time order, so before the anchor visits of `jobs::tie` the
-//! drift was fitted as a camera rotation of `rate × dwell per point / step`
-//! (≈ 60 µm/h × 9 s / 400 µm ≈ 370 µrad here; the metadata's
-//! `tie_uncorrected_rotation_rad` is that procedure's fit on the same
-//! samples). Checked: the tied rotation is the mounting's to within
+//! points in time order, so without the anchor visits of `jobs::tie` the
+//! drift would be fitted as a camera rotation of `rate × dwell per point /
+//! step` (≈ 60 µm/h × 9 s / 400 µm ≈ 370 µrad here; the metadata's
+//! `tie_uncorrected_rotation_rad` is that fit on the same samples).
+//! Checked: the tied rotation is the mounting's to within
 //! [`ROTATION_TOL_URAD`], the uncorrected one misses it by more than
 //! [`UNCORRECTED_MIN_URAD`], and the anchor saw the drift.
 //!
@@ -34,11 +34,11 @@ const Y_DRIFT_UM_PER_H: f64 = 60.0;
 /// 0.035 µm per arrival over a 2400 µm X line, plus the anchor visits)
 /// would be ≈ 15 µrad rms if every visit re-approached both axes; the
 /// held axis keeps its settling error along a line and its return, and
-/// measured here: −0.8 and −1.1 µrad in two runs.
+/// the test prints what it gets (about 1 µrad).
 const ROTATION_TOL_URAD: f64 = 10.0;
 
 /// The uncorrected fit must miss by more than this, µrad (so the test
-/// shows the drift matters; measured −266 and −334 µrad).
+/// shows the drift matters; it prints ≈ −270 to −330 µrad).
 const UNCORRECTED_MIN_URAD: f64 = 150.0;
 
 /// Simulated seconds per wall second besides the settle advances (as the

@@ -63,7 +63,7 @@ pub enum FindingKind {
     TimePeriodic,
     /// Lost motion on reversal beyond the model's play.
     Reversal,
-    /// Dependence on the length of the preceding move (not searched yet).
+    /// Dependence on the length of the preceding move (`step_size`).
     StepSize,
     /// Dependence on the other axis's position.
     CrossAxis,

@@ -2,7 +2,7 @@
 //!
 //! Why one trait: the daemon, the CLI and the characterization runs must not
 //! care whether frames come from a GigE Vision camera, a V4L2 device, a
-//! directory of recorded images or (later) the simulator. They all implement
+//! directory of recorded images or the simulator. They all implement
 //! [`FrameSource`]; the rest of micropos only sees frames with a timestamp,
 //! a sequence number and a bit depth.
 //!

@@ -34,7 +34,7 @@ use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::Duration;
 
 /// Optics, sensor and pattern of the simulated camera (`[camera]` of the rig
-/// file). Defaults: the paper's rig as the issue describes it.
+/// file). Defaults: the paper's rig.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct CameraConfig {

@@ -16,8 +16,9 @@
 //!   the carriage is; referencing sets the offset so that the encoder reads
 //!   parameter 0x16 (7.5 mm) at the reference switch.
 //! - *true platform position* (mm): where the platform really is. A
-//!   [`Platform`] maps actuator to platform position; today it is the
-//!   identity ([`IdealPlatform`]), later issues put a stage error model there.
+//!   [`Platform`] maps actuator to platform position: the identity
+//!   ([`IdealPlatform`]) for a controller alone; the shared rig installs its
+//!   stage error model (`crate::rig::RigAxis`).
 //!
 //! # Status register (`#4`), bit layout used here (C-863 `SRG?` layout)
 //! | bit | meaning |

@@ -79,7 +79,7 @@ impl Controller {
         &self.serial
     }
 
-    /// Replaces the platform model (the stage error model of later issues).
+    /// Replaces the platform model (e.g. the rig's stage error model).
     pub fn set_platform(&mut self, platform: Box<dyn Platform>) {
         self.platform = platform;
         self.reported = None;

@@ -19,8 +19,8 @@
 //!    moves: a camera log's frame origin is a convention (the daemon's tie
 //!    pre-scan puts the mean of command − measured along its X tie line at
 //!    zero), not something the model predicts, so an absolute offset is
-//!    profiled out rather than reported as structure (measured on the
-//!    simulated rig: a 3.5 µm offset was named a 6.7 mm wide "dip").
+//!    profiled out rather than reported as structure (otherwise, on the
+//!    simulated rig, a 3.5 µm offset is named a 6.7 mm wide "dip").
 //! 4. **Search.** For each error component, candidate families against every
 //!    variable of the log: each axis position (periodic at any period by a
 //!    generalized Lomb–Scargle periodogram; slope; a localized Gaussian

@@ -242,8 +242,8 @@ impl Jobs {
         let plan = ScanPlan::from_metadata(&resume.metadata)
             .map_err(|e| ProtoError::new(ErrorCode::LogError, format!("{name}: {e}")))?;
         // The frame the job started with: its own tie (vision_frame_*), or
-        // for logs of earlier versions the configured rotation plus the
-        // first point's offset.
+        // for a log with only `vision_offset_*` keys the configured rotation
+        // plus the first point's offset.
         let legacy = (|| {
             let x = resume.metadata.get("vision_offset_x_um")?.parse().ok()?;
             let y = resume.metadata.get("vision_offset_y_um")?.parse().ok()?;

@@ -208,7 +208,7 @@ impl ScanPlan {
 /// every `every_s` of rig time the job measures `reference_um` and logs it
 /// with segment [`crate::analysis::drift::DRIFT_REF_SEGMENT`], so that
 /// `tables build` can subtract the drift. Stored in the log metadata so a
-/// resumed job keeps doing it; absent keys = off (logs of earlier versions).
+/// resumed job keeps doing it; absent keys = off (a log without them).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct DriftPlan {
     /// Interval between re-measurements, s of rig time (> 0).

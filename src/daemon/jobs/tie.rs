@@ -26,10 +26,11 @@
 //! A line visits its points in order, so time runs with position along it:
 //! whatever moves the stage (or the camera's view) in *time* during the tie
 //! (thermal drift, a periodic disturbance) is, on the X line, a y error
-//! proportional to x, and was fitted as a camera rotation. That rotation
-//! then tilts the whole log: measured on the simulated rig with a 0.93 µm,
-//! 419 s periodic y disturbance, a 300 µrad spurious y-vs-x slope that the
-//! analysis named `cross_axis` instead of the time effect.
+//! proportional to x, and a plain fit takes it for a camera rotation that
+//! then tilts the whole log: on the simulated rig a 0.93 µm, 419 s periodic
+//! y disturbance gives a 300 µrad spurious y-vs-x slope that the analysis
+//! names `cross_axis` instead of the time effect (`hil-sim/tests/hidden_rig.rs`,
+//! `MICROPOS_RIG_KIND=time_periodic`, prints the uncorrected rotation).
 //!
 //! The tie therefore measures a fixed *anchor* (the X line's first point,
 //! the start corner) three times: before the X line, between the lines and
@@ -40,8 +41,8 @@
 //! of the tie, just before the first logged point) before the fit. The
 //! return to the anchor moves only the line's axis ([`tie_plan`]): the held
 //! axis keeps its settling error from the first visit through the line and
-//! back, so the anchor reads drift, not a new settling draw (measured on
-//! the plain simulated rig with both axes re-approached: a 5 µrad tilt
+//! back, so the anchor reads drift, not a new settling draw (on the plain
+//! simulated rig, re-approaching both axes gives a tilt of about 5 µrad
 //! from that noise, enough for a spurious `cross_axis` finding; the
 //! uncorrected tie there is within 0.2 µrad). That is
 //! exact for any drift linear or quadratic in time; for a periodic one of
