@@ -252,6 +252,13 @@ impl Client {
         }
     }
 
+    /// The daemon's rig time, s.
+    async fn now_s(&mut self) -> Result<f64, RunError> {
+        Ok(self.call(json!({"cmd": "status"})).await?["t_s"]
+            .as_f64()
+            .unwrap_or(f64::NAN))
+    }
+
     /// Polls a job's status until it leaves `running`; reports progress.
     /// Starts the validation job `req` and follows it to its end; returns
     /// its final status.
@@ -550,7 +557,15 @@ async fn pipeline(
         tokio::time::sleep(Duration::from_millis(50)).await;
     }
     progress("referencing both axes");
+    // Simulated seconds per phase, in order (the `phases_s` block).
+    let mut phases = serde_json::Map::new();
+    let mut mark = c.now_s().await?;
     c.call(json!({"cmd": "reference", "axes": "xy"})).await?;
+    let mut lap = |c_now: f64, name: &str, phases: &mut serde_json::Map<String, Value>| {
+        phases.insert(name.to_owned(), json!(c_now - mark));
+        mark = c_now;
+    };
+    lap(c.now_s().await?, "reference", &mut phases);
     let mut chars = Vec::new();
     for (log, step) in [
         ("charact-paper.csv", p.step_um),
@@ -560,9 +575,7 @@ async fn pipeline(
             "characterize {log}: {step} µm steps over {} × {} µm, {} cycles",
             p.x_range_um, p.y_range_um, p.cycles
         ));
-        let t_start = c.call(json!({"cmd": "status"})).await?["t_s"]
-            .as_f64()
-            .unwrap_or(0.0);
+        let t_start = c.now_s().await?;
         c.call(json!({"cmd": "characterize", "action": "start", "log": log,
                       "step_um": step, "x_range_um": p.x_range_um, "y_range_um": p.y_range_um,
                       "cycles": p.cycles, "frames_per_point": p.frames_per_point,
@@ -594,10 +607,9 @@ async fn pipeline(
                 other => break other?,
             }
         };
-        let t_end = c.call(json!({"cmd": "status"})).await?["t_s"]
-            .as_f64()
-            .unwrap_or(0.0);
+        let t_end = c.now_s().await?;
         chars.push((s["job"]["done"].as_u64().unwrap_or(0), t_end - t_start));
+        lap(t_end, log.trim_end_matches(".csv"), &mut phases);
     }
     progress(
         "tables build: paper tables from charact-paper.csv, model table from charact-short.csv",
@@ -614,6 +626,7 @@ async fn pipeline(
                      "name": "run-short", "kinds": ["model"]}),
         )
         .await?;
+    lap(c.now_s().await?, "tables", &mut phases);
     progress(&format!(
         "  paper tables: squareness {:.1} µrad; model fit residual rms {} µm",
         paper["paper"]["report"]["squareness_urad"]
@@ -633,6 +646,7 @@ async fn pipeline(
     let mut req = validate_request(p, "validate.csv");
     req["model_table"] = json!("run-short-model.toml");
     let v = c.validate(req, progress).await?;
+    lap(c.now_s().await?, "validate", &mut phases);
     let results = v["validation"]["results"].clone();
     let mut summary = json!({});
     for test in ["square", "random"] {
@@ -678,6 +692,11 @@ async fn pipeline(
             let mut req = validate_request(p, &log);
             req["modes"] = json!(["table"]);
             let v = c.validate(req, progress).await?;
+            lap(
+                c.now_s().await?,
+                &format!("validate_drift_{method}"),
+                &mut phases,
+            );
             let r = &v["validation"]["results"];
             cmp[method] = json!({"square": table_offset(&r["square"]["table"]),
                                  "random": table_offset(&r["random"]["table"])});
@@ -686,6 +705,11 @@ async fn pipeline(
         drift["compare"] = cmp;
     }
     summary["drift"] = drift;
+    summary["phases_s"] = Value::Object(phases);
+    // Frames the camera delivered and the decoder read: the work the run
+    // cannot avoid (the main-job benchmark's baseline is their cost).
+    let cam = &c.call(json!({"cmd": "status"})).await?["camera"];
+    summary["frames"] = json!({"grabbed": cam["frames"], "decoded": cam["decoded"]});
     Ok((summary, results, files))
 }
 
@@ -747,6 +771,13 @@ pub fn format_table(summary: &Value) -> String {
                 ));
             }
         }
+    }
+    if let Some(p) = summary["phases_s"].as_object() {
+        let list: Vec<String> = p
+            .iter()
+            .map(|(k, v)| format!("{k} {:.0}", v.as_f64().unwrap_or(f64::NAN)))
+            .collect();
+        s.push_str(&format!("simulated s per phase: {}\n", list.join(", ")));
     }
     let ch = &summary["characterization"];
     s.push_str(&format!(
