@@ -51,26 +51,24 @@ async fn rig() -> Rig {
     std::fs::create_dir_all(&data).unwrap();
     let cfg = common::serve_config(&rig_dir, 50.0, 7);
     let rig_cfg = cfg.rig.clone();
-    let sim = common::serve(cfg).await;
+    let sim = common::serve_in_process(cfg);
     let socket = dir.path().join("d.sock");
     let mut c = daemon_config(&rig_dir, &data, &socket, &rig_cfg, &RunPlan::reduced()).unwrap();
     // No controller poll during the test: every value answer the rig sends
     // belongs to the job, so a corrupted one lands on the job.
     c.daemon.poll_interval_ms = 60_000;
     for a in [&mut c.driver.x, &mut c.driver.y] {
-        // A lost answer costs this much wall time; shorter fails the
-        // reference run on a loaded machine.
+        // A lost answer costs this much (rig) time.
         a.timeout_ms = 2000;
         // A power cycle during a wait leaves the axis stopped off target:
-        // the driver only notices at the motion timeout (wall time).
+        // the driver only notices at the motion timeout.
         a.motion_timeout_s = 5.0;
     }
     c.camera.timeout_ms = 1000;
     c.daemon.job_retries = 3;
     c.daemon.job_retry_backoff_s = 0.5;
     c.validate().unwrap();
-    let control = rig_dir.join("control.sock");
-    let daemon = common::start_daemon(c, control, &socket).await;
+    let daemon = common::start_daemon_in_process(c, &sim, &socket);
     let r = Rig {
         sim: Some(sim),
         daemon: Some(daemon),
@@ -108,7 +106,7 @@ async fn follow(events: &mut Client, mut on_event: impl FnMut(&Value)) -> (Value
     }
 }
 
-#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+#[tokio::test(start_paused = true)]
 async fn transient_faults_are_retried_and_counted() {
     let r = rig().await;
     let mut events = Client::connect(&r.socket).await;
@@ -190,7 +188,7 @@ async fn transient_faults_are_retried_and_counted() {
     r.shutdown().await;
 }
 
-#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+#[tokio::test(start_paused = true)]
 async fn a_permanent_fault_is_not_retried() {
     let r = rig().await;
     let mut events = Client::connect(&r.socket).await;

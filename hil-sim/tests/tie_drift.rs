@@ -1,6 +1,6 @@
 //! The daemon's vision → stage tie under a drift in time, through the full
-//! simulated rig (controllers on ptys, camera socket, simulated clock,
-//! microposd in-process on a Unix socket).
+//! simulated rig (in process on the paused test runtime's virtual clock,
+//! microposd on a Unix socket).
 //!
 //! The truth model is the documented stage model with its `extra_drift`
 //! term (`time_drift`) set to move y by [`Y_DRIFT_UM_PER_H`]. A
@@ -41,9 +41,6 @@ const ROTATION_TOL_URAD: f64 = 10.0;
 /// shows the drift matters; it prints ≈ −270 to −330 µrad).
 const UNCORRECTED_MIN_URAD: f64 = 150.0;
 
-/// Simulated seconds per wall second besides the settle advances (as the
-/// hidden-effect rig test).
-const TIME_SCALE: f64 = 100.0;
 
 /// The documented stage model with `extra_drift` moving y at `rate`.
 fn drift_model(dir: &Path, rate_um_per_h: f64) -> std::path::PathBuf {
@@ -76,7 +73,7 @@ fn angle_diff(a: f64, b: f64) -> f64 {
     }
 }
 
-#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+#[tokio::test(start_paused = true)]
 async fn a_drift_in_time_does_not_tilt_the_tie() {
     let wall = Instant::now();
     let dir = tempfile::tempdir().unwrap();
@@ -85,13 +82,11 @@ async fn a_drift_in_time_does_not_tilt_the_tie() {
     let data_dir = dir.path().join("data");
     std::fs::create_dir_all(&rig_dir).unwrap();
     std::fs::create_dir_all(&data_dir).unwrap();
-    let control = rig_dir.join("control.sock");
     let rig_cfg = RigConfig::default();
-    let sim = common::serve(ServeConfig {
+    let sim = common::serve_in_process(ServeConfig {
         model: Some(model),
-        ..common::serve_config(&rig_dir, TIME_SCALE, 7)
-    })
-    .await;
+        ..common::serve_config(&rig_dir, 1.0, 7)
+    });
     let socket = dir.path().join("micropos.sock");
     let plan = RunPlan {
         step_um: 400.0,
@@ -106,7 +101,7 @@ async fn a_drift_in_time_does_not_tilt_the_tie() {
     c.characterize.x_start_um = Some(500.0);
     c.characterize.y_start_um = Some(500.0);
     c.validate().unwrap();
-    let daemon = common::start_daemon(c, control, &socket).await;
+    let daemon = common::start_daemon_in_process(c, &sim, &socket);
 
     let mut cl = Client::connect(&socket).await;
     let t0 = Instant::now();
