@@ -88,7 +88,8 @@ class SimRig:
     def _start_sim(self) -> None:
         binary = _binary("HIL_SIM_BIN", "hil-sim")
         if not binary.exists():
-            pytest.fail(f"hil-sim not found at {binary}: cargo build -p hil-sim --bins (or HIL_SIM_BIN)")
+            pytest.fail(f"hil-sim not found at {binary}: "
+                        "cargo build -p hil-sim --bins (or set HIL_SIM_BIN)")
         self.sim = subprocess.Popen(
             [str(binary), "serve", "--link-dir", str(self.dir), "--seed", "1",
              "--time-scale", str(TIME_SCALE)],
@@ -105,7 +106,8 @@ class SimRig:
         """Starts microposd and waits until both controllers are connected."""
         binary = _binary("MICROPOSD_BIN", "microposd")
         if not binary.exists():
-            pytest.fail(f"microposd not found at {binary}: cargo build -p micropos --bins (or MICROPOSD_BIN)")
+            pytest.fail(f"microposd not found at {binary}: "
+                        "cargo build -p micropos --bins (or set MICROPOSD_BIN)")
         cfg = daemon_config(self.dir)
         log = open(self.dir / "microposd.log", "ab")
         self.daemon = subprocess.Popen([str(binary), "-c", str(cfg)],
@@ -123,6 +125,32 @@ class SimRig:
                 pass
             assert time.monotonic() < deadline, "microposd did not come up"
             time.sleep(0.05)
+
+    def freeze_daemon(self) -> None:
+        """SIGSTOP, and wait until every thread of the daemon is stopped
+        (delivery is asynchronous: a thread running on another core could
+        still answer a request sent right after the kill)."""
+        assert self.daemon is not None
+        self.daemon.send_signal(signal.SIGSTOP)
+        tasks = pathlib.Path(f"/proc/{self.daemon.pid}/task")
+        deadline = time.monotonic() + DEADLINE_S
+        while True:
+            states = []
+            for t in tasks.iterdir():
+                try:
+                    # The state follows the parenthesized command name.
+                    states.append((t / "stat").read_text().rsplit(")", 1)[1].split()[0])
+                except (OSError, IndexError):
+                    pass
+            if states and all(st in ("T", "t") for st in states):
+                return
+            assert time.monotonic() < deadline, f"microposd not stopped: {states}"
+            time.sleep(0.01)
+
+    def thaw_daemon(self) -> None:
+        """SIGCONT after :meth:`freeze_daemon`."""
+        assert self.daemon is not None
+        self.daemon.send_signal(signal.SIGCONT)
 
     def daemon_log(self) -> str:
         try:

@@ -3,7 +3,6 @@
 Plain ``asyncio.run`` in each test: no pytest plugin needed."""
 
 import asyncio
-import signal
 import time
 
 import pytest
@@ -118,7 +117,7 @@ def test_async_connection_lost_and_timeout(fresh_rig):
     async def main():
         rig = await AsyncRig.connect(fresh_rig.socket, timeout=1.5, long_timeout=3)
         events = await rig.subscribe(["fault"], keepalive_s=0.5)
-        fresh_rig.daemon.send_signal(signal.SIGSTOP)
+        fresh_rig.freeze_daemon()
         try:
             t0 = time.monotonic()
             with pytest.raises(micropos.Timeout):
@@ -127,7 +126,7 @@ def test_async_connection_lost_and_timeout(fresh_rig):
                 await events.next()
             assert time.monotonic() - t0 < 8
         finally:
-            fresh_rig.daemon.send_signal(signal.SIGCONT)
+            fresh_rig.thaw_daemon()
         assert (await rig.status())["ok"] is True
 
         events = await rig.subscribe(["fault"])

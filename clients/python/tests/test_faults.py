@@ -103,7 +103,7 @@ def test_killed_daemon_ends_a_subscription_with_connection_lost(fresh_rig):
 def test_frozen_daemon_times_out_calls_and_subscriptions(fresh_rig):
     rig = micropos.Rig(fresh_rig.socket, timeout=1.5, long_timeout=3)
     events = rig.subscribe(["fault"], keepalive_s=0.5)
-    fresh_rig.daemon.send_signal(signal.SIGSTOP)
+    fresh_rig.freeze_daemon()
     try:
         t0 = time.monotonic()
         with pytest.raises(micropos.Timeout, match="within 1.5 s"):
@@ -114,7 +114,7 @@ def test_frozen_daemon_times_out_calls_and_subscriptions(fresh_rig):
             events.next()
         assert time.monotonic() - t0 < 5
     finally:
-        fresh_rig.daemon.send_signal(signal.SIGCONT)
+        fresh_rig.thaw_daemon()
     # Thawed: the next call reconnects and gets its own answer, not a late
     # reply meant for the call that timed out.
     assert rig.version()["protocol"] == 1
@@ -126,9 +126,8 @@ def test_daemon_shutdown_is_reported_to_subscribers(fresh_rig):
     with micropos.Rig(fresh_rig.socket, timeout=5) as rig:
         events = rig.subscribe(["fault"])
         fresh_rig.daemon.send_signal(signal.SIGTERM)
-        with pytest.raises((micropos.ShuttingDown, micropos.ConnectionLost)) as e:
+        with pytest.raises(micropos.ShuttingDown):
             events.next(timeout=30)
         fresh_rig.daemon.wait(timeout=30)
-        print(type(e.value).__name__, e.value)
         with pytest.raises(micropos.ConnectionLost):
             rig.status()

@@ -64,7 +64,9 @@ def test_reference_one_axis(rig):
 
 def test_characterize_job_tables_build_and_compensated_move(rig, shared_rig):
     with rig.subscribe(["job"], timeout=60) as events:
-        job = rig.characterize("py-char.csv", **SMALL_SCAN)
+        # With drift references (every 5 s of rig time), so that the table
+        # records a drift baseline and live drift can be measured below.
+        job = rig.characterize("py-char.csv", drift_every_s=5, **SMALL_SCAN)
         assert (job.kind, job.log) == ("characterize", "py-char.csv")
         assert job.started["job"]["state"] == "running"
         total = job.started["job"]["total"]
@@ -84,6 +86,7 @@ def test_characterize_job_tables_build_and_compensated_move(rig, shared_rig):
         assert final["job"]["state"] == "done"
         assert final["job"]["done"] == total
         assert job.progress["state"] == "done"
+        assert rig.characterize_status()["job"] == final["job"]
 
         # The job's events arrived, in order, ending with done.
         seen = []
@@ -112,6 +115,11 @@ def test_characterize_job_tables_build_and_compensated_move(rig, shared_rig):
     r = rig.move(3000, 3000)  # compensated by default
     assert r["mode"] == "compensated" and r["on_target"] is True
     assert r["target"] == {"x_um": 3000.0, "y_um": 3000.0}
+
+    # Live drift against the active table's baseline: measured now.
+    measured = rig.drift.measure()
+    assert "measured" in measured and measured["drift"]["references"] >= 1
+    rig.drift.reset()
 
     # Deactivate, load and activate again by name; the model table too.
     assert rig.tables.activate(None)["active"] is None
@@ -152,6 +160,7 @@ def test_validate_job_with_results_and_cancel(rig, paper_table):
                        log="py-val.csv", frames_per_point=1, settle_s=0.1)
     assert job.kind == "validate" and job.log == "py-val.csv"
     final = job.wait(timeout=150, poll_s=0.2)
+    assert rig.validate_status()["validation"] == final["validation"]
     square = final["validation"]["results"]["square"]
     assert set(square) == {"raw", "table"}
     assert square["table"]["ap_um"] < square["raw"]["ap_um"]

@@ -20,7 +20,7 @@ from .errors import (
     ProtocolError,
     error_from_reply,
 )
-from .types import Axes, DriftMethod, Json, MoveMode, TableKind, Topic, ValidateMode, ValidateTest
+from .types import Axes, DriftMethod, Json, MoveMode, ValidateTest
 
 #: The protocol version this client speaks (``version`` → ``protocol``).
 PROTOCOL_VERSION = 1
@@ -74,7 +74,9 @@ def decode(line: bytes) -> Json:
     try:
         value = json.loads(line)
     except (UnicodeDecodeError, ValueError) as e:
-        raise ProtocolError(f"the daemon sent a line that is not JSON ({e}): {line[:200]!r}") from None
+        raise ProtocolError(
+            f"the daemon sent a line that is not JSON ({e}): {line[:200]!r}"
+        ) from None
     if not isinstance(value, dict):
         raise ProtocolError(f"the daemon sent a line that is not an object: {line[:200]!r}")
     return value
@@ -145,7 +147,7 @@ def reference(axes: Axes) -> Json:
     return request("reference", axes=axes)
 
 
-def subscribe(topics: Optional[Iterable[Topic]]) -> Json:
+def subscribe(topics: Optional[Iterable[str]]) -> Json:
     """``subscribe``; ``None`` = every topic (the daemon's default)."""
     if isinstance(topics, str):
         # A bare string would be split into letters: a classic slip.
@@ -186,7 +188,7 @@ def characterize_start(
 def validate_start(
     *,
     test: Optional[ValidateTest],
-    modes: Optional[Iterable[ValidateMode]],
+    modes: Optional[Iterable[str]],
     cycles: Optional[int],
     log: Optional[str],
     origin_x_um: Optional[float],
@@ -218,7 +220,7 @@ def validate_start(
 
 
 def tables_build(
-    log: str, name: Optional[str], kinds: Optional[Iterable[TableKind]], activate: bool
+    log: str, name: Optional[str], kinds: Optional[Iterable[str]], activate: bool
 ) -> Json:
     """``tables`` ``build``."""
     if isinstance(kinds, str):
@@ -250,14 +252,14 @@ def drift_set(
 # --- jobs ---------------------------------------------------------------------
 
 
-def job_of(reply: Mapping[str, Any], kind: str, log: Optional[str]) -> Json:
+def job_of(reply: Mapping[str, Any], kind: str, log: str) -> Json:
     """The ``job`` object of a status reply, checked to be the job a handle
     follows: one job runs at a time, and a later job replaces the earlier one
     in ``status``; reading its progress as ours would be a silent mix-up."""
     job = reply.get("job")
     if not isinstance(job, dict):
         raise JobState(f"the daemon reports no {kind} job (was it restarted?)", reply=reply)
-    if job.get("kind") != kind or (log is not None and job.get("log") != log):
+    if job.get("kind") != kind or job.get("log") != log:
         raise JobState(
             f"the daemon's current job is {job.get('kind')} {job.get('log')!r}, "
             f"not the {kind} {log!r} this handle follows",

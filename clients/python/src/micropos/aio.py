@@ -12,7 +12,7 @@ the I/O differs. Request building and reply checks are shared
 
 import asyncio
 import time
-from typing import Any, AsyncIterator, Awaitable, Iterable, List, Optional, Sequence, Type
+from typing import Any, AsyncIterator, Awaitable, Iterable, List, Optional, Sequence, Type, cast
 
 from . import _protocol as proto
 from .client import DEFAULT_LONG_TIMEOUT, DEFAULT_SOCKET, DEFAULT_TIMEOUT
@@ -391,7 +391,7 @@ class AsyncRig:
         job = (await self.status()).get("job")
         if not isinstance(job, dict):
             return None
-        return AsyncJob(self, job["kind"], job.get("log"), {"ok": True, "job": job})
+        return AsyncJob(self, job["kind"], job["log"], {"ok": True, "job": job})
 
 
 class AsyncTables:
@@ -460,7 +460,7 @@ class AsyncJob:
     """A job in the daemon; see :class:`~micropos.Job`. ``await job.progress``
     reads its status now."""
 
-    def __init__(self, rig: AsyncRig, kind: JobKind, log: Optional[str], started: Json) -> None:
+    def __init__(self, rig: AsyncRig, kind: JobKind, log: str, started: Json) -> None:
         self._rig = rig
         self.kind: JobKind = kind
         self.log = log
@@ -468,8 +468,10 @@ class AsyncJob:
 
     @classmethod
     def _from_reply(cls: "Type[AsyncJob]", rig: AsyncRig, kind: JobKind, reply: Json) -> "AsyncJob":
-        job = reply.get("job") or {}
-        return cls(rig, kind, job.get("log"), reply)
+        job = reply.get("job")
+        if not isinstance(job, dict) or not isinstance(job.get("log"), str):
+            raise ProtocolError(f"{kind} reply without job.log: {reply!r}", reply=reply)
+        return cls(rig, kind, job["log"], reply)
 
     def __repr__(self) -> str:
         return f"AsyncJob({self.kind!r}, log={self.log!r})"
@@ -486,8 +488,7 @@ class AsyncJob:
         return self._progress()
 
     async def _progress(self) -> JobProgress:
-        job: Any = (await self.status())["job"]
-        return job
+        return cast(JobProgress, (await self.status())["job"])
 
     async def wait(self, timeout: Optional[float] = None, poll_s: float = 1.0) -> Json:
         """Polls until the job ends; see :meth:`Job.wait`."""

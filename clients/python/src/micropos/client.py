@@ -18,11 +18,11 @@ Design, and why:
 
 import threading
 import time
-from typing import Any, Iterable, Iterator, List, Optional, Sequence, Type
+from typing import Any, Iterable, Iterator, List, Optional, Sequence, Type, cast
 
 from . import _protocol as proto
 from ._connection import Connection
-from .errors import MicroposError, Timeout
+from .errors import MicroposError, ProtocolError, Timeout
 from .types import (
     Axes,
     DriftMethod,
@@ -376,7 +376,7 @@ class Rig:
         job = self.status().get("job")
         if not isinstance(job, dict):
             return None
-        return Job(self, job["kind"], job.get("log"), {"ok": True, "job": job})
+        return Job(self, job["kind"], job["log"], {"ok": True, "job": job})
 
     def _long(self, timeout: Optional[float]) -> float:
         return self.long_timeout if timeout is None else timeout
@@ -462,7 +462,7 @@ class Job:
         started: the reply that started (or found) the job.
     """
 
-    def __init__(self, rig: Rig, kind: JobKind, log: Optional[str], started: Json) -> None:
+    def __init__(self, rig: Rig, kind: JobKind, log: str, started: Json) -> None:
         self._rig = rig
         self.kind: JobKind = kind
         self.log = log
@@ -470,8 +470,10 @@ class Job:
 
     @classmethod
     def _from_reply(cls: "Type[Job]", rig: Rig, kind: JobKind, reply: Json) -> "Job":
-        job = reply.get("job") or {}
-        return cls(rig, kind, job.get("log"), reply)
+        job = reply.get("job")
+        if not isinstance(job, dict) or not isinstance(job.get("log"), str):
+            raise ProtocolError(f"{kind} reply without job.log: {reply!r}", reply=reply)
+        return cls(rig, kind, job["log"], reply)
 
     def __repr__(self) -> str:
         return f"Job({self.kind!r}, log={self.log!r})"
@@ -488,8 +490,7 @@ class Job:
         """The job's status object, read from the daemon now: ``state``,
         ``done``, ``total``, ``eta_s``, ``error``, ``retries``."""
         reply = self._rig._call(proto.status_action(self.kind))
-        job: Any = proto.job_of(reply, self.kind, self.log)
-        return job
+        return cast(JobProgress, proto.job_of(reply, self.kind, self.log))
 
     def wait(self, timeout: Optional[float] = None, poll_s: float = 1.0) -> Json:
         """Polls until the job ends; returns the final status reply.
@@ -522,7 +523,7 @@ class Job:
 
     def cancel(self) -> Json:
         """Cancels the job (after its current point or pose)."""
-        self.progress  # noqa: B018 - refuse to cancel someone else's job
+        self.status()  # refuse to cancel someone else's job
         return self._rig._call(proto.cancel_action(self.kind), self._rig.long_timeout)
 
 

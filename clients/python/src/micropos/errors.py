@@ -309,6 +309,10 @@ class JobFailed(MicroposError):
         job: the job's last status object (``kind``, ``log``, ``state``,
             ``done``, ``total``, ``error``, …).
         state: the job's final state.
+        error_code: the protocol error code that ended the job, when the
+            daemon's ``job.error`` starts with one (``"camera_stalled: …"``,
+            ``"not_referenced: …"``), so scripts can react as to a refusal;
+            ``None`` otherwise.
     """
 
     code = "job_failed"
@@ -324,6 +328,8 @@ class JobFailed(MicroposError):
         super().__init__(message, code=code, reply=reply)
         self.job: Dict[str, Any] = dict(job or {})
         self.state: str = str(self.job.get("state", ""))
+        prefix = str(self.job.get("error") or "").split(":", 1)[0].strip()
+        self.error_code: Optional[str] = prefix if prefix in ERROR_CLASSES else None
 
     def __reduce__(self) -> Any:
         return (_rebuild_job, (type(self), self.message, self.code, self.reply, self.job))
