@@ -98,3 +98,62 @@ def test_unreachable_daemon_raises_at_once(tmp_path):
 def test_timeouts_must_be_positive():
     with pytest.raises(ValueError):
         micropos.AsyncRig("/nonexistent", timeout=0)
+
+
+def parse_rs_fields():
+    """Command → accepted fields, from the daemon's parser (parse.rs)."""
+    text = (REPO / "src" / "daemon" / "protocol" / "parse.rs").read_text()
+    block = text.split("let known: &[&str] = match cmd {", 1)[1].split("other =>", 1)[0]
+    fields = {}
+    for m in re.finditer(r'((?:"\w+"\s*\|\s*)*"\w+")\s*=>\s*&\[(.*?)\]', block, re.S):
+        for name in re.findall(r'"(\w+)"', m.group(1)):
+            fields[name] = set(re.findall(r'"(\w+)"', m.group(2)))
+    assert {"move", "characterize", "validate", "tables", "drift"} <= set(fields)
+    return fields
+
+
+def keys(req):
+    return set(req) - {"cmd"}
+
+
+def test_requests_use_exactly_the_daemons_field_names():
+    known = parse_rs_fields()
+    assert keys(proto.move(1.0, 2.0, "raw", True, True, 0.5)) == known["move"]
+    assert keys(proto.reference("x")) == known["reference"]
+    assert keys(proto.subscribe(["job"])) == known["subscribe"]
+    assert keys(proto.characterize_start(
+        log="a.csv", axes="xy", step_um=5.0, x_range_um=1.0, y_range_um=1.0, cycles=1,
+        frames_per_point=1, settle_s=0.1, drift_every_s=0.0, drift_reference_um=[0.0, 0.0],
+    )) == known["characterize"]
+    assert keys(proto.validate_start(
+        test="both", modes=["raw"], cycles=1, log="v.csv", origin_x_um=0.0, origin_y_um=0.0,
+        square_step_um=500.0, table="t.toml", model_table="m.toml", frames_per_point=1,
+        settle_s=0.1,
+    )) == known["validate"]
+    tables = keys(proto.tables_build("c.csv", "stem", ["paper"], True)) | keys(
+        proto.tables_activate("t.toml"))
+    assert tables == known["tables"]
+    assert keys(proto.drift_set("static", 1.0, 10.0)) == known["drift"]
+    for cmd in ("status", "position", "stop", "config", "version"):
+        assert known[cmd] == set()
+
+
+def public_methods(cls):
+    import inspect
+    return {n: inspect.signature(f) for n, f in inspect.getmembers(cls, inspect.isfunction)
+            if not n.startswith("_")}
+
+
+@pytest.mark.parametrize("sync_cls, async_cls", [
+    (micropos.Rig, micropos.AsyncRig),
+    (micropos.Job, micropos.AsyncJob),
+    (micropos.Tables, micropos.aio.AsyncTables),
+    (micropos.Drift, micropos.aio.AsyncDrift),
+])
+def test_the_asyncio_api_mirrors_the_blocking_one(sync_cls, async_cls):
+    import inspect
+    sync, aio = public_methods(sync_cls), public_methods(async_cls)
+    assert set(sync) <= set(aio)
+    for name, sig in sync.items():
+        assert list(sig.parameters) == list(aio[name].parameters), name
+        assert inspect.iscoroutinefunction(getattr(async_cls, name)), name
