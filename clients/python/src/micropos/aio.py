@@ -221,7 +221,8 @@ class AsyncRig:
         except MicroposError:
             raise
         except BaseException:
-            # Cancelled mid-read: a late reply must not answer the next request.
+            # Cancelled mid-call: the daemon still works on the request, and
+            # the next one would queue behind it on this connection.
             conn.close()
             raise
         finally:

@@ -5,9 +5,10 @@ Design, and why:
 * One connection per :class:`Rig`, one request at a time (a lock), matched to
   its reply by ``id``. The daemon answers each connection in order, so
   pipelining would only make a slow call delay the next one.
-* Every call has a deadline. On a timeout the connection is dropped (a late
-  reply must never be taken for the answer to a later request) and the next
-  call reconnects. A request is never re-sent by the client: a move that may
+* Every call has a deadline. On a timeout the connection is dropped (the
+  daemon still works on the request, and the next one would queue behind it;
+  a late reply would be discarded by ``id`` anyway) and the next call
+  reconnects. A request is never re-sent by the client: a move that may
   have run must not run twice behind the script's back.
 * :meth:`Rig.stop` uses a connection of its own, so it works while another
   thread waits on a long move, or from a signal handler that interrupted one.
@@ -158,8 +159,8 @@ class Rig:
         except MicroposError:
             raise
         except BaseException:
-            # KeyboardInterrupt in the middle of a read: the reply to this
-            # request would arrive later and be mistaken for the next one's.
+            # KeyboardInterrupt in the middle of a call: the daemon still
+            # works on it, and the next request would queue behind it.
             conn.close()
             raise
         finally:

@@ -287,9 +287,10 @@ class DaemonUnreachable(ConnectionLost):
 class Timeout(MicroposError, TimeoutError):
     """No reply within the call's timeout.
 
-    The daemon may still execute the request (a move keeps going); the client
-    drops the connection so that a late reply cannot be mistaken for the
-    answer to a later request, and reconnects on the next call.
+    The daemon may still execute the request (a move keeps going). The client
+    drops the connection, because the daemon answers a connection in order
+    and the next request would queue behind the one still running, and
+    reconnects on the next call.
     """
 
     code = "timeout"
