@@ -53,6 +53,9 @@ def test_killed_daemon_raises_connection_lost_mid_move_and_the_rig_reconnects(fr
     rig = micropos.Rig(fresh_rig.socket, timeout=5, long_timeout=60)
     rig.reference()
     rig.move(100, 100, mode="raw")
+    # The kill must come while the move runs: 14.8 mm take ~0.5 s of wall
+    # time at the test time scale, and the kill follows the first position
+    # change within milliseconds.
     outcome = {}
 
     def far_move():
