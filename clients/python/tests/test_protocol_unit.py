@@ -157,3 +157,31 @@ def test_the_asyncio_api_mirrors_the_blocking_one(sync_cls, async_cls):
     for name, sig in sync.items():
         assert list(sig.parameters) == list(aio[name].parameters), name
         assert inspect.iscoroutinefunction(getattr(async_cls, name)), name
+
+
+def test_a_daemon_of_another_protocol_version_is_refused(tmp_path):
+    """The one case the real daemon cannot produce: a stand-in answers
+    ``version`` with protocol 2, and the client refuses to go on."""
+    import json
+    import socket
+    import threading
+
+    path = str(tmp_path / "v2.sock")
+    server = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    server.bind(path)
+    server.listen(1)
+
+    def answer():
+        conn, _ = server.accept()
+        with conn:
+            req = json.loads(conn.makefile().readline())
+            conn.sendall(json.dumps({"id": req["id"], "ok": True, "protocol": 2}).encode() + b"\n")
+
+    t = threading.Thread(target=answer)
+    t.start()
+    try:
+        with pytest.raises(micropos.ProtocolError, match="protocol 2"):
+            micropos.Rig(path, timeout=5)
+    finally:
+        t.join(5)
+        server.close()

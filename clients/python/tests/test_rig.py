@@ -27,6 +27,25 @@ def test_version_status_position(rig):
     assert set(pos) >= {"commanded", "controller", "vision"}
 
 
+def test_one_rig_serves_several_threads(rig):
+    errors = []
+
+    def worker():
+        try:
+            for _ in range(20):
+                assert rig.status()["ok"] is True
+                assert "controller" in rig.position()
+        except Exception as e:  # reported below, with the thread's error
+            errors.append(e)
+
+    threads = [threading.Thread(target=worker) for _ in range(4)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(60)
+    assert not errors
+
+
 def test_raw_move_waits_on_target_and_position_agrees(rig):
     r = rig.move(2000, 12000, mode="raw")
     assert r["on_target"] is True
