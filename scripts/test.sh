@@ -4,8 +4,9 @@
 # - Rust: unit, property and integration tests of the whole workspace.
 #   With MICROPOS_ALL_FEATURES=1 (CI) also the V4L2 and GenICam code, which need
 #   libclang-dev, libaravis-dev, libusb-1.0-0-dev and aravis-tools.
-# - Python: PI's own client (PIPython) against the simulated controllers, in a
-#   virtualenv under target/ that this script creates on first use.
+# - Python: PI's own client (PIPython) against the simulated controllers, and
+#   micropos' Python client (clients/python) against microposd and the simulated
+#   rig, each in a virtualenv under target/ that its script creates on first use.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 root=$PWD
@@ -21,3 +22,6 @@ cargo test --workspace "${features[@]}"
 
 echo "== PIPython against hil-sim"
 PIPYTHON_VENV="${PIPYTHON_VENV:-$target/venv-pipython}" ./scripts/pipython.sh
+
+echo "== Python client against microposd + hil-sim"
+PYCLIENT_VENV="${PYCLIENT_VENV:-$target/venv-pyclient}" ./scripts/pyclient.sh
