@@ -61,8 +61,10 @@ async fn rig() -> Rig {
         // A lost answer costs this much (rig) time.
         a.timeout_ms = 2000;
         // A power cycle during a wait leaves the axis stopped off target:
-        // the driver only notices at the motion timeout.
-        a.motion_timeout_s = 5.0;
+        // the driver only notices at the motion timeout. Rig time, so a
+        // long one costs no wall time; it must exceed the longest move
+        // (7 mm from the reference position at ≈ 1.5 mm/s).
+        a.motion_timeout_s = 30.0;
     }
     c.camera.timeout_ms = 1000;
     c.daemon.job_retries = 3;
