@@ -1,7 +1,10 @@
-//! Camera capture and decoding, off the async runtime: one thread blocks in
+//! Camera capture and decoding, off the async runtime, in one of two modes
+//! ([`Capture`]). Free-running (hardware): one thread blocks in
 //! [`FrameSource::next_frame`], one thread decodes (keeping only the newest
-//! frame, so a slow decoder drops frames instead of building a backlog) and
-//! publishes [`Measurement`]s on a `watch` channel.
+//! frame, so a slow decoder drops frames instead of building a backlog).
+//! On demand (the simulator's in-process rig on a virtual clock): one task
+//! grabs and decodes on the blocking pool only while a consumer waits
+//! ([`Vision::want`]). Both publish [`Measurement`]s on a `watch` channel.
 //!
 //! Each measurement carries the rig time at which its grab was requested,
 //! so a consumer can refuse stale data, and the decoder's quality, so it can
