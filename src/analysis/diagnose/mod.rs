@@ -247,6 +247,9 @@ pub struct FixedParam {
     pub name: String,
     /// Why the log cannot support it.
     pub reason: String,
+    /// Whether the reason is an aliased period (else: freeing it predicted
+    /// held-out data worse).
+    pub aliased: bool,
 }
 
 /// `(period, shortest resolvable period)` when parameter `name` belongs to
@@ -303,6 +306,11 @@ pub struct Diagnosis {
     /// `measured_axes` entry) or `data` (a constant `*_meas_um` column is a
     /// placeholder).
     pub measured_from: String,
+    /// RMS over the log's rows of what the aliased base parameters (held
+    /// at the model's value because the sampling cannot resolve their
+    /// period) contribute to the model's prediction, µm: the part of the
+    /// residual that is the model's own unverifiable claim.
+    pub aliased_contribution_rms_um: RmsXy,
     /// Held-out rows judged (interpolations within the range the other
     /// folds sampled) out of `points`.
     pub judged_points: usize,
@@ -351,6 +359,7 @@ pub fn diagnose(
                 reason: format!(
                     "period {period_um:.1} µm is shorter than the {shortest_um:.1} µm the log's spacing resolves (aliased)"
                 ),
+                aliased: true,
             }),
             None => resolvable.push(j),
         }
@@ -370,6 +379,7 @@ pub fn diagnose(
             .map(|(_, n)| FixedParam {
                 name: n.clone(),
                 reason: "freeing it predicted held-out data worse".into(),
+                aliased: false,
             }),
     );
     let mut base: Vec<Vec<f64>> = keep.iter().map(|&j| cand_cols[j].clone()).collect();
@@ -598,6 +608,29 @@ pub fn diagnose(
         }
     }
     let noise = noise::noise_report(log, &d, &final_heldout);
+    // What the aliased parameters contribute at the log's points.
+    let mut aliased_rms = [0.0; 2];
+    if base_fixed.iter().any(|p| p.aliased) {
+        let mut zeroed = model.clone();
+        for p in base_fixed.iter().filter(|p| p.aliased) {
+            zeroed.set_param(&p.name, 0.0)?;
+        }
+        let mut diff = vec![0.0; 2 * d.n];
+        for i in 0..d.n {
+            let a = model.observed_position(&d.states[i]);
+            let b = zeroed.observed_position(&d.states[i]);
+            for c in 0..2 {
+                if d.measured[c] {
+                    diff[2 * i + c] = if c == 0 {
+                        a.x_um - b.x_um
+                    } else {
+                        a.y_um - b.y_um
+                    };
+                }
+            }
+        }
+        aliased_rms = [rms_comp(&diff, 0), rms_comp(&diff, 1)];
+    }
     Ok(Diagnosis {
         points: d.n,
         folds: d.nfolds,
@@ -617,6 +650,7 @@ pub fn diagnose(
             MeasuredSource::Metadata => "metadata".into(),
             MeasuredSource::Data => "data".into(),
         },
+        aliased_contribution_rms_um: RmsXy::from(aliased_rms),
         judged_points: d.judged.iter().filter(|&&j| j).count(),
         noise,
         options: opts.clone(),

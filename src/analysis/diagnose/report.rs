@@ -55,6 +55,18 @@ impl Diagnosis {
                 abbreviate(&names)
             );
         }
+        if self.base_fixed_params.iter().any(|p| p.aliased) {
+            let _ = writeln!(
+                out,
+                "  the aliased parameters, at the model's values, contribute {} rms at the log's points: a claim of the model the log can neither confirm nor correct",
+                Axis::ALL
+                    .iter()
+                    .filter(|a| measured(**a))
+                    .map(|a| format!("{a} {:.4} µm", self.aliased_contribution_rms_um.get(*a)))
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            );
+        }
         let rms = |r: &RmsXy| -> String {
             Axis::ALL
                 .iter()
@@ -276,6 +288,7 @@ impl Diagnosis {
             "measured_axes": self.measured_axes,
             "measured_from": self.measured_from,
             "judged_points": self.judged_points,
+            "aliased_contribution_rms_um": self.aliased_contribution_rms_um,
             "noise": self.noise,
             "options": self.options,
         })
