@@ -461,7 +461,6 @@ fn indexed_key(key: &str) -> Option<(&str, Vec<u32>)> {
 
 fn parse_dat(text: &str, units: Option<Unit>) -> Result<(Vec<Arrival>, Unit), ImportError> {
     let mut unit = Unit::Mm;
-    let mut unit_line = None;
     let mut targets: BTreeMap<u32, (f64, usize)> = BTreeMap::new();
     // (target index, cycle, approach sign as i8) → (raw value, line)
     let mut readings: BTreeMap<(u32, u32, i8), (f64, usize)> = BTreeMap::new();
@@ -486,7 +485,6 @@ fn parse_dat(text: &str, units: Option<Unit>) -> Result<(Vec<Arrival>, Unit), Im
                 column: Some("UNIT".into()),
                 message: format!("{value:?} is not a unit (m, mm, um, nm)"),
             })?;
-            unit_line = Some(line);
             continue;
         }
         let Some((name, idx)) = indexed_key(key) else {
@@ -530,7 +528,6 @@ fn parse_dat(text: &str, units: Option<Unit>) -> Result<(Vec<Arrival>, Unit), Im
         }
     }
     let unit = units.unwrap_or(unit);
-    let _ = unit_line;
     let mut cycles: Vec<u32> = readings.keys().map(|k| k.1).collect();
     cycles.sort_unstable();
     cycles.dedup();
