@@ -357,7 +357,7 @@ pub fn diagnose(
             Some((period_um, shortest_um)) => base_fixed.push(FixedParam {
                 name: name.clone(),
                 reason: format!(
-                    "period {period_um:.1} µm is shorter than the {shortest_um:.1} µm the log's spacing resolves (aliased)"
+                    "the log cannot resolve them: period {period_um:.1} µm is shorter than the {shortest_um:.1} µm its spacing resolves (aliased)"
                 ),
                 aliased: true,
             }),
@@ -378,7 +378,8 @@ pub fn diagnose(
             .filter(|(j, _)| !keep.contains(j))
             .map(|(_, n)| FixedParam {
                 name: n.clone(),
-                reason: "freeing it predicted held-out data worse".into(),
+                reason: "freeing them did not predict held-out data better than the model's values"
+                    .into(),
                 aliased: false,
             }),
     );

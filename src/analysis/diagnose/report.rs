@@ -50,7 +50,7 @@ impl Diagnosis {
         for (reason, names) in reasons {
             let _ = writeln!(
                 out,
-                "  {} kept at the model's value (the log cannot support them: {reason}): {}",
+                "  {} kept at the model's value ({reason}): {}",
                 names.len(),
                 abbreviate(&names)
             );
