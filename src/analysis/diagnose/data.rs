@@ -132,12 +132,18 @@ pub(super) fn prepare(
         })
         .collect();
     let min_move = model.stochastic().min_incremental_motion_um;
+    // The approach moves a log declares (`approach` column) but did not
+    // log become virtual waypoints, so the replayed direction and play
+    // are the ones the stage really had.
+    let declared = declared_approach(log);
+    let (waypoints, real) = with_approach_moves(&waypoints, &declared, min_move);
     let mut start = MotionState::at_rest(waypoints[0].x_um, waypoints[0].y_um);
     start.time_s = waypoints[0].time_s;
     start.temp_c = waypoints[0].temp_c;
-    let states = MotionTracker::new(start)?
+    let all_states = MotionTracker::new(start)?
         .with_min_move(min_move)?
         .replay(&waypoints)?;
+    let states: Vec<MotionState> = real.iter().map(|&k| all_states[k]).collect();
     let n = states.len();
     let meas: Vec<[f64; 2]> = recs.iter().map(|r| [r.x_meas_um, r.y_meas_um]).collect();
     let mut r0 = vec![0.0; 2 * n];
@@ -296,14 +302,12 @@ pub fn parse_approach(s: &str) -> Option<f64> {
     }
 }
 
-/// Approach sign per row and axis: the replayed direction, replaced by the
-/// log's `approach` column for an axis that moves alone in its segment (a
-/// 1-D scan; with both axes moving the column cannot say which it means).
-fn approach_signs(log: &MeasurementLog, states: &[MotionState]) -> Vec<[f64; 2]> {
-    let mut out: Vec<[f64; 2]> = states
-        .iter()
-        .map(|s| [s.axes[0].dir.sign(), s.axes[1].dir.sign()])
-        .collect();
+/// The approach direction the log's `approach` column declares per row
+/// and axis (`None` where it says nothing): only for an axis that moves
+/// alone in its segment (a 1-D scan; with both axes moving the column
+/// cannot say which it means).
+fn declared_approach(log: &MeasurementLog) -> Vec<[Option<f64>; 2]> {
+    let mut out = vec![[None; 2]; log.records.len()];
     let Some(j) = log.columns.extra.iter().position(|c| c == APPROACH_COLUMN) else {
         return out;
     };
@@ -324,14 +328,95 @@ fn approach_signs(log: &MeasurementLog, states: &[MotionState]) -> Vec<[f64; 2]>
         let Some(v) = varies.get(r.segment.as_str()) else {
             continue;
         };
-        let moves = [v[0].1 > v[0].0, v[1].1 > v[1].0];
-        match moves {
-            [true, false] => out[i][0] = sign,
-            [false, true] => out[i][1] = sign,
+        match [v[0].1 > v[0].0, v[1].1 > v[1].0] {
+            [true, false] => out[i][0] = Some(sign),
+            [false, true] => out[i][1] = Some(sign),
             _ => {}
         }
     }
     out
+}
+
+/// Shortest virtual approach move, µm: long enough to take up any play a
+/// micropositioning stage has.
+const MIN_APPROACH_MOVE_UM: f64 = 100.0;
+
+/// The log's waypoints with a virtual approach move inserted before each
+/// row whose declared approach the previous command does not give (an ISO
+/// 230-2 test approaches each pass's first target from beyond it, unlogged):
+/// a waypoint one typical step (at least [`MIN_APPROACH_MOVE_UM`]) on the
+/// far side. Returns the waypoints and the index of each log row in them.
+fn with_approach_moves(
+    wps: &[Waypoint],
+    declared: &[[Option<f64>; 2]],
+    min_move_um: f64,
+) -> (Vec<Waypoint>, Vec<usize>) {
+    if declared.iter().all(|d| d == &[None, None]) {
+        return (wps.to_vec(), (0..wps.len()).collect());
+    }
+    let step = |a: usize| -> f64 {
+        let moves: Vec<f64> = wps
+            .windows(2)
+            .map(|w| {
+                if a == 0 {
+                    (w[1].x_um - w[0].x_um).abs()
+                } else {
+                    (w[1].y_um - w[0].y_um).abs()
+                }
+            })
+            .filter(|d| *d > min_move_um && d.is_finite())
+            .collect();
+        median(moves).unwrap_or(0.0).max(MIN_APPROACH_MOVE_UM)
+    };
+    let steps = [step(0), step(1)];
+    let mut out: Vec<Waypoint> = Vec::with_capacity(wps.len() + wps.len() / 4);
+    let mut real = Vec::with_capacity(wps.len());
+    for (i, wp) in wps.iter().enumerate() {
+        let mut virt = *wp;
+        let mut needed = false;
+        for (a, dir) in declared[i].iter().enumerate() {
+            let Some(dir) = *dir else { continue };
+            let here = if a == 0 { wp.x_um } else { wp.y_um };
+            let prev = out
+                .last()
+                .map(|p: &Waypoint| if a == 0 { p.x_um } else { p.y_um });
+            // Approached the declared way when the previous command is
+            // on the far side by more than the minimum motion.
+            let ok = prev.is_some_and(|p| dir * (here - p) > min_move_um);
+            if !ok {
+                let from = here - dir * steps[a];
+                if a == 0 {
+                    virt.x_um = from;
+                } else {
+                    virt.y_um = from;
+                }
+                needed = true;
+            }
+        }
+        if needed {
+            out.push(virt);
+        }
+        real.push(out.len());
+        out.push(*wp);
+    }
+    (out, real)
+}
+
+/// Approach sign per row and axis: the replayed direction, replaced by the
+/// declared one where the log has an `approach` column (see
+/// [`declared_approach`]).
+fn approach_signs(log: &MeasurementLog, states: &[MotionState]) -> Vec<[f64; 2]> {
+    let declared = declared_approach(log);
+    states
+        .iter()
+        .zip(declared)
+        .map(|(s, d)| {
+            [
+                d[0].unwrap_or_else(|| s.axes[0].dir.sign()),
+                d[1].unwrap_or_else(|| s.axes[1].dir.sign()),
+            ]
+        })
+        .collect()
 }
 
 /// Rows whose held-out prediction is an interpolation (see

@@ -215,3 +215,28 @@ fn replicates_give_the_repeatability_and_the_unexplained_error() {
     assert!(d.base_free_params.is_empty());
     assert!(d.base_fixed_params.iter().all(|p| p.aliased));
 }
+
+#[test]
+fn declared_approach_moves_give_the_replay_the_true_direction() {
+    // An ISO-style pass: forward over 0..400 µm, then backward starting at
+    // the same 400 µm target (the move beyond it was not logged).
+    let base = StageModel::paper_default().unwrap();
+    let up: Vec<f64> = (0..=4).map(|k| 100.0 * f64::from(k)).collect();
+    let down: Vec<f64> = up.iter().rev().copied().collect();
+    let log = hand_log(&[
+        (1, up.clone(), "fwd"),
+        (1, down.clone(), "bwd"),
+        (2, up, "fwd"),
+        (2, down, "bwd"),
+    ]);
+    let d = prepare(&log, &base, 4).unwrap();
+    for (i, s) in d.states.iter().enumerate() {
+        let want = if log.records[i].extra[0] == "fwd" {
+            crate::model::Direction::Forward
+        } else {
+            crate::model::Direction::Backward
+        };
+        assert_eq!(s.axes[0].dir, want, "row {i}");
+        assert_eq!(s.cmd_um(Axis::X), log.records[i].x_cmd_um);
+    }
+}
