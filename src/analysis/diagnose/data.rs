@@ -32,6 +32,33 @@ pub(super) struct Data {
     pub(super) temp_varies: bool,
     /// Numeric extra columns searched by the `other` family.
     pub(super) extra: Vec<ExtraVar>,
+    /// Whether the log measured each error component (`[x, y]`): from the
+    /// `measured_axes` metadata when present, else an axis whose
+    /// `*_meas_um` column is constant (a placeholder) is unmeasured.
+    /// Unmeasured components are zeroed in every residual and column
+    /// ([`Data::center`]), so nothing is fitted or reported on them.
+    pub(super) measured: [bool; 2],
+    /// How each axis's measured status was decided (for the report).
+    pub(super) measured_source: MeasuredSource,
+    /// Whether a row's held-out prediction is judged: with whole-cycle
+    /// folds, a row whose position (per moving axis and approach
+    /// direction) lies outside the range the other folds sampled is an
+    /// extrapolation the fold was never trained on, and is not scored.
+    pub(super) judged: Vec<bool>,
+    /// Approach direction per row of the moving axis (`+1`, `−1`, `0`):
+    /// the log's `approach` column when it has one (the true approach of
+    /// ISO 230-2 exports, which a replay of logged commands cannot see
+    /// when the approach moves were not logged), else the replayed one.
+    pub(super) approach: Vec<[f64; 2]>,
+}
+
+/// Where the measured/unmeasured decision came from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(super) enum MeasuredSource {
+    /// The log's `measured_axes` metadata entry.
+    Metadata,
+    /// The data: a constant `*_meas_um` column is a placeholder.
+    Data,
 }
 
 /// A numeric extra column of the log.
@@ -47,7 +74,17 @@ pub(super) struct ExtraVar {
 }
 
 impl Data {
+    /// Removes the nuisance constants (centring groups) from a residual or
+    /// design column (index `2i + c`) and zeroes the components the log
+    /// did not measure.
     pub(super) fn center(&self, v: &mut [f64]) {
+        for c in 0..2 {
+            if !self.measured[c] {
+                for i in 0..self.n.min(v.len() / 2) {
+                    v[2 * i + c] = 0.0;
+                }
+            }
+        }
         if self.ngroups == 0 {
             return;
         }
@@ -95,12 +132,18 @@ pub(super) fn prepare(
         })
         .collect();
     let min_move = model.stochastic().min_incremental_motion_um;
+    // The approach moves a log declares (`approach` column) but did not
+    // log become virtual waypoints, so the replayed direction and play
+    // are the ones the stage really had.
+    let declared = declared_approach(log);
+    let (waypoints, real) = with_approach_moves(&waypoints, &declared, min_move);
     let mut start = MotionState::at_rest(waypoints[0].x_um, waypoints[0].y_um);
     start.time_s = waypoints[0].time_s;
     start.temp_c = waypoints[0].temp_c;
-    let states = MotionTracker::new(start)?
+    let all_states = MotionTracker::new(start)?
         .with_min_move(min_move)?
         .replay(&waypoints)?;
+    let states: Vec<MotionState> = real.iter().map(|&k| all_states[k]).collect();
     let n = states.len();
     let meas: Vec<[f64; 2]> = recs.iter().map(|r| [r.x_meas_um, r.y_meas_um]).collect();
     let mut r0 = vec![0.0; 2 * n];
@@ -164,6 +207,15 @@ pub(super) fn prepare(
     let tmean = temps.iter().sum::<f64>() / n as f64;
     let tsd = (temps.iter().map(|t| (t - tmean).powi(2)).sum::<f64>() / n as f64).sqrt();
     let extra = numeric_extra_columns(log, &states);
+    let (measured, measured_source) = measured_axes(log)?;
+    let approach = approach_signs(log, &states);
+    let judged = if cycles.len() >= 2 {
+        judged_rows(&states, &approach, &moving, &fold, nfolds)
+    } else {
+        // Time-chunk folds partition the range by construction: masking
+        // would leave nothing to judge (a known limit, see the docs).
+        vec![true; n]
+    };
     let mut d = Data {
         n,
         t0: states[0].time_s,
@@ -177,11 +229,233 @@ pub(super) fn prepare(
         moving,
         temp_varies: tsd > 0.02,
         extra,
+        measured,
+        measured_source,
+        judged,
+        approach,
     };
     let mut r = std::mem::take(&mut d.r0);
     d.center(&mut r);
     d.r0 = r;
     Ok(d)
+}
+
+/// Metadata key a log declares its measured axes with (`x`, `y`, `x,y`):
+/// written by `micropos import`; other writers may use it.
+pub const MEASURED_AXES_KEY: &str = "measured_axes";
+
+/// Spread below which a `*_meas_um` column counts as a constant placeholder,
+/// µm (a real sensor's readings differ at least in their last digit).
+const PLACEHOLDER_SPREAD_UM: f64 = 1e-9;
+
+/// Which error components the log measured (see [`Data::measured`]).
+fn measured_axes(log: &MeasurementLog) -> Result<([bool; 2], MeasuredSource), AnalysisError> {
+    if let Some(v) = log.metadata.get(MEASURED_AXES_KEY) {
+        let mut m = [false; 2];
+        for part in v.split([',', ' ', ';']).filter(|p| !p.trim().is_empty()) {
+            match part.trim().to_ascii_lowercase().as_str() {
+                "x" => m[0] = true,
+                "y" => m[1] = true,
+                other => {
+                    return Err(AnalysisError::Invalid(format!(
+                        "metadata {MEASURED_AXES_KEY}: {other:?} is not an axis (x, y)"
+                    )))
+                }
+            }
+        }
+        if m == [false; 2] {
+            return Err(AnalysisError::Invalid(format!(
+                "metadata {MEASURED_AXES_KEY} names no axis"
+            )));
+        }
+        return Ok((m, MeasuredSource::Metadata));
+    }
+    let mut m = [true; 2];
+    for (c, mc) in m.iter_mut().enumerate() {
+        let (lo, hi) = log
+            .records
+            .iter()
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), r| {
+                let v = if c == 0 { r.x_meas_um } else { r.y_meas_um };
+                (l.min(v), h.max(v))
+            });
+        *mc = hi - lo > PLACEHOLDER_SPREAD_UM;
+    }
+    if m == [false; 2] {
+        return Err(AnalysisError::Invalid(
+            "neither x_meas_um nor y_meas_um varies: the log measured nothing".into(),
+        ));
+    }
+    Ok((m, MeasuredSource::Data))
+}
+
+/// Name of the extra column holding the true approach direction.
+pub const APPROACH_COLUMN: &str = "approach";
+
+/// Parses an approach cell: `+1` forward (towards larger positions), `−1`
+/// backward, `None` for anything else (`rest`, empty).
+pub fn parse_approach(s: &str) -> Option<f64> {
+    match s.trim().to_ascii_lowercase().as_str() {
+        "fwd" | "forward" | "+" | "up" | "pos" | "positive" | "↑" => Some(1.0),
+        "bwd" | "backward" | "-" | "down" | "neg" | "negative" | "↓" => Some(-1.0),
+        _ => None,
+    }
+}
+
+/// The approach direction the log's `approach` column declares per row
+/// and axis (`None` where it says nothing): only for an axis that moves
+/// alone in its segment (a 1-D scan; with both axes moving the column
+/// cannot say which it means).
+fn declared_approach(log: &MeasurementLog) -> Vec<[Option<f64>; 2]> {
+    let mut out = vec![[None; 2]; log.records.len()];
+    let Some(j) = log.columns.extra.iter().position(|c| c == APPROACH_COLUMN) else {
+        return out;
+    };
+    // Axes whose command varies, per segment.
+    let mut varies: HashMap<&str, [(f64, f64); 2]> = HashMap::new();
+    for r in &log.records {
+        let e = varies
+            .entry(r.segment.as_str())
+            .or_insert([(f64::INFINITY, f64::NEG_INFINITY); 2]);
+        for (a, v) in [r.x_cmd_um, r.y_cmd_um].into_iter().enumerate() {
+            e[a] = (e[a].0.min(v), e[a].1.max(v));
+        }
+    }
+    for (i, r) in log.records.iter().enumerate() {
+        let Some(sign) = r.extra.get(j).and_then(|t| parse_approach(t)) else {
+            continue;
+        };
+        let Some(v) = varies.get(r.segment.as_str()) else {
+            continue;
+        };
+        match [v[0].1 > v[0].0, v[1].1 > v[1].0] {
+            [true, false] => out[i][0] = Some(sign),
+            [false, true] => out[i][1] = Some(sign),
+            _ => {}
+        }
+    }
+    out
+}
+
+/// Shortest virtual approach move, µm: long enough to take up any play a
+/// micropositioning stage has.
+const MIN_APPROACH_MOVE_UM: f64 = 100.0;
+
+/// The log's waypoints with a virtual approach move inserted before each
+/// row whose declared approach the previous command does not give (an ISO
+/// 230-2 test approaches each pass's first target from beyond it, unlogged):
+/// a waypoint one typical step (at least [`MIN_APPROACH_MOVE_UM`]) on the
+/// far side. Returns the waypoints and the index of each log row in them.
+fn with_approach_moves(
+    wps: &[Waypoint],
+    declared: &[[Option<f64>; 2]],
+    min_move_um: f64,
+) -> (Vec<Waypoint>, Vec<usize>) {
+    if declared.iter().all(|d| d == &[None, None]) {
+        return (wps.to_vec(), (0..wps.len()).collect());
+    }
+    let step = |a: usize| -> f64 {
+        let moves: Vec<f64> = wps
+            .windows(2)
+            .map(|w| {
+                if a == 0 {
+                    (w[1].x_um - w[0].x_um).abs()
+                } else {
+                    (w[1].y_um - w[0].y_um).abs()
+                }
+            })
+            .filter(|d| *d > min_move_um && d.is_finite())
+            .collect();
+        median(moves).unwrap_or(0.0).max(MIN_APPROACH_MOVE_UM)
+    };
+    let steps = [step(0), step(1)];
+    let mut out: Vec<Waypoint> = Vec::with_capacity(wps.len() + wps.len() / 4);
+    let mut real = Vec::with_capacity(wps.len());
+    for (i, wp) in wps.iter().enumerate() {
+        let mut virt = *wp;
+        let mut needed = false;
+        for (a, dir) in declared[i].iter().enumerate() {
+            let Some(dir) = *dir else { continue };
+            let here = if a == 0 { wp.x_um } else { wp.y_um };
+            let prev = out
+                .last()
+                .map(|p: &Waypoint| if a == 0 { p.x_um } else { p.y_um });
+            // Approached the declared way when the previous command is
+            // on the far side by more than the minimum motion.
+            let ok = prev.is_some_and(|p| dir * (here - p) > min_move_um);
+            if !ok {
+                let from = here - dir * steps[a];
+                if a == 0 {
+                    virt.x_um = from;
+                } else {
+                    virt.y_um = from;
+                }
+                needed = true;
+            }
+        }
+        if needed {
+            out.push(virt);
+        }
+        real.push(out.len());
+        out.push(*wp);
+    }
+    (out, real)
+}
+
+/// Approach sign per row and axis: the replayed direction, replaced by the
+/// declared one where the log has an `approach` column (see
+/// [`declared_approach`]).
+fn approach_signs(log: &MeasurementLog, states: &[MotionState]) -> Vec<[f64; 2]> {
+    let declared = declared_approach(log);
+    states
+        .iter()
+        .zip(declared)
+        .map(|(s, d)| {
+            [
+                d[0].unwrap_or_else(|| s.axes[0].dir.sign()),
+                d[1].unwrap_or_else(|| s.axes[1].dir.sign()),
+            ]
+        })
+        .collect()
+}
+
+/// Rows whose held-out prediction is an interpolation (see
+/// [`Data::judged`]): for each axis moving in the row, the row's position
+/// lies within the range the other folds sampled with the same approach.
+fn judged_rows(
+    states: &[MotionState],
+    approach: &[[f64; 2]],
+    moving: &[[bool; 2]],
+    fold: &[usize],
+    nfolds: usize,
+) -> Vec<bool> {
+    let n = states.len();
+    // range[fold][axis][dir] over rows NOT in the fold.
+    let key = |s: f64| usize::from(s > 0.0) + 2 * usize::from(s < 0.0);
+    let mut range = vec![[[(f64::INFINITY, f64::NEG_INFINITY); 3]; 2]; nfolds];
+    for (f, rf) in range.iter_mut().enumerate() {
+        for i in (0..n).filter(|&i| fold[i] != f) {
+            for a in 0..2 {
+                if moving[i][a] {
+                    let v = states[i].axes[a].cmd_um;
+                    let r = &mut rf[a][key(approach[i][a])];
+                    *r = (r.0.min(v), r.1.max(v));
+                }
+            }
+        }
+    }
+    (0..n)
+        .map(|i| {
+            (0..2).all(|a| {
+                if !moving[i][a] {
+                    return true;
+                }
+                let v = states[i].axes[a].cmd_um;
+                let (lo, hi) = range[fold[i]][a][key(approach[i][a])];
+                v >= lo - 1e-6 && v <= hi + 1e-6
+            })
+        })
+        .collect()
 }
 
 /// Share of rows in which an extra column must be a finite number to be
@@ -299,4 +573,26 @@ pub(super) fn span_of(d: &Data, a: Axis) -> f64 {
             (l.min(v), h.max(v))
         });
     (hi - lo).max(1e-9)
+}
+
+/// Distinct commanded positions of axis `a` over the rows where it moves
+/// (within 1 nm), sorted.
+pub(super) fn distinct_positions(d: &Data, a: Axis) -> Vec<f64> {
+    let ai = a.index();
+    let mut pos: Vec<f64> = (0..d.n)
+        .filter(|&i| d.moving[i][ai])
+        .map(|i| d.states[i].cmd_um(a))
+        .collect();
+    pos.sort_by(f64::total_cmp);
+    pos.dedup_by(|p, q| (*p - *q).abs() < 1e-3);
+    pos
+}
+
+/// Shortest period the log resolves along axis `a`, µm: two positions per
+/// period at the median spacing of its distinct positions (`None` with
+/// fewer than two positions). A periodic error of a shorter period is
+/// aliased: the log cannot identify it.
+pub(super) fn shortest_period_um(d: &Data, a: Axis) -> Option<f64> {
+    let pos = distinct_positions(d, a);
+    median(pos.windows(2).map(|w| w[1] - w[0]).collect()).map(|s| 2.0 * s)
 }

@@ -66,14 +66,25 @@ pub(super) fn extended_with_se(
     base_names: &[String],
     specs: &[Spec],
 ) -> Result<Extended, AnalysisError> {
-    let (names_check, mut cols) = base_columns(d, model, &base_kinds_of(model, base_names));
-    debug_assert_eq!(names_check, base_names);
+    let (all_names, all_cols) = base_columns(d, model, &base_kinds_of(model, base_names));
+    // The selected base parameters only (the base fit's model selection
+    // may have kept some at the model's value).
+    let mut cols: Vec<Vec<f64>> = Vec::with_capacity(base_names.len());
+    for name in base_names {
+        let Some(j) = all_names.iter().position(|n| n == name) else {
+            return Err(AnalysisError::Invalid(format!(
+                "base parameter {name} has no column"
+            )));
+        };
+        cols.push(all_cols[j].clone());
+    }
     for s in specs {
         cols.extend(columns(s, d, model));
     }
     let fb = fold_base(d, &cols, vec![true; d.n]);
     let (beta, pdiag) = solve_with_cov(&fb.gbb, &fb.rb);
-    let dof = (2 * d.n).saturating_sub(cols.len()).max(1) as f64;
+    let rows = d.n * d.measured.iter().filter(|&&m| m).count();
+    let dof = rows.saturating_sub(cols.len()).max(1) as f64;
     let sigma2 = fb.resid.iter().map(|v| v * v).sum::<f64>() / dof;
     let mut se: HashMap<String, f64> = HashMap::new();
     let mut ext = model.clone();

@@ -176,16 +176,27 @@ pub(super) fn fit_with(
     (resid, beta.iter().skip(p).cloned().collect())
 }
 
-/// Copies the held-out rows (`!train[i]`, both components, index `2i + c`)
-/// of `src` into `dst`: pooled over the folds, this assembles every point's
-/// held-out residual.
-pub(super) fn keep_heldout(dst: &mut [f64], src: &[f64], train: &[bool]) {
+/// Copies the held-out rows (`!train[i]`, index `2i + c`) of `src` into
+/// `dst`: pooled over the folds, this assembles every point's held-out
+/// residual. Only judged rows ([`Data::judged`]) of measured components
+/// are copied: `dst` starts as NaN ([`unjudged`]) and what stays NaN is
+/// left out of [`rms_comp`] and [`paired_z`].
+pub(super) fn keep_heldout(d: &Data, dst: &mut [f64], src: &[f64], train: &[bool]) {
     for (i, &t) in train.iter().enumerate() {
-        if !t {
-            dst[2 * i] = src[2 * i];
-            dst[2 * i + 1] = src[2 * i + 1];
+        if !t && d.judged[i] {
+            for c in 0..2 {
+                if d.measured[c] {
+                    dst[2 * i + c] = src[2 * i + c];
+                }
+            }
         }
     }
+}
+
+/// A pooled held-out vector before any fold is kept: every entry NaN (not
+/// judged).
+pub(super) fn unjudged(d: &Data) -> Vec<f64> {
+    vec![f64::NAN; 2 * d.n]
 }
 
 /// Held-out verdict on one family.
@@ -207,7 +218,7 @@ pub(super) fn paired_z(before: &[f64], after: &[f64], c: usize) -> (f64, f64) {
         .skip(c)
         .step_by(2)
         .map(|(b, a)| b * b - a * a)
-        .filter(|v| *v != 0.0)
+        .filter(|v| *v != 0.0 && v.is_finite())
         .collect();
     let m = diffs.len();
     if m < 3 {
@@ -224,11 +235,14 @@ pub(super) fn paired_z(before: &[f64], after: &[f64], c: usize) -> (f64, f64) {
     (sum, z)
 }
 
+/// RMS of component `c` of `v` (index `2i + c`) over its finite entries
+/// (NaN = not judged, see [`keep_heldout`]); 0 when there is none.
 pub(super) fn rms_comp(v: &[f64], c: usize) -> f64 {
     let (s, k) = v
         .iter()
         .skip(c)
         .step_by(2)
+        .filter(|x| x.is_finite())
         .fold((0.0, 0usize), |(s, k), x| (s + x * x, k + 1));
     (s / k.max(1) as f64).sqrt()
 }
@@ -241,4 +255,106 @@ pub(super) fn solve_with_cov(g: &DMatrix<f64>, r: &DVector<f64>) -> (DVector<f64
     }
     let se = ScaledEigen::new(g);
     (se.solve(r), se.inverse_diagonal())
+}
+
+/// Base-fit model selection: which groups of base columns (one group per
+/// model term) the log supports. Backward elimination on the pooled
+/// held-out squared error over the judged rows of the measured components:
+/// starting from every group, the group whose removal leaves the smallest
+/// held-out error is removed as long as that error is not larger than with
+/// it; the empty base (the model as given) competes at the end. Why: a
+/// base fit with more free parameters than the log can resolve (a 400 µm
+/// screw's harmonics on targets 10 mm apart, or on one cycle's short range)
+/// predicts held-out data worse than the model's own values; such
+/// parameters stay at the model's value instead.
+///
+/// Returns the indices (into `cols`) of the kept columns, in order.
+pub(super) fn select_base(d: &Data, names: &[String], cols: &[Vec<f64>]) -> Vec<usize> {
+    let p = cols.len();
+    if p == 0 {
+        return Vec::new();
+    }
+    // Groups by term name.
+    let mut groups: Vec<(String, Vec<usize>)> = Vec::new();
+    for (j, name) in names.iter().enumerate() {
+        let term = name.split('.').next().unwrap_or(name).to_string();
+        match groups.iter_mut().find(|(t, _)| *t == term) {
+            Some((_, v)) => v.push(j),
+            None => groups.push((term, vec![j])),
+        }
+    }
+    // Per fold: Gram matrix and right-hand side over the training rows.
+    let folds: Vec<(Vec<bool>, DMatrix<f64>, DVector<f64>)> = (0..d.nfolds)
+        .map(|f| {
+            let train: Vec<bool> = d.fold.iter().map(|&k| k != f).collect();
+            let mut g = DMatrix::zeros(p, p);
+            for j in 0..p {
+                for k in j..p {
+                    let v = dot_rows(&cols[j], &cols[k], &train);
+                    g[(j, k)] = v;
+                    g[(k, j)] = v;
+                }
+            }
+            let r = DVector::from_fn(p, |j, _| dot_rows(&cols[j], &d.r0, &train));
+            (train, g, r)
+        })
+        .collect();
+    let sse = |keep: &[usize]| -> f64 {
+        let mut total = 0.0;
+        for (train, g, r) in &folds {
+            let k = keep.len();
+            let beta = if k == 0 {
+                DVector::zeros(0)
+            } else {
+                let gs = DMatrix::from_fn(k, k, |a, b| g[(keep[a], keep[b])]);
+                let rs = DVector::from_fn(k, |a, _| r[keep[a]]);
+                solve_normal(&gs, &rs)
+            };
+            for i in 0..d.n {
+                if train[i] || !d.judged[i] {
+                    continue;
+                }
+                for c in 0..2 {
+                    if !d.measured[c] {
+                        continue;
+                    }
+                    let mut e = d.r0[2 * i + c];
+                    for (a, &j) in keep.iter().enumerate() {
+                        e -= beta[a] * cols[j][2 * i + c];
+                    }
+                    total += e * e;
+                }
+            }
+        }
+        total
+    };
+    let flat = |gs: &[usize]| -> Vec<usize> {
+        let mut v: Vec<usize> = gs.iter().flat_map(|&g| groups[g].1.clone()).collect();
+        v.sort_unstable();
+        v
+    };
+    let mut current: Vec<usize> = (0..groups.len()).collect();
+    let mut best = sse(&flat(&current));
+    while !current.is_empty() {
+        let mut cand: Option<(usize, f64)> = None;
+        for k in 0..current.len() {
+            let mut without = current.clone();
+            without.remove(k);
+            let s = sse(&flat(&without));
+            if cand.is_none_or(|(_, b)| s < b) {
+                cand = Some((k, s));
+            }
+        }
+        match cand {
+            Some((k, s)) if s <= best => {
+                current.remove(k);
+                best = s;
+            }
+            _ => break,
+        }
+    }
+    if !current.is_empty() && sse(&[]) <= best {
+        current.clear();
+    }
+    flat(&current)
 }

@@ -89,6 +89,7 @@ mod data;
 mod describe;
 mod extend;
 mod fit;
+mod noise;
 mod report;
 mod search;
 #[cfg(test)]
@@ -104,10 +105,12 @@ use crate::model::{
 };
 
 use super::{AnalysisError, FindingKind};
-use data::prepare;
+pub use data::{parse_approach, APPROACH_COLUMN, MEASURED_AXES_KEY};
+use data::{prepare, MeasuredSource};
 use describe::describe;
 use extend::{extended, extended_with_se};
-use fit::{fit_with, fold_base, keep_heldout, paired_z, rms_comp, Verdict};
+use fit::{fit_with, fold_base, keep_heldout, paired_z, rms_comp, select_base, unjudged, Verdict};
+pub use noise::{ComponentNoise, IsoFigures, NoiseReport, Outlier, Sampling, TargetRepeat};
 use search::{base_columns, columns, families, search, Family, Spec};
 
 /// How to diagnose.
@@ -237,6 +240,35 @@ pub struct ResidualSeries {
     pub after_um: [Vec<f64>; 2],
 }
 
+/// A base-fit parameter kept at the model's value, and why.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct FixedParam {
+    /// Full parameter name (`term.param`).
+    pub name: String,
+    /// Why the log cannot support it.
+    pub reason: String,
+    /// Whether the reason is an aliased period (else: freeing it predicted
+    /// held-out data worse).
+    pub aliased: bool,
+}
+
+/// `(period, shortest resolvable period)` when parameter `name` belongs to
+/// a periodic term (`period_um` in its configuration) along an axis whose
+/// sampling cannot resolve that period; `None` otherwise.
+fn aliased_period(d: &data::Data, model: &StageModel, name: &str) -> Option<(f64, f64)> {
+    let term_name = name.split('.').next()?;
+    let term = model.terms().iter().find(|t| t.name() == term_name)?;
+    let cfg = term.to_config().ok()?;
+    let period_um = cfg.get("period_um")?.as_float()?;
+    let axis = match cfg.get("axis")?.as_str()? {
+        "x" => Axis::X,
+        "y" => Axis::Y,
+        _ => return None,
+    };
+    let shortest_um = data::shortest_period_um(d, axis)?;
+    (period_um < shortest_um).then_some((period_um, shortest_um))
+}
+
 /// Everything `diagnose` found.
 #[derive(Debug, Clone, Serialize)]
 pub struct Diagnosis {
@@ -262,6 +294,29 @@ pub struct Diagnosis {
     pub extended_fit_rms_um: RmsXy,
     /// Parameters the base fit identified.
     pub base_free_params: Vec<String>,
+    /// Parameters of the base kinds the log cannot support, kept at the
+    /// model's value, with the reason (aliased period, or freeing them made
+    /// the held-out prediction worse).
+    pub base_fixed_params: Vec<FixedParam>,
+    /// The error components the log measured (an unmeasured one, e.g. the
+    /// placeholder `y_*` columns of a 1-D log, is neither fitted nor
+    /// reported).
+    pub measured_axes: Vec<Axis>,
+    /// How the measured axes were decided: `metadata` (the log's
+    /// `measured_axes` entry) or `data` (a constant `*_meas_um` column is a
+    /// placeholder).
+    pub measured_from: String,
+    /// RMS over the log's rows of what the aliased base parameters (held
+    /// at the model's value because the sampling cannot resolve their
+    /// period) contribute to the model's prediction, µm: the part of the
+    /// residual that is the model's own unverifiable claim.
+    pub aliased_contribution_rms_um: RmsXy,
+    /// Held-out rows judged (interpolations within the range the other
+    /// folds sampled) out of `points`.
+    pub judged_points: usize,
+    /// Noise from the data (replicates, neighbours), the systematic error
+    /// the findings leave against it, and what the sampling resolves.
+    pub noise: NoiseReport,
     /// Options used.
     pub options: DiagnoseOptions,
     /// The extended model (base fit + findings, refitted), with the log's
@@ -291,20 +346,58 @@ pub fn diagnose(
         ));
     }
     let d = prepare(log, model, opts.max_folds)?;
-    let (base_names, mut base) = base_columns(&d, model, &opts.base_free_kinds);
+    let (all_names, all_base) = base_columns(&d, model, &opts.base_free_kinds);
+    // A periodic base term whose period the log's sampling cannot resolve
+    // is aliased: fitting it would turn it into an arbitrary per-target
+    // correction. It stays at the model's value.
+    let mut base_fixed: Vec<FixedParam> = Vec::new();
+    let mut resolvable: Vec<usize> = Vec::new();
+    for (j, name) in all_names.iter().enumerate() {
+        match aliased_period(&d, model, name) {
+            Some((period_um, shortest_um)) => base_fixed.push(FixedParam {
+                name: name.clone(),
+                reason: format!(
+                    "the log cannot resolve them: period {period_um:.1} µm is shorter than the {shortest_um:.1} µm its spacing resolves (aliased)"
+                ),
+                aliased: true,
+            }),
+            None => resolvable.push(j),
+        }
+    }
+    let cand_names: Vec<String> = resolvable.iter().map(|&j| all_names[j].clone()).collect();
+    let cand_cols: Vec<Vec<f64>> = resolvable.iter().map(|&j| all_base[j].clone()).collect();
+    drop(all_base);
+    // Model selection on the base fit too: only the terms whose freeing
+    // predicts held-out data better (see `fit::select_base`).
+    let keep = select_base(&d, &cand_names, &cand_cols);
+    let base_names: Vec<String> = keep.iter().map(|&j| cand_names[j].clone()).collect();
+    base_fixed.extend(
+        cand_names
+            .iter()
+            .enumerate()
+            .filter(|(j, _)| !keep.contains(j))
+            .map(|(_, n)| FixedParam {
+                name: n.clone(),
+                reason: "freeing them did not predict held-out data better than the model's values"
+                    .into(),
+                aliased: false,
+            }),
+    );
+    let mut base: Vec<Vec<f64>> = keep.iter().map(|&j| cand_cols[j].clone()).collect();
     let n_base = base.len();
     let fams = families(&d);
     let mut accepted: Vec<(Spec, Verdict)> = Vec::new();
     let mut baseline_rms = [0.0; 2];
     let mut last_heldout = [0.0; 2];
+    let mut final_heldout = unjudged(&d);
     for round in 0..=opts.max_findings {
         // Held-out residuals of the current base, and each family's verdict.
-        let mut before = vec![0.0; 2 * d.n];
-        let mut after: Vec<Vec<f64>> = vec![vec![0.0; 2 * d.n]; fams.len()];
+        let mut before = unjudged(&d);
+        let mut after: Vec<Vec<f64>> = vec![unjudged(&d); fams.len()];
         for f in 0..d.nfolds {
             let train: Vec<bool> = d.fold.iter().map(|&k| k != f).collect();
             let fb = fold_base(&d, &base, train);
-            keep_heldout(&mut before, &fb.resid, &fb.train);
+            keep_heldout(&d, &mut before, &fb.resid, &fb.train);
             if round == opts.max_findings {
                 continue;
             }
@@ -313,7 +406,7 @@ pub fn diagnose(
                     Some(spec) => fit_with(&d, &base, &fb, &columns(&spec, &d, model)),
                     None => (fb.resid.clone(), Vec::new()),
                 };
-                keep_heldout(&mut after[fi], &resid, &fb.train);
+                keep_heldout(&d, &mut after[fi], &resid, &fb.train);
             }
         }
         let heldout = [rms_comp(&before, 0), rms_comp(&before, 1)];
@@ -321,6 +414,7 @@ pub fn diagnose(
             baseline_rms = heldout;
         }
         last_heldout = heldout;
+        final_heldout = before.clone();
         if round == opts.max_findings {
             break;
         }
@@ -396,11 +490,11 @@ pub fn diagnose(
                 cols.extend(columns(s, &d, model));
             }
         }
-        let mut ho = vec![0.0; 2 * d.n];
+        let mut ho = unjudged(&d);
         for f in 0..d.nfolds {
             let train: Vec<bool> = d.fold.iter().map(|&k| k != f).collect();
             let fb = fold_base(&d, &cols, train);
-            keep_heldout(&mut ho, &fb.resid, &fb.train);
+            keep_heldout(&d, &mut ho, &fb.resid, &fb.train);
         }
         (
             [rms_comp(&ho, 0), rms_comp(&ho, 1)],
@@ -508,8 +602,35 @@ pub fn diagnose(
     let mut r0 = vec![0.0; 2 * d.n];
     for i in 0..d.n {
         let o = model.observed_position(&d.states[i]);
-        r0[2 * i] = d.meas[i][0] - o.x_um;
-        r0[2 * i + 1] = d.meas[i][1] - o.y_um;
+        for c in 0..2 {
+            if d.measured[c] {
+                r0[2 * i + c] = d.meas[i][c] - if c == 0 { o.x_um } else { o.y_um };
+            }
+        }
+    }
+    let noise = noise::noise_report(log, &d, &final_heldout);
+    // What the aliased parameters contribute at the log's points.
+    let mut aliased_rms = [0.0; 2];
+    if base_fixed.iter().any(|p| p.aliased) {
+        let mut zeroed = model.clone();
+        for p in base_fixed.iter().filter(|p| p.aliased) {
+            zeroed.set_param(&p.name, 0.0)?;
+        }
+        let mut diff = vec![0.0; 2 * d.n];
+        for i in 0..d.n {
+            let a = model.observed_position(&d.states[i]);
+            let b = zeroed.observed_position(&d.states[i]);
+            for c in 0..2 {
+                if d.measured[c] {
+                    diff[2 * i + c] = if c == 0 {
+                        a.x_um - b.x_um
+                    } else {
+                        a.y_um - b.y_um
+                    };
+                }
+            }
+        }
+        aliased_rms = [rms_comp(&diff, 0), rms_comp(&diff, 1)];
     }
     Ok(Diagnosis {
         points: d.n,
@@ -521,6 +642,18 @@ pub fn diagnose(
         with_unmodelled_rms_um: with_unmodelled,
         extended_fit_rms_um: RmsXy::from(fit_rms),
         base_free_params: base_names,
+        base_fixed_params: base_fixed,
+        measured_axes: Axis::ALL
+            .into_iter()
+            .filter(|a| d.measured[a.index()])
+            .collect(),
+        measured_from: match d.measured_source {
+            MeasuredSource::Metadata => "metadata".into(),
+            MeasuredSource::Data => "data".into(),
+        },
+        aliased_contribution_rms_um: RmsXy::from(aliased_rms),
+        judged_points: d.judged.iter().filter(|&&j| j).count(),
+        noise,
         options: opts.clone(),
         extended_model: fitted,
         base_model,

@@ -5,33 +5,102 @@
 
 use std::fmt::Write as _;
 
-use super::Diagnosis;
+use super::{ComponentNoise, Diagnosis, RmsXy, MEASURED_AXES_KEY};
+use crate::model::Axis;
 
 impl Diagnosis {
     /// The human-readable report.
     pub fn to_text(&self) -> String {
         let mut out = String::new();
+        let measured = |a: Axis| self.measured_axes.contains(&a);
         let _ = writeln!(
             out,
-            "{} points, {} held-out folds (whole cycles); base fit identified {} parameters of the model's cyclic tables",
+            "{} points ({} judged held out), {} held-out folds (whole cycles); measured axes: {}{}",
             self.points,
+            self.judged_points,
             self.folds,
+            self.measured_axes
+                .iter()
+                .map(|a| a.as_str())
+                .collect::<Vec<_>>()
+                .join(", "),
+            match Axis::ALL.iter().find(|a| !measured(**a)) {
+                Some(a) if self.measured_from == "metadata" => format!(
+                    " ({a} not measured, per the log's {MEASURED_AXES_KEY} metadata: nothing fitted or reported on it)"
+                ),
+                Some(a) => format!(
+                    " ({a} not measured: {a}_meas_um is a constant placeholder; nothing fitted or reported on it)"
+                ),
+                None => String::new(),
+            }
+        );
+        let _ = writeln!(
+            out,
+            "base fit identified {} parameters of the model's cyclic tables",
             self.base_free_params.len()
         );
+        // Fixed parameters, grouped by reason.
+        let mut reasons: Vec<(&str, Vec<String>)> = Vec::new();
+        for p in &self.base_fixed_params {
+            match reasons.iter_mut().find(|(r, _)| *r == p.reason) {
+                Some((_, v)) => v.push(p.name.clone()),
+                None => reasons.push((&p.reason, vec![p.name.clone()])),
+            }
+        }
+        for (reason, names) in reasons {
+            let _ = writeln!(
+                out,
+                "  {} kept at the model's value ({reason}): {}",
+                names.len(),
+                abbreviate(&names)
+            );
+        }
+        if self.base_fixed_params.iter().any(|p| p.aliased) {
+            let _ = writeln!(
+                out,
+                "  the aliased parameters, at the model's values, contribute {} rms at the log's points: a claim of the model the log can neither confirm nor correct",
+                Axis::ALL
+                    .iter()
+                    .filter(|a| measured(**a))
+                    .map(|a| format!("{a} {:.4} µm", self.aliased_contribution_rms_um.get(*a)))
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            );
+        }
+        let rms = |r: &RmsXy| -> String {
+            Axis::ALL
+                .iter()
+                .filter(|a| measured(**a))
+                .map(|a| format!("{a} {:.4} µm", r.get(*a)))
+                .collect::<Vec<_>>()
+                .join(", ")
+        };
         let _ = writeln!(
             out,
-            "model as given:           rms x {:.4} µm, y {:.4} µm",
-            self.model_rms_um.x, self.model_rms_um.y
+            "model as given:           rms {}",
+            rms(&self.model_rms_um)
         );
         let _ = writeln!(
             out,
-            "after base fit, held out: rms x {:.4} µm, y {:.4} µm",
-            self.baseline_rms_um.x, self.baseline_rms_um.y
+            "after base fit, held out: rms {}",
+            rms(&self.baseline_rms_um)
         );
-        if self.findings.is_empty() {
+        let unexplained: Vec<&ComponentNoise> = self
+            .noise
+            .components
+            .iter()
+            .filter(|c| c.unexplained)
+            .collect();
+        if self.findings.is_empty() && unexplained.is_empty() {
             let _ = writeln!(
                 out,
                 "no significant structure in the residuals (held-out z ≥ {}, gain ≥ {} %): the model explains the log to its noise",
+                self.options.z_threshold, self.options.min_gain_pct
+            );
+        } else if self.findings.is_empty() {
+            let _ = writeln!(
+                out,
+                "no finding passes the held-out test (z ≥ {}, gain ≥ {} %), but the model does NOT explain the log to its noise: see `unexplained` below",
                 self.options.z_threshold, self.options.min_gain_pct
             );
         }
@@ -71,22 +140,130 @@ impl Diagnosis {
                 }
             );
         }
-        let gx = pct(self.baseline_rms_um.x, self.extended_rms_um.x);
-        let gy = pct(self.baseline_rms_um.y, self.extended_rms_um.y);
         let _ = writeln!(
             out,
-            "\nextended model, held out: rms x {:.4} µm ({gx:+.1} %), y {:.4} µm ({gy:+.1} %); in-sample x {:.4}, y {:.4} µm",
-            self.extended_rms_um.x,
-            self.extended_rms_um.y,
-            self.extended_fit_rms_um.x,
-            self.extended_fit_rms_um.y
+            "\nextended model, held out: rms {}; in-sample {}",
+            Axis::ALL
+                .iter()
+                .filter(|a| measured(**a))
+                .map(|a| format!(
+                    "{a} {:.4} µm ({:+.1} %)",
+                    self.extended_rms_um.get(*a),
+                    pct(self.baseline_rms_um.get(*a), self.extended_rms_um.get(*a))
+                ))
+                .collect::<Vec<_>>()
+                .join(", "),
+            rms(&self.extended_fit_rms_um)
         );
         if let Some(w) = &self.with_unmodelled_rms_um {
             let _ = writeln!(
                 out,
-                "with the log-column findings the model cannot carry, held out: rms x {:.4} µm, y {:.4} µm",
-                w.x, w.y
+                "with the log-column findings the model cannot carry, held out: rms {}",
+                rms(w)
             );
+        }
+        out.push_str(&self.noise_text());
+        out
+    }
+
+    /// The noise section of the text report: repeatability, what is left
+    /// unexplained against it, what the sampling cannot resolve.
+    fn noise_text(&self) -> String {
+        let mut out = String::from("\nnoise from the data:\n");
+        for c in &self.noise.components {
+            let a = c.component;
+            match (c.repeatability_um, c.max_s_um) {
+                (Some(s), Some(m)) => {
+                    let _ = writeln!(
+                        out,
+                        "  {a}: repeatability σ {s:.4} µm pooled over {} replicated targets (max s_i {m:.4} µm)",
+                        c.replicated_targets
+                    );
+                }
+                _ => {
+                    let _ = writeln!(out, "  {a}: no target visited twice (no replicates)");
+                }
+            }
+            if !c.outliers.is_empty() {
+                let firsts = c.outliers.iter().filter(|o| o.first_visit).count();
+                let list = c
+                    .outliers
+                    .iter()
+                    .take(6)
+                    .map(|o| {
+                        format!(
+                            "cycle {} {} at {:.1} µm ({:+.2} µm)",
+                            o.cycle,
+                            match o.approach {
+                                v if v > 0.0 => "fwd",
+                                v if v < 0.0 => "bwd",
+                                _ => "?",
+                            },
+                            o.target_um,
+                            o.excess_um
+                        )
+                    })
+                    .collect::<Vec<_>>()
+                    .join(", ");
+                let _ = writeln!(
+                    out,
+                    "  {a}: {} outlier visit(s) excluded (> {} robust σ from their target's median): {list}{}",
+                    c.outliers.len(),
+                    super::noise::OUTLIER_SIGMAS,
+                    if firsts == c.outliers.len() {
+                        " — each the first visit of its target: a first-approach effect (warm-up, settling, or an unlogged first move)"
+                    } else {
+                        ""
+                    }
+                );
+            }
+            if let Some(iso) = &c.iso230_2 {
+                let _ = writeln!(
+                    out,
+                    "  {a}: ISO 230-2 ({} cycles): R {:.4} µm, B {:.4} µm, E {:.4} µm, A {:.4} µm",
+                    iso.cycles, iso.r_um, iso.b_um, iso.e_um, iso.a_um
+                );
+            }
+            if let Some(nb) = c.neighbour_noise_um {
+                let _ = writeln!(
+                    out,
+                    "  {a}: noise from neighbouring positions ≤ {nb:.4} µm; held-out residual rms {:.4} µm",
+                    c.heldout_rms_um
+                );
+            }
+            if let (Some(sys), Some(floor), Some(ratio)) = (
+                c.systematic_rms_um,
+                c.systematic_noise_floor_um,
+                c.systematic_over_repeatability,
+            ) {
+                let _ = writeln!(
+                    out,
+                    "  {a}: {} {sys:.4} µm rms of per-target systematic error remains (held out), {ratio:.1}× the repeatability (noise alone would leave {floor:.4} µm)",
+                    if c.unexplained { "UNEXPLAINED:" } else { "explained to the noise:" }
+                );
+            } else if c.unexplained {
+                let _ = writeln!(
+                    out,
+                    "  {a}: UNEXPLAINED: the held-out residual ({:.4} µm rms) is ≥ 3× the noise from neighbouring positions",
+                    c.heldout_rms_um
+                );
+            }
+        }
+        for s in &self.noise.sampling {
+            let _ = write!(
+                out,
+                "  sampling {}: {} positions, {:.1} µm apart over {:.1} µm: periodic errors shorter than {:.1} µm are aliased",
+                s.axis, s.positions, s.spacing_um, s.span_um, s.shortest_period_um
+            );
+            if s.positions < super::search::MIN_PROFILE_POSITIONS {
+                let _ = write!(
+                    out,
+                    "; too few positions (< {}) to search periodic or localized errors along {}",
+                    super::search::MIN_PROFILE_POSITIONS,
+                    s.axis
+                );
+            }
+            out.push('\n');
         }
         out
     }
@@ -107,6 +284,12 @@ impl Diagnosis {
                 "y": pct(self.baseline_rms_um.y, self.extended_rms_um.y),
             },
             "base_free_params": self.base_free_params,
+            "base_fixed_params": self.base_fixed_params,
+            "measured_axes": self.measured_axes,
+            "measured_from": self.measured_from,
+            "judged_points": self.judged_points,
+            "aliased_contribution_rms_um": self.aliased_contribution_rms_um,
+            "noise": self.noise,
             "options": self.options,
         })
     }
@@ -118,4 +301,19 @@ fn pct(before: f64, after: f64) -> f64 {
     } else {
         0.0
     }
+}
+
+/// A long list of parameter names, shortened to the first few.
+fn abbreviate(names: &[String]) -> String {
+    const SHOWN: usize = 4;
+    let mut s = names
+        .iter()
+        .take(SHOWN)
+        .cloned()
+        .collect::<Vec<_>>()
+        .join(", ");
+    if names.len() > SHOWN {
+        let _ = write!(s, ", … ({} more)", names.len() - SHOWN);
+    }
+    s
 }

@@ -87,7 +87,9 @@ impl Family {
 
 pub(super) fn families(d: &Data) -> Vec<Family> {
     let mut out = Vec::new();
-    for comp in Axis::ALL {
+    // Nothing is searched on a component the log did not measure.
+    let measured = |a: Axis| d.measured[a.index()];
+    for comp in Axis::ALL.into_iter().filter(|&c| measured(c)) {
         for axis in Axis::ALL {
             out.push(Family::PosPeriodic { axis, comp });
             out.push(Family::Localized { axis, comp });
@@ -109,7 +111,7 @@ pub(super) fn families(d: &Data) -> Vec<Family> {
             out.push(Family::Other { comp, var });
         }
     }
-    for axis in Axis::ALL {
+    for axis in Axis::ALL.into_iter().filter(|&a| measured(a)) {
         out.push(Family::Reversal { axis });
         out.push(Family::StepSize { axis });
     }
@@ -225,6 +227,10 @@ fn step_size_search(d: &Data, axis: Axis, resid: &[f64], train: &[bool]) -> Opti
     })
 }
 
+/// Distinct positions an axis needs before its periodic and localized
+/// families are searched (fewer cannot place a period or a bump).
+pub(super) const MIN_PROFILE_POSITIONS: usize = 16;
+
 /// Position samples of axis `a` (rows where it moves, training rows only),
 /// averaged per distinct position: position-dependent structure is common
 /// to all passes, and averaging makes the periodogram 5–10× cheaper.
@@ -261,7 +267,7 @@ pub(super) fn search(f: Family, d: &Data, resid: &[f64], train: &[bool]) -> Opti
     match f {
         Family::PosPeriodic { axis, comp } => {
             let (x, y) = position_profile(d, axis, comp, resid, train);
-            if x.len() < 16 {
+            if x.len() < MIN_PROFILE_POSITIONS {
                 return None;
             }
             let span = x[x.len() - 1] - x[0];
@@ -280,7 +286,7 @@ pub(super) fn search(f: Family, d: &Data, resid: &[f64], train: &[bool]) -> Opti
         }
         Family::Localized { axis, comp } => {
             let (x, y) = position_profile(d, axis, comp, resid, train);
-            if x.len() < 16 {
+            if x.len() < MIN_PROFILE_POSITIONS {
                 return None;
             }
             let span = x[x.len() - 1] - x[0];
@@ -497,10 +503,13 @@ pub(super) fn base_columns(
             }
         }
         for (k, mut c) in tc.into_iter().enumerate() {
+            // Centred first: a column that is constant within every
+            // centring group, or lives only on an unmeasured component,
+            // carries nothing the log can identify.
+            d.center(&mut c);
             if c.iter().all(|v| v.abs() < 1e-12) {
                 continue;
             }
-            d.center(&mut c);
             names.push(format!("{}.{}", t.name(), p[k].name));
             cols.push(c);
         }

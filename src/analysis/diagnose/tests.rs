@@ -73,3 +73,170 @@ fn step_size_is_searched_only_with_moves_of_different_lengths() {
         );
     }
 }
+
+/// A simulated two-axis log with the y measurement replaced by a constant
+/// placeholder (what a 1-D export writes).
+fn one_axis_log(seed: u64) -> crate::charact::log::MeasurementLog {
+    let base = StageModel::paper_default().unwrap();
+    let plan = small_plan(0);
+    let truth = truth_model(&base, None, &plan, seed).unwrap();
+    let mut log = simulate_log(&truth, &plan, seed).unwrap();
+    for r in &mut log.records {
+        r.y_meas_um = 0.0;
+    }
+    parse_bytes(&log.to_bytes().unwrap()).unwrap()
+}
+
+#[test]
+fn a_constant_meas_column_is_an_unmeasured_axis() {
+    let base = StageModel::paper_default().unwrap();
+    let log = one_axis_log(11);
+    let d = prepare(&log, &base, 4).unwrap();
+    assert_eq!(d.measured, [true, false]);
+    assert_eq!(d.measured_source, data::MeasuredSource::Data);
+    // Every column and residual is zero on the unmeasured component.
+    assert!((0..d.n).all(|i| d.r0[2 * i + 1] == 0.0));
+    let diag = diagnose(&log, &base, &DiagnoseOptions::default()).unwrap();
+    assert_eq!(diag.measured_axes, vec![Axis::X]);
+    assert!(diag.findings.iter().all(|f| f.component == Axis::X));
+    assert!(diag.base_free_params.iter().all(|p| !p.starts_with("y_")));
+    assert!(diag.to_text().contains("y not measured"));
+}
+
+#[test]
+fn measured_axes_metadata_wins_and_is_checked() {
+    let base = StageModel::paper_default().unwrap();
+    let plan = small_plan(0);
+    let truth = truth_model(&base, None, &plan, 12).unwrap();
+    let sim = simulate_log(&truth, &plan, 12).unwrap();
+    let mut log = parse_bytes(&sim.to_bytes().unwrap()).unwrap();
+    log.metadata.insert(MEASURED_AXES_KEY, "y");
+    let d = prepare(&log, &base, 4).unwrap();
+    assert_eq!(d.measured, [false, true]);
+    assert_eq!(d.measured_source, data::MeasuredSource::Metadata);
+    log.metadata.insert(MEASURED_AXES_KEY, "z");
+    assert!(prepare(&log, &base, 4).is_err());
+    log.metadata.insert(MEASURED_AXES_KEY, "x, y");
+    assert_eq!(prepare(&log, &base, 4).unwrap().measured, [true, true]);
+}
+
+/// A 1-D log written by hand: `cycles` of (targets, approach) passes.
+fn hand_log(passes: &[(u32, Vec<f64>, &str)]) -> crate::charact::log::MeasurementLog {
+    let mut s = String::from(
+        "t_s,segment,cycle,x_target_um,y_target_um,x_cmd_um,y_cmd_um,x_meas_um,y_meas_um,approach\n",
+    );
+    let mut t = 0.0;
+    for (cycle, targets, approach) in passes {
+        for (k, x) in targets.iter().enumerate() {
+            // A small deterministic wobble as the reading.
+            let m = x + 0.1 * ((k as f64) * 1.7 + f64::from(*cycle)).sin();
+            s += &format!("{t},scan_x,{cycle},{x},0,{x},0,{m},0,{approach}\n");
+            t += 1.0;
+        }
+    }
+    parse_bytes(s.as_bytes()).unwrap()
+}
+
+#[test]
+fn a_fold_does_not_judge_extrapolation_into_a_range_it_never_sampled() {
+    let base = StageModel::paper_default().unwrap();
+    let up1: Vec<f64> = (0..=10).map(|k| 300.0 + 10.0 * f64::from(k)).collect();
+    let up2: Vec<f64> = (0..=30).map(|k| 100.0 + 10.0 * f64::from(k)).collect();
+    let down: Vec<f64> = (0..=40).rev().map(|k| 10.0 * f64::from(k)).collect();
+    let log = hand_log(&[
+        (1, up1, "fwd"),
+        (1, down.clone(), "bwd"),
+        (2, up2, "fwd"),
+        (2, down, "bwd"),
+    ]);
+    let d = prepare(&log, &base, 4).unwrap();
+    assert_eq!(d.nfolds, 2);
+    for i in 0..d.n {
+        let x = d.states[i].cmd_um(Axis::X);
+        let fwd = d.approach[i][0] > 0.0;
+        let cycle2 = log.records[i].cycle == 2;
+        // Cycle 2's forward rows below 300 µm: cycle 1 went forward over
+        // 300–400 µm only.
+        let want = !(cycle2 && fwd && x < 300.0 - 1e-9);
+        assert_eq!(d.judged[i], want, "row {i} at {x} µm");
+    }
+}
+
+#[test]
+fn the_approach_column_sets_the_replicate_direction() {
+    assert_eq!(parse_approach("fwd"), Some(1.0));
+    assert_eq!(parse_approach(" Backward "), Some(-1.0));
+    assert_eq!(parse_approach("rest"), None);
+    let base = StageModel::paper_default().unwrap();
+    let t: Vec<f64> = (0..=20).map(|k| 20.0 * f64::from(k)).collect();
+    let r: Vec<f64> = t.iter().rev().copied().collect();
+    // Labelled backward although the commands go up: the column wins.
+    let log = hand_log(&[(1, t.clone(), "bwd"), (1, r, "fwd"), (2, t, "bwd")]);
+    let d = prepare(&log, &base, 4).unwrap();
+    assert_eq!(d.approach[5][0], -1.0);
+    assert_eq!(d.approach[30][0], 1.0);
+}
+
+#[test]
+fn replicates_give_the_repeatability_and_the_unexplained_error() {
+    // Five targets, five cycles, both directions; a per-target systematic
+    // error of ±20 µm against a 0.5 µm scatter between cycles.
+    let targets = [15_000.0, 25_000.0, 35_000.0, 45_000.0, 55_000.0];
+    let sys = [20.0, -20.0, 15.0, -15.0, 0.0];
+    let mut s = String::from(
+        "t_s,segment,cycle,x_target_um,y_target_um,x_cmd_um,y_cmd_um,x_meas_um,y_meas_um,approach\n",
+    );
+    let mut k = 0;
+    for c in 1..=5u32 {
+        for (dir, order) in [("fwd", [0, 1, 2, 3, 4]), ("bwd", [4, 3, 2, 1, 0])] {
+            for i in order {
+                let noise = 0.5 * ((k as f64) * 2.399).sin();
+                let m = targets[i] + sys[i] + noise;
+                s += &format!("{k},scan_x,{c},{t},0,{t},0,{m},0,{dir}\n", t = targets[i]);
+                k += 1;
+            }
+        }
+    }
+    let log = parse_bytes(s.as_bytes()).unwrap();
+    let base = StageModel::paper_default().unwrap();
+    let d = diagnose(&log, &base, &DiagnoseOptions::default()).unwrap();
+    let x = &d.noise.components[0];
+    let rep = x.repeatability_um.unwrap();
+    assert!(rep > 0.1 && rep < 1.0, "{rep}");
+    assert_eq!(x.replicated_targets, 10);
+    assert!(x.iso230_2.is_some());
+    assert!(x.unexplained);
+    assert!(x.systematic_rms_um.unwrap() > 10.0 * rep);
+    let s = &d.noise.sampling[0];
+    assert_eq!(s.positions, 5);
+    assert!((s.shortest_period_um - 20_000.0).abs() < 1e-6);
+    assert!(!d.to_text().contains("explains the log to its noise"));
+    // The model's 400 µm harmonics cannot be resolved on 10 mm targets.
+    assert!(d.base_free_params.is_empty());
+    assert!(d.base_fixed_params.iter().all(|p| p.aliased));
+}
+
+#[test]
+fn declared_approach_moves_give_the_replay_the_true_direction() {
+    // An ISO-style pass: forward over 0..400 µm, then backward starting at
+    // the same 400 µm target (the move beyond it was not logged).
+    let base = StageModel::paper_default().unwrap();
+    let up: Vec<f64> = (0..=4).map(|k| 100.0 * f64::from(k)).collect();
+    let down: Vec<f64> = up.iter().rev().copied().collect();
+    let log = hand_log(&[
+        (1, up.clone(), "fwd"),
+        (1, down.clone(), "bwd"),
+        (2, up, "fwd"),
+        (2, down, "bwd"),
+    ]);
+    let d = prepare(&log, &base, 4).unwrap();
+    for (i, s) in d.states.iter().enumerate() {
+        let want = if log.records[i].extra[0] == "fwd" {
+            crate::model::Direction::Forward
+        } else {
+            crate::model::Direction::Backward
+        };
+        assert_eq!(s.axes[0].dir, want, "row {i}");
+        assert_eq!(s.cmd_um(Axis::X), log.records[i].x_cmd_um);
+    }
+}

@@ -11,6 +11,7 @@ mod client;
 mod decode;
 mod diagnose;
 mod gcs;
+mod import;
 mod pattern;
 mod plot;
 mod simlog;
@@ -55,6 +56,10 @@ enum Commands {
     /// What the stage model gets wrong about a measurement log: findings,
     /// held-out gains, plots, extended model.
     Diagnose(diagnose::Args),
+    /// Convert an ISO 230-2 export (CSV of target, reading, direction,
+    /// cycle; or a .dat of targets and forward/backward readings per cycle)
+    /// into a measurement log.
+    Import(import::Args),
     /// Synthetic characterization log with one hidden effect (try diagnose).
     Simlog(simlog::Args),
     /// The paper's figures (4, 5, 6, 10, 11) from measurement logs, PNG/SVG.
@@ -113,6 +118,7 @@ fn main() -> ExitCode {
             (Ok(ExitCode::SUCCESS), 1)
         }
         Commands::Diagnose(a) => (diagnose::run(&a), 1),
+        Commands::Import(a) => (import::run(&a), 1),
         Commands::Simlog(a) => (simlog::run(&a), 1),
         Commands::Plot(a) => (plot::run(&a), 1),
     };

@@ -1,0 +1,466 @@
+//! Noise from the data, and what the model leaves unexplained against it.
+//!
+//! Why a file of its own: the held-out test answers "does this candidate
+//! predict better", not "is what is left noise". A log with few targets
+//! (an ISO 230-2 plan: 5 targets × 5 cycles) has no room for any family's
+//! search, so no finding does not mean no structure. What the log can say
+//! about its own noise:
+//! * **Replicates** (same target, same approach, several visits): the
+//!   scatter between visits is the repeatability (ISO 230-2's `s_i`, and
+//!   `R` when the log is a complete bidirectional test); the mean of the
+//!   residual per target is the systematic error the model leaves, which
+//!   noise alone would make about `s/√n`.
+//! * **Neighbours** (dense logs without replicates): half the mean squared
+//!   difference of the residual between neighbouring positions of one pass
+//!   estimates the noise (a smooth systematic error cancels in the
+//!   difference; what does not cancel counts as noise, so it is an upper
+//!   bound).
+//! * **Sampling**: the spacing of the targets along each measured axis
+//!   sets the shortest period the log resolves (two targets per period);
+//!   shorter periodic errors are aliased.
+
+use std::collections::BTreeMap;
+
+use serde::Serialize;
+
+use crate::charact::log::MeasurementLog;
+use crate::metrology::iso230_2::{self, Approach, Observation};
+use crate::model::Axis;
+
+use super::data::Data;
+
+/// Wilson–Hilferty z of a χ² statistic above which the per-target
+/// systematic error counts as more than noise.
+const SYSTEMATIC_Z: f64 = 3.0;
+
+/// Distance from its target's median, in robust σ (the square root of the
+/// median over targets of the variance between visits), beyond which a
+/// visit of a target visited at least three times is an outlier.
+pub const OUTLIER_SIGMAS: f64 = 5.0;
+
+/// Targets per component up to which the per-target table is reported.
+const MAX_TARGETS_REPORTED: usize = 60;
+
+/// One target (and approach) visited more than once.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct TargetRepeat {
+    /// Target position along the moving axis, µm.
+    pub target_um: f64,
+    /// Approach direction: `+1` forward, `−1` backward, `0` unknown.
+    pub approach: f64,
+    /// Visits.
+    pub n: usize,
+    /// Mean deviation `meas − target` over the visits, µm (ISO 230-2's
+    /// `x̄_i`, standard sign).
+    pub mean_deviation_um: f64,
+    /// Sample standard deviation of the deviation (ISO 230-2's `s_i`), µm.
+    pub s_um: f64,
+    /// Mean held-out residual of the model at this target, µm (model
+    /// sign: measured − model): the systematic error it leaves here.
+    pub mean_residual_um: f64,
+}
+
+/// A visit far from the other visits of its target (excluded from the
+/// repeatability and the per-target means).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Outlier {
+    /// Cycle of the visit.
+    pub cycle: u32,
+    /// Target along the moving axis, µm.
+    pub target_um: f64,
+    /// Approach direction (`+1`, `−1`, `0`).
+    pub approach: f64,
+    /// Its deviation `meas − target` minus the median of its target's
+    /// visits, µm.
+    pub excess_um: f64,
+    /// Whether it is the first visit of its target in the log (a
+    /// first-approach effect: warm-up, settling, an unlogged first move).
+    pub first_visit: bool,
+}
+
+/// ISO 230-2 figures of a complete bidirectional test in the log.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct IsoFigures {
+    /// Cycles.
+    pub cycles: usize,
+    /// `R`, bidirectional repeatability, µm.
+    pub r_um: f64,
+    /// `B`, reversal value, µm.
+    pub b_um: f64,
+    /// `E`, bidirectional systematic positional deviation, µm.
+    pub e_um: f64,
+    /// `A`, accuracy, µm.
+    pub a_um: f64,
+}
+
+/// Noise and unexplained systematic error of one measured component.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct ComponentNoise {
+    /// The error component.
+    pub component: Axis,
+    /// Targets (with approach) visited at least twice.
+    pub replicated_targets: usize,
+    /// Pooled repeatability σ from the replicates, µm (absent without).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub repeatability_um: Option<f64>,
+    /// Visits more than [`OUTLIER_SIGMAS`] robust σ from their target's
+    /// median, excluded from the repeatability and the per-target means
+    /// (not from the ISO 230-2 figures, which the standard defines on all).
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub outliers: Vec<Outlier>,
+    /// Largest `s_i`, µm.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub max_s_um: Option<f64>,
+    /// ISO 230-2 figures when the log holds a complete bidirectional test
+    /// of this axis.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub iso230_2: Option<IsoFigures>,
+    /// RMS over replicated targets of the mean held-out residual, µm: the
+    /// systematic error the model leaves unexplained.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub systematic_rms_um: Option<f64>,
+    /// What `systematic_rms_um` would be from the repeatability alone
+    /// (`√mean(s²/n)`), µm.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub systematic_noise_floor_um: Option<f64>,
+    /// `systematic_rms_um / repeatability_um`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub systematic_over_repeatability: Option<f64>,
+    /// Noise estimated from neighbouring positions of one pass, µm (an
+    /// upper bound; absent when the log has too few neighbours).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub neighbour_noise_um: Option<f64>,
+    /// Held-out RMS of the residual over the judged rows, µm.
+    pub heldout_rms_um: f64,
+    /// Whether the residual is significantly more than noise (χ² of the
+    /// per-target means against the repeatability, or held-out RMS ≥ 3×
+    /// the neighbour noise without replicates).
+    pub unexplained: bool,
+    /// Per-target replicates (only for logs with few targets).
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub targets: Vec<TargetRepeat>,
+}
+
+/// How densely the log samples one measured axis.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Sampling {
+    /// The axis.
+    pub axis: Axis,
+    /// Distinct commanded positions.
+    pub positions: usize,
+    /// Median spacing of the distinct positions, µm.
+    pub spacing_um: f64,
+    /// Span, µm.
+    pub span_um: f64,
+    /// Shortest period the log resolves (two positions per period), µm:
+    /// shorter periodic errors are aliased.
+    pub shortest_period_um: f64,
+}
+
+/// The noise section of a diagnosis.
+#[derive(Debug, Clone, Default, PartialEq, Serialize)]
+pub struct NoiseReport {
+    /// One entry per measured component.
+    pub components: Vec<ComponentNoise>,
+    /// One entry per measured axis that moves.
+    pub sampling: Vec<Sampling>,
+}
+
+/// Computes the noise report from the log, the prepared data and the
+/// pooled held-out residual of the final model (index `2i + c`, NaN where
+/// not judged).
+pub(super) fn noise_report(log: &MeasurementLog, d: &Data, heldout: &[f64]) -> NoiseReport {
+    let mut out = NoiseReport::default();
+    for a in Axis::ALL {
+        let ai = a.index();
+        if !d.measured[ai] {
+            continue;
+        }
+        let pos = super::data::distinct_positions(d, a);
+        if pos.len() >= 2 {
+            let mut gaps: Vec<f64> = pos.windows(2).map(|w| w[1] - w[0]).collect();
+            gaps.sort_by(f64::total_cmp);
+            let spacing = gaps[gaps.len() / 2];
+            out.sampling.push(Sampling {
+                axis: a,
+                positions: pos.len(),
+                spacing_um: spacing,
+                span_um: pos[pos.len() - 1] - pos[0],
+                shortest_period_um: 2.0 * spacing,
+            });
+        }
+    }
+    for c in Axis::ALL {
+        let ci = c.index();
+        if !d.measured[ci] {
+            continue;
+        }
+        out.components.push(component(log, d, heldout, c));
+    }
+    out
+}
+
+fn key_of(v: f64) -> i64 {
+    (v * 1e3).round() as i64
+}
+
+fn component(log: &MeasurementLog, d: &Data, heldout: &[f64], c: Axis) -> ComponentNoise {
+    let ci = c.index();
+    // Replicate groups: (segment, target x, target y, approach x, approach y).
+    type Key<'a> = (&'a str, i64, i64, i64, i64);
+    let mut groups: BTreeMap<Key, Vec<usize>> = BTreeMap::new();
+    for (i, r) in log.records.iter().enumerate().take(d.n) {
+        let ap = d.approach[i];
+        let k = (
+            r.segment.as_str(),
+            key_of(r.x_target_um),
+            key_of(r.y_target_um),
+            ap[0] as i64,
+            ap[1] as i64,
+        );
+        groups.entry(k).or_default().push(i);
+    }
+    let dev = |i: usize| -> f64 {
+        let r = &log.records[i];
+        if ci == 0 {
+            r.x_meas_um - r.x_target_um
+        } else {
+            r.y_meas_um - r.y_target_um
+        }
+    };
+    // Robust σ: the median over targets of the variance between visits
+    // (one wild visit inflates its own target's variance, not the median),
+    // and each target's median as its centre. A target needs three visits
+    // before one of them can be called the odd one out.
+    let reps: Vec<(&Key, &Vec<usize>)> = groups.iter().filter(|(_, r)| r.len() >= 2).collect();
+    let medians: Vec<f64> = reps
+        .iter()
+        .map(|(_, rows)| super::data::median(rows.iter().map(|&i| dev(i)).collect()).unwrap_or(0.0))
+        .collect();
+    let robust = super::data::median(
+        reps.iter()
+            .map(|(_, rows)| {
+                let n = rows.len() as f64;
+                let m = rows.iter().map(|&i| dev(i)).sum::<f64>() / n;
+                rows.iter().map(|&i| (dev(i) - m).powi(2)).sum::<f64>() / (n - 1.0)
+            })
+            .collect(),
+    )
+    .map(f64::sqrt);
+    let mut targets = Vec::new();
+    let mut outliers = Vec::new();
+    let (mut ss, mut dof) = (0.0, 0usize);
+    for ((k, rows), med) in reps.iter().zip(&medians) {
+        // The moving axis names the target (x when both or neither move).
+        let first = rows[0];
+        let along = if d.moving[first][0] || !d.moving[first][1] {
+            0
+        } else {
+            1
+        };
+        let target_um = if along == 0 { k.1 } else { k.2 } as f64 / 1e3;
+        let approach = if along == 0 { k.3 } else { k.4 } as f64;
+        let mut kept = Vec::with_capacity(rows.len());
+        for &i in rows.iter() {
+            let excess = dev(i) - med;
+            match robust {
+                Some(r) if rows.len() >= 3 && r > 0.0 && excess.abs() > OUTLIER_SIGMAS * r => {
+                    outliers.push(Outlier {
+                        cycle: log.records[i].cycle,
+                        target_um,
+                        approach,
+                        excess_um: excess,
+                        first_visit: i == first,
+                    })
+                }
+                _ => kept.push(i),
+            }
+        }
+        if kept.len() < 2 {
+            continue;
+        }
+        let n = kept.len();
+        let m = kept.iter().map(|&i| dev(i)).sum::<f64>() / n as f64;
+        let s2 = kept.iter().map(|&i| (dev(i) - m).powi(2)).sum::<f64>() / (n - 1) as f64;
+        ss += s2 * (n - 1) as f64;
+        dof += n - 1;
+        let res: Vec<f64> = kept
+            .iter()
+            .map(|&i| heldout[2 * i + ci])
+            .filter(|v| v.is_finite())
+            .collect();
+        let mean_residual = if res.is_empty() {
+            f64::NAN
+        } else {
+            res.iter().sum::<f64>() / res.len() as f64
+        };
+        targets.push(TargetRepeat {
+            target_um,
+            approach,
+            n,
+            mean_deviation_um: m,
+            s_um: s2.sqrt(),
+            mean_residual_um: mean_residual,
+        });
+    }
+    let heldout_rms = super::fit::rms_comp(heldout, ci);
+    let repeatability = (dof > 0).then(|| (ss / dof as f64).sqrt());
+    let max_s = targets.iter().map(|t| t.s_um).reduce(f64::max);
+    // Systematic error left per target, against what noise alone gives.
+    let judged: Vec<&TargetRepeat> = targets
+        .iter()
+        .filter(|t| t.mean_residual_um.is_finite())
+        .collect();
+    let (systematic, floor, chi_z) = match repeatability {
+        Some(s) if !judged.is_empty() && s > 0.0 => {
+            let g = judged.len() as f64;
+            let rms = (judged
+                .iter()
+                .map(|t| t.mean_residual_um.powi(2))
+                .sum::<f64>()
+                / g)
+                .sqrt();
+            let floor = (judged.iter().map(|t| s * s / t.n as f64).sum::<f64>() / g).sqrt();
+            let chi2 = judged
+                .iter()
+                .map(|t| t.n as f64 * t.mean_residual_um.powi(2) / (s * s))
+                .sum::<f64>();
+            (Some(rms), Some(floor), Some(wilson_hilferty(chi2, g)))
+        }
+        _ => (None, None, None),
+    };
+    let neighbour = neighbour_noise(log, d, heldout, c);
+    let unexplained = match (chi_z, neighbour) {
+        (Some(z), _) => z >= SYSTEMATIC_Z,
+        (None, Some(nb)) => nb > 0.0 && heldout_rms >= 3.0 * nb,
+        _ => false,
+    };
+    ComponentNoise {
+        component: c,
+        replicated_targets: targets.len(),
+        repeatability_um: repeatability,
+        outliers,
+        max_s_um: max_s,
+        iso230_2: iso_figures(log, d, c),
+        systematic_rms_um: systematic,
+        systematic_noise_floor_um: floor,
+        systematic_over_repeatability: match (systematic, repeatability) {
+            (Some(a), Some(s)) if s > 0.0 => Some(a / s),
+            _ => None,
+        },
+        neighbour_noise_um: neighbour,
+        heldout_rms_um: heldout_rms,
+        unexplained,
+        targets: if targets.len() <= MAX_TARGETS_REPORTED {
+            targets
+        } else {
+            Vec::new()
+        },
+    }
+}
+
+/// Normal z of a χ² statistic with `k` degrees of freedom (Wilson–Hilferty).
+fn wilson_hilferty(chi2: f64, k: f64) -> f64 {
+    if k <= 0.0 {
+        return 0.0;
+    }
+    let v = 2.0 / (9.0 * k);
+    ((chi2 / k).cbrt() - (1.0 - v)) / v.sqrt()
+}
+
+/// Noise of component `c` from neighbouring positions within one pass
+/// (rows of one segment and cycle where one axis moves in one direction,
+/// in position order): `√(mean(Δr²)/2)`; only along axes with dense
+/// positions.
+fn neighbour_noise(log: &MeasurementLog, d: &Data, heldout: &[f64], c: Axis) -> Option<f64> {
+    let ci = c.index();
+    type Key<'a> = (&'a str, u32, usize, i64);
+    let mut passes: BTreeMap<Key, Vec<(f64, f64)>> = BTreeMap::new();
+    for (i, r) in log.records.iter().enumerate().take(d.n) {
+        let v = heldout[2 * i + ci];
+        if !v.is_finite() {
+            continue;
+        }
+        let moving = d.moving[i];
+        let a = match moving {
+            [true, false] => 0,
+            [false, true] => 1,
+            _ => continue,
+        };
+        let k = (r.segment.as_str(), r.cycle, a, d.approach[i][a] as i64);
+        passes
+            .entry(k)
+            .or_default()
+            .push((d.states[i].axes[a].cmd_um, v));
+    }
+    // Neighbours must be near: on sparse targets (an ISO 230-2 plan) the
+    // difference between neighbours is the systematic error itself.
+    let dense = [Axis::X, Axis::Y].map(|a| {
+        super::data::distinct_positions(d, a).len() >= super::search::MIN_PROFILE_POSITIONS
+    });
+    let (mut s, mut m) = (0.0, 0usize);
+    for (k, pts) in passes.iter_mut() {
+        if !dense[k.2] {
+            continue;
+        }
+        pts.sort_by(|p, q| p.0.total_cmp(&q.0));
+        for w in pts.windows(2) {
+            if (w[1].0 - w[0].0).abs() < 1e-3 {
+                continue;
+            }
+            s += (w[1].1 - w[0].1).powi(2);
+            m += 1;
+        }
+    }
+    (m >= 10).then(|| (s / (2.0 * m as f64)).sqrt())
+}
+
+/// ISO 230-2 figures of axis `c` when the log is a complete bidirectional
+/// test of it (only `c` moves, every target approached both ways in every
+/// cycle); `None` otherwise.
+fn iso_figures(log: &MeasurementLog, d: &Data, c: Axis) -> Option<IsoFigures> {
+    let ci = c.index();
+    let other = 1 - ci;
+    let mut obs = Vec::new();
+    for (i, r) in log.records.iter().enumerate().take(d.n) {
+        if d.moving[i][other] || !d.moving[i][ci] {
+            return None;
+        }
+        let approach = match d.approach[i][ci] {
+            s if s > 0.0 => Approach::Positive,
+            s if s < 0.0 => Approach::Negative,
+            _ => continue,
+        };
+        let (target_um, measured_um) = if ci == 0 {
+            (r.x_target_um, r.x_meas_um)
+        } else {
+            (r.y_target_um, r.y_meas_um)
+        };
+        obs.push(Observation {
+            target_um,
+            cycle: r.cycle,
+            approach,
+            measured_um,
+        });
+    }
+    let f = iso230_2::evaluate(&obs).ok()?;
+    Some(IsoFigures {
+        cycles: f.cycles,
+        r_um: f.r_um,
+        b_um: f.reversal_um,
+        e_um: f.e_um,
+        a_um: f.a_um,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::wilson_hilferty;
+
+    #[test]
+    fn wilson_hilferty_is_near_zero_at_the_mean_and_large_far_above() {
+        assert!(wilson_hilferty(10.0, 10.0).abs() < 0.3);
+        assert!(wilson_hilferty(100.0, 10.0) > 5.0);
+        assert!(wilson_hilferty(0.0, 0.0) == 0.0);
+    }
+}
