@@ -413,6 +413,11 @@ async fn on_demand_loop(mut l: OnDemandLoop) {
                 if l.tx.send(Some(m)).is_err() {
                     return;
                 }
+                // Let the consumers the frame woke run first: one that had
+                // all it needs drops its `Want` before the next round looks
+                // at the demand (without this every measurement rendered
+                // and decoded a second frame nobody asked for).
+                tokio::task::yield_now().await;
             }
             Err(e) => {
                 l.stats.failed.fetch_add(1, Ordering::Relaxed);

@@ -360,26 +360,41 @@ impl FastRenderer {
         };
         let rn2 = (self.cfg.read_noise * self.cfg.read_noise) as f32;
         let mut rng = ChaCha8Rng::seed_from_u64(noise_seed);
-        let mut out16 = vec![0u16; w * h];
+        // Each row reads the noise table from its own random offset, drawn
+        // in row order (so the frame is a function of the seed alone).
+        let offsets: Vec<usize> = (0..h)
+            .map(|_| rng.gen_range(0..NOISE_LEN.saturating_sub(w).max(1)))
+            .collect();
+        let (acc, shade, noise) = (&self.acc, &self.shade, &self.noise);
         // Row by row over equal-length slices, written in place: the loop
-        // body is branch-free, so it compiles to vector code (sqrt included)
-        // with the same per-pixel arithmetic and the same result.
-        for (i, out) in out16.chunks_exact_mut(w).enumerate() {
-            let acc = &self.acc[i * w..(i + 1) * w];
-            let shade = &self.shade[i * w..(i + 1) * w];
-            let off = rng.gen_range(0..NOISE_LEN.saturating_sub(w).max(1));
-            let noise_row = &self.noise[off..(off + w).min(NOISE_LEN)];
-            for (((o, &c), &sh), &n) in out.iter_mut().zip(acc).zip(shade).zip(noise_row) {
-                let v = (bg + (fg - bg) * c) * sh * g;
-                let var = v.max(0.0) * inv_fw + rn2;
-                let v = ag * (v + n * var.sqrt());
-                // +0.5 and truncation: round half up, cheaper than round().
-                // Through i32: the value is clamped to 0..=fs (≤ 65535), so
-                // this is the same number, but an f32 → i32 conversion is
-                // one vector instruction where f32 → u16 is not.
-                *o = (v * fs + 0.5).clamp(0.0, fs) as i32 as u16;
+        // body is branch-free, so its arithmetic compiles to vector code.
+        let rows = |out: &mut [u16], row0: usize| {
+            for (k, out) in out.chunks_exact_mut(w).enumerate() {
+                let i = row0 + k;
+                let acc = &acc[i * w..(i + 1) * w];
+                let shade = &shade[i * w..(i + 1) * w];
+                let off = offsets[i];
+                let noise_row = &noise[off..(off + w).min(NOISE_LEN)];
+                for (((o, &c), &sh), &n) in out.iter_mut().zip(acc).zip(shade).zip(noise_row) {
+                    let v = (bg + (fg - bg) * c) * sh * g;
+                    let var = v.max(0.0) * inv_fw + rn2;
+                    let v = ag * (v + n * var.sqrt());
+                    // +0.5 and truncation: round half up, cheaper than
+                    // round(). Through i32: the value is clamped to 0..=fs
+                    // (≤ 65535), so this is the same number.
+                    *o = (v * fs + 0.5).clamp(0.0, fs) as i32 as u16;
+                }
             }
-        }
+        };
+        let mut out16 = vec![0u16; w * h];
+        // Two halves on two threads: the pixels are independent, and the
+        // simulated rig renders one frame at a time while its other core
+        // would idle (the main job's wall time is mostly frames).
+        let (top, bottom) = out16.split_at_mut(h / 2 * w);
+        std::thread::scope(|s| {
+            s.spawn(|| rows(bottom, h / 2));
+            rows(top, 0);
+        });
         let pixels = if self.cfg.bit_depth <= 8 {
             Pixels::U8(out16.iter().map(|&v| v as u8).collect())
         } else {
