@@ -20,7 +20,7 @@
 //! `{"ok":false,"error":"<what and why>"}`; a bad request never closes the
 //! connection.
 
-use crate::serve::{AxisName, Corruption, Fault, SimError};
+use crate::fault::{AxisName, Corruption, Fault, SimError};
 use serde_json::{json, Value};
 use std::io::{self, BufRead, BufReader, Write};
 use std::os::unix::net::{UnixListener, UnixStream};

@@ -13,6 +13,7 @@
 //! - [`bus`]: controllers sharing one line (daisy chain);
 //! - [`clock`]: scaled wall time, manual time, or the runtime's (virtual)
 //!   clock;
+//! - [`fault`]: axis names, faults, errors (shared by the servers);
 //! - [`serve`]: ptys, threads, faults; [`vline`]: the same lines served in
 //!   process on a tokio runtime; [`control`]: the JSON control socket.
 
@@ -28,6 +29,7 @@ pub mod clock;
 pub mod control;
 pub mod controller;
 pub mod experiment;
+pub mod fault;
 pub mod motion;
 pub mod params;
 pub mod rig;
@@ -35,4 +37,5 @@ pub mod run;
 pub mod serve;
 pub mod vline;
 
-pub use serve::{AxisName, Corruption, Fault, ServeConfig, SimError, SimHandle};
+pub use fault::{AxisName, Corruption, Fault, SimError};
+pub use serve::{ServeConfig, SimHandle};

@@ -10,12 +10,12 @@
 //! still until the exchange is over (`hil-sim run`, the in-process rig).
 //!
 //! The controllers, the bus and the reply faults are the same as on a pty
-//! ([`crate::serve::ReplyFaults`]); a dropped line refuses to open until it
+//! ([`crate::fault::ReplyFaults`]); a dropped line refuses to open until it
 //! is restored, as an unplugged cable; reply delays are rig time.
 
 use crate::bus::Bus;
 use crate::clock::Clock;
-use crate::serve::{AxisName, LineCmd, ReplyFaults, SimError};
+use crate::fault::{AxisName, LineCmd, ReplyFaults, SimError};
 use micropos::driver::{DriverError, LinkIo, LinkOpener, OpenFuture};
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex, MutexGuard};

@@ -6,7 +6,7 @@
 //! answers (the client times out, as with a hung camera).
 
 use super::{GrabError, SimCamera};
-use crate::serve::SimError;
+use crate::fault::SimError;
 use micropos::camera::simsocket::{encode_payload, error_line, FrameHeader};
 use std::io::{BufRead, BufReader, Read, Write};
 use std::os::unix::net::{UnixListener, UnixStream};
