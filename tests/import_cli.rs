@@ -2,11 +2,23 @@
 //! a `.dat`, written as logs `diagnose` reads as 1-D; bad input refused
 //! with line and column and exit code 1.
 
-use std::path::PathBuf;
-use std::process::Command;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
 
 fn micropos() -> Command {
     Command::new(env!("CARGO_BIN_EXE_micropos"))
+}
+
+/// `micropos import INPUT --out OUT [EXTRA…]`, its output.
+fn import(input: &Path, out: &Path, extra: &[&str]) -> Output {
+    micropos()
+        .arg("import")
+        .arg(input)
+        .arg("--out")
+        .arg(out)
+        .args(extra)
+        .output()
+        .unwrap()
 }
 
 #[test]
@@ -19,15 +31,7 @@ fn the_iso230_2_example_imports_and_diagnoses_as_one_axis() {
     }
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("log.csv");
-    let o = micropos()
-        .args([
-            "import",
-            src.to_str().unwrap(),
-            "--out",
-            out.to_str().unwrap(),
-        ])
-        .output()
-        .unwrap();
+    let o = import(&src, &out, &[]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let o = micropos()
         .args(["diagnose", out.to_str().unwrap(), "--json"])
@@ -56,31 +60,13 @@ fn a_dat_imports_and_bad_input_names_line_and_column() {
     }
     std::fs::write(&dat, text).unwrap();
     let out = dir.path().join("log.csv");
-    let o = micropos()
-        .args([
-            "import",
-            dat.to_str().unwrap(),
-            "--out",
-            out.to_str().unwrap(),
-            "--axis",
-            "y",
-        ])
-        .output()
-        .unwrap();
+    let o = import(&dat, &out, &["--axis", "y"]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let log = micropos::charact::log::read_file(&out).unwrap();
     assert_eq!(log.records.len(), 12);
     assert_eq!(log.records[0].segment, "scan_y");
     // Not overwritten.
-    let o = micropos()
-        .args([
-            "import",
-            dat.to_str().unwrap(),
-            "--out",
-            out.to_str().unwrap(),
-        ])
-        .output()
-        .unwrap();
+    let o = import(&dat, &out, &[]);
     assert_eq!(o.status.code(), Some(1));
     let bad = dir.path().join("bad.csv");
     std::fs::write(
@@ -88,15 +74,7 @@ fn a_dat_imports_and_bad_input_names_line_and_column() {
         "cycle;direction;target_mm;measured_mm\n1;fwd;1;1\n1;fwd;2;x\n",
     )
     .unwrap();
-    let o = micropos()
-        .args([
-            "import",
-            bad.to_str().unwrap(),
-            "--out",
-            dir.path().join("b.csv").to_str().unwrap(),
-        ])
-        .output()
-        .unwrap();
+    let o = import(&bad, &dir.path().join("b.csv"), &[]);
     assert_eq!(o.status.code(), Some(1));
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(err.contains("line 3, column measured_mm"), "{err}");

@@ -131,10 +131,7 @@ fn main() -> anyhow::Result<()> {
                 None => hil_sim::rig::RigConfig::default(),
             };
             // The demo's rig runs in process on the virtual clock.
-            tokio::runtime::Builder::new_current_thread()
-                .enable_all()
-                .start_paused(true)
-                .build()
+            hil_sim::run::virtual_runtime()
                 .context("tokio runtime")?
                 .block_on(hil_sim::experiment::demo(seed, rig))
                 .map_err(anyhow::Error::from)

@@ -489,13 +489,20 @@ pub fn run(opts: RunOptions, progress: &mut dyn FnMut(&str)) -> Result<RunReport
             .enable_all()
             .build()
     } else {
-        tokio::runtime::Builder::new_current_thread()
-            .enable_all()
-            .start_paused(true)
-            .build()
+        virtual_runtime()
     }
     .map_err(|e| RunError::Setup(format!("tokio runtime: {e}")))?;
     rt.block_on(run_on_this_runtime(opts, progress))
+}
+
+/// The runtime of the in-process rig: current-thread with its clock paused,
+/// so simulated time jumps from timer to timer only when every task waits
+/// (see [`run`]). `hil-sim run` and `hil-sim demo` run on one.
+pub fn virtual_runtime() -> std::io::Result<tokio::runtime::Runtime> {
+    tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .start_paused(true)
+        .build()
 }
 
 /// [`run`] on the caller's runtime (see there for the clock).

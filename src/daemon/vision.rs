@@ -259,25 +259,10 @@ impl Vision {
                         // sim rig, tracked frames after a step slipped by
                         // whole periods (12 × 4 µm) without failing the
                         // code check.
-                        match decoder.decode(&frame) {
-                            Ok(d) => {
-                                stats.decoded.fetch_add(1, Ordering::Relaxed);
-                                let m = Measurement {
-                                    t_s,
-                                    sequence: frame.sequence,
-                                    x_um: d.x_um,
-                                    y_um: d.y_um,
-                                    theta_rad: d.theta_rad,
-                                    quality: d.quality,
-                                };
-                                if tx.send(Some(m)).is_err() {
-                                    break;
-                                }
-                            }
-                            Err(e) => {
-                                stats.failed.fetch_add(1, Ordering::Relaxed);
-                                set(&last_error, format!("decode: {e}"));
-                            }
+                        let decoded = decoder.decode(&frame);
+                        let out = publish(decoded, t_s, frame.sequence, &stats, &last_error, &tx);
+                        if out == Published::Closed {
+                            break;
                         }
                     }
                 })
@@ -389,9 +374,10 @@ async fn on_demand_loop(mut l: OnDemandLoop) {
         }
         l.stats.frames.fetch_add(1, Ordering::Relaxed);
         let mut decoder = l.decoder;
+        let sequence = frame.sequence;
         let Ok((decoder, decoded)) = tokio::task::spawn_blocking(move || {
             let r = decoder.decode(&frame);
-            (decoder, r.map(|d| (d, frame.sequence)))
+            (decoder, r)
         })
         .await
         else {
@@ -399,30 +385,61 @@ async fn on_demand_loop(mut l: OnDemandLoop) {
             return;
         };
         l.decoder = decoder;
-        match decoded {
-            Ok((d, sequence)) => {
-                l.stats.decoded.fetch_add(1, Ordering::Relaxed);
-                let m = Measurement {
-                    t_s: t,
-                    sequence,
-                    x_um: d.x_um,
-                    y_um: d.y_um,
-                    theta_rad: d.theta_rad,
-                    quality: d.quality,
-                };
-                if l.tx.send(Some(m)).is_err() {
-                    return;
-                }
-                // Let the consumers the frame woke run first: one that had
-                // all it needs drops its `Want` before the next round looks
-                // at the demand (without this every measurement rendered
-                // and decoded a second frame nobody asked for).
-                tokio::task::yield_now().await;
+        match publish(decoded, t, sequence, &l.stats, &l.last_error, &l.tx) {
+            Published::Closed => return,
+            // Let the consumers the frame woke run first: one that had all
+            // it needs drops its `Want` before the next round looks at the
+            // demand (without this every measurement rendered and decoded a
+            // second frame nobody asked for).
+            Published::Sent => tokio::task::yield_now().await,
+            Published::Failed => {}
+        }
+    }
+}
+
+/// What became of one decoded frame.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Published {
+    /// A measurement went out.
+    Sent,
+    /// The decode failed (counted, the error kept).
+    Failed,
+    /// Nobody listens any more: the pipeline ends.
+    Closed,
+}
+
+/// Counts a decode's outcome and publishes its measurement, stamped with
+/// the rig time `t_s` its grab was requested: the one place both capture
+/// modes turn a decode into a [`Measurement`].
+fn publish(
+    decoded: Result<crate::pattern::decode::Decoded, crate::pattern::decode::DecodeError>,
+    t_s: f64,
+    sequence: u64,
+    stats: &VisionStats,
+    last_error: &std::sync::Mutex<Option<String>>,
+    tx: &watch::Sender<Option<Measurement>>,
+) -> Published {
+    match decoded {
+        Ok(d) => {
+            stats.decoded.fetch_add(1, Ordering::Relaxed);
+            let m = Measurement {
+                t_s,
+                sequence,
+                x_um: d.x_um,
+                y_um: d.y_um,
+                theta_rad: d.theta_rad,
+                quality: d.quality,
+            };
+            if tx.send(Some(m)).is_err() {
+                Published::Closed
+            } else {
+                Published::Sent
             }
-            Err(e) => {
-                l.stats.failed.fetch_add(1, Ordering::Relaxed);
-                set(&l.last_error, format!("decode: {e}"));
-            }
+        }
+        Err(e) => {
+            stats.failed.fetch_add(1, Ordering::Relaxed);
+            set(last_error, format!("decode: {e}"));
+            Published::Failed
         }
     }
 }
@@ -473,6 +490,15 @@ impl HealthWatch {
         }
     }
 
+    /// Starts a new window at `now` without judging the one that ends: an
+    /// on-demand pipeline nobody asked for frames delivers none, which says
+    /// nothing about the camera.
+    pub fn rest(&mut self, frames: u64, decoded: u64, now: tokio::time::Instant) {
+        self.frames = frames;
+        self.decoded = decoded;
+        self.since = now;
+    }
+
     /// The new state if it changed: `Ok` as soon as a frame decodes;
     /// `Stalled` / `Undecodable` once `window` passed without one.
     pub fn update(
@@ -494,25 +520,12 @@ impl HealthWatch {
             return None;
         };
         // Each window is judged on its own counters.
-        self.frames = frames;
-        self.decoded = decoded;
-        self.since = now;
+        self.rest(frames, decoded, now);
         if new == self.state {
             return None;
         }
         self.state = new;
         Some(new)
-    }
-}
-
-impl HealthWatch {
-    /// Starts a new window at `now` without judging the one that ends: an
-    /// on-demand pipeline nobody asked for frames delivers none, which says
-    /// nothing about the camera.
-    pub fn rest(&mut self, frames: u64, decoded: u64, now: tokio::time::Instant) {
-        self.frames = frames;
-        self.decoded = decoded;
-        self.since = now;
     }
 }
 
