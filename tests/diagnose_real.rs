@@ -9,7 +9,9 @@
 //!   is stated against the repeatability, and "explains the log to its
 //!   noise" is not said when it is many times that noise;
 //! * the base fit never predicts held-out data worse than the model as
-//!   given (no more free parameters than the log supports).
+//!   given (no more free parameters than the log supports);
+//! * the model's own parameters the log identifies are reported as
+//!   parameter corrections with standard errors, apart from findings.
 
 use std::path::PathBuf;
 
@@ -38,6 +40,14 @@ fn run(name: &str) -> Option<Diagnosis> {
 
 /// The checks every 1-D log must pass.
 fn one_dimensional(d: &Diagnosis) {
+    // Every freed parameter is reported as a parameter correction with a
+    // finite standard error, and none is on the unmeasured axis.
+    assert_eq!(d.parameters.len(), d.base_free_params.len());
+    for p in &d.parameters {
+        assert!(p.std_error.is_finite() && p.std_error >= 0.0, "{p:?}");
+        assert!(!p.term.starts_with("y_"), "{p:?}");
+    }
+    assert!(d.to_json()["parameters"].is_array());
     assert_eq!(d.measured_axes, vec![Axis::X]);
     assert!(
         d.findings.iter().all(|f| f.component == Axis::X),
@@ -79,11 +89,24 @@ fn iso_log(d: &Diagnosis) {
     assert!(!text.contains("explains the log to its noise"), "{text}");
     assert!(text.contains("UNEXPLAINED"), "{text}");
     // Targets ≥ 10 mm apart: the model's 400 µm screw harmonics are
-    // aliased, so the base fit frees none of them and says why.
+    // aliased, so the base fit frees none of them and says why; what it
+    // frees (scale, play, drift) is reported as parameter corrections.
     let sampling = &d.noise.sampling[0];
     assert!(sampling.shortest_period_um >= 10_000.0, "{sampling:?}");
-    assert!(d.base_free_params.is_empty(), "{:?}", d.base_free_params);
+    assert!(
+        d.base_free_params
+            .iter()
+            .all(|p| !p.contains("sin") && !p.contains("cos")),
+        "{:?}",
+        d.base_free_params
+    );
     assert!(text.contains("aliased"), "{text}");
+    // No temperature in these logs: no temperature coefficient is freed.
+    assert!(
+        d.base_free_params.iter().all(|p| !p.contains("per_c")),
+        "{:?}",
+        d.base_free_params
+    );
 }
 
 #[test]

@@ -96,7 +96,7 @@ impl SimPlan {
         self.points() as f64 * self.dwell_s
     }
 
-    fn validate(&self) -> Result<(), AnalysisError> {
+    pub(crate) fn validate(&self) -> Result<(), AnalysisError> {
         let ok = self.step_um > 0.0
             && self.x_range_um[1] > self.x_range_um[0] + self.step_um
             && self.y_range_um[1] > self.y_range_um[0] + self.step_um

@@ -9,6 +9,9 @@
 //!   sampled data (positions and times of a log are not a regular grid).
 //! * [`generate`]: synthetic characterization logs with one hidden effect,
 //!   the analysis's test bench (`micropos simlog`).
+//! * [`physical`]: the same logs from a stage built from its physical
+//!   description (screw, nut with play, guideway angles, squareness), in
+//!   code apart from the model, so a test does not share its assumptions.
 //! * [`comp_gain`]: closing the loop: compensation from the extended model
 //!   against compensation from the original one, ISO 9283 AP on a simulated
 //!   stage that has the effect.
@@ -27,6 +30,7 @@ pub mod diagnose;
 pub mod drift;
 pub mod generate;
 pub mod periodogram;
+pub mod physical;
 
 pub use diagnose::{diagnose, DiagnoseOptions, Diagnosis, Finding};
 

@@ -89,7 +89,11 @@ pub(super) fn extended_with_se(
     let mut se: HashMap<String, f64> = HashMap::new();
     let mut ext = model.clone();
     for (j, name) in base_names.iter().enumerate() {
-        let v = ext.param(name)? + beta[j];
+        let mut v = ext.param(name)? + beta[j];
+        // Play cannot be negative (the fit's linear step can overshoot).
+        if name.ends_with(".backlash_um") {
+            v = v.max(0.0);
+        }
         ext.set_param(name, v)?;
         se.insert(name.clone(), (sigma2 * pdiag[j]).sqrt());
     }

@@ -85,10 +85,12 @@
 //!   cause.
 //! * `report`: the text and JSON reports of a [`Diagnosis`].
 
+mod corrections;
 mod data;
 mod describe;
 mod extend;
 mod fit;
+mod ident;
 mod noise;
 mod report;
 mod search;
@@ -105,12 +107,15 @@ use crate::model::{
 };
 
 use super::{AnalysisError, FindingKind};
+pub use corrections::{ParamCorrection, SIGNIFICANT_SIGMAS};
 pub use data::{parse_approach, APPROACH_COLUMN, MEASURED_AXES_KEY};
 use data::{prepare, MeasuredSource};
 use describe::describe;
 use extend::{extended, extended_with_se};
 use fit::{fit_with, fold_base, keep_heldout, paired_z, rms_comp, select_base, unjudged, Verdict};
+pub use ident::Unidentifiable;
 pub use noise::{ComponentNoise, IsoFigures, NoiseReport, Outlier, Sampling, TargetRepeat};
+pub use search::ALL_KINDS;
 use search::{base_columns, columns, families, search, Family, Spec};
 
 /// How to diagnose.
@@ -126,7 +131,9 @@ pub struct DiagnoseOptions {
     /// At most this many folds (whole cycles) for held-out judging.
     pub max_folds: usize,
     /// Kinds of model terms whose parameters the base fit identifies from
-    /// the log (must be linear terms).
+    /// the log ([`ALL_KINDS`], `"*"`: every kind). Linear terms and
+    /// backlash qualify; other nonlinear parameters stay at the model's
+    /// values.
     pub base_free_kinds: Vec<String>,
 }
 
@@ -137,7 +144,7 @@ impl Default for DiagnoseOptions {
             min_gain_pct: 1.0,
             max_findings: 4,
             max_folds: 4,
-            base_free_kinds: vec!["leadscrew_cyclic".into(), "cross_coupling".into()],
+            base_free_kinds: vec![ALL_KINDS.into()],
         }
     }
 }
@@ -247,8 +254,9 @@ pub struct FixedParam {
     pub name: String,
     /// Why the log cannot support it.
     pub reason: String,
-    /// Whether the reason is an aliased period (else: freeing it predicted
-    /// held-out data worse).
+    /// Whether the reason is an aliased period (else: a period longer than
+    /// the log spans, no temperature change, not separable from other
+    /// parameters, or freeing it predicted held-out data worse).
     pub aliased: bool,
 }
 
@@ -256,7 +264,11 @@ pub struct FixedParam {
 /// a periodic term (`period_um` in its configuration) along an axis whose
 /// sampling cannot resolve that period; `None` otherwise.
 fn aliased_period(d: &data::Data, model: &StageModel, name: &str) -> Option<(f64, f64)> {
-    let term_name = name.split('.').next()?;
+    let (term_name, param) = name.split_once('.')?;
+    // Only the periodic parameters (a term's slope is not aliased).
+    if !(param.contains("sin") || param.contains("cos")) {
+        return None;
+    }
     let term = model.terms().iter().find(|t| t.name() == term_name)?;
     let cfg = term.to_config().ok()?;
     let period_um = cfg.get("period_um")?.as_float()?;
@@ -267,6 +279,56 @@ fn aliased_period(d: &data::Data, model: &StageModel, name: &str) -> Option<(f64
     };
     let shortest_um = data::shortest_period_um(d, axis)?;
     (period_um < shortest_um).then_some((period_um, shortest_um))
+}
+
+/// Why the log cannot identify parameter `name` beyond aliasing, or
+/// `None`: a periodic term whose period is longer than the log's span of
+/// its variable (less than one period is seen: its sine and cosine are a
+/// smooth curve that trades off against every slope, a fitted amplitude
+/// means nothing), or a temperature coefficient (unit `…/°C…`) when the
+/// log's temperature does not change (the column is then the model's own
+/// assumed temperature history, not a measurement).
+fn unresolved(d: &data::Data, model: &StageModel, name: &str) -> Option<String> {
+    let (term_name, param) = name.split_once('.')?;
+    let mp = model.params();
+    let unit = mp.iter().find(|p| p.full_name == name)?.info.unit;
+    if unit.contains("°C") && !d.temp_varies {
+        return Some(
+            "the log's temperature does not change: temperature coefficients cannot be identified"
+                .into(),
+        );
+    }
+    if !(param.contains("sin") || param.contains("cos")) {
+        return None;
+    }
+    let term = model.terms().iter().find(|t| t.name() == term_name)?;
+    let cfg = term.to_config().ok()?;
+    if let Some(period_s) = cfg.get("period_s").and_then(|v| v.as_float()) {
+        let (lo, hi) = d
+            .states
+            .iter()
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), s| {
+                (l.min(s.time_s), h.max(s.time_s))
+            });
+        let span_s = hi - lo;
+        return (period_s > span_s).then(|| {
+            format!("the log cannot resolve them: period {period_s:.0} s is longer than the {span_s:.0} s it lasts")
+        });
+    }
+    let period_um = cfg.get("period_um")?.as_float()?;
+    let axis = match cfg.get("axis")?.as_str()? {
+        "x" => Axis::X,
+        "y" => Axis::Y,
+        _ => return None,
+    };
+    let pos = data::distinct_positions(d, axis);
+    let span_um = match (pos.first(), pos.last()) {
+        (Some(a), Some(b)) => b - a,
+        _ => 0.0,
+    };
+    (period_um > span_um).then(|| {
+        format!("the log cannot resolve them: period {period_um:.1} µm is longer than the {span_um:.1} µm of {axis} it spans")
+    })
 }
 
 /// Everything `diagnose` found.
@@ -292,6 +354,12 @@ pub struct Diagnosis {
     /// the log through the extended model leaves: the noise floor when
     /// everything is explained).
     pub extended_fit_rms_um: RmsXy,
+    /// The model's own parameters as the log measured them (base fit,
+    /// jointly with the findings): parameter corrections, not findings.
+    pub parameters: Vec<ParamCorrection>,
+    /// Parameters the log cannot separate from others (kept at the
+    /// model's value), with the combination it measures instead.
+    pub unidentifiable: Vec<Unidentifiable>,
     /// Parameters the base fit identified.
     pub base_free_params: Vec<String>,
     /// Parameters of the base kinds the log cannot support, kept at the
@@ -353,20 +421,41 @@ pub fn diagnose(
     let mut base_fixed: Vec<FixedParam> = Vec::new();
     let mut resolvable: Vec<usize> = Vec::new();
     for (j, name) in all_names.iter().enumerate() {
-        match aliased_period(&d, model, name) {
-            Some((period_um, shortest_um)) => base_fixed.push(FixedParam {
+        if let Some((period_um, shortest_um)) = aliased_period(&d, model, name) {
+            base_fixed.push(FixedParam {
                 name: name.clone(),
                 reason: format!(
                     "the log cannot resolve them: period {period_um:.1} µm is shorter than the {shortest_um:.1} µm its spacing resolves (aliased)"
                 ),
                 aliased: true,
-            }),
-            None => resolvable.push(j),
+            });
+        } else if let Some(reason) = unresolved(&d, model, name) {
+            base_fixed.push(FixedParam {
+                name: name.clone(),
+                reason,
+                aliased: false,
+            });
+        } else {
+            resolvable.push(j);
         }
     }
-    let cand_names: Vec<String> = resolvable.iter().map(|&j| all_names[j].clone()).collect();
-    let cand_cols: Vec<Vec<f64>> = resolvable.iter().map(|&j| all_base[j].clone()).collect();
+    // Parameters the log's geometry cannot separate from others stay at
+    // the model's value; their combination is named (see `ident`).
+    let res_names: Vec<String> = resolvable.iter().map(|&j| all_names[j].clone()).collect();
+    let res_cols: Vec<Vec<f64>> = resolvable.iter().map(|&j| all_base[j].clone()).collect();
     drop(all_base);
+    let (separable, unidentifiable) = ident::identifiable(&d, model, &res_names, &res_cols);
+    for u in &unidentifiable {
+        base_fixed.push(FixedParam {
+            name: u.name.clone(),
+            reason: "the log cannot separate them from other parameters (see `unidentifiable`)"
+                .into(),
+            aliased: false,
+        });
+    }
+    let cand_names: Vec<String> = separable.iter().map(|&j| res_names[j].clone()).collect();
+    let cand_cols: Vec<Vec<f64>> = separable.iter().map(|&j| res_cols[j].clone()).collect();
+    drop(res_cols);
     // Model selection on the base fit too: only the terms whose freeing
     // predicts held-out data better (see `fit::select_base`).
     let keep = select_base(&d, &cand_names, &cand_cols);
@@ -556,6 +645,7 @@ pub fn diagnose(
         base_model.set_environment(env)?;
     }
     std_errs.extend(lin_se);
+    let parameters = corrections::corrections(model, &fitted, &base_names, &std_errs);
     let std_err = |name: &str| -> Option<f64> { std_errs.get(name).copied() };
     let accepted: Vec<(Spec, Verdict)> = specs
         .into_iter()
@@ -641,6 +731,8 @@ pub fn diagnose(
         extended_rms_um: RmsXy::from(extended_heldout),
         with_unmodelled_rms_um: with_unmodelled,
         extended_fit_rms_um: RmsXy::from(fit_rms),
+        parameters,
+        unidentifiable,
         base_free_params: base_names,
         base_fixed_params: base_fixed,
         measured_axes: Axis::ALL

@@ -36,7 +36,7 @@ impl Diagnosis {
         );
         let _ = writeln!(
             out,
-            "base fit identified {} parameters of the model's cyclic tables",
+            "base fit identified {} parameters of the model (its own structure, this stage's values)",
             self.base_free_params.len()
         );
         // Fixed parameters, grouped by reason.
@@ -67,6 +67,7 @@ impl Diagnosis {
                     .join(", ")
             );
         }
+        out.push_str(&self.parameters_text());
         let rms = |r: &RmsXy| -> String {
             Axis::ALL
                 .iter()
@@ -163,6 +164,52 @@ impl Diagnosis {
             );
         }
         out.push_str(&self.noise_text());
+        out
+    }
+
+    /// The parameter-corrections section of the text report: the model's
+    /// own parameters as the log measured them (not findings), and the
+    /// combinations the log cannot separate.
+    fn parameters_text(&self) -> String {
+        let mut out = String::new();
+        let (sig, agree): (Vec<_>, Vec<_>) = self.parameters.iter().partition(|p| p.significant);
+        if sig.is_empty() {
+            let _ = writeln!(
+                out,
+                "parameter corrections: none (the {} identified parameters agree with the model within {} σ)",
+                agree.len(),
+                super::SIGNIFICANT_SIGMAS
+            );
+        } else {
+            let _ = writeln!(
+                out,
+                "parameter corrections (the model's own terms, this stage's values; not findings): {} of {} identified parameters differ by ≥ {} σ",
+                sig.len(),
+                self.parameters.len(),
+                super::SIGNIFICANT_SIGMAS
+            );
+            // Largest departures (in σ) first.
+            let mut sig = sig;
+            sig.sort_by(|a, b| {
+                let z = |p: &&super::ParamCorrection| {
+                    (p.fitted_value - p.model_value).abs() / p.std_error.max(1e-300)
+                };
+                z(b).total_cmp(&z(a))
+            });
+            for p in sig.iter().take(PARAMS_SHOWN) {
+                let _ = writeln!(out, "  {}", p.sentence);
+            }
+            if sig.len() > PARAMS_SHOWN {
+                let _ = writeln!(
+                    out,
+                    "  … {} more in the JSON report (`parameters`)",
+                    sig.len() - PARAMS_SHOWN
+                );
+            }
+        }
+        for u in &self.unidentifiable {
+            let _ = writeln!(out, "  not separable: {}", u.sentence);
+        }
         out
     }
 
@@ -275,6 +322,8 @@ impl Diagnosis {
             "folds": self.folds,
             "model_rms_um": self.model_rms_um,
             "baseline_rms_um": self.baseline_rms_um,
+            "parameters": self.parameters,
+            "unidentifiable": self.unidentifiable,
             "findings": self.findings,
             "extended_rms_um": self.extended_rms_um,
             "extended_fit_rms_um": self.extended_fit_rms_um,
@@ -302,6 +351,9 @@ fn pct(before: f64, after: f64) -> f64 {
         0.0
     }
 }
+
+/// Significant corrections listed in the text report (the rest: JSON).
+const PARAMS_SHOWN: usize = 12;
 
 /// A long list of parameter names, shortened to the first few.
 fn abbreviate(names: &[String]) -> String {

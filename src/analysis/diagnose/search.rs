@@ -481,6 +481,36 @@ pub(super) fn columns(spec: &Spec, d: &Data, model: &StageModel) -> Vec<Vec<f64>
     cols
 }
 
+/// Whether `kind` is among the base fit's kinds: named in `kinds`, or
+/// `kinds` holds [`ALL_KINDS`].
+pub(super) fn base_kind_selected(kinds: &[String], kind: &str) -> bool {
+    kinds.iter().any(|k| k == kind || k == ALL_KINDS)
+}
+
+/// The `base_free_kinds` entry that selects every kind of the model.
+pub const ALL_KINDS: &str = "*";
+
+/// Whether the base fit can free a term's parameters by one linear solve:
+/// linear terms; backlash, whose play enters the contribution as `±B/2`
+/// on a steady approach (its Jacobian, taken at the model's play, is that
+/// sign; the solve is the first Gauss–Newton step); and angular error
+/// motions, which are linear in their angles at a given Abbe arm (the arm
+/// itself is geometry, see [`base_param_fittable`]). Other nonlinear terms
+/// (a localized feature's place and width, a step-size length) stay at the
+/// model's values.
+pub(super) fn base_fittable(t: &dyn Term) -> bool {
+    t.is_linear()
+        || t.kind() == crate::model::terms::backlash::KIND
+        || t.kind() == crate::model::terms::angular::KIND
+}
+
+/// Whether parameter `param` of a base-fittable term is freed: not an
+/// angular term's Abbe arm (`arm_*`), which multiplies the angles (a
+/// fit of both is bilinear, and the log sees only their product).
+pub(super) fn base_param_fittable(kind: &str, param: &str) -> bool {
+    !(kind == crate::model::terms::angular::KIND && param.starts_with("arm_"))
+}
+
 /// Columns of the base fit: the jacobian of the free parameters (linear
 /// terms, so exact and independent of the values).
 pub(super) fn base_columns(
@@ -491,7 +521,7 @@ pub(super) fn base_columns(
     let mut names = Vec::new();
     let mut cols = Vec::new();
     for t in model.terms() {
-        if !kinds.iter().any(|k| k == t.kind()) || !t.is_linear() {
+        if !base_kind_selected(kinds, t.kind()) || !base_fittable(&**t) {
             continue;
         }
         let p = t.params();
@@ -503,6 +533,9 @@ pub(super) fn base_columns(
             }
         }
         for (k, mut c) in tc.into_iter().enumerate() {
+            if !base_param_fittable(t.kind(), &p[k].name) {
+                continue;
+            }
             // Centred first: a column that is constant within every
             // centring group, or lives only on an unmeasured component,
             // carries nothing the log can identify.
