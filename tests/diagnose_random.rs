@@ -125,6 +125,44 @@ fn random_model(seed: u64) -> StageModel {
     m
 }
 
+/// `f` over `items` on up to four threads (the diagnoses are independent
+/// and seeded; the order of the results is the order of `items`).
+fn par_map<T: Sync, R: Send>(items: &[T], f: impl Fn(&T) -> R + Sync) -> Vec<R> {
+    let workers = std::thread::available_parallelism()
+        .map_or(1, |n| n.get())
+        .clamp(1, 4);
+    let next = std::sync::atomic::AtomicUsize::new(0);
+    let out: std::sync::Mutex<Vec<Option<R>>> =
+        std::sync::Mutex::new((0..items.len()).map(|_| None).collect());
+    std::thread::scope(|s| {
+        for _ in 0..workers {
+            s.spawn(|| loop {
+                let i = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                let Some(item) = items.get(i) else { break };
+                let r = f(item);
+                out.lock().unwrap()[i] = Some(r);
+            });
+        }
+    });
+    out.into_inner()
+        .unwrap()
+        .into_iter()
+        .map(|r| r.unwrap())
+        .collect()
+}
+
+fn describe(d: &Diagnosis) -> Vec<String> {
+    d.findings
+        .iter()
+        .map(|f| {
+            format!(
+                "{} {} vs {}: {}",
+                f.kind, f.component, f.axis, f.explanation
+            )
+        })
+        .collect()
+}
+
 /// Diagnoses `log` (through the file format) against the default model.
 fn run(log: &SimLog) -> Diagnosis {
     let parsed = parse_bytes(&log.to_bytes().unwrap()).unwrap();
@@ -282,37 +320,33 @@ const PHYSICAL_KINDS: [&str; 5] = ["dent", "bearing", "wind-up", "air cycle", "y
 /// structure the default model lacks).
 fn clean(n_model: u64, n_physical: u64) -> (usize, usize) {
     let plan = plan();
-    let mut stages = 0;
-    let mut false_findings = 0;
-    for seed in 0..n_model {
-        let truth = truth_model(&random_model(seed), None, &plan, seed).unwrap();
-        let d = run(&simulate_log(&truth, &plan, seed).unwrap());
-        stages += 1;
-        false_findings += d.findings.len();
+    let seeds: Vec<(bool, u64)> = (0..n_model)
+        .map(|s| (false, s))
+        .chain((0..n_physical).map(|s| (true, 1000 + s)))
+        .collect();
+    let results = par_map(&seeds, |&(physical, seed)| {
+        let log = if physical {
+            simulate_physical_log(&PhysicalStage::random(seed), &plan, seed).unwrap()
+        } else {
+            let truth = truth_model(&random_model(seed), None, &plan, seed).unwrap();
+            simulate_log(&truth, &plan, seed).unwrap()
+        };
+        let d = run(&log);
         check_corrections(&d);
         eprintln!(
-            "clean model stage {seed}: {} finding(s) {:?}, {} significant corrections",
+            "clean {} stage {seed}: {} finding(s) {:?}; {} significant corrections; fixed: {:?}",
+            if physical { "physical" } else { "model" },
             d.findings.len(),
-            d.findings.iter().map(|f| f.kind).collect::<Vec<_>>(),
-            d.parameters.iter().filter(|p| p.significant).count()
-        );
-    }
-    for seed in 0..n_physical {
-        let stage = PhysicalStage::random(1000 + seed);
-        let d = run(&simulate_physical_log(&stage, &plan, 1000 + seed).unwrap());
-        stages += 1;
-        false_findings += d.findings.len();
-        check_corrections(&d);
-        eprintln!(
-            "clean physical stage {seed}: {} finding(s) {:?}",
-            d.findings.len(),
-            d.findings
+            describe(&d),
+            d.parameters.iter().filter(|p| p.significant).count(),
+            d.base_fixed_params
                 .iter()
-                .map(|f| format!("{} {} vs {}", f.kind, f.component, f.axis))
+                .map(|p| p.name.as_str())
                 .collect::<Vec<_>>()
         );
-    }
-    (stages, false_findings)
+        d.findings.len()
+    });
+    (results.len(), results.iter().sum())
 }
 
 /// Every random stage differs from the default in its squareness by
@@ -337,49 +371,52 @@ fn check_corrections(d: &Diagnosis) {
 #[test]
 fn random_stages_parameters_apart_from_hidden_structure() {
     let (stages, false_findings) = clean(28, 12);
-    // Detection per kind and size.
+    // Detection per kind and size: (generator, kind index, size, seed).
     let plan = plan();
-    let mut rows: Vec<(String, f64, usize, usize)> = Vec::new();
-    for kind in MODEL_KINDS {
+    let mut cases: Vec<(bool, usize, f64, u64)> = Vec::new();
+    for ki in 0..MODEL_KINDS.len() {
         for &k in &SIZES {
-            let mut hits = 0;
-            let n = 2;
-            for rep in 0..n as u64 {
-                let seed = 100 + rep * 7919 + (k as u64) * 31;
-                let (e, x) = model_effect(kind, k * NOISE_UM, seed);
-                let truth = truth_model(&random_model(seed), Some(&e), &plan, seed).unwrap();
-                let d = run(&simulate_log(&truth, &plan, seed).unwrap());
-                let ok = found(&d, &x);
-                hits += usize::from(ok);
-                eprintln!(
-                    "model {kind} {k}× seed {seed}: {} ({:?})",
-                    if ok { "found" } else { "MISSED" },
-                    d.findings
-                        .iter()
-                        .map(|f| format!("{} {} vs {}", f.kind, f.component, f.axis))
-                        .collect::<Vec<_>>()
-                );
+            for rep in 0..2u64 {
+                cases.push((false, ki, k, 100 + rep * 7919 + (k as u64) * 31));
             }
-            rows.push((format!("model {kind}"), k, hits, n));
         }
     }
-    for (ki, name) in PHYSICAL_KINDS.iter().enumerate() {
+    for ki in 0..PHYSICAL_KINDS.len() {
         for &k in &SIZES {
-            let seed = 2000 + ki as u64 * 101 + k as u64;
+            cases.push((true, ki, k, 2000 + ki as u64 * 101 + k as u64));
+        }
+    }
+    let hits = par_map(&cases, |&(physical, ki, k, seed)| {
+        let (name, log, x) = if physical {
             let mut stage = PhysicalStage::random(seed);
             let (effect, x) = physical_effect(ki, k * NOISE_UM, seed);
             stage.effects.push(effect);
-            let d = run(&simulate_physical_log(&stage, &plan, seed).unwrap());
-            let ok = found(&d, &x);
-            eprintln!(
-                "physical {name} {k}× seed {seed}: {} ({:?})",
-                if ok { "found" } else { "MISSED" },
-                d.findings
-                    .iter()
-                    .map(|f| format!("{} {} vs {}", f.kind, f.component, f.axis))
-                    .collect::<Vec<_>>()
-            );
-            rows.push((format!("physical {name}"), k, usize::from(ok), 1));
+            let log = simulate_physical_log(&stage, &plan, seed).unwrap();
+            (format!("physical {}", PHYSICAL_KINDS[ki]), log, x)
+        } else {
+            let (e, x) = model_effect(MODEL_KINDS[ki], k * NOISE_UM, seed);
+            let truth = truth_model(&random_model(seed), Some(&e), &plan, seed).unwrap();
+            let log = simulate_log(&truth, &plan, seed).unwrap();
+            (format!("model {}", MODEL_KINDS[ki]), log, x)
+        };
+        let d = run(&log);
+        let ok = found(&d, &x);
+        eprintln!(
+            "{name} {k}× seed {seed}: {} (want {:?}; found {:?})",
+            if ok { "found" } else { "MISSED" },
+            x,
+            describe(&d)
+        );
+        (name, k, ok)
+    });
+    let mut rows: Vec<(String, f64, usize, usize)> = Vec::new();
+    for (name, k, ok) in hits {
+        match rows.iter_mut().find(|r| r.0 == name && r.1 == k) {
+            Some(r) => {
+                r.2 += usize::from(ok);
+                r.3 += 1;
+            }
+            None => rows.push((name, k, usize::from(ok), 1)),
         }
     }
     eprintln!("\n{:<28} {:>6} {:>8}", "hidden effect", "size", "found");

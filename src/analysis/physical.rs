@@ -210,7 +210,7 @@ impl PhysicalAxis {
                 phase_rad: h.phase_rad + uniform(rng, -0.5, 0.5),
             })
             .collect();
-        let mut angle = |rng: &mut ChaCha8Rng| GuideAngle {
+        let angle = |rng: &mut ChaCha8Rng| GuideAngle {
             slope_urad_per_mm: uniform(rng, -10.0, 10.0),
             amplitude_urad: uniform(rng, -30.0, 30.0),
             period_um: 5000.0,

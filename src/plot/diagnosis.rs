@@ -1,6 +1,12 @@
 //! The plots of `micropos diagnose --plots DIR`: residuals against every
-//! variable of the log (before and after the extension), periodograms of
-//! the base residuals against each position and time.
+//! variable of the log (after the parameter corrections, and after the
+//! findings too), periodograms of those residuals against each position
+//! and time, and the parameter corrections themselves (fitted − model, in
+//! standard errors).
+//!
+//! Only what the log measured is drawn: no residual of an unmeasured
+//! component, no variable that does not vary in the log (the placeholder
+//! position of a 1-D log's other axis).
 
 use std::path::{Path, PathBuf};
 
@@ -17,6 +23,21 @@ pub fn write_all(d: &Diagnosis, dir: &Path) -> Result<Vec<PathBuf>, PlotError> {
     ensure_dir(dir)?;
     let s = &d.series;
     let mut files = Vec::new();
+    if !d.parameters.is_empty() {
+        files.extend(render(
+            &corrections_chart(d),
+            &dir.join("parameter_corrections"),
+        )?);
+    }
+    let varies = |v: &[f64]| {
+        let (lo, hi) = v
+            .iter()
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| {
+                (a.min(x), b.max(x))
+            });
+        hi > lo
+    };
+    let measured = |c: usize| d.measured_axes.iter().any(|a| a.index() == c);
     let mut vars: Vec<(String, String, &[f64])> = vec![
         ("x".into(), "commanded x (µm)".into(), &s.x_um),
         ("y".into(), "commanded y (µm)".into(), &s.y_um),
@@ -58,7 +79,11 @@ pub fn write_all(d: &Diagnosis, dir: &Path) -> Result<Vec<PathBuf>, PlotError> {
             .collect();
         vars.push((format!("col_{safe}"), format!("log column `{name}`"), v));
     }
+    vars.retain(|(_, _, v)| varies(v));
     for (c, comp) in ["x", "y"].iter().enumerate() {
+        if !measured(c) {
+            continue;
+        }
         for (name, label, v) in &vars {
             let chart = Chart {
                 title: format!("{comp} residual (measured − model) vs {name}"),
@@ -66,12 +91,12 @@ pub fn write_all(d: &Diagnosis, dir: &Path) -> Result<Vec<PathBuf>, PlotError> {
                 y_label: format!("{comp} residual (µm)"),
                 series: vec![
                     Series {
-                        label: "base fit".into(),
+                        label: "parameter corrections (base fit)".into(),
                         points: pairs(v, &s.before_um[c]),
                         mark: Mark::Dots,
                     },
                     Series {
-                        label: "extended model".into(),
+                        label: "corrections + findings (extended model)".into(),
                         points: pairs(v, &s.after_um[c]),
                         mark: Mark::Dots,
                     },
@@ -93,7 +118,7 @@ pub fn write_all(d: &Diagnosis, dir: &Path) -> Result<Vec<PathBuf>, PlotError> {
                     (a.min(x), b.max(x))
                 });
             let span = hi - lo;
-            if span.is_nan() || span <= 0.0 {
+            if span.is_nan() || span <= 0.0 || (name != "time" && !varies(v)) {
                 continue;
             }
             let f_min = 2.0 / span;
@@ -131,20 +156,27 @@ pub fn write_all(d: &Diagnosis, dir: &Path) -> Result<Vec<PathBuf>, PlotError> {
     let rms = |v: &[f64]| (v.iter().map(|x| x * x).sum::<f64>() / v.len().max(1) as f64).sqrt();
     let chart = Chart {
         title: format!(
-            "residual before/after: x {:.3}→{:.3} µm, y {:.3}→{:.3} µm (in-sample rms)",
-            rms(&s.before_um[0]),
-            rms(&s.after_um[0]),
-            rms(&s.before_um[1]),
-            rms(&s.after_um[1])
+            "residual before/after the findings: {} (in-sample rms)",
+            (0..2)
+                .filter(|&c| measured(c))
+                .map(|c| format!(
+                    "{} {:.3}→{:.3} µm",
+                    ["x", "y"][c],
+                    rms(&s.before_um[c]),
+                    rms(&s.after_um[c])
+                ))
+                .collect::<Vec<_>>()
+                .join(", ")
         ),
         x_label: "point index".into(),
         y_label: "residual (µm)".into(),
         series: (0..2)
+            .filter(|&c| measured(c))
             .flat_map(|c| {
                 let comp = ["x", "y"][c];
                 [
                     Series {
-                        label: format!("{comp} base fit"),
+                        label: format!("{comp} after parameter corrections"),
                         points: s.before_um[c]
                             .iter()
                             .enumerate()
@@ -153,7 +185,7 @@ pub fn write_all(d: &Diagnosis, dir: &Path) -> Result<Vec<PathBuf>, PlotError> {
                         mark: Mark::Dots,
                     },
                     Series {
-                        label: format!("{comp} extended"),
+                        label: format!("{comp} after corrections + findings"),
                         points: s.after_um[c]
                             .iter()
                             .enumerate()
@@ -167,4 +199,66 @@ pub fn write_all(d: &Diagnosis, dir: &Path) -> Result<Vec<PathBuf>, PlotError> {
     };
     files.extend(render(&chart, &dir.join("before_after"))?);
     Ok(files)
+}
+
+/// The parameter corrections: `(fitted − model)/σ` per identified
+/// parameter, the ones beyond the significance line apart; the title names
+/// the largest.
+fn corrections_chart(d: &Diagnosis) -> Chart {
+    let z = |p: &crate::analysis::diagnose::ParamCorrection| {
+        let dz = (p.fitted_value - p.model_value) / p.std_error;
+        if dz.is_finite() {
+            dz
+        } else {
+            0.0
+        }
+    };
+    let mut sig = Vec::new();
+    let mut agree = Vec::new();
+    for (i, p) in d.parameters.iter().enumerate() {
+        let pt = (i as f64, z(p));
+        if p.significant {
+            sig.push(pt);
+        } else {
+            agree.push(pt);
+        }
+    }
+    let mut top: Vec<&crate::analysis::diagnose::ParamCorrection> =
+        d.parameters.iter().filter(|p| p.significant).collect();
+    top.sort_by(|a, b| z(b).abs().total_cmp(&z(a).abs()));
+    let names = top
+        .iter()
+        .take(3)
+        .map(|p| format!("{}.{}", p.term, p.parameter))
+        .collect::<Vec<_>>()
+        .join(", ");
+    Chart {
+        title: format!(
+            "parameter corrections: {} of {} differ from the model{}",
+            top.len(),
+            d.parameters.len(),
+            if names.is_empty() {
+                String::new()
+            } else {
+                format!(" (largest: {names})")
+            }
+        ),
+        x_label: "identified parameter (order of the JSON `parameters`)".into(),
+        y_label: "(fitted − model) / σ".into(),
+        series: vec![
+            Series {
+                label: format!(
+                    "|fitted − model| ≥ {} σ",
+                    crate::analysis::diagnose::SIGNIFICANT_SIGMAS
+                ),
+                points: sig,
+                mark: Mark::Dots,
+            },
+            Series {
+                label: "agrees with the model".into(),
+                points: agree,
+                mark: Mark::Dots,
+            },
+        ],
+    }
 }

@@ -258,7 +258,8 @@ pub(super) fn solve_with_cov(g: &DMatrix<f64>, r: &DVector<f64>) -> (DVector<f64
 }
 
 /// Base-fit model selection: which groups of base columns (one group per
-/// model term) the log supports. Backward elimination on the pooled
+/// model term, or per term and axis where its parameters name one) the
+/// log supports. Backward elimination on the pooled
 /// held-out squared error over the judged rows of the measured components:
 /// starting from every group, the group whose removal leaves the smallest
 /// held-out error is removed as long as that error is not larger than with
@@ -274,10 +275,18 @@ pub(super) fn select_base(d: &Data, names: &[String], cols: &[Vec<f64>]) -> Vec<
     if p == 0 {
         return Vec::new();
     }
-    // Groups by term name.
+    // Groups by term name, and within a term by the axis a parameter
+    // names (`x_…`/`y_…`, e.g. the thermal term's per-axis coefficients):
+    // one axis's part is kept or dropped on its own evidence.
     let mut groups: Vec<(String, Vec<usize>)> = Vec::new();
     for (j, name) in names.iter().enumerate() {
-        let term = name.split('.').next().unwrap_or(name).to_string();
+        let term = match name.split_once('.') {
+            Some((t, p)) if p.starts_with("x_") || p.starts_with("y_") => {
+                format!("{t}.{}", &p[..1])
+            }
+            Some((t, _)) => t.to_string(),
+            None => name.clone(),
+        };
         match groups.iter_mut().find(|(t, _)| *t == term) {
             Some((_, v)) => v.push(j),
             None => groups.push((term, vec![j])),

@@ -282,10 +282,10 @@ fn aliased_period(d: &data::Data, model: &StageModel, name: &str) -> Option<(f64
 }
 
 /// Why the log cannot identify parameter `name` beyond aliasing, or
-/// `None`: a periodic term whose period is longer than the log's span of
-/// its variable (less than one period is seen: its sine and cosine are a
-/// smooth curve that trades off against every slope, a fitted amplitude
-/// means nothing), or a temperature coefficient (unit `…/°C…`) when the
+/// `None`: a periodic term whose period is more than
+/// [`LONGEST_PERIOD_SPANS`] times the log's span of its variable (less
+/// than half a period is seen: its sine and cosine are a smooth curve that
+/// trades off against every slope, a fitted amplitude means nothing), or a temperature coefficient (unit `…/°C…`) when the
 /// log's temperature does not change (the column is then the model's own
 /// assumed temperature history, not a measurement).
 fn unresolved(d: &data::Data, model: &StageModel, name: &str) -> Option<String> {
@@ -311,8 +311,8 @@ fn unresolved(d: &data::Data, model: &StageModel, name: &str) -> Option<String> 
                 (l.min(s.time_s), h.max(s.time_s))
             });
         let span_s = hi - lo;
-        return (period_s > span_s).then(|| {
-            format!("the log cannot resolve them: period {period_s:.0} s is longer than the {span_s:.0} s it lasts")
+        return (period_s > LONGEST_PERIOD_SPANS * span_s).then(|| {
+            format!("the log cannot resolve them: period {period_s:.0} s is more than {LONGEST_PERIOD_SPANS}× the {span_s:.0} s it lasts")
         });
     }
     let period_um = cfg.get("period_um")?.as_float()?;
@@ -326,10 +326,16 @@ fn unresolved(d: &data::Data, model: &StageModel, name: &str) -> Option<String> 
         (Some(a), Some(b)) => b - a,
         _ => 0.0,
     };
-    (period_um > span_um).then(|| {
-        format!("the log cannot resolve them: period {period_um:.1} µm is longer than the {span_um:.1} µm of {axis} it spans")
+    (period_um > LONGEST_PERIOD_SPANS * span_um).then(|| {
+        format!("the log cannot resolve them: period {period_um:.1} µm is more than {LONGEST_PERIOD_SPANS}× the {span_um:.1} µm of {axis} it spans")
     })
 }
+
+/// A periodic base term is fitted up to a period of this many times the
+/// log's span of its variable: over half a period its sine and cosine are
+/// still a distinct curve (a 5 mm guideway waviness on a 4.2 mm y scan),
+/// over less they trade off against every slope.
+const LONGEST_PERIOD_SPANS: f64 = 2.0;
 
 /// Everything `diagnose` found.
 #[derive(Debug, Clone, Serialize)]
