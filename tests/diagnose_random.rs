@@ -441,8 +441,9 @@ fn random_stages_parameters_apart_from_hidden_structure() {
     assert!(h6 * 100 >= DETECT_6X_PCT * n6, "6×: {h6}/{n6}");
 }
 
-/// Bounds the asserts hold with a margin (measured rates: see the module
-/// docs and `docs/design/analysis.md`).
-const FALSE_FINDINGS_MAX: usize = 100;
-const DETECT_12X_PCT: usize = 0;
-const DETECT_6X_PCT: usize = 0;
+/// Bounds the asserts hold with a margin (measured: 1 false finding on 40
+/// clean stages, a 0.013 µm/h y drift; 13/15 detected at 12×, 15/15 at
+/// 6×; see `docs/design/analysis.md`). The goal is 0 false findings.
+const FALSE_FINDINGS_MAX: usize = 2;
+const DETECT_12X_PCT: usize = 75;
+const DETECT_6X_PCT: usize = 85;

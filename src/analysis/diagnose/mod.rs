@@ -6,11 +6,21 @@
 //!    [`MotionTracker`] (with the model's minimum incremental motion), so
 //!    each point gets the state the simulator would have had; the logged
 //!    temperature is used when present (else the model's environment).
-//! 2. **Base fit.** The parameters of the terms a characterization measures
-//!    anyway (by default the cyclic look-up tables: kinds `leadscrew_cyclic`
-//!    and `cross_coupling`; all linear) are identified from the log by least
-//!    squares; every other parameter of the model is a claim the log can
-//!    refute. Residual = measured − model.
+//! 2. **Base fit.** Every parameter of the model the log can identify is
+//!    fitted (`base_free_kinds = ["*"]`: linear terms, backlash through its
+//!    Jacobian, the angles of angular terms at their Abbe arms), with
+//!    standard errors, and reported as a **parameter correction**
+//!    ([`ParamCorrection`]: model value, fitted value ± σ, a sentence), not
+//!    as a finding: a stage that is merely another stage differs from the
+//!    model in its values, not its structure. A parameter stays at the
+//!    model's value, with its reason ([`FixedParam`]), when its period is
+//!    aliased by the log's spacing or longer than twice the span it covers,
+//!    when it is a temperature coefficient and the log's temperature does
+//!    not change, when the log cannot separate it from parameters taken
+//!    before it (`ident`: the rank of the Jacobian, column by column in a
+//!    physical order; the combination is named, [`Unidentifiable`]), or
+//!    when freeing its term does not predict held-out data better
+//!    (`fit::select_base`). Residual = measured − model.
 //! 3. **Nuisance.** An axis that does not move during a segment-cycle keeps
 //!    one settling error for the whole line; that block constant is profiled
 //!    out (the residual and every column are centred within the block for
@@ -79,7 +89,10 @@
 //! * `search`: step 4, the candidate families and the search that fixes a
 //!   family's period, place, width or length; a candidate's design columns.
 //! * `fit`: step 5, the centred least squares per fold and the held-out
-//!   verdict (paired z, RMS).
+//!   verdict (paired z, RMS); the base fit's held-out selection.
+//! * `ident`: step 2, which base parameters the log can separate, and the
+//!   combinations it cannot.
+//! * `corrections`: step 2's parameter corrections (model vs fitted value).
 //! * `extend`: step 7, accepted candidates turned into model terms.
 //! * `describe`: a finding's parameters, uncertainty, sentence and likely
 //!   cause.

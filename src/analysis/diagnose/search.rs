@@ -153,6 +153,22 @@ const STEP_MIN_DISTINCT: usize = 8;
 fn step_size_search(d: &Data, axis: Axis, resid: &[f64], train: &[bool]) -> Option<Spec> {
     let (lo, hi) = step_length_range(d, axis)?;
     let c = axis.index();
+    // λ is scored on the part of the column a constant play (`±B/2` by
+    // direction, which the base fit frees with the model's backlash) does
+    // not explain: otherwise the play absorbs the long moves' plateau and
+    // the score drifts to a longer λ.
+    let mut play = vec![0.0; 2 * d.n];
+    for (i, s) in d.states.iter().enumerate() {
+        play[2 * i + c] = s.axes[c].dir.sign();
+    }
+    d.center(&mut play);
+    let (mut pp, mut pr) = (0.0, 0.0);
+    for i in 0..d.n {
+        if train[i] {
+            pp += play[2 * i + c] * play[2 * i + c];
+            pr += play[2 * i + c] * resid[2 * i + c];
+        }
+    }
     let mut col = vec![0.0; 2 * d.n];
     let mut score = |log_l: f64| -> f64 {
         let l = log_l.exp();
@@ -162,14 +178,19 @@ fn step_size_search(d: &Data, axis: Axis, resid: &[f64], train: &[bool]) -> Opti
             col[2 * i + c] = step_size_shape(m.dir.sign(), m.last_move_um, l);
         }
         d.center(&mut col);
-        let (mut br, mut bb) = (0.0, 0.0);
+        let (mut br, mut bb, mut cp) = (0.0, 0.0, 0.0);
         for i in 0..d.n {
             if train[i] {
                 br += col[2 * i + c] * resid[2 * i + c];
                 bb += col[2 * i + c] * col[2 * i + c];
+                cp += col[2 * i + c] * play[2 * i + c];
             }
         }
-        if bb > 0.0 {
+        if pp > 0.0 {
+            br -= cp / pp * pr;
+            bb -= cp * cp / pp;
+        }
+        if bb > 1e-12 * (1.0 + pp) {
             br * br / bb
         } else {
             0.0

@@ -211,9 +211,19 @@ fn replicates_give_the_repeatability_and_the_unexplained_error() {
     assert_eq!(s.positions, 5);
     assert!((s.shortest_period_um - 20_000.0).abs() < 1e-6);
     assert!(!d.to_text().contains("explains the log to its noise"));
-    // The model's 400 µm harmonics cannot be resolved on 10 mm targets.
-    assert!(d.base_free_params.is_empty());
-    assert!(d.base_fixed_params.iter().all(|p| p.aliased));
+    // The model's 400 µm harmonics cannot be resolved on 10 mm targets:
+    // no periodic parameter is freed, and the screw table's are aliased.
+    assert!(d
+        .base_free_params
+        .iter()
+        .all(|p| !p.contains("sin") && !p.contains("cos")));
+    assert!(d
+        .base_fixed_params
+        .iter()
+        .filter(|p| p.name.starts_with("x_cyclic."))
+        .all(|p| p.aliased));
+    // What is freed is reported as parameter corrections, never findings.
+    assert_eq!(d.parameters.len(), d.base_free_params.len());
 }
 
 #[test]
@@ -239,4 +249,53 @@ fn declared_approach_moves_give_the_replay_the_true_direction() {
         assert_eq!(s.axes[0].dir, want, "row {i}");
         assert_eq!(s.cmd_um(Axis::X), log.records[i].x_cmd_um);
     }
+}
+
+#[test]
+fn another_stage_of_the_same_design_gives_corrections_not_findings() {
+    // The case: squareness −5.8 mrad instead of +5.3, no lead
+    // error, 0.1 µm/h drift on x; no structure the model lacks.
+    let mut truth = StageModel::paper_default().unwrap();
+    truth.set_param("squareness.angle_urad", -5800.0).unwrap();
+    truth.set_param("x_lead.ppm", 0.0).unwrap();
+    truth.set_param("y_lead.ppm", 0.0).unwrap();
+    truth.set_param("extra_drift.rate_um_per_h", 0.1).unwrap();
+    let plan = small_plan(30);
+    let truth = truth_model(&truth, None, &plan, 5).unwrap();
+    let log = simulate_log(&truth, &plan, 5).unwrap();
+    let log = parse_bytes(&log.to_bytes().unwrap()).unwrap();
+    let base = StageModel::paper_default().unwrap();
+    let d = diagnose(&log, &base, &DiagnoseOptions::default()).unwrap();
+    assert!(d.findings.is_empty(), "{}", d.to_text());
+    let p = |name: &str| {
+        d.parameters
+            .iter()
+            .find(|p| format!("{}.{}", p.term, p.parameter) == name)
+            .unwrap_or_else(|| panic!("{name} not identified: {}", d.to_text()))
+    };
+    let sq = p("squareness.angle_urad");
+    assert!(sq.significant);
+    assert!(
+        (sq.fitted_value + 5800.0).abs() < 5.0 * sq.std_error + 5.0,
+        "{sq:?}"
+    );
+    assert!(
+        sq.sentence.contains("the model says +5.3000"),
+        "{}",
+        sq.sentence
+    );
+    assert!(sq.sentence.contains("mrad"), "{}", sq.sentence);
+    // The default's yaw slope acts through its Abbe arm as a scale: the
+    // fitted x scale is the combination, and the yaw slope is named as
+    // not separable.
+    assert!(p("x_lead.ppm").significant);
+    assert!(d
+        .unidentifiable
+        .iter()
+        .any(|u| u.name == "x_yaw.slope_urad_per_mm"
+            && u.combination.iter().any(|(n, _)| n == "x_lead.ppm")));
+    let json = d.to_json();
+    assert!(json["parameters"].as_array().is_some_and(|a| !a.is_empty()));
+    assert!(json["findings"].as_array().is_some_and(|a| a.is_empty()));
+    assert!(d.to_text().contains("parameter corrections"));
 }
