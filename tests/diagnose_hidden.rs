@@ -189,7 +189,8 @@ fn check(e: &InjectedEffect, d: &Diagnosis) -> Result<(), String> {
         let allowed = rel * truth.abs() + abs;
         if (got - truth).abs() > allowed {
             return Err(format!(
-                "{k}: got {got:.4}, truth {truth:.4} (± {allowed:.4})"
+                "{k}: got {got:.4}, truth {truth:.4} (± {allowed:.4}); drawn {:?}",
+                e.params
             ));
         }
     }
