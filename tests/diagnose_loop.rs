@@ -11,6 +11,9 @@
 //! Requirement (when the effect matters where the validation goes: the
 //! original model is ≥ 0.25 µm off the rig there, ≈ 5× the noise):
 //! extended worst AP ≤ half the original's, and at least 0.1 µm better.
+//! An effect the default model has the structure for (scale, squareness or
+//! roll, play, x drift, temperature) is a parameter correction of the base
+//! fit: the original model already compensates it (worst AP ≤ 0.1 µm).
 
 use micropos::analysis::comp_gain::{compare_compensation, CompGain, CompGainOptions};
 use micropos::analysis::generate::{
@@ -26,6 +29,24 @@ fn full() -> bool {
 
 const EFFECT_UM: f64 = 1.0;
 const MATTERS_UM: f64 = 0.25;
+
+/// Worst AP the base-fitted original must reach on a rig whose effect the
+/// default model has the structure for (its parameter correction
+/// compensates it), µm: about 2× the noise.
+const CORRECTED_AP_UM: f64 = 0.1;
+
+/// Kinds the default model can express as a parameter correction (scale,
+/// squareness / roll, play, x drift, temperature coefficients): not findings,
+/// so the original model is already right where the validation goes.
+fn expressible(kind: FindingKind) -> bool {
+    matches!(
+        kind,
+        FindingKind::Scale
+            | FindingKind::CrossAxis
+            | FindingKind::Reversal
+            | FindingKind::Temperature
+    )
+}
 
 fn case(seed: u64, kind: FindingKind) -> (Vec<FindingKind>, CompGain) {
     let base = StageModel::paper_default().unwrap();
@@ -77,6 +98,7 @@ fn extended_model_compensates_the_rig_better() {
     });
     let mut failures = Vec::new();
     let mut mattered = 0;
+    let mut structural = 0;
     println!(
         "{:>5} {:18} {:>9} {:>9} {:>9} {:>9} {:>9} {:>8}  found",
         "seed", "hidden (1 µm)", "raw AP", "orig AP", "ext AP", "orig off", "ext off", "gain"
@@ -102,6 +124,18 @@ fn extended_model_compensates_the_rig_better() {
             g.extended.square_rp_um,
             g.extended.random_rp_um
         );
+        // An x drift is the default's own drift term; a y drift a finding.
+        if expressible(*kind) || (*kind == FindingKind::TimeDrift && found.is_empty()) {
+            // The base fit's parameter correction already compensates it.
+            let a = g.original.worst_ap_um();
+            if a > CORRECTED_AP_UM {
+                failures.push(format!(
+                    "seed {seed} {kind}: corrected original AP {a:.3} µm > {CORRECTED_AP_UM}"
+                ));
+            }
+            continue;
+        }
+        structural += 1;
         if g.original_mismatch_um >= MATTERS_UM {
             mattered += 1;
             let (a, b) = (g.original.worst_ap_um(), g.extended.worst_ap_um());
@@ -112,8 +146,8 @@ fn extended_model_compensates_the_rig_better() {
     }
     // The comparison must have had something to compare in most cases.
     assert!(
-        mattered * 2 >= results.len(),
-        "only {mattered} cases mattered"
+        mattered * 2 >= structural,
+        "only {mattered} of {structural} cases mattered"
     );
     assert!(failures.is_empty(), "{failures:#?}");
 }

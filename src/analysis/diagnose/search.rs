@@ -508,6 +508,19 @@ pub(super) fn base_kind_selected(kinds: &[String], kind: &str) -> bool {
     kinds.iter().any(|k| k == kind || k == ALL_KINDS)
 }
 
+/// Whether `t` is a zero-amplitude periodic term of a discovered kind
+/// (`position_periodic`, `time_periodic`): its period is a placeholder of
+/// the model file (the documented default's 1600 µm and 1800 s), not a
+/// claim about the stage, so the base fit does not fit an amplitude at a
+/// period nobody measured (it would take part of a real periodic error at
+/// a nearby period and extrapolate it in time). A periodic error is the
+/// search's job; once found, its term has an amplitude and is freed.
+fn placeholder(t: &dyn Term) -> bool {
+    use crate::model::terms::discovered::{POSITION_PERIODIC_KIND, TIME_PERIODIC_KIND};
+    (t.kind() == POSITION_PERIODIC_KIND || t.kind() == TIME_PERIODIC_KIND)
+        && t.params().iter().all(|p| p.value == 0.0)
+}
+
 /// The `base_free_kinds` entry that selects every kind of the model.
 pub const ALL_KINDS: &str = "*";
 
@@ -542,7 +555,7 @@ pub(super) fn base_columns(
     let mut names = Vec::new();
     let mut cols = Vec::new();
     for t in model.terms() {
-        if !base_kind_selected(kinds, t.kind()) || !base_fittable(&**t) {
+        if !base_kind_selected(kinds, t.kind()) || !base_fittable(&**t) || placeholder(&**t) {
             continue;
         }
         let p = t.params();
@@ -555,6 +568,13 @@ pub(super) fn base_columns(
         }
         for (k, mut c) in tc.into_iter().enumerate() {
             if !base_param_fittable(t.kind(), &p[k].name) {
+                continue;
+            }
+            // A drift's curvature at zero is no claim either: fitted in the
+            // base it extrapolates quadratically beyond the log (a
+            // compensation an hour later is off by µm); a quadratic drift
+            // must earn its place as a finding (held out against linear).
+            if p[k].name == "curvature_um_per_h2" && p[k].value == 0.0 {
                 continue;
             }
             // Centred first: a column that is constant within every
