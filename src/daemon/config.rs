@@ -307,6 +307,10 @@ pub struct ClosedLoop {
     pub tolerance_um: f64,
     /// Corrections tried before giving up.
     pub max_iterations: u32,
+    /// Every correction re-approaches from behind, so each ends with a move
+    /// of the same length (`comp::closed_loop`); false: only corrections
+    /// against the arrival direction do.
+    pub always_reapproach: bool,
 }
 
 impl Default for ClosedLoop {
@@ -314,6 +318,7 @@ impl Default for ClosedLoop {
         Self {
             tolerance_um: 0.1,
             max_iterations: 5,
+            always_reapproach: true,
         }
     }
 }
