@@ -5,7 +5,10 @@
 //! Files, one job each:
 //! - [`protocol`]: requests and replies, sans-IO (fuzzed);
 //! - [`connection`]: splits a byte stream into bounded lines;
-//! - [`server`]: accepts clients, one task per client;
+//! - [`server`]: accepts clients, one task per client (timeouts, stop
+//!   slots, the role check);
+//! - [`access`]: the peer's credentials and role (`[access]`);
+//! - [`audit`]: who ran which state-changing command (journal + file);
 //! - [`state`]: the safe-state machine (pure);
 //! - [`rig`]: motion coordinator, soft limits, positions, event bus;
 //! - [`vision`]: capture and decoding, never blocking the runtime;
@@ -19,6 +22,8 @@
 //! `shutting_down` error line; the axes are left as they are (a running
 //! job stops between points, its log resumable).
 
+pub mod access;
+pub mod audit;
 pub mod comp;
 pub mod config;
 pub mod connection;
@@ -52,6 +57,10 @@ pub struct Daemon {
     pub jobs: jobs::Jobs,
     /// Sends shutdown to every task.
     pub shutdown: broadcast::Sender<()>,
+    /// Client roles (`[access]`, reloadable).
+    pub access: access::Access,
+    /// The audit trail of state-changing commands.
+    pub audit: audit::Audit,
 }
 
 /// Handle to a started daemon.
@@ -144,11 +153,15 @@ impl Daemon {
             None => None,
         };
         let (shutdown, _) = broadcast::channel(4);
+        let access = access::Access::new(cfg.access.clone());
+        let audit = audit::Audit::start(&cfg.daemon.data_dir);
         let rig = Arc::new(rig::Rig::new(cfg, clock, vision, links));
         let daemon = Arc::new(Daemon {
             rig: rig.clone(),
             jobs: jobs::Jobs::default(),
             shutdown: shutdown.clone(),
+            access,
+            audit,
         });
         let tasks = vec![
             tokio::spawn(rig.clone().connect_loop(shutdown.subscribe())),
