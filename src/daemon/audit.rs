@@ -52,8 +52,9 @@ pub struct Audit {
 }
 
 impl Audit {
-    /// Starts the writer thread for `data_dir/audit.jsonl` (the file is
-    /// created at the first record, mode 0640 before the umask).
+    /// Starts the writer thread for `data_dir/audit.jsonl` (the file, and
+    /// the directory if missing, are created at the first record; the file
+    /// with mode 0640 before the umask).
     pub fn start(data_dir: &Path) -> Audit {
         let path = data_dir.join(AUDIT_FILE);
         let (tx, rx) = sync_channel(QUEUE);
@@ -143,6 +144,9 @@ fn writer(path: &Path, rx: Receiver<String>) {
     let mut failing = false;
     for line in rx {
         if file.is_none() {
+            if let Some(dir) = path.parent() {
+                let _ = std::fs::create_dir_all(dir);
+            }
             file = std::fs::OpenOptions::new()
                 .create(true)
                 .append(true)
