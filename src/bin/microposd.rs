@@ -189,6 +189,9 @@ fn main() -> ExitCode {
     }
     let rt = match tokio::runtime::Builder::new_multi_thread()
         .worker_threads(2)
+        // Bounded so a burst of clients (each resolves its groups on the
+        // blocking pool) stays within the unit's TasksMax.
+        .max_blocking_threads(64)
         .enable_all()
         .build()
     {
