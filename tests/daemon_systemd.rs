@@ -216,3 +216,85 @@ fn socket_activation_serves_status_through_the_passed_socket() {
             == json!({"x": true, "y": true})
     });
 }
+
+#[test]
+fn sighup_reloads_limits_and_names_what_it_cannot_change() {
+    let dir = tempfile::tempdir().unwrap();
+    let _sim = start_sim(dir.path());
+    let cfg = sim_config(dir.path(), "[limits]\nx_max_um = 14000.0\n");
+    let log_path = dir.path().join("microposd.log");
+    let log = std::fs::File::create(&log_path).unwrap();
+    let mut daemon = Proc(
+        Command::new(microposd_bin())
+            .arg("-c")
+            .arg(&cfg)
+            .stdout(Stdio::null())
+            .stderr(log)
+            .spawn()
+            .unwrap(),
+    );
+    let socket = dir.path().join("micropos.sock");
+    wait_for("the daemon's socket", || {
+        UnixStream::connect(&socket).is_ok()
+    });
+    wait_for("both controllers", || {
+        request(&socket, json!({"cmd": "status"}))["rig"]["connected"]
+            == json!({"x": true, "y": true})
+    });
+    let v = request(&socket, json!({"cmd": "reference"}));
+    assert_eq!(v["ok"], true, "{v}");
+    let code = |v: &Value| v["error"]["code"].as_str().unwrap_or("").to_owned();
+    let v = request(&socket, json!({"cmd": "move", "x_um": 14500.0}));
+    assert_eq!(code(&v), "out_of_travel", "{v}");
+    let v = request(
+        &socket,
+        json!({"cmd": "move", "x_um": 13000.0, "wait": true}),
+    );
+    assert_eq!(v["ok"], true, "{v}");
+    let hup = |pid: u32| {
+        let st = Command::new("kill")
+            .args(["-HUP", &pid.to_string()])
+            .status()
+            .unwrap();
+        assert!(st.success());
+    };
+    let pid = daemon.0.id();
+    // Tighter limits (live) and a new poll interval (not live).
+    let text = std::fs::read_to_string(&cfg)
+        .unwrap()
+        .replace("x_max_um = 14000.0", "x_max_um = 12000.0")
+        .replace("poll_interval_ms = 200", "poll_interval_ms = 300");
+    std::fs::write(&cfg, text).unwrap();
+    hup(pid);
+    wait_for("the new limit", || {
+        code(&request(&socket, json!({"cmd": "move", "x_um": 12500.0}))) == "out_of_travel"
+    });
+    let logged = || std::fs::read_to_string(&log_path).unwrap();
+    wait_for("the reload's log lines", || {
+        let l = logged();
+        l.contains("SIGHUP: reloaded limits.x_max_um")
+            && l.contains(
+                "not reloadable, restart to apply (running values kept): daemon.poll_interval_ms",
+            )
+    });
+    let c = request(&socket, json!({"cmd": "config"}));
+    assert_eq!(c["config"]["limits"]["x_max_um"], 12000.0, "{c}");
+    assert_eq!(c["config"]["daemon"]["poll_interval_ms"], 200, "{c}");
+    // A broken file changes nothing and stops nothing.
+    std::fs::write(&cfg, "[daemon\n").unwrap();
+    hup(pid);
+    wait_for("the refusal", || {
+        logged().contains("the running configuration stays")
+    });
+    let v = request(&socket, json!({"cmd": "move", "x_um": 12500.0}));
+    assert_eq!(code(&v), "out_of_travel", "{v}");
+    let v = request(
+        &socket,
+        json!({"cmd": "move", "x_um": 11000.0, "wait": true}),
+    );
+    assert_eq!(v["ok"], true, "{v}");
+    assert!(
+        daemon.0.try_wait().unwrap().is_none(),
+        "SIGHUP ended the daemon"
+    );
+}

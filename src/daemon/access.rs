@@ -75,7 +75,8 @@ impl Access {
         }
     }
 
-    fn current(&self) -> Option<AccessSection> {
+    /// The section in force.
+    pub fn current(&self) -> Option<AccessSection> {
         match self.section.read() {
             Ok(s) => s.clone(),
             Err(poisoned) => poisoned.into_inner().clone(),

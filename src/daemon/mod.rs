@@ -16,6 +16,7 @@
 //!   validation, `tables build`;
 //! - [`drift`]: live drift correction of compensated moves;
 //! - [`config`]: the validated configuration;
+//! - [`reload`]: what SIGHUP may change live, and its running values;
 //! - [`notify`]: systemd readiness, status and a health-fed watchdog.
 //!
 //! Shutdown: one `broadcast` tells every task; clients get a
@@ -31,6 +32,7 @@ pub mod drift;
 pub mod jobs;
 pub mod notify;
 pub mod protocol;
+pub mod reload;
 pub mod rig;
 pub mod server;
 pub mod state;
@@ -199,7 +201,7 @@ impl Daemon {
                 rig.stop().await
             }
             Command::Reference(axes) => rig.reference(axes).await,
-            Command::Config => serde_json::to_value(&rig.cfg)
+            Command::Config => serde_json::to_value(self.effective_config())
                 .map(|c| json!({"config": c}))
                 .map_err(|e| ProtoError::new(ErrorCode::Internal, e.to_string())),
             Command::Characterize(a) => match a {
@@ -224,6 +226,52 @@ impl Daemon {
                 "subscribe is handled by the connection",
             )),
         }
+    }
+
+    /// The configuration in force: the file read at start with the
+    /// running values of the reloadable sections.
+    pub fn effective_config(&self) -> DaemonConfig {
+        let mut c = self.rig.live.effective(&self.rig.cfg);
+        c.access = self.access.current();
+        c
+    }
+
+    /// Applies a reloaded configuration (SIGHUP): the changed keys of the
+    /// reloadable sections take effect (limits and compensation from the
+    /// next move, drift settings now, roles for new connections); other
+    /// changed keys keep their running values and are reported as refused.
+    /// A client's `drift set` survives a reload that leaves `[drift]`
+    /// unchanged in the file.
+    pub fn reload(&self, new: &DaemonConfig) -> reload::ReloadReport {
+        let running = self.effective_config();
+        let (applied, refused): (Vec<String>, Vec<String>) = reload::diff_keys(&running, new)
+            .into_iter()
+            .partition(|k| reload::is_reloadable(k));
+        let changed = |section: &str| {
+            applied
+                .iter()
+                .any(|k| k == section || k.starts_with(&format!("{section}.")))
+        };
+        let mut merged = running;
+        merged.limits = new.limits;
+        merged.compensation = new.compensation.clone();
+        merged.drift = new.drift.clone();
+        self.rig.live.set(&merged);
+        if changed("drift") {
+            let d = &new.drift;
+            if let Err(e) = self.rig.drift.set(
+                &merged,
+                Some(d.method),
+                Some(d.every_s),
+                Some(d.time_constant_s),
+            ) {
+                tracing::warn!("reload: [drift] not applied: {e}");
+            }
+        }
+        if changed("access") {
+            self.access.set(new.access.clone());
+        }
+        reload::ReloadReport { applied, refused }
     }
 
     /// `drift show|set|reset|measure`.
