@@ -791,6 +791,33 @@ mod tests {
     }
 
     #[test]
+    fn access_and_client_limits_are_checked() {
+        let c = DaemonConfig::from_toml(MIN).unwrap();
+        assert_eq!(c.access, None);
+        assert_eq!(c.daemon.stop_slots, 4);
+        let c = DaemonConfig::from_toml(&format!(
+            "{MIN}[access]\nread = [\"users\", \"1000\"]\noperate = [\"lab-ops\"]\n"
+        ))
+        .unwrap();
+        let a = c.access.unwrap();
+        assert_eq!(a.read, ["users", "1000"]);
+        assert!(a.admin.is_empty());
+        for (text, key) in [
+            ("[access]\nread = [\"a b\"]", "access.read"),
+            ("[access]\nadmin = [\"\"]", "access.admin"),
+            ("[daemon]\nstop_slots = 0", "daemon.stop_slots"),
+            ("[daemon]\nidle_timeout_s = -1", "daemon.idle_timeout_s"),
+            ("[daemon]\nread_timeout_s = 0", "daemon.read_timeout_s"),
+            ("[daemon]\nwrite_timeout_s = inf", "daemon.write_timeout_s"),
+        ] {
+            let e = DaemonConfig::from_toml(&format!("{MIN}{text}\n")).unwrap_err();
+            assert_eq!(e.key, key, "{text}");
+        }
+        let e = DaemonConfig::from_toml(&format!("{MIN}[access]\nwrite = [\"x\"]\n")).unwrap_err();
+        assert!(e.problem.contains("write"), "{e}");
+    }
+
+    #[test]
     fn shipped_configs_are_valid() {
         for f in ["config/microposd.toml", "config/microposd-sim.toml"] {
             let p = Path::new(env!("CARGO_MANIFEST_DIR")).join(f);
