@@ -346,6 +346,9 @@ pub fn daemon_config(
     }
     c.driver.reconnect_min_ms = 20;
     c.driver.reconnect_max_ms = 500;
+    // On the virtual clock an idle limit counts simulated seconds: a client
+    // that waits out a simulated hour of a job would be closed for it.
+    c.daemon.idle_timeout_s = 0.0;
     c.camera.source = format!("sim:{}", rig_dir.join("camera.sock").display());
     c.camera.period_um = rig.camera.period_um;
     c.camera.bits = rig.camera.bits;

@@ -5,7 +5,10 @@
 //! Files, one job each:
 //! - [`protocol`]: requests and replies, sans-IO (fuzzed);
 //! - [`connection`]: splits a byte stream into bounded lines;
-//! - [`server`]: accepts clients, one task per client;
+//! - [`server`]: accepts clients, one task per client (timeouts, stop
+//!   slots, the role check);
+//! - [`access`]: the peer's credentials and role (`[access]`);
+//! - [`audit`]: who ran which state-changing command (journal + file);
 //! - [`state`]: the safe-state machine (pure);
 //! - [`rig`]: motion coordinator, soft limits, positions, event bus;
 //! - [`vision`]: capture and decoding, never blocking the runtime;
@@ -13,12 +16,15 @@
 //!   validation, `tables build`;
 //! - [`drift`]: live drift correction of compensated moves;
 //! - [`config`]: the validated configuration;
+//! - [`reload`]: what SIGHUP may change live, and its running values;
 //! - [`notify`]: systemd readiness, status and a health-fed watchdog.
 //!
 //! Shutdown: one `broadcast` tells every task; clients get a
 //! `shutting_down` error line; the axes are left as they are (a running
 //! job stops between points, its log resumable).
 
+pub mod access;
+pub mod audit;
 pub mod comp;
 pub mod config;
 pub mod connection;
@@ -26,6 +32,7 @@ pub mod drift;
 pub mod jobs;
 pub mod notify;
 pub mod protocol;
+pub mod reload;
 pub mod rig;
 pub mod server;
 pub mod state;
@@ -52,6 +59,10 @@ pub struct Daemon {
     pub jobs: jobs::Jobs,
     /// Sends shutdown to every task.
     pub shutdown: broadcast::Sender<()>,
+    /// Client roles (`[access]`, reloadable).
+    pub access: access::Access,
+    /// The audit trail of state-changing commands.
+    pub audit: audit::Audit,
 }
 
 /// Handle to a started daemon.
@@ -144,11 +155,15 @@ impl Daemon {
             None => None,
         };
         let (shutdown, _) = broadcast::channel(4);
+        let access = access::Access::new(cfg.access.clone());
+        let audit = audit::Audit::start(&cfg.daemon.data_dir);
         let rig = Arc::new(rig::Rig::new(cfg, clock, vision, links));
         let daemon = Arc::new(Daemon {
             rig: rig.clone(),
             jobs: jobs::Jobs::default(),
             shutdown: shutdown.clone(),
+            access,
+            audit,
         });
         let tasks = vec![
             tokio::spawn(rig.clone().connect_loop(shutdown.subscribe())),
@@ -186,7 +201,7 @@ impl Daemon {
                 rig.stop().await
             }
             Command::Reference(axes) => rig.reference(axes).await,
-            Command::Config => serde_json::to_value(&rig.cfg)
+            Command::Config => serde_json::to_value(self.effective_config())
                 .map(|c| json!({"config": c}))
                 .map_err(|e| ProtoError::new(ErrorCode::Internal, e.to_string())),
             Command::Characterize(a) => match a {
@@ -211,6 +226,52 @@ impl Daemon {
                 "subscribe is handled by the connection",
             )),
         }
+    }
+
+    /// The configuration in force: the file read at start with the
+    /// running values of the reloadable sections.
+    pub fn effective_config(&self) -> DaemonConfig {
+        let mut c = self.rig.live.effective(&self.rig.cfg);
+        c.access = self.access.current();
+        c
+    }
+
+    /// Applies a reloaded configuration (SIGHUP): the changed keys of the
+    /// reloadable sections take effect (limits and compensation from the
+    /// next move, drift settings now, roles for new connections); other
+    /// changed keys keep their running values and are reported as refused.
+    /// A client's `drift set` survives a reload that leaves `[drift]`
+    /// unchanged in the file.
+    pub fn reload(&self, new: &DaemonConfig) -> reload::ReloadReport {
+        let running = self.effective_config();
+        let (applied, refused): (Vec<String>, Vec<String>) = reload::diff_keys(&running, new)
+            .into_iter()
+            .partition(|k| reload::is_reloadable(k));
+        let changed = |section: &str| {
+            applied
+                .iter()
+                .any(|k| k == section || k.starts_with(&format!("{section}.")))
+        };
+        let mut merged = running;
+        merged.limits = new.limits;
+        merged.compensation = new.compensation.clone();
+        merged.drift = new.drift.clone();
+        self.rig.live.set(&merged);
+        if changed("drift") {
+            let d = &new.drift;
+            if let Err(e) = self.rig.drift.set(
+                &merged,
+                Some(d.method),
+                Some(d.every_s),
+                Some(d.time_constant_s),
+            ) {
+                tracing::warn!("reload: [drift] not applied: {e}");
+            }
+        }
+        if changed("access") {
+            self.access.set(new.access.clone());
+        }
+        reload::ReloadReport { applied, refused }
     }
 
     /// `drift show|set|reset|measure`.

@@ -55,6 +55,9 @@ pub struct Rig {
     pub comp: super::comp::CompState,
     /// Live drift correction (`[drift]`, the `drift` command).
     pub drift: super::drift::DriftControl,
+    /// Running values of the settings a reload may change (limits,
+    /// compensation, drift); read these, not `cfg`'s.
+    pub live: super::reload::Live,
     /// Retries after transient faults in the current (or last) job, reset
     /// when a job begins; the job's progress reads it (`retries`).
     pub job_retries: Arc<AtomicU64>,
@@ -124,6 +127,7 @@ impl Rig {
         let drift = super::drift::DriftControl::new(&cfg);
         Rig {
             drift,
+            live: super::reload::Live::new(&cfg),
             cfg,
             clock,
             stage: Mutex::new(None),
@@ -423,7 +427,7 @@ impl Rig {
     /// Soft limits ∩ controller travel for an axis, µm.
     pub fn limits_um(&self, axis: &Axis, a: AxisId) -> (f64, f64) {
         let (tmin, tmax) = axis.travel_um();
-        let l = &self.cfg.limits;
+        let l = &self.live.limits();
         let (lo, hi) = match a {
             AxisId::X => (l.x_min_um, l.x_max_um),
             AxisId::Y => (l.y_min_um, l.y_max_um),
@@ -542,7 +546,7 @@ impl Rig {
         } else {
             start
         };
-        let opts = self.cfg.compensation.plan_options();
+        let opts = self.live.compensation().plan_options();
         let plan = self.comp.plan(&*comp, planned_target, start, &opts)?;
         for w in &plan.waypoints {
             let r = MoveRequest::raw_to(w.x_um, w.y_um);

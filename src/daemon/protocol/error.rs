@@ -59,6 +59,11 @@ pub enum ErrorCode {
     JobState,
     /// The measurement log could not be created, read or resumed.
     LogError,
+    /// The client's role does not allow the command (`[access]`).
+    PermissionDenied,
+    /// The connection was closed for idling, or a request line stalled
+    /// (`daemon.idle_timeout_s`, `daemon.read_timeout_s`).
+    TimedOut,
     /// The daemon is shutting down.
     ShuttingDown,
     /// A bug or an unexpected internal failure.
@@ -93,6 +98,8 @@ impl ErrorCode {
             ErrorCode::NotAvailable => "not_available",
             ErrorCode::JobState => "job_state",
             ErrorCode::LogError => "log_error",
+            ErrorCode::PermissionDenied => "permission_denied",
+            ErrorCode::TimedOut => "timed_out",
             ErrorCode::ShuttingDown => "shutting_down",
             ErrorCode::Internal => "internal",
         }

@@ -147,7 +147,7 @@ class Rig:
                     return proto.check_reply(msg)
                 err = proto.unsolicited_error(msg)
                 if err is not None:
-                    if err.code == "shutting_down":
+                    if err.code in ("shutting_down", "timed_out"):
                         conn.close()
                     raise err
         except Timeout:

@@ -43,6 +43,8 @@ __all__ = [
     "NotAvailable",
     "JobState",
     "LogError",
+    "PermissionDenied",
+    "TimedOut",
     "ShuttingDown",
     "Internal",
     # client side
@@ -251,6 +253,21 @@ class LogError(MicroposError):
     code = "log_error"
 
 
+class PermissionDenied(MicroposError):
+    """The client's role (the daemon's ``[access]`` groups) does not allow the
+    command: e.g. ``move`` needs ``operate``, ``config`` needs ``admin``."""
+
+    code = "permission_denied"
+
+
+class TimedOut(MicroposError):
+    """The daemon closed the connection: idle too long, or a request line was
+    not finished in time. The request that meets it was not executed; the
+    client closes the connection and the next call connects afresh."""
+
+    code = "timed_out"
+
+
 class ShuttingDown(MicroposError):
     """The daemon is shutting down; the connection closes after this."""
 
@@ -383,6 +400,8 @@ ERROR_CLASSES: Dict[str, Type[MicroposError]] = {
         NotAvailable,
         JobState,
         LogError,
+        PermissionDenied,
+        TimedOut,
         ShuttingDown,
         Internal,
     )
