@@ -452,7 +452,13 @@ async fn start(opts: &RunOptions, dir: &Path) -> Result<Started, RunError> {
 /// opened in process. Call it inside the runtime the rig was started on.
 pub fn in_process_environment(sim: &SimHandle) -> Environment {
     Environment {
-        clock: Arc::new(WallClock::new()),
+        // The rig's clock reads the simulator's time: the camera's frame
+        // stamps are then rig times (`FrameSource::stamps_on_rig_clock`).
+        clock: Arc::new(WallClock::since(
+            tokio::time::Instant::now()
+                .checked_sub(sim.sim_time())
+                .unwrap_or_else(tokio::time::Instant::now),
+        )),
         camera: Some(Box::new(SimCameraSource::new(sim.camera().clone()))),
         capture: Capture::OnDemand,
         links: sim.link_opener(),

@@ -40,10 +40,10 @@ pub mod server;
 use crate::clock::Clock;
 use crate::rig::{Rig, RigTruth};
 use fast::FastRenderer;
-use rand::{Rng, SeedableRng};
-use rand_chacha::ChaCha8Rng;
 use micropos::camera::{CameraError, CameraInfo, FrameSource};
 use micropos::frame::Frame;
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::Duration;
@@ -434,7 +434,13 @@ impl SimCamera {
         st.last_start_s = Some(start);
         let mid = start + exposure / 2.0;
         let samples = self.blur_samples(&cfg, start, end);
-        self.render_locked(&mut st, &cfg, mid, Exposure::Grab { exposure, samples }, None)
+        self.render_locked(
+            &mut st,
+            &cfg,
+            mid,
+            Exposure::Grab { exposure, samples },
+            None,
+        )
     }
 
     /// How many instants of the exposure `[start_s, end_s]` the frame
@@ -634,6 +640,12 @@ impl FrameSource for SimCameraSource {
 
     fn frame_ready_after(&self) -> Option<Duration> {
         self.camera.ready_after()
+    }
+
+    /// In process the camera's clock is the rig's (the daemon's clock
+    /// reads the simulator's time: `hil_sim::run::in_process_environment`).
+    fn stamps_on_rig_clock(&self) -> bool {
+        true
     }
 
     fn exposure_us(&self) -> Result<f64, CameraError> {

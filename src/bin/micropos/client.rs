@@ -78,6 +78,16 @@ pub enum ClientCommand {
         /// Cycles.
         #[arg(long)]
         cycles: Option<u32>,
+        /// step (stop and measure, default) or sweep (on the fly at
+        /// constant velocity; the camera delay is estimated from the data).
+        #[arg(long)]
+        mode: Option<String>,
+        /// Sweep: velocity of the odd cycles, µm/s (even cycles: twice it).
+        #[arg(long)]
+        velocity_um_per_s: Option<f64>,
+        /// Sweep: also write the log without the delay correction.
+        #[arg(long)]
+        uncorrected_log: Option<String>,
         /// Follow progress with a progress bar until the job ends.
         #[arg(long)]
         follow: bool,
@@ -228,9 +238,21 @@ fn build(cmd: &ClientCommand) -> Value {
             log,
             step_um,
             cycles,
+            mode,
+            velocity_um_per_s,
+            uncorrected_log,
             ..
         } => {
             let mut v = json!({"cmd": "characterize", "action": action});
+            if let Some(m) = mode {
+                v["mode"] = json!(m);
+            }
+            if let Some(u) = velocity_um_per_s {
+                v["velocity_um_per_s"] = json!(u);
+            }
+            if let Some(u) = uncorrected_log {
+                v["uncorrected_log"] = json!(u);
+            }
             if let Some(l) = log {
                 v["log"] = json!(l);
             }
