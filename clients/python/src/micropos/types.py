@@ -43,6 +43,10 @@ DriftMethod = Literal["off", "static", "adaptive"]
 #: Job kinds.
 JobKind = Literal["characterize", "validate"]
 
+#: How a characterization measures: stop and measure per point, or on the
+#: fly at constant velocity (the camera delay estimated from the data).
+CharacterizeMode = Literal["step", "sweep"]
+
 
 class JobProgress(TypedDict, total=False):
     """A job's status object (``status.job``, ``characterize status``, ``job``
