@@ -150,8 +150,9 @@ async fn sweep_estimates_the_hidden_delay_and_logs_the_step_grid() {
 /// `MICROPOS_SWEEP_STEP_UM=5`): the sweep's simulated duration (goal
 /// ≤ 30 min), the delay estimate against the simulator's (goal 0.2 ms) and
 /// the sweep tables' AP against the step tables' on the same rig and seed,
-/// live drift off (goal: within 10 %; the absolute slack of 0.03 µm is the
-/// validation's own noise at these figures). Slow (the whole main job,
+/// live drift off (goal: within 10 %, plus [`STEP_AP_SPREAD_UM`], the
+/// validation's own spread at these figures), and the AP with the delay
+/// ignored. Slow (the whole main job,
 /// 20 000+ frames): `cargo test -p hil-sim --test sweep_charact -- --ignored --nocapture`.
 #[test]
 #[ignore = "the whole main job on the paper's ranges: minutes of wall time"]
@@ -182,9 +183,19 @@ fn main_job_sweep_row_on_the_paper_ranges() {
     for t in ["square", "random"] {
         let step = sw["step_table_ap_um"][t]["ap_um"].as_f64().unwrap();
         let sweep = sw["run-sweep"][t]["ap_um"].as_f64().unwrap();
+        let ignored = sw["run-sweep-nodelay"][t]["ap_um"].as_f64().unwrap();
         assert!(
-            sweep <= 1.1 * step + 0.03,
+            sweep <= 1.1 * step + STEP_AP_SPREAD_UM,
             "{t}: sweep table AP {sweep} µm vs step {step} µm"
         );
+        // Ignoring the delay costs v·delay per direction: it shows.
+        assert!(ignored > 5.0 * sweep, "{t}: delay ignored {ignored} µm");
     }
 }
+
+/// The spread of the step tables' own AP max between validations of the
+/// same tables on the same run (the main job's drift comparison: random
+/// targets 0.063 / 0.107 / 0.079 µm with live drift off / static /
+/// adaptive at a 25 µm grid, seed 1): below it, AP differences are the
+/// validation's noise (its RP max is ≈ 0.13 µm), not table quality.
+const STEP_AP_SPREAD_UM: f64 = 0.05;

@@ -707,4 +707,44 @@ mod tests {
         let g = resample(&at, &p.grid(true), p.step_um);
         assert!(g.iter().all(Option::is_some), "the whole range is covered");
     }
+
+    proptest::proptest! {
+        /// Interpolated positions stay between their bracketing samples,
+        /// and a constant error resamples to itself in every covered cell
+        /// whatever the frame spacing, never to a made-up value.
+        #[test]
+        fn interpolation_and_resampling_are_bounded(
+            dts in proptest::collection::vec(0.001f64..0.05, 2..40),
+            v in -500.0f64..500.0,
+            e in -5.0f64..5.0,
+            spacing in 0.5f64..12.0,
+            q in 0.0f64..1.0,
+        ) {
+            let mut t = 0.0;
+            let samples: Vec<PosSample> = dts.iter().map(|dt| {
+                t += dt;
+                PosSample { t_s: t, pos_um: 100.0 + v * t }
+            }).collect();
+            let (t0, t1) = (samples[0].t_s, samples[samples.len() - 1].t_s);
+            let tq = t0 + q * (t1 - t0);
+            if let Some((p, vel)) = position_at(&samples, tq) {
+                let (lo, hi) = (100.0 + v * t0, 100.0 + v * t1);
+                proptest::prop_assert!(p >= lo.min(hi) - 1e-6 && p <= lo.max(hi) + 1e-6);
+                proptest::prop_assert!((vel - v).abs() < 1e-6 * (1.0 + v.abs()) + 1e-3);
+            }
+            let frames: Vec<FrameAt> = (0..60).map(|k| FrameAt {
+                cmd_um: f64::from(k) * spacing,
+                e_scan_um: e,
+                e_held_um: -e,
+                t_s: f64::from(k),
+                quality: 50.0,
+            }).collect();
+            let grid: Vec<f64> = (0..80).map(|k| f64::from(k) * 5.0).collect();
+            for g in resample(&frames, &grid, 5.0).into_iter().flatten() {
+                proptest::prop_assert!((g.e_scan_um - e).abs() < 1e-9);
+                proptest::prop_assert!((g.e_held_um + e).abs() < 1e-9);
+                proptest::prop_assert!(g.pos_um <= 59.0 * spacing + 7.5);
+            }
+        }
+    }
 }
