@@ -471,6 +471,18 @@ async fn follow(conn: &mut Conn, started: &Value) -> Result<ExitCode, Unreachabl
                     Some("running") | None => {}
                     Some("done") => {
                         bar.finish_with_message("done");
+                        // A sweep's findings: the camera delay it measured.
+                        let r = &ev["result"];
+                        if let Some(d) = r["camera_delay_s"].as_f64() {
+                            println!(
+                                "sweep: camera delay {:.3} ms (residual {:.4} µm), {} frames, {} records, {:.0} s",
+                                d * 1e3,
+                                r["camera_delay_residual_um"].as_f64().unwrap_or(f64::NAN),
+                                r["frames"],
+                                r["records"],
+                                r["duration_s"].as_f64().unwrap_or(f64::NAN)
+                            );
+                        }
                         return Ok(ExitCode::SUCCESS);
                     }
                     Some(other) => {

@@ -66,3 +66,7 @@ class JobProgress(TypedDict, total=False):
     error: Optional[str]
     #: Operations retried after transient faults in this run of the job.
     retries: int
+    #: A finished sweep characterization's findings (``camera_delay_s``,
+    #: ``camera_delay_residual_um``, ``frames``, ``pos_samples``,
+    #: ``records``, ``duration_s``); ``None`` for other jobs.
+    result: Optional[Json]
