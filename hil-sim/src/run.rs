@@ -119,7 +119,8 @@ pub struct RunPlan {
     /// The sweep row (`sweep` block): a sweep characterization of the same
     /// ranges and cycles at this velocity (odd cycles; even at twice it),
     /// its tables validated in `table` mode with live drift off, with and
-    /// without the camera delay correction. 0 = no sweep row.
+    /// without the camera delay correction. At least 2 cycles (two
+    /// velocities). 0 = no sweep row.
     pub sweep_velocity_um_per_s: f64,
 }
 
@@ -757,15 +758,16 @@ async fn sweep_phase(
         2.0 * p.sweep_velocity_um_per_s,
         p.x_range_um,
         p.y_range_um,
-        p.cycles
+        p.cycles.max(2)
     ));
     let t0 = c.now_s().await?;
     c.call(
         json!({"cmd": "characterize", "action": "start", "log": "charact-sweep.csv",
                   "mode": "sweep", "velocity_um_per_s": p.sweep_velocity_um_per_s,
                   "uncorrected_log": "charact-sweep-nodelay.csv", "step_um": p.step_um,
-                  "x_range_um": p.x_range_um, "y_range_um": p.y_range_um, "cycles": p.cycles,
-                  "frames_per_point": p.frames_per_point, "settle_s": p.settle_s}),
+                  "x_range_um": p.x_range_um, "y_range_um": p.y_range_um,
+                  "cycles": p.cycles.max(2), "frames_per_point": p.frames_per_point,
+                  "settle_s": p.settle_s}),
     )
     .await?;
     let s = c
