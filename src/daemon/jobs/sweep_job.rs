@@ -95,6 +95,11 @@ pub(super) async fn run(
     };
     let origin = rig.clock.now_s();
     let gen = rig.stop_generation();
+    let stage = rig.stage()?;
+    let velocities = [
+        stage.x.velocity_um_per_s().await.map_err(driver_error)?,
+        stage.y.velocity_um_per_s().await.map_err(driver_error)?,
+    ];
     let specs = plan.passes();
     let mut passes: Vec<PassData> = Vec::with_capacity(specs.len());
     let total = plan.records_total();
@@ -108,7 +113,11 @@ pub(super) async fn run(
         let first_of_axis = k == 0 || specs[k - 1].x_axis != spec.x_axis;
         let r = tokio::select! {
             r = one_pass(rig, spec, first_of_axis, &tied.frame) => r?,
-            _ = cancel.changed() => return Ok(("cancelled", Value::Null)),
+            _ = cancel.changed() => {
+                // The pass was dropped mid-sweep: its velocity is still set.
+                restore_velocities(rig, velocities).await;
+                return Ok(("cancelled", Value::Null));
+            }
         };
         passes.push(r);
         let done = total * (k + 1) / specs.len();
@@ -160,6 +169,18 @@ pub(super) async fn run(
         p.total = n_records;
     }
     Ok(("done", result))
+}
+
+/// Sets both axes back to the velocities the job found (after a pass that
+/// was cancelled before it could); a failure is logged, not returned (the
+/// job ends either way).
+async fn restore_velocities(rig: &Rig, velocities: [f64; 2]) {
+    let Ok(stage) = rig.stage() else { return };
+    for (axis, v) in [(&stage.x, velocities[0]), (&stage.y, velocities[1])] {
+        if let Err(e) = axis.set_velocity_um_per_s(v).await {
+            tracing::warn!("sweep: cannot restore the velocity of {}: {e}", axis.name());
+        }
+    }
 }
 
 fn result_json(
