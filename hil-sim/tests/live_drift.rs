@@ -61,6 +61,8 @@ fn live_drift_correction_removes_the_thermal_offset() {
         // rate to extrapolate (with one, it can only hold it, as static).
         live_drift_every_s: 15.0,
         drift_compare: true,
+        // The sweep row has its own test (sweep_charact.rs).
+        sweep_velocity_um_per_s: 0.0,
         ..RunPlan::paper()
     };
     let opts = RunOptions {

@@ -164,7 +164,7 @@ impl Rig {
         });
     }
 
-    fn stage(&self) -> Result<Stage, ProtoError> {
+    pub(crate) fn stage(&self) -> Result<Stage, ProtoError> {
         lock(&self.stage).clone().ok_or_else(|| {
             ProtoError::new(
                 ErrorCode::NotConnected,

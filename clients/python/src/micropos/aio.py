@@ -19,6 +19,7 @@ from .client import DEFAULT_LONG_TIMEOUT, DEFAULT_SOCKET, DEFAULT_TIMEOUT
 from .errors import ConnectionLost, DaemonUnreachable, MicroposError, ProtocolError, Timeout
 from .types import (
     Axes,
+    CharacterizeMode,
     DriftMethod,
     Json,
     JobKind,
@@ -315,6 +316,9 @@ class AsyncRig:
         settle_s: Optional[float] = None,
         drift_every_s: Optional[float] = None,
         drift_reference_um: Optional[Sequence[float]] = None,
+        mode: Optional[CharacterizeMode] = None,
+        velocity_um_per_s: Optional[float] = None,
+        uncorrected_log: Optional[str] = None,
     ) -> "AsyncJob":
         """``characterize start``; see :meth:`Rig.characterize`."""
         reply = await self._call(
@@ -329,6 +333,9 @@ class AsyncRig:
                 settle_s=settle_s,
                 drift_every_s=drift_every_s,
                 drift_reference_um=drift_reference_um,
+                mode=mode,
+                velocity_um_per_s=velocity_um_per_s,
+                uncorrected_log=uncorrected_log,
             )
         )
         return AsyncJob._from_reply(self, "characterize", reply)

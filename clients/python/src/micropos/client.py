@@ -26,6 +26,7 @@ from ._connection import Connection
 from .errors import MicroposError, ProtocolError, Timeout
 from .types import (
     Axes,
+    CharacterizeMode,
     DriftMethod,
     Json,
     JobKind,
@@ -291,11 +292,20 @@ class Rig:
         settle_s: Optional[float] = None,
         drift_every_s: Optional[float] = None,
         drift_reference_um: Optional[Sequence[float]] = None,
+        mode: Optional[CharacterizeMode] = None,
+        velocity_um_per_s: Optional[float] = None,
+        uncorrected_log: Optional[str] = None,
     ) -> "Job":
         """``characterize start``: a characterization job, logged point by
         point into ``log`` (a file name in the daemon's data directory).
         Unset parameters take the daemon's configured ``[characterize]``
-        values. Returns the job's handle."""
+        values. ``mode="sweep"`` measures on the fly: each axis sweeps at
+        ``velocity_um_per_s`` (odd cycles) and twice it (even cycles; needs
+        ``cycles`` ≥ 2), every frame is decoded, the camera delay is
+        estimated from the data (``wait()["job"]["result"]["camera_delay_s"]``)
+        and the log is written resampled onto the step grid when the sweep
+        ends; ``uncorrected_log`` also writes it without the delay
+        correction. Returns the job's handle."""
         reply = self._call(
             proto.characterize_start(
                 log=log,
@@ -308,6 +318,9 @@ class Rig:
                 settle_s=settle_s,
                 drift_every_s=drift_every_s,
                 drift_reference_um=drift_reference_um,
+                mode=mode,
+                velocity_um_per_s=velocity_um_per_s,
+                uncorrected_log=uncorrected_log,
             )
         )
         return Job._from_reply(self, "characterize", reply)
