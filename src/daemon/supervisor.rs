@@ -88,7 +88,9 @@ impl ReadFailure {
     pub fn of(e: &DriverError) -> ReadFailure {
         match e {
             DriverError::NotReferenced { .. } => ReadFailure::NotReferenced,
-            e if e.is_link_fault() => ReadFailure::LinkDown,
+            DriverError::Disconnected { .. }
+            | DriverError::NoDevice { .. }
+            | DriverError::Closed { .. } => ReadFailure::LinkDown,
             e => ReadFailure::Failed(e.to_string()),
         }
     }
