@@ -587,19 +587,27 @@ fn line_drop_mid_move_halts_the_other_axis_reconnects_and_power_cycle_needs_refe
     assert_eq!(code(&m), "not_connected", "{m}");
     sim.control(json!({"axis": "x", "fault": "restore_line"}));
     c.wait_for(|s| s["rig"]["connected"]["x"] == true);
+    // The line loss stays latched until a client resets it.
+    let m = c.call(json!({"cmd": "move", "x_um": 8000.0}));
+    assert_eq!(code(&m), "fault_latched", "{m}");
+    c.ok(json!({"cmd": "reset"}));
     c.ok(json!({"cmd": "move", "x_um": 8000.0, "y_um": 8000.0, "wait": true}));
-    // A power cycle loses the reference: moves are refused (before any byte
-    // reaches the controller) until the axis is referenced again.
+    // A power cycle loses the reference: a latched fault, and after the
+    // reset moves are still refused (before any byte reaches the
+    // controller) until the axis is referenced again.
     sim.control(json!({"axis": "y", "fault": "power_cycle"}));
     let t = Instant::now();
     loop {
         let m = c.call(json!({"cmd": "move", "y_um": 7000.0}));
-        if code(&m) == "not_referenced" {
+        if code(&m) == "fault_latched" {
             break;
         }
         assert!(t.elapsed() < DEADLINE, "power cycle unnoticed: {m}");
         std::thread::sleep(Duration::from_millis(100));
     }
+    c.ok(json!({"cmd": "reset"}));
+    let m = c.call(json!({"cmd": "move", "y_um": 7000.0}));
+    assert_eq!(code(&m), "not_referenced", "{m}");
     c.ok(json!({"cmd": "reference", "axes": "y"}));
     c.ok(json!({"cmd": "move", "y_um": 7000.0, "wait": true}));
 }

@@ -209,13 +209,12 @@ impl Supervisor {
             self.watch[i] = Some(w);
             let f = self.bounds.following_error_um;
             if let (Some(v), true) = (w.velocity_um_s, f > 0.0) {
-                let (lo, hi) = band_um(start, w.target_um, v, t0_s, t1_s);
-                let off = if p < lo { lo - p } else if p > hi { p - hi } else { 0.0 };
+                let off = deviation_um(start, w.target_um, v, t0_s, t1_s, p);
                 if off > f {
                     self.watch[i] = None;
                     return Err(format!(
-                        "axis {name}: following error {off:.1} µm (position {p:.1} µm, commanded trajectory {lo:.1}..{hi:.1} µm towards {:.1} µm; safety.following_error_um = {f} µm)",
-                        w.target_um
+                        "axis {name}: following error {off:.1} µm (position {p:.1} µm on the way from {:.1} to {:.1} µm at {v:.0} µm/s; safety.following_error_um = {f} µm)",
+                        start.1, w.target_um
                     ));
                 }
             }
@@ -253,6 +252,22 @@ fn band_um(start: (f64, f64), target_um: f64, v_um_s: f64, t0_s: f64, t1_s: f64)
     let at = |t: f64| ps + dist.signum() * (v_um_s * (t - ts).max(0.0)).min(dist.abs());
     let (a, b) = (at(t0_s), at(t1_s));
     (a.min(b), a.max(b))
+}
+
+/// How far position `p` read between `t0_s` and `t1_s` is off the
+/// commanded trajectory: behind the band of trajectory positions (a lag:
+/// a jam, a slipping drive), or outside the segment from the start to the
+/// target (a runaway, an overshoot). Ahead of the trajectory but inside the
+/// segment is not counted: harmless, and what a rig clock slower than the
+/// controllers' looks like (a time-scaled simulator).
+fn deviation_um(start: (f64, f64), target_um: f64, v_um_s: f64, t0_s: f64, t1_s: f64, p: f64) -> f64 {
+    let dir = (target_um - start.1).signum();
+    let (lo, hi) = band_um(start, target_um, v_um_s, t0_s, t1_s);
+    // Along the direction of travel: the earliest allowed point.
+    let behind = if dir >= 0.0 { lo - p } else { p - hi };
+    let (seg_lo, seg_hi) = (start.1.min(target_um), start.1.max(target_um));
+    let outside = (seg_lo - p).max(p - seg_hi);
+    behind.max(outside).max(0.0)
 }
 
 /// Samples one watched axis: `VEL?` once per move, then `ERR?`, the
@@ -426,6 +441,19 @@ mod tests {
         }
         let nr = Err(ReadFailure::NotReferenced);
         assert!(s.read_result(AxisId::Y, 99.0, &nr).is_none());
+    }
+
+    #[test]
+    fn ahead_inside_the_segment_is_no_deviation_behind_or_outside_is() {
+        let start = (0.0, 1000.0);
+        // Towards 3000 at 1 mm/s; at t = 1 the trajectory is at 2000.
+        assert_eq!(deviation_um(start, 3000.0, 1000.0, 1.0, 1.0, 2900.0), 0.0);
+        assert!((deviation_um(start, 3000.0, 1000.0, 1.0, 1.0, 1700.0) - 300.0).abs() < 1e-9);
+        assert!((deviation_um(start, 3000.0, 1000.0, 1.0, 1.0, 3200.0) - 200.0).abs() < 1e-9);
+        assert!((deviation_um(start, 3000.0, 1000.0, 1.0, 1.0, 900.0) - 1100.0).abs() < 1e-9);
+        // Towards lower positions.
+        assert!((deviation_um(start, -1000.0, 1000.0, 1.0, 1.0, 400.0) - 400.0).abs() < 1e-9);
+        assert_eq!(deviation_um(start, -1000.0, 1000.0, 1.0, 1.0, -900.0), 0.0);
     }
 
     #[test]
