@@ -787,7 +787,10 @@ fn at_rest_short_of(sim: &Sim, target: [f64; 2]) {
     assert!(!moving, "moving again at {q:?}");
     for i in 0..2 {
         assert!((p[i] - q[i]).abs() < 5.0, "{p:?} → {q:?}");
-        assert!((q[i] - target[i]).abs() > 1000.0, "reached its target: {q:?}");
+        assert!(
+            (q[i] - target[i]).abs() > 1000.0,
+            "reached its target: {q:?}"
+        );
     }
 }
 
@@ -826,6 +829,10 @@ fn sigterm_halts_before_exit_and_the_stop_hook_halts_after_sigkill() {
         .arg("--halt")
         .output()
         .unwrap();
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     at_rest_short_of(&sim, [1_500.0, 13_500.0]);
 }

@@ -195,7 +195,9 @@ async fn long_move(cl: &mut Client, sim: &SimHandle, run_s: f64) {
 /// The next move is refused naming the fault; `reset` clears the latch
 /// (and reports what it cleared); `then` may re-reference; a move works.
 async fn refused_until_reset(cl: &mut Client, fault_words: &str, re_reference: bool) {
-    let m = cl.call(json!({"cmd":"move","x_um":7000.0,"wait":true})).await;
+    let m = cl
+        .call(json!({"cmd":"move","x_um":7000.0,"wait":true}))
+        .await;
     assert_eq!(code(&m), "fault_latched", "{m}");
     let msg = m["error"]["message"].as_str().unwrap();
     assert!(msg.contains(fault_words), "{msg}");
@@ -209,14 +211,22 @@ async fn refused_until_reset(cl: &mut Client, fault_words: &str, re_reference: b
         "{st}"
     );
     let r = cl.call_ok(json!({"cmd":"reset"})).await;
-    assert!(r["cleared"]["reason"].as_str().unwrap().contains(fault_words), "{r}");
+    assert!(
+        r["cleared"]["reason"]
+            .as_str()
+            .unwrap()
+            .contains(fault_words),
+        "{r}"
+    );
     if re_reference {
         cl.call_ok(json!({"cmd":"reference"})).await;
     }
     // A short move from where the stage stands (within any motion timeout).
     let p = controller_um(cl).await;
     let (x, y) = (p[0] + 100.0, p[1] - 100.0);
-    let m = cl.call(json!({"cmd":"move","x_um":x,"y_um":y,"wait":true})).await;
+    let m = cl
+        .call(json!({"cmd":"move","x_um":x,"y_um":y,"wait":true}))
+        .await;
     assert_eq!(m["ok"], true, "{m}");
     let q = controller_um(cl).await;
     assert!((q[0] - x).abs() < 1.0 && (q[1] - y).abs() < 1.0, "{q:?}");
@@ -331,7 +341,11 @@ async fn a_dropped_line_halts_the_other_axis_and_the_lost_one_on_reconnect() {
     let away = async {
         tokio::time::sleep(Duration::from_millis(500)).await;
         let px = truth_um(sim)[0];
-        assert!(px > p[0] + 300.0, "x runs on without its line: {px} vs {}", p[0]);
+        assert!(
+            px > p[0] + 300.0,
+            "x runs on without its line: {px} vs {}",
+            p[0]
+        );
         let m = cl.call(json!({"cmd":"move","y_um":7000.0})).await;
         assert_eq!(code(&m), "not_connected", "{m}");
         let t_back = now_s(sim);
@@ -389,9 +403,11 @@ async fn job_cancel_mid_move_halts_both_axes() {
     // A characterization whose first move (to its start corner, far from
     // the reference position) is long.
     let st = cl
-        .call(json!({"cmd": "characterize", "action": "start", "log": "c.csv", "axes": "xy",
+        .call(
+            json!({"cmd": "characterize", "action": "start", "log": "c.csv", "axes": "xy",
                      "step_um": 500.0, "x_range_um": 1000.0, "y_range_um": 1000.0, "cycles": 1,
-                     "frames_per_point": 1, "settle_s": 0.05, "drift_every_s": 0.0}))
+                     "frames_per_point": 1, "settle_s": 0.05, "drift_every_s": 0.0}),
+        )
         .await;
     assert_eq!(st["ok"], true, "{st}");
     // Wait until the stage is under way.
@@ -418,7 +434,9 @@ async fn job_cancel_mid_move_halts_both_axes() {
     assert_eq!(c["halt"]["at_rest"], true, "{c}");
     report("job cancel mid-move", &h);
     // A cancel is not a fault: the next move is served.
-    let m = cl.call(json!({"cmd":"move","x_um":7000.0,"wait":true})).await;
+    let m = cl
+        .call(json!({"cmd":"move","x_um":7000.0,"wait":true}))
+        .await;
     assert_eq!(m["ok"], true, "{m}");
     r.shutdown().await;
 }

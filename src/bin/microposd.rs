@@ -53,9 +53,15 @@ async fn halt(cfg: DaemonConfig) -> bool {
     let report = micropos::driver::halt::halt_all(&cfg.driver, None, wait).await;
     let mut ok = true;
     for a in &report {
-        let err = a.error.map(|c| c.0.to_string()).unwrap_or_else(|| "-".to_owned());
+        let err = a
+            .error
+            .map(|c| c.0.to_string())
+            .unwrap_or_else(|| "-".to_owned());
         if a.ok() {
-            tracing::info!("halt: axis {} stopped (#24) and at rest; ERR? {err}", a.axis);
+            tracing::info!(
+                "halt: axis {} stopped (#24) and at rest; ERR? {err}",
+                a.axis
+            );
         } else {
             ok = false;
             tracing::error!(

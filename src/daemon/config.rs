@@ -491,7 +491,10 @@ impl DaemonConfig {
         }
         let sf = &self.safety;
         if !(10..=60_000).contains(&sf.supervise_interval_ms) {
-            return Err(bad("safety.supervise_interval_ms", "must be within 10..=60000"));
+            return Err(bad(
+                "safety.supervise_interval_ms",
+                "must be within 10..=60000",
+            ));
         }
         if !(sf.following_error_um.is_finite() && sf.following_error_um >= 0.0) {
             return Err(bad(

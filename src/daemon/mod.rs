@@ -73,7 +73,10 @@ impl Running {
     /// is gone, so it must not leave a move running.
     pub async fn shutdown(self) {
         self.daemon.jobs.signal_cancel();
-        self.daemon.rig.halt_and_wait("the daemon is shutting down").await;
+        self.daemon
+            .rig
+            .halt_and_wait("the daemon is shutting down")
+            .await;
         let _ = self.daemon.shutdown.send(());
         for t in self.tasks {
             let _ = t.await;

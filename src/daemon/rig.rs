@@ -337,7 +337,10 @@ impl Rig {
             _ => json!({"t_s": t, "axis": a.name(), "halted": halt.is_ok(),
                 "error": halt.err().or(status.err()).map(|e| e.to_string())}),
         };
-        tracing::warn!("axis {} reconnected, halted and read back: {fields}", a.name());
+        tracing::warn!(
+            "axis {} reconnected, halted and read back: {fields}",
+            a.name()
+        );
         self.push(Topic::Fault, "axis_recovered", fields);
     }
 

@@ -465,10 +465,17 @@ mod tests {
         let a = s.apply(Input::Fault("axis x following error 900 µm".into()), 1.0);
         assert_eq!(a.len(), 1);
         assert_eq!(s.activity(), Activity::Idle);
-        for r in [s.may_move([true, false], false), s.may_move([false, true], true), s.may_take_axes()] {
+        for r in [
+            s.may_move([true, false], false),
+            s.may_move([false, true], true),
+            s.may_take_axes(),
+        ] {
             assert!(matches!(r, Err(Refusal::FaultLatched(m)) if m.contains("following")));
         }
-        assert_eq!(s.to_json()["fault_latched"]["reason"], "axis x following error 900 µm");
+        assert_eq!(
+            s.to_json()["fault_latched"]["reason"],
+            "axis x following error 900 µm"
+        );
         // A stop does not clear it; only a reset does.
         s.apply(Input::Stop, 2.0);
         assert!(s.may_move([true, true], false).is_err());

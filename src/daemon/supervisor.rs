@@ -156,7 +156,12 @@ impl Supervisor {
 
     /// A position read of `axis` at `t_s` that succeeded (`Ok`) or failed:
     /// a fault reason when reads have failed for longer than the bound.
-    pub fn read_result(&mut self, axis: AxisId, t_s: f64, r: &Result<f64, ReadFailure>) -> Option<String> {
+    pub fn read_result(
+        &mut self,
+        axis: AxisId,
+        t_s: f64,
+        r: &Result<f64, ReadFailure>,
+    ) -> Option<String> {
         let i = idx(axis);
         match r {
             Ok(_) | Err(ReadFailure::NotReferenced) | Err(ReadFailure::LinkDown) => {
@@ -185,7 +190,13 @@ impl Supervisor {
     /// Judges a sample of `axis` read between `t0_s` and `t1_s`. `Err`:
     /// the fault to latch (the caller halts both axes). A watch ends when
     /// the controller reports on target.
-    pub fn observe(&mut self, axis: AxisId, t0_s: f64, t1_s: f64, s: &AxisSample) -> Result<(), String> {
+    pub fn observe(
+        &mut self,
+        axis: AxisId,
+        t0_s: f64,
+        t1_s: f64,
+        s: &AxisSample,
+    ) -> Result<(), String> {
         let name = axis.name();
         if let Some(code) = s.error {
             if !code.is_ok() && code != GcsErrorCode::STOPPED && self.watch[idx(axis)].is_some() {
@@ -260,7 +271,14 @@ fn band_um(start: (f64, f64), target_um: f64, v_um_s: f64, t0_s: f64, t1_s: f64)
 /// target (a runaway, an overshoot). Ahead of the trajectory but inside the
 /// segment is not counted: harmless, and what a rig clock slower than the
 /// controllers' looks like (a time-scaled simulator).
-fn deviation_um(start: (f64, f64), target_um: f64, v_um_s: f64, t0_s: f64, t1_s: f64, p: f64) -> f64 {
+fn deviation_um(
+    start: (f64, f64),
+    target_um: f64,
+    v_um_s: f64,
+    t0_s: f64,
+    t1_s: f64,
+    p: f64,
+) -> f64 {
     let dir = (target_um - start.1).signum();
     let (lo, hi) = band_um(start, target_um, v_um_s, t0_s, t1_s);
     // Along the direction of travel: the earliest allowed point.
@@ -388,7 +406,9 @@ mod tests {
         s.set_velocity(AxisId::Y, 1000.0);
         assert!(s.observe(AxisId::Y, 0.0, 0.0, &at(0.0, false)).is_ok());
         assert!(s.observe(AxisId::Y, 0.05, 0.06, &at(-50.0, false)).is_ok());
-        let e = s.observe(AxisId::Y, 0.2, 0.21, &at(-50.0, false)).unwrap_err();
+        let e = s
+            .observe(AxisId::Y, 0.2, 0.21, &at(-50.0, false))
+            .unwrap_err();
         assert!(e.contains("axis y: following error"), "{e}");
         assert_eq!(s.watching(), [false, false]);
     }
@@ -408,7 +428,9 @@ mod tests {
         s.watch(AxisId::X, 5000.0, 0.0);
         assert!(s.observe(AxisId::X, 0.0, 0.0, &at(0.0, false)).is_ok());
         assert!(s.observe(AxisId::X, 9.0, 9.0, &at(0.0, false)).is_ok());
-        let e = s.observe(AxisId::X, 10.5, 10.5, &at(0.0, false)).unwrap_err();
+        let e = s
+            .observe(AxisId::X, 10.5, 10.5, &at(0.0, false))
+            .unwrap_err();
         assert!(e.contains("motion timeout"), "{e}");
     }
 
@@ -434,7 +456,10 @@ mod tests {
         assert!(s.read_result(AxisId::X, 0.95, &Ok(1.0)).is_none());
         assert!(s.read_result(AxisId::X, 1.5, &fail).is_none());
         let e = s.read_result(AxisId::X, 2.6, &fail).unwrap();
-        assert!(e.contains("axis x: position reads failing for 1.10 s"), "{e}");
+        assert!(
+            e.contains("axis x: position reads failing for 1.10 s"),
+            "{e}"
+        );
         for t in 0..50 {
             let r = s.read_result(AxisId::Y, f64::from(t), &Err(ReadFailure::LinkDown));
             assert!(r.is_none());
@@ -460,8 +485,14 @@ mod tests {
     fn the_band_covers_the_read_latency() {
         // Read from t 1.0 to 1.2 at 1 mm/s: anything from 1000 to 1200 µm
         // is on the trajectory.
-        assert_eq!(band_um((0.0, 0.0), 5000.0, 1000.0, 1.0, 1.2), (1000.0, 1200.0));
+        assert_eq!(
+            band_um((0.0, 0.0), 5000.0, 1000.0, 1.0, 1.2),
+            (1000.0, 1200.0)
+        );
         // Towards lower positions, clamped at the target.
-        assert_eq!(band_um((0.0, 0.0), -500.0, 1000.0, 0.4, 1.0), (-500.0, -400.0));
+        assert_eq!(
+            band_um((0.0, 0.0), -500.0, 1000.0, 0.4, 1.0),
+            (-500.0, -400.0)
+        );
     }
 }

@@ -53,8 +53,22 @@ async fn open_line(
 ) -> Result<Line, DriverError> {
     let opts = cfg.line_options();
     match opener {
-        Some(o) => Line::open(OpenerConnector::new(o.clone(), a.port.clone()), opts, events.clone()).await,
-        None => Line::open(SerialConnector::new(a.port.clone(), a.serial()), opts, events.clone()).await,
+        Some(o) => {
+            Line::open(
+                OpenerConnector::new(o.clone(), a.port.clone()),
+                opts,
+                events.clone(),
+            )
+            .await
+        }
+        None => {
+            Line::open(
+                SerialConnector::new(a.port.clone(), a.serial()),
+                opts,
+                events.clone(),
+            )
+            .await
+        }
     }
 }
 
@@ -87,7 +101,8 @@ async fn halt_one(ctl: Controller, name: &'static str, wait: Duration, poll: Dur
             Err(e) => out.problem = Some(format!("#5: {e}")),
         }
         if t0.elapsed() >= wait {
-            out.problem.get_or_insert_with(|| format!("still moving after {wait:?}"));
+            out.problem
+                .get_or_insert_with(|| format!("still moving after {wait:?}"));
             return out;
         }
         tokio::time::sleep(poll).await;
@@ -134,7 +149,13 @@ pub async fn halt_all(
                 Ok(a) => a,
                 Err(e) => return fail(e.to_string()),
             };
-            halt_one(Controller::new(line, addr, timeout, events), name, wait, poll).await
+            halt_one(
+                Controller::new(line, addr, timeout, events),
+                name,
+                wait,
+                poll,
+            )
+            .await
         }
     };
     let (x, y) = tokio::join!(one(x_line, &cfg.x, "x"), one(y_line, &cfg.y, "y"));
