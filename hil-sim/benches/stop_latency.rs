@@ -127,19 +127,29 @@ fn start() -> Rig {
 }
 
 fn moving(sim: &SimHandle) -> [bool; 2] {
-    let m = |a| sim.with_controller(a, |c, now| c.is_moving(now)).unwrap_or(false);
+    let m = |a| {
+        sim.with_controller(a, |c, now| c.is_moving(now))
+            .unwrap_or(false)
+    };
     [m(AxisName::X), m(AxisName::Y)]
 }
 
 /// One stop: a long move of both axes, 30 ms later `stop`; the time from
 /// writing the request until both controllers report rest.
 fn one_stop(sim: &SimHandle, cl: &mut Client, far: bool) -> Duration {
-    let (x, y) = if far { (14_000.0, 1_000.0) } else { (1_000.0, 14_000.0) };
+    let (x, y) = if far {
+        (14_000.0, 1_000.0)
+    } else {
+        (1_000.0, 14_000.0)
+    };
     let m = cl.call(json!({"cmd":"move","x_um":x,"y_um":y}));
     assert_eq!(m["ok"], true, "{m}");
     let t = Instant::now();
     while moving(sim) != [true, true] {
-        assert!(t.elapsed() < Duration::from_secs(5), "the move did not start");
+        assert!(
+            t.elapsed() < Duration::from_secs(5),
+            "the move did not start"
+        );
     }
     std::thread::sleep(Duration::from_millis(30));
     let t0 = Instant::now();
@@ -216,7 +226,9 @@ fn bench(c: &mut Criterion) {
             v[v.len() - 1]
         );
     }
-    let Rig { sim, daemon, rt, .. } = rig;
+    let Rig {
+        sim, daemon, rt, ..
+    } = rig;
     rt.block_on(daemon.shutdown());
     sim.shutdown();
 }

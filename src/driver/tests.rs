@@ -496,13 +496,18 @@ async fn urgent_stop_overtakes_a_busy_line() {
     assert!(t.elapsed() < Duration::from_millis(5), "{:?}", t.elapsed());
     tokio::time::sleep(Duration::from_millis(1)).await;
     let target = rig.fake.axis(1, |a| a.target_mm);
-    assert!(target > 7.5 && target < 14.0, "the controller did not stop: {target}");
+    assert!(
+        target > 7.5 && target < 14.0,
+        "the controller did not stop: {target}"
+    );
     for q in queued {
         assert!(q.await.unwrap().is_err());
     }
     // A command with an answer is not urgent.
     assert!(matches!(
-        ctl.line().urgent(None, crate::gcs::ControlChar::MotionStatus).await,
+        ctl.line()
+            .urgent(None, crate::gcs::ControlChar::MotionStatus)
+            .await,
         Err(DriverError::Invalid(_))
     ));
 }

@@ -451,7 +451,10 @@ fn a_stall_freezes_the_carriage_until_halted() {
     assert!(p > 7.5 && p < 12.0, "{p}");
     // The carriage stays; the controller still tries.
     assert_eq!(pos(&mut c, t0 + 5.0), p);
-    assert_eq!(c.true_position_mm(s(t0 + 5.0)), c.true_position_mm(s(t0 + 1.0)));
+    assert_eq!(
+        c.true_position_mm(s(t0 + 5.0)),
+        c.true_position_mm(s(t0 + 1.0))
+    );
     assert!(c.is_moving(s(t0 + 5.0)));
     assert_eq!(q(&mut c, t0 + 5.0, "ONT? 1").unwrap(), "1=0\n");
     assert_eq!(err(&mut c, t0 + 5.0), 0);
