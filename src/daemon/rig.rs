@@ -53,6 +53,10 @@ pub struct Rig {
     motion: tokio::sync::Mutex<()>,
     stop_gen: AtomicU64,
     supervisor: Mutex<Supervisor>,
+    /// Held by the supervisor while it samples: a reference run waits for
+    /// a sample in flight (its `FRF?` would read the run as a lost
+    /// reference).
+    pub(super) sampling: tokio::sync::Mutex<()>,
     events: broadcast::Sender<Pushed>,
     /// The camera pipeline, if a camera is configured.
     pub vision: Option<Vision>,
@@ -141,6 +145,7 @@ impl Rig {
         });
         Rig {
             supervisor: Mutex::new(supervisor),
+            sampling: tokio::sync::Mutex::new(()),
             drift,
             cfg,
             clock,
@@ -186,6 +191,11 @@ impl Rig {
     /// The stage, once connected.
     pub(super) fn connected_stage(&self) -> Option<Stage> {
         lock(&self.stage).clone()
+    }
+
+    /// Whether a reference run owns the axes.
+    pub(super) fn referencing(&self) -> bool {
+        lock(&self.state).activity() == Activity::Referencing
     }
 
     /// Feeds the watchdog heartbeat: the rig is supervised.
@@ -1001,6 +1011,10 @@ impl Rig {
             s.may_take_axes().map_err(refusal)?;
             s.apply(Input::Begin(Activity::Referencing), t);
         }
+        // A reference run supersedes the moves watched so far; a sample in
+        // flight finishes before the run starts.
+        self.supervisor().clear();
+        drop(self.sampling.lock().await);
         let _guard = ActivityGuard {
             rig: self,
             activity: Activity::Referencing,

@@ -326,8 +326,9 @@ pub async fn run(rig: Arc<Rig>, mut shutdown: broadcast::Receiver<()>) {
             _ = tokio::time::sleep(period) => {},
             _ = shutdown.recv() => return,
         }
+        let _sampling = rig.sampling.lock().await;
         let watching = rig.supervisor().watching();
-        if watching == [false, false] {
+        if watching == [false, false] || rig.referencing() {
             continue;
         }
         let Some(stage) = rig.connected_stage() else {
