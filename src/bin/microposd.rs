@@ -4,9 +4,15 @@
 //!
 //! SIGHUP reloads the configuration file (`Daemon::reload`: limits,
 //! compensation, drift, access roles) and logs the keys it cannot change
-//! live; SIGTERM and SIGINT shut down.
+//! live. `--halt` needs no running daemon: it opens the configured controller
+//! lines, stops both axes with `#24` and waits (bounded by
+//! `safety.halt_wait_s`) until they rest; the unit runs it as
+//! `ExecStopPost=`, so a SIGKILL, crash or watchdog kill leaves no move
+//! running. On SIGTERM/SIGINT the daemon halts both axes itself before it
+//! exits.
 //!
-//! Exit codes: 0 clean shutdown, 1 runtime failure, 2 bad configuration or
+//! Exit codes: 0 clean shutdown (`--halt`: both axes at rest), 1 runtime
+//! failure (`--halt`: an axis not confirmed at rest), 2 bad configuration or
 //! arguments.
 
 use anyhow::Context;
@@ -37,6 +43,39 @@ struct Args {
     /// Validate the configuration and exit.
     #[arg(long)]
     check_config: bool,
+    /// Stop both axes (`#24` on the configured lines, no daemon needed),
+    /// wait until they rest, and exit (0: both at rest).
+    #[arg(long, conflicts_with = "check_config")]
+    halt: bool,
+}
+
+/// `--halt`: see the module header.
+async fn halt(cfg: DaemonConfig) -> bool {
+    let wait = Duration::try_from_secs_f64(cfg.safety.halt_wait_s).unwrap_or_default();
+    let report = micropos::driver::halt::halt_all(&cfg.driver, None, wait).await;
+    let mut ok = true;
+    for a in &report {
+        let err = a
+            .error
+            .map(|c| c.0.to_string())
+            .unwrap_or_else(|| "-".to_owned());
+        if a.ok() {
+            tracing::info!(
+                "halt: axis {} stopped (#24) and at rest; ERR? {err}",
+                a.axis
+            );
+        } else {
+            ok = false;
+            tracing::error!(
+                "halt: axis {}: sent {}, at rest {}: {}",
+                a.axis,
+                a.sent,
+                a.at_rest,
+                a.problem.as_deref().unwrap_or("?")
+            );
+        }
+    }
+    ok
 }
 
 fn init_logging() {
@@ -218,11 +257,11 @@ async fn run(cfg: DaemonConfig, source: ConfigSource) -> anyhow::Result<()> {
     loop {
         tokio::select! {
             _ = term.recv() => {
-                tracing::info!("SIGTERM: shutting down");
+                tracing::info!("SIGTERM: halting both axes, then shutting down");
                 break;
             }
             _ = tokio::signal::ctrl_c() => {
-                tracing::info!("SIGINT: shutting down");
+                tracing::info!("SIGINT: halting both axes, then shutting down");
                 break;
             }
             _ = hup.recv() => reload(&running.daemon, &source).await,
@@ -270,6 +309,13 @@ fn main() -> ExitCode {
             return ExitCode::from(1);
         }
     };
+    if args.halt {
+        return if rt.block_on(halt(cfg)) {
+            ExitCode::SUCCESS
+        } else {
+            ExitCode::from(1)
+        };
+    }
     match rt.block_on(run(cfg, source)) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {

@@ -34,6 +34,8 @@ pub struct DaemonConfig {
     pub driver: DriverConfig,
     /// Soft limits, tighter than the controllers' travel.
     pub limits: Limits,
+    /// The motion supervisor's bounds.
+    pub safety: SafetySection,
     /// The camera and the decoder.
     pub camera: CameraSection,
     /// Defaults of the characterization job.
@@ -267,6 +269,41 @@ impl Default for DaemonSection {
             write_timeout_s: 10.0,
             job_retries: 3,
             job_retry_backoff_s: 0.5,
+        }
+    }
+}
+
+/// `[safety]`: the bounds of the motion supervisor (`daemon::supervisor`;
+/// `docs/design/daemon.md`, "Motion safety"). Why configurable: how far a
+/// healthy stage may lag its commanded trajectory depends on its speed and
+/// acceleration (a reversal at speed v and deceleration a lags by about
+/// v²/a), and how long a line may stay silent before nobody is watching
+/// the stage is a lab's decision.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct SafetySection {
+    /// How often a move in flight is checked (ERR?, POS?, ONT?), ms.
+    pub supervise_interval_ms: u64,
+    /// Largest distance between an axis's controller position and its
+    /// commanded trajectory (start → target at the axis velocity), µm;
+    /// 0 turns the check off.
+    pub following_error_um: f64,
+    /// Position reads of an axis may fail (no answer, garbled) for this
+    /// long before a fault is latched, s. A line that is down is a fault of
+    /// its own at once.
+    pub read_fail_s: f64,
+    /// How long a halt waits for both axes to come to rest (shutdown,
+    /// `microposd --halt`, job cancel), s.
+    pub halt_wait_s: f64,
+}
+
+impl Default for SafetySection {
+    fn default() -> Self {
+        Self {
+            supervise_interval_ms: 100,
+            following_error_um: 500.0,
+            read_fail_s: 2.0,
+            halt_wait_s: 5.0,
         }
     }
 }
@@ -533,6 +570,25 @@ impl DaemonConfig {
         }
         if !(10..=60_000).contains(&self.daemon.poll_interval_ms) {
             return Err(bad("daemon.poll_interval_ms", "must be within 10..=60000"));
+        }
+        let sf = &self.safety;
+        if !(10..=60_000).contains(&sf.supervise_interval_ms) {
+            return Err(bad(
+                "safety.supervise_interval_ms",
+                "must be within 10..=60000",
+            ));
+        }
+        if !(sf.following_error_um.is_finite() && sf.following_error_um >= 0.0) {
+            return Err(bad(
+                "safety.following_error_um",
+                "must be a finite number of µm ≥ 0 (0 = off)",
+            ));
+        }
+        if !(sf.read_fail_s.is_finite() && sf.read_fail_s > 0.0 && sf.read_fail_s <= 600.0) {
+            return Err(bad("safety.read_fail_s", "must be within (0, 600] s"));
+        }
+        if !(sf.halt_wait_s.is_finite() && sf.halt_wait_s > 0.0 && sf.halt_wait_s <= 60.0) {
+            return Err(bad("safety.halt_wait_s", "must be within (0, 60] s"));
         }
         if self.daemon.max_clients == 0 {
             return Err(bad("daemon.max_clients", "must be at least 1"));

@@ -9,7 +9,9 @@
 //!   slots, the role check);
 //! - [`access`]: the peer's credentials and role (`[access]`);
 //! - [`audit`]: who ran which state-changing command (journal + file);
-//! - [`state`]: the safe-state machine (pure);
+//! - [`state`]: the safe-state machine (pure; faults latch until `reset`);
+//! - [`supervisor`]: watches every move to completion (controller errors,
+//!   following error, motion timeout, failing reads);
 //! - [`rig`]: motion coordinator, soft limits, positions, event bus;
 //! - [`vision`]: capture and decoding, never blocking the runtime;
 //! - [`jobs`]: characterization with resume (and its own camera tie),
@@ -19,9 +21,10 @@
 //! - [`reload`]: what SIGHUP may change live, and its running values;
 //! - [`notify`]: systemd readiness, status and a health-fed watchdog.
 //!
-//! Shutdown: one `broadcast` tells every task; clients get a
-//! `shutting_down` error line; the axes are left as they are (a running
-//! job stops between points, its log resumable).
+//! Shutdown: a running job is cancelled, both axes are halted and waited
+//! for (bounded by `safety.halt_wait_s`), then one `broadcast` tells every
+//! task; clients get a `shutting_down` error line (the job's log stays
+//! resumable).
 
 pub mod access;
 pub mod audit;
@@ -36,6 +39,7 @@ pub mod reload;
 pub mod rig;
 pub mod server;
 pub mod state;
+pub mod supervisor;
 pub mod vision;
 
 use crate::camera::FrameSource;
@@ -74,9 +78,16 @@ pub struct Running {
 }
 
 impl Running {
-    /// Asks every task to stop and waits for them.
+    /// Cancels a job, halts both axes and waits until they are at rest
+    /// (bounded: `safety.halt_wait_s`), then asks every task to stop and
+    /// waits for them. Why halt: nobody watches the stage once the daemon
+    /// is gone, so it must not leave a move running.
     pub async fn shutdown(self) {
         self.daemon.jobs.signal_cancel();
+        self.daemon
+            .rig
+            .halt_and_wait("the daemon is shutting down")
+            .await;
         let _ = self.daemon.shutdown.send(());
         for t in self.tasks {
             let _ = t.await;
@@ -168,6 +179,7 @@ impl Daemon {
         let tasks = vec![
             tokio::spawn(rig.clone().connect_loop(shutdown.subscribe())),
             tokio::spawn(rig.clone().poll_loop(shutdown.subscribe())),
+            tokio::spawn(supervisor::run(rig.clone(), shutdown.subscribe())),
             tokio::spawn(rig.clone().vision_stream_loop(shutdown.subscribe())),
             tokio::spawn(server::serve(
                 daemon.clone(),
@@ -200,6 +212,7 @@ impl Daemon {
                 self.jobs.signal_cancel();
                 rig.stop().await
             }
+            Command::Reset => Ok(rig.reset()),
             Command::Reference(axes) => rig.reference(axes).await,
             Command::Config => serde_json::to_value(self.effective_config())
                 .map(|c| json!({"config": c}))
@@ -208,12 +221,12 @@ impl Daemon {
                 CharacterizeAction::Start(p) => self.jobs.start(rig, p).await,
                 CharacterizeAction::Resume { log } => self.jobs.resume(rig, &log).await,
                 CharacterizeAction::Status => Ok(json!({"job": self.jobs.status()})),
-                CharacterizeAction::Cancel => self.jobs.cancel().await.map(|j| json!({"job": j})),
+                CharacterizeAction::Cancel => self.cancel_job().await,
             },
             Command::Validate(v) => match v {
                 ValidateAction::Status => Ok(self.jobs.validation_status()),
                 ValidateAction::Start(p) => self.jobs.start_validation(rig, p).await,
-                ValidateAction::Cancel => self.jobs.cancel().await.map(|j| json!({"job": j})),
+                ValidateAction::Cancel => self.cancel_job().await,
             },
             Command::Tables(t) => match t {
                 TablesAction::List => rig.comp.list(&rig.cfg.daemon.data_dir).await,
@@ -272,6 +285,16 @@ impl Daemon {
             self.access.set(new.access.clone());
         }
         reload::ReloadReport { applied, refused }
+    }
+
+    /// `characterize|validate cancel`: ends the job and halts both axes
+    /// (waiting until they are at rest): the job's move in flight is
+    /// dropped with its future, and the stage must not finish it alone.
+    async fn cancel_job(&self) -> Result<Value, ProtoError> {
+        self.jobs.signal_cancel();
+        let halt = self.rig.halt_and_wait("job cancelled").await;
+        let job = self.jobs.cancel().await?;
+        Ok(json!({"job": job, "halt": halt}))
     }
 
     /// `drift show|set|reset|measure`.

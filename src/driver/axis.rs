@@ -559,11 +559,15 @@ impl Axis {
         accept_stop(cmd.to_text(), code)
     }
 
-    /// Stops the controller at once with `#24` (bypasses the command queue;
-    /// abrupt). Error 10 that follows is consumed as the confirmation.
+    /// Stops the controller at once with `#24` (abrupt), written ahead of
+    /// every queued exchange and without the transaction lock
+    /// ([`Line::urgent`](super::line::Line::urgent)); the stage stops when
+    /// the byte is written. Error 10 that follows is then consumed (`ERR?`,
+    /// in turn) as the confirmation.
     pub async fn stop(&self) -> Result<(), DriverError> {
         self.inner.halts.fetch_add(1, Ordering::SeqCst);
-        let r = self.ctl().control(ControlChar::StopAll).await;
+        let ctl = self.ctl();
+        let r = ctl.line().urgent(ctl.address(), ControlChar::StopAll).await;
         self.on_error(r)?;
         let code = self.on_error(self.ctl().error().await)?;
         accept_stop("#24".to_owned(), code)

@@ -53,6 +53,9 @@ pub enum ClientCommand {
     },
     /// Halt everything now.
     Stop,
+    /// Acknowledge a latched fault (after finding its cause): motion is
+    /// allowed again; an axis that lost its reference still needs one.
+    Reset,
     /// Reference axes (x, y or xy).
     Reference {
         /// Axes.
@@ -225,6 +228,7 @@ fn build(cmd: &ClientCommand) -> Value {
             json!({"cmd": "move", "x_um": x, "y_um": y, "relative": relative, "mode": mode, "wait": wait})
         }
         ClientCommand::Stop => json!({"cmd": "stop"}),
+        ClientCommand::Reset => json!({"cmd": "reset"}),
         ClientCommand::Reference { axes } => json!({"cmd": "reference", "axes": axes}),
         ClientCommand::Subscribe { topics } => {
             if topics.is_empty() {

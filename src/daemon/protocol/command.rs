@@ -316,6 +316,8 @@ pub enum Command {
     Move(MoveRequest),
     /// Halt everything now.
     Stop,
+    /// Acknowledge a latched fault so that motion is allowed again.
+    Reset,
     /// Reference axes.
     Reference(Axes),
     /// Stream events on this connection.
@@ -340,6 +342,7 @@ pub const COMMANDS: &[&str] = &[
     "position",
     "move",
     "stop",
+    "reset",
     "reference",
     "subscribe",
     "characterize",

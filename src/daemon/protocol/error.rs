@@ -36,6 +36,9 @@ pub enum ErrorCode {
     Halted,
     /// The controller or its line failed during the command.
     DriverError,
+    /// A motion fault is latched (the message names it): motion commands
+    /// are refused until a client sends `reset`.
+    FaultLatched,
     /// The camera gives no usable measurement.
     CameraUnavailable,
     /// The newest measurement is too old or of too low quality.
@@ -87,6 +90,7 @@ impl ErrorCode {
             ErrorCode::Busy => "busy",
             ErrorCode::Halted => "halted",
             ErrorCode::DriverError => "driver_error",
+            ErrorCode::FaultLatched => "fault_latched",
             ErrorCode::CameraUnavailable => "camera_unavailable",
             ErrorCode::StaleMeasurement => "stale_measurement",
             ErrorCode::NotConverged => "not_converged",

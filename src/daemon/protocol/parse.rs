@@ -66,7 +66,7 @@ pub fn too_large(len: usize) -> ProtoError {
 fn parse_command(obj: &Map<String, Value>) -> Result<Command, ProtoError> {
     let cmd = req_str(obj, "cmd")?;
     let known: &[&str] = match cmd {
-        "status" | "position" | "stop" | "config" | "version" => &[],
+        "status" | "position" | "stop" | "reset" | "config" | "version" => &[],
         "move" => &["x_um", "y_um", "relative", "mode", "wait", "tolerance_um"],
         "reference" => &["axes"],
         "subscribe" => &["topics"],
@@ -133,6 +133,7 @@ fn parse_command(obj: &Map<String, Value>) -> Result<Command, ProtoError> {
         "status" => Command::Status,
         "position" => Command::Position,
         "stop" => Command::Stop,
+        "reset" => Command::Reset,
         "config" => Command::Config,
         "version" => Command::Version,
         "move" => Command::Move(parse_move(obj)?),

@@ -57,9 +57,10 @@ impl Command {
             | Command::Validate(_)
             | Command::Tables(_)
             | Command::Drift(DriftAction::Measure) => Role::Operate,
-            Command::Drift(DriftAction::Set { .. } | DriftAction::Reset) | Command::Config => {
-                Role::Admin
-            }
+            // Clearing a latched fault declares the rig safe to move again.
+            Command::Drift(DriftAction::Set { .. } | DriftAction::Reset)
+            | Command::Config
+            | Command::Reset => Role::Admin,
         }
     }
 
@@ -77,6 +78,7 @@ impl Command {
             Command::Position => "position",
             Command::Move(_) => "move",
             Command::Stop => "stop",
+            Command::Reset => "reset",
             Command::Reference(_) => "reference",
             Command::Subscribe(_) => "subscribe",
             Command::Characterize(a) => match a {
@@ -127,6 +129,7 @@ mod tests {
             (r#"{"cmd":"version"}"#, Role::Read, false),
             (r#"{"cmd":"subscribe"}"#, Role::Read, false),
             (r#"{"cmd":"stop"}"#, Role::Read, true),
+            (r#"{"cmd":"reset"}"#, Role::Admin, true),
             (r#"{"cmd":"characterize"}"#, Role::Read, false),
             (r#"{"cmd":"validate"}"#, Role::Read, false),
             (r#"{"cmd":"tables"}"#, Role::Read, false),

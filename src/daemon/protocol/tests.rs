@@ -145,6 +145,8 @@ fn parses_every_command() {
     for c in ["position", "stop", "config", "version", "validate"] {
         assert!(parse(&format!(r#"{{"cmd":"{c}"}}"#)).is_ok(), "{c}");
     }
+    assert_eq!(parse(r#"{"cmd":"reset"}"#).unwrap().command, Command::Reset);
+    assert_eq!(code(r#"{"cmd":"reset","axes":"x"}"#), ErrorCode::BadValue);
 }
 
 #[test]

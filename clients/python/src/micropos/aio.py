@@ -282,6 +282,10 @@ class AsyncRig:
         finally:
             conn.close()
 
+    async def reset(self) -> Json:
+        """``reset``: acknowledges a latched fault (see :meth:`micropos.Rig.reset`)."""
+        return await self._call({"cmd": "reset"})
+
     async def reference(self, axes: Axes = "xy", *, timeout: Optional[float] = None) -> Json:
         """``reference``."""
         return await self._call(proto.reference(axes), self._long(timeout))

@@ -244,6 +244,13 @@ class Rig:
         finally:
             conn.close()
 
+    def reset(self) -> Json:
+        """``reset``: acknowledges a latched fault (:class:`~micropos.errors.FaultLatched`)
+        once its cause is found; motion is allowed again. ``cleared`` names
+        the fault (``None`` if nothing was latched). An axis that lost its
+        reference still needs :meth:`reference`."""
+        return self._call({"cmd": "reset"})
+
     def reference(self, axes: Axes = "xy", *, timeout: Optional[float] = None) -> Json:
         """``reference``: reference run of ``x``, ``y`` or ``xy`` (the stage moves)."""
         return self._call(proto.reference(axes), self._long(timeout))

@@ -32,6 +32,7 @@ __all__ = [
     "Busy",
     "Halted",
     "DriverError",
+    "FaultLatched",
     "CameraUnavailable",
     "StaleMeasurement",
     "NotConverged",
@@ -185,6 +186,13 @@ class DriverError(MicroposError):
     """A controller or its line failed during the command."""
 
     code = "driver_error"
+
+
+class FaultLatched(MicroposError):
+    """A motion fault is latched (the message names it): motion is refused
+    until ``reset()``, sent once its cause is found."""
+
+    code = "fault_latched"
 
 
 class CameraUnavailable(MicroposError):
@@ -389,6 +397,7 @@ ERROR_CLASSES: Dict[str, Type[MicroposError]] = {
         Busy,
         Halted,
         DriverError,
+        FaultLatched,
         CameraUnavailable,
         StaleMeasurement,
         NotConverged,
