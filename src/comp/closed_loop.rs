@@ -339,15 +339,34 @@ mod tests {
         target: XyUm,
         always: bool,
     ) -> (Action, f64) {
+        against_stage_from(model, [0.0, 0.0], target, always)
+    }
+
+    /// The same, starting at rest at `start`: the loop's arrival direction
+    /// per axis is the direction from `start` to `target`.
+    fn against_stage_from(
+        model: &crate::model::StageModel,
+        start: [f64; 2],
+        target: XyUm,
+        always: bool,
+    ) -> (Action, f64) {
         use crate::model::{MotionState, StageSimulator};
         let mut sim =
-            StageSimulator::new(model.clone(), MotionState::at_rest(0.0, 0.0), 3).unwrap();
+            StageSimulator::new(model.clone(), MotionState::at_rest(start[0], start[1]), 3)
+                .unwrap();
+        let arrival = [0, 1].map(|i| {
+            if [target.x_um, target.y_um][i] < start[i] {
+                Direction::Backward
+            } else {
+                Direction::Forward
+            }
+        });
         let cfg = ClosedLoopConfig {
             always_reapproach: always,
             max_corrections: 5,
             ..ClosedLoopConfig::default()
         };
-        let mut cl = ClosedLoop::new(target, target, [Direction::Forward; 2], cfg).unwrap();
+        let mut cl = ClosedLoop::new(target, target, arrival, cfg).unwrap();
         let mut t = 1.0;
         let mut step = sim.move_to(target.x_um, target.y_um, t, 0).unwrap();
         for seq in 1..100 {
