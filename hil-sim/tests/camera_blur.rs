@@ -41,7 +41,7 @@ fn decoder_on_blurred_frames() {
     println!("blur_um\tsamples\tbias_x_um\tsigma_x_um\tbias_y_um\tsigma_y_um");
     let mut rows = Vec::new();
     for blur_um in [0.0, 0.4, 1.0, 2.0, 3.0] {
-        let n = (((blur_um / (cfg.pixel_um / 4.0)) as f64).ceil().max(1.0) as usize) | 1;
+        let n = ((blur_um / (cfg.pixel_um / 4.0)).ceil().max(1.0) as usize) | 1;
         let (mut ex, mut ey) = (Vec::new(), Vec::new());
         for k in 0..frames {
             let x0 = rng.gen_range(3000.0..9000.0);
