@@ -280,22 +280,21 @@ pub fn reproduce(
         seed: seed ^ 0x9a9e_0000_0000_0005,
     };
     // As the main job: the square, then the random targets, raw then
-    // compensated, on one clock.
-    let per_square = v.move_s * 2.0 * square.len() as f64 * f64::from(v.square_cycles);
-    let per_random = v.move_s * 2.0 * random.len() as f64 * f64::from(v.random_cycles);
+    // compensated, on one clock (each validation takes two moves' time per
+    // visit of every target).
+    let cycles = opts.validate_cycles;
     let mut t = v.start_time_s;
     let mut ap = |comp: &dyn crate::comp::Compensator,
-                  targets: &[crate::model::XyUm],
-                  span: f64|
+                  targets: &[crate::model::XyUm]|
      -> Result<f64, AnalysisError> {
-        let (a, _, _) = run_validation(model, comp, None, targets, v.square_cycles, t, &v)?;
-        t += span;
+        let (a, _, _) = run_validation(model, comp, None, targets, cycles, t, &v)?;
+        t += v.move_s * 2.0 * targets.len() as f64 * f64::from(cycles);
         Ok(a)
     };
-    let raw_square_ap_um = ap(&Uncompensated, &square, per_square)?;
-    let raw_random_ap_um = ap(&Uncompensated, &random, per_random)?;
-    let table_square_ap_um = ap(&lookup, &square, per_square)?;
-    let table_random_ap_um = ap(&lookup, &random, per_random)?;
+    let raw_square_ap_um = ap(&Uncompensated, &square)?;
+    let raw_random_ap_um = ap(&Uncompensated, &random)?;
+    let table_square_ap_um = ap(&lookup, &square)?;
+    let table_random_ap_um = ap(&lookup, &random)?;
     Ok(PaperFigures {
         seed,
         raw_square_ap_um,
