@@ -52,6 +52,15 @@ impl WallClock {
     }
 }
 
+impl WallClock {
+    /// A clock that read 0 at `start`: the simulator's in-process rig makes
+    /// the daemon's clock read the simulator's time, so that the simulated
+    /// camera's frame stamps are rig times.
+    pub fn since(start: tokio::time::Instant) -> Self {
+        Self { start }
+    }
+}
+
 impl Default for WallClock {
     fn default() -> Self {
         Self::new()

@@ -587,19 +587,27 @@ fn line_drop_mid_move_halts_the_other_axis_reconnects_and_power_cycle_needs_refe
     assert_eq!(code(&m), "not_connected", "{m}");
     sim.control(json!({"axis": "x", "fault": "restore_line"}));
     c.wait_for(|s| s["rig"]["connected"]["x"] == true);
+    // The line loss stays latched until a client resets it.
+    let m = c.call(json!({"cmd": "move", "x_um": 8000.0}));
+    assert_eq!(code(&m), "fault_latched", "{m}");
+    c.ok(json!({"cmd": "reset"}));
     c.ok(json!({"cmd": "move", "x_um": 8000.0, "y_um": 8000.0, "wait": true}));
-    // A power cycle loses the reference: moves are refused (before any byte
-    // reaches the controller) until the axis is referenced again.
+    // A power cycle loses the reference: a latched fault, and after the
+    // reset moves are still refused (before any byte reaches the
+    // controller) until the axis is referenced again.
     sim.control(json!({"axis": "y", "fault": "power_cycle"}));
     let t = Instant::now();
     loop {
         let m = c.call(json!({"cmd": "move", "y_um": 7000.0}));
-        if code(&m) == "not_referenced" {
+        if code(&m) == "fault_latched" {
             break;
         }
         assert!(t.elapsed() < DEADLINE, "power cycle unnoticed: {m}");
         std::thread::sleep(Duration::from_millis(100));
     }
+    c.ok(json!({"cmd": "reset"}));
+    let m = c.call(json!({"cmd": "move", "y_um": 7000.0}));
+    assert_eq!(code(&m), "not_referenced", "{m}");
     c.ok(json!({"cmd": "reference", "axes": "y"}));
     c.ok(json!({"cmd": "move", "y_um": 7000.0, "wait": true}));
 }
@@ -745,4 +753,86 @@ fn drift_references_are_logged_and_resume_keeps_the_plan() {
     assert_eq!(r["drift"]["failures"], 0, "{r}");
     let r = c.ok(json!({"cmd": "drift", "action": "reset"}));
     assert_eq!(r["drift"]["references"], 0, "{r}");
+}
+
+/// Truth positions (µm) and whether anything moves.
+fn truth(sim: &Sim) -> ([f64; 2], bool) {
+    let t = sim.control(json!({"query": "truth"}));
+    (
+        [
+            t["true_x_um"].as_f64().unwrap(),
+            t["true_y_um"].as_f64().unwrap(),
+        ],
+        t["moving"] == true,
+    )
+}
+
+/// Starts a long move of both axes and waits until the rig moves.
+fn long_move(c: &mut Client, sim: &Sim, x_um: f64, y_um: f64) {
+    c.ok(json!({"cmd": "move", "x_um": x_um, "y_um": y_um}));
+    let t = Instant::now();
+    while !truth(sim).1 {
+        assert!(t.elapsed() < DEADLINE, "no move seen");
+    }
+    std::thread::sleep(Duration::from_millis(300));
+}
+
+/// The rig is at rest now and stays there (the stage model's creep moves
+/// the true position by µm at most), far from the move's target.
+fn at_rest_short_of(sim: &Sim, target: [f64; 2]) {
+    let (p, moving) = truth(sim);
+    assert!(!moving, "still moving at {p:?}");
+    std::thread::sleep(Duration::from_millis(300));
+    let (q, moving) = truth(sim);
+    assert!(!moving, "moving again at {q:?}");
+    for i in 0..2 {
+        assert!((p[i] - q[i]).abs() < 5.0, "{p:?} → {q:?}");
+        assert!(
+            (q[i] - target[i]).abs() > 1000.0,
+            "reached its target: {q:?}"
+        );
+    }
+}
+
+/// The real binaries: SIGTERM mid-move makes microposd halt both axes and
+/// wait for rest before it exits (0); after a SIGKILL mid-move the stage
+/// runs on until the unit's stop hook, `microposd --halt`, stops it.
+#[test]
+fn sigterm_halts_before_exit_and_the_stop_hook_halts_after_sigkill() {
+    let dir = tempfile::tempdir().unwrap();
+    let sim = Sim::start(dir.path(), 2.0);
+    let mut d = Daemon::start(dir.path(), 0);
+    let mut c = d.client();
+    c.ok(json!({"cmd": "reference"}));
+    long_move(&mut c, &sim, 13_500.0, 1_500.0);
+    let st = Command::new("kill")
+        .args(["-TERM", &d.p.0.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(st.success());
+    let st = d.p.0.wait().unwrap();
+    assert!(st.success(), "microposd exited with {st}");
+    at_rest_short_of(&sim, [13_500.0, 1_500.0]);
+    let log = std::fs::read_to_string(dir.path().join("microposd-0.log")).unwrap();
+    assert!(log.contains("halting both axes"), "{log}");
+
+    d = Daemon::start(dir.path(), 1);
+    let mut c = d.client();
+    long_move(&mut c, &sim, 1_500.0, 13_500.0);
+    d.sigkill();
+    // Nobody halted it: the move runs on.
+    std::thread::sleep(Duration::from_millis(200));
+    assert!(truth(&sim).1, "the stage stopped by itself");
+    let out = Command::new(microposd_bin())
+        .arg("-c")
+        .arg(daemon_config(dir.path()))
+        .arg("--halt")
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    at_rest_short_of(&sim, [1_500.0, 13_500.0]);
 }

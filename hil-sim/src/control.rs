@@ -2,7 +2,9 @@
 //! simulator running in another process (the `hil-sim serve` binary).
 //!
 //! One request per line, one reply line per request:
-//! - `{"axis":"x","fault":"drop_line"}`, `"restore_line"`, `"power_cycle"`
+//! - `{"axis":"x","fault":"drop_line"}`, `"restore_line"`, `"power_cycle"`,
+//!   `"stall"` (the carriage jams mid-move), `"motion_error"` (servo fault:
+//!   error 1024, servo off)
 //! - `{"axis":"x","fault":"garbage","hex":"ff00"}`
 //! - `{"axis":"x","fault":"delay_replies","ms":300}`
 //! - `{"axis":"x","fault":"withhold_replies","on":true}`
@@ -142,6 +144,8 @@ pub fn parse_request(line: &str) -> Result<ControlRequest, String> {
         "drop_line" => Fault::DropLine,
         "restore_line" => Fault::RestoreLine,
         "power_cycle" => Fault::PowerCycle,
+        "stall" => Fault::Stall,
+        "motion_error" => Fault::MotionError,
         "garbage" => {
             let hex = obj
                 .get("hex")
@@ -178,7 +182,7 @@ pub fn parse_request(line: &str) -> Result<ControlRequest, String> {
         }
         other => {
             return Err(format!(
-                "unknown fault {other:?} (known: drop_line, restore_line, power_cycle, garbage, delay_replies, withhold_replies, corrupt_replies)"
+                "unknown fault {other:?} (known: drop_line, restore_line, power_cycle, stall, motion_error, garbage, delay_replies, withhold_replies, corrupt_replies)"
             ))
         }
     };

@@ -64,6 +64,13 @@ pub enum Fault {
     /// Controller reset: unreferenced, servo off, position 0, error 0,
     /// motion stopped, parameters back to defaults; line stays up.
     PowerCycle,
+    /// The carriage jams mid-move (`Controller::stall`): it stops where it
+    /// is while the controller keeps trying (a following error); a stop, a
+    /// halt or a new move ends it.
+    Stall,
+    /// A servo fault (`Controller::motion_error`): motion cut, servo off,
+    /// error 1024 pending for the next `ERR?`.
+    MotionError,
     /// These bytes are written to the host at once.
     Garbage(Vec<u8>),
     /// Every reply is delayed by this much wall time (`Duration::ZERO` to

@@ -193,6 +193,17 @@ impl Rig {
         }
     }
 
+    /// Actuator positions at `now`, µm, from the planned paths alone: no
+    /// model evaluation, so it never moves the model's time (the camera
+    /// asks it for the end of an exposure before rendering its middle).
+    pub fn actuator_um(&self, now: Duration) -> [f64; 2] {
+        let st = self.lock();
+        [
+            st.paths[0].actuator_mm(now) * 1000.0,
+            st.paths[1].actuator_mm(now) * 1000.0,
+        ]
+    }
+
     /// Ground truth at `now`.
     pub fn truth(&self, now: Duration) -> RigTruth {
         let t = now.as_secs_f64();

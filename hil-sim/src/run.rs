@@ -116,6 +116,12 @@ pub struct RunPlan {
     /// After the validation, validate `table` mode again with live drift
     /// off, static and adaptive (the `drift` block of the summary).
     pub drift_compare: bool,
+    /// The sweep row (`sweep` block): a sweep characterization of the same
+    /// ranges and cycles at this velocity (odd cycles; even at twice it),
+    /// its tables validated in `table` mode with live drift off, with and
+    /// without the camera delay correction. At least 2 cycles (two
+    /// velocities). 0 = no sweep row.
+    pub sweep_velocity_um_per_s: f64,
 }
 
 impl RunPlan {
@@ -139,6 +145,7 @@ impl RunPlan {
             live_drift: "adaptive".to_owned(),
             live_drift_every_s: 120.0,
             drift_compare: true,
+            sweep_velocity_um_per_s: 120.0,
         }
     }
 
@@ -152,6 +159,7 @@ impl RunPlan {
             short_step_um: 500.0,
             validate_cycles: 2,
             square_step_um: 1000.0,
+            sweep_velocity_um_per_s: 0.0,
             ..Self::paper()
         }
     }
@@ -346,6 +354,9 @@ pub fn daemon_config(
     }
     c.driver.reconnect_min_ms = 20;
     c.driver.reconnect_max_ms = 500;
+    // On the virtual clock an idle limit counts simulated seconds: a client
+    // that waits out a simulated hour of a job would be closed for it.
+    c.daemon.idle_timeout_s = 0.0;
     c.camera.source = format!("sim:{}", rig_dir.join("camera.sock").display());
     c.camera.period_um = rig.camera.period_um;
     c.camera.bits = rig.camera.bits;
@@ -452,7 +463,13 @@ async fn start(opts: &RunOptions, dir: &Path) -> Result<Started, RunError> {
 /// opened in process. Call it inside the runtime the rig was started on.
 pub fn in_process_environment(sim: &SimHandle) -> Environment {
     Environment {
-        clock: Arc::new(WallClock::new()),
+        // The rig's clock reads the simulator's time: the camera's frame
+        // stamps are then rig times (`FrameSource::stamps_on_rig_clock`).
+        clock: Arc::new(WallClock::since(
+            tokio::time::Instant::now()
+                .checked_sub(sim.sim_time())
+                .unwrap_or_else(tokio::time::Instant::now),
+        )),
         camera: Some(Box::new(SimCameraSource::new(sim.camera().clone()))),
         capture: Capture::OnDemand,
         links: sim.link_opener(),
@@ -712,12 +729,84 @@ async fn pipeline(
         drift["compare"] = cmp;
     }
     summary["drift"] = drift;
+    if p.sweep_velocity_um_per_s > 0.0 {
+        let mut sw = sweep_phase(opts, &mut c, progress, &mut files).await?;
+        sw["step_simulated_s"] = json!(chars[0].1);
+        sw["step_table_ap_um"] = summary["drift"]["compare"]["off"].clone();
+        summary["sweep"] = sw;
+        lap(c.now_s().await?, "sweep", &mut phases);
+    }
     summary["phases_s"] = Value::Object(phases);
     // Frames the camera delivered and the decoder read: the work the run
     // cannot avoid (the main-job benchmark's baseline is their cost).
     let cam = &c.call(json!({"cmd": "status"})).await?["camera"];
     summary["frames"] = json!({"grabbed": cam["frames"], "decoded": cam["decoded"]});
     Ok((summary, results, files))
+}
+
+/// The sweep row: `characterize start mode=sweep` over the plan's ranges,
+/// tables from the corrected and the delay-ignored log, each validated in
+/// `table` mode with live drift off (compare with the drift comparison's
+/// `off` row of the step tables).
+async fn sweep_phase(
+    opts: &RunOptions,
+    c: &mut Client,
+    progress: &mut dyn FnMut(&str),
+    files: &mut Vec<String>,
+) -> Result<Value, RunError> {
+    let p = &opts.plan;
+    progress(&format!(
+        "characterize charact-sweep.csv: sweeps at {} and {} µm/s over {} × {} µm, {} cycles",
+        p.sweep_velocity_um_per_s,
+        2.0 * p.sweep_velocity_um_per_s,
+        p.x_range_um,
+        p.y_range_um,
+        p.cycles.max(2)
+    ));
+    let t0 = c.now_s().await?;
+    c.call(
+        json!({"cmd": "characterize", "action": "start", "log": "charact-sweep.csv",
+                  "mode": "sweep", "velocity_um_per_s": p.sweep_velocity_um_per_s,
+                  "uncorrected_log": "charact-sweep-nodelay.csv", "step_um": p.step_um,
+                  "x_range_um": p.x_range_um, "y_range_um": p.y_range_um,
+                  "cycles": p.cycles.max(2), "frames_per_point": p.frames_per_point,
+                  "settle_s": p.settle_s}),
+    )
+    .await?;
+    let s = c
+        .follow(
+            json!({"cmd": "characterize", "action": "status"}),
+            "sweep",
+            progress,
+        )
+        .await?;
+    let simulated_s = c.now_s().await? - t0;
+    let res = &s["job"]["result"];
+    c.call(json!({"cmd": "drift", "action": "set", "method": "off"}))
+        .await?;
+    let mut out = json!({"simulated_s": simulated_s, "result": res,
+                         "true_delay_s": opts.rig.camera.latency_us * 1e-6});
+    for (log, stem) in [
+        ("charact-sweep.csv", "run-sweep"),
+        ("charact-sweep-nodelay.csv", "run-sweep-nodelay"),
+    ] {
+        c.call(
+            json!({"cmd": "tables", "action": "build", "log": log, "name": stem,
+                      "kinds": ["paper"]}),
+        )
+        .await?;
+        let vlog = format!("validate-{stem}.csv");
+        let mut req = validate_request(p, &vlog);
+        req["modes"] = json!(["table"]);
+        req["table"] = json!(format!("{stem}-paper.toml"));
+        progress(&format!("validate: table mode with {stem}-paper.toml"));
+        let v = c.validate(req, progress).await?;
+        let r = &v["validation"]["results"];
+        out[stem] = json!({"square": table_offset(&r["square"]["table"]),
+                           "random": table_offset(&r["random"]["table"])});
+        files.extend([log.to_owned(), format!("{stem}-paper.toml"), vlog]);
+    }
+    Ok(out)
 }
 
 /// The live drift methods the comparison runs, in this order.
@@ -785,6 +874,24 @@ pub fn format_table(summary: &Value) -> String {
             .map(|(k, v)| format!("{k} {:.0}", v.as_f64().unwrap_or(f64::NAN)))
             .collect();
         s.push_str(&format!("simulated s per phase: {}\n", list.join(", ")));
+    }
+    let sw = &summary["sweep"];
+    if sw.is_object() {
+        let ap = |k: &str, t: &str| f(&sw[k][t]["ap_um"]);
+        s.push_str(&format!(
+            "sweep: {:.0} simulated s (step plan {:.0} s); camera delay {:.3} ms estimated, {:.3} ms true\n\
+             table AP max µm (square / random), live drift off: step {} / {}, sweep {} / {}, sweep delay ignored {} / {}\n",
+            sw["simulated_s"].as_f64().unwrap_or(f64::NAN),
+            sw["step_simulated_s"].as_f64().unwrap_or(f64::NAN),
+            sw["result"]["camera_delay_s"].as_f64().unwrap_or(f64::NAN) * 1e3,
+            sw["true_delay_s"].as_f64().unwrap_or(f64::NAN) * 1e3,
+            ap("step_table_ap_um", "square"),
+            ap("step_table_ap_um", "random"),
+            ap("run-sweep", "square"),
+            ap("run-sweep", "random"),
+            ap("run-sweep-nodelay", "square"),
+            ap("run-sweep-nodelay", "random"),
+        ));
     }
     let ch = &summary["characterization"];
     s.push_str(&format!(

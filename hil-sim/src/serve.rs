@@ -526,11 +526,15 @@ impl Core {
             Fault::CorruptReplies { how, count } => {
                 self.send(r.line, LineCmd::Corrupt(r.controller, how, count))
             }
-            Fault::PowerCycle => {
+            Fault::PowerCycle | Fault::Stall | Fault::MotionError => {
                 let now = self.clock.now();
                 let mut bus = lock(&self.buses[r.line]);
                 if let Some(c) = bus.controller_mut(r.controller) {
-                    c.power_cycle(now);
+                    match fault {
+                        Fault::Stall => c.stall(now),
+                        Fault::MotionError => c.motion_error(now),
+                        _ => c.power_cycle(now),
+                    }
                 }
                 Ok(())
             }

@@ -192,12 +192,17 @@ async fn line_drop_halts_the_other_axis_and_power_cycle_needs_reference() {
         assert!(t.elapsed() < Duration::from_secs(10), "no reconnect: {s}");
         tokio::time::sleep(Duration::from_millis(50)).await;
     }
-    // A power cycle loses the reference: moves refused until re-referenced.
+    // The line loss stays latched until a client resets it.
+    let m = c.call(json!({"cmd":"move","y_um":8000.0})).await;
+    assert_eq!(code(&m), "fault_latched", "{m}");
+    assert_eq!(c.call(json!({"cmd":"reset"})).await["ok"], true);
+    // A power cycle loses the reference: a latched fault, then moves
+    // refused until re-referenced.
     sim.inject(AxisName::Y, Fault::PowerCycle).unwrap();
     let t = Instant::now();
     loop {
         let m = c.call(json!({"cmd":"move","y_um":8000.0})).await;
-        if code(&m) == "not_referenced" {
+        if code(&m) == "fault_latched" {
             break;
         }
         assert!(
@@ -206,10 +211,11 @@ async fn line_drop_halts_the_other_axis_and_power_cycle_needs_reference() {
         );
         tokio::time::sleep(Duration::from_millis(100)).await;
     }
-    assert_eq!(
-        c.call(json!({"cmd":"reference","axes":"y"})).await["ok"],
-        true
-    );
+    assert_eq!(c.call(json!({"cmd":"reset"})).await["ok"], true);
+    let m = c.call(json!({"cmd":"move","y_um":8000.0})).await;
+    assert_eq!(code(&m), "not_referenced", "{m}");
+    let rf = c.call(json!({"cmd":"reference","axes":"y"})).await;
+    assert_eq!(rf["ok"], true, "{rf}");
     assert_eq!(
         c.call(json!({"cmd":"move","y_um":8000.0,"wait":true}))
             .await["ok"],

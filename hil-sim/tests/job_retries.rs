@@ -57,6 +57,8 @@ async fn rig() -> Rig {
     // No controller poll during the test: every value answer the rig sends
     // belongs to the job, so a corrupted one lands on the job.
     c.daemon.poll_interval_ms = 60_000;
+    // Nor a motion supervisor's sample (`tests/motion_safety.rs` covers it).
+    c.safety.supervise_interval_ms = 60_000;
     for a in [&mut c.driver.x, &mut c.driver.y] {
         // A lost answer costs this much (rig) time.
         a.timeout_ms = 2000;

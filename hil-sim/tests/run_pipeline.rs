@@ -22,6 +22,8 @@ fn pipeline_through_the_daemon_improves_on_raw() {
         square_step_um: 2000.0,
         // The drift comparison has its own test (live_drift.rs).
         drift_compare: false,
+        // The sweep row has its own test (sweep_charact.rs).
+        sweep_velocity_um_per_s: 0.0,
         ..RunPlan::paper()
     };
     let opts = RunOptions {

@@ -139,8 +139,9 @@ impl CompGain {
 
 /// One validation: `targets` visited `cycles` times in order, compensated
 /// by `comp`; returns (AP max, RP max, max |rig − model| over visited
-/// states when `model` is given).
-fn run(
+/// states when `model` is given). Also the paper-reproduction's validation
+/// ([`super::paper`]).
+pub(crate) fn run_validation(
     rig: &StageModel,
     comp: &dyn Compensator,
     model: Option<&StageModel>,
@@ -209,7 +210,7 @@ fn figures(
     // The random targets follow the square on the same clock.
     let t_random =
         t_square + opts.move_s * 2.0 * (square.len() as f64) * f64::from(opts.square_cycles.max(1));
-    let (sq_ap, sq_rp, m1) = run(
+    let (sq_ap, sq_rp, m1) = run_validation(
         rig,
         comp,
         model,
@@ -218,7 +219,7 @@ fn figures(
         t_square,
         opts,
     )?;
-    let (rn_ap, rn_rp, m2) = run(
+    let (rn_ap, rn_rp, m2) = run_validation(
         rig,
         comp,
         model,

@@ -15,6 +15,8 @@
 //! * [`comp_gain`]: closing the loop: compensation from the extended model
 //!   against compensation from the original one, ISO 9283 AP on a simulated
 //!   stage that has the effect.
+//! * [`paper`]: the paper's measurements as data: the paper's procedure run
+//!   on a model, every quantitative statement measured against it.
 //! * [`drift`]: drift estimation from re-measurements of a reference point
 //!   (static vs adaptive), for long runs.
 //!
@@ -29,6 +31,7 @@ pub mod comp_gain;
 pub mod diagnose;
 pub mod drift;
 pub mod generate;
+pub mod paper;
 pub mod periodogram;
 pub mod physical;
 

@@ -2,7 +2,17 @@
 //! serves the local socket API (docs/socket-protocol.md). Runs under
 //! systemd (`Type=notify`, socket activation supported) or by hand.
 //!
-//! Exit codes: 0 clean shutdown, 1 runtime failure, 2 bad configuration or
+//! SIGHUP reloads the configuration file (`Daemon::reload`: limits,
+//! compensation, drift, access roles) and logs the keys it cannot change
+//! live. `--halt` needs no running daemon: it opens the configured controller
+//! lines, stops both axes with `#24` and waits (bounded by
+//! `safety.halt_wait_s`) until they rest; the unit runs it as
+//! `ExecStopPost=`, so a SIGKILL, crash or watchdog kill leaves no move
+//! running. On SIGTERM/SIGINT the daemon halts both axes itself before it
+//! exits.
+//!
+//! Exit codes: 0 clean shutdown (`--halt`: both axes at rest), 1 runtime
+//! failure (`--halt`: an axis not confirmed at rest), 2 bad configuration or
 //! arguments.
 
 use anyhow::Context;
@@ -33,6 +43,39 @@ struct Args {
     /// Validate the configuration and exit.
     #[arg(long)]
     check_config: bool,
+    /// Stop both axes (`#24` on the configured lines, no daemon needed),
+    /// wait until they rest, and exit (0: both at rest).
+    #[arg(long, conflicts_with = "check_config")]
+    halt: bool,
+}
+
+/// `--halt`: see the module header.
+async fn halt(cfg: DaemonConfig) -> bool {
+    let wait = Duration::try_from_secs_f64(cfg.safety.halt_wait_s).unwrap_or_default();
+    let report = micropos::driver::halt::halt_all(&cfg.driver, None, wait).await;
+    let mut ok = true;
+    for a in &report {
+        let err = a
+            .error
+            .map(|c| c.0.to_string())
+            .unwrap_or_else(|| "-".to_owned());
+        if a.ok() {
+            tracing::info!(
+                "halt: axis {} stopped (#24) and at rest; ERR? {err}",
+                a.axis
+            );
+        } else {
+            ok = false;
+            tracing::error!(
+                "halt: axis {}: sent {}, at rest {}: {}",
+                a.axis,
+                a.sent,
+                a.at_rest,
+                a.problem.as_deref().unwrap_or("?")
+            );
+        }
+    }
+    ok
 }
 
 fn init_logging() {
@@ -102,7 +145,62 @@ fn bind(path: &Path, mode: u32) -> anyhow::Result<std::os::unix::net::UnixListen
     Ok(l)
 }
 
-async fn run(cfg: DaemonConfig) -> anyhow::Result<()> {
+/// Where the configuration comes from, for the start and every reload.
+#[derive(Debug, Clone)]
+struct ConfigSource {
+    path: PathBuf,
+    socket: Option<PathBuf>,
+    data_dir: Option<PathBuf>,
+}
+
+impl ConfigSource {
+    /// Reads and validates the file, then applies the command line's
+    /// overrides (so a reload does not see them as changes).
+    fn load(&self) -> Result<DaemonConfig, micropos::daemon::config::ConfigError> {
+        let mut cfg = DaemonConfig::load(&self.path)?;
+        if let Some(s) = &self.socket {
+            cfg.daemon.socket = s.clone();
+        }
+        if let Some(d) = &self.data_dir {
+            cfg.daemon.data_dir = d.clone();
+        }
+        Ok(cfg)
+    }
+}
+
+/// SIGHUP: re-reads the file; applies what can change live, names what
+/// cannot; a bad file changes nothing. Never ends the daemon.
+async fn reload(daemon: &Daemon, source: &ConfigSource) {
+    notify::reloading();
+    let s = source.clone();
+    let loaded = tokio::task::spawn_blocking(move || s.load()).await;
+    match loaded {
+        Ok(Ok(cfg)) => {
+            let r = daemon.reload(&cfg);
+            if r.applied.is_empty() && r.refused.is_empty() {
+                tracing::info!("SIGHUP: {} unchanged", source.path.display());
+            }
+            if !r.applied.is_empty() {
+                tracing::info!(keys = %r.applied.join(" "), "SIGHUP: reloaded {}", r.applied.join(", "));
+            }
+            if !r.refused.is_empty() {
+                tracing::warn!(
+                    keys = %r.refused.join(" "),
+                    "SIGHUP: not reloadable, restart to apply (running values kept): {}",
+                    r.refused.join(", ")
+                );
+            }
+        }
+        Ok(Err(e)) => tracing::error!(
+            "SIGHUP: {}: {e}; the running configuration stays",
+            source.path.display()
+        ),
+        Err(e) => tracing::error!("SIGHUP: reading the configuration failed: {e}"),
+    }
+    notify::ready();
+}
+
+async fn run(cfg: DaemonConfig, source: ConfigSource) -> anyhow::Result<()> {
     let mode = cfg.socket_mode()?;
     let (std_listener, owned_path) = match activated_listener()? {
         Some(l) => {
@@ -153,10 +251,21 @@ async fn run(cfg: DaemonConfig) -> anyhow::Result<()> {
         running.daemon.clone(),
         running.daemon.shutdown.subscribe(),
     ));
-    let mut term = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())?;
-    tokio::select! {
-        _ = term.recv() => tracing::info!("SIGTERM: shutting down"),
-        _ = tokio::signal::ctrl_c() => tracing::info!("SIGINT: shutting down"),
+    use tokio::signal::unix::{signal, SignalKind};
+    let mut term = signal(SignalKind::terminate())?;
+    let mut hup = signal(SignalKind::hangup())?;
+    loop {
+        tokio::select! {
+            _ = term.recv() => {
+                tracing::info!("SIGTERM: halting both axes, then shutting down");
+                break;
+            }
+            _ = tokio::signal::ctrl_c() => {
+                tracing::info!("SIGINT: halting both axes, then shutting down");
+                break;
+            }
+            _ = hup.recv() => reload(&running.daemon, &source).await,
+        }
     }
     notify::stopping();
     running.shutdown().await;
@@ -170,25 +279,27 @@ async fn run(cfg: DaemonConfig) -> anyhow::Result<()> {
 fn main() -> ExitCode {
     let args = Args::parse();
     init_logging();
-    let mut cfg = match DaemonConfig::load(&args.config) {
+    let source = ConfigSource {
+        path: args.config.clone(),
+        socket: args.socket,
+        data_dir: args.data_dir,
+    };
+    let cfg = match source.load() {
         Ok(c) => c,
         Err(e) => {
             eprintln!("microposd: {}: {e}", args.config.display());
             return ExitCode::from(2);
         }
     };
-    if let Some(s) = args.socket {
-        cfg.daemon.socket = s;
-    }
-    if let Some(d) = args.data_dir {
-        cfg.daemon.data_dir = d;
-    }
     if args.check_config {
         println!("{}: configuration is valid", args.config.display());
         return ExitCode::SUCCESS;
     }
     let rt = match tokio::runtime::Builder::new_multi_thread()
         .worker_threads(2)
+        // Bounded so a burst of clients (each resolves its groups on the
+        // blocking pool) stays within the unit's TasksMax.
+        .max_blocking_threads(64)
         .enable_all()
         .build()
     {
@@ -198,7 +309,14 @@ fn main() -> ExitCode {
             return ExitCode::from(1);
         }
     };
-    match rt.block_on(run(cfg)) {
+    if args.halt {
+        return if rt.block_on(halt(cfg)) {
+            ExitCode::SUCCESS
+        } else {
+            ExitCode::from(1)
+        };
+    }
+    match rt.block_on(run(cfg, source)) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
             tracing::error!("{e:#}");

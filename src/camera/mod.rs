@@ -282,6 +282,18 @@ pub trait FrameSource: Send + fmt::Debug {
         None
     }
 
+    /// Whether [`Frame::timestamp_s`] of this source's frames is a time on
+    /// the rig's clock (seconds since the daemon's `RigClock` read 0): the
+    /// simulator's in-process camera, whose clock is the rig's. Then the
+    /// vision pipeline passes the camera's own stamp on
+    /// (`daemon::vision::Measurement::frame_t_s`); otherwise (`false`, the
+    /// default: a camera's clock is its own) the grab's request time stands
+    /// in for it, and a sweep characterization's delay estimate absorbs the
+    /// difference.
+    fn stamps_on_rig_clock(&self) -> bool {
+        false
+    }
+
     /// Sets the exposure time and returns the value the camera applied
     /// (cameras round to their own increments).
     fn set_exposure_us(&mut self, exposure_us: f64) -> Result<f64, CameraError> {

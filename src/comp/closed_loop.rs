@@ -15,8 +15,15 @@
 //! * Corrections keep each axis' arrival direction: a correction against
 //!   it would be lost in the backlash (a 0.3 µm reversal inside a 2 µm
 //!   play does not move the platform), so it goes `overshoot_um` back and
-//!   re-approaches in the arrival direction. Along the arrival direction a
-//!   small move is direct (the play is already taken up).
+//!   re-approaches in the arrival direction. With `always_reapproach` (the
+//!   default) every correction does so, also along the arrival direction:
+//!   then every correction ends with a move of the same length, so a lost
+//!   motion that depends on the length of the last move (wind-up frozen by
+//!   friction after a long move, released by the next short one: the
+//!   paper-faithful stage, docs/design/paper-faithful.md) is the same at
+//!   every correction and the loop converges instead of jumping by the
+//!   released wind-up. Without it a small move along the arrival direction
+//!   is direct (the play is already taken up).
 //! * A residual that grows by more than `divergence_factor` over the
 //!   previous one (and is above tolerance) stops the loop: something else
 //!   than the stage error is moving (drift, a wrong frame transform).
@@ -48,6 +55,14 @@ pub struct ClosedLoopConfig {
     pub divergence_factor: f64,
     /// Re-approach distance for corrections against the arrival direction, µm.
     pub overshoot_um: f64,
+    /// Every correction re-approaches from `overshoot_um` behind (see the
+    /// module docs); false: only corrections against the arrival direction.
+    #[serde(default = "default_always_reapproach")]
+    pub always_reapproach: bool,
+}
+
+fn default_always_reapproach() -> bool {
+    true
 }
 
 impl Default for ClosedLoopConfig {
@@ -59,6 +74,7 @@ impl Default for ClosedLoopConfig {
             max_rejected_frames: 5,
             divergence_factor: 2.0,
             overshoot_um: 20.0,
+            always_reapproach: true,
         }
     }
 }
@@ -294,7 +310,9 @@ impl ClosedLoop {
         let mut needs = false;
         for i in 0..2 {
             let s = self.arrival[i].sign();
-            if (next[i] - self.cmd[i]) * s < 0.0 {
+            let against = (next[i] - self.cmd[i]) * s < 0.0;
+            let moves = next[i] != self.cmd[i];
+            if against || (self.cfg.always_reapproach && moves) {
                 approach[i] = next[i] - s * self.cfg.overshoot_um;
                 needs = true;
             }
@@ -313,6 +331,107 @@ impl ClosedLoop {
 
 #[cfg(test)]
 mod tests {
+
+    /// Runs the loop against a simulated stage (its observed position is
+    /// the frame); returns the final action and the true residual norm.
+    fn against_stage(
+        model: &crate::model::StageModel,
+        target: XyUm,
+        always: bool,
+    ) -> (Action, f64) {
+        against_stage_from(model, [0.0, 0.0], target, always)
+    }
+
+    /// The same, starting at rest at `start`: the loop's arrival direction
+    /// per axis is the direction from `start` to `target`.
+    fn against_stage_from(
+        model: &crate::model::StageModel,
+        start: [f64; 2],
+        target: XyUm,
+        always: bool,
+    ) -> (Action, f64) {
+        use crate::model::{MotionState, StageSimulator};
+        let mut sim =
+            StageSimulator::new(model.clone(), MotionState::at_rest(start[0], start[1]), 3)
+                .unwrap();
+        let arrival = [0, 1].map(|i| {
+            if [target.x_um, target.y_um][i] < start[i] {
+                Direction::Backward
+            } else {
+                Direction::Forward
+            }
+        });
+        let cfg = ClosedLoopConfig {
+            always_reapproach: always,
+            max_corrections: 5,
+            ..ClosedLoopConfig::default()
+        };
+        let mut cl = ClosedLoop::new(target, target, arrival, cfg).unwrap();
+        let mut t = 1.0;
+        let mut step = sim.move_to(target.x_um, target.y_um, t, 0).unwrap();
+        for seq in 1..100 {
+            cl.settled(t);
+            let m = FrameMeasurement {
+                position: step.observed_um,
+                timestamp_s: t + 0.5,
+                quality: 100.0,
+                frame_seq: seq,
+            };
+            match cl.on_frame(&m) {
+                Action::Move { waypoints } => {
+                    for w in waypoints {
+                        t += 1.0;
+                        step = sim.move_to(w.x_um, w.y_um, t, 0).unwrap();
+                    }
+                }
+                Action::AwaitFrame { .. } => unreachable!("every frame is fresh"),
+                done => {
+                    let r = (target.x_um - step.observed_um.x_um)
+                        .hypot(target.y_um - step.observed_um.y_um);
+                    return (done, r);
+                }
+            }
+        }
+        unreachable!("the loop is bounded by max_corrections")
+    }
+
+    #[test]
+    fn corrections_converge_when_lost_motion_grows_with_the_move() {
+        use crate::model::{StageModel, PAPER_DEFAULT_TOML};
+        // The paper-faithful stage's lost motion: 5 µm after long moves,
+        // released by the next short one.
+        let text = format!(
+            "{PAPER_DEFAULT_TOML}\n[[term]]\nkind = \"step_size\"\nname = \"x_ss\"\naxis = \"x\"\namplitude_um = 5.0\nlength_um = 1000.0\n\n[[term]]\nkind = \"step_size\"\nname = \"y_ss\"\naxis = \"y\"\namplitude_um = 5.0\nlength_um = 1000.0\n"
+        );
+        let model = StageModel::from_toml(&text).unwrap();
+        let mut direct_failures = 0;
+        for (i, target) in [
+            [6044.0, 3991.0],
+            [8196.0, 186.0],
+            [3471.0, 2311.0],
+            [1035.0, 35.0],
+        ]
+        .into_iter()
+        .enumerate()
+        {
+            let target = XyUm::from(target);
+            let (a, r) = against_stage(&model, target, true);
+            assert!(
+                matches!(a, Action::Done { corrections, .. } if corrections <= 4),
+                "target {i}: {a:?}"
+            );
+            assert!(r <= 0.1, "target {i}: residual {r}");
+            // Direct small corrections release the wind-up and jump.
+            let (a, _) = against_stage(&model, target, false);
+            if !matches!(a, Action::Done { corrections, .. } if corrections <= 2) {
+                direct_failures += 1;
+            }
+        }
+        assert!(
+            direct_failures > 0,
+            "the direct policy never needed more corrections"
+        );
+    }
     use super::*;
 
     /// `q` as a fraction of 50 bits of code evidence: 1.0 and 0.9 pass the
@@ -329,8 +448,13 @@ mod tests {
     #[test]
     fn stale_low_quality_and_moving_frames_are_never_used() {
         let t = XyUm::from([100.0, 200.0]);
-        let mut cl =
-            ClosedLoop::new(t, t, [Direction::Forward; 2], ClosedLoopConfig::default()).unwrap();
+        // The direct policy: corrections along the arrival direction are
+        // direct moves (the default re-approaches every one).
+        let direct = ClosedLoopConfig {
+            always_reapproach: false,
+            ..ClosedLoopConfig::default()
+        };
+        let mut cl = ClosedLoop::new(t, t, [Direction::Forward; 2], direct).unwrap();
         assert_eq!(
             cl.on_frame(&frame(99.0, 200.0, 1.0, 1.0, 1)),
             Action::AwaitFrame {
@@ -367,6 +491,15 @@ mod tests {
                 rejected: RejectReason::Moving
             }
         );
+        // The default re-approaches x too: both from 20 µm behind.
+        let mut cl =
+            ClosedLoop::new(t, t, [Direction::Forward; 2], ClosedLoopConfig::default()).unwrap();
+        cl.settled(2.0);
+        let Action::Move { waypoints } = cl.on_frame(&frame(99.0, 200.3, 2.2, 0.9, 4)) else {
+            panic!()
+        };
+        assert!(close(waypoints[0], 81.0, 179.7), "{waypoints:?}");
+        assert!(close(waypoints[1], 101.0, 199.7), "{waypoints:?}");
     }
 
     #[test]

@@ -318,6 +318,7 @@ pub fn loop_config(rig: &Rig, tolerance_um: Option<f64>) -> ClosedLoopConfig {
         tolerance_um: tolerance_um.unwrap_or(rig.cfg.closed_loop.tolerance_um),
         max_corrections: rig.cfg.closed_loop.max_iterations,
         min_quality: rig.cfg.camera.min_quality,
+        always_reapproach: rig.cfg.closed_loop.always_reapproach,
         ..d
     }
 }

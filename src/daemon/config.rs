@@ -34,6 +34,8 @@ pub struct DaemonConfig {
     pub driver: DriverConfig,
     /// Soft limits, tighter than the controllers' travel.
     pub limits: Limits,
+    /// The motion supervisor's bounds.
+    pub safety: SafetySection,
     /// The camera and the decoder.
     pub camera: CameraSection,
     /// Defaults of the characterization job.
@@ -46,6 +48,59 @@ pub struct DaemonConfig {
     pub rig: RigSection,
     /// Live drift correction of compensated moves.
     pub drift: DriftSection,
+    /// Roles of the socket's clients; `None` (no `[access]` section): the
+    /// socket's file permissions are the only gate and every client that
+    /// can connect is `admin` (see [`AccessSection`]).
+    pub access: Option<AccessSection>,
+}
+
+/// `[access]`: which groups hold which role. Each entry is a group name or
+/// a numeric gid; a client's groups are its primary gid (`SO_PEERCRED`)
+/// and its user's supplementary groups. Roles nest: `admin` can do all
+/// `operate` can, `operate` all `read` can; a client in no listed group
+/// has no role and is refused every command (`permission_denied`).
+///
+/// Why groups: a lab already manages who may use an instrument by group
+/// membership, and the socket's own gate (mode 0660, group `micropos`)
+/// is a group too. Why the default without a section is "everyone who can
+/// connect is admin": the socket mode already limits who connects, and a
+/// rig set up before roles existed keeps working; a lab that wants a
+/// read-only group adds the section.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(deny_unknown_fields, default)]
+pub struct AccessSection {
+    /// Groups that may read: status, position, subscribe, job status, and
+    /// `stop` (an emergency stop is for anyone at the instrument).
+    pub read: Vec<String>,
+    /// Groups that may also move: moves, references, jobs, tables.
+    pub operate: Vec<String>,
+    /// Groups that may also configure: `config`, drift settings, `reset`.
+    pub admin: Vec<String>,
+}
+
+impl AccessSection {
+    /// Every entry must be a plausible group name or a gid.
+    pub fn validate(&self) -> Result<(), ConfigError> {
+        for (role, list) in [
+            ("read", &self.read),
+            ("operate", &self.operate),
+            ("admin", &self.admin),
+        ] {
+            for g in list {
+                let ok = !g.is_empty()
+                    && g.len() <= 64
+                    && g.bytes()
+                        .all(|b| b.is_ascii_alphanumeric() || b"-_.$".contains(&b));
+                if !ok {
+                    return Err(bad(
+                        &format!("access.{role}"),
+                        format!("{g:?} is not a group name or a numeric gid"),
+                    ));
+                }
+            }
+        }
+        Ok(())
+    }
 }
 
 /// `[drift]`: live drift correction of compensated moves (see
@@ -164,8 +219,28 @@ pub struct DaemonSection {
     /// Period of the controller position poll that feeds the position
     /// stream and the health check, ms.
     pub poll_interval_ms: u64,
-    /// Most clients served at once (more wait in the accept queue).
+    /// Most clients served at once. A client beyond it gets one of the
+    /// `stop_slots` (which accept only `stop`), or a `busy` line and is
+    /// closed: it never waits in the accept queue.
     pub max_clients: usize,
+    /// Connections kept beyond `max_clients` that accept only `stop`. Why:
+    /// a daemon whose slots are all held by idle or stuck clients must
+    /// still let someone halt the stage, on the same socket path (no second
+    /// socket to configure, activate and protect).
+    pub stop_slots: usize,
+    /// A client that sends nothing for this long while it has no request
+    /// running and no subscription is disconnected, s (0 = never). A
+    /// subscriber is never idle: it is receiving events, and a subscriber
+    /// that stops reading them is caught by `write_timeout_s` instead.
+    pub idle_timeout_s: f64,
+    /// Longest time from the first byte of a request line to its newline,
+    /// s. A client that starts a line and stalls holds a slot for nothing.
+    /// Stop-only connections also use it as their idle timeout.
+    pub read_timeout_s: f64,
+    /// Longest time one reply or event line may take to be written, s: a
+    /// client that does not read its socket is disconnected instead of
+    /// holding a slot (its events are already dropped, never queued).
+    pub write_timeout_s: f64,
     /// How often a job retries one operation (a move, a measurement) after
     /// a *transient* fault: a lost or late controller reply, a garbled
     /// reply, a camera that delivered no decodable frame in time. Why: a
@@ -188,8 +263,47 @@ impl Default for DaemonSection {
             data_dir: PathBuf::from("/var/lib/micropos"),
             poll_interval_ms: 200,
             max_clients: 256,
+            stop_slots: 4,
+            idle_timeout_s: 3600.0,
+            read_timeout_s: 10.0,
+            write_timeout_s: 10.0,
             job_retries: 3,
             job_retry_backoff_s: 0.5,
+        }
+    }
+}
+
+/// `[safety]`: the bounds of the motion supervisor (`daemon::supervisor`;
+/// `docs/design/daemon.md`, "Motion safety"). Why configurable: how far a
+/// healthy stage may lag its commanded trajectory depends on its speed and
+/// acceleration (a reversal at speed v and deceleration a lags by about
+/// v²/a), and how long a line may stay silent before nobody is watching
+/// the stage is a lab's decision.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct SafetySection {
+    /// How often a move in flight is checked (ERR?, POS?, ONT?), ms.
+    pub supervise_interval_ms: u64,
+    /// Largest distance between an axis's controller position and its
+    /// commanded trajectory (start → target at the axis velocity), µm;
+    /// 0 turns the check off.
+    pub following_error_um: f64,
+    /// Position reads of an axis may fail (no answer, garbled) for this
+    /// long before a fault is latched, s. A line that is down is a fault of
+    /// its own at once.
+    pub read_fail_s: f64,
+    /// How long a halt waits for both axes to come to rest (shutdown,
+    /// `microposd --halt`, job cancel), s.
+    pub halt_wait_s: f64,
+}
+
+impl Default for SafetySection {
+    fn default() -> Self {
+        Self {
+            supervise_interval_ms: 100,
+            following_error_um: 500.0,
+            read_fail_s: 2.0,
+            halt_wait_s: 5.0,
         }
     }
 }
@@ -307,6 +421,10 @@ pub struct ClosedLoop {
     pub tolerance_um: f64,
     /// Corrections tried before giving up.
     pub max_iterations: u32,
+    /// Every correction re-approaches from behind, so each ends with a move
+    /// of the same length (`comp::closed_loop`); false: only corrections
+    /// against the arrival direction do.
+    pub always_reapproach: bool,
 }
 
 impl Default for ClosedLoop {
@@ -314,6 +432,7 @@ impl Default for ClosedLoop {
         Self {
             tolerance_um: 0.1,
             max_iterations: 5,
+            always_reapproach: true,
         }
     }
 }
@@ -452,8 +571,51 @@ impl DaemonConfig {
         if !(10..=60_000).contains(&self.daemon.poll_interval_ms) {
             return Err(bad("daemon.poll_interval_ms", "must be within 10..=60000"));
         }
+        let sf = &self.safety;
+        if !(10..=60_000).contains(&sf.supervise_interval_ms) {
+            return Err(bad(
+                "safety.supervise_interval_ms",
+                "must be within 10..=60000",
+            ));
+        }
+        if !(sf.following_error_um.is_finite() && sf.following_error_um >= 0.0) {
+            return Err(bad(
+                "safety.following_error_um",
+                "must be a finite number of µm ≥ 0 (0 = off)",
+            ));
+        }
+        if !(sf.read_fail_s.is_finite() && sf.read_fail_s > 0.0 && sf.read_fail_s <= 600.0) {
+            return Err(bad("safety.read_fail_s", "must be within (0, 600] s"));
+        }
+        if !(sf.halt_wait_s.is_finite() && sf.halt_wait_s > 0.0 && sf.halt_wait_s <= 60.0) {
+            return Err(bad("safety.halt_wait_s", "must be within (0, 60] s"));
+        }
         if self.daemon.max_clients == 0 {
             return Err(bad("daemon.max_clients", "must be at least 1"));
+        }
+        if !(1..=64).contains(&self.daemon.stop_slots) {
+            return Err(bad(
+                "daemon.stop_slots",
+                "must be within 1..=64 (a full daemon must still accept stop)",
+            ));
+        }
+        let d = &self.daemon;
+        if !(d.idle_timeout_s.is_finite() && (0.0..=864_000.0).contains(&d.idle_timeout_s)) {
+            return Err(bad(
+                "daemon.idle_timeout_s",
+                "must be within 0..=864000 s (0 = never)",
+            ));
+        }
+        for (key, v) in [
+            ("daemon.read_timeout_s", d.read_timeout_s),
+            ("daemon.write_timeout_s", d.write_timeout_s),
+        ] {
+            if !(v.is_finite() && (0.01..=3600.0).contains(&v)) {
+                return Err(bad(key, "must be within 0.01..=3600 s"));
+            }
+        }
+        if let Some(a) = &self.access {
+            a.validate()?;
         }
         if self.daemon.job_retries > 100 {
             return Err(bad(
@@ -687,6 +849,33 @@ mod tests {
         let e =
             DaemonConfig::from_toml(&format!("{MIN}[drift]\nmethod = \"kalman\"\n")).unwrap_err();
         assert!(e.problem.contains("kalman"), "{e}");
+    }
+
+    #[test]
+    fn access_and_client_limits_are_checked() {
+        let c = DaemonConfig::from_toml(MIN).unwrap();
+        assert_eq!(c.access, None);
+        assert_eq!(c.daemon.stop_slots, 4);
+        let c = DaemonConfig::from_toml(&format!(
+            "{MIN}[access]\nread = [\"users\", \"1000\"]\noperate = [\"lab-ops\"]\n"
+        ))
+        .unwrap();
+        let a = c.access.unwrap();
+        assert_eq!(a.read, ["users", "1000"]);
+        assert!(a.admin.is_empty());
+        for (text, key) in [
+            ("[access]\nread = [\"a b\"]", "access.read"),
+            ("[access]\nadmin = [\"\"]", "access.admin"),
+            ("[daemon]\nstop_slots = 0", "daemon.stop_slots"),
+            ("[daemon]\nidle_timeout_s = -1", "daemon.idle_timeout_s"),
+            ("[daemon]\nread_timeout_s = 0", "daemon.read_timeout_s"),
+            ("[daemon]\nwrite_timeout_s = inf", "daemon.write_timeout_s"),
+        ] {
+            let e = DaemonConfig::from_toml(&format!("{MIN}{text}\n")).unwrap_err();
+            assert_eq!(e.key, key, "{text}");
+        }
+        let e = DaemonConfig::from_toml(&format!("{MIN}[access]\nwrite = [\"x\"]\n")).unwrap_err();
+        assert!(e.problem.contains("write"), "{e}");
     }
 
     #[test]

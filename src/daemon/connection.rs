@@ -1,8 +1,14 @@
-//! Moves bytes: splits a stream into request lines with a size limit, and
-//! writes reply lines. No parsing beyond finding newlines.
+//! Moves bytes: splits a stream into request lines with a size limit and
+//! time limits, and writes reply lines. No parsing beyond finding newlines.
+//!
+//! Why the time limits live here: a line's deadline starts at its first
+//! byte, which only the reader sees; cutting a read from outside would
+//! lose the bytes already taken from the buffer.
 
 use super::protocol::MAX_REQUEST_BYTES;
+use std::time::Duration;
 use tokio::io::{AsyncBufReadExt, AsyncWrite, AsyncWriteExt, BufReader};
+use tokio::time::Instant;
 
 /// One line read from a client.
 #[derive(Debug, PartialEq)]
@@ -14,6 +20,12 @@ pub enum Incoming {
     TooLarge(usize),
     /// End of stream.
     Closed,
+    /// No byte arrived within the idle limit (nothing was consumed; the
+    /// caller may wait again).
+    Idle,
+    /// A line started but its newline did not arrive within the line
+    /// limit; the partial line is discarded.
+    Stalled,
 }
 
 /// Reads request lines.
@@ -33,10 +45,45 @@ impl<R: tokio::io::AsyncRead + Unpin> LineReader<R> {
     /// The next line, never buffering more than the limit: an oversized
     /// line is skipped to its newline without being kept in memory.
     pub async fn next(&mut self) -> std::io::Result<Incoming> {
+        self.next_within(None, None).await
+    }
+
+    /// [`LineReader::next`] with time limits: `Idle` if no byte arrives
+    /// within `idle`, `Stalled` if a started line does not end within
+    /// `line` of its first byte (`None`: no limit).
+    pub async fn next_within(
+        &mut self,
+        idle: Option<Duration>,
+        line_limit: Option<Duration>,
+    ) -> std::io::Result<Incoming> {
         let mut line = Vec::new();
         let mut seen = 0usize;
+        let idle_deadline = idle.map(|d| Instant::now() + d);
+        let mut line_deadline: Option<Option<Instant>> =
+            (!self.inner.buffer().is_empty()).then(|| line_limit.map(|d| Instant::now() + d));
         loop {
-            let buf = self.inner.fill_buf().await?;
+            let deadline = match line_deadline {
+                Some(d) => d,
+                None => idle_deadline,
+            };
+            let buf = match deadline {
+                None => self.inner.fill_buf().await?,
+                // Cancelling fill_buf loses nothing: bytes read stay in
+                // the buffer.
+                Some(d) => match tokio::time::timeout_at(d, self.inner.fill_buf()).await {
+                    Ok(r) => r?,
+                    Err(_) => {
+                        return Ok(if line_deadline.is_some() {
+                            Incoming::Stalled
+                        } else {
+                            Incoming::Idle
+                        })
+                    }
+                },
+            };
+            if line_deadline.is_none() && !buf.is_empty() {
+                line_deadline = Some(line_limit.map(|d| Instant::now() + d));
+            }
             if buf.is_empty() {
                 // EOF: a last line without newline is still a request.
                 return Ok(if seen == 0 {
@@ -107,6 +154,30 @@ mod tests {
         );
         assert_eq!(r.next().await.unwrap(), Incoming::Line(b"last".to_vec()));
         assert_eq!(r.next().await.unwrap(), Incoming::Closed);
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn idle_and_stalled_lines_are_told_apart() {
+        let (mut client, server) = tokio::io::duplex(1024);
+        let mut r = LineReader::new(server);
+        let s = Duration::from_secs(1);
+        // Nothing sent: idle, and waiting again is fine.
+        assert_eq!(
+            r.next_within(Some(s), Some(s)).await.unwrap(),
+            Incoming::Idle
+        );
+        // A started line keeps its own deadline, not the idle one.
+        client.write_all(b"{\"cmd\"").await.unwrap();
+        assert_eq!(
+            r.next_within(Some(10 * s), Some(s)).await.unwrap(),
+            Incoming::Stalled
+        );
+        // A line that completes in time is read whole.
+        let mut r = LineReader::new(&b"ok\n"[..]);
+        assert_eq!(
+            r.next_within(Some(s), Some(s)).await.unwrap(),
+            Incoming::Line(b"ok".to_vec())
+        );
     }
 
     #[tokio::test]

@@ -150,7 +150,7 @@ impl Rig {
         let reference = active
             .drift_baseline
             .map(|b| b.reference_um)
-            .or(self.cfg.drift.reference_um)
+            .or(self.live.drift().reference_um)
             .or(k.drift_reference_um)
             .or(match (k.x_start_um, k.y_start_um) {
                 (Some(x), Some(y)) => Some([x, y]),

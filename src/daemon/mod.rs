@@ -5,20 +5,29 @@
 //! Files, one job each:
 //! - [`protocol`]: requests and replies, sans-IO (fuzzed);
 //! - [`connection`]: splits a byte stream into bounded lines;
-//! - [`server`]: accepts clients, one task per client;
-//! - [`state`]: the safe-state machine (pure);
+//! - [`server`]: accepts clients, one task per client (timeouts, stop
+//!   slots, the role check);
+//! - [`access`]: the peer's credentials and role (`[access]`);
+//! - [`audit`]: who ran which state-changing command (journal + file);
+//! - [`state`]: the safe-state machine (pure; faults latch until `reset`);
+//! - [`supervisor`]: watches every move to completion (controller errors,
+//!   following error, motion timeout, failing reads);
 //! - [`rig`]: motion coordinator, soft limits, positions, event bus;
 //! - [`vision`]: capture and decoding, never blocking the runtime;
 //! - [`jobs`]: characterization with resume (and its own camera tie),
 //!   validation, `tables build`;
 //! - [`drift`]: live drift correction of compensated moves;
 //! - [`config`]: the validated configuration;
+//! - [`reload`]: what SIGHUP may change live, and its running values;
 //! - [`notify`]: systemd readiness, status and a health-fed watchdog.
 //!
-//! Shutdown: one `broadcast` tells every task; clients get a
-//! `shutting_down` error line; the axes are left as they are (a running
-//! job stops between points, its log resumable).
+//! Shutdown: a running job is cancelled, both axes are halted and waited
+//! for (bounded by `safety.halt_wait_s`), then one `broadcast` tells every
+//! task; clients get a `shutting_down` error line (the job's log stays
+//! resumable).
 
+pub mod access;
+pub mod audit;
 pub mod comp;
 pub mod config;
 pub mod connection;
@@ -26,9 +35,11 @@ pub mod drift;
 pub mod jobs;
 pub mod notify;
 pub mod protocol;
+pub mod reload;
 pub mod rig;
 pub mod server;
 pub mod state;
+pub mod supervisor;
 pub mod vision;
 
 use crate::camera::FrameSource;
@@ -52,6 +63,10 @@ pub struct Daemon {
     pub jobs: jobs::Jobs,
     /// Sends shutdown to every task.
     pub shutdown: broadcast::Sender<()>,
+    /// Client roles (`[access]`, reloadable).
+    pub access: access::Access,
+    /// The audit trail of state-changing commands.
+    pub audit: audit::Audit,
 }
 
 /// Handle to a started daemon.
@@ -63,9 +78,16 @@ pub struct Running {
 }
 
 impl Running {
-    /// Asks every task to stop and waits for them.
+    /// Cancels a job, halts both axes and waits until they are at rest
+    /// (bounded: `safety.halt_wait_s`), then asks every task to stop and
+    /// waits for them. Why halt: nobody watches the stage once the daemon
+    /// is gone, so it must not leave a move running.
     pub async fn shutdown(self) {
         self.daemon.jobs.signal_cancel();
+        self.daemon
+            .rig
+            .halt_and_wait("the daemon is shutting down")
+            .await;
         let _ = self.daemon.shutdown.send(());
         for t in self.tasks {
             let _ = t.await;
@@ -144,15 +166,20 @@ impl Daemon {
             None => None,
         };
         let (shutdown, _) = broadcast::channel(4);
+        let access = access::Access::new(cfg.access.clone());
+        let audit = audit::Audit::start(&cfg.daemon.data_dir);
         let rig = Arc::new(rig::Rig::new(cfg, clock, vision, links));
         let daemon = Arc::new(Daemon {
             rig: rig.clone(),
             jobs: jobs::Jobs::default(),
             shutdown: shutdown.clone(),
+            access,
+            audit,
         });
         let tasks = vec![
             tokio::spawn(rig.clone().connect_loop(shutdown.subscribe())),
             tokio::spawn(rig.clone().poll_loop(shutdown.subscribe())),
+            tokio::spawn(supervisor::run(rig.clone(), shutdown.subscribe())),
             tokio::spawn(rig.clone().vision_stream_loop(shutdown.subscribe())),
             tokio::spawn(server::serve(
                 daemon.clone(),
@@ -185,20 +212,21 @@ impl Daemon {
                 self.jobs.signal_cancel();
                 rig.stop().await
             }
+            Command::Reset => Ok(rig.reset()),
             Command::Reference(axes) => rig.reference(axes).await,
-            Command::Config => serde_json::to_value(&rig.cfg)
+            Command::Config => serde_json::to_value(self.effective_config())
                 .map(|c| json!({"config": c}))
                 .map_err(|e| ProtoError::new(ErrorCode::Internal, e.to_string())),
             Command::Characterize(a) => match a {
                 CharacterizeAction::Start(p) => self.jobs.start(rig, p).await,
                 CharacterizeAction::Resume { log } => self.jobs.resume(rig, &log).await,
                 CharacterizeAction::Status => Ok(json!({"job": self.jobs.status()})),
-                CharacterizeAction::Cancel => self.jobs.cancel().await.map(|j| json!({"job": j})),
+                CharacterizeAction::Cancel => self.cancel_job().await,
             },
             Command::Validate(v) => match v {
                 ValidateAction::Status => Ok(self.jobs.validation_status()),
                 ValidateAction::Start(p) => self.jobs.start_validation(rig, p).await,
-                ValidateAction::Cancel => self.jobs.cancel().await.map(|j| json!({"job": j})),
+                ValidateAction::Cancel => self.cancel_job().await,
             },
             Command::Tables(t) => match t {
                 TablesAction::List => rig.comp.list(&rig.cfg.daemon.data_dir).await,
@@ -211,6 +239,62 @@ impl Daemon {
                 "subscribe is handled by the connection",
             )),
         }
+    }
+
+    /// The configuration in force: the file read at start with the
+    /// running values of the reloadable sections.
+    pub fn effective_config(&self) -> DaemonConfig {
+        let mut c = self.rig.live.effective(&self.rig.cfg);
+        c.access = self.access.current();
+        c
+    }
+
+    /// Applies a reloaded configuration (SIGHUP): the changed keys of the
+    /// reloadable sections take effect (limits and compensation from the
+    /// next move, drift settings now, roles for new connections); other
+    /// changed keys keep their running values and are reported as refused.
+    /// A client's `drift set` survives a reload that leaves `[drift]`
+    /// unchanged in the file.
+    pub fn reload(&self, new: &DaemonConfig) -> reload::ReloadReport {
+        let running = self.effective_config();
+        let (applied, refused): (Vec<String>, Vec<String>) = reload::diff_keys(&running, new)
+            .into_iter()
+            .partition(|k| reload::is_reloadable(k));
+        let changed = |section: &str| {
+            applied
+                .iter()
+                .any(|k| k == section || k.starts_with(&format!("{section}.")))
+        };
+        let mut merged = running;
+        merged.limits = new.limits;
+        merged.compensation = new.compensation.clone();
+        merged.drift = new.drift.clone();
+        self.rig.live.set(&merged);
+        if changed("drift") {
+            let d = &new.drift;
+            if let Err(e) = self.rig.drift.set(
+                &merged,
+                Some(d.method),
+                Some(d.every_s),
+                Some(d.time_constant_s),
+            ) {
+                tracing::warn!("reload: [drift] not applied: {e}");
+            }
+        }
+        if changed("access") {
+            self.access.set(new.access.clone());
+        }
+        reload::ReloadReport { applied, refused }
+    }
+
+    /// `characterize|validate cancel`: ends the job and halts both axes
+    /// (waiting until they are at rest): the job's move in flight is
+    /// dropped with its future, and the stage must not finish it alone.
+    async fn cancel_job(&self) -> Result<Value, ProtoError> {
+        self.jobs.signal_cancel();
+        let halt = self.rig.halt_and_wait("job cancelled").await;
+        let job = self.jobs.cancel().await?;
+        Ok(json!({"job": job, "halt": halt}))
     }
 
     /// `drift show|set|reset|measure`.

@@ -17,6 +17,11 @@ pub fn ready() {
     }
 }
 
+/// Tells systemd a reload is under way (`READY` ends it).
+pub fn reloading() {
+    let _ = sd_notify::notify(&[NotifyState::Reloading]);
+}
+
 /// Tells systemd the daemon is stopping.
 pub fn stopping() {
     let _ = sd_notify::notify(&[NotifyState::Stopping]);

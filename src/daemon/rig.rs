@@ -2,10 +2,17 @@
 //! machine, the motion coordinator (one move at a time per stage, `stop`
 //! overtakes the queue), soft limits, positions from every source, and the
 //! event bus to subscribers.
+//!
+//! Halting: a fault (from the driver, a failed wait, the motion supervisor
+//! of `daemon::supervisor`) halts both axes and latches; `reset` clears the
+//! latch; [`Rig::halt_and_wait`] halts and waits (bounded) until both axes
+//! are at rest (shutdown, job cancel); a line that comes back has its axis
+//! halted and read back before anything else ([`Rig::recover_axis`]).
 
 use super::config::DaemonConfig;
 use super::protocol::{Axes, ErrorCode, MoveMode, MoveRequest, ProtoError, Topic};
 use super::state::{Action, Activity, AxisId, Input, Refusal, SafetyState};
+use super::supervisor::{Bounds, ReadFailure, Supervisor};
 use super::vision::{Measurement, Vision};
 use crate::clock::RigClock;
 use crate::driver::{Axis, AxisEvent, DriverError, Stage};
@@ -45,6 +52,11 @@ pub struct Rig {
     reported: Mutex<Reported>,
     motion: tokio::sync::Mutex<()>,
     stop_gen: AtomicU64,
+    supervisor: Mutex<Supervisor>,
+    /// Held by the supervisor while it samples: a reference run waits for
+    /// a sample in flight (its `FRF?` would read the run as a lost
+    /// reference).
+    pub(super) sampling: tokio::sync::Mutex<()>,
     events: broadcast::Sender<Pushed>,
     /// The camera pipeline, if a camera is configured.
     pub vision: Option<Vision>,
@@ -55,6 +67,9 @@ pub struct Rig {
     pub comp: super::comp::CompState,
     /// Live drift correction (`[drift]`, the `drift` command).
     pub drift: super::drift::DriftControl,
+    /// Running values of the settings a reload may change (limits,
+    /// compensation, drift); read these, not `cfg`'s.
+    pub live: super::reload::Live,
     /// Retries after transient faults in the current (or last) job, reset
     /// when a job begins; the job's progress reads it (`retries`).
     pub job_retries: Arc<AtomicU64>,
@@ -109,6 +124,10 @@ fn refusal(r: Refusal) -> ProtoError {
             ErrorCode::Busy,
             format!("the axes are busy ({a:?}); stop it or wait"),
         ),
+        Refusal::FaultLatched(m) => ProtoError::new(
+            ErrorCode::FaultLatched,
+            format!("a fault is latched ({m}); find its cause, then send reset"),
+        ),
     }
 }
 
@@ -122,8 +141,16 @@ impl Rig {
     ) -> Rig {
         let (events, _) = broadcast::channel(1024);
         let drift = super::drift::DriftControl::new(&cfg);
+        let supervisor = Supervisor::new(Bounds {
+            following_error_um: cfg.safety.following_error_um,
+            read_fail_s: cfg.safety.read_fail_s,
+            motion_timeout_s: [cfg.driver.x.motion_timeout_s, cfg.driver.y.motion_timeout_s],
+        });
         Rig {
+            supervisor: Mutex::new(supervisor),
+            sampling: tokio::sync::Mutex::new(()),
             drift,
+            live: super::reload::Live::new(&cfg),
             cfg,
             clock,
             stage: Mutex::new(None),
@@ -160,7 +187,33 @@ impl Rig {
         });
     }
 
-    fn stage(&self) -> Result<Stage, ProtoError> {
+    /// The motion supervisor's judge (`daemon::supervisor`).
+    pub(super) fn supervisor(&self) -> std::sync::MutexGuard<'_, Supervisor> {
+        lock(&self.supervisor)
+    }
+
+    /// The stage, once connected.
+    pub(super) fn connected_stage(&self) -> Option<Stage> {
+        lock(&self.stage).clone()
+    }
+
+    /// Whether a reference run owns the axes.
+    pub(super) fn referencing(&self) -> bool {
+        lock(&self.state).activity() == Activity::Referencing
+    }
+
+    /// Feeds the watchdog heartbeat: the rig is supervised.
+    pub(super) fn beat(&self) {
+        self.heartbeat.fetch_add(1, Ordering::Relaxed);
+    }
+
+    /// A breach found by the motion supervisor: halts both axes, latches.
+    pub(super) fn supervisor_fault(self: &Arc<Self>, reason: String) {
+        tracing::error!("motion supervisor: {reason}");
+        self.apply(Input::Fault(reason));
+    }
+
+    pub(crate) fn stage(&self) -> Result<Stage, ProtoError> {
         lock(&self.stage).clone().ok_or_else(|| {
             ProtoError::new(
                 ErrorCode::NotConnected,
@@ -178,9 +231,17 @@ impl Rig {
                 Action::HaltAll { reason } => {
                     tracing::warn!("halting both axes: {reason}");
                     self.stop_gen.fetch_add(1, Ordering::SeqCst);
-                    self.push(Topic::Fault, "fault", json!({"t_s": t, "reason": reason}));
+                    self.supervisor().clear();
+                    self.push(
+                        Topic::Fault,
+                        "fault",
+                        json!({"t_s": t, "reason": reason, "latched": true}),
+                    );
                     let rig = self.clone();
-                    tokio::spawn(async move { rig.halt_all().await });
+                    tokio::spawn(async move {
+                        let r = rig.wait_at_rest(rig.halt_all().await).await;
+                        tracing::warn!("after the fault: {r}");
+                    });
                 }
             }
         }
@@ -191,6 +252,7 @@ impl Rig {
         let Ok(stage) = self.stage() else {
             return vec![];
         };
+        self.supervisor().clear();
         let (x, y) = tokio::join!(stage.x.halt(), stage.y.halt());
         let mut out = vec![(AxisId::X, x), (AxisId::Y, y)];
         for (a, r) in &mut out {
@@ -200,6 +262,100 @@ impl Rig {
         }
         *lock(&self.commanded) = [None, None];
         out
+    }
+
+    /// Halts both axes (`HLT`, after overtaking queued moves and stopping
+    /// the supervisor's watches) and waits until both report no motion
+    /// (`#5`) or `safety.halt_wait_s` passed. Why wait: a shutdown or a
+    /// job cancel must not return while the stage still moves; a smooth
+    /// halt decelerates, it does not stop at once. `why` goes to the log
+    /// and to `fault` subscribers (`halted` event).
+    pub async fn halt_and_wait(&self, why: &str) -> Value {
+        self.stop_gen.fetch_add(1, Ordering::SeqCst);
+        tracing::warn!("halting both axes: {why}");
+        let t = self.clock.now_s();
+        let halts = self.halt_all().await;
+        let mut r = self.wait_at_rest(halts).await;
+        r["reason"] = json!(why);
+        self.push(
+            Topic::Fault,
+            "halted",
+            json!({"t_s": t, "reason": why, "at_rest": r["at_rest"], "wait_s": r["wait_s"]}),
+        );
+        tracing::info!("halt ({why}): {r}");
+        r
+    }
+
+    /// Polls `#5` on both axes until neither moves, at most
+    /// `safety.halt_wait_s` (tokio's timer: the wait must not advance a
+    /// simulated rig's clock). `halts`: what the halts returned.
+    async fn wait_at_rest(&self, halts: Vec<(AxisId, Result<(), DriverError>)>) -> Value {
+        let errors: Vec<String> = halts
+            .iter()
+            .filter_map(|(a, r)| r.as_ref().err().map(|e| format!("axis {}: {e}", a.name())))
+            .collect();
+        let Ok(stage) = self.stage() else {
+            return json!({"at_rest": false, "wait_s": 0.0, "errors": ["not connected"]});
+        };
+        let t0 = tokio::time::Instant::now();
+        let bound = Duration::try_from_secs_f64(self.cfg.safety.halt_wait_s).unwrap_or_default();
+        let step = Duration::from_millis(self.cfg.driver.x.poll_interval_ms.max(5));
+        let moving = loop {
+            let (x, y) = tokio::join!(stage.x.is_moving(), stage.y.is_moving());
+            // An axis that does not answer is not known to be at rest.
+            let moving = [x.unwrap_or(true), y.unwrap_or(true)];
+            if moving == [false, false] || t0.elapsed() >= bound {
+                break moving;
+            }
+            tokio::time::sleep(step).await;
+        };
+        json!({"at_rest": moving == [false, false],
+               "moving": {"x": moving[0], "y": moving[1]},
+               "wait_s": t0.elapsed().as_secs_f64(), "errors": errors})
+    }
+
+    /// `reset`: acknowledges the latched fault. Motion is allowed again
+    /// (an axis whose reference was lost stays unreferenced: reference it).
+    pub fn reset(&self) -> Value {
+        let t = self.clock.now_s();
+        let mut s = lock(&self.state);
+        let cleared = s
+            .latched()
+            .map(|f| json!({"t_s": f.t_s, "reason": f.reason}));
+        s.apply(Input::Reset, t);
+        let state = s.to_json();
+        drop(s);
+        if let Some(c) = &cleared {
+            tracing::info!("fault reset by a client: {}", c["reason"]);
+            self.push(Topic::Fault, "reset", json!({"t_s": t, "cleared": c}));
+        }
+        json!({"cleared": cleared, "rig": state})
+    }
+
+    /// A line came back: its axis is halted (the controller kept running
+    /// while nobody could reach it) and read back (`status`) before
+    /// anything else; the line loss stays latched until `reset`.
+    async fn recover_axis(self: Arc<Self>, a: AxisId) {
+        let Ok(stage) = self.stage() else { return };
+        let axis = match a {
+            AxisId::X => stage.x.clone(),
+            AxisId::Y => stage.y.clone(),
+        };
+        let t = self.clock.now_s();
+        let halt = axis.halt().await;
+        let status = axis.status().await;
+        let fields = match (&halt, &status) {
+            (Ok(()), Ok(s)) => json!({"t_s": t, "axis": a.name(), "halted": true,
+                "referenced": s.referenced, "servo_on": s.servo_on, "on_target": s.on_target,
+                "position_um": s.position_um, "target_um": s.target_um}),
+            _ => json!({"t_s": t, "axis": a.name(), "halted": halt.is_ok(),
+                "error": halt.err().or(status.err()).map(|e| e.to_string())}),
+        };
+        tracing::warn!(
+            "axis {} reconnected, halted and read back: {fields}",
+            a.name()
+        );
+        self.push(Topic::Fault, "axis_recovered", fields);
     }
 
     /// Connects the stage, retrying with backoff until it answers (the
@@ -279,6 +435,9 @@ impl Rig {
             AxisEvent::Connected { line } => {
                 for a in self.axis_of_line(&line) {
                     self.apply(Input::LinkUp(a));
+                    if lock(&self.stage).is_some() {
+                        tokio::spawn(self.clone().recover_axis(a));
+                    }
                 }
                 self.push(Topic::Fault, "link_up", json!({"line": line}));
             }
@@ -347,8 +506,9 @@ impl Rig {
     }
 
     /// Polls controller positions while idle or moving (not during a
-    /// reference run) and streams them; each healthy round feeds the
-    /// watchdog heartbeat.
+    /// reference run) and streams them; each round whose reads answered
+    /// feeds the watchdog heartbeat, and failing reads go to the motion
+    /// supervisor's judge (`safety.read_fail_s`).
     pub async fn poll_loop(self: Arc<Self>, mut shutdown: broadcast::Receiver<()>) {
         let period = Duration::from_millis(self.cfg.daemon.poll_interval_ms);
         let window = Duration::from_millis(self.cfg.camera.timeout_ms);
@@ -396,6 +556,18 @@ impl Rig {
                 continue;
             }
             let (x, y) = tokio::join!(stage.x.position_um(), stage.y.position_um());
+            // The watchdog is fed only when the rig is supervised: every
+            // read answered, or its line is known down (a latched fault
+            // the line task is riding out).
+            let mut supervised = true;
+            for (a, r) in [(AxisId::X, &x), (AxisId::Y, &y)] {
+                let r = r.as_ref().map(|v| *v).map_err(ReadFailure::of);
+                supervised &= !matches!(r, Err(ReadFailure::Failed(_)));
+                let verdict = self.supervisor().read_result(a, t, &r);
+                if let Some(reason) = verdict {
+                    self.supervisor_fault(reason);
+                }
+            }
             let x = x.ok();
             let y = y.ok();
             *lock(&self.reported) = Reported {
@@ -403,7 +575,9 @@ impl Rig {
                 x_um: x,
                 y_um: y,
             };
-            self.heartbeat.fetch_add(1, Ordering::Relaxed);
+            if supervised {
+                self.beat();
+            }
             self.push(
                 Topic::Position,
                 "position",
@@ -423,7 +597,7 @@ impl Rig {
     /// Soft limits ∩ controller travel for an axis, µm.
     pub fn limits_um(&self, axis: &Axis, a: AxisId) -> (f64, f64) {
         let (tmin, tmax) = axis.travel_um();
-        let l = &self.cfg.limits;
+        let l = &self.live.limits();
         let (lo, hi) = match a {
             AxisId::X => (l.x_min_um, l.x_max_um),
             AxisId::Y => (l.y_min_um, l.y_max_um),
@@ -542,7 +716,7 @@ impl Rig {
         } else {
             start
         };
-        let opts = self.cfg.compensation.plan_options();
+        let opts = self.live.compensation().plan_options();
         let plan = self.comp.plan(&*comp, planned_target, start, &opts)?;
         for w in &plan.waypoints {
             let r = MoveRequest::raw_to(w.x_um, w.y_um);
@@ -668,6 +842,15 @@ impl Rig {
             self.halt_all().await;
             return Err(driver_error(e));
         }
+        {
+            let t = self.clock.now_s();
+            let mut sup = self.supervisor();
+            for (a, tg) in [(AxisId::X, targets[0]), (AxisId::Y, targets[1])] {
+                if let Some(tg) = tg {
+                    sup.watch(a, tg, t);
+                }
+            }
+        }
         if commit {
             self.comp.commit_raw(targets, self.clock.now_s());
         }
@@ -683,6 +866,13 @@ impl Rig {
                 }
             };
             let (wx, wy) = tokio::join!(wait(&stage.x, targets[0]), wait(&stage.y, targets[1]));
+            // A controller error or a motion timeout while waiting is a
+            // fault (halt both, latch), not only this client's failure.
+            for r in [&wx, &wy] {
+                if let Err(e @ (DriverError::MotionTimeout { .. } | DriverError::Gcs { .. })) = r {
+                    self.apply(Input::Fault(format!("while waiting for a move: {e}")));
+                }
+            }
             let (wx, wy) = (wx.map_err(driver_error)?, wy.map_err(driver_error)?);
             out["reported"] = json!({"x_um": wx, "y_um": wy});
             out["on_target"] = json!(true);
@@ -701,6 +891,7 @@ impl Rig {
             "stopped",
             json!({"t_s": t, "reason": "stop requested by a client"}),
         );
+        self.supervisor().clear();
         let stage = self.stage()?;
         let (x, y) = tokio::join!(stage.x.stop(), stage.y.stop());
         *lock(&self.commanded) = [None, None];
@@ -824,6 +1015,10 @@ impl Rig {
             s.may_take_axes().map_err(refusal)?;
             s.apply(Input::Begin(Activity::Referencing), t);
         }
+        // A reference run supersedes the moves watched so far; a sample in
+        // flight finishes before the run starts.
+        self.supervisor().clear();
+        drop(self.sampling.lock().await);
         let _guard = ActivityGuard {
             rig: self,
             activity: Activity::Referencing,

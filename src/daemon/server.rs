@@ -2,13 +2,36 @@
 //! requests are answered in order; `stop` is executed the moment it is read,
 //! even while an earlier request of the same client still runs, and pushed
 //! events interleave with replies (whole lines, never mixed).
+//!
+//! `stop` always gets through: up to `daemon.max_clients` full clients,
+//! then up to `daemon.stop_slots` connections that accept only `stop`
+//! (everything else is `busy`), then a `busy` line and close. Clients are
+//! disconnected when idle (`idle_timeout_s`: nothing sent, no request
+//! running, no subscription), when a started line stalls
+//! (`read_timeout_s`), or when they stop reading (`write_timeout_s`), so
+//! stuck clients give their slots back.
+//!
+//! Every request is checked against the client's role (`[access]`,
+//! resolved once per connection from `SO_PEERCRED`); state-changing and
+//! refused commands go to the audit trail before they run.
 
+use super::access::Peer;
+use super::audit::Outcome;
 use super::connection::{write_line, Incoming, LineReader};
-use super::protocol::{self, Command, ErrorCode, ProtoError, Topic};
+use super::protocol::{self, Command, ErrorCode, ProtoError, Role, Topic};
 use super::Daemon;
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::sync::Arc;
+use std::time::Duration;
 use tokio::net::{UnixListener, UnixStream};
-use tokio::sync::{broadcast, mpsc, Semaphore};
+use tokio::sync::{broadcast, mpsc, OwnedSemaphorePermit, Semaphore};
+
+/// What a connection may do: everything, or only `stop`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Slot {
+    Full,
+    StopOnly,
+}
 
 /// Accepts until shutdown.
 pub async fn serve(
@@ -16,27 +39,42 @@ pub async fn serve(
     listener: UnixListener,
     mut shutdown: broadcast::Receiver<()>,
 ) {
-    let limit = Arc::new(Semaphore::new(daemon.rig.cfg.daemon.max_clients));
+    let full = Arc::new(Semaphore::new(daemon.rig.cfg.daemon.max_clients));
+    let stop_only = Arc::new(Semaphore::new(daemon.rig.cfg.daemon.stop_slots));
     loop {
-        let permit = tokio::select! {
-            p = limit.clone().acquire_owned() => match p { Ok(p) => p, Err(_) => return },
-            _ = shutdown.recv() => return,
-        };
         let stream = tokio::select! {
             r = listener.accept() => match r {
                 Ok((s, _)) => s,
                 Err(e) => {
                     tracing::warn!("accept failed: {e}");
-                    tokio::time::sleep(std::time::Duration::from_millis(50)).await;
+                    tokio::time::sleep(Duration::from_millis(50)).await;
                     continue;
                 }
             },
             _ = shutdown.recv() => return,
         };
+        let (slot, permit): (Slot, OwnedSemaphorePermit) = match full.clone().try_acquire_owned() {
+            Ok(p) => (Slot::Full, p),
+            Err(_) => match stop_only.clone().try_acquire_owned() {
+                Ok(p) => (Slot::StopOnly, p),
+                Err(_) => {
+                    // Best effort, never waits: the client learns why.
+                    let line = protocol::error_reply(
+                        &serde_json::Value::Null,
+                        &ProtoError::new(
+                            ErrorCode::Busy,
+                            "every client slot and stop slot is taken; try again",
+                        ),
+                    );
+                    let _ = stream.try_write(line.as_bytes());
+                    continue;
+                }
+            },
+        };
         let d = daemon.clone();
         let sd = d.shutdown.subscribe();
         tokio::spawn(async move {
-            if let Err(e) = client(d, stream, sd).await {
+            if let Err(e) = client(d, stream, slot, sd).await {
                 tracing::debug!("client ended: {e}");
             }
             drop(permit);
@@ -44,27 +82,79 @@ pub async fn serve(
     }
 }
 
+fn secs(s: f64) -> Duration {
+    Duration::try_from_secs_f64(s).unwrap_or(Duration::MAX)
+}
+
 async fn client(
     daemon: Arc<Daemon>,
     stream: UnixStream,
+    slot: Slot,
     mut shutdown: broadcast::Receiver<()>,
 ) -> std::io::Result<()> {
-    let (r, mut w) = stream.into_split();
-    let mut reader = LineReader::new(r);
-    // Replies and events go through one writer task so lines never mix.
-    let (out_tx, mut out_rx) = mpsc::channel::<Arc<str>>(256);
-    let writer = tokio::spawn(async move {
-        while let Some(line) = out_rx.recv().await {
-            if write_line(&mut w, &line).await.is_err() {
-                break;
+    let cfg = &daemon.rig.cfg.daemon;
+    let read_timeout = secs(cfg.read_timeout_s);
+    let write_timeout = secs(cfg.write_timeout_s);
+    let idle_timeout = match slot {
+        Slot::StopOnly => Some(read_timeout),
+        Slot::Full if cfg.idle_timeout_s > 0.0 => Some(secs(cfg.idle_timeout_s)),
+        Slot::Full => None,
+    };
+    // The kernel's word on who connected; a socket without credentials
+    // (never on Linux) is nobody.
+    let peer = match stream.peer_cred() {
+        Ok(c) => Peer {
+            uid: c.uid(),
+            gid: c.gid(),
+            pid: c.pid(),
+        },
+        Err(e) => {
+            tracing::warn!("no peer credentials: {e}");
+            Peer {
+                uid: u32::MAX,
+                gid: u32::MAX,
+                pid: None,
             }
         }
+    };
+    let role = daemon.access.role_of(peer).await;
+    tracing::debug!(
+        uid = peer.uid,
+        gid = peer.gid,
+        pid = peer.pid.unwrap_or(-1),
+        role = role.map_or("none", Role::as_str),
+        stop_only = slot == Slot::StopOnly,
+        "client connected"
+    );
+    let (r, mut w) = stream.into_split();
+    let mut reader = LineReader::new(r);
+    // Replies and events go through one writer task so lines never mix. A
+    // client that does not take a line within the write timeout is gone.
+    let (out_tx, mut out_rx) = mpsc::channel::<Arc<str>>(256);
+    let (gone_tx, mut gone_rx) = tokio::sync::oneshot::channel::<()>();
+    let writer = tokio::spawn(async move {
+        while let Some(line) = out_rx.recv().await {
+            match tokio::time::timeout(write_timeout, write_line(&mut w, &line)).await {
+                Ok(Ok(())) => {}
+                Ok(Err(_)) => break,
+                Err(_) => {
+                    tracing::info!("client not reading for {write_timeout:?}: disconnected");
+                    break;
+                }
+            }
+        }
+        drop(gone_tx);
     });
+    // Whether the connection has work in flight (then it is not idle).
+    let pending = Arc::new(AtomicUsize::new(0));
+    let subscribed = Arc::new(AtomicBool::new(false));
     // Requests run in order on a worker; stop bypasses it.
     let (req_tx, mut req_rx) = mpsc::channel::<protocol::Request>(64);
     let worker = {
         let daemon = daemon.clone();
         let out = out_tx.clone();
+        let pending = pending.clone();
+        let subscribed = subscribed.clone();
         tokio::spawn(async move {
             let mut subscription: Option<tokio::task::JoinHandle<()>> = None;
             while let Some(req) = req_rx.recv().await {
@@ -74,6 +164,7 @@ async fn client(
                             s.abort();
                         }
                         subscription = Some(spawn_forwarder(&daemon, topics.clone(), out.clone()));
+                        subscribed.store(true, Ordering::Relaxed);
                         let names: Vec<&str> = topics.iter().map(|t| t.as_str()).collect();
                         protocol::ok_reply(&req.id, obj(serde_json::json!({"subscribed": names})))
                     }
@@ -82,7 +173,9 @@ async fn client(
                         Err(e) => protocol::error_reply(&req.id, &e),
                     },
                 };
-                if out.send(line.into()).await.is_err() {
+                let sent = out.send(line.into()).await;
+                pending.fetch_sub(1, Ordering::Relaxed);
+                if sent.is_err() {
                     break;
                 }
             }
@@ -91,34 +184,99 @@ async fn client(
             }
         })
     };
+    let null = serde_json::Value::Null;
     loop {
         let incoming = tokio::select! {
-            r = reader.next() => r?,
+            r = reader.next_within(idle_timeout, Some(read_timeout)) => r?,
             _ = shutdown.recv() => {
-                let _ = out_tx.send(protocol::error_reply(&serde_json::Value::Null, &ProtoError::new(ErrorCode::ShuttingDown, "the daemon is shutting down")).into()).await;
+                let _ = out_tx.send(protocol::error_reply(&null, &ProtoError::new(ErrorCode::ShuttingDown, "the daemon is shutting down")).into()).await;
                 break;
             }
+            _ = &mut gone_rx => break,
         };
         let line = match incoming {
             Incoming::Closed => break,
-            Incoming::TooLarge(n) => {
-                protocol::error_reply(&serde_json::Value::Null, &protocol::too_large(n))
+            Incoming::Idle => {
+                let busy =
+                    pending.load(Ordering::Relaxed) > 0 || subscribed.load(Ordering::Relaxed);
+                if slot == Slot::Full && busy {
+                    continue;
+                }
+                let idle = idle_timeout.unwrap_or_default();
+                let _ = out_tx
+                    .send(
+                        protocol::error_reply(
+                            &null,
+                            &ProtoError::new(
+                                ErrorCode::TimedOut,
+                                format!("idle for {idle:?}: disconnected"),
+                            ),
+                        )
+                        .into(),
+                    )
+                    .await;
+                break;
             }
+            Incoming::Stalled => {
+                let _ = out_tx.send(protocol::error_reply(&null, &ProtoError::new(ErrorCode::TimedOut, format!("request line not finished within {read_timeout:?}: disconnected"))).into()).await;
+                break;
+            }
+            Incoming::TooLarge(n) => protocol::error_reply(&null, &protocol::too_large(n)),
             Incoming::Line(l) if l.iter().all(u8::is_ascii_whitespace) => continue,
             Incoming::Line(l) => match protocol::parse_request(&l) {
                 Err(r) => protocol::error_reply(&r.id, &r.error),
-                Ok(req) if req.command == Command::Stop => {
-                    // Overtakes anything queued on this connection too.
-                    match daemon.execute(Command::Stop).await {
-                        Ok(v) => protocol::ok_reply(&req.id, obj(v)),
-                        Err(e) => protocol::error_reply(&req.id, &e),
-                    }
+                Ok(req) if slot == Slot::StopOnly && req.command != Command::Stop => {
+                    protocol::error_reply(
+                        &req.id,
+                        &ProtoError::new(
+                            ErrorCode::Busy,
+                            format!(
+                                "all {} client slots are taken; this connection accepts only stop",
+                                daemon.rig.cfg.daemon.max_clients
+                            ),
+                        ),
+                    )
+                }
+                Ok(req) if role < Some(req.command.role()) => {
+                    daemon
+                        .audit
+                        .record(&peer, role, &req.command, Outcome::Denied, &l);
+                    protocol::error_reply(
+                        &req.id,
+                        &ProtoError::new(
+                            ErrorCode::PermissionDenied,
+                            format!(
+                                "{} needs role {}; uid {} has {}",
+                                req.command.name(),
+                                req.command.role().as_str(),
+                                peer.uid,
+                                role.map_or("none", Role::as_str)
+                            ),
+                        ),
+                    )
                 }
                 Ok(req) => {
-                    let id = req.id.clone();
-                    match req_tx.try_send(req) {
-                        Ok(()) => continue,
-                        Err(_) => protocol::error_reply(&id, &ProtoError::new(ErrorCode::Busy, "more than 64 requests pending on this connection; wait for replies")),
+                    if req.command.changes_state() {
+                        daemon
+                            .audit
+                            .record(&peer, role, &req.command, Outcome::Allowed, &l);
+                    }
+                    if req.command == Command::Stop {
+                        // Overtakes anything queued on this connection too.
+                        match daemon.execute(Command::Stop).await {
+                            Ok(v) => protocol::ok_reply(&req.id, obj(v)),
+                            Err(e) => protocol::error_reply(&req.id, &e),
+                        }
+                    } else {
+                        let id = req.id.clone();
+                        pending.fetch_add(1, Ordering::Relaxed);
+                        match req_tx.try_send(req) {
+                            Ok(()) => continue,
+                            Err(_) => {
+                                pending.fetch_sub(1, Ordering::Relaxed);
+                                protocol::error_reply(&id, &ProtoError::new(ErrorCode::Busy, "more than 64 requests pending on this connection; wait for replies"))
+                            }
+                        }
                     }
                 }
             },

@@ -3,10 +3,14 @@
 //! axes) and whether motion is allowed now.
 //!
 //! Invariants:
-//! - any fault (line down, controller fault, reference lost, camera loss
-//!   during a job) yields [`Action::HaltAll`] and latches `last_fault`;
-//! - after a fault nothing moves by itself: a running job is stopped and
-//!   only a client command (move, reference, resume) starts motion again;
+//! - any fault (line down, controller fault, reference lost, a supervisor
+//!   verdict) yields [`Action::HaltAll`] and latches it;
+//! - while a fault is latched nothing moves: moves, reference runs and
+//!   jobs are refused ([`Refusal::FaultLatched`]) until a client
+//!   acknowledges it with [`Input::Reset`]; a fault that lost a reference
+//!   leaves that axis unreferenced after the reset, so it must be
+//!   referenced again before it moves;
+//! - a client `stop` halts but latches nothing (it is not a fault);
 //! - motion needs both lines up; a move of an axis needs it referenced.
 
 use serde_json::{json, Value};
@@ -92,6 +96,8 @@ pub enum Input {
     End(Activity),
     /// `stop` from a client.
     Stop,
+    /// A client acknowledged the latched fault (`reset`).
+    Reset,
 }
 
 /// What the caller must do.
@@ -122,6 +128,8 @@ pub enum Refusal {
     NotReferenced(AxisId),
     /// Something else owns the axes.
     Busy(Activity),
+    /// A fault is latched (its reason): `reset` first.
+    FaultLatched(String),
 }
 
 /// The machine.
@@ -133,6 +141,7 @@ pub struct SafetyState {
     activity: Activity,
     moves_in_flight: u32,
     last_fault: Option<FaultRecord>,
+    latched: bool,
     faults: u64,
 }
 
@@ -152,6 +161,7 @@ impl SafetyState {
             activity: Activity::Idle,
             moves_in_flight: 0,
             last_fault: None,
+            latched: false,
             faults: 0,
         }
     }
@@ -160,6 +170,7 @@ impl SafetyState {
     pub fn apply(&mut self, input: Input, t_s: f64) -> Vec<Action> {
         let fault = |me: &mut Self, reason: String| {
             me.faults += 1;
+            me.latched = true;
             me.last_fault = Some(FaultRecord {
                 t_s,
                 reason: reason.clone(),
@@ -231,6 +242,10 @@ impl SafetyState {
                 }
                 vec![]
             }
+            Input::Reset => {
+                self.latched = false;
+                vec![]
+            }
             Input::Stop => {
                 self.activity = Activity::Idle;
                 self.moves_in_flight = 0;
@@ -239,6 +254,20 @@ impl SafetyState {
                 }]
             }
         }
+    }
+
+    fn not_latched(&self) -> Result<(), Refusal> {
+        match (&self.last_fault, self.latched) {
+            (Some(f), true) => Err(Refusal::FaultLatched(f.reason.clone())),
+            (None, true) => Err(Refusal::FaultLatched("a fault".to_owned())),
+            _ => Ok(()),
+        }
+    }
+
+    /// The latched fault, if one is latched (it stays in
+    /// [`SafetyState::last_fault`] after `reset`).
+    pub fn latched(&self) -> Option<&FaultRecord> {
+        self.last_fault.as_ref().filter(|_| self.latched)
     }
 
     fn connected(&self) -> Result<(), Refusal> {
@@ -262,6 +291,7 @@ impl SafetyState {
     /// the job itself makes).
     pub fn may_move(&self, axes: [bool; 2], from_job: bool) -> Result<(), Refusal> {
         self.connected()?;
+        self.not_latched()?;
         match self.activity {
             Activity::Job if !from_job => return Err(Refusal::Busy(Activity::Job)),
             Activity::Referencing => return Err(Refusal::Busy(Activity::Referencing)),
@@ -278,6 +308,7 @@ impl SafetyState {
     /// Whether a reference run or a job may start.
     pub fn may_take_axes(&self) -> Result<(), Refusal> {
         self.connected()?;
+        self.not_latched()?;
         match self.activity {
             Activity::Idle => Ok(()),
             a => Err(Refusal::Busy(a)),
@@ -299,11 +330,13 @@ impl SafetyState {
         self.last_fault.as_ref()
     }
 
-    /// A name for the overall state: `disconnected`, `unreferenced`,
-    /// `idle`, `moving`, `referencing`, `job`.
+    /// A name for the overall state: `disconnected`, `fault`,
+    /// `unreferenced`, `idle`, `moving`, `referencing`, `job`.
     pub fn mode(&self) -> &'static str {
         if self.connected().is_err() {
             "disconnected"
+        } else if self.latched {
+            "fault"
         } else if self.activity == Activity::Idle && !(self.referenced[0] && self.referenced[1]) {
             "unreferenced"
         } else {
@@ -320,6 +353,7 @@ impl SafetyState {
             "referenced": {"x": self.referenced[0], "y": self.referenced[1]},
             "faults": self.faults,
             "last_fault": self.last_fault.as_ref().map(|f| json!({"t_s": f.t_s, "reason": f.reason})),
+            "fault_latched": self.latched().map(|f| json!({"t_s": f.t_s, "reason": f.reason})),
         })
     }
 }
@@ -375,8 +409,17 @@ mod tests {
             .apply(Input::LinkDown(AxisId::X, "again".into()), 2.1)
             .is_empty());
         s.apply(Input::LinkUp(AxisId::X), 3.0);
+        // The line is back, the fault stays latched until a client resets.
+        assert!(matches!(
+            s.may_move([true, true], false),
+            Err(Refusal::FaultLatched(r)) if r.contains("axis x line down")
+        ));
+        assert!(matches!(s.may_take_axes(), Err(Refusal::FaultLatched(_))));
+        assert_eq!(s.mode(), "fault");
+        s.apply(Input::Reset, 3.5);
         assert!(s.may_move([true, true], false).is_ok());
         assert_eq!(s.last_fault().unwrap().t_s, 2.0);
+        assert!(s.latched().is_none());
     }
 
     #[test]
@@ -384,6 +427,7 @@ mod tests {
         let mut s = up();
         let a = s.apply(Input::ReferenceLost(AxisId::Y), 1.0);
         assert_eq!(a.len(), 1);
+        s.apply(Input::Reset, 1.5);
         assert_eq!(
             s.may_move([false, true], false),
             Err(Refusal::NotReferenced(AxisId::Y))
@@ -410,5 +454,34 @@ mod tests {
         assert!(s.may_move([true, true], true).is_ok());
         assert_eq!(s.apply(Input::Stop, 0.0).len(), 1);
         assert_eq!(s.activity(), Activity::Idle);
+        // A client stop is not a fault: nothing to reset.
+        assert!(s.may_move([true, true], false).is_ok());
+    }
+
+    #[test]
+    fn a_latched_fault_refuses_all_motion_until_reset() {
+        let mut s = up();
+        s.apply(Input::Begin(Activity::Moving), 0.0);
+        let a = s.apply(Input::Fault("axis x following error 900 µm".into()), 1.0);
+        assert_eq!(a.len(), 1);
+        assert_eq!(s.activity(), Activity::Idle);
+        for r in [
+            s.may_move([true, false], false),
+            s.may_move([false, true], true),
+            s.may_take_axes(),
+        ] {
+            assert!(matches!(r, Err(Refusal::FaultLatched(m)) if m.contains("following")));
+        }
+        assert_eq!(
+            s.to_json()["fault_latched"]["reason"],
+            "axis x following error 900 µm"
+        );
+        // A stop does not clear it; only a reset does.
+        s.apply(Input::Stop, 2.0);
+        assert!(s.may_move([true, true], false).is_err());
+        s.apply(Input::Reset, 3.0);
+        assert!(s.may_move([true, true], false).is_ok());
+        assert!(s.to_json()["fault_latched"].is_null());
+        assert_eq!(s.mode(), "idle");
     }
 }

@@ -35,6 +35,12 @@ pub struct Measurement {
     /// camera (the simulator, a software-triggered grab) the exposure
     /// began no earlier, so `t_s >= T` means "exposed after `T`".
     pub t_s: f64,
+    /// The frame's own timestamp on the rig clock, s: the camera's stamp
+    /// when the source stamps on the rig clock
+    /// ([`FrameSource::stamps_on_rig_clock`]; the simulator's camera: the
+    /// exposure mid-point plus the camera's latency and jitter), else `t_s`.
+    /// The sweep characterization times frames by it.
+    pub frame_t_s: f64,
     /// Camera frame sequence number.
     pub sequence: u64,
     /// Pattern x, µm (pattern frame, not yet the stage frame).
@@ -50,7 +56,7 @@ pub struct Measurement {
 impl Measurement {
     /// As JSON for replies and events.
     pub fn to_json(&self) -> Value {
-        json!({"t_s": self.t_s, "sequence": self.sequence, "x_um": self.x_um, "y_um": self.y_um,
+        json!({"t_s": self.t_s, "frame_t_s": self.frame_t_s, "sequence": self.sequence, "x_um": self.x_um, "y_um": self.y_um,
                "theta_rad": self.theta_rad, "quality": self.quality})
     }
 }
@@ -208,6 +214,7 @@ impl Vision {
         let last_error = Arc::new(std::sync::Mutex::new(None::<String>));
         let stop = Arc::new(AtomicBool::new(false));
         let (ftx, frx) = mpsc::sync_channel::<(f64, Frame)>(1);
+        let on_rig_clock = source.stamps_on_rig_clock();
         {
             let stats = stats.clone();
             let stop = stop.clone();
@@ -260,7 +267,12 @@ impl Vision {
                         // whole periods (12 × 4 µm) without failing the
                         // code check.
                         let decoded = decoder.decode(&frame);
-                        let out = publish(decoded, t_s, frame.sequence, &stats, &last_error, &tx);
+                        let stamp = Stamp {
+                            request_t_s: t_s,
+                            frame_t_s: if on_rig_clock { frame.timestamp_s } else { t_s },
+                            sequence: frame.sequence,
+                        };
+                        let out = publish(decoded, stamp, &stats, &last_error, &tx);
                         if out == Published::Closed {
                             break;
                         }
@@ -374,7 +386,15 @@ async fn on_demand_loop(mut l: OnDemandLoop) {
         }
         l.stats.frames.fetch_add(1, Ordering::Relaxed);
         let mut decoder = l.decoder;
-        let sequence = frame.sequence;
+        let stamp = Stamp {
+            request_t_s: t,
+            frame_t_s: if l.source.stamps_on_rig_clock() {
+                frame.timestamp_s
+            } else {
+                t
+            },
+            sequence: frame.sequence,
+        };
         let Ok((decoder, decoded)) = tokio::task::spawn_blocking(move || {
             let r = decoder.decode(&frame);
             (decoder, r)
@@ -385,7 +405,7 @@ async fn on_demand_loop(mut l: OnDemandLoop) {
             return;
         };
         l.decoder = decoder;
-        match publish(decoded, t, sequence, &l.stats, &l.last_error, &l.tx) {
+        match publish(decoded, stamp, &l.stats, &l.last_error, &l.tx) {
             Published::Closed => return,
             // Let the consumers the frame woke run first: one that had all
             // it needs drops its `Want` before the next round looks at the
@@ -408,13 +428,20 @@ enum Published {
     Closed,
 }
 
+/// When a frame was grabbed and exposed (see [`Measurement`]).
+#[derive(Debug, Clone, Copy)]
+struct Stamp {
+    request_t_s: f64,
+    frame_t_s: f64,
+    sequence: u64,
+}
+
 /// Counts a decode's outcome and publishes its measurement, stamped with
-/// the rig time `t_s` its grab was requested: the one place both capture
-/// modes turn a decode into a [`Measurement`].
+/// the rig time its grab was requested and the frame's own time: the one
+/// place both capture modes turn a decode into a [`Measurement`].
 fn publish(
     decoded: Result<crate::pattern::decode::Decoded, crate::pattern::decode::DecodeError>,
-    t_s: f64,
-    sequence: u64,
+    stamp: Stamp,
     stats: &VisionStats,
     last_error: &std::sync::Mutex<Option<String>>,
     tx: &watch::Sender<Option<Measurement>>,
@@ -423,8 +450,9 @@ fn publish(
         Ok(d) => {
             stats.decoded.fetch_add(1, Ordering::Relaxed);
             let m = Measurement {
-                t_s,
-                sequence,
+                t_s: stamp.request_t_s,
+                frame_t_s: stamp.frame_t_s,
+                sequence: stamp.sequence,
                 x_um: d.x_um,
                 y_um: d.y_um,
                 theta_rad: d.theta_rad,

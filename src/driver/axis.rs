@@ -338,6 +338,26 @@ impl Axis {
         }
     }
 
+    /// `POS?` alone, µm, with the connection epoch it was read on: dense
+    /// position sampling during a sweep characterization, where `POS?` +
+    /// `FRF?` ([`Axis::position_um`]) would halve the rate. The caller reads
+    /// [`Axis::position_um`] (which checks the reference) before and after
+    /// the samples and keeps them only if every epoch is that one's (the
+    /// module invariant: a position only with `FRF?` = 1 on the same
+    /// connection epoch).
+    pub async fn position_sample_um(&self) -> Result<(f64, u64), DriverError> {
+        let (pos_mm, epoch) = self
+            .read(Command::PosQuery(self.id()), answer::number)
+            .await?;
+        Ok((mm_to_um(pos_mm), epoch))
+    }
+
+    /// The connection epoch of this axis's line now (bumped on every
+    /// reconnect).
+    pub fn epoch(&self) -> u64 {
+        self.ctl().line().epoch()
+    }
+
     /// The commanded target in µm (`MOV?`), only if referenced.
     pub async fn target_um(&self) -> Result<f64, DriverError> {
         self.verify().await?;
@@ -539,11 +559,15 @@ impl Axis {
         accept_stop(cmd.to_text(), code)
     }
 
-    /// Stops the controller at once with `#24` (bypasses the command queue;
-    /// abrupt). Error 10 that follows is consumed as the confirmation.
+    /// Stops the controller at once with `#24` (abrupt), written ahead of
+    /// every queued exchange and without the transaction lock
+    /// ([`Line::urgent`](super::line::Line::urgent)); the stage stops when
+    /// the byte is written. Error 10 that follows is then consumed (`ERR?`,
+    /// in turn) as the confirmation.
     pub async fn stop(&self) -> Result<(), DriverError> {
         self.inner.halts.fetch_add(1, Ordering::SeqCst);
-        let r = self.ctl().control(ControlChar::StopAll).await;
+        let ctl = self.ctl();
+        let r = ctl.line().urgent(ctl.address(), ControlChar::StopAll).await;
         self.on_error(r)?;
         let code = self.on_error(self.ctl().error().await)?;
         accept_stop("#24".to_owned(), code)

@@ -80,6 +80,11 @@ impl Controller {
         &self.line
     }
 
+    /// The daisy-chain address (`None`: alone on its line).
+    pub fn address(&self) -> Option<Address> {
+        self.addr
+    }
+
     /// The answer timeout.
     pub fn timeout(&self) -> Duration {
         self.timeout

@@ -14,12 +14,16 @@
 //!   callers can tell that the device may have changed under them.
 //! - An exchange, once started, is completed even if its caller went away
 //!   (cancellation-safe: the line never loses track of what is in flight).
+//! - An urgent single-byte command ([`Line::urgent`], `#24` stop all) does
+//!   not queue: the task writes it before any queued exchange, and also
+//!   while an exchange waits for its answer (its request is on the wire by
+//!   then, so the byte cannot split it). It expects no answer.
 
 use super::error::DriverError;
 use super::transport::Connector;
 use super::AxisEvent;
 use crate::gcs::frame::Address;
-use crate::gcs::{Answer, Outgoing, Session, SessionEvent};
+use crate::gcs::{Answer, ControlChar, Outgoing, Session, SessionEvent};
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Arc;
 use std::time::Duration;
@@ -68,6 +72,12 @@ pub struct Reply {
     pub epoch: u64,
 }
 
+/// An urgent control byte to write at once.
+struct Urgent {
+    bytes: Vec<u8>,
+    done: oneshot::Sender<Result<(), DriverError>>,
+}
+
 enum Request {
     Exchange {
         addr: Option<Address>,
@@ -86,6 +96,7 @@ enum Request {
 #[derive(Debug, Clone)]
 pub struct Line {
     tx: mpsc::Sender<Request>,
+    urgent: mpsc::Sender<Urgent>,
     name: Arc<str>,
     epoch: Arc<AtomicU64>,
     noise: Arc<AtomicU64>,
@@ -105,7 +116,9 @@ impl Line {
         let epoch = Arc::new(AtomicU64::new(1));
         let noise = Arc::new(AtomicU64::new(0));
         let (tx, rx) = mpsc::channel(32);
+        let (urgent, urgent_rx) = mpsc::channel(8);
         let task = Task {
+            urgent: urgent_rx,
             connector,
             options,
             events,
@@ -123,6 +136,7 @@ impl Line {
         tokio::spawn(task.run(io, rx));
         Ok(Line {
             tx,
+            urgent,
             name,
             epoch,
             noise,
@@ -169,6 +183,28 @@ impl Line {
         rx.await.map_err(|_| self.closed())?
     }
 
+    /// Writes a single-character command that expects no answer (`#24`)
+    /// ahead of every queued exchange, even while one waits for its answer;
+    /// returns once it is written. Why: a stop must not wait behind the
+    /// line's queue (up to 32 exchanges, each up to an answer timeout).
+    pub async fn urgent(&self, addr: Option<Address>, c: ControlChar) -> Result<(), DriverError> {
+        if c.has_answer() {
+            return Err(DriverError::Invalid(format!(
+                "#{} has an answer: not an urgent command",
+                c.byte()
+            )));
+        }
+        let (done, rx) = oneshot::channel();
+        self.urgent
+            .send(Urgent {
+                bytes: crate::gcs::frame::encode_control(addr, c),
+                done,
+            })
+            .await
+            .map_err(|_| self.closed())?;
+        rx.await.map_err(|_| self.closed())?
+    }
+
     /// Asks the line to wait for `quiet` without traffic before its next
     /// write: used when an answer turned out to be unusable, so that whatever
     /// caused it (garbage, a late answer) is drained.
@@ -184,6 +220,7 @@ impl Line {
 }
 
 struct Task<C: Connector> {
+    urgent: mpsc::Receiver<Urgent>,
     connector: C,
     options: LineOptions,
     events: broadcast::Sender<AxisEvent>,
@@ -233,6 +270,8 @@ impl<C: Connector> Task<C> {
             let step = match conn.as_mut() {
                 Some(io) => {
                     tokio::select! {
+                        biased;
+                        Some(u) = self.urgent.recv() => self.write_urgent(io, u).await,
                         req = rx.recv() => match req {
                             None => Step::Exit,
                             Some(req) => self.handle(io, req).await,
@@ -256,6 +295,10 @@ impl<C: Connector> Task<C> {
                 }
                 None => {
                     tokio::select! {
+                        Some(u) = self.urgent.recv() => {
+                            let _ = u.done.send(Err(self.disconnected()));
+                            Step::Continue
+                        }
                         req = rx.recv() => match req {
                             None => Step::Exit,
                             Some(Request::Exchange { reply, .. }) => {
@@ -303,6 +346,32 @@ impl<C: Connector> Task<C> {
                         reason,
                     });
                 }
+            }
+        }
+    }
+
+    /// Writes an urgent byte; a failed or stalled write takes the line down.
+    async fn write_urgent(&mut self, io: &mut C::Io, u: Urgent) -> Step {
+        let write = async {
+            io.write_all(&u.bytes).await?;
+            io.flush().await
+        };
+        match tokio::time::timeout(Duration::from_millis(100), write).await {
+            Ok(Ok(())) => {
+                let _ = u.done.send(Ok(()));
+                Step::Continue
+            }
+            Ok(Err(e)) => {
+                let reason = format!("write error: {e}");
+                self.down_reason = reason.clone();
+                let _ = u.done.send(Err(self.disconnected()));
+                Step::Down(reason)
+            }
+            Err(_) => {
+                let reason = "write stalled (nobody reads the line)".to_owned();
+                self.down_reason = reason.clone();
+                let _ = u.done.send(Err(self.disconnected()));
+                Step::Down(reason)
             }
         }
     }
@@ -430,6 +499,13 @@ impl<C: Connector> Task<C> {
             };
             let at = self.t0 + deadline;
             tokio::select! {
+                biased;
+                Some(u) = self.urgent.recv() => {
+                    // The request is on the wire: the byte cannot split it.
+                    if let Step::Down(reason) = self.write_urgent(io, u).await {
+                        return (Step::Down(reason), Err(self.disconnected()));
+                    }
+                }
                 r = io.read(&mut buf) => match r {
                     Ok(0) | Err(_) => {
                         let reason = match r {

@@ -20,11 +20,13 @@
 //! Shutdown: dropping every handle ends the line tasks (after the exchange in
 //! flight) and closes the devices. Nothing is sent on close: an axis that is
 //! moving keeps moving to its target and the servo stays on. Call
-//! [`Axis::halt`] first if the stage must stop.
+//! [`Axis::halt`] first if the stage must stop; [`halt::halt_all`] stops
+//! both axes from the configuration alone (`microposd --halt`).
 
 pub mod axis;
 pub mod controller;
 pub mod error;
+pub mod halt;
 pub mod line;
 pub mod stage;
 pub mod transport;

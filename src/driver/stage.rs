@@ -68,7 +68,8 @@ impl AxisConfig {
         }
     }
 
-    fn address(&self) -> Result<Option<Address>, DriverError> {
+    /// The daisy-chain address, if any.
+    pub fn address(&self) -> Result<Option<Address>, DriverError> {
         self.address
             .map(|a| Address::new(a).map_err(|e| DriverError::Invalid(e.to_string())))
             .transpose()
@@ -156,7 +157,7 @@ impl DriverConfig {
         Ok(())
     }
 
-    fn line_options(&self) -> LineOptions {
+    pub(crate) fn line_options(&self) -> LineOptions {
         LineOptions {
             reconnect_min: Duration::from_millis(self.reconnect_min_ms.max(1)),
             reconnect_max: Duration::from_millis(self.reconnect_max_ms.max(self.reconnect_min_ms)),

@@ -470,3 +470,44 @@ async fn garbage_shaped_like_an_answer_is_not_trusted() {
     rig.fake.with(|b| b.delay = Duration::ZERO);
     assert_eq!(ax.position_um().await.unwrap(), 7500.0);
 }
+
+#[tokio::test(start_paused = true)]
+async fn urgent_stop_overtakes_a_busy_line() {
+    let rig = Rig::new(&[1]).await;
+    let ax = referenced_axis(&rig).await;
+    ax.move_abs_um(14_000.0).await.unwrap();
+    // The controller stops answering: every query waits its timeout, then
+    // its ERR? waits another; five of them queue on the line.
+    rig.fake.with(|b| b.silent = true);
+    let queued: Vec<_> = (0..5)
+        .map(|_| {
+            let ax = ax.clone();
+            tokio::spawn(async move { ax.position_um().await })
+        })
+        .collect();
+    tokio::time::sleep(Duration::from_millis(1)).await;
+    let t = tokio::time::Instant::now();
+    let ctl = ax.controller();
+    ctl.line()
+        .urgent(ctl.address(), crate::gcs::ControlChar::StopAll)
+        .await
+        .unwrap();
+    // Written at once, not after the queue (≥ 5 × 2 × 200 ms).
+    assert!(t.elapsed() < Duration::from_millis(5), "{:?}", t.elapsed());
+    tokio::time::sleep(Duration::from_millis(1)).await;
+    let target = rig.fake.axis(1, |a| a.target_mm);
+    assert!(
+        target > 7.5 && target < 14.0,
+        "the controller did not stop: {target}"
+    );
+    for q in queued {
+        assert!(q.await.unwrap().is_err());
+    }
+    // A command with an answer is not urgent.
+    assert!(matches!(
+        ctl.line()
+            .urgent(None, crate::gcs::ControlChar::MotionStatus)
+            .await,
+        Err(DriverError::Invalid(_))
+    ));
+}

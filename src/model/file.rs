@@ -40,13 +40,79 @@ pub struct Stochastic {
     /// encoder count); 0 disables.
     #[serde(default)]
     pub position_quantum_um: f64,
+    /// Places along an axis where the settling scatter is larger than
+    /// `repeatability_sigma_um`: a damaged or contaminated stretch of screw
+    /// or guideway where the carriage sticks and slips. Why: the paper's
+    /// repeatability profile (Fig. 6) is ≤ 1 µm except at two isolated
+    /// peaks, which a uniform σ cannot give.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub rough_spots: Vec<RoughSpot>,
 }
 
+/// A stretch of an axis with extra settling scatter (see
+/// [`Stochastic::rough_spots`]). The extra σ at position `p` is
+/// `sigma_um·exp(−(p − position_um)²/(2·width_um²))`, added in quadrature
+/// to the axis's `repeatability_sigma_um`; it acts on the axis's own
+/// component.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RoughSpot {
+    /// The axis whose carriage sticks there.
+    pub axis: super::Axis,
+    /// Centre of the stretch, µm of commanded position of that axis.
+    pub position_um: f64,
+    /// Gaussian half-width σ of the stretch, µm (> 0).
+    pub width_um: f64,
+    /// Extra settling σ at the centre, µm (≥ 0).
+    pub sigma_um: f64,
+}
+
+/// Most rough spots a model may have (each costs a term per settle).
+pub const MAX_ROUGH_SPOTS: usize = 64;
+
 impl Stochastic {
+    /// Settling σ of axis `index` (0 = x, 1 = y) when it stops at
+    /// commanded position `pos_um`, µm: the uniform σ and the rough spots in
+    /// quadrature.
+    pub fn settling_sigma_um(&self, index: usize, pos_um: f64) -> f64 {
+        let base = self
+            .repeatability_sigma_um
+            .get(index)
+            .copied()
+            .unwrap_or(0.0);
+        let mut var = base * base;
+        for r in self.rough_spots.iter().filter(|r| r.axis.index() == index) {
+            let z = (pos_um - r.position_um) / r.width_um;
+            let s = r.sigma_um * (-0.5 * z * z).exp();
+            var += s * s;
+        }
+        var.sqrt()
+    }
+
     /// Rejects negative or non-finite values, naming the key.
     pub fn validate(&self) -> Result<(), ModelError> {
         for (i, s) in self.repeatability_sigma_um.iter().enumerate() {
             non_negative(&format!("stochastic.repeatability_sigma_um[{i}]"), *s)?;
+        }
+        if self.rough_spots.len() > MAX_ROUGH_SPOTS {
+            return Err(ModelError::Invalid {
+                key: "stochastic.rough_spots".into(),
+                reason: format!(
+                    "at most {MAX_ROUGH_SPOTS} spots, got {}",
+                    self.rough_spots.len()
+                ),
+            });
+        }
+        for (i, r) in self.rough_spots.iter().enumerate() {
+            let key = |k: &str| format!("stochastic.rough_spots[{i}].{k}");
+            finite(&key("position_um"), r.position_um)?;
+            non_negative(&key("sigma_um"), r.sigma_um)?;
+            if !(r.width_um.is_finite() && r.width_um > 0.0) {
+                return Err(ModelError::Invalid {
+                    key: key("width_um"),
+                    reason: format!("must be a finite number > 0, got {}", r.width_um),
+                });
+            }
         }
         non_negative(
             "stochastic.min_incremental_motion_um",
@@ -260,6 +326,47 @@ pub(crate) fn render(model: &StageModel) -> Result<String, ModelError> {
 
 #[cfg(test)]
 mod tests {
+
+    #[test]
+    fn rough_spots_add_scatter_where_they_are() {
+        let s = Stochastic {
+            repeatability_sigma_um: [0.03, 0.04],
+            rough_spots: vec![RoughSpot {
+                axis: super::super::Axis::X,
+                position_um: 1000.0,
+                width_um: 20.0,
+                sigma_um: 0.5,
+            }],
+            ..Stochastic::default()
+        };
+        s.validate().unwrap();
+        let at = |i, p| s.settling_sigma_um(i, p);
+        assert!((at(0, 1000.0) - (0.03f64.powi(2) + 0.25).sqrt()).abs() < 1e-12);
+        assert!((at(0, 5000.0) - 0.03).abs() < 1e-12);
+        // The y axis does not feel an x spot.
+        assert!((at(1, 1000.0) - 0.04).abs() < 1e-12);
+        for bad in [
+            RoughSpot {
+                width_um: 0.0,
+                ..s.rough_spots[0]
+            },
+            RoughSpot {
+                sigma_um: -1.0,
+                ..s.rough_spots[0]
+            },
+            RoughSpot {
+                position_um: f64::NAN,
+                ..s.rough_spots[0]
+            },
+        ] {
+            let t = Stochastic {
+                rough_spots: vec![bad],
+                ..s.clone()
+            };
+            assert!(t.validate().is_err(), "{bad:?}");
+        }
+    }
+
     use super::*;
 
     #[test]

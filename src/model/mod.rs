@@ -41,7 +41,9 @@ pub mod state;
 pub mod term;
 pub mod terms;
 
-pub use file::{Environment, Interpolation, Stochastic, TemperaturePoint, FORMAT_VERSION};
+pub use file::{
+    Environment, Interpolation, RoughSpot, Stochastic, TemperaturePoint, FORMAT_VERSION,
+};
 pub use fit::{FitOptions, FitReport, FittedParam, Sample};
 pub use sim::{SimStep, StageSimulator};
 pub use state::{

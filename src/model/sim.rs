@@ -128,11 +128,11 @@ impl StageSimulator {
             temp_c,
             cycle,
         })?;
-        let sigma = self.model.stochastic().repeatability_sigma_um;
+        let stoch = self.model.stochastic();
         for i in 0..2 {
             if moved[i] {
                 let z: f64 = StandardNormal.sample(&mut self.rng);
-                self.settling_um[i] = sigma[i] * z;
+                self.settling_um[i] = stoch.settling_sigma_um(i, servo[i]) * z;
             }
         }
         self.last_commanded = XyUm { x_um, y_um };
@@ -266,6 +266,7 @@ mod tests {
             repeatability_sigma_um: [sigma, sigma],
             min_incremental_motion_um: min_inc,
             position_quantum_um: 0.0,
+            rough_spots: Vec::new(),
         })
         .unwrap();
         m

@@ -226,6 +226,8 @@ def _idle(r: micropos.Rig) -> None:
     while r.status()["rig"]["activity"] != "idle":
         assert time.monotonic() < deadline, r.status()
         time.sleep(0.05)
+    if r.status()["rig"]["mode"] == "fault":
+        r.reset()
     if r.status()["rig"]["mode"] != "idle":
         r.reference()
     r.tables.activate(None)

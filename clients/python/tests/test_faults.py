@@ -2,6 +2,7 @@
 and a daemon that is killed, frozen or shut down. The rule under test: a call
 raises within its timeout, it never hangs."""
 
+import asyncio
 import signal
 import threading
 import time
@@ -30,7 +31,7 @@ def test_unreferenced_rig_refuses_moves_and_jobs(fresh_rig):
         assert rig.move(100, 100, mode="raw")["on_target"] is True
 
 
-def test_a_dropped_controller_line_is_not_connected(fresh_rig):
+def test_a_dropped_controller_line_is_not_connected_then_latched_until_reset(fresh_rig):
     with micropos.Rig(fresh_rig.socket, timeout=20, long_timeout=120) as rig:
         rig.reference()
         with rig.subscribe(["fault"], timeout=30) as faults:
@@ -47,6 +48,19 @@ def test_a_dropped_controller_line_is_not_connected(fresh_rig):
         while not rig.status()["rig"]["connected"]["x"]:
             assert time.monotonic() < deadline + 30
             time.sleep(0.05)
+        # The line loss stays latched until a client resets it.
+        with pytest.raises(micropos.FaultLatched, match="axis x line down"):
+            rig.move(200, 200, mode="raw")
+        assert rig.status()["rig"]["mode"] == "fault"
+
+        async def reset():
+            async with micropos.AsyncRig(fresh_rig.socket, timeout=20) as arig:
+                return await arig.reset()
+
+        cleared = asyncio.run(reset())["cleared"]
+        assert "axis x line down" in cleared["reason"]
+        assert rig.reset()["cleared"] is None
+        assert rig.move(200, 200, mode="raw")["on_target"] is True
 
 
 def test_killed_daemon_raises_connection_lost_mid_move_and_the_rig_reconnects(fresh_rig):
@@ -129,10 +143,14 @@ def test_daemon_shutdown_is_reported_to_subscribers(fresh_rig):
     with micropos.Rig(fresh_rig.socket, timeout=5) as rig:
         events = rig.subscribe(["fault"])
         fresh_rig.daemon.send_signal(signal.SIGTERM)
-        # Usually the daemon's shutting_down line; when the process exits
-        # before its connection task writes it, the socket just closes.
+        # The daemon halts both axes first (a `halted` event; fault events
+        # of the connecting rig may come before it), then says it
+        # is shutting down: usually its shutting_down line; when the process
+        # exits before its connection task writes it, the socket just closes.
         with pytest.raises((micropos.ShuttingDown, micropos.ConnectionLost)):
-            events.next(timeout=30)
+            while True:
+                ev = events.next(timeout=30)
+                assert "event" in ev, ev
         fresh_rig.daemon.wait(timeout=30)
         with pytest.raises(micropos.ConnectionLost):
             rig.status()

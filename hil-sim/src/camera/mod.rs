@@ -8,8 +8,21 @@
 //! real camera. On a clock that does not advance on request (the in-process
 //! rig's virtual clock) the frame is rendered at once and
 //! [`SimCamera::ready_after`] says how long the caller must let pass before
-//! it exists. Motion during the exposure is not blurred (the pose at the
-//! mid-point is used).
+//! it exists.
+//!
+//! Motion blur (contract): a grab integrates the pattern over its exposure
+//! window: the frame is the mean of renders at `n` equally spaced instants
+//! of the exposure, `n` odd and chosen so that consecutive instants are at
+//! most a quarter pixel apart on the pattern (`n` = 1, the mid-point alone,
+//! for a still platform: a still frame is unchanged by the blur model).
+//! The truth reported with the frame is the one at the mid-point.
+//!
+//! Timestamps (contract): a grabbed frame is stamped with the exposure
+//! mid-point plus the fixed latency `latency_us` plus Gaussian jitter of σ
+//! `timestamp_jitter_us`, drawn from the frame's noise seed (so a seed gives
+//! the same stamps). micropos is not told the latency: the sweep
+//! characterization estimates it. [`SimCamera::render_now`] (the GigE
+//! server's free-running frames) stamps the render time, without blur.
 //!
 //! Faults (contract): [`CameraMode::Stall`] (no answer: the socket server
 //! drops the request, the in-process source times out), [`CameraMode::Garbage`]
@@ -29,6 +42,8 @@ use crate::rig::{Rig, RigTruth};
 use fast::FastRenderer;
 use micropos::camera::{CameraError, CameraInfo, FrameSource};
 use micropos::frame::Frame;
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::Duration;
@@ -86,6 +101,13 @@ pub struct CameraConfig {
     pub illumination_drift: f64,
     /// Period of the illumination drift, simulated s.
     pub illumination_period_s: f64,
+    /// Fixed delay from the true exposure mid-point to the frame's
+    /// timestamp, µs (a camera's trigger-to-stamp latency; hidden from
+    /// micropos, which estimates it from a sweep characterization).
+    pub latency_us: f64,
+    /// Timestamp jitter σ, µs (Gaussian, drawn per frame from the frame's
+    /// noise seed).
+    pub timestamp_jitter_us: f64,
 }
 
 impl Default for CameraConfig {
@@ -114,6 +136,8 @@ impl Default for CameraConfig {
             dust_seed: 1,
             illumination_drift: 0.02,
             illumination_period_s: 3600.0,
+            latency_us: 3700.0,
+            timestamp_jitter_us: 20.0,
         }
     }
 }
@@ -249,6 +273,18 @@ impl CameraConfig {
             self.illumination_period_s > 0.0,
             "> 0",
         )?;
+        chk(
+            "latency_us",
+            self.latency_us,
+            (0.0..=1e6).contains(&self.latency_us),
+            "0..=1e6",
+        )?;
+        chk(
+            "timestamp_jitter_us",
+            self.timestamp_jitter_us,
+            (0.0..=1e4).contains(&self.timestamp_jitter_us),
+            "0..=1e4",
+        )?;
         Ok(())
     }
 
@@ -295,7 +331,8 @@ pub enum CameraMode {
 /// One delivered frame with the truth it was rendered from.
 #[derive(Debug, Clone)]
 pub struct Grab {
-    /// The frame (timestamp = exposure mid-point, simulated s).
+    /// The frame (timestamp = exposure mid-point + latency + jitter,
+    /// simulated s; see the module docs).
     pub frame: Frame,
     /// The rig's ground truth at the exposure mid-point.
     pub truth: RigTruth,
@@ -396,7 +433,29 @@ impl SimCamera {
         st.ready_after = wait;
         st.last_start_s = Some(start);
         let mid = start + exposure / 2.0;
-        self.render_locked(&mut st, &cfg, mid, None)
+        let samples = self.blur_samples(&cfg, start, end);
+        self.render_locked(
+            &mut st,
+            &cfg,
+            mid,
+            Exposure::Grab { exposure, samples },
+            None,
+        )
+    }
+
+    /// How many instants of the exposure `[start_s, end_s]` the frame
+    /// averages (see the module docs): odd, consecutive instants at most a
+    /// quarter pixel apart, at most [`MAX_BLUR_SAMPLES`].
+    fn blur_samples(&self, cfg: &CameraConfig, start_s: f64, end_s: f64) -> usize {
+        let at = |t: f64| Duration::try_from_secs_f64(t.max(0.0)).unwrap_or_default();
+        let a = self.rig.actuator_um(at(start_s));
+        let b = self.rig.actuator_um(at(end_s));
+        let travel_um = (b[0] - a[0]).hypot(b[1] - a[1]);
+        if !travel_um.is_finite() {
+            return 1;
+        }
+        let n = (travel_um / (cfg.pixel_um / 4.0)).ceil().max(1.0) as usize;
+        (n | 1).min(MAX_BLUR_SAMPLES)
     }
 
     /// From the last [`SimCamera::grab`]'s request to the end of its
@@ -420,26 +479,57 @@ impl SimCamera {
         }
         let cfg = st.renderer.config().clone();
         let now = self.clock.now().as_secs_f64();
-        self.render_locked(&mut st, &cfg, now, sensor)
+        self.render_locked(&mut st, &cfg, now, Exposure::Instant, sensor)
     }
 
-    /// Renders the truth at simulated time `at_s` (mode: normal or garbage).
+    /// Renders the truth around simulated time `at_s` (mode: normal or
+    /// garbage): at that instant, or integrated over a grab's exposure
+    /// centred there, stamped with latency and jitter (module docs).
     fn render_locked(
         &self,
         st: &mut CameraState,
         cfg: &CameraConfig,
         at_s: f64,
+        exposure: Exposure,
         sensor: Option<SensorSettings>,
     ) -> Result<Grab, GrabError> {
         let mid = at_s;
-        let truth = self
-            .rig
-            .truth(Duration::try_from_secs_f64(mid).unwrap_or_default());
+        let at = |t: f64| Duration::try_from_secs_f64(t.max(0.0)).unwrap_or_default();
         st.sequence += 1;
         let seq = st.sequence;
         let noise_seed = st.seed.wrapping_mul(0x9e37_79b9_7f4a_7c15) ^ seq;
+        // The instants of the exposure in time order (the rig's model only
+        // moves forward); the mid-point's truth is the frame's truth.
+        let (truth, path, stamp) = match exposure {
+            Exposure::Instant => {
+                let truth = self.rig.truth(at(mid));
+                (truth, vec![truth.observed_pattern_um], mid)
+            }
+            Exposure::Grab { exposure, samples } => {
+                let n = samples.max(1);
+                let mut truth = None;
+                let mut path = Vec::with_capacity(n);
+                for k in 0..n {
+                    let t = if 2 * k + 1 == n {
+                        mid
+                    } else {
+                        mid + ((k as f64 + 0.5) / n as f64 - 0.5) * exposure
+                    };
+                    let tr = self.rig.truth(at(t));
+                    if 2 * k + 1 == n {
+                        truth = Some(tr);
+                    }
+                    path.push(tr.observed_pattern_um);
+                }
+                let truth = truth.unwrap_or_else(|| self.rig.truth(at(mid)));
+                let mut rng = ChaCha8Rng::seed_from_u64(noise_seed ^ 0x7469_6d65);
+                let jitter: f64 = rng.sample(rand_distr::StandardNormal);
+                let stamp = mid + (cfg.latency_us + cfg.timestamp_jitter_us * jitter) * 1e-6;
+                (truth, path, stamp)
+            }
+        };
         let frame = match st.mode {
-            CameraMode::Garbage => st.renderer.garbage(seq % 2 == 0, noise_seed, mid, seq),
+            CameraMode::Garbage => st.renderer.garbage(seq % 2 == 0, noise_seed, stamp, seq),
             _ => {
                 let illumination = 1.0
                     + cfg.illumination_drift
@@ -448,14 +538,12 @@ impl SimCamera {
                     Some(s) => (s.exposure_us / cfg.exposure_us, s.analog_gain()),
                     None => (1.0, 1.0),
                 };
-                let [x, y] = truth.observed_pattern_um;
-                st.renderer.render_exposed(
-                    x,
-                    y,
+                st.renderer.render_path(
+                    &path,
                     illumination * exposure,
                     analog_gain,
                     noise_seed,
-                    mid,
+                    stamp,
                     seq,
                 )
             }
@@ -463,6 +551,19 @@ impl SimCamera {
         .map_err(GrabError::Render)?;
         Ok(Grab { frame, truth })
     }
+}
+
+/// Renders of one exposure averaged for motion blur, at most.
+pub const MAX_BLUR_SAMPLES: usize = 63;
+
+/// What a render integrates over.
+#[derive(Debug, Clone, Copy)]
+enum Exposure {
+    /// One instant, stamped with it (free-running GigE frames).
+    Instant,
+    /// A grab's exposure of `exposure` s centred on the render time,
+    /// averaged over `samples` instants, stamped with latency and jitter.
+    Grab { exposure: f64, samples: usize },
 }
 
 /// Exposure and gain as a client set them on the camera (GenICam
@@ -539,6 +640,12 @@ impl FrameSource for SimCameraSource {
 
     fn frame_ready_after(&self) -> Option<Duration> {
         self.camera.ready_after()
+    }
+
+    /// In process the camera's clock is the rig's (the daemon's clock
+    /// reads the simulator's time: `hil_sim::run::in_process_environment`).
+    fn stamps_on_rig_clock(&self) -> bool {
+        true
     }
 
     fn exposure_us(&self) -> Result<f64, CameraError> {

@@ -13,6 +13,7 @@ use std::time::Duration;
 impl Controller {
     /// STP / #24: stop at once (the motor is braked hard; the profile is cut).
     pub(super) fn stop_now(&mut self, now: Duration) {
+        self.stalled = false;
         let (p, _) = self.state_at(now);
         self.encoder_mm = p;
         if matches!(self.activity, Activity::Moving(_)) {
@@ -28,6 +29,7 @@ impl Controller {
 
     /// Starts (or re-plans) a move to `target` from the current state.
     pub(super) fn start_move(&mut self, now: Duration, target: f64) {
+        self.stalled = false;
         let (p, v) = self.state_at(now);
         self.target_mm = target;
         self.activity = Activity::Moving(Profile::plan(now, p, v, target, self.limits()));

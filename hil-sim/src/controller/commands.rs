@@ -378,6 +378,7 @@ impl Controller {
             }
             C::Hlt(a) => {
                 Self::axes(a)?;
+                self.stalled = false;
                 let (p, v) = self.state_at(now);
                 match &self.activity {
                     Activity::Idle => {}

@@ -148,4 +148,8 @@ pub struct Controller {
     last_now: Duration,
     /// The last path told to the platform.
     reported: Option<ActuatorPath>,
+    /// The carriage is blocked mid-move ([`Controller::stall`]): the
+    /// controller still tries (moving, not on target) until a stop, a halt
+    /// or a new move.
+    stalled: bool,
 }

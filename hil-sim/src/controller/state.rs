@@ -35,6 +35,7 @@ impl Controller {
             params: ParamSet::default(),
             last_now: Duration::ZERO,
             reported: None,
+            stalled: false,
         }
     }
 
@@ -109,6 +110,40 @@ impl Controller {
         self.error = E::NO_ERROR;
         self.settled_at = now;
         self.params = ParamSet::default();
+        self.stalled = false;
+        self.sync_platform(now);
+    }
+
+    /// A blocked carriage (a jammed leadscrew, a collision): motion stops
+    /// where it is while the controller keeps trying, so `#5` says moving
+    /// and `ONT?` stays false; the encoder no longer follows the commanded
+    /// trajectory (a following error). A stop, a halt or a new move ends
+    /// it. No effect at rest.
+    pub fn stall(&mut self, now: Duration) {
+        let now = self.tick(now);
+        if let Activity::Moving(_) = self.activity {
+            let (p, _) = self.state_at(now);
+            self.encoder_mm = p;
+            self.activity = Activity::Idle;
+            self.stalled = true;
+            self.sync_platform(now);
+        }
+    }
+
+    /// A servo fault as a C-863 reports it: the position error grew too
+    /// large, so the controller cuts the motion where it is, switches its
+    /// servo off and sets error 1024 (PI_CNTR_MOTION_ERROR) for the next
+    /// `ERR?`. The host must notice it by asking.
+    pub fn motion_error(&mut self, now: Duration) {
+        let now = self.tick(now);
+        let (p, _) = self.state_at(now);
+        self.encoder_mm = p;
+        self.target_mm = p;
+        self.activity = Activity::Idle;
+        self.stalled = false;
+        self.servo = false;
+        self.settled_at = now;
+        self.error = E::MOTION_ERROR;
         self.sync_platform(now);
     }
 
@@ -141,6 +176,9 @@ impl Controller {
 
     /// Whether the axis is moving at `now` (a move or referencing move).
     pub fn is_moving(&self, now: Duration) -> bool {
+        if self.stalled {
+            return true;
+        }
         match &self.activity {
             Activity::Idle => false,
             Activity::Moving(p) => !p.is_done(now),
@@ -150,7 +188,7 @@ impl Controller {
 
     /// Whether `ONT?` reports on target at `now`.
     pub fn on_target(&self, now: Duration) -> bool {
-        if !self.servo {
+        if !self.servo || self.stalled {
             return false;
         }
         match &self.activity {

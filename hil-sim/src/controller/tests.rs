@@ -442,6 +442,46 @@ fn power_cycle_resets_but_carriage_stays() {
 }
 
 #[test]
+fn a_stall_freezes_the_carriage_until_halted() {
+    let mut c = ctl(3.0);
+    let t0 = referenced(&mut c);
+    q(&mut c, t0, "MOV 1 12");
+    c.stall(s(t0 + 1.0));
+    let p = pos(&mut c, t0 + 1.0);
+    assert!(p > 7.5 && p < 12.0, "{p}");
+    // The carriage stays; the controller still tries.
+    assert_eq!(pos(&mut c, t0 + 5.0), p);
+    assert_eq!(
+        c.true_position_mm(s(t0 + 5.0)),
+        c.true_position_mm(s(t0 + 1.0))
+    );
+    assert!(c.is_moving(s(t0 + 5.0)));
+    assert_eq!(q(&mut c, t0 + 5.0, "ONT? 1").unwrap(), "1=0\n");
+    assert_eq!(err(&mut c, t0 + 5.0), 0);
+    q(&mut c, t0 + 5.0, "HLT 1");
+    assert!(!c.is_moving(s(t0 + 5.1)));
+    assert_eq!(q(&mut c, t0 + 5.2, "ONT? 1").unwrap(), "1=1\n");
+    assert_eq!(pos(&mut c, t0 + 6.0), p);
+}
+
+#[test]
+fn a_motion_error_cuts_motion_servo_off_error_1024() {
+    let mut c = ctl(3.0);
+    let t0 = referenced(&mut c);
+    q(&mut c, t0, "MOV 1 12");
+    c.motion_error(s(t0 + 1.0));
+    let p = pos(&mut c, t0 + 1.0);
+    assert!(p > 7.5 && p < 12.0, "{p}");
+    assert_eq!(pos(&mut c, t0 + 5.0), p);
+    assert!(!c.is_moving(s(t0 + 5.0)));
+    assert_eq!(q(&mut c, t0 + 5.0, "SVO? 1").unwrap(), "1=0\n");
+    assert_eq!(err(&mut c, t0 + 5.0), 1024);
+    // No move until the servo is back on.
+    q(&mut c, t0 + 5.0, "MOV 1 10");
+    assert_eq!(err(&mut c, t0 + 5.0), 5);
+}
+
+#[test]
 fn platform_seam_separates_truth_from_encoder() {
     /// A leadscrew 0.1 % long plus a 2 µm offset.
     #[derive(Debug)]

@@ -53,6 +53,9 @@ pub enum ClientCommand {
     },
     /// Halt everything now.
     Stop,
+    /// Acknowledge a latched fault (after finding its cause): motion is
+    /// allowed again; an axis that lost its reference still needs one.
+    Reset,
     /// Reference axes (x, y or xy).
     Reference {
         /// Axes.
@@ -78,6 +81,16 @@ pub enum ClientCommand {
         /// Cycles.
         #[arg(long)]
         cycles: Option<u32>,
+        /// step (stop and measure, default) or sweep (on the fly at
+        /// constant velocity; the camera delay is estimated from the data).
+        #[arg(long)]
+        mode: Option<String>,
+        /// Sweep: velocity of the odd cycles, µm/s (even cycles: twice it).
+        #[arg(long)]
+        velocity_um_per_s: Option<f64>,
+        /// Sweep: also write the log without the delay correction.
+        #[arg(long)]
+        uncorrected_log: Option<String>,
         /// Follow progress with a progress bar until the job ends.
         #[arg(long)]
         follow: bool,
@@ -215,6 +228,7 @@ fn build(cmd: &ClientCommand) -> Value {
             json!({"cmd": "move", "x_um": x, "y_um": y, "relative": relative, "mode": mode, "wait": wait})
         }
         ClientCommand::Stop => json!({"cmd": "stop"}),
+        ClientCommand::Reset => json!({"cmd": "reset"}),
         ClientCommand::Reference { axes } => json!({"cmd": "reference", "axes": axes}),
         ClientCommand::Subscribe { topics } => {
             if topics.is_empty() {
@@ -228,9 +242,21 @@ fn build(cmd: &ClientCommand) -> Value {
             log,
             step_um,
             cycles,
+            mode,
+            velocity_um_per_s,
+            uncorrected_log,
             ..
         } => {
             let mut v = json!({"cmd": "characterize", "action": action});
+            if let Some(m) = mode {
+                v["mode"] = json!(m);
+            }
+            if let Some(u) = velocity_um_per_s {
+                v["velocity_um_per_s"] = json!(u);
+            }
+            if let Some(u) = uncorrected_log {
+                v["uncorrected_log"] = json!(u);
+            }
             if let Some(l) = log {
                 v["log"] = json!(l);
             }
@@ -449,6 +475,18 @@ async fn follow(conn: &mut Conn, started: &Value) -> Result<ExitCode, Unreachabl
                     Some("running") | None => {}
                     Some("done") => {
                         bar.finish_with_message("done");
+                        // A sweep's findings: the camera delay it measured.
+                        let r = &ev["result"];
+                        if let Some(d) = r["camera_delay_s"].as_f64() {
+                            println!(
+                                "sweep: camera delay {:.3} ms (residual {:.4} µm), {} frames, {} records, {:.0} s",
+                                d * 1e3,
+                                r["camera_delay_residual_um"].as_f64().unwrap_or(f64::NAN),
+                                r["frames"],
+                                r["records"],
+                                r["duration_s"].as_f64().unwrap_or(f64::NAN)
+                            );
+                        }
                         return Ok(ExitCode::SUCCESS);
                     }
                     Some(other) => {

@@ -12,6 +12,7 @@ mod decode;
 mod diagnose;
 mod gcs;
 mod import;
+mod paper;
 mod pattern;
 mod plot;
 mod simlog;
@@ -60,6 +61,9 @@ enum Commands {
     /// cycle; or a .dat of targets and forward/backward readings per cycle)
     /// into a measurement log.
     Import(import::Args),
+    /// The paper's procedure run on a stage model: every quantitative
+    /// statement of the paper beside the model's figures.
+    Paper(paper::Args),
     /// Synthetic characterization log with one hidden effect (try diagnose).
     Simlog(simlog::Args),
     /// The paper's figures (4, 5, 6, 10, 11) from measurement logs, PNG/SVG.
@@ -120,6 +124,7 @@ fn main() -> ExitCode {
         Commands::Diagnose(a) => (diagnose::run(&a), 1),
         Commands::Import(a) => (import::run(&a), 1),
         Commands::Simlog(a) => (simlog::run(&a), 1),
+        Commands::Paper(a) => (paper::run(&a), 1),
         Commands::Plot(a) => (plot::run(&a), 1),
     };
     match result {

@@ -7,11 +7,15 @@
 //! every case: each point is appended and flushed before the next move.
 
 pub mod plan;
+pub mod sweep;
+pub mod sweep_job;
 pub mod tables;
 pub mod tie;
 pub mod validate;
 
-use super::protocol::{Axes, CharacterizeParams, ErrorCode, MoveRequest, ProtoError, Topic};
+use super::protocol::{
+    Axes, CharacterizeMode, CharacterizeParams, ErrorCode, MoveRequest, ProtoError, Topic,
+};
 use super::rig::Rig;
 use super::vision::Measurement;
 use crate::analysis::drift::DRIFT_REF_SEGMENT;
@@ -44,6 +48,11 @@ pub fn columns() -> Columns {
     }
 }
 
+/// Velocity of a sweep's odd cycles when the request names none, µm/s:
+/// at the simulated camera's 30 frames/s the even cycles (twice it) still
+/// put a frame within every 5 µm cell (8 µm apart: neighbours interpolate).
+pub const DEFAULT_SWEEP_VELOCITY_UM_PER_S: f64 = 120.0;
+
 /// Distance below the first point from which the held axis is parked, µm
 /// (10× the M-111's 2 µm backlash, as `charact::scan`'s approach).
 pub const PARK_APPROACH_UM: f64 = 20.0;
@@ -68,6 +77,9 @@ pub struct Progress {
     /// Operations retried after transient faults so far in this run of the
     /// job (the rig's [`Rig::job_retries`], shared so status is live).
     pub retries: Arc<AtomicU64>,
+    /// What a finished sweep found (camera delay, frames; see
+    /// [`sweep_job`]); `null` otherwise.
+    pub result: Value,
 }
 
 impl Progress {
@@ -75,7 +87,8 @@ impl Progress {
     pub fn to_json(&self) -> Value {
         json!({"kind": self.kind, "log": self.log, "state": self.state, "done": self.done,
                "total": self.total, "eta_s": self.eta_s, "error": self.error,
-               "retries": self.retries.load(std::sync::atomic::Ordering::SeqCst)})
+               "retries": self.retries.load(std::sync::atomic::Ordering::SeqCst),
+               "result": self.result})
     }
 }
 
@@ -207,6 +220,42 @@ impl Jobs {
                 format!("log {name} exists already; resume it or choose another name"),
             ));
         }
+        if p.mode == Some(CharacterizeMode::Sweep) {
+            let sweep = sweep::SweepPlan {
+                scan_x: plan.scan_x,
+                scan_y: plan.scan_y,
+                step_um: plan.step_um,
+                x_start_um: plan.x_start_um,
+                x_range_um: plan.x_range_um,
+                y_start_um: plan.y_start_um,
+                y_range_um: plan.y_range_um,
+                cycles: plan.cycles,
+                velocity_um_per_s: p
+                    .velocity_um_per_s
+                    .unwrap_or(DEFAULT_SWEEP_VELOCITY_UM_PER_S),
+            };
+            sweep
+                .validate()
+                .map_err(|e| ProtoError::new(ErrorCode::BadValue, e.to_string()))?;
+            if let Some(u) = &p.uncorrected_log {
+                if u == &name || Self::log_path(rig, u).exists() {
+                    return Err(ProtoError::new(
+                        ErrorCode::LogError,
+                        format!("uncorrected_log {u} exists already or is the log itself"),
+                    ));
+                }
+            }
+            rig.begin_job()?;
+            let total = sweep.records_total();
+            let args = sweep_job::SweepArgs {
+                plan: sweep,
+                name,
+                uncorrected: p.uncorrected_log,
+                frames_per_point: plan.frames_per_point,
+                settle_s: plan.settle_s,
+            };
+            return self.launch_sweep(rig, args, total);
+        }
         let drift_every_s = p.drift_every_s.unwrap_or(d.drift_every_s);
         let drift = (drift_every_s > 0.0).then(|| DriftPlan {
             every_s: drift_every_s,
@@ -239,6 +288,12 @@ impl Jobs {
         .await
         .map_err(|e| ProtoError::new(ErrorCode::Internal, e.to_string()))?
         .map_err(|e| ProtoError::new(ErrorCode::LogError, format!("cannot resume {name}: {e}")))?;
+        if resume.metadata.get("mode") == Some("sweep") {
+            return Err(ProtoError::new(
+                ErrorCode::JobState,
+                format!("{name} is a sweep log: a sweep is written when it ends and cannot be resumed; start a new one"),
+            ));
+        }
         let plan = ScanPlan::from_metadata(&resume.metadata)
             .map_err(|e| ProtoError::new(ErrorCode::LogError, format!("{name}: {e}")))?;
         // The frame the job started with: its own tie (vision_frame_*), or
@@ -306,6 +361,51 @@ impl Jobs {
         )
     }
 
+    /// Starts the sweep job task (see [`sweep_job`]).
+    fn launch_sweep(
+        &self,
+        rig: &Arc<Rig>,
+        args: sweep_job::SweepArgs,
+        total: usize,
+    ) -> Result<Value, ProtoError> {
+        let (cancel, cancel_rx) = watch::channel(false);
+        *lock(&self.progress) = Some(Progress {
+            kind: "characterize",
+            log: args.name.clone(),
+            state: "running",
+            done: 0,
+            total,
+            eta_s: None,
+            error: None,
+            retries: rig.job_retries.clone(),
+            result: Value::Null,
+        });
+        let progress = self.progress.clone();
+        let rig2 = rig.clone();
+        let task = tokio::spawn(async move {
+            let r = sweep_job::run(&rig2, &args, &progress, cancel_rx).await;
+            rig2.end_job();
+            let mut g = lock(&progress);
+            if let Some(p) = g.as_mut() {
+                match r {
+                    Ok((state, result)) => {
+                        p.state = state;
+                        p.result = result;
+                    }
+                    Err(e) => {
+                        tracing::warn!("sweep characterization {} failed: {e}", args.name);
+                        p.state = "failed";
+                        p.error = Some(e.to_string());
+                    }
+                }
+                p.eta_s = None;
+                rig2.push(Topic::Job, "job", p.to_json());
+            }
+        });
+        *lock(&self.running) = Some(Running { cancel, task });
+        Ok(json!({"job": lock(&self.progress).as_ref().map(Progress::to_json)}))
+    }
+
     #[allow(clippy::too_many_arguments)]
     fn launch(
         &self,
@@ -327,6 +427,7 @@ impl Jobs {
             eta_s: None,
             error: None,
             retries: rig.job_retries.clone(),
+            result: Value::Null,
         });
         let progress = self.progress.clone();
         let rig2 = rig.clone();
@@ -466,6 +567,7 @@ pub(crate) async fn measure(
     let mean = |f: fn(&Measurement) -> f64| got.iter().map(f).sum::<f64>() / k;
     let m = Measurement {
         t_s: mean(|m| m.t_s),
+        frame_t_s: mean(|m| m.frame_t_s),
         sequence: got.last().map_or(0, |m| m.sequence),
         x_um: mean(|m| m.x_um),
         y_um: mean(|m| m.y_um),

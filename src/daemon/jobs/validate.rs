@@ -362,6 +362,7 @@ impl Jobs {
             eta_s: None,
             error: None,
             retries: rig.job_retries.clone(),
+            result: Value::Null,
         });
         *lock(&self.validation) = None;
         let progress = self.progress.clone();

@@ -108,6 +108,35 @@ pub struct CharacterizeParams {
     pub drift_every_s: Option<f64>,
     /// Drift reference point `[x, y]`, µm; default: the scan's start corner.
     pub drift_reference_um: Option<[f64; 2]>,
+    /// Stop-and-measure (default) or on-the-fly sweeps.
+    pub mode: Option<CharacterizeMode>,
+    /// Sweep: velocity of the odd cycles, µm/s (even cycles sweep at twice
+    /// it, so the camera delay separates from the backlash).
+    pub velocity_um_per_s: Option<f64>,
+    /// Sweep: also write the log resampled without the delay correction
+    /// (file name in the data directory), to show what the delay costs.
+    pub uncorrected_log: Option<String>,
+}
+
+/// How a characterization measures.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub enum CharacterizeMode {
+    /// Move, settle, average frames, log; point after point (the paper's).
+    #[default]
+    Step,
+    /// Constant-velocity sweeps, every frame decoded and timestamped,
+    /// resampled onto the step grid (`daemon::jobs::sweep`).
+    Sweep,
+}
+
+impl CharacterizeMode {
+    /// The protocol word.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Step => "step",
+            Self::Sweep => "sweep",
+        }
+    }
 }
 
 /// Sub-commands of `characterize`.
@@ -287,6 +316,8 @@ pub enum Command {
     Move(MoveRequest),
     /// Halt everything now.
     Stop,
+    /// Acknowledge a latched fault so that motion is allowed again.
+    Reset,
     /// Reference axes.
     Reference(Axes),
     /// Stream events on this connection.
@@ -311,6 +342,7 @@ pub const COMMANDS: &[&str] = &[
     "position",
     "move",
     "stop",
+    "reset",
     "reference",
     "subscribe",
     "characterize",

@@ -36,6 +36,9 @@ pub enum ErrorCode {
     Halted,
     /// The controller or its line failed during the command.
     DriverError,
+    /// A motion fault is latched (the message names it): motion commands
+    /// are refused until a client sends `reset`.
+    FaultLatched,
     /// The camera gives no usable measurement.
     CameraUnavailable,
     /// The newest measurement is too old or of too low quality.
@@ -59,6 +62,11 @@ pub enum ErrorCode {
     JobState,
     /// The measurement log could not be created, read or resumed.
     LogError,
+    /// The client's role does not allow the command (`[access]`).
+    PermissionDenied,
+    /// The connection was closed for idling, or a request line stalled
+    /// (`daemon.idle_timeout_s`, `daemon.read_timeout_s`).
+    TimedOut,
     /// The daemon is shutting down.
     ShuttingDown,
     /// A bug or an unexpected internal failure.
@@ -82,6 +90,7 @@ impl ErrorCode {
             ErrorCode::Busy => "busy",
             ErrorCode::Halted => "halted",
             ErrorCode::DriverError => "driver_error",
+            ErrorCode::FaultLatched => "fault_latched",
             ErrorCode::CameraUnavailable => "camera_unavailable",
             ErrorCode::StaleMeasurement => "stale_measurement",
             ErrorCode::NotConverged => "not_converged",
@@ -93,6 +102,8 @@ impl ErrorCode {
             ErrorCode::NotAvailable => "not_available",
             ErrorCode::JobState => "job_state",
             ErrorCode::LogError => "log_error",
+            ErrorCode::PermissionDenied => "permission_denied",
+            ErrorCode::TimedOut => "timed_out",
             ErrorCode::ShuttingDown => "shutting_down",
             ErrorCode::Internal => "internal",
         }

@@ -17,23 +17,27 @@
 //! * `fields`: the field readers `parse` is built from (type, range and
 //!   file-name checks with their error messages).
 //! * `reply`: replies and events serialized to one line each.
+//! * `role`: the role each command needs ([`Role`], [`Command::role`]) and
+//!   which commands are audited.
 
 mod command;
 mod error;
 mod fields;
 mod parse;
 mod reply;
+mod role;
 #[cfg(test)]
 mod tests;
 
 pub use command::{
-    Axes, CharacterizeAction, CharacterizeParams, Command, DriftAction, MoveMode, MoveRequest,
-    Refusal, Request, TablesAction, TablesBuildParams, Topic, ValidateAction, ValidateMode,
-    ValidateParams, COMMANDS,
+    Axes, CharacterizeAction, CharacterizeMode, CharacterizeParams, Command, DriftAction, MoveMode,
+    MoveRequest, Refusal, Request, TablesAction, TablesBuildParams, Topic, ValidateAction,
+    ValidateMode, ValidateParams, COMMANDS,
 };
 pub use error::{ErrorCode, ProtoError};
 pub use parse::{parse_request, too_large};
 pub use reply::{error_reply, event_line, ok_reply};
+pub use role::Role;
 
 /// Version of the protocol this daemon speaks (the `version` command reports
 /// it; a client refuses a major version it does not know).

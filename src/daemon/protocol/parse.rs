@@ -7,9 +7,9 @@
 use serde_json::{Map, Value};
 
 use super::command::{
-    Axes, CharacterizeAction, CharacterizeParams, Command, DriftAction, MoveMode, MoveRequest,
-    Refusal, Request, TablesAction, TablesBuildParams, Topic, ValidateAction, ValidateMode,
-    ValidateParams, COMMANDS,
+    Axes, CharacterizeAction, CharacterizeMode, CharacterizeParams, Command, DriftAction, MoveMode,
+    MoveRequest, Refusal, Request, TablesAction, TablesBuildParams, Topic, ValidateAction,
+    ValidateMode, ValidateParams, COMMANDS,
 };
 use super::fields::{
     check_file_name, opt_axes, opt_bool, opt_count, opt_f64, opt_f64_within, opt_str, opt_xy,
@@ -66,7 +66,7 @@ pub fn too_large(len: usize) -> ProtoError {
 fn parse_command(obj: &Map<String, Value>) -> Result<Command, ProtoError> {
     let cmd = req_str(obj, "cmd")?;
     let known: &[&str] = match cmd {
-        "status" | "position" | "stop" | "config" | "version" => &[],
+        "status" | "position" | "stop" | "reset" | "config" | "version" => &[],
         "move" => &["x_um", "y_um", "relative", "mode", "wait", "tolerance_um"],
         "reference" => &["axes"],
         "subscribe" => &["topics"],
@@ -82,6 +82,9 @@ fn parse_command(obj: &Map<String, Value>) -> Result<Command, ProtoError> {
             "settle_s",
             "drift_every_s",
             "drift_reference_um",
+            "mode",
+            "velocity_um_per_s",
+            "uncorrected_log",
         ],
         "validate" => &[
             "action",
@@ -130,6 +133,7 @@ fn parse_command(obj: &Map<String, Value>) -> Result<Command, ProtoError> {
         "status" => Command::Status,
         "position" => Command::Position,
         "stop" => Command::Stop,
+        "reset" => Command::Reset,
         "config" => Command::Config,
         "version" => Command::Version,
         "move" => Command::Move(parse_move(obj)?),
@@ -244,6 +248,28 @@ fn parse_characterize(obj: &Map<String, Value>) -> Result<CharacterizeAction, Pr
                 settle_s,
                 drift_every_s,
                 drift_reference_um: opt_xy(obj, "drift_reference_um")?,
+                mode: match opt_str(obj, "mode")? {
+                    None => None,
+                    Some("step") => Some(CharacterizeMode::Step),
+                    Some("sweep") => Some(CharacterizeMode::Sweep),
+                    Some(other) => {
+                        return Err(unknown_word("characterize mode", other, "step, sweep"))
+                    }
+                },
+                velocity_um_per_s: opt_f64_within(
+                    obj,
+                    "velocity_um_per_s",
+                    1.0,
+                    5000.0,
+                    "1..5000",
+                )?,
+                uncorrected_log: match opt_str(obj, "uncorrected_log")? {
+                    Some(l) => {
+                        check_file_name("uncorrected_log", l)?;
+                        Some(l.to_owned())
+                    }
+                    None => None,
+                },
             }))
         }
         "status" => Ok(CharacterizeAction::Status),

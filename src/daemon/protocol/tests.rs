@@ -108,7 +108,21 @@ fn parses_every_command() {
             ..
         })) if e == 600.0 && x == 100.0 && y == 200.5
     ));
+    assert!(matches!(
+        parse(r#"{"cmd":"characterize","action":"start","mode":"sweep","velocity_um_per_s":120,"uncorrected_log":"u.csv"}"#)
+            .unwrap()
+            .command,
+        Command::Characterize(CharacterizeAction::Start(CharacterizeParams {
+            mode: Some(CharacterizeMode::Sweep),
+            velocity_um_per_s: Some(v),
+            uncorrected_log: Some(u),
+            ..
+        })) if v == 120.0 && u == "u.csv"
+    ));
     for bad in [
+        r#"{"cmd":"characterize","action":"start","mode":"fly"}"#,
+        r#"{"cmd":"characterize","action":"start","velocity_um_per_s":0}"#,
+        r#"{"cmd":"characterize","action":"start","uncorrected_log":"../x.csv"}"#,
         r#"{"cmd":"characterize","action":"start","drift_every_s":-1}"#,
         r#"{"cmd":"characterize","action":"start","drift_reference_um":[1]}"#,
         r#"{"cmd":"characterize","action":"start","drift_reference_um":[1,"a"]}"#,
@@ -131,6 +145,8 @@ fn parses_every_command() {
     for c in ["position", "stop", "config", "version", "validate"] {
         assert!(parse(&format!(r#"{{"cmd":"{c}"}}"#)).is_ok(), "{c}");
     }
+    assert_eq!(parse(r#"{"cmd":"reset"}"#).unwrap().command, Command::Reset);
+    assert_eq!(code(r#"{"cmd":"reset","axes":"x"}"#), ErrorCode::BadValue);
 }
 
 #[test]

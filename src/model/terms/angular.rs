@@ -87,6 +87,15 @@ pub struct AngularConfig {
     /// only).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub arm_z_um: Option<f64>,
+    /// Yaw only: this carriage is the lower one and carries the other axis,
+    /// so the tool point's arm in the other axis's direction grows with that
+    /// axis's commanded position (`arm_x_um + x` for a yaw of the y
+    /// carriage, `arm_y_um + y` for the x carriage). Why: it makes the
+    /// error depend on both coordinates (`θ(y)·x`), which no pair of 1-D
+    /// lookup tables measured along two scan lines can hold — one of the
+    /// causes of the paper's random targets being worse than its square.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub carries_other_axis: bool,
 }
 
 /// The angular term.
@@ -139,6 +148,15 @@ impl AngularTerm {
                 });
             }
         }
+        if cfg.carries_other_axis && cfg.rotation != Rotation::Yaw {
+            return Err(ModelError::Invalid {
+                key: format!("term `{name}`: carries_other_axis"),
+                reason: format!(
+                    "only a yaw sees the carried axis's travel in the plane, not a {:?}",
+                    cfg.rotation
+                ),
+            });
+        }
         for key in allowed {
             let slot = arm_field(&mut cfg, key);
             let v = slot.unwrap_or(0.0);
@@ -164,12 +182,22 @@ impl AngularTerm {
         }
     }
 
-    fn arm(&self) -> [f64; 3] {
-        [
+    /// The arm at `state`: the configured one, plus the carried axis's
+    /// commanded position when the carriage carries it.
+    fn arm(&self, state: &MotionState) -> [f64; 3] {
+        let mut r = [
             self.cfg.arm_x_um.unwrap_or(0.0),
             self.cfg.arm_y_um.unwrap_or(0.0),
             self.cfg.arm_z_um.unwrap_or(0.0),
-        ]
+        ];
+        if self.cfg.carries_other_axis {
+            let other = match self.cfg.axis {
+                Axis::X => Axis::Y,
+                Axis::Y => Axis::X,
+            };
+            r[other.index()] += state.cmd_um(other);
+        }
+        r
     }
 
     /// In-plane part of `â × r`, µm per rad.
@@ -248,7 +276,11 @@ impl Term for AngularTerm {
                 ),
             ));
         }
-        let arm = self.arm();
+        let arm = [
+            self.cfg.arm_x_um.unwrap_or(0.0),
+            self.cfg.arm_y_um.unwrap_or(0.0),
+            self.cfg.arm_z_um.unwrap_or(0.0),
+        ];
         for (key, i) in self.arm_keys() {
             out.push(ParamInfo::new(
                 *key,
@@ -280,14 +312,14 @@ impl Term for AngularTerm {
 
     fn contribution(&self, state: &MotionState) -> [f64; 2] {
         let (_, theta) = self.angle_basis(state.cmd_um(self.cfg.axis));
-        let l = Self::lever(self.rotation_axis(), self.arm());
+        let l = Self::lever(self.rotation_axis(), self.arm(state));
         [theta * l[0], theta * l[1]]
     }
 
     fn jacobian(&self, state: &MotionState) -> Vec<[f64; 2]> {
         let (basis, theta) = self.angle_basis(state.cmd_um(self.cfg.axis));
         let a = self.rotation_axis();
-        let l = Self::lever(a, self.arm());
+        let l = Self::lever(a, self.arm(state));
         let mut out: Vec<[f64; 2]> = basis.iter().map(|b| [b * l[0], b * l[1]]).collect();
         for (_, i) in self.arm_keys() {
             let mut unit = [0.0; 3];
@@ -328,7 +360,41 @@ mod tests {
             arm_x_um: None,
             arm_y_um: None,
             arm_z_um: None,
+            carries_other_axis: false,
         }
+    }
+
+    #[test]
+    fn a_lower_carriage_yaw_grows_with_the_carried_axis() {
+        // Yaw of the y carriage carrying x: dy = θ(y)·(arm_x + x).
+        let mut c = cfg(Axis::Y, Rotation::Yaw);
+        c.arm_x_um = Some(1000.0);
+        c.carries_other_axis = true;
+        let t = AngularTerm::new("y_yaw", c.clone()).unwrap();
+        let at = |x: f64, y: f64| t.contribution(&MotionState::at_rest(x, y));
+        let (_, theta) = t.angle_basis(2500.0);
+        assert!(theta.abs() > 1e-6);
+        let near = at(0.0, 2500.0);
+        let far = at(8000.0, 2500.0);
+        assert!((near[1] - theta * 1000.0).abs() < 1e-12);
+        assert!((far[1] - theta * 9000.0).abs() < 1e-12);
+        // Not separable: the y error's change with y depends on x.
+        let d_near = at(0.0, 2500.0)[1] - at(0.0, 0.0)[1];
+        let d_far = at(8000.0, 2500.0)[1] - at(8000.0, 0.0)[1];
+        assert!((d_far - 9.0 * d_near).abs() < 1e-9);
+        // The jacobian still matches the numeric one.
+        let s = MotionState::at_rest(5000.0, 1200.0);
+        let a = t.jacobian(&s);
+        let n = numeric_jacobian(&t, &s);
+        for (p, q) in a.iter().zip(&n) {
+            assert!((p[0] - q[0]).abs() < 1e-6 && (p[1] - q[1]).abs() < 1e-6);
+        }
+        // Round trip keeps the flag; a pitch refuses it.
+        let back = AngularTerm::new("y_yaw", t.cfg.clone()).unwrap();
+        assert_eq!(back, t);
+        let mut p = cfg(Axis::Y, Rotation::Pitch);
+        p.carries_other_axis = true;
+        assert!(AngularTerm::new("y_pitch", p).is_err());
     }
 
     #[test]

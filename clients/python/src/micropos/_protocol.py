@@ -167,6 +167,9 @@ def characterize_start(
     settle_s: Optional[float],
     drift_every_s: Optional[float],
     drift_reference_um: Optional[Sequence[float]],
+    mode: Optional[str] = None,
+    velocity_um_per_s: Optional[float] = None,
+    uncorrected_log: Optional[str] = None,
 ) -> Json:
     """``characterize`` ``start``."""
     return request(
@@ -182,6 +185,9 @@ def characterize_start(
         settle_s=settle_s,
         drift_every_s=drift_every_s,
         drift_reference_um=None if drift_reference_um is None else list(drift_reference_um),
+        mode=mode,
+        velocity_um_per_s=velocity_um_per_s,
+        uncorrected_log=uncorrected_log,
     )
 
 

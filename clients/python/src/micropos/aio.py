@@ -19,6 +19,7 @@ from .client import DEFAULT_LONG_TIMEOUT, DEFAULT_SOCKET, DEFAULT_TIMEOUT
 from .errors import ConnectionLost, DaemonUnreachable, MicroposError, ProtocolError, Timeout
 from .types import (
     Axes,
+    CharacterizeMode,
     DriftMethod,
     Json,
     JobKind,
@@ -209,7 +210,7 @@ class AsyncRig:
                     return proto.check_reply(msg)
                 err = proto.unsolicited_error(msg)
                 if err is not None:
-                    if err.code == "shutting_down":
+                    if err.code in ("shutting_down", "timed_out"):
                         conn.close()
                     raise err
         except Timeout:
@@ -281,6 +282,10 @@ class AsyncRig:
         finally:
             conn.close()
 
+    async def reset(self) -> Json:
+        """``reset``: acknowledges a latched fault (see :meth:`micropos.Rig.reset`)."""
+        return await self._call({"cmd": "reset"})
+
     async def reference(self, axes: Axes = "xy", *, timeout: Optional[float] = None) -> Json:
         """``reference``."""
         return await self._call(proto.reference(axes), self._long(timeout))
@@ -315,6 +320,9 @@ class AsyncRig:
         settle_s: Optional[float] = None,
         drift_every_s: Optional[float] = None,
         drift_reference_um: Optional[Sequence[float]] = None,
+        mode: Optional[CharacterizeMode] = None,
+        velocity_um_per_s: Optional[float] = None,
+        uncorrected_log: Optional[str] = None,
     ) -> "AsyncJob":
         """``characterize start``; see :meth:`Rig.characterize`."""
         reply = await self._call(
@@ -329,6 +337,9 @@ class AsyncRig:
                 settle_s=settle_s,
                 drift_every_s=drift_every_s,
                 drift_reference_um=drift_reference_um,
+                mode=mode,
+                velocity_um_per_s=velocity_um_per_s,
+                uncorrected_log=uncorrected_log,
             )
         )
         return AsyncJob._from_reply(self, "characterize", reply)

@@ -26,6 +26,7 @@ from ._connection import Connection
 from .errors import MicroposError, ProtocolError, Timeout
 from .types import (
     Axes,
+    CharacterizeMode,
     DriftMethod,
     Json,
     JobKind,
@@ -147,7 +148,7 @@ class Rig:
                     return proto.check_reply(msg)
                 err = proto.unsolicited_error(msg)
                 if err is not None:
-                    if err.code == "shutting_down":
+                    if err.code in ("shutting_down", "timed_out"):
                         conn.close()
                     raise err
         except Timeout:
@@ -243,6 +244,13 @@ class Rig:
         finally:
             conn.close()
 
+    def reset(self) -> Json:
+        """``reset``: acknowledges a latched fault (:class:`~micropos.errors.FaultLatched`)
+        once its cause is found; motion is allowed again. ``cleared`` names
+        the fault (``None`` if nothing was latched). An axis that lost its
+        reference still needs :meth:`reference`."""
+        return self._call({"cmd": "reset"})
+
     def reference(self, axes: Axes = "xy", *, timeout: Optional[float] = None) -> Json:
         """``reference``: reference run of ``x``, ``y`` or ``xy`` (the stage moves)."""
         return self._call(proto.reference(axes), self._long(timeout))
@@ -291,11 +299,20 @@ class Rig:
         settle_s: Optional[float] = None,
         drift_every_s: Optional[float] = None,
         drift_reference_um: Optional[Sequence[float]] = None,
+        mode: Optional[CharacterizeMode] = None,
+        velocity_um_per_s: Optional[float] = None,
+        uncorrected_log: Optional[str] = None,
     ) -> "Job":
         """``characterize start``: a characterization job, logged point by
         point into ``log`` (a file name in the daemon's data directory).
         Unset parameters take the daemon's configured ``[characterize]``
-        values. Returns the job's handle."""
+        values. ``mode="sweep"`` measures on the fly: each axis sweeps at
+        ``velocity_um_per_s`` (odd cycles) and twice it (even cycles; needs
+        ``cycles`` ≥ 2), every frame is decoded, the camera delay is
+        estimated from the data (``wait()["job"]["result"]["camera_delay_s"]``)
+        and the log is written resampled onto the step grid when the sweep
+        ends; ``uncorrected_log`` also writes it without the delay
+        correction. Returns the job's handle."""
         reply = self._call(
             proto.characterize_start(
                 log=log,
@@ -308,6 +325,9 @@ class Rig:
                 settle_s=settle_s,
                 drift_every_s=drift_every_s,
                 drift_reference_um=drift_reference_um,
+                mode=mode,
+                velocity_um_per_s=velocity_um_per_s,
+                uncorrected_log=uncorrected_log,
             )
         )
         return Job._from_reply(self, "characterize", reply)

@@ -32,6 +32,7 @@ __all__ = [
     "Busy",
     "Halted",
     "DriverError",
+    "FaultLatched",
     "CameraUnavailable",
     "StaleMeasurement",
     "NotConverged",
@@ -43,6 +44,8 @@ __all__ = [
     "NotAvailable",
     "JobState",
     "LogError",
+    "PermissionDenied",
+    "TimedOut",
     "ShuttingDown",
     "Internal",
     # client side
@@ -185,6 +188,13 @@ class DriverError(MicroposError):
     code = "driver_error"
 
 
+class FaultLatched(MicroposError):
+    """A motion fault is latched (the message names it): motion is refused
+    until ``reset()``, sent once its cause is found."""
+
+    code = "fault_latched"
+
+
 class CameraUnavailable(MicroposError):
     """The camera gives no usable measurement (or there is none)."""
 
@@ -249,6 +259,21 @@ class LogError(MicroposError):
     """The measurement log could not be created, read or resumed."""
 
     code = "log_error"
+
+
+class PermissionDenied(MicroposError):
+    """The client's role (the daemon's ``[access]`` groups) does not allow the
+    command: e.g. ``move`` needs ``operate``, ``config`` needs ``admin``."""
+
+    code = "permission_denied"
+
+
+class TimedOut(MicroposError):
+    """The daemon closed the connection: idle too long, or a request line was
+    not finished in time. The request that meets it was not executed; the
+    client closes the connection and the next call connects afresh."""
+
+    code = "timed_out"
 
 
 class ShuttingDown(MicroposError):
@@ -372,6 +397,7 @@ ERROR_CLASSES: Dict[str, Type[MicroposError]] = {
         Busy,
         Halted,
         DriverError,
+        FaultLatched,
         CameraUnavailable,
         StaleMeasurement,
         NotConverged,
@@ -383,6 +409,8 @@ ERROR_CLASSES: Dict[str, Type[MicroposError]] = {
         NotAvailable,
         JobState,
         LogError,
+        PermissionDenied,
+        TimedOut,
         ShuttingDown,
         Internal,
     )

@@ -43,6 +43,10 @@ DriftMethod = Literal["off", "static", "adaptive"]
 #: Job kinds.
 JobKind = Literal["characterize", "validate"]
 
+#: How a characterization measures: stop and measure per point, or on the
+#: fly at constant velocity (the camera delay estimated from the data).
+CharacterizeMode = Literal["step", "sweep"]
+
 
 class JobProgress(TypedDict, total=False):
     """A job's status object (``status.job``, ``characterize status``, ``job``
@@ -62,3 +66,7 @@ class JobProgress(TypedDict, total=False):
     error: Optional[str]
     #: Operations retried after transient faults in this run of the job.
     retries: int
+    #: A finished sweep characterization's findings (``camera_delay_s``,
+    #: ``camera_delay_residual_um``, ``frames``, ``pos_samples``,
+    #: ``records``, ``duration_s``); ``None`` for other jobs.
+    result: Optional[Json]

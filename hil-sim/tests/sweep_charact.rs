@@ -1,0 +1,201 @@
+//! The sweep characterization (`characterize start` with `mode = sweep`)
+//! through microposd on the in-process rig (paused test runtime: virtual
+//! clock). The camera's hidden latency is drawn from the seed; checked:
+//! the job estimates it within 0.2 ms from the data, the log (and the
+//! delay-ignored one) is accepted by `tables build`, it has the step plan's
+//! grid, and the sweep took the simulated time its motion needs (no
+//! settles).
+//!
+//! `cargo test -p hil-sim --test sweep_charact -- --nocapture` prints the
+//! figures.
+
+mod common;
+use common::Client;
+use hil_sim::camera::CameraConfig;
+use hil_sim::rig::RigConfig;
+use hil_sim::run::{daemon_config, RunPlan};
+use hil_sim::ServeConfig;
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use serde_json::json;
+use std::time::{Duration, Instant};
+
+const SEED: u64 = 23;
+
+#[tokio::test(start_paused = true)]
+async fn sweep_estimates_the_hidden_delay_and_logs_the_step_grid() {
+    let wall = Instant::now();
+    let latency_us = ChaCha8Rng::seed_from_u64(SEED).gen_range(1000.0..9000.0);
+    let dir = tempfile::tempdir().unwrap();
+    let rig_dir = dir.path().join("rig");
+    let data_dir = dir.path().join("data");
+    std::fs::create_dir_all(&rig_dir).unwrap();
+    std::fs::create_dir_all(&data_dir).unwrap();
+    let rig_cfg = RigConfig {
+        camera: CameraConfig {
+            latency_us,
+            ..CameraConfig::default()
+        },
+        ..RigConfig::default()
+    };
+    let sim = common::serve_in_process(ServeConfig {
+        rig: rig_cfg.clone(),
+        ..common::serve_config(&rig_dir, 1.0, SEED)
+    });
+    let socket = dir.path().join("micropos.sock");
+    let (x_range, y_range, step, v) = (400.0, 250.0, 10.0, 120.0);
+    let plan = RunPlan {
+        step_um: step,
+        x_range_um: x_range,
+        y_range_um: y_range,
+        cycles: 2,
+        frames_per_point: 1,
+        settle_s: 0.5,
+        ..RunPlan::reduced()
+    };
+    let mut c = daemon_config(&rig_dir, &data_dir, &socket, &rig_cfg, &plan).unwrap();
+    c.characterize.x_start_um = Some(3000.0);
+    c.characterize.y_start_um = Some(3000.0);
+    c.validate().unwrap();
+    let daemon = common::start_daemon_in_process(c, &sim, &socket);
+    let mut cl = Client::connect(&socket).await;
+    common::connect_and_reference(&mut cl).await;
+    let r = cl
+        .call_ok(
+            json!({"cmd": "characterize", "action": "start", "log": "sweep.csv",
+            "mode": "sweep", "velocity_um_per_s": v, "step_um": step,
+            "x_range_um": x_range, "y_range_um": y_range, "cycles": 2,
+            "uncorrected_log": "sweep-nodelay.csv"}),
+        )
+        .await;
+    assert_eq!(r["job"]["state"], "running", "{r}");
+    let status = loop {
+        let s = cl
+            .call_ok(json!({"cmd": "characterize", "action": "status"}))
+            .await;
+        if s["job"]["state"] != "running" {
+            break s;
+        }
+        assert!(wall.elapsed() < Duration::from_secs(900), "{s}");
+        tokio::time::sleep(Duration::from_secs(1)).await;
+    };
+    assert_eq!(status["job"]["state"], "done", "{status}");
+    let res = &status["job"]["result"];
+    let est_s = res["camera_delay_s"].as_f64().unwrap();
+    let err_ms = (est_s - latency_us * 1e-6) * 1e3;
+    let duration_s = res["duration_s"].as_f64().unwrap();
+    println!(
+        "hidden latency {:.3} ms, estimated {:.3} ms (error {err_ms:+.4} ms, residual {:.4} µm); \
+         {} frames, {} POS? samples, {} records; sweep {duration_s:.1} s simulated; wall {:.1} s",
+        latency_us * 1e-3,
+        est_s * 1e3,
+        res["camera_delay_residual_um"],
+        res["frames"],
+        res["pos_samples"],
+        res["records"],
+        wall.elapsed().as_secs_f64()
+    );
+    assert!(err_ms.abs() < 0.2, "delay off by {err_ms} ms");
+
+    // The log has the step plan's grid and segments; tables build takes it.
+    let log = micropos::charact::log::read_file(data_dir.join("sweep.csv")).unwrap();
+    assert_eq!(log.metadata.get("mode"), Some("sweep"));
+    let grid = |r: f64| (r / step) as usize + 1;
+    let per_axis = [(grid(x_range), "scan_x"), (grid(y_range), "scan_y")];
+    for (n, seg) in per_axis {
+        let k = log
+            .records
+            .iter()
+            .filter(|r| r.segment.starts_with(seg))
+            .count();
+        // Four passes per axis; at most the first and last cells may miss.
+        assert!(k <= 4 * n && k + 8 >= 4 * n, "{seg}: {k} of {}", 4 * n);
+    }
+    for r in &log.records {
+        let on_grid = |p: f64, s: f64| ((p - s) / step - ((p - s) / step).round()).abs() < 1e-9;
+        assert!(on_grid(r.x_cmd_um, 3000.0) || on_grid(r.y_cmd_um, 3000.0));
+    }
+    for name in ["sweep.csv", "sweep-nodelay.csv"] {
+        let b = cl
+            .call_ok(json!({"cmd": "tables", "action": "build", "log": name}))
+            .await;
+        assert!(b["paper"]["name"].is_string(), "{b}");
+    }
+    // Simulated time: the motion (ranges plus run-ups at v, 2v) and the tie,
+    // no settles per point.
+    let motion_s: f64 = [x_range, y_range]
+        .iter()
+        .map(|r| {
+            2.0 * (r + 2.0 * (20.0 + 0.3 * v)) / v + 2.0 * (r + 2.0 * (20.0 + 0.6 * v)) / (2.0 * v)
+        })
+        .sum();
+    let tie_s: f64 = log.metadata.get("tie_duration_s").unwrap().parse().unwrap();
+    assert!(
+        duration_s < motion_s + tie_s + 30.0,
+        "{duration_s} s vs motion {motion_s} s + tie {tie_s} s"
+    );
+    // A sweep log is not resumable.
+    let e = cl
+        .call(json!({"cmd": "characterize", "action": "resume", "log": "sweep.csv"}))
+        .await;
+    assert_eq!(e["ok"], false, "{e}");
+    drop(cl);
+    daemon.shutdown().await;
+    let _ = tokio::task::spawn_blocking(move || sim.shutdown()).await;
+}
+
+/// The main job's sweep row (`hil_sim::run`, `summary.sweep`) on the
+/// paper's ranges and cycles, with step-mode and sweep tables on a grid of
+/// `MICROPOS_SWEEP_STEP_UM` (default 25 µm; the paper's 5 µm with
+/// `MICROPOS_SWEEP_STEP_UM=5`): the sweep's simulated duration (goal
+/// ≤ 30 min), the delay estimate against the simulator's (goal 0.2 ms) and
+/// the sweep tables' AP against the step tables' on the same rig and seed,
+/// live drift off (goal: within 10 %, plus [`STEP_AP_SPREAD_UM`], the
+/// validation's own spread at these figures), and the AP with the delay
+/// ignored. Slow (the whole main job,
+/// 20 000+ frames): `cargo test -p hil-sim --test sweep_charact -- --ignored --nocapture`.
+#[test]
+#[ignore = "the whole main job on the paper's ranges: minutes of wall time"]
+fn main_job_sweep_row_on_the_paper_ranges() {
+    let step_um = std::env::var("MICROPOS_SWEEP_STEP_UM")
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(25.0);
+    let plan = hil_sim::run::RunPlan {
+        step_um,
+        short_step_um: 500.0,
+        ..hil_sim::run::RunPlan::paper()
+    };
+    let opts = hil_sim::run::RunOptions {
+        plan,
+        ..hil_sim::run::RunOptions::default()
+    };
+    let report = hil_sim::run::run(opts, &mut |l| eprintln!("main job: {l}")).unwrap();
+    let s = &report.summary;
+    println!("{}", hil_sim::run::format_table(s));
+    println!("{}", serde_json::to_string_pretty(&s["sweep"]).unwrap());
+    let sw = &s["sweep"];
+    let sim_s = sw["simulated_s"].as_f64().unwrap();
+    assert!(sim_s <= 1800.0, "sweep took {sim_s} simulated s");
+    let est = sw["result"]["camera_delay_s"].as_f64().unwrap();
+    let truth = sw["true_delay_s"].as_f64().unwrap();
+    assert!((est - truth).abs() < 2e-4, "delay {est} vs {truth}");
+    for t in ["square", "random"] {
+        let step = sw["step_table_ap_um"][t]["ap_um"].as_f64().unwrap();
+        let sweep = sw["run-sweep"][t]["ap_um"].as_f64().unwrap();
+        let ignored = sw["run-sweep-nodelay"][t]["ap_um"].as_f64().unwrap();
+        assert!(
+            sweep <= 1.1 * step + STEP_AP_SPREAD_UM,
+            "{t}: sweep table AP {sweep} µm vs step {step} µm"
+        );
+        // Ignoring the delay costs v·delay per direction: it shows.
+        assert!(ignored > 5.0 * sweep, "{t}: delay ignored {ignored} µm");
+    }
+}
+
+/// The spread of the step tables' own AP max between validations of the
+/// same tables on the same run (the main job's drift comparison: random
+/// targets 0.063 / 0.107 / 0.079 µm with live drift off / static /
+/// adaptive at a 25 µm grid, seed 1): below it, AP differences are the
+/// validation's noise (its RP max is ≈ 0.13 µm), not table quality.
+const STEP_AP_SPREAD_UM: f64 = 0.05;

@@ -1,0 +1,750 @@
+//! The sweep characterization's arithmetic, pure: the plan of passes, the
+//! controller position at a frame's time, the resampling of a pass onto the
+//! step plan's grid, and the camera delay estimated from the data. The
+//! async job that moves the stage and collects samples and frames is
+//! `jobs::sweep_job`.
+//!
+//! # Method
+//! Each axis sweeps forward and backward at constant velocity over its
+//! range, `cycles` times; odd cycles at `velocity_um_per_s`, even ones at
+//! twice it. During a pass the controller position is sampled (`POS?`,
+//! rig-time stamps) and every camera frame is decoded with its own time
+//! stamp. A frame's controller position is the samples' linear
+//! interpolation at `t_frame − delay`; frames where the interpolated
+//! velocity is not the pass's (the acceleration zones at the ends) are
+//! left out. The frames' errors `e = cmd − measured` are averaged per grid
+//! cell (±step/2 around the step plan's points; a cell without a frame
+//! interpolates its two neighbouring frames) and logged as if measured at
+//! the grid point: the log has the step plan's segments, cycles and
+//! targets, so `tables build`, `diagnose` and the plots read it unchanged.
+//!
+//! # Camera delay
+//! A delay error Δ = true − assumed shifts the interpolated command by
+//! `±v·Δ` (sign of the pass direction): forward and backward passes
+//! disagree by `2·v·Δ` plus the direction-dependent error (backlash), which
+//! is constant per direction. Per axis and direction, the pass means of `e`
+//! over the cells every pass covers are `a_dir + s·v·Δ` (`s` = ±1): with
+//! two velocities, Δ is the least-squares slope against `s·v` after the
+//! per-group means are removed (the backlash is the group mean).
+//! [`estimate_delay`] iterates this from zero until the step is below a
+//! microsecond. With the cycles at v, 2v, v a drift linear in time cancels.
+
+use crate::charact::log::Metadata;
+use crate::model::XyUm;
+
+/// The sweep plan: which axes, the step plan's grid, the velocities.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SweepPlan {
+    /// Sweep X.
+    pub scan_x: bool,
+    /// Sweep Y.
+    pub scan_y: bool,
+    /// Grid step the log is resampled onto, µm.
+    pub step_um: f64,
+    /// First X grid point, µm.
+    pub x_start_um: f64,
+    /// X range, µm.
+    pub x_range_um: f64,
+    /// First Y grid point, µm.
+    pub y_start_um: f64,
+    /// Y range, µm.
+    pub y_range_um: f64,
+    /// Forward + backward cycles per axis (≥ 2: two velocities).
+    pub cycles: u32,
+    /// Velocity of the odd cycles, µm/s (even cycles: twice it).
+    pub velocity_um_per_s: f64,
+}
+
+/// One constant-velocity pass.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PassSpec {
+    /// X sweeps (else Y).
+    pub x_axis: bool,
+    /// Towards larger positions.
+    pub forward: bool,
+    /// 1-based cycle.
+    pub cycle: u32,
+    /// Velocity, µm/s (> 0).
+    pub velocity_um_per_s: f64,
+    /// First grid point of the swept axis, µm.
+    pub start_um: f64,
+    /// Range of the swept axis, µm.
+    pub range_um: f64,
+    /// Position of the held axis, µm.
+    pub hold_um: f64,
+}
+
+impl PassSpec {
+    /// The log segment (the step plan's names).
+    pub fn segment(&self) -> &'static str {
+        match (self.x_axis, self.forward) {
+            (true, true) => "scan_x_fwd",
+            (true, false) => "scan_x_bwd",
+            (false, true) => "scan_y_fwd",
+            (false, false) => "scan_y_bwd",
+        }
+    }
+
+    /// +1 forward, −1 backward.
+    pub fn sign(&self) -> f64 {
+        if self.forward {
+            1.0
+        } else {
+            -1.0
+        }
+    }
+}
+
+/// Why a sweep cannot be planned or evaluated.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum SweepError {
+    /// A plan value is out of range.
+    #[error("sweep plan: {0}")]
+    Plan(String),
+    /// Too few passes at distinct velocities to separate delay and backlash.
+    #[error("the camera delay cannot be estimated: {0}")]
+    NoDelay(String),
+}
+
+impl SweepPlan {
+    /// Checks the values.
+    pub fn validate(&self) -> Result<(), SweepError> {
+        let finite = [
+            self.step_um,
+            self.x_start_um,
+            self.x_range_um,
+            self.y_start_um,
+            self.y_range_um,
+            self.velocity_um_per_s,
+        ]
+        .iter()
+        .all(|v| v.is_finite());
+        if !finite || self.step_um <= 0.0 || self.x_range_um <= 0.0 || self.y_range_um <= 0.0 {
+            return Err(SweepError::Plan(
+                "step and ranges must be positive numbers".into(),
+            ));
+        }
+        if self.velocity_um_per_s <= 0.0 {
+            return Err(SweepError::Plan(
+                "velocity_um_per_s must be positive".into(),
+            ));
+        }
+        if self.cycles < 2 {
+            return Err(SweepError::Plan(
+                "a sweep needs cycles ≥ 2: the even cycles run at twice the velocity, which separates the camera delay from the backlash".into(),
+            ));
+        }
+        if !(self.scan_x || self.scan_y) {
+            return Err(SweepError::Plan("no axis to sweep".into()));
+        }
+        let n = |r: f64| r / self.step_um;
+        if (n(self.x_range_um) + n(self.y_range_um)) * f64::from(self.cycles) > 1e7 {
+            return Err(SweepError::Plan(
+                "the resampled log would have more than 10 million records".into(),
+            ));
+        }
+        Ok(())
+    }
+
+    /// Velocity of a cycle, µm/s.
+    pub fn velocity_of_cycle(&self, cycle: u32) -> f64 {
+        if cycle % 2 == 0 {
+            2.0 * self.velocity_um_per_s
+        } else {
+            self.velocity_um_per_s
+        }
+    }
+
+    /// The grid of one axis (the step plan's points), ascending.
+    pub fn grid(&self, x_axis: bool) -> Vec<f64> {
+        let (start, range) = if x_axis {
+            (self.x_start_um, self.x_range_um)
+        } else {
+            (self.y_start_um, self.y_range_um)
+        };
+        let n = ((range / self.step_um) + 1e-9).floor() as u32;
+        (0..=n)
+            .map(|i| start + f64::from(i) * self.step_um)
+            .collect()
+    }
+
+    /// Every pass, in order: X cycles (forward, backward), then Y.
+    pub fn passes(&self) -> Vec<PassSpec> {
+        let mut v = Vec::new();
+        for x_axis in [true, false] {
+            if (x_axis && !self.scan_x) || (!x_axis && !self.scan_y) {
+                continue;
+            }
+            let (start_um, range_um, hold_um) = if x_axis {
+                (
+                    self.x_start_um,
+                    self.x_range_um,
+                    self.y_start_um + self.y_range_um / 2.0,
+                )
+            } else {
+                (
+                    self.y_start_um,
+                    self.y_range_um,
+                    self.x_start_um + self.x_range_um / 2.0,
+                )
+            };
+            for cycle in 1..=self.cycles {
+                for forward in [true, false] {
+                    v.push(PassSpec {
+                        x_axis,
+                        forward,
+                        cycle,
+                        velocity_um_per_s: self.velocity_of_cycle(cycle),
+                        start_um,
+                        range_um,
+                        hold_um,
+                    });
+                }
+            }
+        }
+        v
+    }
+
+    /// Grid records the log will hold at most.
+    pub fn records_total(&self) -> usize {
+        self.passes()
+            .iter()
+            .map(|p| self.grid(p.x_axis).len())
+            .sum()
+    }
+
+    /// Writes the plan into log metadata (`mode = sweep`).
+    pub fn to_metadata(&self, md: &mut Metadata) {
+        md.insert("job", "characterize");
+        md.insert("mode", "sweep");
+        md.insert("scan_x", self.scan_x.to_string());
+        md.insert("scan_y", self.scan_y.to_string());
+        md.insert("step_um", self.step_um.to_string());
+        md.insert("x_start_um", self.x_start_um.to_string());
+        md.insert("x_range_um", self.x_range_um.to_string());
+        md.insert("y_start_um", self.y_start_um.to_string());
+        md.insert("y_range_um", self.y_range_um.to_string());
+        md.insert("cycles", self.cycles.to_string());
+        md.insert("velocity_um_per_s", self.velocity_um_per_s.to_string());
+    }
+}
+
+/// One controller position sample (`POS?`), rig time.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PosSample {
+    /// Rig time of the query, s.
+    pub t_s: f64,
+    /// Position of the swept axis, µm.
+    pub pos_um: f64,
+}
+
+/// One decoded frame of a pass.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SweepFrame {
+    /// The frame's own timestamp, rig time, s.
+    pub t_s: f64,
+    /// Measured position, stage frame, µm.
+    pub meas: XyUm,
+    /// Decoder quality.
+    pub quality: f64,
+}
+
+/// What one pass recorded.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PassData {
+    /// The pass.
+    pub spec: PassSpec,
+    /// Controller samples, in time order.
+    pub samples: Vec<PosSample>,
+    /// Frames, in time order.
+    pub frames: Vec<SweepFrame>,
+}
+
+/// Position and velocity of the swept axis at `t_s`, linear between the
+/// bracketing samples; `None` outside the samples.
+pub fn position_at(samples: &[PosSample], t_s: f64) -> Option<(f64, f64)> {
+    let k = samples.partition_point(|s| s.t_s <= t_s);
+    if k == 0 || k >= samples.len() {
+        return None;
+    }
+    let (a, b) = (samples[k - 1], samples[k]);
+    let dt = b.t_s - a.t_s;
+    if dt.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
+        return None;
+    }
+    let v = (b.pos_um - a.pos_um) / dt;
+    Some((a.pos_um + v * (t_s - a.t_s), v))
+}
+
+/// Relative velocity deviation beyond which a frame counts as in an
+/// acceleration zone.
+pub const VELOCITY_TOLERANCE: f64 = 0.02;
+
+/// A frame placed on the controller's trajectory.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FrameAt {
+    /// Controller position of the swept axis at the frame's (corrected)
+    /// time, µm.
+    pub cmd_um: f64,
+    /// `cmd − measured` of the swept axis, µm.
+    pub e_scan_um: f64,
+    /// `hold − measured` of the held axis, µm.
+    pub e_held_um: f64,
+    /// Corrected frame time (stamp − delay), rig s.
+    pub t_s: f64,
+    /// Decoder quality.
+    pub quality: f64,
+}
+
+/// The frames of `pass` at its constant velocity, placed on the trajectory
+/// at `stamp − delay_s`, sorted by position.
+pub fn frames_at(pass: &PassData, delay_s: f64) -> Vec<FrameAt> {
+    let s = pass.spec;
+    let want_v = s.sign() * s.velocity_um_per_s;
+    let mut out: Vec<FrameAt> = pass
+        .frames
+        .iter()
+        .filter_map(|f| {
+            let t = f.t_s - delay_s;
+            let (cmd, v) = position_at(&pass.samples, t)?;
+            if (v - want_v).abs() > VELOCITY_TOLERANCE * s.velocity_um_per_s {
+                return None;
+            }
+            let (scan, held) = if s.x_axis {
+                (f.meas.x_um, f.meas.y_um)
+            } else {
+                (f.meas.y_um, f.meas.x_um)
+            };
+            Some(FrameAt {
+                cmd_um: cmd,
+                e_scan_um: cmd - scan,
+                e_held_um: s.hold_um - held,
+                t_s: t,
+                quality: f.quality,
+            })
+        })
+        .collect();
+    out.sort_by(|a, b| a.cmd_um.total_cmp(&b.cmd_um));
+    out
+}
+
+/// A pass's error at one grid point.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct GridValue {
+    /// The grid point (swept axis), µm.
+    pub pos_um: f64,
+    /// `cmd − measured` of the swept axis, µm.
+    pub e_scan_um: f64,
+    /// `hold − measured` of the held axis, µm.
+    pub e_held_um: f64,
+    /// Mean corrected frame time, rig s.
+    pub t_s: f64,
+    /// Mean decoder quality.
+    pub quality: f64,
+    /// Frames averaged (0: interpolated between the two neighbours).
+    pub frames: usize,
+}
+
+/// `frames` (sorted by position) onto `grid`: per point the mean over the
+/// frames within ±step/2, or if there are none the linear interpolation of
+/// the nearest frame on each side when both are within 1.5 steps; `None`
+/// where neither (an acceleration zone, a gap).
+pub fn resample(frames: &[FrameAt], grid: &[f64], step_um: f64) -> Vec<Option<GridValue>> {
+    let half = step_um / 2.0;
+    grid.iter()
+        .map(|&p| {
+            let lo = frames.partition_point(|f| f.cmd_um < p - half);
+            let hi = frames.partition_point(|f| f.cmd_um <= p + half);
+            if hi > lo {
+                let win = &frames[lo..hi];
+                let n = win.len() as f64;
+                let mean = |g: fn(&FrameAt) -> f64| win.iter().map(g).sum::<f64>() / n;
+                return Some(GridValue {
+                    pos_um: p,
+                    e_scan_um: mean(|f| f.e_scan_um),
+                    e_held_um: mean(|f| f.e_held_um),
+                    t_s: mean(|f| f.t_s),
+                    quality: mean(|f| f.quality),
+                    frames: win.len(),
+                });
+            }
+            // No frame in the cell: lo == hi is the first frame beyond it.
+            let (a, b) = (frames.get(lo.checked_sub(1)?)?, frames.get(lo)?);
+            if p - a.cmd_um > 1.5 * step_um || b.cmd_um - p > 1.5 * step_um {
+                return None;
+            }
+            let w = (p - a.cmd_um) / (b.cmd_um - a.cmd_um);
+            let lerp = |x: f64, y: f64| x + w * (y - x);
+            Some(GridValue {
+                pos_um: p,
+                e_scan_um: lerp(a.e_scan_um, b.e_scan_um),
+                e_held_um: lerp(a.e_held_um, b.e_held_um),
+                t_s: lerp(a.t_s, b.t_s),
+                quality: a.quality.min(b.quality),
+                frames: 0,
+            })
+        })
+        .collect()
+}
+
+/// The camera delay as the data shows it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct DelayEstimate {
+    /// Delay from the true exposure mid-point to the frame's stamp, s.
+    pub delay_s: f64,
+    /// Passes that entered the estimate.
+    pub passes: usize,
+    /// RMS of the pass means about the fitted model, µm.
+    pub residual_um: f64,
+    /// Iterations until the step fell below 1 µs.
+    pub iterations: u32,
+}
+
+/// Estimates the camera delay from the passes (see the module docs), on
+/// each axis's grid from `grid_of`.
+pub fn estimate_delay(
+    passes: &[PassData],
+    grid_of: impl Fn(bool) -> Vec<f64>,
+    step_um: f64,
+) -> Result<DelayEstimate, SweepError> {
+    let mut delay_s = 0.0;
+    let mut last = None;
+    for it in 1..=8u32 {
+        let (step_s, used, rms) = delay_step(passes, &grid_of, step_um, delay_s)?;
+        delay_s += step_s;
+        last = Some(DelayEstimate {
+            delay_s,
+            passes: used,
+            residual_um: rms,
+            iterations: it,
+        });
+        if step_s.abs() < 1e-6 {
+            break;
+        }
+    }
+    last.ok_or_else(|| SweepError::NoDelay("no iteration ran".into()))
+}
+
+/// One least-squares step: the delay error Δ at the assumed `delay_s`, the
+/// passes used and the RMS residual (µm).
+fn delay_step(
+    passes: &[PassData],
+    grid_of: &impl Fn(bool) -> Vec<f64>,
+    step_um: f64,
+    delay_s: f64,
+) -> Result<(f64, usize, f64), SweepError> {
+    let (mut num, mut den) = (0.0, 0.0);
+    let mut used = 0;
+    let mut resid: Vec<(f64, f64)> = Vec::new();
+    for x_axis in [true, false] {
+        let grid = grid_of(x_axis);
+        let on_axis: Vec<(&PassData, Vec<Option<GridValue>>)> = passes
+            .iter()
+            .filter(|p| p.spec.x_axis == x_axis)
+            .map(|p| (p, resample(&frames_at(p, delay_s), &grid, step_um)))
+            .collect();
+        if on_axis.is_empty() {
+            continue;
+        }
+        // Cells every pass of the axis covers.
+        let common: Vec<usize> = (0..grid.len())
+            .filter(|&i| on_axis.iter().all(|(_, g)| g[i].is_some()))
+            .collect();
+        if common.is_empty() {
+            continue;
+        }
+        for forward in [true, false] {
+            let group: Vec<(f64, f64)> = on_axis
+                .iter()
+                .filter(|(p, _)| p.spec.forward == forward)
+                .map(|(p, g)| {
+                    let m = common
+                        .iter()
+                        .filter_map(|&i| g[i].map(|v| v.e_scan_um))
+                        .sum::<f64>()
+                        / common.len() as f64;
+                    (p.spec.sign() * p.spec.velocity_um_per_s, m)
+                })
+                .collect();
+            if group.len() < 2 {
+                continue;
+            }
+            let k = group.len() as f64;
+            let sv = group.iter().map(|g| g.0).sum::<f64>() / k;
+            let se = group.iter().map(|g| g.1).sum::<f64>() / k;
+            for &(v, e) in &group {
+                num += (v - sv) * (e - se);
+                den += (v - sv).powi(2);
+                resid.push((v - sv, e - se));
+            }
+            used += group.len();
+        }
+    }
+    if den <= 1e-12 {
+        return Err(SweepError::NoDelay(
+            "no axis and direction has passes at two velocities covering common grid points".into(),
+        ));
+    }
+    let slope = num / den;
+    let rms = (resid
+        .iter()
+        .map(|(v, e)| (e - slope * v).powi(2))
+        .sum::<f64>()
+        / resid.len().max(1) as f64)
+        .sqrt();
+    Ok((slope, used, rms))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn plan() -> SweepPlan {
+        SweepPlan {
+            scan_x: true,
+            scan_y: true,
+            step_um: 5.0,
+            x_start_um: 1000.0,
+            x_range_um: 200.0,
+            y_start_um: 2000.0,
+            y_range_um: 100.0,
+            cycles: 3,
+            velocity_um_per_s: 100.0,
+        }
+    }
+
+    /// A synthetic pass: the platform follows the command with a backlash
+    /// of `b` µm against the direction and a periodic error; the camera
+    /// stamps `latency_s` late; samples every 5 ms, frames every 1/30 s;
+    /// 50 µm of acceleration zone at each end.
+    fn pass(spec: PassSpec, latency_s: f64, b: f64) -> PassData {
+        let v = spec.velocity_um_per_s;
+        let acc = 2000.0; // µm/s²
+        let run_up = v * v / (2.0 * acc) + 20.0;
+        let (p0, p1) = if spec.forward {
+            (
+                spec.start_um - run_up,
+                spec.start_um + spec.range_um + run_up,
+            )
+        } else {
+            (
+                spec.start_um + spec.range_um + run_up,
+                spec.start_um - run_up,
+            )
+        };
+        let ta = v / acc;
+        let da = v * v / (2.0 * acc);
+        let tc = ((p1 - p0).abs() - 2.0 * da) / v;
+        let total = 2.0 * ta + tc;
+        let s = spec.sign();
+        let pos = |t: f64| -> f64 {
+            let t = t.clamp(0.0, total);
+            let d = if t < ta {
+                0.5 * acc * t * t
+            } else if t < ta + tc {
+                da + v * (t - ta)
+            } else {
+                let u = total - t;
+                (p1 - p0).abs() - 0.5 * acc * u * u
+            };
+            p0 + s * d
+        };
+        let samples = (0..)
+            .map(|k| f64::from(k) * 0.005 - 0.1)
+            .take_while(|&t| t < total + 0.1)
+            .map(|t| PosSample {
+                t_s: t,
+                pos_um: pos(t),
+            })
+            .collect();
+        let frames = (0..)
+            .map(|k| f64::from(k) / 30.0 - 0.05)
+            .take_while(|&t| t < total + 0.05)
+            .map(|t| {
+                let c = pos(t);
+                let err = 0.3 * (c / 37.0).sin() - s * b;
+                let scan = c + err;
+                let meas = if spec.x_axis {
+                    XyUm {
+                        x_um: scan,
+                        y_um: spec.hold_um + 0.1,
+                    }
+                } else {
+                    XyUm {
+                        x_um: spec.hold_um + 0.1,
+                        y_um: scan,
+                    }
+                };
+                SweepFrame {
+                    t_s: t + latency_s,
+                    meas,
+                    quality: 100.0,
+                }
+            })
+            .collect();
+        PassData {
+            spec,
+            samples,
+            frames,
+        }
+    }
+
+    #[test]
+    fn plan_alternates_velocities_and_directions() {
+        let p = plan();
+        p.validate().unwrap();
+        let ps = p.passes();
+        assert_eq!(ps.len(), 12);
+        assert_eq!(ps[0].segment(), "scan_x_fwd");
+        assert_eq!(ps[1].segment(), "scan_x_bwd");
+        assert_eq!(ps[2].velocity_um_per_s, 200.0);
+        assert_eq!(ps[6].segment(), "scan_y_fwd");
+        assert_eq!(ps[6].hold_um, 1100.0);
+        assert_eq!(p.grid(true).len(), 41);
+        assert_eq!(p.records_total(), 6 * 41 + 6 * 21);
+        assert!(SweepPlan {
+            cycles: 1,
+            ..p.clone()
+        }
+        .validate()
+        .is_err());
+        assert!(SweepPlan {
+            velocity_um_per_s: f64::NAN,
+            ..p
+        }
+        .validate()
+        .is_err());
+    }
+
+    #[test]
+    fn interpolation_between_samples() {
+        let s = [
+            PosSample {
+                t_s: 0.0,
+                pos_um: 0.0,
+            },
+            PosSample {
+                t_s: 1.0,
+                pos_um: 10.0,
+            },
+            PosSample {
+                t_s: 2.0,
+                pos_um: 30.0,
+            },
+        ];
+        assert_eq!(position_at(&s, 0.5), Some((5.0, 10.0)));
+        assert_eq!(position_at(&s, 1.5), Some((20.0, 20.0)));
+        assert_eq!(position_at(&s, -0.1), None);
+        assert_eq!(position_at(&s, 2.5), None);
+        assert_eq!(position_at(&[], 0.0), None);
+    }
+
+    #[test]
+    fn recovers_the_delay_apart_from_the_backlash() {
+        let p = plan();
+        for (latency_s, b) in [(0.0037, 1.0), (0.0121, -0.5), (0.0, 0.0)] {
+            let passes: Vec<PassData> = p
+                .passes()
+                .into_iter()
+                .map(|s| pass(s, latency_s, b))
+                .collect();
+            let est = estimate_delay(&passes, |x| p.grid(x), p.step_um).unwrap();
+            assert!(
+                (est.delay_s - latency_s).abs() < 2e-5,
+                "{est:?} vs {latency_s}"
+            );
+            // Corrected, forward and backward differ by the backlash only.
+            let g = p.grid(true);
+            let f = resample(&frames_at(&passes[0], est.delay_s), &g, p.step_um);
+            let r = resample(&frames_at(&passes[1], est.delay_s), &g, p.step_um);
+            let mid = g.len() / 2;
+            let (f, r) = (f[mid].unwrap(), r[mid].unwrap());
+            assert!(
+                (f.e_scan_um - r.e_scan_um - 2.0 * b).abs() < 0.01,
+                "{f:?} {r:?}"
+            );
+            assert!((f.e_held_um + 0.1).abs() < 1e-9);
+        }
+    }
+
+    #[test]
+    fn one_velocity_cannot_separate_delay_and_backlash() {
+        let p = SweepPlan {
+            cycles: 1,
+            ..plan()
+        };
+        let passes: Vec<PassData> = p
+            .passes()
+            .into_iter()
+            .map(|s| pass(s, 0.004, 1.0))
+            .collect();
+        assert!(matches!(
+            estimate_delay(&passes, |x| p.grid(x), p.step_um),
+            Err(SweepError::NoDelay(_))
+        ));
+    }
+
+    #[test]
+    fn acceleration_zones_are_left_out() {
+        let p = plan();
+        let spec = p.passes()[2]; // 200 µm/s
+        let d = pass(spec, 0.0, 0.0);
+        let at = frames_at(&d, 0.0);
+        assert!(!at.is_empty());
+        let da = 200.0f64.powi(2) / 4000.0;
+        let (p0, p1) = (
+            spec.start_um - da - 20.0,
+            spec.start_um + spec.range_um + da + 20.0,
+        );
+        for f in &at {
+            assert!(
+                f.cmd_um >= p0 + da - 0.5 && f.cmd_um <= p1 - da + 0.5,
+                "{f:?}"
+            );
+        }
+        // Frames exist only where the velocity is the pass's.
+        assert!(at.len() < d.frames.len());
+        let g = resample(&at, &p.grid(true), p.step_um);
+        assert!(g.iter().all(Option::is_some), "the whole range is covered");
+    }
+
+    proptest::proptest! {
+        /// Interpolated positions stay between their bracketing samples,
+        /// and a constant error resamples to itself in every covered cell
+        /// whatever the frame spacing, never to a made-up value.
+        #[test]
+        fn interpolation_and_resampling_are_bounded(
+            dts in proptest::collection::vec(0.001f64..0.05, 2..40),
+            v in -500.0f64..500.0,
+            e in -5.0f64..5.0,
+            spacing in 0.5f64..12.0,
+            q in 0.0f64..1.0,
+        ) {
+            let mut t = 0.0;
+            let samples: Vec<PosSample> = dts.iter().map(|dt| {
+                t += dt;
+                PosSample { t_s: t, pos_um: 100.0 + v * t }
+            }).collect();
+            let (t0, t1) = (samples[0].t_s, samples[samples.len() - 1].t_s);
+            let tq = t0 + q * (t1 - t0);
+            if let Some((p, vel)) = position_at(&samples, tq) {
+                let (lo, hi) = (100.0 + v * t0, 100.0 + v * t1);
+                proptest::prop_assert!(p >= lo.min(hi) - 1e-6 && p <= lo.max(hi) + 1e-6);
+                proptest::prop_assert!((vel - v).abs() < 1e-6 * (1.0 + v.abs()) + 1e-3);
+            }
+            let frames: Vec<FrameAt> = (0..60).map(|k| FrameAt {
+                cmd_um: f64::from(k) * spacing,
+                e_scan_um: e,
+                e_held_um: -e,
+                t_s: f64::from(k),
+                quality: 50.0,
+            }).collect();
+            let grid: Vec<f64> = (0..80).map(|k| f64::from(k) * 5.0).collect();
+            for g in resample(&frames, &grid, 5.0).into_iter().flatten() {
+                proptest::prop_assert!((g.e_scan_um - e).abs() < 1e-9);
+                proptest::prop_assert!((g.e_held_um + e).abs() < 1e-9);
+                proptest::prop_assert!(g.pos_um <= 59.0 * spacing + 7.5);
+            }
+        }
+    }
+}

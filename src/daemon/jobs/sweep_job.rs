@@ -1,0 +1,436 @@
+//! The sweep characterization job (`characterize start` with `mode =
+//! sweep`): ties vision to stage as the step job does, then per pass sets
+//! the swept axis's velocity, sends one move across the range plus run-ups,
+//! samples `POS?` every [`POS_SAMPLE_PERIOD`] of rig time and collects every
+//! decoded frame until the axis arrives; at the end estimates the camera
+//! delay and writes the log resampled onto the step grid
+//! (`jobs::sweep` has the method).
+//!
+//! Unlike the step job, records are written when the sweep ends (the delay
+//! they are corrected by is estimated from all passes): an interrupted
+//! sweep logs nothing and is started again; `characterize resume` refuses
+//! sweep logs. There are no drift re-measurements (the sweep is short).
+//! The swept axis's velocity is restored after every pass, also on errors.
+
+use super::sweep::{
+    estimate_delay, frames_at, resample, DelayEstimate, PassData, PassSpec, PosSample, SweepFrame,
+    SweepPlan,
+};
+use super::{lock, move_raw_retrying, tie, Progress, PARK_APPROACH_UM};
+use crate::charact::log::{self, Columns, Metadata, Record, SyncPolicy};
+use crate::comp::VisionFrame;
+use crate::daemon::protocol::{ErrorCode, MoveRequest, ProtoError, Topic};
+use crate::daemon::rig::{driver_error, Rig};
+use crate::driver::Axis;
+use crate::model::XyUm;
+use serde_json::{json, Value};
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+use tokio::sync::watch;
+
+/// Rig time between two `POS?` samples during a pass. A C-863 answers
+/// `POS?` in ≈ 2 ms at 115200 baud; 5 ms leaves the line to the daemon's
+/// other queries.
+pub const POS_SAMPLE_PERIOD: Duration = Duration::from_millis(5);
+
+/// Run-up before and after the range, as time at the pass velocity plus
+/// [`PARK_APPROACH_UM`]: the acceleration zone must end before the first
+/// grid point (frames there are left out by their velocity anyway).
+pub const RUN_UP_S: f64 = 0.3;
+
+/// The log's columns: the step job's plus the pass velocity, the frames'
+/// mean camera stamp and how many frames a record averages.
+pub fn columns() -> Columns {
+    let mut c = super::columns();
+    c.extra.extend(
+        ["velocity_um_per_s", "t_frame_s", "frames"]
+            .iter()
+            .map(|s| (*s).to_owned()),
+    );
+    c
+}
+
+/// What the job needs besides the rig.
+#[derive(Debug, Clone)]
+pub struct SweepArgs {
+    /// The plan.
+    pub plan: SweepPlan,
+    /// Log file name.
+    pub name: String,
+    /// Optional second log resampled without the delay correction.
+    pub uncorrected: Option<String>,
+    /// Frames per tie point.
+    pub frames_per_point: u32,
+    /// Settle before each tie point, s.
+    pub settle_s: f64,
+}
+
+/// Runs the sweep; returns the final state and the result (delay estimate,
+/// frame counts) for the job's progress.
+pub(super) async fn run(
+    rig: &Arc<Rig>,
+    a: &SweepArgs,
+    progress: &Arc<Mutex<Option<Progress>>>,
+    mut cancel: watch::Receiver<bool>,
+) -> Result<(&'static str, Value), ProtoError> {
+    let plan = &a.plan;
+    let began = rig.clock.now_s();
+    let lines = [
+        tie::TieLine {
+            x_axis: true,
+            start_um: plan.x_start_um,
+            range_um: plan.x_range_um,
+            hold_um: plan.y_start_um,
+        },
+        tie::TieLine {
+            x_axis: false,
+            start_um: plan.y_start_um,
+            range_um: plan.y_range_um,
+            hold_um: plan.x_start_um,
+        },
+    ];
+    let tied = tokio::select! {
+        r = tie::measure_frame(rig, lines, a.frames_per_point, a.settle_s) => r?,
+        _ = cancel.changed() => return Ok(("cancelled", Value::Null)),
+    };
+    let origin = rig.clock.now_s();
+    let gen = rig.stop_generation();
+    let stage = rig.stage()?;
+    let velocities = [
+        stage.x.velocity_um_per_s().await.map_err(driver_error)?,
+        stage.y.velocity_um_per_s().await.map_err(driver_error)?,
+    ];
+    let specs = plan.passes();
+    let mut passes: Vec<PassData> = Vec::with_capacity(specs.len());
+    let total = plan.records_total();
+    for (k, spec) in specs.iter().enumerate() {
+        if *cancel.borrow_and_update() {
+            return Ok(("cancelled", Value::Null));
+        }
+        if rig.stop_generation() != gen {
+            return Ok(("stopped", Value::Null));
+        }
+        let first_of_axis = k == 0 || specs[k - 1].x_axis != spec.x_axis;
+        let r = tokio::select! {
+            r = one_pass(rig, spec, first_of_axis, &tied.frame) => r?,
+            _ = cancel.changed() => {
+                // The pass was dropped mid-sweep: its velocity is still set.
+                restore_velocities(rig, velocities).await;
+                return Ok(("cancelled", Value::Null));
+            }
+        };
+        passes.push(r);
+        let done = total * (k + 1) / specs.len();
+        let elapsed = rig.clock.now_s() - origin;
+        let eta = elapsed / (k + 1) as f64 * (specs.len() - k - 1) as f64;
+        let snapshot = lock(progress).as_mut().map(|p| {
+            p.done = done;
+            p.eta_s = Some(eta);
+            p.to_json()
+        });
+        if let Some(s) = snapshot {
+            rig.push(Topic::Job, "job", s);
+        }
+    }
+    let est = estimate_delay(&passes, |x| plan.grid(x), plan.step_um).map_err(|e| {
+        ProtoError::new(
+            ErrorCode::LowQuality,
+            format!("sweep characterization: {e}"),
+        )
+    })?;
+    let duration_s = rig.clock.now_s() - began;
+    let frames: usize = passes.iter().map(|p| p.frames.len()).sum();
+    let samples: usize = passes.iter().map(|p| p.samples.len()).sum();
+    let mut md = Metadata::new();
+    plan.to_metadata(&mut md);
+    tie::to_metadata(&mut md, &tied);
+    md.insert("daemon_version", env!("CARGO_PKG_VERSION"));
+    md.insert("sweep_frames", frames.to_string());
+    md.insert("sweep_pos_samples", samples.to_string());
+    md.insert("sweep_duration_s", format!("{duration_s:.3}"));
+    md.insert("camera_delay_s", format!("{:.7}", est.delay_s));
+    md.insert(
+        "camera_delay_residual_um",
+        format!("{:.5}", est.residual_um),
+    );
+    let records = records(&passes, plan, est.delay_s, origin);
+    let n_records = records.len();
+    let mut md_c = md.clone();
+    md_c.insert("camera_delay_applied_s", format!("{:.7}", est.delay_s));
+    write_log(rig, &a.name, md_c, records).await?;
+    if let Some(u) = &a.uncorrected {
+        let mut md_u = md;
+        md_u.insert("camera_delay_applied_s", "0");
+        write_log(rig, u, md_u, self::records(&passes, plan, 0.0, origin)).await?;
+    }
+    let result = result_json(&est, frames, samples, n_records, duration_s);
+    if let Some(p) = lock(progress).as_mut() {
+        p.done = n_records;
+        p.total = n_records;
+    }
+    Ok(("done", result))
+}
+
+/// Sets both axes back to the velocities the job found (after a pass that
+/// was cancelled before it could); a failure is logged, not returned (the
+/// job ends either way).
+async fn restore_velocities(rig: &Rig, velocities: [f64; 2]) {
+    let Ok(stage) = rig.stage() else { return };
+    for (axis, v) in [(&stage.x, velocities[0]), (&stage.y, velocities[1])] {
+        if let Err(e) = axis.set_velocity_um_per_s(v).await {
+            tracing::warn!("sweep: cannot restore the velocity of {}: {e}", axis.name());
+        }
+    }
+}
+
+fn result_json(
+    est: &DelayEstimate,
+    frames: usize,
+    samples: usize,
+    records: usize,
+    duration_s: f64,
+) -> Value {
+    json!({
+        "mode": "sweep",
+        "camera_delay_s": est.delay_s,
+        "camera_delay_residual_um": est.residual_um,
+        "camera_delay_passes": est.passes,
+        "frames": frames,
+        "pos_samples": samples,
+        "records": records,
+        "duration_s": duration_s,
+    })
+}
+
+/// The resampled records of every pass, in plan order (forward passes
+/// ascending, backward descending, as the step plan), frames placed at
+/// `stamp − delay_s`; times relative to `origin`.
+fn records(passes: &[PassData], plan: &SweepPlan, delay_s: f64, origin: f64) -> Vec<Record> {
+    let mut out = Vec::new();
+    for p in passes {
+        let s = p.spec;
+        let grid = plan.grid(s.x_axis);
+        let mut vals: Vec<_> = resample(&frames_at(p, delay_s), &grid, plan.step_um)
+            .into_iter()
+            .flatten()
+            .collect();
+        if !s.forward {
+            vals.reverse();
+        }
+        for v in vals {
+            let scan_meas = v.pos_um - v.e_scan_um;
+            let held_meas = s.hold_um - v.e_held_um;
+            let (x, y, xm, ym) = if s.x_axis {
+                (v.pos_um, s.hold_um, scan_meas, held_meas)
+            } else {
+                (s.hold_um, v.pos_um, held_meas, scan_meas)
+            };
+            out.push(Record {
+                t_s: v.t_s - origin,
+                segment: s.segment().to_owned(),
+                cycle: s.cycle,
+                x_target_um: x,
+                y_target_um: y,
+                x_cmd_um: x,
+                y_cmd_um: y,
+                x_meas_um: xm,
+                y_meas_um: ym,
+                temp_c: None,
+                extra: vec![
+                    format!("{x:.4}"),
+                    format!("{y:.4}"),
+                    format!("{:.3}", v.quality),
+                    format!("{}", s.sign() * s.velocity_um_per_s),
+                    format!("{:.6}", v.t_s + delay_s - origin),
+                    v.frames.to_string(),
+                ],
+            });
+        }
+    }
+    out
+}
+
+/// Creates `name` in the data directory and writes the records (one sync
+/// at the end: the data exist in memory until the sweep ends anyway).
+async fn write_log(
+    rig: &Rig,
+    name: &str,
+    md: Metadata,
+    records: Vec<Record>,
+) -> Result<(), ProtoError> {
+    let path = rig.cfg.daemon.data_dir.join(name);
+    let n = name.to_owned();
+    tokio::task::spawn_blocking(move || {
+        let mut w = log::create_file(&path, &md, columns(), SyncPolicy::FlushOnly)?;
+        for r in &records {
+            w.append(r)?;
+        }
+        w.sync()
+    })
+    .await
+    .map_err(|e| ProtoError::new(ErrorCode::Internal, e.to_string()))?
+    .map_err(|e| ProtoError::new(ErrorCode::LogError, format!("cannot write {n}: {e}")))
+}
+
+/// Run-up beyond each end of the range, µm.
+fn run_up_um(spec: &PassSpec) -> f64 {
+    PARK_APPROACH_UM + spec.velocity_um_per_s * RUN_UP_S
+}
+
+/// One pass: park first if it is the axis's first (held axis by a forward
+/// approach, swept axis at the run-up before the range), then sweep.
+async fn one_pass(
+    rig: &Arc<Rig>,
+    spec: &PassSpec,
+    first_of_axis: bool,
+    frame: &VisionFrame,
+) -> Result<PassData, ProtoError> {
+    let r = run_up_um(spec);
+    let (from, to) = if spec.forward {
+        (spec.start_um - r, spec.start_um + spec.range_um + r)
+    } else {
+        (spec.start_um + spec.range_um + r, spec.start_um - r)
+    };
+    // (x, y) of a swept and a held position, clamped into the travel.
+    let place = |scan: f64, held: f64| {
+        if spec.x_axis {
+            super::clamp_to_travel(rig, scan, held)
+        } else {
+            super::clamp_to_travel(rig, held, scan)
+        }
+    };
+    if first_of_axis {
+        let (x, y) = place(from, spec.hold_um - PARK_APPROACH_UM);
+        move_raw_retrying(rig, x, y).await?;
+        let (x, y) = place(from, spec.hold_um);
+        move_raw_retrying(rig, x, y).await?;
+    }
+    let target = match place(to, spec.hold_um) {
+        (x, _) if spec.x_axis => x,
+        (_, y) => y,
+    };
+    let stage = rig.stage()?;
+    let axis = if spec.x_axis { &stage.x } else { &stage.y };
+    let before = axis.velocity_um_per_s().await.map_err(driver_error)?;
+    axis.set_velocity_um_per_s(spec.velocity_um_per_s)
+        .await
+        .map_err(driver_error)?;
+    let swept = sweep(rig, axis, spec, target, frame).await;
+    let restored = axis
+        .set_velocity_um_per_s(before)
+        .await
+        .map_err(driver_error);
+    let data = swept?;
+    restored?;
+    Ok(data)
+}
+
+/// Sends the move to `target_um` and samples positions and frames until
+/// the axis is there.
+async fn sweep(
+    rig: &Arc<Rig>,
+    axis: &Axis,
+    spec: &PassSpec,
+    target_um: f64,
+    frame: &VisionFrame,
+) -> Result<PassData, ProtoError> {
+    let Some(vision) = &rig.vision else {
+        return Err(ProtoError::new(ErrorCode::CameraUnavailable, "no camera"));
+    };
+    let min_quality = rig.cfg.camera.min_quality;
+    // The reference check of the samples' connection epoch (see
+    // `Axis::position_sample_um`).
+    let start_um = axis.position_um().await.map_err(driver_error)?;
+    let epoch = axis.epoch();
+    let _want = vision.want();
+    let mut rx = vision.latest.clone();
+    rx.borrow_and_update();
+    let mut req = MoveRequest::raw_to(target_um, target_um);
+    if spec.x_axis {
+        req.y_um = None;
+    } else {
+        req.x_um = None;
+    }
+    req.wait = false;
+    let gen = rig.stop_generation();
+    let frames: Mutex<Vec<SweepFrame>> = Mutex::new(Vec::new());
+    let collect = async {
+        let mut last = None;
+        while rx.changed().await.is_ok() {
+            let m = *rx.borrow_and_update();
+            let Some(m) = m else { continue };
+            if Some(m.sequence) == last || m.quality < min_quality {
+                continue;
+            }
+            last = Some(m.sequence);
+            lock(&frames).push(SweepFrame {
+                t_s: m.frame_t_s,
+                meas: frame.to_stage(XyUm {
+                    x_um: m.x_um,
+                    y_um: m.y_um,
+                }),
+                quality: m.quality,
+            });
+        }
+    };
+    let deadline_s =
+        rig.clock.now_s() + (target_um - start_um).abs() / spec.velocity_um_per_s + 10.0;
+    let sample = async {
+        rig.raw_move(&req, true, true).await?;
+        let mut samples: Vec<PosSample> = Vec::new();
+        loop {
+            let t0 = rig.clock.now_s();
+            let (pos_um, e) = axis.position_sample_um().await.map_err(driver_error)?;
+            let t1 = rig.clock.now_s();
+            if e != epoch {
+                return Err(ProtoError::new(
+                    ErrorCode::NotConnected,
+                    "the line reconnected during a sweep; its positions are not trusted",
+                )
+                .into_transient());
+            }
+            samples.push(PosSample {
+                t_s: (t0 + t1) / 2.0,
+                pos_um,
+            });
+            if (pos_um - target_um).abs() < 0.01 {
+                break;
+            }
+            if rig.stop_generation() != gen {
+                return Err(ProtoError::new(
+                    ErrorCode::Halted,
+                    "a stop or fault halted the sweep",
+                ));
+            }
+            if t1 > deadline_s {
+                return Err(ProtoError::new(
+                    ErrorCode::DriverError,
+                    format!("the sweep to {target_um} µm did not arrive in time"),
+                ));
+            }
+            rig.clock.sleep(POS_SAMPLE_PERIOD).await;
+        }
+        Ok(samples)
+    };
+    let samples = tokio::select! {
+        r = sample => r?,
+        () = collect => {
+            return Err(ProtoError::new(ErrorCode::CameraUnavailable, "the camera pipeline ended"));
+        }
+    };
+    axis.wait_on_target(None).await.map_err(driver_error)?;
+    axis.position_um().await.map_err(driver_error)?;
+    if axis.epoch() != epoch {
+        return Err(ProtoError::new(
+            ErrorCode::NotConnected,
+            "the line reconnected during a sweep; its positions are not trusted",
+        )
+        .into_transient());
+    }
+    let frames = frames.into_inner().unwrap_or_else(|p| p.into_inner());
+    Ok(PassData {
+        spec: *spec,
+        samples,
+        frames,
+    })
+}
