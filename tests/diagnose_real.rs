@@ -15,7 +15,7 @@
 
 use std::path::PathBuf;
 
-use micropos::analysis::{diagnose, DiagnoseOptions, Diagnosis};
+use micropos::analysis::{diagnose, DiagnoseOptions, Diagnosis, Reading, ReadingKind};
 use micropos::charact::log::read_file;
 use micropos::model::{Axis, StageModel};
 
@@ -107,6 +107,34 @@ fn iso_log(d: &Diagnosis) {
         "{:?}",
         d.base_free_params
     );
+    // Unexplained systematic error is read as structure a metrologist
+    // names (reversal, its change along the travel, scale, non-linearity),
+    // and at least one piece of it is still in the model's residual.
+    assert!(
+        text.contains("structure read from the replicates"),
+        "{text}"
+    );
+    assert!(
+        x.readings.iter().any(|r| r.model_explains == Some(false)
+            && matches!(
+                r.kind,
+                ReadingKind::Reversal
+                    | ReadingKind::ReversalVaries
+                    | ReadingKind::Scale
+                    | ReadingKind::Nonlinearity
+            )),
+        "{:#?}",
+        x.readings
+    );
+    assert!(d.to_json()["noise"]["components"][0]["readings"].is_array());
+}
+
+fn reading(d: &Diagnosis, kind: ReadingKind) -> Vec<&Reading> {
+    d.noise.components[0]
+        .readings
+        .iter()
+        .filter(|r| r.kind == kind)
+        .collect()
 }
 
 #[test]
@@ -115,6 +143,17 @@ fn ecmc_iso230_2_log_states_its_unexplained_error() {
         return;
     };
     iso_log(&d);
+    // B_i changes sign along the axis (−6.2 … +27.3 … −46.5 µm): lost
+    // motion that varies with position, which the model's one play lacks.
+    let v = reading(&d, ReadingKind::ReversalVaries);
+    assert!(
+        v.len() == 1 && v[0].value > 30.0 && v[0].model_explains == Some(false),
+        "{v:#?}"
+    );
+    // The two first forward visits of cycle 1 (+128 and +64 µm).
+    let f = reading(&d, ReadingKind::FirstApproach);
+    assert_eq!(f.len(), 2, "{f:#?}");
+    assert!(f.iter().all(|r| r.value > 50.0), "{f:#?}");
 }
 
 #[test]
@@ -123,6 +162,13 @@ fn bifrost_iso230_2_log_states_its_unexplained_error() {
         return;
     };
     iso_log(&d);
+    // The bidirectional means bend away from a straight line by ~5 µm
+    // (σ 1.9 µm, 10 visits per target): the model lacks it.
+    let n = reading(&d, ReadingKind::Nonlinearity);
+    assert!(
+        n.len() == 1 && n[0].value.abs() > 3.0 && n[0].model_explains == Some(false),
+        "{n:#?}"
+    );
 }
 
 #[test]

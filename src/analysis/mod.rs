@@ -35,7 +35,7 @@ pub mod paper;
 pub mod periodogram;
 pub mod physical;
 
-pub use diagnose::{diagnose, DiagnoseOptions, Diagnosis, Finding};
+pub use diagnose::{diagnose, DiagnoseOptions, Diagnosis, Finding, Reading, ReadingKind};
 
 /// Why an analysis could not run.
 #[derive(Debug, Error)]

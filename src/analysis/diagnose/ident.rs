@@ -192,3 +192,62 @@ fn combination_of(
     out.sort_by(|a, b| b.2.total_cmp(&a.2));
     out.into_iter().map(|(n, c, _)| (n, c)).collect()
 }
+
+/// |cosine| between a finding's column and a model parameter's column at or
+/// above which the parameter carries the finding (the two move the measured
+/// points the same way to 1 %).
+const CARRY_COS: f64 = 0.99;
+
+/// The candidates among `dropped` (indices into `cand_cols`) that carry the
+/// finding whose columns are `spec_cols`: each of its columns is collinear
+/// (|cos| ≥ [`CARRY_COS`] over the measured components) with one of them.
+/// Empty unless every column has a carrier.
+///
+/// Why: a model parameter left at its value by the base selection (its
+/// effect hidden under a larger unmodelled one, e.g. a thermal coefficient
+/// under 5 µm of lost motion) shows up later as a finding of the same
+/// shape. It is the model's own structure with this stage's value — a
+/// parameter correction, not a missing term.
+pub(super) fn carriers(
+    d: &Data,
+    spec_cols: &[Vec<f64>],
+    dropped: &[usize],
+    cand_cols: &[Vec<f64>],
+) -> Vec<usize> {
+    let measured = |v: &[f64]| -> Vec<f64> {
+        v.iter()
+            .enumerate()
+            .map(|(k, &x)| if d.measured[k % 2] { x } else { 0.0 })
+            .collect()
+    };
+    let mut out: Vec<usize> = Vec::new();
+    for s in spec_cols {
+        let s = measured(s);
+        let ss = dot(&s, &s);
+        if ss <= 0.0 {
+            return Vec::new();
+        }
+        let best = dropped
+            .iter()
+            .map(|&j| {
+                let c = measured(&cand_cols[j]);
+                let cc = dot(&c, &c);
+                let cos = if cc > 0.0 {
+                    (dot(&s, &c) / (ss * cc).sqrt()).abs()
+                } else {
+                    0.0
+                };
+                (j, cos)
+            })
+            .max_by(|a, b| a.1.total_cmp(&b.1));
+        match best {
+            Some((j, cos)) if cos >= CARRY_COS => {
+                if !out.contains(&j) {
+                    out.push(j);
+                }
+            }
+            _ => return Vec::new(),
+        }
+    }
+    out
+}

@@ -105,6 +105,7 @@ mod extend;
 mod fit;
 mod ident;
 mod noise;
+mod readings;
 mod report;
 mod search;
 #[cfg(test)]
@@ -128,8 +129,9 @@ use extend::{extended, extended_with_se};
 use fit::{fit_with, fold_base, keep_heldout, paired_z, rms_comp, select_base, unjudged, Verdict};
 pub use ident::Unidentifiable;
 pub use noise::{ComponentNoise, IsoFigures, NoiseReport, Outlier, Sampling, TargetRepeat};
+pub use readings::{Reading, ReadingKind, READING_Z};
 pub use search::ALL_KINDS;
-use search::{base_columns, columns, families, search, Family, Spec};
+use search::{base_columns, columns, families, refine_period, search, Family, Spec};
 
 /// How to diagnose.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -478,7 +480,7 @@ pub fn diagnose(
     // Model selection on the base fit too: only the terms whose freeing
     // predicts held-out data better (see `fit::select_base`).
     let keep = select_base(&d, &cand_names, &cand_cols);
-    let base_names: Vec<String> = keep.iter().map(|&j| cand_names[j].clone()).collect();
+    let mut base_names: Vec<String> = keep.iter().map(|&j| cand_names[j].clone()).collect();
     base_fixed.extend(
         cand_names
             .iter()
@@ -492,13 +494,19 @@ pub fn diagnose(
             }),
     );
     let mut base: Vec<Vec<f64>> = keep.iter().map(|&j| cand_cols[j].clone()).collect();
-    let n_base = base.len();
+    let mut n_base = base.len();
+    // Candidates the selection left at the model's value: a later finding
+    // that one of them can carry frees it instead (see below).
+    let mut dropped: Vec<usize> = (0..cand_names.len())
+        .filter(|j| !keep.contains(j))
+        .collect();
     let fams = families(&d);
     let mut accepted: Vec<(Spec, Verdict)> = Vec::new();
     let mut baseline_rms = [0.0; 2];
-    let mut last_heldout = [0.0; 2];
-    let mut final_heldout = unjudged(&d);
-    for round in 0..=opts.max_findings {
+    let mut last_heldout: [f64; 2];
+    let mut final_heldout: Vec<f64>;
+    loop {
+        let round = accepted.len();
         // Held-out residuals of the current base, and each family's verdict.
         let mut before = unjudged(&d);
         let mut after: Vec<Vec<f64>> = vec![unjudged(&d); fams.len()];
@@ -518,7 +526,7 @@ pub fn diagnose(
             }
         }
         let heldout = [rms_comp(&before, 0), rms_comp(&before, 1)];
-        if round == 0 {
+        if accepted.is_empty() {
             baseline_rms = heldout;
         }
         last_heldout = heldout;
@@ -584,7 +592,25 @@ pub fn diagnose(
         let Some(spec) = search(best, &d, &fb.resid, &all) else {
             break;
         };
-        base.extend(columns(&spec, &d, model));
+        let spec = refine_period(spec, &d, &base, model);
+        let spec_cols = columns(&spec, &d, model);
+        // A finding the model's own parameters can carry is a parameter
+        // correction: a candidate the base selection left at the model's
+        // value (its effect was hidden under a larger unmodelled one) whose
+        // columns span the finding's is freed instead, and the search goes
+        // on without spending a finding.
+        let carriers = ident::carriers(&d, &spec_cols, &dropped, &cand_cols);
+        if !carriers.is_empty() {
+            for j in carriers {
+                base.insert(n_base, cand_cols[j].clone());
+                n_base += 1;
+                base_names.push(cand_names[j].clone());
+                base_fixed.retain(|f| f.name != cand_names[j]);
+                dropped.retain(|&k| k != j);
+            }
+            continue;
+        }
+        base.extend(spec_cols);
         accepted.push((spec, verdict));
     }
 

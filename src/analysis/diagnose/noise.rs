@@ -28,6 +28,7 @@ use crate::metrology::iso230_2::{self, Approach, Observation};
 use crate::model::Axis;
 
 use super::data::Data;
+use super::readings::{self, wilson_hilferty, Reading, Visit};
 
 /// Wilson–Hilferty z of a χ² statistic above which the per-target
 /// systematic error counts as more than noise.
@@ -139,6 +140,11 @@ pub struct ComponentNoise {
     /// Per-target replicates (only for logs with few targets).
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub targets: Vec<TargetRepeat>,
+    /// Structure read from the replicates (lost motion and its change
+    /// along the travel, scale, non-linearity, drift from cycle to cycle,
+    /// first-approach outliers), each tested against the repeatability.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub readings: Vec<Reading>,
 }
 
 /// How densely the log samples one measured axis.
@@ -249,6 +255,7 @@ fn component(log: &MeasurementLog, d: &Data, heldout: &[f64], c: Axis) -> Compon
     .map(f64::sqrt);
     let mut targets = Vec::new();
     let mut outliers = Vec::new();
+    let mut visits: Vec<Visit> = Vec::new();
     let (mut ss, mut dof) = (0.0, 0usize);
     for ((k, rows), med) in reps.iter().zip(&medians) {
         // The moving axis names the target (x when both or neither move).
@@ -279,6 +286,13 @@ fn component(log: &MeasurementLog, d: &Data, heldout: &[f64], c: Axis) -> Compon
         if kept.len() < 2 {
             continue;
         }
+        visits.extend(kept.iter().map(|&i| Visit {
+            target_um,
+            approach,
+            cycle: log.records[i].cycle,
+            dev_um: dev(i),
+            resid_um: heldout[2 * i + ci],
+        }));
         let n = kept.len();
         let m = kept.iter().map(|&i| dev(i)).sum::<f64>() / n as f64;
         let s2 = kept.iter().map(|&i| (dev(i) - m).powi(2)).sum::<f64>() / (n - 1) as f64;
@@ -335,6 +349,18 @@ fn component(log: &MeasurementLog, d: &Data, heldout: &[f64], c: Axis) -> Compon
         (None, Some(nb)) => nb > 0.0 && heldout_rms >= 3.0 * nb,
         _ => false,
     };
+    let readings = match repeatability {
+        Some(s) => readings::read(
+            c,
+            &visits,
+            s,
+            &outliers
+                .iter()
+                .map(|o| (o.cycle, o.target_um, o.excess_um, o.first_visit))
+                .collect::<Vec<_>>(),
+        ),
+        None => Vec::new(),
+    };
     ComponentNoise {
         component: c,
         replicated_targets: targets.len(),
@@ -356,16 +382,8 @@ fn component(log: &MeasurementLog, d: &Data, heldout: &[f64], c: Axis) -> Compon
         } else {
             Vec::new()
         },
+        readings,
     }
-}
-
-/// Normal z of a χ² statistic with `k` degrees of freedom (Wilson–Hilferty).
-fn wilson_hilferty(chi2: f64, k: f64) -> f64 {
-    if k <= 0.0 {
-        return 0.0;
-    }
-    let v = 2.0 / (9.0 * k);
-    ((chi2 / k).cbrt() - (1.0 - v)) / v.sqrt()
 }
 
 /// Noise of component `c` from neighbouring positions within one pass

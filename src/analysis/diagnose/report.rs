@@ -312,6 +312,33 @@ impl Diagnosis {
             }
             out.push('\n');
         }
+        let readings: Vec<&super::Reading> = self
+            .noise
+            .components
+            .iter()
+            .flat_map(|c| &c.readings)
+            .collect();
+        if !readings.is_empty() {
+            out.push_str(
+                "\nstructure read from the replicates (no model; z against the repeatability):\n",
+            );
+            for r in readings {
+                let _ = writeln!(
+                    out,
+                    "  {} ({}, z = {:.1}){}: {}\n    likely cause: {}",
+                    r.kind.as_str(),
+                    r.component,
+                    r.z,
+                    match r.model_explains {
+                        Some(true) => " — the model carries it (gone from its held-out residual)",
+                        Some(false) => " — the model LACKS it (still in its held-out residual)",
+                        None => "",
+                    },
+                    r.sentence,
+                    r.cause
+                );
+            }
+        }
         out
     }
 
