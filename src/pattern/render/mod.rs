@@ -27,8 +27,8 @@
 //! read noise, and quantised. Everything random comes from a seeded ChaCha RNG.
 //!
 //! This file holds the configuration, the pose and the render pipeline;
-//! `coverage.rs` computes the exact dot coverage, `optics.rs` the blur and
-//! pixel integration, `sensor.rs` shading, noise and quantisation.
+//! `coverage.rs` computes the exact dot coverage, `optics.rs` applies the
+//! blur and integrates pixels, `sensor.rs` shading, noise and quantisation.
 
 mod coverage;
 mod optics;
@@ -38,7 +38,6 @@ use thiserror::Error;
 
 use super::sequence::{LineSequence, SequenceError};
 use crate::frame::{Frame, FrameError};
-use optics::disc_kernel;
 
 pub use sensor::{shading_map, Shading};
 /// Why a renderer cannot be built or a frame cannot be rendered.
@@ -358,6 +357,34 @@ impl Renderer {
         self.downsample();
         Ok(self.finish(noise_seed, timestamp_s, sequence)?)
     }
+}
+
+/// Disc PSF of radius `r` px on a (2·rc+1)² grid, weights = area of each
+/// pixel inside the disc (8×8 supersampled), normalised.
+fn disc_kernel(r: f64, rc: usize) -> Vec<f32> {
+    if rc == 0 {
+        return vec![1.0];
+    }
+    let n = 2 * rc + 1;
+    let mut k = vec![0f64; n * n];
+    const SS: usize = 8;
+    for i in 0..n {
+        for j in 0..n {
+            let mut cnt = 0;
+            for a in 0..SS {
+                for b in 0..SS {
+                    let y = i as f64 - rc as f64 - 0.5 + (a as f64 + 0.5) / SS as f64;
+                    let x = j as f64 - rc as f64 - 0.5 + (b as f64 + 0.5) / SS as f64;
+                    if x * x + y * y <= r * r {
+                        cnt += 1;
+                    }
+                }
+            }
+            k[i * n + j] = cnt as f64;
+        }
+    }
+    let sum: f64 = k.iter().sum();
+    k.iter().map(|v| (v / sum.max(1.0)) as f32).collect()
 }
 
 #[cfg(test)]

@@ -37,7 +37,8 @@ use realfft::num_complex::Complex;
 use realfft::{RealFftPlanner, RealToComplex};
 use rustfft::{Fft, FftPlanner};
 
-use super::{simd, DecodeError};
+use super::error::DecodeError;
+use super::simd;
 use crate::frame::Frame;
 
 /// The grid found by the full-frame stage, in image coordinates relative to
@@ -75,7 +76,7 @@ pub struct Grid {
 }
 
 /// Most alternative lattices kept per peak search.
-pub(crate) const MAX_ALTS: usize = peak::LATTICE_READINGS.len();
+pub(crate) const MAX_ALTS: usize = 9;
 
 /// Nominal demodulation tile side, px.
 const TILE: usize = 64;

@@ -7,7 +7,7 @@
 
 use realfft::num_complex::Complex;
 
-use super::super::DecodeError;
+use super::super::error::DecodeError;
 use super::{FineStage, MAX_ALTS};
 use crate::frame::{Frame, Pixels};
 
@@ -18,7 +18,7 @@ use crate::frame::{Frame, Pixels};
 /// the fundamental, the 3-period structure's k/3 and 2k/3, the empty-crossing
 /// diagonals (k_a ± k_b)/3, (2k_a ± k_b)/3, 2(k_a ± k_b)/3, and the harmonics
 /// 2k and k_a + k_b.
-pub(super) const LATTICE_READINGS: [(f64, f64); 9] = [
+const LATTICE_READINGS: [(f64, f64); MAX_ALTS] = [
     (3.0, 0.0),
     (1.0, 0.0),
     (2.0, 0.0),
