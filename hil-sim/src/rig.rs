@@ -307,7 +307,7 @@ pub struct RigConfig {
     /// Pattern mounting.
     pub mounting: Mounting,
     /// Simulated camera.
-    pub camera: crate::camera::CameraConfig,
+    pub camera: crate::camera::config::CameraConfig,
 }
 
 impl RigConfig {
@@ -373,7 +373,7 @@ mod tests {
         let base = Path::new(env!("CARGO_MANIFEST_DIR")).join("../config");
         let c = RigConfig::from_toml(text, Some(&base)).unwrap();
         assert_eq!(c.mounting, Mounting::default());
-        assert_eq!(c.camera, crate::camera::CameraConfig::default());
+        assert_eq!(c.camera, crate::camera::config::CameraConfig::default());
         let m = load_model(c.model.as_deref()).unwrap();
         assert_eq!(
             m.to_toml().unwrap(),

@@ -37,6 +37,7 @@ use thiserror::Error;
 pub mod file;
 pub mod fit;
 pub mod sim;
+pub mod spec;
 pub mod state;
 pub mod term;
 pub mod terms;

@@ -22,7 +22,7 @@
 //! axes; the pixel integral is a 32 × 32 midpoint sum via a summed-area
 //! table).
 
-use super::CameraConfig;
+use super::config::CameraConfig;
 use micropos::frame::{Frame, Pixels};
 use micropos::pattern::render::{shading_map, Shading};
 use micropos::pattern::sequence::LineSequence;

@@ -29,11 +29,8 @@
 
 use serde::{Deserialize, Serialize};
 
+use super::super::spec::{ParamRange, ParamSpec, SpecTerm, TermSpec};
 use super::super::state::{Axis, AxisMotion, Direction, MotionState};
-use super::super::term::{
-    check_param_values, config_table, parse_term_config, require_non_negative, ParamInfo, Term,
-};
-use super::super::ModelError;
 
 /// Kind name.
 pub const KIND: &str = "backlash";
@@ -107,79 +104,41 @@ pub fn play_offset_um(axis: &AxisMotion, backlash_um: f64) -> f64 {
     (start - d * axis.run_um).clamp(-h, h)
 }
 
-/// The backlash term.
+/// The backlash kind: one parameter, `backlash_um`, non-linear.
 #[derive(Debug, Clone, PartialEq)]
-pub struct BacklashTerm {
-    name: String,
-    cfg: BacklashConfig,
-}
+pub struct Backlash;
 
-impl BacklashTerm {
-    /// Builds and validates.
-    pub fn new(name: &str, cfg: BacklashConfig) -> Result<Self, ModelError> {
-        require_non_negative(name, "backlash_um", cfg.backlash_um)?;
-        Ok(BacklashTerm {
-            name: name.to_string(),
-            cfg,
-        })
-    }
+/// The backlash term.
+pub type BacklashTerm = SpecTerm<Backlash>;
 
-    /// The configuration.
-    pub fn config(&self) -> &BacklashConfig {
-        &self.cfg
-    }
-}
-
-impl Term for BacklashTerm {
-    fn name(&self) -> &str {
-        &self.name
-    }
-
-    fn kind(&self) -> &'static str {
-        KIND
-    }
-
-    fn params(&self) -> Vec<ParamInfo> {
-        vec![ParamInfo::new(
-            "backlash_um",
-            "µm",
-            self.cfg.backlash_um,
+impl TermSpec for Backlash {
+    type Config = BacklashConfig;
+    const KIND: &'static str = KIND;
+    const PARAMS: &'static [ParamSpec<BacklashConfig>] = &[ParamSpec {
+        key: "backlash_um",
+        unit: "µm",
+        range: ParamRange::NonNegative,
+        get: |c| c.backlash_um,
+        set: |c, v| c.backlash_um = v,
+        doc: |c| {
             format!(
                 "play between screw and nut of {}: lost motion on reversal; the platform trails the screw by half of it",
-                self.cfg.axis
-            ),
-        )]
-    }
+                c.axis
+            )
+        },
+        column: None,
+    }];
 
-    fn set_params(&mut self, values: &[f64]) -> Result<(), ModelError> {
-        check_param_values(&self.name, 1, values)?;
-        self.cfg.backlash_um = values[0];
-        Ok(())
-    }
-
-    fn contribution(&self, state: &MotionState) -> [f64; 2] {
+    fn contribution(cfg: &BacklashConfig, state: &MotionState) -> [f64; 2] {
         let mut out = [0.0; 2];
-        out[self.cfg.axis.index()] =
-            play_offset_um(state.axis(self.cfg.axis), self.cfg.backlash_um);
+        out[cfg.axis.index()] = play_offset_um(state.axis(cfg.axis), cfg.backlash_um);
         out
     }
-
-    fn to_config(&self) -> Result<toml::Table, ModelError> {
-        config_table(&self.name, &self.cfg)
-    }
-
-    fn clone_box(&self) -> Box<dyn Term> {
-        Box::new(self.clone())
-    }
-}
-
-pub(crate) fn build(name: &str, table: toml::Table) -> Result<Box<dyn Term>, ModelError> {
-    let cfg = parse_term_config(name, KIND, table)?;
-    Ok(Box::new(BacklashTerm::new(name, cfg)?))
 }
 
 #[cfg(test)]
 mod tests {
+    use super::super::super::term::Term;
     use super::*;
 
     fn axis(dir: Direction, run: f64, prev: Option<f64>) -> AxisMotion {

@@ -12,11 +12,8 @@
 
 use serde::{Deserialize, Serialize};
 
+use super::super::spec::{ParamRange, ParamSpec, SpecTerm, TermSpec};
 use super::super::state::{Axis, MotionState};
-use super::super::term::{
-    check_param_values, config_table, parse_term_config, require_finite, ParamInfo, Term,
-};
-use super::super::ModelError;
 
 /// Kind name.
 pub const KIND: &str = "lead_error";
@@ -32,83 +29,45 @@ pub struct LeadConfig {
     pub ppm: f64,
 }
 
-/// The lead error term.
+/// The lead error kind: one parameter, `ppm`, linear.
 #[derive(Debug, Clone, PartialEq)]
-pub struct LeadTerm {
-    name: String,
-    cfg: LeadConfig,
-}
+pub struct Lead;
 
-impl LeadTerm {
-    /// Builds and validates.
-    pub fn new(name: &str, cfg: LeadConfig) -> Result<Self, ModelError> {
-        require_finite(name, "ppm", cfg.ppm)?;
-        Ok(LeadTerm {
-            name: name.to_string(),
-            cfg,
-        })
-    }
-}
+/// The lead error term.
+pub type LeadTerm = SpecTerm<Lead>;
 
-impl Term for LeadTerm {
-    fn name(&self) -> &str {
-        &self.name
-    }
-
-    fn kind(&self) -> &'static str {
-        KIND
-    }
-
-    fn params(&self) -> Vec<ParamInfo> {
-        vec![ParamInfo::new(
-            "ppm",
-            "ppm",
-            self.cfg.ppm,
+impl TermSpec for Lead {
+    type Config = LeadConfig;
+    const KIND: &'static str = KIND;
+    const PARAMS: &'static [ParamSpec<LeadConfig>] = &[ParamSpec {
+        key: "ppm",
+        unit: "ppm",
+        range: ParamRange::Finite,
+        get: |c| c.ppm,
+        set: |c, v| c.ppm = v,
+        doc: |c| {
             format!(
                 "scale error of {}: positive goes further than commanded",
-                self.cfg.axis
-            ),
-        )]
-    }
+                c.axis
+            )
+        },
+        column: Some(|c, state| {
+            let mut d = [0.0; 2];
+            d[c.axis.index()] = 1e-6 * state.cmd_um(c.axis);
+            d
+        }),
+    }];
 
-    fn set_params(&mut self, values: &[f64]) -> Result<(), ModelError> {
-        check_param_values(&self.name, 1, values)?;
-        self.cfg.ppm = values[0];
-        Ok(())
-    }
-
-    fn contribution(&self, state: &MotionState) -> [f64; 2] {
+    fn contribution(cfg: &LeadConfig, state: &MotionState) -> [f64; 2] {
         let mut out = [0.0; 2];
-        out[self.cfg.axis.index()] = self.cfg.ppm * 1e-6 * state.cmd_um(self.cfg.axis);
+        out[cfg.axis.index()] = cfg.ppm * 1e-6 * state.cmd_um(cfg.axis);
         out
     }
-
-    fn is_linear(&self) -> bool {
-        true
-    }
-
-    fn jacobian(&self, state: &MotionState) -> Vec<[f64; 2]> {
-        let mut d = [0.0; 2];
-        d[self.cfg.axis.index()] = 1e-6 * state.cmd_um(self.cfg.axis);
-        vec![d]
-    }
-
-    fn to_config(&self) -> Result<toml::Table, ModelError> {
-        config_table(&self.name, &self.cfg)
-    }
-
-    fn clone_box(&self) -> Box<dyn Term> {
-        Box::new(self.clone())
-    }
-}
-
-pub(crate) fn build(name: &str, table: toml::Table) -> Result<Box<dyn Term>, ModelError> {
-    let cfg = parse_term_config(name, KIND, table)?;
-    Ok(Box::new(LeadTerm::new(name, cfg)?))
 }
 
 #[cfg(test)]
 mod tests {
+    use super::super::super::term::Term;
     use super::*;
 
     #[test]

@@ -14,15 +14,15 @@ pub mod squareness;
 pub mod thermal;
 
 pub use angular::{AngularConfig, AngularTerm, Rotation};
-pub use backlash::{play_offset_um, BacklashConfig, BacklashTerm, PlayOperator};
+pub use backlash::{play_offset_um, Backlash, BacklashConfig, BacklashTerm, PlayOperator};
 pub use cyclic::{CyclicConfig, CyclicTerm};
 pub use discovered::{
     DiscoveredConfig, DiscoveredTerm, LocalizedConfig, PositionPeriodicConfig, PositionSlopeConfig,
     StepSizeConfig, TemperatureConfig, TimeDriftConfig, TimePeriodicConfig,
 };
-pub use lead::{LeadConfig, LeadTerm};
-pub use offset::{OriginOffsetConfig, OriginOffsetTerm};
-pub use squareness::{SquarenessConfig, SquarenessTerm};
+pub use lead::{Lead, LeadConfig, LeadTerm};
+pub use offset::{OriginOffset, OriginOffsetConfig, OriginOffsetTerm};
+pub use squareness::{Squareness, SquarenessConfig, SquarenessTerm};
 pub use thermal::{
     OpticsDriftConfig, OpticsDriftTerm, ThermalExpansionConfig, ThermalExpansionTerm,
 };
@@ -42,22 +42,22 @@ pub(crate) const BUILTIN: &[(&str, &str, TermBuilder)] = &[
     (
         backlash::KIND,
         "play between screw and nut: lost motion on reversal",
-        backlash::build,
+        backlash::BacklashTerm::build,
     ),
     (
         squareness::KIND,
         "out-of-squareness of the Y axis: x error proportional to y",
-        squareness::build,
+        squareness::SquarenessTerm::build,
     ),
     (
         lead::KIND,
         "cumulative lead (scale) error of an axis, ppm",
-        lead::build,
+        lead::LeadTerm::build,
     ),
     (
         offset::KIND,
         "constant offset between the commanded frame and the measuring frame (the camera tie's origin)",
-        offset::build,
+        offset::OriginOffsetTerm::build,
     ),
     (
         angular::KIND,

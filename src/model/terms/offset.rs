@@ -22,11 +22,8 @@
 
 use serde::{Deserialize, Serialize};
 
+use super::super::spec::{ParamRange, ParamSpec, SpecTerm, TermSpec};
 use super::super::state::MotionState;
-use super::super::term::{
-    check_param_values, config_table, parse_term_config, require_finite, ParamInfo, Term,
-};
-use super::super::ModelError;
 
 /// Kind name.
 pub const KIND: &str = "origin_offset";
@@ -42,86 +39,51 @@ pub struct OriginOffsetConfig {
     pub y_um: f64,
 }
 
-/// The origin-offset term.
+/// The origin-offset kind: `x_um` and `y_um`, linear.
 #[derive(Debug, Clone, PartialEq)]
-pub struct OriginOffsetTerm {
-    name: String,
-    cfg: OriginOffsetConfig,
-}
+pub struct OriginOffset;
 
-impl OriginOffsetTerm {
-    /// Builds and validates.
-    pub fn new(name: &str, cfg: OriginOffsetConfig) -> Result<Self, ModelError> {
-        require_finite(name, "x_um", cfg.x_um)?;
-        require_finite(name, "y_um", cfg.y_um)?;
-        Ok(OriginOffsetTerm {
-            name: name.to_string(),
-            cfg,
-        })
+/// The origin-offset term.
+pub type OriginOffsetTerm = SpecTerm<OriginOffset>;
+
+impl TermSpec for OriginOffset {
+    type Config = OriginOffsetConfig;
+    const KIND: &'static str = KIND;
+    const PARAMS: &'static [ParamSpec<OriginOffsetConfig>] = &[
+        ParamSpec {
+            key: "x_um",
+            unit: "µm",
+            range: ParamRange::Finite,
+            get: |c| c.x_um,
+            set: |c, v| c.x_um = v,
+            doc: |_| {
+                "constant x offset of the measuring frame's origin (platform further in +x)"
+                    .to_string()
+            },
+            column: Some(|_, _| [1.0, 0.0]),
+        },
+        ParamSpec {
+            key: "y_um",
+            unit: "µm",
+            range: ParamRange::Finite,
+            get: |c| c.y_um,
+            set: |c, v| c.y_um = v,
+            doc: |_| {
+                "constant y offset of the measuring frame's origin (platform further in +y)"
+                    .to_string()
+            },
+            column: Some(|_, _| [0.0, 1.0]),
+        },
+    ];
+
+    fn contribution(cfg: &OriginOffsetConfig, _state: &MotionState) -> [f64; 2] {
+        [cfg.x_um, cfg.y_um]
     }
-}
-
-impl Term for OriginOffsetTerm {
-    fn name(&self) -> &str {
-        &self.name
-    }
-
-    fn kind(&self) -> &'static str {
-        KIND
-    }
-
-    fn params(&self) -> Vec<ParamInfo> {
-        vec![
-            ParamInfo::new(
-                "x_um",
-                "µm",
-                self.cfg.x_um,
-                "constant x offset of the measuring frame's origin (platform further in +x)",
-            ),
-            ParamInfo::new(
-                "y_um",
-                "µm",
-                self.cfg.y_um,
-                "constant y offset of the measuring frame's origin (platform further in +y)",
-            ),
-        ]
-    }
-
-    fn set_params(&mut self, values: &[f64]) -> Result<(), ModelError> {
-        check_param_values(&self.name, 2, values)?;
-        self.cfg.x_um = values[0];
-        self.cfg.y_um = values[1];
-        Ok(())
-    }
-
-    fn contribution(&self, _state: &MotionState) -> [f64; 2] {
-        [self.cfg.x_um, self.cfg.y_um]
-    }
-
-    fn is_linear(&self) -> bool {
-        true
-    }
-
-    fn jacobian(&self, _state: &MotionState) -> Vec<[f64; 2]> {
-        vec![[1.0, 0.0], [0.0, 1.0]]
-    }
-
-    fn to_config(&self) -> Result<toml::Table, ModelError> {
-        config_table(&self.name, &self.cfg)
-    }
-
-    fn clone_box(&self) -> Box<dyn Term> {
-        Box::new(self.clone())
-    }
-}
-
-pub(crate) fn build(name: &str, table: toml::Table) -> Result<Box<dyn Term>, ModelError> {
-    let cfg = parse_term_config(name, KIND, table)?;
-    Ok(Box::new(OriginOffsetTerm::new(name, cfg)?))
 }
 
 #[cfg(test)]
 mod tests {
+    use super::super::super::term::Term;
     use super::*;
 
     #[test]

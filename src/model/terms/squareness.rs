@@ -14,11 +14,8 @@
 
 use serde::{Deserialize, Serialize};
 
+use super::super::spec::{ParamRange, ParamSpec, SpecTerm, TermSpec};
 use super::super::state::{Axis, MotionState};
-use super::super::term::{
-    check_param_values, config_table, parse_term_config, require_finite, ParamInfo, Term,
-};
-use super::super::ModelError;
 
 /// Kind name.
 pub const KIND: &str = "squareness";
@@ -31,76 +28,36 @@ pub struct SquarenessConfig {
     pub angle_urad: f64,
 }
 
-/// The squareness term.
+/// The squareness kind: one parameter, `angle_urad`, linear.
 #[derive(Debug, Clone, PartialEq)]
-pub struct SquarenessTerm {
-    name: String,
-    cfg: SquarenessConfig,
-}
+pub struct Squareness;
 
-impl SquarenessTerm {
-    /// Builds and validates.
-    pub fn new(name: &str, cfg: SquarenessConfig) -> Result<Self, ModelError> {
-        require_finite(name, "angle_urad", cfg.angle_urad)?;
-        Ok(SquarenessTerm {
-            name: name.to_string(),
-            cfg,
-        })
+/// The squareness term.
+pub type SquarenessTerm = SpecTerm<Squareness>;
+
+impl TermSpec for Squareness {
+    type Config = SquarenessConfig;
+    const KIND: &'static str = KIND;
+    const PARAMS: &'static [ParamSpec<SquarenessConfig>] = &[ParamSpec {
+        key: "angle_urad",
+        unit: "µrad",
+        range: ParamRange::Finite,
+        get: |c| c.angle_urad,
+        set: |c, v| c.angle_urad = v,
+        doc: |_| {
+            "out-of-squareness: +Y leans towards +X by this angle; x error = angle·y".to_string()
+        },
+        column: Some(|_, state| [1e-6 * state.cmd_um(Axis::Y), 0.0]),
+    }];
+
+    fn contribution(cfg: &SquarenessConfig, state: &MotionState) -> [f64; 2] {
+        [cfg.angle_urad * 1e-6 * state.cmd_um(Axis::Y), 0.0]
     }
-}
-
-impl Term for SquarenessTerm {
-    fn name(&self) -> &str {
-        &self.name
-    }
-
-    fn kind(&self) -> &'static str {
-        KIND
-    }
-
-    fn params(&self) -> Vec<ParamInfo> {
-        vec![ParamInfo::new(
-            "angle_urad",
-            "µrad",
-            self.cfg.angle_urad,
-            "out-of-squareness: +Y leans towards +X by this angle; x error = angle·y",
-        )]
-    }
-
-    fn set_params(&mut self, values: &[f64]) -> Result<(), ModelError> {
-        check_param_values(&self.name, 1, values)?;
-        self.cfg.angle_urad = values[0];
-        Ok(())
-    }
-
-    fn contribution(&self, state: &MotionState) -> [f64; 2] {
-        [self.cfg.angle_urad * 1e-6 * state.cmd_um(Axis::Y), 0.0]
-    }
-
-    fn is_linear(&self) -> bool {
-        true
-    }
-
-    fn jacobian(&self, state: &MotionState) -> Vec<[f64; 2]> {
-        vec![[1e-6 * state.cmd_um(Axis::Y), 0.0]]
-    }
-
-    fn to_config(&self) -> Result<toml::Table, ModelError> {
-        config_table(&self.name, &self.cfg)
-    }
-
-    fn clone_box(&self) -> Box<dyn Term> {
-        Box::new(self.clone())
-    }
-}
-
-pub(crate) fn build(name: &str, table: toml::Table) -> Result<Box<dyn Term>, ModelError> {
-    let cfg = parse_term_config(name, KIND, table)?;
-    Ok(Box::new(SquarenessTerm::new(name, cfg)?))
 }
 
 #[cfg(test)]
 mod tests {
+    use super::super::super::term::Term;
     use super::*;
 
     #[test]

@@ -22,8 +22,8 @@
 
 // `!(x >= t)` is deliberate: it also rejects NaN. Index loops mirror the maths.
 #![allow(clippy::neg_cmp_op_on_partial_ord, clippy::needless_range_loop)]
+use super::error::DecodeError;
 use super::fine::Grid;
-use super::DecodeError;
 use crate::frame::{Frame, Pixels};
 use crate::pattern::sequence::LineSequence;
 

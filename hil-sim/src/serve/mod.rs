@@ -15,6 +15,15 @@
 //! then is discarded (and the queues flushed), as bytes sent down a serial
 //! cable with nobody listening are lost. A client opening the port later
 //! never reads stale answers.
+//!
+//! This file holds the configuration and the handle; `line.rs` is the
+//! serving thread of one pty line, `pty.rs` the pty itself, `probe.rs` the
+//! latency probe and `client.rs` the blocking client helpers.
+
+mod client;
+mod line;
+mod probe;
+mod pty;
 
 use crate::bus::Bus;
 use crate::clock::{Clock, ScaledClock};
@@ -22,24 +31,20 @@ use crate::controller::{Controller, ControllerConfig};
 pub use crate::fault::{AxisName, Corruption, Fault, SimError};
 use crate::fault::{LineCmd, ReplyFaults};
 use micropos::gcs::Address;
-use nix::fcntl::{fcntl, FcntlArg, OFlag};
-use nix::poll::{poll, PollFd, PollFlags, PollTimeout};
-use nix::sys::termios::{cfmakeraw, tcflush, tcgetattr, tcsetattr, FlushArg, SetArg};
 use rand::{Rng, SeedableRng};
 use std::fmt;
-use std::fs::File;
-use std::io::{self, Read, Write};
-use std::os::fd::{AsFd, AsRawFd};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc;
-use std::sync::{Arc, Mutex, MutexGuard};
+use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
-/// Longest a serving thread sleeps before looking at its command channel and
-/// the stop flag: bounds fault-injection and shutdown latency.
-const POLL_INTERVAL: Duration = Duration::from_millis(5);
+pub use client::{exchange, read_answer};
+use line::{lock, Ack, Line};
+pub use probe::RxProbe;
+use pty::{io_err, Pty};
+
 /// How long [`SimHandle::start`] waits for each controller to answer.
 const READY_TIMEOUT: Duration = Duration::from_secs(5);
 
@@ -89,356 +94,6 @@ impl Default for ServeConfig {
             stage_model: None,
             in_process: false,
         }
-    }
-}
-
-fn io_err(context: impl Into<String>) -> impl FnOnce(io::Error) -> SimError {
-    let context = context.into();
-    move |source| SimError::Io { context, source }
-}
-
-fn nix_err(context: impl Into<String>) -> impl FnOnce(nix::Error) -> SimError {
-    let context = context.into();
-    move |e| SimError::Io {
-        context,
-        source: io::Error::from(e),
-    }
-}
-
-/// One open pty. Dropping it closes the master, which hangs up the client.
-#[derive(Debug)]
-struct Pty {
-    master: File,
-    slave_path: PathBuf,
-    /// Whether a client had the slave open at the last look.
-    connected: bool,
-}
-
-impl Pty {
-    /// Opens a raw, non-blocking pty and points `link` at its slave. The
-    /// slave is configured and closed again: the settings stay with the pty.
-    fn open(link: &Path) -> Result<Pty, SimError> {
-        let pair = nix::pty::openpty(None, None).map_err(nix_err("openpty"))?;
-        let mut t = tcgetattr(pair.slave.as_fd()).map_err(nix_err("tcgetattr on pty slave"))?;
-        cfmakeraw(&mut t);
-        tcsetattr(pair.slave.as_fd(), SetArg::TCSANOW, &t)
-            .map_err(nix_err("tcsetattr (raw mode) on pty slave"))?;
-        fcntl(
-            pair.master.as_raw_fd(),
-            FcntlArg::F_SETFL(OFlag::O_NONBLOCK),
-        )
-        .map_err(nix_err("set pty master non-blocking"))?;
-        let slave_path =
-            nix::unistd::ttyname(pair.slave.as_fd()).map_err(nix_err("ttyname of pty slave"))?;
-        relink(link, &slave_path)?;
-        Ok(Pty {
-            master: File::from(pair.master),
-            slave_path,
-            connected: false,
-        })
-    }
-
-    /// Polls the master for up to `wait`: returns (readable, client present).
-    fn wait(&self, wait: Duration) -> (bool, bool) {
-        let ms = u16::try_from(wait.as_millis()).unwrap_or(u16::MAX);
-        let mut fds = [PollFd::new(self.master.as_fd(), PollFlags::POLLIN)];
-        match poll(&mut fds, PollTimeout::from(ms)) {
-            Ok(n) if n > 0 => {
-                let r = fds[0].revents().unwrap_or(PollFlags::empty());
-                (
-                    r.intersects(PollFlags::POLLIN),
-                    !r.intersects(PollFlags::POLLHUP),
-                )
-            }
-            Ok(_) => (false, true),
-            Err(_) => (false, false),
-        }
-    }
-
-    /// Discards the answers a client left unread. They sit in the master's
-    /// output and the slave's line discipline; only a flush through the
-    /// slave side reaches the latter. The other direction is left alone: a
-    /// client that has just opened the port may already have sent its first
-    /// request.
-    fn flush(&self) {
-        use std::os::unix::fs::OpenOptionsExt;
-        let _ = tcflush(self.master.as_fd(), FlushArg::TCOFLUSH);
-        let slave = std::fs::OpenOptions::new()
-            .read(true)
-            .write(true)
-            .custom_flags((OFlag::O_NOCTTY | OFlag::O_NONBLOCK).bits())
-            .open(&self.slave_path);
-        if let Ok(f) = slave {
-            let _ = tcflush(f.as_fd(), FlushArg::TCIFLUSH);
-        }
-    }
-}
-
-/// Points `link` at `target`, replacing any old link atomically (a client
-/// never sees the link missing during a restore).
-fn relink(link: &Path, target: &Path) -> Result<(), SimError> {
-    let name = link
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_default();
-    let tmp = link.with_file_name(format!(".{name}.tmp-{}", std::process::id()));
-    let _ = std::fs::remove_file(&tmp);
-    std::os::unix::fs::symlink(target, &tmp)
-        .map_err(io_err(format!("create symlink {}", tmp.display())))?;
-    std::fs::rename(&tmp, link).map_err(io_err(format!("rename symlink to {}", link.display())))
-}
-
-type Ack = mpsc::Sender<Result<(), SimError>>;
-
-/// State owned by one line thread.
-struct Line {
-    axis: AxisName,
-    link: PathBuf,
-    pty: Option<Pty>,
-    bus: Arc<Mutex<Bus>>,
-    clock: Arc<dyn Clock>,
-    faults: ReplyFaults,
-    /// Delayed replies: (due, bytes), sorted by due time.
-    pending: Vec<(Instant, Vec<u8>)>,
-    /// Arrival times for latency measurements.
-    probe: Arc<RxProbe>,
-}
-
-/// When host bytes reached a simulated line: the far end of a
-/// command-to-first-serial-byte latency measurement (`benches/daemon.rs`).
-///
-/// Why in the simulator: only the line thread sees the instant a byte
-/// leaves the pty; timing it from the host side would measure the host's
-/// own write call. Arm it with [`RxProbe::arm`] just before sending a
-/// command to the system under test; the line thread stamps the wall-clock
-/// [`Instant`] of the first chunk read after that, and of the chunk that
-/// completes `needle` (e.g. `b"MOV"`), so unrelated traffic (status polls)
-/// can be told apart. Costs one relaxed atomic load per chunk when unarmed.
-#[derive(Debug, Default)]
-pub struct RxProbe {
-    armed: AtomicBool,
-    state: Mutex<ProbeState>,
-}
-
-#[derive(Debug, Default)]
-struct ProbeState {
-    needle: Vec<u8>,
-    seen: Vec<u8>,
-    first: Option<Instant>,
-    matched: Option<Instant>,
-}
-
-/// Bytes kept after arming to find a needle split across chunks.
-const PROBE_WINDOW: usize = 4096;
-
-impl RxProbe {
-    fn state(&self) -> MutexGuard<'_, ProbeState> {
-        self.state.lock().unwrap_or_else(|e| e.into_inner())
-    }
-
-    /// Clears previous stamps and starts watching for `needle` (an empty
-    /// needle matches the first chunk).
-    pub fn arm(&self, needle: &[u8]) {
-        let mut st = self.state();
-        *st = ProbeState {
-            needle: needle.to_vec(),
-            ..ProbeState::default()
-        };
-        self.armed.store(true, Ordering::SeqCst);
-    }
-
-    /// When the first byte after [`RxProbe::arm`] was read, if any.
-    pub fn first_byte(&self) -> Option<Instant> {
-        self.state().first
-    }
-
-    /// When the bytes read since [`RxProbe::arm`] first contained the
-    /// needle, if they have.
-    pub fn matched(&self) -> Option<Instant> {
-        self.state().matched
-    }
-
-    fn observe(&self, bytes: &[u8], at: Instant) {
-        if !self.armed.load(Ordering::Relaxed) || bytes.is_empty() {
-            return;
-        }
-        let mut st = self.state();
-        st.first.get_or_insert(at);
-        if st.matched.is_none() {
-            let room = PROBE_WINDOW.saturating_sub(st.seen.len());
-            st.seen.extend_from_slice(&bytes[..bytes.len().min(room)]);
-            let n = st.needle.len();
-            if n == 0 || st.seen.windows(n).any(|w| w == st.needle.as_slice()) {
-                st.matched = Some(at);
-            }
-        }
-        if st.matched.is_some() {
-            self.armed.store(false, Ordering::Relaxed);
-        }
-    }
-}
-
-fn lock(bus: &Mutex<Bus>) -> MutexGuard<'_, Bus> {
-    // A panic while holding the lock would be a simulator bug; the state is
-    // still usable for serving, so do not cascade it.
-    bus.lock().unwrap_or_else(|e| e.into_inner())
-}
-
-impl Line {
-    fn apply(&mut self, cmd: LineCmd) -> Result<(), SimError> {
-        match cmd {
-            LineCmd::Drop => {
-                self.pty = None;
-                self.pending.clear();
-                lock(&self.bus).reset_line();
-                match std::fs::remove_file(&self.link) {
-                    Ok(()) => Ok(()),
-                    Err(e) if e.kind() == io::ErrorKind::NotFound => Ok(()),
-                    Err(e) => Err(io_err(format!("remove link {}", self.link.display()))(e)),
-                }
-            }
-            LineCmd::Restore => {
-                if self.pty.is_none() {
-                    self.pty = Some(Pty::open(&self.link)?);
-                }
-                Ok(())
-            }
-            LineCmd::Garbage(bytes) => {
-                if self.pty.is_none() {
-                    return Err(SimError::LineDown(self.axis));
-                }
-                self.write(&bytes);
-                Ok(())
-            }
-            other => {
-                self.faults.set(&other);
-                Ok(())
-            }
-        }
-    }
-
-    /// Writes to the host. A host that does not read fills the pty buffer;
-    /// the bytes that do not fit are lost, as on a real line.
-    fn write(&mut self, bytes: &[u8]) {
-        let Some(pty) = self.pty.as_mut() else {
-            return;
-        };
-        let (_, connected) = pty.wait(Duration::ZERO);
-        if !connected {
-            return;
-        }
-        let mut rest = bytes;
-        while !rest.is_empty() {
-            match pty.master.write(rest) {
-                Ok(0) => break,
-                Ok(n) => rest = &rest[n..],
-                Err(e) if e.kind() == io::ErrorKind::Interrupted => {}
-                Err(e) => {
-                    tracing::warn!(axis = %self.axis, "dropping {} reply bytes: {e}", rest.len());
-                    break;
-                }
-            }
-        }
-    }
-
-    fn flush_due(&mut self) {
-        let now = Instant::now();
-        while self.pending.first().is_some_and(|(due, _)| *due <= now) {
-            let (_, bytes) = self.pending.remove(0);
-            self.write(&bytes);
-        }
-    }
-
-    fn on_bytes(&mut self, bytes: &[u8]) {
-        let now = self.clock.now();
-        let replies = lock(&self.bus).receive(now, bytes);
-        for (delay, bytes) in self.faults.apply(replies) {
-            if delay.is_zero() && self.pending.is_empty() {
-                self.write(&bytes);
-            } else {
-                let due = Instant::now() + delay;
-                let at = self.pending.partition_point(|(d, _)| *d <= due);
-                self.pending.insert(at, (due, bytes));
-            }
-        }
-    }
-
-    /// Reads and handles everything the host has sent so far.
-    fn drain_input(&mut self) {
-        let mut buf = [0u8; 4096];
-        loop {
-            let Some(pty) = self.pty.as_mut() else {
-                return;
-            };
-            match pty.master.read(&mut buf) {
-                Ok(0) => return,
-                Ok(n) => {
-                    self.probe.observe(&buf[..n], Instant::now());
-                    let bytes = buf[..n].to_vec();
-                    self.on_bytes(&bytes);
-                }
-                Err(e) if e.kind() == io::ErrorKind::Interrupted => {}
-                // WouldBlock: all read. EIO: no client and nothing queued.
-                Err(_) => return,
-            }
-        }
-    }
-
-    fn run(mut self, rx: mpsc::Receiver<(LineCmd, Ack)>, stop: Arc<AtomicBool>) {
-        loop {
-            loop {
-                match rx.try_recv() {
-                    Ok((cmd, ack)) => {
-                        let r = self.apply(cmd);
-                        let _ = ack.send(r);
-                    }
-                    Err(mpsc::TryRecvError::Empty) => break,
-                    Err(mpsc::TryRecvError::Disconnected) => {
-                        stop.store(true, Ordering::SeqCst);
-                        break;
-                    }
-                }
-            }
-            if stop.load(Ordering::SeqCst) {
-                break;
-            }
-            self.flush_due();
-            let wait = self
-                .pending
-                .first()
-                .map(|(due, _)| due.saturating_duration_since(Instant::now()))
-                .unwrap_or(POLL_INTERVAL)
-                .min(POLL_INTERVAL);
-            let Some(pty) = self.pty.as_mut() else {
-                std::thread::sleep(wait);
-                continue;
-            };
-            let (readable, connected) = pty.wait(wait.max(Duration::from_millis(1)));
-            if !connected {
-                // What the client sent before it left still reaches the
-                // controllers (they execute it; the answers are lost, see
-                // `write`). Then its leftovers are cleared so the next client
-                // starts clean.
-                self.drain_input();
-                if let Some(pty) = self.pty.as_mut() {
-                    if pty.connected {
-                        pty.connected = false;
-                        pty.flush();
-                        self.pending.clear();
-                        lock(&self.bus).reset_line();
-                    }
-                }
-                // Hang-up is reported at once; do not spin on it.
-                std::thread::sleep(wait);
-                continue;
-            }
-            pty.connected = true;
-            if readable {
-                self.drain_input();
-            }
-        }
-        self.pty = None;
-        let _ = std::fs::remove_file(&self.link);
     }
 }
 
@@ -1022,80 +677,5 @@ impl crate::control::Injector for Core {
             }
         }
         out
-    }
-}
-
-/// One blocking request/answer exchange through a serial device path: writes
-/// `request`, reads until an answer's final LF (a LF not preceded by a
-/// space) or `timeout`. A small helper for probes and tests; the real driver
-/// lives in `micropos`.
-pub fn exchange(path: &Path, request: &[u8], timeout: Duration) -> io::Result<Vec<u8>> {
-    let mut f = std::fs::OpenOptions::new()
-        .read(true)
-        .write(true)
-        .open(path)?;
-    f.write_all(request)?;
-    read_answer(&mut f, timeout)
-}
-
-/// Reads one complete GCS answer from `f` (see [`exchange`]).
-pub fn read_answer(f: &mut File, timeout: Duration) -> io::Result<Vec<u8>> {
-    let deadline = Instant::now() + timeout;
-    let mut out = Vec::new();
-    let mut buf = [0u8; 1024];
-    loop {
-        let left = deadline.saturating_duration_since(Instant::now());
-        if left.is_zero() {
-            return Err(io::Error::new(
-                io::ErrorKind::TimedOut,
-                format!("no complete answer within {timeout:?} (got {out:?})"),
-            ));
-        }
-        let ms = u16::try_from(left.as_millis().max(1)).unwrap_or(u16::MAX);
-        let mut fds = [PollFd::new(f.as_fd(), PollFlags::POLLIN)];
-        let n = poll(&mut fds, PollTimeout::from(ms)).map_err(io::Error::from)?;
-        if n == 0 {
-            continue;
-        }
-        let got = f.read(&mut buf)?;
-        if got == 0 {
-            return Err(io::Error::new(io::ErrorKind::UnexpectedEof, "line closed"));
-        }
-        out.extend_from_slice(&buf[..got]);
-        if out.ends_with(b"\n") && (out.len() < 2 || out[out.len() - 2] != b' ') {
-            return Ok(out);
-        }
-    }
-}
-
-#[cfg(test)]
-mod probe_tests {
-    use super::*;
-
-    #[test]
-    fn probe_stamps_first_byte_and_needle_across_chunks() {
-        let p = RxProbe::default();
-        let t0 = Instant::now();
-        let (t1, t2, t3) = (
-            t0 + Duration::from_micros(1),
-            t0 + Duration::from_micros(2),
-            t0 + Duration::from_micros(3),
-        );
-        // Unarmed: nothing recorded.
-        p.observe(b"MOV 1 2\n", t0);
-        assert_eq!((p.first_byte(), p.matched()), (None, None));
-        p.arm(b"MOV");
-        p.observe(b"POS?\nM", t1);
-        assert_eq!((p.first_byte(), p.matched()), (Some(t1), None));
-        p.observe(b"O", t2);
-        p.observe(b"V 1 2\n", t3);
-        assert_eq!((p.first_byte(), p.matched()), (Some(t1), Some(t3)));
-        // Disarmed after the match; re-arming clears the stamps.
-        p.observe(b"MOV", t3 + Duration::from_micros(1));
-        assert_eq!(p.matched(), Some(t3));
-        p.arm(b"");
-        assert_eq!(p.first_byte(), None);
-        p.observe(b"x", t2);
-        assert_eq!((p.first_byte(), p.matched()), (Some(t2), Some(t2)));
     }
 }

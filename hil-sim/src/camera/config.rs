@@ -1,0 +1,274 @@
+//! The simulated camera's configuration (`[camera]` of the rig file): its
+//! fields, defaults, range checks and the equivalent exact-renderer
+//! configuration. Its own file so the rig file and the renderers read it
+//! without importing the camera.
+
+use serde::{Deserialize, Serialize};
+
+/// Optics, sensor and pattern of the simulated camera (`[camera]` of the rig
+/// file). Defaults: the paper's rig.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct CameraConfig {
+    /// Frame width, px.
+    pub width: usize,
+    /// Frame height, px.
+    pub height: usize,
+    /// Sensor bit depth (8 → u8 pixels, 9..=16 → u16).
+    pub bit_depth: u8,
+    /// Pattern period, µm.
+    pub period_um: f64,
+    /// Code depth of the pattern (10 → 3096 lines, 12384 µm at 4 µm).
+    pub bits: u32,
+    /// Pixel size on the pattern, µm (0.4 → 10 px per period).
+    pub pixel_um: f64,
+    /// Frame rate, frames per simulated second.
+    pub fps: f64,
+    /// Exposure time, µs.
+    pub exposure_us: f64,
+    /// Dark dots on a bright background (false: bright dots, as the real
+    /// pattern under bright field).
+    pub dark_dots: bool,
+    /// Background level, fraction of full scale.
+    pub background: f64,
+    /// Dot level, fraction of full scale.
+    pub foreground: f64,
+    /// Gaussian PSF σ, px.
+    pub blur_sigma_px: f64,
+    /// Defocus disc radius, px (approximated by a Gaussian of equal variance).
+    pub defocus_radius_px: f64,
+    /// Linear illumination gradient, relative change left→right, top→bottom.
+    pub gradient: [f64; 2],
+    /// Vignetting: relative intensity drop at the corners.
+    pub vignetting: f64,
+    /// Electrons at full scale (shot noise); 0 = none.
+    pub full_well_e: f64,
+    /// Read noise σ, fraction of full scale.
+    pub read_noise: f64,
+    /// Fraction of the frame covered by dust (0..0.9).
+    pub dust_fraction: f64,
+    /// Dust blob radius range, px.
+    pub dust_radius_px: [f64; 2],
+    /// Dust transmission (0 = opaque).
+    pub dust_transmission: f64,
+    /// Seed of the dust layout (and of the noise table).
+    pub dust_seed: u64,
+    /// Illumination drift: relative amplitude of a slow sinusoidal change of
+    /// the lamp intensity.
+    pub illumination_drift: f64,
+    /// Period of the illumination drift, simulated s.
+    pub illumination_period_s: f64,
+    /// Fixed delay from the true exposure mid-point to the frame's
+    /// timestamp, µs (a camera's trigger-to-stamp latency; hidden from
+    /// micropos, which estimates it from a sweep characterization).
+    pub latency_us: f64,
+    /// Timestamp jitter σ, µs (Gaussian, drawn per frame from the frame's
+    /// noise seed).
+    pub timestamp_jitter_us: f64,
+}
+
+impl Default for CameraConfig {
+    fn default() -> Self {
+        Self {
+            width: 1024,
+            height: 768,
+            bit_depth: 10,
+            period_um: 4.0,
+            bits: 10,
+            pixel_um: 0.4,
+            fps: 30.0,
+            exposure_us: 2000.0,
+            dark_dots: false,
+            background: 0.15,
+            foreground: 0.8,
+            blur_sigma_px: 0.9,
+            defocus_radius_px: 0.0,
+            gradient: [0.03, -0.02],
+            vignetting: 0.08,
+            full_well_e: 10_000.0,
+            read_noise: 0.003,
+            dust_fraction: 0.0,
+            dust_radius_px: [3.0, 25.0],
+            dust_transmission: 0.1,
+            dust_seed: 1,
+            illumination_drift: 0.02,
+            illumination_period_s: 3600.0,
+            latency_us: 3700.0,
+            timestamp_jitter_us: 20.0,
+        }
+    }
+}
+
+impl CameraConfig {
+    /// Checks every value; the message names the key and the accepted range.
+    pub fn validate(&self) -> Result<(), String> {
+        let chk = |name: &str, v: f64, ok: bool, why: &str| {
+            if ok && v.is_finite() {
+                Ok(())
+            } else {
+                Err(format!("camera.{name} = {v}: {why}"))
+            }
+        };
+        chk(
+            "width",
+            self.width as f64,
+            (16..=8192).contains(&self.width),
+            "16..=8192",
+        )?;
+        chk(
+            "height",
+            self.height as f64,
+            (16..=8192).contains(&self.height),
+            "16..=8192",
+        )?;
+        chk(
+            "bit_depth",
+            f64::from(self.bit_depth),
+            (8..=16).contains(&self.bit_depth),
+            "8..=16",
+        )?;
+        chk(
+            "bits",
+            f64::from(self.bits),
+            (4..=12).contains(&self.bits),
+            "4..=12",
+        )?;
+        chk("period_um", self.period_um, self.period_um > 0.0, "> 0")?;
+        chk("pixel_um", self.pixel_um, self.pixel_um > 0.0, "> 0")?;
+        chk(
+            "period in px",
+            self.period_um / self.pixel_um,
+            (3.0..=64.0).contains(&(self.period_um / self.pixel_um)),
+            "period_um / pixel_um must be 3..=64 px",
+        )?;
+        chk(
+            "fps",
+            self.fps,
+            self.fps > 0.0 && self.fps <= 10_000.0,
+            "0 < fps <= 10000",
+        )?;
+        chk(
+            "exposure_us",
+            self.exposure_us,
+            self.exposure_us > 0.0 && self.exposure_us * 1e-6 <= 1.0 / self.fps,
+            "> 0 and at most one frame period",
+        )?;
+        chk(
+            "background",
+            self.background,
+            (0.0..=1.0).contains(&self.background),
+            "0..=1",
+        )?;
+        chk(
+            "foreground",
+            self.foreground,
+            (0.0..=1.0).contains(&self.foreground),
+            "0..=1",
+        )?;
+        chk(
+            "blur_sigma_px",
+            self.blur_sigma_px,
+            (0.0..=5.0).contains(&self.blur_sigma_px),
+            "0..=5",
+        )?;
+        chk(
+            "defocus_radius_px",
+            self.defocus_radius_px,
+            (0.0..=10.0).contains(&self.defocus_radius_px),
+            "0..=10",
+        )?;
+        for g in self.gradient {
+            chk("gradient", g, g.abs() < 1.9, "|g| < 1.9")?;
+        }
+        chk(
+            "vignetting",
+            self.vignetting,
+            (0.0..1.0).contains(&self.vignetting),
+            "0..1",
+        )?;
+        chk(
+            "full_well_e",
+            self.full_well_e,
+            self.full_well_e >= 0.0,
+            ">= 0",
+        )?;
+        chk(
+            "read_noise",
+            self.read_noise,
+            (0.0..=1.0).contains(&self.read_noise),
+            "0..=1",
+        )?;
+        chk(
+            "dust_fraction",
+            self.dust_fraction,
+            (0.0..=0.9).contains(&self.dust_fraction),
+            "0..=0.9",
+        )?;
+        chk(
+            "dust_radius_px",
+            self.dust_radius_px[0],
+            self.dust_radius_px[0] > 0.0
+                && self.dust_radius_px[1] >= self.dust_radius_px[0]
+                && self.dust_radius_px[1] <= 1000.0,
+            "0 < min <= max <= 1000",
+        )?;
+        chk(
+            "dust_transmission",
+            self.dust_transmission,
+            (0.0..=1.0).contains(&self.dust_transmission),
+            "0..=1",
+        )?;
+        chk(
+            "illumination_drift",
+            self.illumination_drift,
+            (0.0..0.5).contains(&self.illumination_drift),
+            "0..0.5",
+        )?;
+        chk(
+            "illumination_period_s",
+            self.illumination_period_s,
+            self.illumination_period_s > 0.0,
+            "> 0",
+        )?;
+        chk(
+            "latency_us",
+            self.latency_us,
+            (0.0..=1e6).contains(&self.latency_us),
+            "0..=1e6",
+        )?;
+        chk(
+            "timestamp_jitter_us",
+            self.timestamp_jitter_us,
+            (0.0..=1e4).contains(&self.timestamp_jitter_us),
+            "0..=1e4",
+        )?;
+        Ok(())
+    }
+
+    /// The equivalent configuration of micropos's exact renderer (no noise
+    /// there: the caller sets what it compares).
+    pub fn exact_render_config(&self) -> micropos::pattern::render::RenderConfig {
+        micropos::pattern::render::RenderConfig {
+            width: self.width,
+            height: self.height,
+            bit_depth: self.bit_depth,
+            period_um: self.period_um,
+            bits: self.bits,
+            dark_dots: self.dark_dots,
+            background: self.background,
+            foreground: self.foreground,
+            blur_sigma_px: self.blur_sigma_px,
+            defocus_radius_px: self.defocus_radius_px,
+            gradient: self.gradient,
+            vignetting: self.vignetting,
+            full_well_e: self.full_well_e,
+            read_noise: self.read_noise,
+            dust_fraction: self.dust_fraction,
+            dust_radius_px: (self.dust_radius_px[0], self.dust_radius_px[1]),
+            dust_transmission: self.dust_transmission,
+            dust_seed: self.dust_seed,
+            oversample: 2,
+            plain_grid: false,
+        }
+    }
+}
