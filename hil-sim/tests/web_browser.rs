@@ -165,17 +165,20 @@ impl Browser {
         r["result"]["value"].clone()
     }
 
-    /// Polls `expr` until it is `true` (fails after `within`).
+    /// Polls `expr` until it is `true` (fails after `within`); an
+    /// exception (the page still loading) counts as not yet.
     fn wait_for(&mut self, what: &str, expr: &str, within: Duration) {
         let t = Instant::now();
+        let guarded =
+            format!("(() => {{ try {{ return ({expr}); }} catch (e) {{ return false; }} }})()");
         loop {
-            if self.eval(expr) == json!(true) {
+            if self.eval(&guarded) == json!(true) {
                 return;
             }
             assert!(
                 t.elapsed() < within,
                 "{what}: not within {within:?}; page state: {}",
-                self.eval("document.querySelector('main').innerText")
+                self.eval("document.body ? document.body.innerText : ''")
             );
             std::thread::sleep(Duration::from_millis(200));
         }

@@ -79,6 +79,26 @@ async fn command(addr: SocketAddr, req: Value, token: Option<&str>) -> (u16, Val
     (status, serde_json::from_slice(&body).unwrap())
 }
 
+/// Reads `GET /api/events` until every one of `wanted` has appeared.
+async fn sse_until(addr: SocketAddr, wanted: &[&str]) -> String {
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    let mut s = tokio::net::TcpStream::connect(addr).await.unwrap();
+    s.write_all(format!("GET /api/events HTTP/1.1\r\nHost: {addr}\r\n\r\n").as_bytes())
+        .await
+        .unwrap();
+    let mut text = String::new();
+    let mut chunk = [0u8; 4096];
+    while !wanted.iter().all(|w| text.contains(w)) {
+        let n = tokio::time::timeout(std::time::Duration::from_secs(60), s.read(&mut chunk))
+            .await
+            .expect("events within a minute")
+            .unwrap();
+        assert!(n > 0, "the stream ended: {text}");
+        text.push_str(&String::from_utf8_lossy(&chunk[..n]));
+    }
+    text
+}
+
 #[tokio::test(start_paused = true)]
 async fn metrics_and_commands_follow_the_rig() {
     let dir = tempfile::tempdir().unwrap();
@@ -112,6 +132,21 @@ async fn metrics_and_commands_follow_the_rig() {
     let (status, _, body) = http(addr, "GET", "/app.js", &[], b"").await;
     assert_eq!(status, 200);
     assert!(String::from_utf8_lossy(&body).contains("EventSource"));
+
+    // The event stream: the opening status and position, then the bus.
+    let events = sse_until(
+        addr,
+        &[
+            "event: status",
+            "event: position",
+            "\"source\":\"controller\"",
+        ],
+    )
+    .await;
+    assert!(
+        events.contains("content-type: text/event-stream"),
+        "{events}"
+    );
 
     let m0 = metrics(addr).await;
     let moves0 = get(&m0, "micropos_moves_total");

@@ -18,9 +18,14 @@ use std::collections::VecDeque;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-/// Most lattice points sent with one overlay (a coarse pattern on a large
-/// sensor would otherwise send tens of thousands).
+/// Most lattice points sent with one overlay.
 pub const MAX_LATTICE_POINTS: usize = 4000;
+
+/// Smallest spacing of the drawn lattice points in the downscaled image,
+/// px: a fine pattern (dots a few pixels apart) is drawn every `stride`-th
+/// dot, so the overlay shows the lattice's position and angle without
+/// hiding the image.
+pub const MIN_LATTICE_SPACING_PX: f64 = 12.0;
 
 /// One rendered view.
 #[derive(Debug, Clone)]
@@ -160,12 +165,13 @@ pub fn downscale(
 pub fn overlay(snap: &Snapshot, w: usize, h: usize, factor: usize) -> Value {
     let f = &snap.frame;
     let decode = snap.decoded.map(|d| {
-        let lattice = lattice_px(&d, f.width() as f64, f.height() as f64, factor as f64);
+        let (lattice, stride) = lattice_px(&d, f.width() as f64, f.height() as f64, factor as f64);
         json!({
             "x_um": d.x_um, "y_um": d.y_um, "theta_rad": d.theta_rad,
             "pixel_um": d.pixel_um, "quality": d.quality,
             "coherence": d.grid.coherence,
             "lattice": lattice,
+            "lattice_stride": stride,
         })
     });
     json!({
@@ -181,15 +187,21 @@ pub fn overlay(snap: &Snapshot, w: usize, h: usize, factor: usize) -> Value {
 
 /// Dot centres in the downscaled image: the points `u` where
 /// `k_d · (u − c) + φ_d = 2π n_d` for both directions `d`, `c` the image
-/// centre; flattened `[x0, y0, x1, y1, …]`, at most
-/// [`MAX_LATTICE_POINTS`].
-pub fn lattice_px(d: &SnapshotDecode, fw: f64, fh: f64, factor: f64) -> Vec<f64> {
+/// centre, every `stride`-th dot in each direction (spacing at least
+/// [`MIN_LATTICE_SPACING_PX`]); flattened `[x0, y0, x1, y1, …]`, at most
+/// [`MAX_LATTICE_POINTS`]. Returns the points and the stride.
+pub fn lattice_px(d: &SnapshotDecode, fw: f64, fh: f64, factor: f64) -> (Vec<f64>, i64) {
     let k = d.grid.k;
     let phi = d.grid.phi;
     let det = k[0][0] * k[1][1] - k[0][1] * k[1][0];
-    if !(det.is_finite() && det.abs() > 1e-12) {
-        return Vec::new();
+    if !(det.is_finite() && det.abs() > 1e-12 && factor > 0.0) {
+        return (Vec::new(), 1);
     }
+    // Pitch of each direction in the downscaled image, px.
+    let pitch = |dir: usize| std::f64::consts::TAU / k[dir][0].hypot(k[dir][1]) / factor;
+    let stride = (MIN_LATTICE_SPACING_PX / pitch(0).min(pitch(1)))
+        .ceil()
+        .clamp(1.0, 1e6) as i64;
     let (cx, cy) = (fw / 2.0, fh / 2.0);
     // The phase range of each direction over the image's corners.
     let corners = [(0.0, 0.0), (fw, 0.0), (0.0, fh), (fw, fh)];
@@ -204,8 +216,8 @@ pub fn lattice_px(d: &SnapshotDecode, fw: f64, fh: f64, factor: f64) -> Vec<f64>
     let (b0, b1) = range(1);
     let mut out = Vec::new();
     let tau = std::f64::consts::TAU;
-    for n0 in a0..=a1 {
-        for n1 in b0..=b1 {
+    for n0 in (a0..=a1).filter(|n| n.rem_euclid(stride) == 0) {
+        for n1 in (b0..=b1).filter(|n| n.rem_euclid(stride) == 0) {
             let r0 = tau * n0 as f64 - phi[0];
             let r1 = tau * n1 as f64 - phi[1];
             // Solve K (u − c) = r.
@@ -214,14 +226,14 @@ pub fn lattice_px(d: &SnapshotDecode, fw: f64, fh: f64, factor: f64) -> Vec<f64>
             let (x, y) = (cx + dx, cy + dy);
             if (0.0..fw).contains(&x) && (0.0..fh).contains(&y) {
                 if out.len() / 2 >= MAX_LATTICE_POINTS {
-                    return out;
+                    return (out, stride);
                 }
                 out.push(x / factor);
                 out.push(y / factor);
             }
         }
     }
-    out
+    (out, stride)
 }
 
 #[cfg(test)]
@@ -271,9 +283,25 @@ mod tests {
             quality: 9.0,
             grid,
         };
-        let pts = lattice_px(&d, 64.0, 48.0, 2.0);
-        // A pitch of 8 px with a dot at the centre (32, 24): 8 × 6 dots.
-        assert_eq!(pts.len() / 2, 8 * 6);
+        let (pts, stride) = lattice_px(&d, 64.0, 48.0, 1.0);
+        // A pitch of 8 px with a dot at the centre (32, 24): 8 × 6 dots,
+        // every 2nd drawn (12 px spacing at least): 4 × 3.
+        assert_eq!((pts.len() / 2, stride), (4 * 3, 2));
+        for p in pts.chunks(2) {
+            let (x, y) = (p[0], p[1]);
+            assert!(
+                ((x - 32.0) / 16.0 - ((x - 32.0) / 16.0).round()).abs() < 1e-9,
+                "{x}"
+            );
+            assert!(
+                ((y - 24.0) / 16.0 - ((y - 24.0) / 16.0).round()).abs() < 1e-9,
+                "{y}"
+            );
+        }
+        // Downscaled by 2 the dots are 4 px apart: every 3rd is drawn.
+        let (pts, stride) = lattice_px(&d, 64.0, 48.0, 2.0);
+        assert_eq!(stride, 3);
+        assert!(!pts.is_empty() && pts.len() / 2 < 8 * 6);
         for p in pts.chunks(2) {
             let (x, y) = (p[0] * 2.0, p[1] * 2.0);
             assert!(

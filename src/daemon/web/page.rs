@@ -15,7 +15,7 @@ pub const STYLE_CSS: &str = include_str!("static/style.css");
 /// Security headers of every page response: no framing, no sniffing, and
 /// a content security policy that allows only this origin's scripts,
 /// styles, images and event stream.
-const CSP: &str = "default-src 'self'; img-src 'self' blob:; style-src 'self'; script-src 'self'; connect-src 'self'; frame-ancestors 'none'";
+const CSP: &str = "default-src 'self'; img-src 'self' blob: data:; style-src 'self'; script-src 'self'; connect-src 'self'; frame-ancestors 'none'";
 
 fn page(content_type: &'static str, body: &'static str) -> impl IntoResponse {
     (

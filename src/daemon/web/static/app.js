@@ -163,9 +163,9 @@ function drawCamera(bmp, o) {
   c.dataset.updates = String(view.cameraUpdates);
   const d = o.decode;
   if (d) {
-    ctx.fillStyle = 'rgba(0, 255, 120, 0.8)';
+    ctx.fillStyle = 'rgba(0, 255, 120, 0.9)';
     const pts = d.lattice || [];
-    for (let i = 0; i + 1 < pts.length; i += 2) ctx.fillRect(pts[i] - 1, pts[i + 1] - 1, 2, 2);
+    for (let i = 0; i + 1 < pts.length; i += 2) ctx.fillRect(pts[i] - 1.5, pts[i + 1] - 1.5, 3, 3);
     // The decoded point is the image centre; the line shows the pattern's +x.
     const cx = c.width / 2;
     const cy = c.height / 2;
@@ -184,6 +184,7 @@ function drawCamera(bmp, o) {
   setText('cam-theta', d ? num(d.theta_rad * 1000, 2) : '–');
   setText('cam-quality', d ? num(d.quality, 1) : '–');
   setText('cam-coherence', d ? num(d.coherence, 2) : '–');
+  setText('cam-stride', d && d.lattice_stride ? String(d.lattice_stride) : '–');
 }
 
 async function cameraTick() {
