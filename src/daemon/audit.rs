@@ -352,6 +352,44 @@ mod tests {
     }
 
     #[test]
+    fn http_clients_are_recorded_by_address() {
+        let dir = tempfile::tempdir().unwrap();
+        let sock = dir.path().join("journal.sock");
+        let journal = std::os::unix::net::UnixDatagram::bind(&sock).unwrap();
+        journal
+            .set_read_timeout(Some(Duration::from_secs(20)))
+            .unwrap();
+        let a = Audit::start_with(dir.path(), Some(sock));
+        let req = br#"{"cmd":"move","x_um":5}"#;
+        let cmd = crate::daemon::protocol::parse_request(req).unwrap().command;
+        let remote: std::net::SocketAddr = "127.0.0.1:40001".parse().unwrap();
+        a.record_from(Origin::Http(remote), None, &cmd, Outcome::Denied, req);
+        let mut buf = vec![0u8; 4096];
+        let n = journal.recv(&mut buf).unwrap();
+        let text = String::from_utf8(buf[..n].to_vec()).unwrap();
+        assert!(text.contains("MICROPOS_REMOTE=127.0.0.1:40001\n"), "{text}");
+        assert!(
+            text.contains("MESSAGE=move denied by http 127.0.0.1:40001 (role none)\n"),
+            "{text}"
+        );
+        assert!(!text.contains("MICROPOS_UID"), "{text}");
+        let t = Instant::now();
+        let line: Value = loop {
+            let text = std::fs::read_to_string(a.path()).unwrap_or_default();
+            if let Some(l) = text.lines().next() {
+                break serde_json::from_str(l).unwrap();
+            }
+            assert!(t.elapsed() < Duration::from_secs(20));
+            std::thread::sleep(Duration::from_millis(5));
+        };
+        assert_eq!(line["via"], "http");
+        assert_eq!(line["remote"], "127.0.0.1:40001");
+        assert_eq!(line["role"], "none");
+        assert_eq!(line["outcome"], "denied");
+        assert_eq!(line.get("uid"), None);
+    }
+
+    #[test]
     fn under_systemd_the_fields_reach_the_journal_socket() {
         let dir = tempfile::tempdir().unwrap();
         let sock = dir.path().join("journal.sock");
