@@ -9,6 +9,7 @@
 mod common;
 use common::{http, Client};
 use hil_sim::run::{daemon_config, RunPlan};
+use hil_sim::{AxisName, Fault};
 use micropos::daemon::config::WebSection;
 use prometheus_parse::{Scrape, Value as PValue};
 use serde_json::{json, Value};
@@ -274,6 +275,33 @@ async fn metrics_and_commands_follow_the_rig() {
     assert!(http_lines.iter().all(|v| v["remote"]
         .as_str()
         .is_some_and(|r| r.starts_with("127.0.0.1:"))));
+
+    // A controller line drops and comes back: a latched fault, a
+    // reconnect, and the next move refused with its code.
+    let connected_x = |s: &Value| s["rig"]["connected"]["x"] == true;
+    sim.inject(AxisName::X, Fault::DropLine).unwrap();
+    for i in 0.. {
+        if !connected_x(&cl.call_ok(json!({"cmd": "status"})).await) {
+            break;
+        }
+        assert!(i < 600, "the line drop was not noticed");
+        tokio::time::sleep(std::time::Duration::from_millis(50)).await;
+    }
+    sim.inject(AxisName::X, Fault::RestoreLine).unwrap();
+    for i in 0.. {
+        if connected_x(&cl.call_ok(json!({"cmd": "status"})).await) {
+            break;
+        }
+        assert!(i < 600, "no reconnect");
+        tokio::time::sleep(std::time::Duration::from_millis(50)).await;
+    }
+    let r = cl.call(json!({"cmd": "move", "x_um": 100.0, "y_um": 100.0})).await;
+    assert_eq!(r["error"]["code"], "fault_latched", "{r}");
+    let m2 = metrics(addr).await;
+    assert!(get(&m2, "micropos_reconnects_total") >= 1.0, "{m2:?}");
+    assert!(get(&m2, "micropos_faults_total") >= 1.0, "{m2:?}");
+    assert_eq!(get(&m2, "micropos_fault_latched"), 1.0);
+    assert_eq!(get(&m2, "micropos_move_errors_total{code=fault_latched}"), 1.0);
 
     daemon.shutdown().await;
     sim.shutdown();

@@ -157,6 +157,10 @@ impl Daemon {
             capture,
             links,
         } = env;
+        // Bound before anything starts: a bad address or token file stops
+        // the daemon with a message instead of leaving it half up.
+        let web = cfg.web.as_ref().map(web::bind).transpose()?;
+        let web_addr = web.as_ref().map(|w| w.addr);
         let vision = match camera {
             Some(src) => {
                 let mut opts = DecodeOptions::new(cfg.camera.period_um, cfg.camera.bits);
@@ -169,10 +173,6 @@ impl Daemon {
             }
             None => None,
         };
-        // Bound before anything starts: a bad address or token file stops
-        // the daemon with a message instead of leaving it half up.
-        let web = cfg.web.as_ref().map(web::bind).transpose()?;
-        let web_addr = web.as_ref().map(|w| w.addr);
         let (shutdown, _) = broadcast::channel(4);
         let access = access::Access::new(cfg.access.clone());
         let audit = audit::Audit::start(&cfg.daemon.data_dir);
