@@ -295,13 +295,18 @@ async fn metrics_and_commands_follow_the_rig() {
         assert!(i < 600, "no reconnect");
         tokio::time::sleep(std::time::Duration::from_millis(50)).await;
     }
-    let r = cl.call(json!({"cmd": "move", "x_um": 100.0, "y_um": 100.0})).await;
+    let r = cl
+        .call(json!({"cmd": "move", "x_um": 100.0, "y_um": 100.0}))
+        .await;
     assert_eq!(r["error"]["code"], "fault_latched", "{r}");
     let m2 = metrics(addr).await;
     assert!(get(&m2, "micropos_reconnects_total") >= 1.0, "{m2:?}");
     assert!(get(&m2, "micropos_faults_total") >= 1.0, "{m2:?}");
     assert_eq!(get(&m2, "micropos_fault_latched"), 1.0);
-    assert_eq!(get(&m2, "micropos_move_errors_total{code=fault_latched}"), 1.0);
+    assert_eq!(
+        get(&m2, "micropos_move_errors_total{code=fault_latched}"),
+        1.0
+    );
 
     daemon.shutdown().await;
     sim.shutdown();
