@@ -141,11 +141,9 @@ fn shipped_units_pass_systemd_analyze_verify() {
     .unwrap();
     let dropin = dir.path().join("microposd.service.d");
     std::fs::create_dir(&dropin).unwrap();
-    std::fs::copy(
-        units.join("gige-camera.conf"),
-        dropin.join("gige-camera.conf"),
-    )
-    .unwrap();
+    for conf in ["gige-camera.conf", "web-view.conf"] {
+        std::fs::copy(units.join(conf), dropin.join(conf)).unwrap();
+    }
     let out = Command::new(analyze)
         .args(["verify", "--man=no"])
         .arg(dir.path().join("microposd.service"))

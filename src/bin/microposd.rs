@@ -291,6 +291,13 @@ fn main() -> ExitCode {
             return ExitCode::from(2);
         }
     };
+    // The web token file is part of the configuration: a missing, short or
+    // group-readable one is a bad configuration (exit 2, and
+    // --check-config says so before systemd starts the daemon).
+    if let Some(Err(e)) = cfg.web.as_ref().map(|w| w.resolve_token()) {
+        eprintln!("microposd: {}: {e}", args.config.display());
+        return ExitCode::from(2);
+    }
     if args.check_config {
         println!("{}: configuration is valid", args.config.display());
         return ExitCode::SUCCESS;

@@ -69,6 +69,38 @@ impl Outcome {
     }
 }
 
+/// Where a command came from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Origin {
+    /// A client of the Unix socket, as the kernel named it.
+    Socket(Peer),
+    /// An HTTP client of the web listener (`[web] control`), by address:
+    /// it proved the token, the kernel knows no more about it.
+    Http(std::net::SocketAddr),
+}
+
+impl std::fmt::Display for Origin {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Origin::Socket(p) => {
+                write!(f, "uid {} gid {} pid {}", p.uid, p.gid, p.pid.unwrap_or(-1))
+            }
+            Origin::Http(a) => write!(f, "http {a}"),
+        }
+    }
+}
+
+impl Origin {
+    /// "uid U (pid P" or "http ADDR (": the start of the journal message,
+    /// whose parenthesis the role closes.
+    fn describe(self) -> String {
+        match self {
+            Origin::Socket(p) => format!("uid {} (pid {}", p.uid, p.pid.unwrap_or(-1)),
+            Origin::Http(a) => format!("http {a} ("),
+        }
+    }
+}
+
 /// The audit trail's writer side.
 #[derive(Debug)]
 pub struct Audit {
@@ -125,36 +157,60 @@ impl Audit {
         outcome: Outcome,
         request: &[u8],
     ) {
+        self.record_from(Origin::Socket(*peer), role, cmd, outcome, request);
+    }
+
+    /// [`Audit::record`] for a client on either listener.
+    pub fn record_from(
+        &self,
+        origin: Origin,
+        role: Option<Role>,
+        cmd: &Command,
+        outcome: Outcome,
+        request: &[u8],
+    ) {
         let role_s = role.map_or("none", Role::as_str);
-        let pid = peer.pid.unwrap_or(-1);
+        let who = origin.describe();
         if self.journal.is_none() {
-            tracing::info!(target: "micropos::audit", uid = peer.uid, gid = peer.gid, pid,
+            tracing::info!(target: "micropos::audit", client = %origin,
                 role = role_s, cmd = cmd.name(), outcome = outcome.as_str(), "client command");
         } else {
-            tracing::debug!(target: "micropos::audit", uid = peer.uid, gid = peer.gid, pid,
+            tracing::debug!(target: "micropos::audit", client = %origin,
                 role = role_s, cmd = cmd.name(), outcome = outcome.as_str(), "client command");
         }
         let journal = match self.journal {
-            Some(_) => journal_entry(&[
-                (
-                    "MESSAGE",
-                    format!(
-                        "{} {} by uid {} (pid {pid}, role {role_s})",
-                        cmd.name(),
-                        outcome.as_str(),
-                        peer.uid
+            Some(_) => {
+                let mut fields = vec![
+                    (
+                        "MESSAGE",
+                        format!(
+                            "{} {} by {who}{}role {role_s})",
+                            cmd.name(),
+                            outcome.as_str(),
+                            if matches!(origin, Origin::Socket(_)) {
+                                ", "
+                            } else {
+                                ""
+                            }
+                        ),
                     ),
-                ),
-                ("PRIORITY", "6".to_owned()),
-                ("SYSLOG_IDENTIFIER", "microposd".to_owned()),
-                ("MICROPOS_AUDIT", "1".to_owned()),
-                ("MICROPOS_UID", peer.uid.to_string()),
-                ("MICROPOS_GID", peer.gid.to_string()),
-                ("MICROPOS_PID", pid.to_string()),
-                ("MICROPOS_ROLE", role_s.to_owned()),
-                ("MICROPOS_CMD", cmd.name().to_owned()),
-                ("MICROPOS_OUTCOME", outcome.as_str().to_owned()),
-            ]),
+                    ("PRIORITY", "6".to_owned()),
+                    ("SYSLOG_IDENTIFIER", "microposd".to_owned()),
+                    ("MICROPOS_AUDIT", "1".to_owned()),
+                    ("MICROPOS_ROLE", role_s.to_owned()),
+                    ("MICROPOS_CMD", cmd.name().to_owned()),
+                    ("MICROPOS_OUTCOME", outcome.as_str().to_owned()),
+                ];
+                match origin {
+                    Origin::Socket(peer) => {
+                        fields.push(("MICROPOS_UID", peer.uid.to_string()));
+                        fields.push(("MICROPOS_GID", peer.gid.to_string()));
+                        fields.push(("MICROPOS_PID", peer.pid.unwrap_or(-1).to_string()));
+                    }
+                    Origin::Http(addr) => fields.push(("MICROPOS_REMOTE", addr.to_string())),
+                }
+                journal_entry(&fields)
+            }
             None => Vec::new(),
         };
         let unix = std::time::SystemTime::now()
@@ -165,14 +221,22 @@ impl Audit {
         let mut rec = json!({
             "time": UtcTime::from_unix(unix as u64).rfc3339(),
             "unix_s": unix,
-            "uid": peer.uid,
-            "gid": peer.gid,
-            "pid": peer.pid,
             "role": role_s,
             "cmd": cmd.name(),
             "outcome": outcome.as_str(),
             "request": request,
         });
+        match origin {
+            Origin::Socket(peer) => {
+                rec["uid"] = json!(peer.uid);
+                rec["gid"] = json!(peer.gid);
+                rec["pid"] = json!(peer.pid);
+            }
+            Origin::Http(addr) => {
+                rec["via"] = json!("http");
+                rec["remote"] = json!(addr.to_string());
+            }
+        }
         let lost = self.dropped.swap(0, Ordering::Relaxed);
         if lost > 0 {
             rec["dropped_before"] = json!(lost);
@@ -285,6 +349,44 @@ mod tests {
         assert!(lines[0]["time"].as_str().unwrap().ends_with('Z'));
         assert_eq!(lines[1]["outcome"], "denied");
         assert_eq!(lines[1]["request"], Value::Null);
+    }
+
+    #[test]
+    fn http_clients_are_recorded_by_address() {
+        let dir = tempfile::tempdir().unwrap();
+        let sock = dir.path().join("journal.sock");
+        let journal = std::os::unix::net::UnixDatagram::bind(&sock).unwrap();
+        journal
+            .set_read_timeout(Some(Duration::from_secs(20)))
+            .unwrap();
+        let a = Audit::start_with(dir.path(), Some(sock));
+        let req = br#"{"cmd":"move","x_um":5}"#;
+        let cmd = crate::daemon::protocol::parse_request(req).unwrap().command;
+        let remote: std::net::SocketAddr = "127.0.0.1:40001".parse().unwrap();
+        a.record_from(Origin::Http(remote), None, &cmd, Outcome::Denied, req);
+        let mut buf = vec![0u8; 4096];
+        let n = journal.recv(&mut buf).unwrap();
+        let text = String::from_utf8(buf[..n].to_vec()).unwrap();
+        assert!(text.contains("MICROPOS_REMOTE=127.0.0.1:40001\n"), "{text}");
+        assert!(
+            text.contains("MESSAGE=move denied by http 127.0.0.1:40001 (role none)\n"),
+            "{text}"
+        );
+        assert!(!text.contains("MICROPOS_UID"), "{text}");
+        let t = Instant::now();
+        let line: Value = loop {
+            let text = std::fs::read_to_string(a.path()).unwrap_or_default();
+            if let Some(l) = text.lines().next() {
+                break serde_json::from_str(l).unwrap();
+            }
+            assert!(t.elapsed() < Duration::from_secs(20));
+            std::thread::sleep(Duration::from_millis(5));
+        };
+        assert_eq!(line["via"], "http");
+        assert_eq!(line["remote"], "127.0.0.1:40001");
+        assert_eq!(line["role"], "none");
+        assert_eq!(line["outcome"], "denied");
+        assert_eq!(line.get("uid"), None);
     }
 
     #[test]

@@ -19,7 +19,8 @@
 //! - [`drift`]: live drift correction of compensated moves;
 //! - [`config`]: the validated configuration;
 //! - [`reload`]: what SIGHUP may change live, and its running values;
-//! - [`notify`]: systemd readiness, status and a health-fed watchdog.
+//! - [`notify`]: systemd readiness, status and a health-fed watchdog;
+//! - [`web`]: the optional web view and `/metrics` (`[web]`).
 //!
 //! Shutdown: a running job is cancelled, both axes are halted and waited
 //! for (bounded by `safety.halt_wait_s`), then one `broadcast` tells every
@@ -41,6 +42,7 @@ pub mod server;
 pub mod state;
 pub mod supervisor;
 pub mod vision;
+pub mod web;
 
 use crate::camera::FrameSource;
 use crate::clock::RigClock;
@@ -74,6 +76,8 @@ pub struct Daemon {
 pub struct Running {
     /// The shared parts.
     pub daemon: Arc<Daemon>,
+    /// The web listener's bound address (`[web]`), if any.
+    pub web_addr: Option<std::net::SocketAddr>,
     tasks: Vec<tokio::task::JoinHandle<()>>,
 }
 
@@ -153,6 +157,10 @@ impl Daemon {
             capture,
             links,
         } = env;
+        // Bound before anything starts: a bad address or token file stops
+        // the daemon with a message instead of leaving it half up.
+        let web = cfg.web.as_ref().map(web::bind).transpose()?;
+        let web_addr = web.as_ref().map(|w| w.addr);
         let vision = match camera {
             Some(src) => {
                 let mut opts = DecodeOptions::new(cfg.camera.period_um, cfg.camera.bits);
@@ -176,7 +184,7 @@ impl Daemon {
             access,
             audit,
         });
-        let tasks = vec![
+        let mut tasks = vec![
             tokio::spawn(rig.clone().connect_loop(shutdown.subscribe())),
             tokio::spawn(rig.clone().poll_loop(shutdown.subscribe())),
             tokio::spawn(supervisor::run(rig.clone(), shutdown.subscribe())),
@@ -187,7 +195,14 @@ impl Daemon {
                 shutdown.subscribe(),
             )),
         ];
-        Ok(Running { daemon, tasks })
+        if let Some(w) = web {
+            tasks.push(tokio::spawn(web::serve(daemon.clone(), w)));
+        }
+        Ok(Running {
+            daemon,
+            web_addr,
+            tasks,
+        })
     }
 
     /// Executes one command (everything but `subscribe`, which the server

@@ -76,6 +76,8 @@ pub struct Rig {
     /// Opens the controller lines instead of serial devices (the
     /// simulator's in-process rig); `None` on hardware.
     links: Option<Arc<dyn crate::driver::LinkOpener>>,
+    /// Counters for `/metrics` (moves, faults, reconnects, …).
+    pub metrics: super::web::metrics::Metrics,
 }
 
 fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
@@ -141,6 +143,7 @@ impl Rig {
     ) -> Rig {
         let (events, _) = broadcast::channel(1024);
         let drift = super::drift::DriftControl::new(&cfg);
+        let metrics = super::web::metrics::Metrics::new(vision.as_ref().map(|v| &*v.stats));
         let supervisor = Supervisor::new(Bounds {
             following_error_um: cfg.safety.following_error_um,
             read_fail_s: cfg.safety.read_fail_s,
@@ -165,6 +168,7 @@ impl Rig {
             comp: super::comp::CompState::default(),
             job_retries: Arc::default(),
             links,
+            metrics,
         }
     }
 
@@ -230,6 +234,7 @@ impl Rig {
             match a {
                 Action::HaltAll { reason } => {
                     tracing::warn!("halting both axes: {reason}");
+                    self.metrics.record_fault();
                     self.stop_gen.fetch_add(1, Ordering::SeqCst);
                     self.supervisor().clear();
                     self.push(
@@ -439,6 +444,7 @@ impl Rig {
                         tokio::spawn(self.clone().recover_axis(a));
                     }
                 }
+                self.metrics.record_link_up(&line);
                 self.push(Topic::Fault, "link_up", json!({"line": line}));
             }
             AxisEvent::Disconnected { line, reason } => {
@@ -628,12 +634,15 @@ impl Rig {
         from_job: bool,
         comp: Option<super::comp::Active>,
     ) -> Result<Value, ProtoError> {
-        match req.mode {
+        let r = match req.mode {
             MoveMode::Raw => self.raw_move(req, from_job, true).await,
             MoveMode::Compensated | MoveMode::ClosedLoop => {
                 self.planned_move(req, from_job, comp).await
             }
-        }
+        };
+        self.metrics
+            .record_move(r.as_ref().map(|_| ()).map_err(|e| e.code));
+        r
     }
 
     /// The commanded position of both axes (cached, else queried).
@@ -1083,6 +1092,17 @@ impl Rig {
             "controller": controller,
             "vision": vision,
         })
+    }
+
+    /// The commanded position `[x, y]` µm (what the last move asked).
+    pub fn commanded_um(&self) -> [Option<f64>; 2] {
+        *lock(&self.commanded)
+    }
+
+    /// The controllers' positions as last polled: `(t_s, x_um, y_um)`.
+    pub fn reported_um(&self) -> (f64, Option<f64>, Option<f64>) {
+        let r = *lock(&self.reported);
+        (r.t_s, r.x_um, r.y_um)
     }
 
     /// The state part of `status`.

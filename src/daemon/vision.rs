@@ -61,8 +61,8 @@ impl Measurement {
     }
 }
 
-/// Counters of the pipeline, for `status`.
-#[derive(Debug, Default)]
+/// Counters of the pipeline, for `status` and `/metrics`.
+#[derive(Debug)]
 pub struct VisionStats {
     /// Frames received.
     pub frames: AtomicU64,
@@ -74,6 +74,117 @@ pub struct VisionStats {
     pub camera_errors: AtomicU64,
     /// Frames dropped because the decoder was busy.
     pub dropped: AtomicU64,
+    /// Wall time of each decode, s (`micropos_vision_decode_seconds`).
+    /// Why wall time even on a virtual rig clock: decoding is CPU work,
+    /// and its cost is what a lab watches.
+    pub decode_seconds: prometheus_client::metrics::histogram::Histogram,
+}
+
+impl Default for VisionStats {
+    fn default() -> Self {
+        VisionStats {
+            frames: AtomicU64::new(0),
+            decoded: AtomicU64::new(0),
+            failed: AtomicU64::new(0),
+            camera_errors: AtomicU64::new(0),
+            dropped: AtomicU64::new(0),
+            // 0.5 ms … 4 s: a warm decode of a VGA frame is a few ms, a
+            // cold 5 MP one a few hundred.
+            decode_seconds: prometheus_client::metrics::histogram::Histogram::new(
+                prometheus_client::metrics::histogram::exponential_buckets(0.0005, 2.0, 14),
+            ),
+        }
+    }
+}
+
+/// The newest frame and what its decode found, kept for the web view's
+/// camera image only while someone watches ([`FrameTap::watch`]).
+#[derive(Debug, Clone)]
+pub struct Snapshot {
+    /// The frame as grabbed.
+    pub frame: Arc<Frame>,
+    /// Its decode, if it decoded: position, angle, quality, the fine grid.
+    pub decoded: Option<SnapshotDecode>,
+}
+
+/// The parts of a decode the camera view overlays.
+#[derive(Debug, Clone, Copy)]
+pub struct SnapshotDecode {
+    /// Pattern x, µm.
+    pub x_um: f64,
+    /// Pattern y, µm.
+    pub y_um: f64,
+    /// Angle, rad.
+    pub theta_rad: f64,
+    /// Pixel size on the pattern, µm.
+    pub pixel_um: f64,
+    /// Quality, bits.
+    pub quality: f64,
+    /// The fine grid (wave vectors and phases at the image centre).
+    pub grid: crate::pattern::decode::Grid,
+}
+
+/// Hands the decode path's newest frame to the web view without ever
+/// making decode wait: the decode thread only `try_lock`s, and keeps a
+/// frame (an `Arc`, no copy of the pixels) only while a viewer asked for
+/// one within the last [`FrameTap::WATCH_S`] seconds.
+#[derive(Debug, Default)]
+pub struct FrameTap {
+    /// When a viewer last asked (wall clock), `None`: nobody ever did.
+    watched: std::sync::Mutex<Option<std::time::Instant>>,
+    latest: std::sync::Mutex<Option<Snapshot>>,
+}
+
+impl FrameTap {
+    /// How long one viewer's request keeps frames coming, s.
+    pub const WATCH_S: f64 = 5.0;
+
+    /// A viewer wants frames (called on every camera request).
+    pub fn watch(&self) {
+        if let Ok(mut g) = self.watched.lock() {
+            *g = Some(std::time::Instant::now());
+        }
+    }
+
+    /// Whether a viewer asked recently. Never blocks (a contended lock
+    /// counts as "yes": the viewer is asking right now).
+    pub fn watched(&self) -> bool {
+        match self.watched.try_lock() {
+            Ok(g) => g.is_some_and(|t| t.elapsed().as_secs_f64() < Self::WATCH_S),
+            Err(std::sync::TryLockError::WouldBlock) => true,
+            Err(std::sync::TryLockError::Poisoned(_)) => false,
+        }
+    }
+
+    /// The newest kept snapshot.
+    pub fn latest(&self) -> Option<Snapshot> {
+        self.latest.lock().ok().and_then(|g| g.clone())
+    }
+
+    /// Keeps `frame` and its decode if a viewer watches; skips when the
+    /// web view holds the lock (the decode path never waits).
+    fn offer(
+        &self,
+        frame: Frame,
+        decoded: &Result<crate::pattern::decode::Decoded, crate::pattern::decode::DecodeError>,
+    ) {
+        if !self.watched() {
+            return;
+        }
+        if let Ok(mut g) = self.latest.try_lock() {
+            *g = Some(Snapshot {
+                frame: Arc::new(frame),
+                decoded: decoded.as_ref().ok().map(|d| SnapshotDecode {
+                    x_um: d.x_um,
+                    y_um: d.y_um,
+                    theta_rad: d.theta_rad,
+                    pixel_um: d.pixel_um,
+                    quality: d.quality,
+                    grid: d.grid,
+                }),
+            });
+        }
+    }
 }
 
 /// The running pipeline.
@@ -83,6 +194,8 @@ pub struct Vision {
     pub latest: watch::Receiver<Option<Measurement>>,
     /// Counters.
     pub stats: Arc<VisionStats>,
+    /// The newest frame for the web view (kept only while watched).
+    pub tap: Arc<FrameTap>,
     /// The last camera or decode error, readable.
     pub last_error: Arc<std::sync::Mutex<Option<String>>>,
     stop: Arc<AtomicBool>,
@@ -183,11 +296,13 @@ impl Vision {
         let last_error = Arc::new(std::sync::Mutex::new(None::<String>));
         let stop = Arc::new(AtomicBool::new(false));
         let demand = Arc::new(Demand::default());
+        let tap = Arc::new(FrameTap::default());
         tokio::spawn(on_demand_loop(OnDemandLoop {
             source,
             decoder,
             clock,
             tx,
+            tap: tap.clone(),
             stats: stats.clone(),
             last_error: last_error.clone(),
             stop: stop.clone(),
@@ -196,6 +311,7 @@ impl Vision {
         Ok(Vision {
             latest: rx,
             stats,
+            tap,
             last_error,
             stop,
             demand: Some(demand),
@@ -214,6 +330,7 @@ impl Vision {
         let last_error = Arc::new(std::sync::Mutex::new(None::<String>));
         let stop = Arc::new(AtomicBool::new(false));
         let (ftx, frx) = mpsc::sync_channel::<(f64, Frame)>(1);
+        let tap = Arc::new(FrameTap::default());
         let on_rig_clock = source.stamps_on_rig_clock();
         {
             let stats = stats.clone();
@@ -254,6 +371,7 @@ impl Vision {
         {
             let stats = stats.clone();
             let last_error = last_error.clone();
+            let tap = tap.clone();
             thread::Builder::new()
                 .name("microposd-decode".into())
                 .spawn(move || {
@@ -266,12 +384,15 @@ impl Vision {
                         // sim rig, tracked frames after a step slipped by
                         // whole periods (12 × 4 µm) without failing the
                         // code check.
+                        let t0 = std::time::Instant::now();
                         let decoded = decoder.decode(&frame);
+                        stats.decode_seconds.observe(t0.elapsed().as_secs_f64());
                         let stamp = Stamp {
                             request_t_s: t_s,
                             frame_t_s: if on_rig_clock { frame.timestamp_s } else { t_s },
                             sequence: frame.sequence,
                         };
+                        tap.offer(frame, &decoded);
                         let out = publish(decoded, stamp, &stats, &last_error, &tx);
                         if out == Published::Closed {
                             break;
@@ -287,6 +408,7 @@ impl Vision {
         Ok(Vision {
             latest: rx,
             stats,
+            tap,
             last_error,
             stop,
             demand: None,
@@ -323,6 +445,7 @@ struct OnDemandLoop {
     decoder: Decoder,
     clock: Arc<dyn RigClock>,
     tx: watch::Sender<Option<Measurement>>,
+    tap: Arc<FrameTap>,
     stats: Arc<VisionStats>,
     last_error: Arc<std::sync::Mutex<Option<String>>>,
     stop: Arc<AtomicBool>,
@@ -395,8 +518,13 @@ async fn on_demand_loop(mut l: OnDemandLoop) {
             },
             sequence: frame.sequence,
         };
+        let stats = l.stats.clone();
+        let tap = l.tap.clone();
         let Ok((decoder, decoded)) = tokio::task::spawn_blocking(move || {
+            let t0 = std::time::Instant::now();
             let r = decoder.decode(&frame);
+            stats.decode_seconds.observe(t0.elapsed().as_secs_f64());
+            tap.offer(frame, &r);
             (decoder, r)
         })
         .await

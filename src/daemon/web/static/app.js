@@ -1,0 +1,303 @@
+// micropos web view: live state from GET /api/events (server-sent events:
+// the socket protocol's event lines), reads and commands through
+// POST /api/command (the socket protocol's requests), the camera from
+// GET /api/camera (overlay JSON) and /api/camera.png.
+'use strict';
+
+const $ = (id) => document.getElementById(id);
+const num = (v, digits) => (typeof v === 'number' && Number.isFinite(v)) ? v.toFixed(digits) : '–';
+const view = { positionUpdates: 0, cameraUpdates: 0, lastSeq: null, faults: [], jobState: null };
+let token = sessionStorage.getItem('micropos-token') || '';
+
+async function command(req, withToken) {
+  const headers = { 'Content-Type': 'application/json' };
+  if (withToken && token) headers.Authorization = 'Bearer ' + token;
+  const r = await fetch('/api/command', { method: 'POST', headers, body: JSON.stringify(req) });
+  return r.json();
+}
+
+function setText(id, text) {
+  const el = $(id);
+  if (el && el.textContent !== text) el.textContent = text;
+}
+
+function setConn(on) {
+  const c = $('conn');
+  c.textContent = on ? 'live' : 'disconnected';
+  c.className = 'badge ' + (on ? 'on' : 'off');
+}
+
+function bumpPositions() {
+  view.positionUpdates += 1;
+  $('positions').dataset.updates = String(view.positionUpdates);
+}
+
+function onPosition(p) {
+  if (p.commanded) {
+    setText('pos-commanded-x', num(p.commanded.x_um, 3));
+    setText('pos-commanded-y', num(p.commanded.y_um, 3));
+    if (p.controller) onPosition(Object.assign({ source: 'controller' }, p.controller));
+    if (p.vision) onPosition(Object.assign({ source: 'vision' }, p.vision));
+    return;
+  }
+  if (p.source === 'controller') {
+    setText('pos-controller-x', num(p.x_um, 3));
+    setText('pos-controller-y', num(p.y_um, 3));
+    setText('pos-controller-t', 't ' + num(p.t_s, 1) + ' s');
+  } else if (p.source === 'vision') {
+    setText('pos-vision-x', num(p.stage_x_um, 3));
+    setText('pos-vision-y', num(p.stage_y_um, 3));
+    setText('pos-vision-q', 'q ' + num(p.quality, 1));
+  }
+  bumpPositions();
+}
+
+function onStatus(s) {
+  if (s.rig) {
+    setText('rig-mode', s.rig.mode || '?');
+    setText('rig-activity', s.rig.activity || '?');
+    const latched = s.rig.fault_latched;
+    $('rig-mode').className = 'badge' + (latched ? ' fault' : '');
+    setText('fault-latched', latched ? 'LATCHED: ' + latched.reason : 'none latched');
+  }
+  if (s.drift) onDrift({ drift: s.drift });
+  if (s.job) onJob(s.job);
+}
+
+function onJob(j) {
+  if (!j || !j.kind) return;
+  setText('job-kind', j.kind + (j.log ? ' ' + j.log : ''));
+  setText('job-state', j.state || '');
+  const done = j.done || 0;
+  const total = j.total || 0;
+  setText('job-done', String(done));
+  setText('job-total', String(total));
+  const bar = $('job-progress');
+  bar.max = Math.max(total, 1);
+  bar.value = done;
+  setText('job-eta', typeof j.eta_s === 'number' ? formatDuration(j.eta_s) : '–');
+  setText('job-error', j.error || '');
+  if (view.jobState === 'running' && j.state && j.state !== 'running') loadResults();
+  view.jobState = j.state || null;
+}
+
+function formatDuration(s) {
+  if (!Number.isFinite(s)) return '–';
+  const h = Math.floor(s / 3600);
+  const m = Math.floor((s % 3600) / 60);
+  const sec = Math.floor(s % 60);
+  return (h ? h + ' h ' : '') + (h || m ? m + ' min ' : '') + sec + ' s';
+}
+
+function onFault(f) {
+  const line = (typeof f.t_s === 'number' ? num(f.t_s, 1) + ' s ' : '') + f.event +
+    (f.reason ? ': ' + f.reason : '') + (f.line ? ' ' + f.line : '') + (f.state ? ' ' + f.state : '');
+  view.faults.unshift(line);
+  view.faults.length = Math.min(view.faults.length, 50);
+  const ul = $('faults');
+  const li = document.createElement('li');
+  li.textContent = line;
+  ul.insertBefore(li, ul.firstChild);
+  while (ul.children.length > 50) ul.removeChild(ul.lastChild);
+  if (f.event === 'fault' || f.event === 'reset') refreshStatus();
+}
+
+function onDrift(d) {
+  const s = d.drift || d;
+  if (!s || typeof s !== 'object') return;
+  if (s.method) setText('drift-method', s.method);
+  const c = s.correction_um;
+  setText('drift-correction', Array.isArray(c) ? num(c[0], 3) + ', ' + num(c[1], 3) : '–');
+  if (typeof s.references === 'number') setText('drift-references', String(s.references));
+}
+
+function connect() {
+  const es = new EventSource('/api/events');
+  es.onopen = () => setConn(true);
+  es.onerror = () => setConn(false);
+  const on = (name, f) => es.addEventListener(name, (e) => {
+    try { f(JSON.parse(e.data)); } catch (err) { /* a malformed line is skipped */ }
+  });
+  on('status', onStatus);
+  on('position', onPosition);
+  on('job', onJob);
+  on('fault', onFault);
+  on('drift', onDrift);
+}
+
+async function refreshStatus() {
+  try {
+    const s = await command({ cmd: 'status' }, false);
+    if (s.ok) onStatus(s);
+  } catch (e) { /* next round */ }
+}
+
+async function refreshPosition() {
+  try {
+    const p = await command({ cmd: 'position' }, false);
+    if (p.ok) onPosition(p);
+  } catch (e) { /* next round */ }
+}
+
+// FNV-1a over the image's red channel: the test (and a curious user) can
+// see that the picture changed without comparing pixels.
+function imageHash(ctx, w, h) {
+  const d = ctx.getImageData(0, 0, w, h).data;
+  let hash = 0x811c9dc5;
+  for (let i = 0; i < d.length; i += 4) {
+    hash ^= d[i];
+    hash = Math.imul(hash, 0x01000193) >>> 0;
+  }
+  return hash.toString(16);
+}
+
+function drawCamera(bmp, o) {
+  const c = $('camera');
+  if (c.width !== o.width) c.width = o.width;
+  if (c.height !== o.height) c.height = o.height;
+  const ctx = c.getContext('2d', { willReadFrequently: true });
+  ctx.drawImage(bmp, 0, 0);
+  c.dataset.hash = imageHash(ctx, c.width, c.height);
+  c.dataset.seq = String(o.sequence);
+  view.cameraUpdates += 1;
+  c.dataset.updates = String(view.cameraUpdates);
+  const d = o.decode;
+  if (d) {
+    ctx.fillStyle = 'rgba(0, 255, 120, 0.9)';
+    const pts = d.lattice || [];
+    for (let i = 0; i + 1 < pts.length; i += 2) ctx.fillRect(pts[i] - 1.5, pts[i + 1] - 1.5, 3, 3);
+    // The decoded point is the image centre; the line shows the pattern's +x.
+    const cx = c.width / 2;
+    const cy = c.height / 2;
+    ctx.strokeStyle = 'rgba(255, 60, 60, 0.9)';
+    ctx.lineWidth = 2;
+    ctx.beginPath();
+    ctx.moveTo(cx - 10, cy); ctx.lineTo(cx + 10, cy);
+    ctx.moveTo(cx, cy - 10); ctx.lineTo(cx, cy + 10);
+    ctx.moveTo(cx, cy);
+    ctx.lineTo(cx + 40 * Math.cos(d.theta_rad), cy + 40 * Math.sin(d.theta_rad));
+    ctx.stroke();
+  }
+  setText('cam-seq', String(o.sequence));
+  setText('cam-x', d ? num(d.x_um, 3) : 'no decode');
+  setText('cam-y', d ? num(d.y_um, 3) : '–');
+  setText('cam-theta', d ? num(d.theta_rad * 1000, 2) : '–');
+  setText('cam-quality', d ? num(d.quality, 1) : '–');
+  setText('cam-coherence', d ? num(d.coherence, 2) : '–');
+  setText('cam-stride', d && d.lattice_stride ? String(d.lattice_stride) : '–');
+}
+
+async function cameraTick() {
+  let again = true;
+  try {
+    const r = await fetch('/api/camera', { cache: 'no-store' });
+    const o = await r.json();
+    if (o.camera === false) {
+      setText('cam-seq', 'no camera configured');
+      again = false;
+    } else if (o.sequence !== null && o.sequence !== undefined && o.sequence !== view.lastSeq) {
+      const p = await fetch('/api/camera.png?seq=' + o.sequence, { cache: 'no-store' });
+      if (p.ok && p.headers.get('x-micropos-sequence') === String(o.sequence)) {
+        const bmp = await createImageBitmap(await p.blob());
+        drawCamera(bmp, o);
+        view.lastSeq = o.sequence;
+      }
+    }
+  } catch (e) { /* the daemon is restarting: next round */ }
+  if (again) setTimeout(cameraTick, 500);
+}
+
+const MODE_COLOURS = { raw: '#c44', table: '#48c', model: '#4a4', closed_loop: '#a4c' };
+
+function drawValidation(results) {
+  const c = $('validation-chart');
+  const ctx = c.getContext('2d');
+  ctx.clearRect(0, 0, c.width, c.height);
+  const tbody = $('validation-table').tBodies[0];
+  while (tbody.firstChild) tbody.removeChild(tbody.firstChild);
+  const tests = Object.keys(results || {});
+  if (!tests.length) {
+    ctx.fillStyle = '#666';
+    ctx.fillText('no validation yet', 10, 20);
+    return;
+  }
+  for (const test of tests) {
+    for (const [mode, r] of Object.entries(results[test])) {
+      const tr = document.createElement('tr');
+      for (const v of [test, mode, num(r.ap_um, 2), num(r.ap_mean_um, 2), num(r.rp_um, 2)]) {
+        const td = document.createElement('td');
+        td.textContent = v;
+        tr.appendChild(td);
+      }
+      tbody.appendChild(tr);
+    }
+  }
+  // Fig. 10/11 of the paper: AP of each pose, one bar per mode.
+  const test = tests[0];
+  const modes = Object.keys(results[test]);
+  const poses = (results[test][modes[0]].poses || []).map((p) => p.pose);
+  let max = 0;
+  for (const m of modes) for (const p of results[test][m].poses || []) max = Math.max(max, p.ap_um || 0);
+  if (!poses.length || max <= 0) return;
+  const left = 40, bottom = c.height - 30, top = 20;
+  const slot = (c.width - left - 10) / poses.length;
+  const bw = Math.max(1, (slot - 4) / modes.length);
+  ctx.fillStyle = '#222';
+  ctx.fillText(test + ': AP µm per pose', left, 12);
+  ctx.fillText(num(max, 1), 2, top + 4);
+  ctx.fillText('0', 2, bottom);
+  modes.forEach((m, mi) => {
+    ctx.fillStyle = MODE_COLOURS[m] || '#888';
+    ctx.fillText(m, left + 10 + mi * 90, c.height - 5);
+    (results[test][m].poses || []).forEach((p, pi) => {
+      const h = (bottom - top) * (p.ap_um || 0) / max;
+      ctx.fillRect(left + pi * slot + 2 + mi * bw, bottom - h, bw, h);
+    });
+  });
+  ctx.fillStyle = '#222';
+  poses.forEach((p, pi) => ctx.fillText(String(p), left + pi * slot + slot / 2 - 3, bottom + 12));
+}
+
+async function loadResults() {
+  try {
+    const v = await command({ cmd: 'validate', action: 'status' }, false);
+    if (v.ok) drawValidation(v.validation ? v.validation.results : null);
+    const k = await command({ cmd: 'characterize', action: 'status' }, false);
+    if (k.ok && k.job && k.job.kind && k.job.kind !== 'validate') {
+      const j = k.job;
+      $('charact-result').textContent = j.kind + ' ' + (j.log || '') + ' ' + (j.state || '') + ' ' +
+        (j.done || 0) + '/' + (j.total || 0) + (j.result ? '\n' + JSON.stringify(j.result, null, 1) : '');
+    }
+  } catch (e) { /* next job end */ }
+}
+
+function setupControl() {
+  $('token').value = token;
+  $('token-form').addEventListener('submit', (e) => {
+    e.preventDefault();
+    token = $('token').value.trim();
+    sessionStorage.setItem('micropos-token', token);
+    setText('command-reply', token ? 'token set' : 'token cleared');
+  });
+  $('move-form').addEventListener('submit', async (e) => {
+    e.preventDefault();
+    const req = {
+      cmd: 'move', x_um: Number($('move-x').value), y_um: Number($('move-y').value),
+      mode: $('move-mode').value,
+    };
+    const r = await command(req, true);
+    setText('command-reply', r.ok ? 'moved' : r.error.code + ': ' + r.error.message);
+    refreshPosition();
+  });
+  $('stop').addEventListener('click', async () => {
+    const r = await command({ cmd: 'stop' }, true);
+    setText('command-reply', r.ok ? 'stopped' : r.error.code + ': ' + r.error.message);
+  });
+}
+
+setupControl();
+connect();
+cameraTick();
+loadResults();
+setInterval(refreshStatus, 2000);
+setInterval(refreshPosition, 2000);
