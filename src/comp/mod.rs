@@ -53,7 +53,9 @@ pub use closed_loop::{
 };
 pub use file::{fnv1a64_hex, CompFile, CompKind, SourceInfo, COMP_FORMAT_VERSION};
 pub use frame::{estimate_vision_frame, FrameReport, FrameSample, VisionFrame};
-pub use model_comp::{compensation_template, ModelBuildOptions, ModelCompensator};
+pub use model_comp::{
+    compensation_template, compensation_template_for, ModelBuildOptions, ModelCompensator,
+};
 pub use table::{
     AxisTables, BuildReport, CompTable, DirTable, Interpolation, LookupCompensator,
     TableBuildOptions,
