@@ -100,6 +100,11 @@ enum Cmd {
         /// the paper plan, 1000 with --short).
         #[arg(long)]
         square_step_um: Option<f64>,
+        /// Moves of varied length per cycle of the short characterization
+        /// (lets the model table identify a lost motion that grows with the
+        /// move length, e.g. 40 on config/stage-model-paper.toml; default 0).
+        #[arg(long)]
+        short_moves: Option<u32>,
         /// Serve the rig on ptys in real time, this many simulated seconds
         /// per wall second, instead of in process on the virtual clock
         /// (results then depend on the machine's load; default: virtual,
@@ -128,6 +133,7 @@ fn main() -> anyhow::Result<()> {
             out,
             short,
             square_step_um,
+            short_moves,
             time_scale,
         } => main_job(
             seed,
@@ -137,7 +143,7 @@ fn main() -> anyhow::Result<()> {
             plots,
             out,
             short,
-            square_step_um,
+            (square_step_um, short_moves),
             time_scale,
         ),
         Cmd::Demo { seed, rig } => {
@@ -295,7 +301,7 @@ fn main_job(
     plots: Option<PathBuf>,
     out: Option<PathBuf>,
     short: bool,
-    square_step_um: Option<f64>,
+    (square_step_um, short_moves): (Option<f64>, Option<u32>),
     time_scale: Option<f64>,
 ) -> anyhow::Result<()> {
     use hil_sim::run::{format_table, run, RunOptions, RunPlan};
@@ -324,6 +330,9 @@ fn main_job(
                     "--square-step-um must be a number > 0"
                 );
                 p.square_step_um = s;
+            }
+            if let Some(n) = short_moves {
+                p.short_moves_per_cycle = n;
             }
             p
         },
