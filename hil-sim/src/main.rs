@@ -96,6 +96,15 @@ enum Cmd {
         /// Reduced plan (50 µm steps, 1 cycle): a quick look, not the paper.
         #[arg(long)]
         short: bool,
+        /// Distance between square poses, µm (default: the plan's, 500 on
+        /// the paper plan, 1000 with --short).
+        #[arg(long)]
+        square_step_um: Option<f64>,
+        /// Moves of varied length per cycle of the short characterization
+        /// (lets the model table identify a lost motion that grows with the
+        /// move length, e.g. 40 on config/stage-model-paper.toml; default 0).
+        #[arg(long)]
+        short_moves: Option<u32>,
         /// Serve the rig on ptys in real time, this many simulated seconds
         /// per wall second, instead of in process on the virtual clock
         /// (results then depend on the machine's load; default: virtual,
@@ -123,8 +132,20 @@ fn main() -> anyhow::Result<()> {
             plots,
             out,
             short,
+            square_step_um,
+            short_moves,
             time_scale,
-        } => main_job(seed, model, rig, json, plots, out, short, time_scale),
+        } => main_job(
+            seed,
+            model,
+            rig,
+            json,
+            plots,
+            out,
+            short,
+            (square_step_um, short_moves),
+            time_scale,
+        ),
         Cmd::Demo { seed, rig } => {
             let rig = match rig {
                 Some(p) => hil_sim::rig::RigConfig::load(&p).map_err(anyhow::Error::msg)?,
@@ -280,6 +301,7 @@ fn main_job(
     plots: Option<PathBuf>,
     out: Option<PathBuf>,
     short: bool,
+    (square_step_um, short_moves): (Option<f64>, Option<u32>),
     time_scale: Option<f64>,
 ) -> anyhow::Result<()> {
     use hil_sim::run::{format_table, run, RunOptions, RunPlan};
@@ -296,10 +318,23 @@ fn main_job(
         model,
         out_dir: out.clone(),
         time_scale,
-        plan: if short {
-            RunPlan::reduced()
-        } else {
-            RunPlan::paper()
+        plan: {
+            let mut p = if short {
+                RunPlan::reduced()
+            } else {
+                RunPlan::paper()
+            };
+            if let Some(s) = square_step_um {
+                anyhow::ensure!(
+                    s.is_finite() && s > 0.0,
+                    "--square-step-um must be a number > 0"
+                );
+                p.square_step_um = s;
+            }
+            if let Some(n) = short_moves {
+                p.short_moves_per_cycle = n;
+            }
+            p
         },
     };
     let mut progress = |l: &str| eprintln!("hil-sim run: {l}");

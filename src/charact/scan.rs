@@ -32,6 +32,13 @@ pub const SEGMENT_SCAN_Y: &str = "scan_y";
 pub const SEGMENT_SQUARE: &str = "square";
 /// Segment name of the random-target validation in the measurement log.
 pub const SEGMENT_RANDOM: &str = "random";
+/// Log segment of a characterization's moves of varied length: each point
+/// reached by one direct move (both axes) from the point logged before it
+/// in the same segment, as an application moves. Why: a lost motion that
+/// grows with the length of the move (`step_size`) is invisible on
+/// constant-step scans; these moves make it identifiable
+/// (`crate::comp::model_comp::scan_samples`).
+pub const SEGMENT_MOVES: &str = "moves";
 
 /// Largest number of points a plan may generate (a typo such as a 1 nm step
 /// over 10 mm must not allocate gigabytes).

@@ -53,7 +53,9 @@ pub use closed_loop::{
 };
 pub use file::{fnv1a64_hex, CompFile, CompKind, SourceInfo, COMP_FORMAT_VERSION};
 pub use frame::{estimate_vision_frame, FrameReport, FrameSample, VisionFrame};
-pub use model_comp::{compensation_template, ModelBuildOptions, ModelCompensator};
+pub use model_comp::{
+    compensation_template, compensation_template_for, ModelBuildOptions, ModelCompensator,
+};
 pub use table::{
     AxisTables, BuildReport, CompTable, DirTable, Interpolation, LookupCompensator,
     TableBuildOptions,
@@ -142,6 +144,16 @@ pub struct PlanOptions {
     pub max_iterations: usize,
     /// The inverse has converged when an update is smaller than this, µm.
     pub tolerance_um: f64,
+    /// Every axis whose command changes arrives by an approach from
+    /// `overshoot_um` behind, also when a direct move would keep its
+    /// direction. Why: a closed loop's corrections each end with such an
+    /// approach ([`closed_loop`]); when the first arrival ends with the
+    /// same move, a lost motion that depends on the length of the last move
+    /// is the same in the first frame as after every correction, so the
+    /// first correction does not jump by the difference (see
+    /// [`ClosedLoopConfig::plan_options`]).
+    #[serde(default)]
+    pub approach_always: bool,
 }
 
 impl Default for PlanOptions {
@@ -152,6 +164,7 @@ impl Default for PlanOptions {
             min_reversal_run_um: 10.0,
             max_iterations: 50,
             tolerance_um: 1e-6,
+            approach_always: false,
         }
     }
 }
@@ -364,6 +377,8 @@ pub fn plan_waypoints(
         let run = (cmd[i] - p) * s;
         let direct = if cmd[i] == p {
             last == arrival[i]
+        } else if options.approach_always {
+            false
         } else if last == arrival[i] {
             run > 0.0
         } else {

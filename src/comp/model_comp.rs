@@ -20,7 +20,7 @@ use serde::{Deserialize, Serialize};
 use super::table::infer_directions;
 use super::{invalid, CompError, Compensator};
 use crate::charact::log::Record;
-use crate::charact::scan::{SEGMENT_SCAN_X, SEGMENT_SCAN_Y};
+use crate::charact::scan::{SEGMENT_MOVES, SEGMENT_SCAN_X, SEGMENT_SCAN_Y};
 use crate::model::terms::offset::{OriginOffsetConfig, OriginOffsetTerm, KIND as OFFSET_KIND};
 use crate::model::{
     Axis, Direction, Effect, FitOptions, FitReport, MotionState, MotionTracker, Sample, StageModel,
@@ -107,7 +107,25 @@ impl Compensator for ModelCompensator {
 /// scan lines they are indistinguishable from squareness, lead and cyclic
 /// error, so a fit splits the effect between them arbitrarily).
 pub fn compensation_template(model: &StageModel) -> Result<StageModel, CompError> {
+    compensation_template_for(model, false)
+}
+
+/// [`compensation_template`], keeping the `step_size` terms of `model` whose
+/// amplitude is not zero (their length λ as geometry) when `moves` is true:
+/// the log to be fitted has moves of varied length
+/// ([`crate::charact::scan::SEGMENT_MOVES`]), which separate the lost
+/// motion of a move from the play; the compensator then predicts it for
+/// the length and direction of the move actually planned.
+pub fn compensation_template_for(model: &StageModel, moves: bool) -> Result<StageModel, CompError> {
     let mut m = model.clone();
+    let step_size = crate::model::terms::discovered::STEP_SIZE_KIND;
+    let identified = |t: &dyn crate::model::Term| {
+        moves
+            && t.kind() == step_size
+            && t.params()
+                .iter()
+                .any(|p| p.name == "amplitude_um" && p.value != 0.0)
+    };
     let drop: Vec<String> = m
         .terms()
         .iter()
@@ -124,7 +142,7 @@ pub fn compensation_template(model: &StageModel) -> Result<StageModel, CompError
                 || t.kind() == crate::model::terms::discovered::TEMPERATURE_KIND
                 // On constant-step scans a step-size term's amplitude is one
                 // number times the direction: the same column as the play.
-                || t.kind() == crate::model::terms::discovered::STEP_SIZE_KIND
+                || (t.kind() == step_size && !identified(t.as_ref()))
                 // Angular errors act through Abbe arms: on a 1-DoF scan line
                 // a yaw slope × arm is the same straight line as squareness
                 // or lead, and its periodic part the same as the cyclic and
@@ -187,6 +205,7 @@ pub fn is_geometry(param_name: &str) -> bool {
     param_name.starts_with("arm_")
         || param_name == "position_um"
         || param_name == "width_um"
+        || param_name == "length_um"
         || param_name.contains("period")
 }
 
@@ -206,6 +225,13 @@ pub struct ModelBuildOptions {
     pub min_move_um: f64,
     /// Fit iteration limit.
     pub max_iterations: usize,
+    /// Segment of the moves of varied length (see [`scan_samples`]).
+    #[serde(default = "default_moves_segment")]
+    pub moves_segment: String,
+}
+
+fn default_moves_segment() -> String {
+    SEGMENT_MOVES.into()
 }
 
 impl Default for ModelBuildOptions {
@@ -217,6 +243,7 @@ impl Default for ModelBuildOptions {
             approach_um: 20.0,
             min_move_um: 0.0,
             max_iterations: 50,
+            moves_segment: SEGMENT_MOVES.into(),
         }
     }
 }
@@ -224,7 +251,11 @@ impl Default for ModelBuildOptions {
 /// Fit samples from the scan segments of a log: states re-created by
 /// replaying the commands (with the scan plan's approach moves), measured
 /// positions from the log, temperature from `temp_c` (or
-/// [`DEFAULT_TEMP_C`]).
+/// [`DEFAULT_TEMP_C`]). Then the records of the moves segment, if any: a
+/// chain of records adjacent in the log is replayed as direct moves, each
+/// from the one before; the first two of a chain only start the replay
+/// (the history before them, hence the play, is not known), and any other
+/// record in between (a scan, a drift reference detour) starts a new chain.
 pub fn scan_samples(
     records: &[Record],
     options: &ModelBuildOptions,
@@ -290,6 +321,43 @@ pub fn scan_samples(
                 measured_x_um: r.x_meas_um,
                 measured_y_um: r.y_meas_um,
             });
+        }
+    }
+    let mut chain: Option<(usize, usize, MotionTracker)> = None;
+    for (k, r) in records.iter().enumerate() {
+        if r.segment != options.moves_segment
+            || ![r.t_s, r.x_cmd_um, r.y_cmd_um, r.x_meas_um, r.y_meas_um]
+                .iter()
+                .all(|v| v.is_finite())
+        {
+            continue;
+        }
+        let temp_c = r.temp_c.filter(|t| t.is_finite()).unwrap_or(DEFAULT_TEMP_C);
+        let wp = Waypoint {
+            x_um: r.x_cmd_um,
+            y_um: r.y_cmd_um,
+            time_s: r.t_s,
+            temp_c,
+            cycle: r.cycle,
+        };
+        match chain.as_mut() {
+            Some((last, n, tracker)) if *last + 1 == k => {
+                let state = tracker.step(wp)?;
+                *last = k;
+                *n += 1;
+                if *n >= 3 {
+                    out.push(Sample {
+                        state,
+                        measured_x_um: r.x_meas_um,
+                        measured_y_um: r.y_meas_um,
+                    });
+                }
+            }
+            _ => {
+                let tracker = MotionTracker::new(MotionState::at_rest(r.x_cmd_um, r.y_cmd_um))?
+                    .with_min_move(options.min_move_um)?;
+                chain = Some((k, 1, tracker));
+            }
         }
     }
     Ok(out)

@@ -319,6 +319,10 @@ pub fn loop_config(rig: &Rig, tolerance_um: Option<f64>) -> ClosedLoopConfig {
         max_corrections: rig.cfg.closed_loop.max_iterations,
         min_quality: rig.cfg.camera.min_quality,
         always_reapproach: rig.cfg.closed_loop.always_reapproach,
+        // The same approach length as the planned moves, so the first
+        // arrival and every correction end with a move of one length
+        // (`ClosedLoopConfig::plan_options`).
+        overshoot_um: rig.live.compensation().overshoot_um,
         ..d
     }
 }
@@ -414,7 +418,17 @@ pub async fn run_loop(
     loop {
         let m = next_frame(rig, &frame, min_seq, settled_s).await?;
         min_seq = m.frame_seq + 1;
-        match cl.on_frame(&m) {
+        let action = cl.on_frame(&m);
+        tracing::debug!(
+            "closed loop: frame {} at {:.3} s measured ({:.4}, {:.4}) µm, command ({:.4}, {:.4}) µm: {action:?}",
+            m.frame_seq,
+            m.timestamp_s,
+            m.position.x_um,
+            m.position.y_um,
+            cl.cmd().x_um,
+            cl.cmd().y_um
+        );
+        match action {
             Action::AwaitFrame { .. } => continue,
             Action::Move { waypoints } => {
                 execute(waypoints).await?;

@@ -725,7 +725,12 @@ impl Rig {
         } else {
             start
         };
-        let opts = self.live.compensation().plan_options();
+        let mut opts = self.live.compensation().plan_options();
+        if frame.is_some() {
+            // The first arrival ends with the loop's re-approach, as every
+            // correction does (`ClosedLoopConfig::plan_options`).
+            opts = c::loop_config(self, req.tolerance_um).plan_options(opts);
+        }
         let plan = self.comp.plan(&*comp, planned_target, start, &opts)?;
         for w in &plan.waypoints {
             let r = MoveRequest::raw_to(w.x_um, w.y_um);

@@ -203,6 +203,7 @@ impl Jobs {
             cycles: p.cycles.unwrap_or(d.cycles),
             frames_per_point: p.frames_per_point.unwrap_or(d.frames_per_point),
             settle_s: p.settle_s.unwrap_or(d.settle_s),
+            moves_per_cycle: p.moves_per_cycle.unwrap_or(0),
         };
         if step_um > x_range_um.min(y_range_um) {
             return Err(ProtoError::new(

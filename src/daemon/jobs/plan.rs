@@ -4,6 +4,7 @@
 //! `k` of the plan: resume continues at index = records already logged).
 
 use crate::charact::log::Metadata;
+use crate::charact::scan::SEGMENT_MOVES;
 
 /// One point of the plan.
 #[derive(Debug, Clone, PartialEq)]
@@ -41,6 +42,30 @@ pub struct ScanPlan {
     pub frames_per_point: u32,
     /// Settle time, s.
     pub settle_s: f64,
+    /// Moves of varied length per cycle after the scans (segment
+    /// [`SEGMENT_MOVES`]): points spread over the scanned area, each reached
+    /// by one direct move from the one before, as an application moves. A
+    /// model table fitted to such a log identifies a lost motion that grows
+    /// with the move length (`comp::model_comp`); 0 = none (the paper's
+    /// plan).
+    pub moves_per_cycle: u32,
+}
+
+/// Where the `k`-th move of a plan goes, as fractions of the ranges:
+/// uniform pseudo-random (SplitMix64 of `k`), so a resumed job rebuilds the
+/// same points and the moves between consecutive points have every length
+/// from a few µm to the whole range, as an application's.
+fn moves_fraction(k: u32) -> (f64, f64) {
+    fn splitmix(mut z: u64) -> u64 {
+        z = z.wrapping_add(0x9e37_79b9_7f4a_7c15);
+        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+        z ^ (z >> 31)
+    }
+    // The top 53 bits as a fraction in [0, 1).
+    let unit = |z: u64| (z >> 11) as f64 / (1u64 << 53) as f64;
+    let k = u64::from(k);
+    (unit(splitmix(2 * k)), unit(splitmix(2 * k + 1)))
 }
 
 /// A metadata entry was missing or unreadable.
@@ -121,6 +146,19 @@ impl ScanPlan {
             self.y_range_um,
             false,
         );
+        let mut k = 0;
+        for cycle in 1..=self.cycles {
+            for _ in 0..self.moves_per_cycle {
+                let (fx, fy) = moves_fraction(k);
+                k += 1;
+                v.push(Point {
+                    segment: SEGMENT_MOVES,
+                    cycle,
+                    x_um: self.x_start_um + fx * self.x_range_um,
+                    y_um: self.y_start_um + fy * self.y_range_um,
+                });
+            }
+        }
         v
     }
 
@@ -141,6 +179,9 @@ impl ScanPlan {
         md.insert("job", "characterize");
         for (k, v) in KEYS.iter().zip(vals) {
             md.insert(*k, v);
+        }
+        if self.moves_per_cycle > 0 {
+            md.insert("moves_per_cycle", self.moves_per_cycle.to_string());
         }
     }
 
@@ -167,6 +208,11 @@ impl ScanPlan {
             cycles: get(md, "cycles")?,
             frames_per_point: get(md, "frames_per_point")?,
             settle_s: get(md, "settle_s")?,
+            // Absent in logs of plans without moves.
+            moves_per_cycle: match md.get("moves_per_cycle") {
+                None => 0,
+                Some(_) => get(md, "moves_per_cycle")?,
+            },
         };
         let finite = [
             p.step_um,
@@ -194,7 +240,9 @@ impl ScanPlan {
         }
         // Refuse plans so large the point list itself would be a problem.
         let n = |r: f64| (r / p.step_um).min(1e7);
-        if (n(p.x_range_um) + n(p.y_range_um)) * f64::from(p.cycles) > 1e7 {
+        if (n(p.x_range_um) + n(p.y_range_um) + f64::from(p.moves_per_cycle)) * f64::from(p.cycles)
+            > 1e7
+        {
             return Err(PlanError {
                 key: "step_um".to_owned(),
                 problem: "the plan has more than 10 million points".to_owned(),
@@ -284,7 +332,47 @@ mod tests {
             cycles: 3,
             frames_per_point: 4,
             settle_s: 0.5,
+            moves_per_cycle: 0,
         }
+    }
+
+    #[test]
+    fn moves_follow_the_scans_spread_over_the_area_and_round_trip() {
+        let p = ScanPlan {
+            moves_per_cycle: 40,
+            ..plan()
+        };
+        let pts = p.points();
+        let scans = plan().points().len();
+        assert_eq!(pts.len(), scans + 3 * 40);
+        let moves = &pts[scans..];
+        assert!(moves.iter().all(|m| m.segment == SEGMENT_MOVES));
+        assert_eq!(
+            (moves[0].cycle, moves[40].cycle, moves[119].cycle),
+            (1, 2, 3)
+        );
+        let mut lengths = Vec::new();
+        for w in moves.windows(2) {
+            for (a, b, lo, r) in [
+                (w[0].x_um, w[1].x_um, p.x_start_um, p.x_range_um),
+                (w[0].y_um, w[1].y_um, p.y_start_um, p.y_range_um),
+            ] {
+                assert!((lo..=lo + r).contains(&b));
+                lengths.push((b - a).abs() / r);
+            }
+        }
+        // Moves of every length, short to most of the range.
+        let short = lengths.iter().filter(|l| **l < 0.1).count();
+        let long = lengths.iter().filter(|l| **l > 0.5).count();
+        assert!(short > 5 && long > 50, "{short} short, {long} long");
+        let mut md = Metadata::new();
+        p.to_metadata(&mut md);
+        assert_eq!(ScanPlan::from_metadata(&md).unwrap(), p);
+        assert_eq!(ScanPlan::from_metadata(&md).unwrap().points(), pts);
+        // A plan without moves writes no key (older logs read as 0).
+        let mut md = Metadata::new();
+        plan().to_metadata(&mut md);
+        assert!(md.get("moves_per_cycle").is_none());
     }
 
     #[test]

@@ -26,8 +26,8 @@ use super::super::rig::Rig;
 use crate::analysis::diagnose::{diagnose, DiagnoseOptions};
 use crate::analysis::drift::{correct_log_drift, LOG_DRIFT_METHOD};
 use crate::charact::log::{self, Metadata, Record};
-use crate::charact::scan::{SEGMENT_SCAN_X, SEGMENT_SCAN_Y};
-use crate::comp::model_comp::{compensation_template, ModelBuildOptions};
+use crate::charact::scan::{SEGMENT_MOVES, SEGMENT_SCAN_X, SEGMENT_SCAN_Y};
+use crate::comp::model_comp::{compensation_template_for, ModelBuildOptions};
 use crate::comp::table::{CompTable, TableBuildOptions};
 use crate::comp::{fnv1a64_hex, CompFile, ModelCompensator, SourceInfo, VisionFrame};
 use crate::model::StageModel;
@@ -160,7 +160,11 @@ pub fn build_blocking(
         } else {
             let base = StageModel::paper_default().map_err(|e| bad(e.to_string()))?;
             let (structure, extended_by) = extend_by_diagnosis(&parsed, &undrifted, base);
-            let template = compensation_template(&structure).map_err(|e| bad(e.to_string()))?;
+            // Moves of varied length make the move-length lost motion
+            // identifiable: keep it if the diagnosis found it.
+            let moves = records.iter().any(|r| r.segment == SEGMENT_MOVES);
+            let template =
+                compensation_template_for(&structure, moves).map_err(|e| bad(e.to_string()))?;
             let (comp, report) =
                 ModelCompensator::fit_records(template, &records, &ModelBuildOptions::default())
                     .map_err(|e| bad(format!("model fit to {}: {e}", params.log)))?;
@@ -288,7 +292,8 @@ mod tests {
             .unwrap();
         // The default structure alone, fitted to the same scans.
         let parsed = log::parse_bytes(&bytes).unwrap();
-        let template = compensation_template(&StageModel::paper_default().unwrap()).unwrap();
+        let template =
+            crate::comp::compensation_template(&StageModel::paper_default().unwrap()).unwrap();
         let (_, report) = ModelCompensator::fit_records(
             template,
             &merged_scan_records(&parsed.records),

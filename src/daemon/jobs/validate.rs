@@ -433,6 +433,13 @@ async fn reach(
         {
             // The stage is where the loop left it: measure it like any other
             // arrival (that is what a user gets), count the failure.
+            tracing::warn!(
+                "validation: closed loop to ({}, {}) µm: {}: {}",
+                target.x_um,
+                target.y_um,
+                e.code,
+                e.message
+            );
             let pos = rig.position().await;
             let c = &pos["commanded"];
             let cmd = XyUm {

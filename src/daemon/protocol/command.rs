@@ -116,6 +116,9 @@ pub struct CharacterizeParams {
     /// Sweep: also write the log resampled without the delay correction
     /// (file name in the data directory), to show what the delay costs.
     pub uncorrected_log: Option<String>,
+    /// Step mode: moves of varied length per cycle after the scans
+    /// (`daemon::jobs::plan::ScanPlan::moves_per_cycle`); default 0.
+    pub moves_per_cycle: Option<u32>,
 }
 
 /// How a characterization measures.

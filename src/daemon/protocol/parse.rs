@@ -85,6 +85,7 @@ fn parse_command(obj: &Map<String, Value>) -> Result<Command, ProtoError> {
             "mode",
             "velocity_um_per_s",
             "uncorrected_log",
+            "moves_per_cycle",
         ],
         "validate" => &[
             "action",
@@ -270,6 +271,7 @@ fn parse_characterize(obj: &Map<String, Value>) -> Result<CharacterizeAction, Pr
                     }
                     None => None,
                 },
+                moves_per_cycle: opt_count(obj, "moves_per_cycle", 0, 100_000)?,
             }))
         }
         "status" => Ok(CharacterizeAction::Status),

@@ -119,7 +119,17 @@ fn parses_every_command() {
             ..
         })) if v == 120.0 && u == "u.csv"
     ));
+    assert!(matches!(
+        parse(r#"{"cmd":"characterize","action":"start","moves_per_cycle":40}"#)
+            .unwrap()
+            .command,
+        Command::Characterize(CharacterizeAction::Start(CharacterizeParams {
+            moves_per_cycle: Some(40),
+            ..
+        }))
+    ));
     for bad in [
+        r#"{"cmd":"characterize","action":"start","moves_per_cycle":-1}"#,
         r#"{"cmd":"characterize","action":"start","mode":"fly"}"#,
         r#"{"cmd":"characterize","action":"start","velocity_um_per_s":0}"#,
         r#"{"cmd":"characterize","action":"start","uncorrected_log":"../x.csv"}"#,
