@@ -4,7 +4,10 @@
 //! the stage simulator with that model lands on the log's measured
 //! positions to the noise floor (the RMS the truth model itself leaves:
 //! settling σ ⊕ camera σ), while the original
-//! model (base-fitted, same room temperature, no findings) does not.
+//! model (base-fitted, same room temperature, no findings) does not — for
+//! an effect the default model lacks. One it has the structure for (scale,
+//! squareness, play, x drift, temperature) is a parameter correction, and
+//! the base-fitted model itself replays the log to the floor.
 //!
 //! One log per kind the generator hides (1 µm peak effect).
 //! `-- --nocapture` prints the RMS table.
@@ -63,7 +66,18 @@ fn served_extended_model_reproduces_the_log_to_the_noise_floor() {
         )
         .unwrap();
         let d = diagnose(&log, &base, &DiagnoseOptions::default()).unwrap();
-        assert!(!d.findings.is_empty(), "{kind}: {}", d.to_text());
+        // An effect the default model has the structure for (scale,
+        // squareness, play, x drift, temperature) comes back as a parameter
+        // correction of the base fit, not as a finding: then the base model
+        // itself must replay the log to the floor.
+        let carried = d.findings.is_empty();
+        if carried {
+            assert!(
+                d.parameters.iter().any(|p| p.significant),
+                "{kind}: neither a finding nor a parameter correction: {}",
+                d.to_text()
+            );
+        }
         // As `diagnose --out` writes it, and as `serve --model` loads it.
         let path = dir.path().join(format!("extended-{kind}.toml"));
         std::fs::write(&path, d.extended_model.to_toml().unwrap()).unwrap();
@@ -110,18 +124,19 @@ fn served_extended_model_reproduces_the_log_to_the_noise_floor() {
                 "{kind}: extended rms {ext:?}, truth replay {floor:?}"
             );
         }
-        assert!(
-            orig[c] > 2.0 * ext[c],
-            "{kind}: original rms {orig:?} vs extended {ext:?}"
-        );
+        if !carried {
+            assert!(
+                orig[c] > 2.0 * ext[c],
+                "{kind}: original rms {orig:?} vs extended {ext:?}"
+            );
+        }
     }
     for k in [
         "position_periodic",
-        "position_slope",
         "localized",
         "time_drift",
         "time_periodic",
-        "temperature_linear",
+        "step_size",
         "backlash",
     ] {
         assert!(

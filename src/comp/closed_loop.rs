@@ -372,6 +372,42 @@ mod tests {
         against_stage_from(model, [0.0, 0.0], target, always)
     }
 
+    /// Runs `cl` against `sim` from the arrival `step` at time `t`: every
+    /// frame is the simulator's true observed position, fresh; returns the
+    /// loop's final action and the true residual norm.
+    fn drive(
+        cl: &mut ClosedLoop,
+        sim: &mut crate::model::StageSimulator,
+        mut step: crate::model::SimStep,
+        mut t: f64,
+        target: XyUm,
+    ) -> (Action, f64) {
+        for seq in 1..100 {
+            cl.settled(t);
+            let m = FrameMeasurement {
+                position: step.observed_um,
+                timestamp_s: t + 0.5,
+                quality: 100.0,
+                frame_seq: seq,
+            };
+            match cl.on_frame(&m) {
+                Action::Move { waypoints } => {
+                    for w in waypoints {
+                        t += 1.0;
+                        step = sim.move_to(w.x_um, w.y_um, t, 0).unwrap();
+                    }
+                }
+                Action::AwaitFrame { .. } => unreachable!("every frame is fresh"),
+                done => {
+                    let r = (target.x_um - step.observed_um.x_um)
+                        .hypot(target.y_um - step.observed_um.y_um);
+                    return (done, r);
+                }
+            }
+        }
+        unreachable!("the loop is bounded by max_corrections")
+    }
+
     /// The same, starting at rest at `start`: the loop's arrival direction
     /// per axis is the direction from `start` to `target`.
     fn against_stage_from(
@@ -397,32 +433,9 @@ mod tests {
             ..ClosedLoopConfig::default()
         };
         let mut cl = ClosedLoop::new(target, target, arrival, cfg).unwrap();
-        let mut t = 1.0;
-        let mut step = sim.move_to(target.x_um, target.y_um, t, 0).unwrap();
-        for seq in 1..100 {
-            cl.settled(t);
-            let m = FrameMeasurement {
-                position: step.observed_um,
-                timestamp_s: t + 0.5,
-                quality: 100.0,
-                frame_seq: seq,
-            };
-            match cl.on_frame(&m) {
-                Action::Move { waypoints } => {
-                    for w in waypoints {
-                        t += 1.0;
-                        step = sim.move_to(w.x_um, w.y_um, t, 0).unwrap();
-                    }
-                }
-                Action::AwaitFrame { .. } => unreachable!("every frame is fresh"),
-                done => {
-                    let r = (target.x_um - step.observed_um.x_um)
-                        .hypot(target.y_um - step.observed_um.y_um);
-                    return (done, r);
-                }
-            }
-        }
-        unreachable!("the loop is bounded by max_corrections")
+        let t = 1.0;
+        let step = sim.move_to(target.x_um, target.y_um, t, 0).unwrap();
+        drive(&mut cl, &mut sim, step, t, target)
     }
 
     #[test]
@@ -495,33 +508,10 @@ mod tests {
             step = Some(sim.move_to(w.x_um, w.y_um, t, 0).unwrap());
         }
         hist.commit(&plan, t, 20.0).unwrap();
-        let mut step = step.unwrap();
+        let step = step.unwrap();
         let cfg = ClosedLoopConfig::default();
         let mut cl = ClosedLoop::new(target, plan.cmd, plan.arrival, cfg).unwrap();
-        for seq in 1..100 {
-            cl.settled(t);
-            let m = FrameMeasurement {
-                position: step.observed_um,
-                timestamp_s: t + 0.5,
-                quality: 100.0,
-                frame_seq: seq,
-            };
-            match cl.on_frame(&m) {
-                Action::Move { waypoints } => {
-                    for w in waypoints {
-                        t += 1.0;
-                        step = sim.move_to(w.x_um, w.y_um, t, 0).unwrap();
-                    }
-                }
-                Action::AwaitFrame { .. } => unreachable!("every frame is fresh"),
-                done => {
-                    let r = (target.x_um - step.observed_um.x_um)
-                        .hypot(target.y_um - step.observed_um.y_um);
-                    return (done, r);
-                }
-            }
-        }
-        unreachable!("the loop is bounded by max_corrections")
+        drive(&mut cl, &mut sim, step, t, target)
     }
 
     #[test]

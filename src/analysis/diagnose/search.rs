@@ -212,33 +212,14 @@ fn step_size_search(d: &Data, axis: Axis, resid: &[f64], train: &[bool]) -> Opti
         return None;
     }
     // Golden section between the best point's neighbours.
-    let mut l = grid[kbest.saturating_sub(1)].0;
-    let mut h = grid[(kbest + 1).min(n)].0;
-    let g = 0.5 * (5f64.sqrt() - 1.0);
-    let mut x1 = h - g * (h - l);
-    let mut x2 = l + g * (h - l);
-    let (mut f1, mut f2) = (score(x1), score(x2));
-    for _ in 0..25 {
-        if f1 >= f2 {
-            h = x2;
-            x2 = x1;
-            f2 = f1;
-            x1 = h - g * (h - l);
-            f1 = score(x1);
-        } else {
-            l = x1;
-            x1 = x2;
-            f1 = f2;
-            x2 = l + g * (h - l);
-            f2 = score(x2);
-        }
-    }
-    let best = if f1.max(f2) >= grid[kbest].1 {
-        if f1 >= f2 {
-            x1
-        } else {
-            x2
-        }
+    let (x, fx) = golden_max(
+        grid[kbest.saturating_sub(1)].0,
+        grid[(kbest + 1).min(n)].0,
+        25,
+        score,
+    );
+    let best = if fx >= grid[kbest].1 {
+        x
     } else {
         grid[kbest].0
     };
@@ -654,31 +635,46 @@ pub(super) fn refine_period(spec: Spec, d: &Data, base: &[Vec<f64>], model: &Sta
     // frequency: the search's own peak lies within it.
     let f0 = 1.0 / p0;
     let half = 1.0 / span;
-    let (mut a, mut b) = ((f0 - half).max(0.5 * f0), f0 + half);
-    let g = 0.618_033_988_749_894_9;
-    let mut c = b - g * (b - a);
-    let mut e = a + g * (b - a);
-    let (mut sc, mut se) = (sse(c), sse(e));
-    for _ in 0..40 {
-        if sc < se {
-            b = e;
-            e = c;
-            se = sc;
-            c = b - g * (b - a);
-            sc = sse(c);
-        } else {
-            a = c;
-            c = e;
-            sc = se;
-            e = a + g * (b - a);
-            se = sse(e);
-        }
-    }
-    let f = 0.5 * (a + b);
+    let (f, _) = golden_max((f0 - half).max(0.5 * f0), f0 + half, 40, |f| -sse(f));
     // Keep the search's period unless the refined one fits better.
     if sse(f) < sse(f0) {
         with(1.0 / f)
     } else {
         spec
+    }
+}
+
+/// Golden-section search for the largest `f` on `[lo, hi]` (unimodal there):
+/// `(x, f(x))` of the better of the last two probes.
+pub(super) fn golden_max(
+    lo: f64,
+    hi: f64,
+    iterations: usize,
+    mut f: impl FnMut(f64) -> f64,
+) -> (f64, f64) {
+    let g = 0.5 * (5f64.sqrt() - 1.0);
+    let (mut l, mut h) = (lo, hi);
+    let mut x1 = h - g * (h - l);
+    let mut x2 = l + g * (h - l);
+    let (mut f1, mut f2) = (f(x1), f(x2));
+    for _ in 0..iterations {
+        if f1 >= f2 {
+            h = x2;
+            x2 = x1;
+            f2 = f1;
+            x1 = h - g * (h - l);
+            f1 = f(x1);
+        } else {
+            l = x1;
+            x1 = x2;
+            f1 = f2;
+            x2 = l + g * (h - l);
+            f2 = f(x2);
+        }
+    }
+    if f1 >= f2 {
+        (x1, f1)
+    } else {
+        (x2, f2)
     }
 }
