@@ -210,6 +210,18 @@ def test_cancelled_characterization_resumes(rig):
     assert resumed.wait(timeout=150, poll_s=0.2)["job"]["done"] == total
 
 
+def test_characterization_with_moves_of_varied_length(rig):
+    # `moves_per_cycle` adds that many direct moves per cycle after the
+    # scans (the log's `moves` segment), each one point of the job.
+    plain = 12  # SMALL_SCAN's scan points, as asserted above
+    job = rig.characterize("py-moves.csv", moves_per_cycle=3, **SMALL_SCAN)
+    assert job.started["job"]["total"] == plain + 3
+    final = job.wait(timeout=150, poll_s=0.2)
+    assert final["job"]["done"] == plain + 3
+    with pytest.raises(micropos.BadValue):
+        rig.characterize("py-moves-bad.csv", moves_per_cycle=-1, **SMALL_SCAN)
+
+
 def test_stop_halts_a_move_waited_on_in_another_thread(rig):
     # A race against the stage: on a loaded machine the move may end before
     # the stop is sent; then it is tried again.

@@ -170,6 +170,7 @@ def characterize_start(
     mode: Optional[str] = None,
     velocity_um_per_s: Optional[float] = None,
     uncorrected_log: Optional[str] = None,
+    moves_per_cycle: Optional[int] = None,
 ) -> Json:
     """``characterize`` ``start``."""
     return request(
@@ -188,6 +189,7 @@ def characterize_start(
         mode=mode,
         velocity_um_per_s=velocity_um_per_s,
         uncorrected_log=uncorrected_log,
+        moves_per_cycle=moves_per_cycle,
     )
 
 

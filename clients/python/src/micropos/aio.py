@@ -323,6 +323,7 @@ class AsyncRig:
         mode: Optional[CharacterizeMode] = None,
         velocity_um_per_s: Optional[float] = None,
         uncorrected_log: Optional[str] = None,
+        moves_per_cycle: Optional[int] = None,
     ) -> "AsyncJob":
         """``characterize start``; see :meth:`Rig.characterize`."""
         reply = await self._call(
@@ -340,6 +341,7 @@ class AsyncRig:
                 mode=mode,
                 velocity_um_per_s=velocity_um_per_s,
                 uncorrected_log=uncorrected_log,
+                moves_per_cycle=moves_per_cycle,
             )
         )
         return AsyncJob._from_reply(self, "characterize", reply)

@@ -302,6 +302,7 @@ class Rig:
         mode: Optional[CharacterizeMode] = None,
         velocity_um_per_s: Optional[float] = None,
         uncorrected_log: Optional[str] = None,
+        moves_per_cycle: Optional[int] = None,
     ) -> "Job":
         """``characterize start``: a characterization job, logged point by
         point into ``log`` (a file name in the daemon's data directory).
@@ -312,7 +313,10 @@ class Rig:
         estimated from the data (``wait()["job"]["result"]["camera_delay_s"]``)
         and the log is written resampled onto the step grid when the sweep
         ends; ``uncorrected_log`` also writes it without the delay
-        correction. Returns the job's handle."""
+        correction. ``moves_per_cycle`` (step mode) adds that many moves of
+        varied length per cycle after the scans, so a model table can learn
+        a lost motion that grows with the move length. Returns the job's
+        handle."""
         reply = self._call(
             proto.characterize_start(
                 log=log,
@@ -328,6 +332,7 @@ class Rig:
                 mode=mode,
                 velocity_um_per_s=velocity_um_per_s,
                 uncorrected_log=uncorrected_log,
+                moves_per_cycle=moves_per_cycle,
             )
         )
         return Job._from_reply(self, "characterize", reply)
