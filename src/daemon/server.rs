@@ -166,10 +166,13 @@ async fn client(
                         subscription = Some(spawn_forwarder(&daemon, topics.clone(), out.clone()));
                         subscribed.store(true, Ordering::Relaxed);
                         let names: Vec<&str> = topics.iter().map(|t| t.as_str()).collect();
-                        protocol::ok_reply(&req.id, obj(serde_json::json!({"subscribed": names})))
+                        protocol::ok_reply(
+                            &req.id,
+                            protocol::reply_fields(serde_json::json!({"subscribed": names})),
+                        )
                     }
                     cmd => match daemon.execute(cmd).await {
-                        Ok(v) => protocol::ok_reply(&req.id, obj(v)),
+                        Ok(v) => protocol::ok_reply(&req.id, protocol::reply_fields(v)),
                         Err(e) => protocol::error_reply(&req.id, &e),
                     },
                 };
@@ -264,7 +267,7 @@ async fn client(
                     if req.command == Command::Stop {
                         // Overtakes anything queued on this connection too.
                         match daemon.execute(Command::Stop).await {
-                            Ok(v) => protocol::ok_reply(&req.id, obj(v)),
+                            Ok(v) => protocol::ok_reply(&req.id, protocol::reply_fields(v)),
                             Err(e) => protocol::error_reply(&req.id, &e),
                         }
                     } else {
@@ -313,23 +316,14 @@ fn spawn_forwarder(
                     }
                 }
                 Err(broadcast::error::RecvError::Lagged(n)) => {
-                    let line =
-                        protocol::event_line("lagged", obj(serde_json::json!({"missed": n})));
+                    let line = protocol::event_line(
+                        "lagged",
+                        protocol::reply_fields(serde_json::json!({"missed": n})),
+                    );
                     let _ = out.try_send(line.into());
                 }
                 Err(broadcast::error::RecvError::Closed) => return,
             }
         }
     })
-}
-
-fn obj(v: serde_json::Value) -> serde_json::Map<String, serde_json::Value> {
-    match v {
-        serde_json::Value::Object(m) => m,
-        other => {
-            let mut m = serde_json::Map::new();
-            m.insert("result".to_owned(), other);
-            m
-        }
-    }
 }

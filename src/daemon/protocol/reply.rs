@@ -21,6 +21,20 @@ pub fn ok_reply(id: &Value, fields: Map<String, Value>) -> String {
     line(Value::Object(obj))
 }
 
+/// The fields of an ok reply or an event from a command's result: an
+/// object's own fields, anything else under `result`. Why here: the socket
+/// and the HTTP listener answer with the same reply lines.
+pub fn reply_fields(v: Value) -> Map<String, Value> {
+    match v {
+        Value::Object(m) => m,
+        other => {
+            let mut m = Map::new();
+            m.insert("result".to_owned(), other);
+            m
+        }
+    }
+}
+
 /// An error reply: `{"id":…,"ok":false,"error":{"code":…,"message":…}}`.
 pub fn error_reply(id: &Value, e: &ProtoError) -> String {
     let mut err = Map::new();

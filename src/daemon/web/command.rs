@@ -171,21 +171,10 @@ async fn run(
             .record_from(origin, role, &req.command, Outcome::Allowed, raw);
     }
     let line = match daemon.execute(req.command).await {
-        Ok(v) => protocol::ok_reply(&req.id, obj(v)),
+        Ok(v) => protocol::ok_reply(&req.id, protocol::reply_fields(v)),
         Err(e) => protocol::error_reply(&req.id, &e),
     };
     reply(StatusCode::OK, line)
-}
-
-fn obj(v: serde_json::Value) -> serde_json::Map<String, serde_json::Value> {
-    match v {
-        serde_json::Value::Object(m) => m,
-        other => {
-            let mut m = serde_json::Map::new();
-            m.insert("result".to_owned(), other);
-            m
-        }
-    }
 }
 
 #[cfg(test)]
