@@ -465,17 +465,34 @@ pub fn with_room_below(lines: [TieLine; 2], lower_um: [f64; 2]) -> [TieLine; 2] 
             .find(|l| l.x_axis == (a == 0))
             .map_or(f64::NAN, |l| l.start_um)
     };
-    let lifts = [
-        lift(axis_start(0), lower_um[0]),
-        lift(axis_start(1), lower_um[1]),
-    ];
+    let axis_range = |a: usize| {
+        lines
+            .iter()
+            .find(|l| l.x_axis == (a == 0))
+            .map_or(0.0, |l| l.range_um)
+    };
+    // Never lift past the range: keep at least half of it (whole pitches
+    // where the range allows). One lift per axis, for the line along it and
+    // the other line's hold alike, so the lines still cross at the anchor.
+    let lifts = [0, 1].map(|a| {
+        let up = lift(axis_start(a), lower_um[a]);
+        let cap = axis_range(a) / 2.0;
+        if up <= cap {
+            up
+        } else {
+            let whole = (cap / PITCH_UM).floor() * PITCH_UM;
+            if whole > 0.0 {
+                whole
+            } else {
+                cap
+            }
+        }
+    });
     lines.map(|l| {
         let (moving, held) = if l.x_axis { (0, 1) } else { (1, 0) };
-        // Never lift past the range: keep at least half of it.
-        let up = lifts[moving].min(l.range_um / 2.0);
         TieLine {
-            start_um: l.start_um + up,
-            range_um: l.range_um - up,
+            start_um: l.start_um + lifts[moving],
+            range_um: l.range_um - lifts[moving],
             hold_um: l.hold_um + lifts[held],
             ..l
         }
@@ -645,6 +662,14 @@ mod tests {
         let l = with_room_below(corner(500.0, 500.0), [0.0, 0.0]);
         assert_eq!(l[0].start_um, 500.0);
         assert_eq!(l[1].start_um, 500.0);
+        // A range shorter than two pitches: lifted by half of it, on the
+        // line along that axis and the other line's hold alike (the lines
+        // still cross at the anchor).
+        let mut short = corner(0.0, 0.0);
+        short[1].range_um = 400.0;
+        let l = with_room_below(short, [0.0, 0.0]);
+        assert_eq!((l[1].start_um, l[1].range_um), (200.0, 200.0));
+        assert_eq!(l[0].hold_um, 200.0);
         // Unknown limits: unchanged.
         let l = with_room_below(corner(0.0, 0.0), [f64::MIN / 4.0, f64::MIN / 4.0]);
         assert_eq!((l[0].start_um, l[1].start_um), (0.0, 0.0));
