@@ -554,6 +554,18 @@ fn camera_faults_fail_clearly_and_never_use_stale_data() {
     for i in 0..2 {
         assert!((after[i] - before[i]).abs() < 0.5, "{before:?} {after:?}");
     }
+    // A relative move after a closed loop continues from the target the
+    // user asked for, not from the loop's last corrected command, and an
+    // axis it leaves out keeps that target.
+    let corrected = &m["closed_loop"]["commanded"];
+    assert!(
+        (corrected["x_um"].as_f64().unwrap() - 7700.0).abs() > 1e-3,
+        "the loop corrected the command: {m}"
+    );
+    let r = c.ok(json!({"cmd": "move", "x_um": 100.0, "relative": true,
+                        "mode": "compensated", "wait": true}));
+    assert_eq!(r["target"]["x_um"].as_f64(), Some(7800.0), "{r}");
+    assert_eq!(r["target"]["y_um"].as_f64(), Some(7600.0), "{r}");
 }
 
 #[test]

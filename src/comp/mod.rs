@@ -230,6 +230,18 @@ impl MotionHistory {
         self.last_target
     }
 
+    /// Sets the target the last move was for, leaving the motion state (the
+    /// commands the axes got) as it is.
+    ///
+    /// Why: a closed loop's corrections are recorded as raw moves, each its
+    /// own target; the move was for the user's target, and a following
+    /// relative move, or an axis the next move leaves out, continues from
+    /// that target, not from the last correction's command (up to tens of
+    /// µm away).
+    pub fn set_last_target(&mut self, target: XyUm) {
+        self.last_target = target;
+    }
+
     /// Records an executed plan (all its waypoints), settled at `time_s`
     /// with ambient `temp_c`.
     pub fn commit(&mut self, plan: &MovePlan, time_s: f64, temp_c: f64) -> Result<(), CompError> {

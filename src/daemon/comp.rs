@@ -255,6 +255,16 @@ impl CompState {
         lock(&self.history).as_ref().map(|h| h.last_target())
     }
 
+    /// After a closed loop: the move was for `target` (planned, before the
+    /// drift `offset_um` it was shifted by), whatever its corrections
+    /// commanded; see [`crate::comp::MotionHistory::set_last_target`].
+    pub fn restore_target(&self, target: XyUm, offset_um: [f64; 2]) {
+        if let Some(h) = lock(&self.history).as_mut() {
+            h.set_last_target(target);
+        }
+        *lock(&self.target_offset) = offset_um;
+    }
+
     /// Records the drift correction of the plan just committed (see
     /// `target_offset`).
     pub fn set_target_offset(&self, offset_um: [f64; 2]) {

@@ -769,8 +769,10 @@ impl Rig {
                     Ok(())
                 })
             })
-            .await?;
-            out["closed_loop"] = res;
+            .await;
+            // Done or not, the move was for the user's target.
+            self.comp.restore_target(plan.target, offset);
+            out["closed_loop"] = res?;
         }
         Ok(out)
     }
