@@ -132,7 +132,7 @@ pub(super) async fn run(
             rig.push(Topic::Job, "job", s);
         }
     }
-    let est = estimate_delay(&passes, |x| plan.grid(x), plan.step_um).map_err(|e| {
+    let est = estimate_delay(&passes).map_err(|e| {
         ProtoError::new(
             ErrorCode::LowQuality,
             format!("sweep characterization: {e}"),
