@@ -405,7 +405,10 @@ fn mean_over(frames: &[FrameAt], lo: f64, hi: f64) -> Option<f64> {
         let (a, b) = (w[0], w[1]);
         let (x0, x1) = (a.cmd_um.max(lo), b.cmd_um.min(hi));
         let len = b.cmd_um - a.cmd_um;
-        if !(x1 > x0) || !(len > 0.0) {
+        // Skips empty and NaN stretches alike.
+        if x1.partial_cmp(&x0) != Some(std::cmp::Ordering::Greater)
+            || len.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater)
+        {
             continue;
         }
         let at = |x: f64| a.e_scan_um + (b.e_scan_um - a.e_scan_um) * (x - a.cmd_um) / len;
@@ -470,7 +473,7 @@ fn delay_step(passes: &[PassData], delay_s: f64) -> Result<(f64, usize, f64), Sw
             .iter()
             .filter_map(|(_, f)| f.last().map(|a| a.cmd_um))
             .fold(f64::INFINITY, f64::min);
-        if on_axis.is_empty() || !(hi > lo) {
+        if on_axis.is_empty() || hi.partial_cmp(&lo) != Some(std::cmp::Ordering::Greater) {
             continue;
         }
         for forward in [true, false] {
