@@ -612,7 +612,7 @@ async fn a_carriage_slipping_against_its_encoder_is_a_vision_deviation() {
     assert!(reason.contains(&format!("deviation {sign}")), "{ev}");
     let detect_s = ev["t_s"].as_f64().unwrap() - t;
     assert!(
-        detect_s >= 0.0 && detect_s < 0.5,
+        (0.0..0.5).contains(&detect_s),
         "detected after {detect_s} s"
     );
     assert!(

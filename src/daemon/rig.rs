@@ -220,13 +220,13 @@ impl Rig {
         if let Some(f) = self.comp.active().and_then(|a| a.frame) {
             return Some(f);
         }
-        (self.cfg.safety.deviation_frame == super::config::DeviationFrame::Camera).then(|| {
+        (self.cfg.safety.deviation_frame == super::config::DeviationFrame::Camera).then_some(
             crate::comp::VisionFrame {
                 rotation_rad: self.cfg.camera.rotation_rad,
                 mirrored: false,
                 translation_um: [0.0, 0.0],
-            }
-        })
+            },
+        )
     }
 
     /// A controller position read of `axis` between `t0_s` and `t1_s`
