@@ -206,6 +206,7 @@ fn bench(c: &mut Criterion) {
     }
     group.finish();
     let s = samples.lock().unwrap();
+    let mut p50 = [None, None];
     for busy in [false, true] {
         let mut v: Vec<f64> = s
             .iter()
@@ -217,6 +218,7 @@ fn bench(c: &mut Criterion) {
             continue;
         }
         let q = |p: f64| v[((v.len() - 1) as f64 * p).round() as usize];
+        p50[usize::from(busy)] = Some(q(0.5));
         println!(
             "stop → both axes at rest, {} line: n {}, p50 {:.2} ms, p99 {:.2} ms, max {:.2} ms",
             if busy { "busy" } else { "quiet" },
@@ -224,6 +226,12 @@ fn bench(c: &mut Criterion) {
             q(0.5),
             q(0.99),
             v[v.len() - 1]
+        );
+    }
+    if let [Some(quiet), Some(busy)] = p50 {
+        println!(
+            "stop latency, busy / quiet line (p50, same run): {:.2}×",
+            busy / quiet
         );
     }
     let Rig {

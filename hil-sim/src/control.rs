@@ -5,6 +5,8 @@
 //! - `{"axis":"x","fault":"drop_line"}`, `"restore_line"`, `"power_cycle"`,
 //!   `"stall"` (the carriage jams mid-move), `"motion_error"` (servo fault:
 //!   error 1024, servo off)
+//! - `{"axis":"x","fault":"slip","um":-250}`: the carriage slips by a whole
+//!   number of µm against the encoder (the controller does not notice)
 //! - `{"axis":"x","fault":"garbage","hex":"ff00"}`
 //! - `{"axis":"x","fault":"delay_replies","ms":300}`
 //! - `{"axis":"x","fault":"withhold_replies","on":true}`
@@ -146,6 +148,14 @@ pub fn parse_request(line: &str) -> Result<ControlRequest, String> {
         "power_cycle" => Fault::PowerCycle,
         "stall" => Fault::Stall,
         "motion_error" => Fault::MotionError,
+        "slip" => {
+            let um = obj
+                .get("um")
+                .and_then(Value::as_i64)
+                .and_then(|v| i32::try_from(v).ok())
+                .ok_or("slip needs \"um\": an integer number of µm (either sign)")?;
+            Fault::Slip { slip_um: um }
+        }
         "garbage" => {
             let hex = obj
                 .get("hex")
@@ -182,7 +192,7 @@ pub fn parse_request(line: &str) -> Result<ControlRequest, String> {
         }
         other => {
             return Err(format!(
-                "unknown fault {other:?} (known: drop_line, restore_line, power_cycle, stall, motion_error, garbage, delay_replies, withhold_replies, corrupt_replies)"
+                "unknown fault {other:?} (known: drop_line, restore_line, power_cycle, stall, motion_error, slip, garbage, delay_replies, withhold_replies, corrupt_replies)"
             ))
         }
     };
@@ -440,6 +450,13 @@ mod tests {
             })
         );
         assert_eq!(
+            parse_request(r#"{"axis":"y","fault":"slip","um":-250}"#),
+            Ok(ControlRequest::Fault {
+                axis: Some(AxisName::Y),
+                fault: Fault::Slip { slip_um: -250 }
+            })
+        );
+        assert_eq!(
             parse_request(r#"{"query":"truth"}"#),
             Ok(ControlRequest::Truth)
         );
@@ -465,6 +482,8 @@ mod tests {
             (r#"{"fault":"garbage","hex":"f"}"#, "odd"),
             (r#"{"fault":"garbage","hex":"zz"}"#, "hex byte"),
             (r#"{"fault":"delay_replies","ms":-1}"#, "ms"),
+            (r#"{"fault":"slip","um":0.5}"#, "um"),
+            (r#"{"fault":"slip"}"#, "um"),
             (r#"{"query":"everything"}"#, "unknown query"),
             (r#"{"clock":"later"}"#, "unknown clock"),
             (r#"{"clock":"advance","s":-1}"#, "seconds"),

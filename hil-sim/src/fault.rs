@@ -71,6 +71,15 @@ pub enum Fault {
     /// A servo fault (`Controller::motion_error`): motion cut, servo off,
     /// error 1024 pending for the next `ERR?`.
     MotionError,
+    /// The carriage slips against the encoder (`Controller::slip`): the
+    /// platform jumps by `slip_um` along +axis while the controller's count
+    /// does not change, moving or at rest. The controller sees nothing; only
+    /// an outside measurement (the camera) does. Whole µm: a fault size,
+    /// not a measurement.
+    Slip {
+        /// Jump of the platform against the encoder, µm (either sign).
+        slip_um: i32,
+    },
     /// These bytes are written to the host at once.
     Garbage(Vec<u8>),
     /// Every reply is delayed by this much wall time (`Duration::ZERO` to

@@ -450,6 +450,30 @@ pub struct SafetySection {
     /// How long a halt waits for both axes to come to rest (shutdown,
     /// `microposd --halt`, job cancel), s.
     pub halt_wait_s: f64,
+    /// Largest distance between where the camera sees the platform and
+    /// where the controller counts it, per axis, µm (`daemon::deviation`:
+    /// vision − controller in the stage frame, translation tied at rest);
+    /// 0 turns the check off. Above the stage's static error and drift.
+    pub deviation_um: f64,
+    /// Where the vision → stage orientation of that check comes from.
+    pub deviation_frame: DeviationFrame,
+}
+
+/// Where the deviation check takes the vision → stage rotation from. Why
+/// a choice: a wrong orientation makes every move look like a deviation of
+/// up to twice its length, so the check only runs where the orientation is
+/// known.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum DeviationFrame {
+    /// The active compensation table's vision frame (fitted by the
+    /// characterization that built it); no active table with a frame, no
+    /// check.
+    #[default]
+    Table,
+    /// `camera.rotation_rad` (for a rig without a table whose camera
+    /// orientation is set by hand); an active table's frame still wins.
+    Camera,
 }
 
 impl Default for SafetySection {
@@ -459,6 +483,8 @@ impl Default for SafetySection {
             following_error_um: 500.0,
             read_fail_s: 2.0,
             halt_wait_s: 5.0,
+            deviation_um: 100.0,
+            deviation_frame: DeviationFrame::Table,
         }
     }
 }
@@ -752,6 +778,12 @@ impl DaemonConfig {
         }
         if !(sf.halt_wait_s.is_finite() && sf.halt_wait_s > 0.0 && sf.halt_wait_s <= 60.0) {
             return Err(bad("safety.halt_wait_s", "must be within (0, 60] s"));
+        }
+        if !(sf.deviation_um.is_finite() && sf.deviation_um >= 0.0) {
+            return Err(bad(
+                "safety.deviation_um",
+                "must be a finite number of µm ≥ 0 (0 = off)",
+            ));
         }
         if self.daemon.max_clients == 0 {
             return Err(bad("daemon.max_clients", "must be at least 1"));

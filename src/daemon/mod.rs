@@ -32,6 +32,7 @@ pub mod audit;
 pub mod comp;
 pub mod config;
 pub mod connection;
+pub mod deviation;
 pub mod drift;
 pub mod jobs;
 pub mod notify;

@@ -10,6 +10,7 @@
 //! halted and read back before anything else ([`Rig::recover_axis`]).
 
 use super::config::DaemonConfig;
+use super::deviation::DeviationJudge;
 use super::protocol::{Axes, ErrorCode, MoveMode, MoveRequest, ProtoError, Topic};
 use super::state::{Action, Activity, AxisId, Input, Refusal, SafetyState};
 use super::supervisor::{Bounds, ReadFailure, Supervisor};
@@ -53,9 +54,13 @@ pub struct Rig {
     motion: tokio::sync::Mutex<()>,
     stop_gen: AtomicU64,
     supervisor: Mutex<Supervisor>,
-    /// Held by the supervisor while it samples: a reference run waits for
-    /// a sample in flight (its `FRF?` would read the run as a lost
-    /// reference).
+    /// Vision against controller (`daemon::deviation`).
+    deviation: Mutex<DeviationJudge>,
+    /// Held by the supervisor and the position poller while they read
+    /// positions: a reference run takes it after it owns the axes, so no
+    /// read begun before the run ends after it began (its `FRF?` would read
+    /// the run as a lost reference, its `POS?` a count the run is about to
+    /// change, taken for fresh), and none begins during it.
     pub(super) sampling: tokio::sync::Mutex<()>,
     events: broadcast::Sender<Pushed>,
     /// The camera pipeline, if a camera is configured.
@@ -151,6 +156,7 @@ impl Rig {
         });
         Rig {
             supervisor: Mutex::new(supervisor),
+            deviation: Mutex::new(DeviationJudge::new(cfg.safety.deviation_um)),
             sampling: tokio::sync::Mutex::new(()),
             drift,
             live: super::reload::Live::new(&cfg),
@@ -206,6 +212,58 @@ impl Rig {
         lock(&self.state).activity() == Activity::Referencing
     }
 
+    /// The vision → stage orientation for the deviation check: the active
+    /// table's frame, else with `safety.deviation_frame = "camera"` the
+    /// configured camera rotation, else none (no check).
+    fn deviation_frame(&self) -> Option<crate::comp::VisionFrame> {
+        self.vision.as_ref()?;
+        if let Some(f) = self.comp.active().and_then(|a| a.frame) {
+            return Some(f);
+        }
+        (self.cfg.safety.deviation_frame == super::config::DeviationFrame::Camera).then_some(
+            crate::comp::VisionFrame {
+                rotation_rad: self.cfg.camera.rotation_rad,
+                mirrored: false,
+                translation_um: [0.0, 0.0],
+            },
+        )
+    }
+
+    /// A controller position read of `axis` between `t0_s` and `t1_s`
+    /// (poller or supervisor): input of the deviation check.
+    pub(super) fn deviation_read(self: &Arc<Self>, axis: AxisId, t0_s: f64, t1_s: f64, um: f64) {
+        lock(&self.deviation).controller(axis, t0_s, t1_s, um);
+        self.judge_deviation();
+    }
+
+    /// Judges the frames that can be judged; a breach is a fault.
+    fn judge_deviation(self: &Arc<Self>) {
+        let frame = self.deviation_frame();
+        // A tie needs both axes at rest: no move watched and no reference
+        // run (the judge also wants the reads around the frame to agree).
+        let quiet = self.supervisor().watching() == [false, false] && !self.referencing();
+        let r = {
+            let mut j = lock(&self.deviation);
+            j.set_frame(frame);
+            j.judge(quiet)
+        };
+        if let Some(tie) = r.tied_um {
+            tracing::info!(
+                "vision deviation check tied at rest: translation x {:.1} µm, y {:.1} µm",
+                tie[0],
+                tie[1]
+            );
+        }
+        if let Some(reason) = r.fault {
+            self.supervisor_fault(reason);
+        }
+    }
+
+    /// The deviation check's state (for `status`).
+    pub fn deviation_json(&self) -> Value {
+        lock(&self.deviation).to_json()
+    }
+
     /// Feeds the watchdog heartbeat: the rig is supervised.
     pub(super) fn beat(&self) {
         self.heartbeat.fetch_add(1, Ordering::Relaxed);
@@ -252,13 +310,14 @@ impl Rig {
         }
     }
 
-    /// Halts both axes at once; errors (a dead line) are logged, not fatal.
+    /// Halts both axes at once (`HLT` ahead of each line's queue:
+    /// [`Axis::halt_now`]); errors (a dead line) are logged, not fatal.
     async fn halt_all(&self) -> Vec<(AxisId, Result<(), DriverError>)> {
         let Ok(stage) = self.stage() else {
             return vec![];
         };
         self.supervisor().clear();
-        let (x, y) = tokio::join!(stage.x.halt(), stage.y.halt());
+        let (x, y) = tokio::join!(stage.x.halt_now(), stage.y.halt_now());
         let mut out = vec![(AxisId::X, x), (AxisId::Y, y)];
         for (a, r) in &mut out {
             if let Err(e) = r {
@@ -330,6 +389,7 @@ impl Rig {
         s.apply(Input::Reset, t);
         let state = s.to_json();
         drop(s);
+        lock(&self.deviation).retie();
         if let Some(c) = &cleared {
             tracing::info!("fault reset by a client: {}", c["reason"]);
             self.push(Topic::Fault, "reset", json!({"t_s": t, "cleared": c}));
@@ -398,6 +458,7 @@ impl Rig {
             stage.y.travel_um()
         );
         *lock(&self.stage) = Some(stage);
+        lock(&self.deviation).retie();
         self.apply(Input::StageUp {
             referenced: [rx_x, rx_y],
         });
@@ -502,6 +563,10 @@ impl Rig {
                 continue;
             }
             last_seq = Some(m.sequence);
+            if m.quality >= self.cfg.camera.min_quality {
+                lock(&self.deviation).vision(m.t_s, m.frame_t_s, m.x_um, m.y_um);
+                self.judge_deviation();
+            }
             let (sx, sy) = self.vision_to_stage(&m);
             let mut f = m.to_json();
             f["source"] = json!("vision");
@@ -557,11 +622,23 @@ impl Rig {
                 self.heartbeat.fetch_add(1, Ordering::Relaxed);
                 continue;
             };
+            // Under the sampling lock, checked after taking it: a reference
+            // run that began meanwhile is seen here, and one that begins
+            // now waits for these reads (see `Rig::sampling`).
+            let sampling = self.sampling.lock().await;
             if lock(&self.state).activity() == Activity::Referencing {
                 self.heartbeat.fetch_add(1, Ordering::Relaxed);
                 continue;
             }
+            let t0 = self.clock.now_s();
             let (x, y) = tokio::join!(stage.x.position_um(), stage.y.position_um());
+            let t1 = self.clock.now_s();
+            drop(sampling);
+            for (a, r) in [(AxisId::X, &x), (AxisId::Y, &y)] {
+                if let Ok(um) = r {
+                    self.deviation_read(a, t0, t1, *um);
+                }
+            }
             // The watchdog is fed only when the rig is supervised: every
             // read answered, or its line is known down (a latched fault
             // the line task is riding out).
@@ -858,6 +935,16 @@ impl Rig {
             self.halt_all().await;
             return Err(driver_error(e));
         }
+        if self.stop_gen.load(Ordering::SeqCst) != gen {
+            // A stop or a fault came while the move was being sent: its
+            // halt (written ahead of the queue) may have reached the
+            // controller before this `MOV`, which would then run on.
+            self.halt_all().await;
+            return Err(ProtoError::new(
+                ErrorCode::Halted,
+                "a stop or fault came while this move was being sent; both axes were halted again",
+            ));
+        }
         {
             let t = self.clock.now_s();
             let mut sup = self.supervisor();
@@ -1022,6 +1109,7 @@ impl Rig {
     /// References the selected axes (the stage moves to its reference).
     pub async fn reference(self: &Arc<Self>, axes: Axes) -> Result<Value, ProtoError> {
         let stage = self.stage()?;
+        let gen = self.stop_gen.load(Ordering::SeqCst);
         let _queue = self.motion.lock().await;
         // The play is unknown again after a reference run.
         self.comp.reset_history();
@@ -1034,11 +1122,17 @@ impl Rig {
         // A reference run supersedes the moves watched so far; a sample in
         // flight finishes before the run starts.
         self.supervisor().clear();
-        drop(self.sampling.lock().await);
         let _guard = ActivityGuard {
             rig: self,
             activity: Activity::Referencing,
         };
+        drop(self.sampling.lock().await);
+        if self.stop_gen.load(Ordering::SeqCst) != gen {
+            return Err(ProtoError::new(
+                ErrorCode::Halted,
+                "a stop or fault came before the reference run started; it was not sent",
+            ));
+        }
         let run = |axis: &Axis, on: bool| {
             let axis = axis.clone();
             async move {
@@ -1049,7 +1143,45 @@ impl Rig {
                 }
             }
         };
-        let (x, y) = tokio::join!(run(&stage.x, axes.x()), run(&stage.y, axes.y()));
+        // A stop or fault during the run halts it (its `HLT` or `#24`); one
+        // that came while `SVO`/`FRF` were being sent may have been
+        // overtaken by them (the halt goes ahead of the line's queue), so
+        // once the generation moved the axes are halted again every
+        // supervisor period until the run gives up.
+        // The watch runs beside the run (not between its polls: a run
+        // suspended inside an exchange holds its controller's lock, which
+        // the halt's confirmation needs) and ends with it.
+        let period = Duration::from_millis(self.cfg.safety.supervise_interval_ms);
+        let (done_tx, mut done_rx) = tokio::sync::oneshot::channel::<()>();
+        let runs = async {
+            let r = tokio::join!(run(&stage.x, axes.x()), run(&stage.y, axes.y()));
+            let _ = done_tx.send(());
+            r
+        };
+        let watch = async {
+            loop {
+                tokio::select! {
+                    _ = &mut done_rx => return,
+                    () = tokio::time::sleep(period) => {}
+                }
+                if self.stop_gen.load(Ordering::SeqCst) != gen {
+                    self.halt_all().await;
+                }
+            }
+        };
+        let ((x, y), ()) = tokio::join!(runs, watch);
+        // The counts changed meaning: the deviation check ties afresh.
+        lock(&self.deviation).retie();
+        if self.stop_gen.load(Ordering::SeqCst) != gen {
+            // Halted once more: an `FRF` written after the stop's `#24` or
+            // `HLT` runs while its `ERR?` reports the stop (10), so the run
+            // can end in an error with the axis still referencing.
+            self.halt_all().await;
+            return Err(ProtoError::new(
+                ErrorCode::Halted,
+                "a stop or fault came during the reference run; it was halted",
+            ));
+        }
         let x = x.map_err(driver_error)?;
         let y = y.map_err(driver_error)?;
         {
@@ -1126,6 +1258,7 @@ impl Rig {
             "limits": travel,
             "camera": self.vision.as_ref().map(|v| v.to_json()),
             "drift": self.drift.to_json(self.clock.now_s()),
+            "deviation": self.deviation_json(),
         })
     }
 

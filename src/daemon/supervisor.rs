@@ -26,7 +26,11 @@
 //! - position reads failing (no answer, garbled) for longer than
 //!   `safety.read_fail_s`, moving or not (the position poller reports its
 //!   reads too). A line that is down is not counted here: the line loss is
-//!   a fault of its own at once.
+//!   a fault of its own at once;
+//! - a vision deviation (`daemon::deviation`): every position read here
+//!   and in the poller is also a controller sample for the camera's frames.
+//!   A watched move during which frames arrived but none decoded is
+//!   reported (event `vision_unchecked`), not a fault.
 
 use super::rig::Rig;
 use super::state::AxisId;
@@ -290,7 +294,7 @@ fn deviation_um(
 
 /// Samples one watched axis: `VEL?` once per move, then `ERR?`, the
 /// position and `ONT?`.
-async fn sample(rig: &Rig, a: AxisId, axis: &Axis) -> (f64, f64, AxisSample) {
+async fn sample(rig: &Arc<Rig>, a: AxisId, axis: &Axis) -> (f64, f64, AxisSample) {
     if rig.supervisor().needs_velocity(a) {
         if let Ok(v) = axis.velocity_um_per_s().await {
             rig.supervisor().set_velocity(a, v);
@@ -298,7 +302,11 @@ async fn sample(rig: &Rig, a: AxisId, axis: &Axis) -> (f64, f64, AxisSample) {
     }
     let t0 = rig.clock.now_s();
     let error = axis.controller().error().await.ok();
+    let tp = rig.clock.now_s();
     let position_um = axis.position_um().await.map_err(|e| ReadFailure::of(&e));
+    if let Ok(um) = position_um {
+        rig.deviation_read(a, tp, rig.clock.now_s(), um);
+    }
     let on_target = match position_um {
         Ok(_) => axis.on_target().await.ok(),
         Err(_) => None,
@@ -321,6 +329,7 @@ async fn sample(rig: &Rig, a: AxisId, axis: &Axis) -> (f64, f64, AxisSample) {
 /// move feeds the watchdog heartbeat: the rig is supervised.
 pub async fn run(rig: Arc<Rig>, mut shutdown: broadcast::Receiver<()>) {
     let period = Duration::from_millis(rig.cfg.safety.supervise_interval_ms);
+    let mut unchecked = UncheckedMove::default();
     loop {
         tokio::select! {
             _ = tokio::time::sleep(period) => {},
@@ -328,6 +337,24 @@ pub async fn run(rig: Arc<Rig>, mut shutdown: broadcast::Receiver<()>) {
         }
         let _sampling = rig.sampling.lock().await;
         let watching = rig.supervisor().watching();
+        if let Some(v) = &rig.vision {
+            let counts = (
+                v.stats.frames.load(std::sync::atomic::Ordering::Relaxed),
+                v.stats.decoded.load(std::sync::atomic::Ordering::Relaxed),
+            );
+            if let Some((frames, rounds)) = unchecked.update(watching != [false, false], counts) {
+                let t = rig.clock.now_s();
+                tracing::warn!(
+                    "{frames} camera frames during a move, none decoded: the vision deviation check is not running"
+                );
+                rig.push(
+                    super::protocol::Topic::Fault,
+                    "vision_unchecked",
+                    serde_json::json!({"t_s": t, "frames": frames, "rounds": rounds,
+                        "reason": "frames arrive during the move but none decode: vision is not compared with the controllers"}),
+                );
+            }
+        }
         if watching == [false, false] || rig.referencing() {
             continue;
         }
@@ -367,9 +394,63 @@ pub async fn run(rig: Arc<Rig>, mut shutdown: broadcast::Receiver<()>) {
     }
 }
 
+/// Frames that arrive during a watched move without one decoding, after
+/// which the move is reported once as unchecked by vision.
+const UNCHECKED_FRAMES: u64 = 5;
+
+/// Counts the camera's frames and decodes over one watched move (sans-IO).
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+struct UncheckedMove {
+    /// (frames, decoded) when the move was first seen, and whether it was
+    /// reported.
+    start: Option<((u64, u64), bool)>,
+    rounds: u64,
+}
+
+impl UncheckedMove {
+    /// One supervisor round: `moving` (a move is watched) and the camera's
+    /// (frames, decoded) counters. `Some((frames, rounds))` the first time
+    /// a move has seen [`UNCHECKED_FRAMES`] frames and no decode.
+    fn update(&mut self, moving: bool, counts: (u64, u64)) -> Option<(u64, u64)> {
+        if !moving {
+            *self = Self::default();
+            return None;
+        }
+        let ((f0, d0), reported) = *self.start.get_or_insert((counts, false));
+        self.rounds += 1;
+        let frames = counts.0.saturating_sub(f0);
+        if !reported && counts.1 == d0 && frames >= UNCHECKED_FRAMES {
+            self.start = Some(((f0, d0), true));
+            return Some((frames, self.rounds));
+        }
+        None
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_move_with_frames_but_no_decode_is_reported_once() {
+        let mut u = UncheckedMove::default();
+        assert_eq!(u.update(false, (10, 10)), None);
+        assert_eq!(u.update(true, (10, 10)), None);
+        assert_eq!(u.update(true, (13, 10)), None);
+        assert_eq!(u.update(true, (15, 10)), Some((5, 3)));
+        assert_eq!(u.update(true, (30, 10)), None);
+        // A new move counts afresh; a decode in it keeps it checked.
+        assert_eq!(u.update(false, (30, 10)), None);
+        assert_eq!(u.update(true, (30, 10)), None);
+        assert_eq!(u.update(true, (40, 11)), None);
+        assert_eq!(u.update(true, (50, 11)), None);
+        // No camera frames at all (a stalled camera): nothing to report
+        // here; the camera health events say it.
+        let mut s = UncheckedMove::default();
+        for _ in 0..10 {
+            assert_eq!(s.update(true, (0, 0)), None);
+        }
+    }
 
     fn sup() -> Supervisor {
         Supervisor::new(Bounds {

@@ -559,6 +559,24 @@ impl Axis {
         accept_stop(cmd.to_text(), code)
     }
 
+    /// Halts the axis smoothly (`HLT`, the same deceleration as
+    /// [`Axis::halt`]) with the command written ahead of every queued
+    /// exchange and without the transaction lock
+    /// ([`Line::urgent_command`](super::line::Line::urgent_command)), then
+    /// confirms it with `ERR?` in turn (10 or 0 is success). Why: the
+    /// faults that call for a halt (reads timing out, a garbled line) are
+    /// the ones that fill the line's queue; a halt behind them leaves the
+    /// stage running for the queue's length in answer timeouts.
+    pub async fn halt_now(&self) -> Result<(), DriverError> {
+        self.inner.halts.fetch_add(1, Ordering::SeqCst);
+        let ctl = self.ctl();
+        let cmd = Command::Hlt(self.id());
+        let r = ctl.line().urgent_command(ctl.address(), &cmd).await;
+        self.on_error(r)?;
+        let code = self.on_error(self.ctl().error().await)?;
+        accept_stop(cmd.to_text(), code)
+    }
+
     /// Stops the controller at once with `#24` (abrupt), written ahead of
     /// every queued exchange and without the transaction lock
     /// ([`Line::urgent`](super::line::Line::urgent)); the stage stops when

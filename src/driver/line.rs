@@ -14,10 +14,11 @@
 //!   callers can tell that the device may have changed under them.
 //! - An exchange, once started, is completed even if its caller went away
 //!   (cancellation-safe: the line never loses track of what is in flight).
-//! - An urgent single-byte command ([`Line::urgent`], `#24` stop all) does
-//!   not queue: the task writes it before any queued exchange, and also
-//!   while an exchange waits for its answer (its request is on the wire by
-//!   then, so the byte cannot split it). It expects no answer.
+//! - An urgent command ([`Line::urgent`]: `#24` stop all;
+//!   [`Line::urgent_command`]: `HLT`) does not queue: the task writes it
+//!   before any queued exchange, and also while an exchange waits for its
+//!   answer or for the line to fall quiet (its request is on the wire by
+//!   then, so the urgent bytes cannot split it). It expects no answer.
 
 use super::error::DriverError;
 use super::transport::Connector;
@@ -194,12 +195,38 @@ impl Line {
                 c.byte()
             )));
         }
+        self.write_urgent(crate::gcs::frame::encode_control(addr, c))
+            .await
+    }
+
+    /// Writes a whole command line that expects no answer (`HLT`) the way
+    /// [`Line::urgent`] writes `#24`: ahead of every queued exchange, also
+    /// while one waits for its answer or for the line to fall quiet. Why: a
+    /// halt after a fault must not wait behind reads that are timing out
+    /// (each an answer timeout plus a resynchronisation) on the very line
+    /// that failed. The controller runs it after the line in flight (whose
+    /// answer, if any, still comes); its error register (10 after `HLT`) is
+    /// for the caller to read in turn.
+    pub async fn urgent_command(
+        &self,
+        addr: Option<Address>,
+        cmd: &crate::gcs::Command,
+    ) -> Result<(), DriverError> {
+        if cmd.is_query() {
+            return Err(DriverError::Invalid(format!(
+                "`{}` has an answer: not an urgent command",
+                cmd.to_text()
+            )));
+        }
+        let bytes = crate::gcs::frame::encode_line(addr, &cmd.to_text())
+            .map_err(|e| DriverError::Invalid(e.to_string()))?;
+        self.write_urgent(bytes).await
+    }
+
+    async fn write_urgent(&self, bytes: Vec<u8>) -> Result<(), DriverError> {
         let (done, rx) = oneshot::channel();
         self.urgent
-            .send(Urgent {
-                bytes: crate::gcs::frame::encode_control(addr, c),
-                done,
-            })
+            .send(Urgent { bytes, done })
             .await
             .map_err(|_| self.closed())?;
         rx.await.map_err(|_| self.closed())?
@@ -413,6 +440,16 @@ impl<C: Connector> Task<C> {
         } else {
             tokio::time::timeout(quiet, io.read(&mut buf)).await.ok()
         };
+        self.drained(read, &buf)
+    }
+
+    /// What [`Task::drain`] read (`None`: nothing within the quiet time):
+    /// true when the line was quiet.
+    fn drained(
+        &mut self,
+        read: Option<std::io::Result<usize>>,
+        buf: &[u8],
+    ) -> Result<bool, String> {
         match read {
             None => Ok(true),
             Some(Ok(0)) => Err("end of file (device closed)".to_owned()),
@@ -442,7 +479,20 @@ impl<C: Connector> Task<C> {
             // A line that never falls quiet (streaming garbage) gets a bounded wait.
             let give_up = Instant::now() + quiet * 10;
             loop {
-                match self.drain(io, quiet).await {
+                // An urgent write does not wait for the quiet: it expects
+                // no answer, so a late answer cannot be taken for its own.
+                let mut buf = [0u8; 1024];
+                let read = tokio::select! {
+                    biased;
+                    Some(u) = self.urgent.recv() => {
+                        if let Step::Down(reason) = self.write_urgent(io, u).await {
+                            return (Step::Down(reason), Err(self.disconnected()));
+                        }
+                        continue;
+                    }
+                    r = tokio::time::timeout(quiet, io.read(&mut buf)) => r.ok(),
+                };
+                match self.drained(read, &buf) {
                     Ok(true) => break,
                     Ok(false) if Instant::now() >= give_up => break,
                     Ok(false) => {}

@@ -511,3 +511,52 @@ async fn urgent_stop_overtakes_a_busy_line() {
         Err(DriverError::Invalid(_))
     ));
 }
+
+#[tokio::test(start_paused = true)]
+async fn urgent_halt_overtakes_reads_that_time_out_and_their_resync() {
+    let rig = Rig::new(&[1]).await;
+    let ax = referenced_axis(&rig).await;
+    ax.move_abs_um(14_000.0).await.unwrap();
+    rig.fake.with(|b| b.silent = true);
+    let queued: Vec<_> = (0..5)
+        .map(|_| {
+            let ax = ax.clone();
+            tokio::spawn(async move { ax.position_um().await })
+        })
+        .collect();
+    // The first read has timed out: the line now waits for a quiet answer
+    // timeout before the next read, with four more queued behind it.
+    tokio::time::sleep(T + Duration::from_millis(20)).await;
+    let t = tokio::time::Instant::now();
+    let ctl = ax.controller();
+    ctl.line()
+        .urgent_command(
+            ctl.address(),
+            &Command::Hlt(vec![AxisId::new("1").unwrap()]),
+        )
+        .await
+        .unwrap();
+    // Written at once, not after the resynchronisation and the queue.
+    assert!(t.elapsed() < Duration::from_millis(5), "{:?}", t.elapsed());
+    tokio::time::sleep(Duration::from_millis(1)).await;
+    let target = rig.fake.axis(1, |a| a.target_mm);
+    assert!(
+        target > 7.5 && target < 14.0,
+        "the controller did not halt: {target}"
+    );
+    for q in queued {
+        assert!(q.await.unwrap().is_err());
+    }
+    // A query is not urgent.
+    assert!(matches!(
+        ctl.line()
+            .urgent_command(None, &Command::PosQuery(vec![]))
+            .await,
+        Err(DriverError::Invalid(_))
+    ));
+    // `Axis::halt_now` on a line that answers again: HLT, then ERR? = 10.
+    rig.fake.with(|b| b.silent = false);
+    ax.move_abs_um(14_000.0).await.unwrap();
+    ax.halt_now().await.unwrap();
+    assert!(rig.fake.axis(1, |a| a.target_mm) < 14.0);
+}

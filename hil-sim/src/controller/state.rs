@@ -147,6 +147,19 @@ impl Controller {
         self.sync_platform(now);
     }
 
+    /// The carriage slips by `slip_mm` against the encoder (a coupling or
+    /// a friction drive giving way, a knock against the platform): the
+    /// actuator, and with it the platform, jumps while the encoder count
+    /// stays, so `POS?`, `ONT?` and the motion in progress carry on as if
+    /// nothing happened. Only an outside measurement sees it.
+    pub fn slip(&mut self, now: Duration, slip_mm: f64) {
+        let now = self.tick(now);
+        if slip_mm.is_finite() {
+            self.offset_mm += slip_mm;
+            self.sync_platform(now);
+        }
+    }
+
     /// Encoder position (what `POS?` says) at `now`, in mm.
     pub fn encoder_mm(&self, now: Duration) -> f64 {
         self.state_at(now).0

@@ -465,6 +465,32 @@ fn a_stall_freezes_the_carriage_until_halted() {
 }
 
 #[test]
+fn a_slip_moves_the_platform_but_not_the_count() {
+    use rand::{Rng, SeedableRng};
+    // Random size and sign, mid-move and at rest.
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(0x511b);
+    for _ in 0..20 {
+        let mut c = ctl(rng.gen_range(1.0..14.0));
+        let t0 = referenced(&mut c);
+        let target = rng.gen_range(2.0..13.0);
+        q(&mut c, t0, &format!("MOV 1 {target}"));
+        let t_slip = t0 + rng.gen_range(0.0..4.0);
+        let before_pos = pos(&mut c, t_slip);
+        let before_true = c.true_position_mm(s(t_slip));
+        let d = rng.gen_range(-0.5..0.5);
+        c.slip(s(t_slip), d);
+        assert_eq!(pos(&mut c, t_slip), before_pos);
+        assert!((c.true_position_mm(s(t_slip)) - before_true - d).abs() < 1e-9);
+        // The move ends on target by the count, off by the slip in truth.
+        let end = t0 + 20.0;
+        assert_eq!(q(&mut c, end, "ONT? 1").unwrap(), "1=1\n");
+        assert!((pos(&mut c, end) - target).abs() < 1e-6);
+        assert!((c.true_position_mm(s(end)) - target - d).abs() < 1e-6);
+        assert_eq!(err(&mut c, end), 0);
+    }
+}
+
+#[test]
 fn a_motion_error_cuts_motion_servo_off_error_1024() {
     let mut c = ctl(3.0);
     let t0 = referenced(&mut c);

@@ -181,13 +181,14 @@ impl Core {
             Fault::CorruptReplies { how, count } => {
                 self.send(r.line, LineCmd::Corrupt(r.controller, how, count))
             }
-            Fault::PowerCycle | Fault::Stall | Fault::MotionError => {
+            Fault::PowerCycle | Fault::Stall | Fault::MotionError | Fault::Slip { .. } => {
                 let now = self.clock.now();
                 let mut bus = lock(&self.buses[r.line]);
                 if let Some(c) = bus.controller_mut(r.controller) {
                     match fault {
                         Fault::Stall => c.stall(now),
                         Fault::MotionError => c.motion_error(now),
+                        Fault::Slip { slip_um } => c.slip(now, f64::from(slip_um) / 1000.0),
                         _ => c.power_cycle(now),
                     }
                 }
