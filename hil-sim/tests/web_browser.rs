@@ -260,6 +260,16 @@ async fn the_page_shows_the_live_rig() {
             "Number(document.getElementById('camera').dataset.updates) > 0",
             Duration::from_secs(30),
         );
+        // No log yet: the figures panel says so (the `figures` error reply).
+        b.wait_for(
+            "the figures panel says there is no characterization yet",
+            "document.getElementById('charact-status').textContent.startsWith('no characterization yet')",
+            Duration::from_secs(30),
+        );
+        assert_eq!(
+            b.eval("document.querySelectorAll('#charact-figures svg').length"),
+            json!(0)
+        );
         b
     })
     .await
@@ -321,6 +331,30 @@ async fn the_page_shows_the_live_rig() {
         let done = text(&mut b, "job-done");
         let total = text(&mut b, "job-total");
         assert_eq!(done, total);
+        // The job's end redraws the figures panel from `figures`: the
+        // paper's Figs. 4 and 5 of web.csv (one cycle: no Fig. 6), every
+        // panel with marks, and the summary row of the x scan.
+        b.wait_for(
+            "the characterization figures are drawn",
+            "document.getElementById('charact-figures').dataset.drawn === 'web.csv'",
+            Duration::from_secs(30),
+        );
+        let panels = b.eval(
+            "Array.from(document.querySelectorAll('#charact-figures svg.fig-panel')).map((s) => Number(s.dataset.marks))",
+        );
+        let marks: Vec<f64> = panels
+            .as_array()
+            .unwrap()
+            .iter()
+            .filter_map(Value::as_f64)
+            .collect();
+        assert_eq!(marks.len(), 2, "Figs. 4 and 5, one panel each: {panels}");
+        assert!(marks.iter().all(|&m| m > 0.0), "{panels}");
+        assert_eq!(
+            b.eval("document.querySelector('#charact-table tbody td').textContent"),
+            json!("x")
+        );
+        assert!(text(&mut b, "charact-status").starts_with("web.csv"));
         let shot = Path::new(env!("CARGO_MANIFEST_DIR")).join("../target/artifacts/web-view.png");
         b.screenshot(&shot);
         assert!(
