@@ -3,8 +3,10 @@
 //! (ptys, camera socket, scaled clock; free-running capture as on
 //! hardware) and the test reads the DOM over the DevTools protocol:
 //! positions update after a move sent over the socket, the camera image
-//! changes when the stage moves, a small job's progress advances, and the
-//! page logs no console error and throws no exception. A screenshot is
+//! changes when the stage moves, a small job's progress advances, the
+//! figures panel says "no characterization yet" before it and draws the
+//! job's Figs. 4–5 (from the `figures` command) after it, and the page
+//! logs no console error and throws no exception. A screenshot is
 //! kept as `target/artifacts/web-view.png`.
 //!
 //! Without Chromium the test is skipped with a printed reason, except

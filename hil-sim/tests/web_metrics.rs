@@ -4,7 +4,10 @@
 //! decode times, job progress); `POST /api/command` runs the socket's
 //! commands with the socket's rules (anonymous reads only, the token for
 //! anything else, the role, the audit trail); `GET /api/events` streams
-//! the event bus; the page and its script are served.
+//! the event bus; the page and its script are served. Also: `figures`
+//! over both paths against the logs' own analysis, the sign of
+//! `micropos_vision_residual_um`, and the listener's connection cap and
+//! idle timeout.
 
 mod common;
 use common::{http, Client};
