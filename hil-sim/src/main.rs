@@ -77,7 +77,9 @@ enum Cmd {
         /// Seed of the simulation.
         #[arg(long, default_value_t = 1)]
         seed: u64,
-        /// Stage model file for the rig (default: config/stage-model.toml).
+        /// Stage model file for the rig (default: the paper-faithful stage,
+        /// config/stage-model-paper.toml, compiled in; the kinder default
+        /// stage of the other commands: config/stage-model.toml).
         #[arg(long)]
         model: Option<PathBuf>,
         /// Rig file (default: the paper's rig).
@@ -102,7 +104,7 @@ enum Cmd {
         square_step_um: Option<f64>,
         /// Moves of varied length per cycle of the short characterization
         /// (lets the model table identify a lost motion that grows with the
-        /// move length, e.g. 40 on config/stage-model-paper.toml; default 0).
+        /// move length; default 40, 0 with --short).
         #[arg(long)]
         short_moves: Option<u32>,
         /// Serve the rig on ptys in real time, this many simulated seconds
@@ -312,10 +314,20 @@ fn main_job(
     // Plots are drawn from the logs, so they must be kept: with --plots and
     // no --out the run directory is DIR/run.
     let out = out.or_else(|| plots.as_ref().map(|p| p.join("run")));
+    // Without --model the main job simulates the paper-faithful stage
+    // (compiled in, so it runs from any directory).
+    let stage_model = match &model {
+        Some(_) => None,
+        None => Some(
+            micropos::model::StageModel::from_toml(micropos::model::PAPER_FAITHFUL_TOML)
+                .context("the compiled-in paper-faithful stage model")?,
+        ),
+    };
     let opts = RunOptions {
         seed,
         rig,
         model,
+        stage_model,
         out_dir: out.clone(),
         time_scale,
         plan: {

@@ -86,12 +86,12 @@ pub struct RunPlan {
     pub short_step_um: f64,
     /// Moves of varied length per cycle of the short characterization
     /// (`characterize … moves_per_cycle`): they make a lost motion that
-    /// grows with the move length identifiable for the model table. 0 by
-    /// default: the default stage has no such lost motion, and the moves'
-    /// positions show its non-separable errors, which the model table's
-    /// template cannot hold (measured, seed 1: model table 0.25 / 0.31 →
-    /// 0.27 / 0.36 µm with 40 per cycle); `--short-moves 40` on the
-    /// paper-faithful stage.
+    /// grows with the move length identifiable for the model table (the
+    /// paper-faithful stage's: without them its model table cannot learn
+    /// it). 40 in the paper plan, 0 in the reduced one. On a stage without
+    /// such lost motion they cost a little: the moves' positions show its
+    /// non-separable errors, which the model table's template cannot hold
+    /// (docs/design/daemon.md#main-job).
     pub short_moves_per_cycle: u32,
     /// Validation cycles per test and mode.
     pub validate_cycles: u32,
@@ -144,7 +144,7 @@ impl RunPlan {
             y_range_um: 4200.0,
             cycles: 3,
             short_step_um: 50.0,
-            short_moves_per_cycle: 0,
+            short_moves_per_cycle: 40,
             validate_cycles: 3,
             square_step_um: 500.0,
             frames_per_point: 1,
@@ -167,6 +167,7 @@ impl RunPlan {
             step_um: 50.0,
             cycles: 1,
             short_step_um: 500.0,
+            short_moves_per_cycle: 0,
             validate_cycles: 2,
             square_step_um: 1000.0,
             sweep_velocity_um_per_s: 0.0,
@@ -184,6 +185,9 @@ pub struct RunOptions {
     pub rig: RigConfig,
     /// Stage model file overriding the rig's.
     pub model: Option<PathBuf>,
+    /// Stage model overriding the rig's and `model` (the main job's
+    /// compiled-in paper-faithful stage).
+    pub stage_model: Option<micropos::model::StageModel>,
     /// Where the rig sockets, the daemon's data (logs, tables) and
     /// `run.json` go; `None`: a temporary directory, removed afterwards.
     pub out_dir: Option<PathBuf>,
@@ -205,6 +209,7 @@ impl Default for RunOptions {
             seed: 1,
             rig: RigConfig::default(),
             model: None,
+            stage_model: None,
             out_dir: None,
             time_scale: None,
             plan: RunPlan::paper(),
@@ -420,6 +425,7 @@ async fn start(opts: &RunOptions, dir: &Path) -> Result<Started, RunError> {
         seed: opts.seed,
         rig: opts.rig.clone(),
         model: opts.model.clone(),
+        stage_model: opts.stage_model.clone(),
         ..ServeConfig::default()
     };
     let sim = if served {

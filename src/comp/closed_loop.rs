@@ -27,9 +27,36 @@
 //!   planned the same way ([`ClosedLoopConfig::plan_options`]): every
 //!   moving axis arrives by an `overshoot_um` approach, so the first frame
 //!   already shows the lost motion every correction will have.
+//! * With `always_reapproach` a small correction (at most a quarter of
+//!   `overshoot_um`) arrives like the one before (an approach move of
+//!   nearly the same length), so the frames after a run of such
+//!   corrections are samples of one offset `command − measured`: the
+//!   stage's error at the target plus its arrival scatter. The next
+//!   command is the target plus the *mean* of that run's offsets (a
+//!   Robbins–Monro step, gain 1/n); the first arrival and a large
+//!   correction (its approach move of another length, so another lost
+//!   motion) start a new run. On a deterministic stage this is the
+//!   plain correction (every offset alike), and where the stage scatters
+//!   at arrival (stick-slip: the paper-faithful stage's rough stretches,
+//!   σ 1 µm) the command's error falls as σ/√n instead of staying at σ√2
+//!   as it does when each correction chases the last draw. The loop is
+//!   done on the first frame within tolerance, so at such a spot it keeps
+//!   re-approaching until a draw lands (measured on the faithful rig:
+//!   docs/design/paper-faithful.md).
 //! * A residual that grows by more than `divergence_factor` over the
-//!   previous one (and is above tolerance) stops the loop: something else
-//!   than the stage error is moving (drift, a wrong frame transform).
+//!   previous one (and is above tolerance, and above four times the
+//!   arrival scatter seen in the earlier offsets) stops the loop:
+//!   something else than the stage error is moving (drift, a wrong frame
+//!   transform). The check needs the scatter, so it starts once five
+//!   alike corrections' offsets are known: a growth judged on fewer cannot tell
+//!   a stage that scatters from one that runs away (measured on the
+//!   faithful rig: a first correction at the stick-slip stretch grew the
+//!   residual from 0.5 to 1.9 µm by scatter alone, and a scatter estimated
+//!   from two samples is below a third of the true one one time in four).
+//!   Until then, and always, the command never goes
+//!   farther than `max_correction_um` from the first one (the
+//!   compensator's): a loop chasing a wrong transform grows only linearly
+//!   under the averaging step, so growth alone would catch it late.
 //! * At most `max_corrections` correction moves.
 //!
 //! The loop converges to what the camera measures: with optics drift
@@ -62,6 +89,15 @@ pub struct ClosedLoopConfig {
     /// module docs); false: only corrections against the arrival direction.
     #[serde(default = "default_always_reapproach")]
     pub always_reapproach: bool,
+    /// Farthest the loop may move the command from the first one, µm
+    /// (above the stage's whole raw error: a correction that large is not a
+    /// stage error but a wrong transform or a slipping platform).
+    #[serde(default = "default_max_correction_um")]
+    pub max_correction_um: f64,
+}
+
+fn default_max_correction_um() -> f64 {
+    25.0
 }
 
 fn default_always_reapproach() -> bool {
@@ -78,6 +114,7 @@ impl Default for ClosedLoopConfig {
             divergence_factor: 2.0,
             overshoot_um: 20.0,
             always_reapproach: true,
+            max_correction_um: default_max_correction_um(),
         }
     }
 }
@@ -123,6 +160,9 @@ impl ClosedLoopConfig {
         }
         if !(self.overshoot_um.is_finite() && self.overshoot_um > 0.0) {
             return Err(invalid("overshoot_um", "must be a finite number > 0"));
+        }
+        if !(self.max_correction_um.is_finite() && self.max_correction_um > 0.0) {
+            return Err(invalid("max_correction_um", "must be a finite number > 0"));
         }
         Ok(())
     }
@@ -206,14 +246,44 @@ pub struct ClosedLoop {
     cfg: ClosedLoopConfig,
     target: XyUm,
     cmd: [f64; 2],
+    first_cmd: [f64; 2],
     arrival: [Direction; 2],
     settled_at_s: Option<f64>,
     last_seq: Option<u64>,
     last_residual: Option<f64>,
     last_residual_xy: Option<[f64; 2]>,
+    /// `command − measured` of the frames after the trailing run of alike
+    /// (small) corrections, µm.
+    run: Vec<[f64; 2]>,
+    /// Size of the correction that led to the awaited frame, µm (infinite
+    /// for the first arrival).
+    step_um: f64,
     corrections: u32,
     rejected: u32,
     finished: bool,
+}
+
+/// Mean of the offsets and their scatter (root of the summed per-axis
+/// sample variances, 0 with fewer than two).
+fn mean_and_scatter(offsets: &[[f64; 2]]) -> ([f64; 2], f64) {
+    let n = offsets.len();
+    if n == 0 {
+        return ([0.0; 2], 0.0);
+    }
+    let mut mean = [0.0; 2];
+    for o in offsets {
+        mean[0] += o[0] / n as f64;
+        mean[1] += o[1] / n as f64;
+    }
+    if n < 2 {
+        return (mean, 0.0);
+    }
+    let var: f64 = offsets
+        .iter()
+        .map(|o| (o[0] - mean[0]).powi(2) + (o[1] - mean[1]).powi(2))
+        .sum::<f64>()
+        / (n - 1) as f64;
+    (mean, var.sqrt())
 }
 
 impl ClosedLoop {
@@ -241,11 +311,14 @@ impl ClosedLoop {
             cfg,
             target,
             cmd: [cmd.x_um, cmd.y_um],
+            first_cmd: [cmd.x_um, cmd.y_um],
             arrival: [known(arrival[0]), known(arrival[1])],
             settled_at_s: None,
             last_seq: None,
             last_residual: None,
             last_residual_xy: None,
+            run: Vec::new(),
+            step_um: f64::INFINITY,
             corrections: 0,
             rejected: 0,
             finished: false,
@@ -322,6 +395,15 @@ impl ClosedLoop {
         let prev = self.last_residual;
         self.last_residual = Some(norm);
         self.last_residual_xy = Some(r);
+        // Scatter of the earlier alike arrivals (before this frame's).
+        let judged = self.run.len() >= 5;
+        let (_, scatter) = mean_and_scatter(&self.run);
+        let offset = [self.cmd[0] - m.position.x_um, self.cmd[1] - m.position.y_um];
+        if self.step_um <= self.cfg.overshoot_um / 4.0 {
+            self.run.push(offset);
+        } else {
+            self.run.clear();
+        }
         if norm <= self.cfg.tolerance_um {
             self.finished = true;
             return Action::Done {
@@ -329,13 +411,27 @@ impl ClosedLoop {
                 corrections: self.corrections,
             };
         }
-        if prev.is_some_and(|p| norm > self.cfg.divergence_factor * p.max(self.cfg.tolerance_um)) {
+        let allowed = |p: f64| p.max(self.cfg.tolerance_um).max(4.0 * scatter);
+        if judged && prev.is_some_and(|p| norm > self.cfg.divergence_factor * allowed(p)) {
             return self.fail(FailReason::Diverging);
         }
         if self.corrections >= self.cfg.max_corrections {
             return self.fail(FailReason::RetryLimit);
         }
-        let next = [self.cmd[0] + r[0], self.cmd[1] + r[1]];
+        let next = if self.cfg.always_reapproach {
+            let (mean, _) = if self.run.is_empty() {
+                (offset, 0.0)
+            } else {
+                mean_and_scatter(&self.run)
+            };
+            [self.target.x_um + mean[0], self.target.y_um + mean[1]]
+        } else {
+            [self.cmd[0] + r[0], self.cmd[1] + r[1]]
+        };
+        let moved = (next[0] - self.first_cmd[0]).hypot(next[1] - self.first_cmd[1]);
+        if moved > self.cfg.max_correction_um {
+            return self.fail(FailReason::Diverging);
+        }
         let mut approach = next;
         let mut needs = false;
         for i in 0..2 {
@@ -352,6 +448,7 @@ impl ClosedLoop {
             waypoints.push(XyUm::from(approach));
         }
         waypoints.push(XyUm::from(next));
+        self.step_um = (next[0] - self.cmd[0]).hypot(next[1] - self.cmd[1]);
         self.cmd = next;
         self.corrections += 1;
         self.settled_at_s = None;
@@ -518,20 +615,19 @@ mod tests {
     fn first_arrival_by_the_loops_approach_converges_after_a_long_move() {
         // A direct first arrival: the first correction releases the long
         // move's lost motion (≈ 1.97 − 0.10 µm), three times the first
-        // residual: read as divergence, the loop stops ≈ 1.9 µm off.
+        // residual. A single growth is not judged (it may be scatter), so
+        // the loop corrects on, but it needs more corrections than when
+        // the first frame already shows the approach's lost motion.
         let direct = crate::comp::PlanOptions::default();
         let (a, r) = square_pose_after_a_long_backward_move(direct);
-        assert!(
-            matches!(
-                a,
-                Action::Failed {
-                    reason: FailReason::Diverging,
-                    ..
-                }
-            ),
-            "{a:?}"
-        );
-        assert!(r > 1.5, "residual {r}");
+        let Action::Done {
+            corrections: slow, ..
+        } = a
+        else {
+            panic!("{a:?}");
+        };
+        assert!(slow >= 3, "{a:?}");
+        assert!(r <= 0.1, "residual {r}");
         // Planned as the daemon plans a closed loop's first move: the first
         // frame shows the approach's lost motion, one correction suffices.
         let opts = ClosedLoopConfig::default().plan_options(direct);
@@ -618,6 +714,116 @@ mod tests {
         assert!(close(waypoints[1], 101.0, 199.7), "{waypoints:?}");
     }
 
+    /// Drives a loop on a stage that arrives at `sign · cmd − bias` plus
+    /// Gaussian scatter `sigma_um` per axis; returns the final action and
+    /// the last command.
+    fn scattering_stage(
+        target: XyUm,
+        bias: [f64; 2],
+        sigma_um: [f64; 2],
+        sign: f64,
+        cfg: ClosedLoopConfig,
+        rng: &mut rand_chacha::ChaCha8Rng,
+    ) -> (Action, XyUm) {
+        use rand_distr::{Distribution, StandardNormal};
+        let mut draw = |s: f64| -> f64 {
+            let z: f64 = StandardNormal.sample(rng);
+            s * z
+        };
+        let mut cl = ClosedLoop::new(target, target, [Direction::Forward; 2], cfg).unwrap();
+        let mut t = 0.0;
+        for seq in 1..=1000 {
+            t += 1.0;
+            cl.settled(t);
+            let c = cl.cmd();
+            let x = sign * c.x_um - bias[0] + draw(sigma_um[0]);
+            let y = sign * c.y_um - bias[1] + draw(sigma_um[1]);
+            match cl.on_frame(&frame(x, y, t + 0.5, 100.0, seq)) {
+                Action::Move { .. } => {}
+                a => return (a, cl.cmd()),
+            }
+        }
+        panic!("the loop never ended");
+    }
+
+    /// Share of loops that end within tolerance on a stage that scatters
+    /// at arrival on y (σ 1 µm, ten times the tolerance: a stick-slip
+    /// stretch) with random biases of either sign; panics on a divergence.
+    fn landed_share(cfg: ClosedLoopConfig, seed: u64) -> f64 {
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+        let n = 300;
+        let mut done = 0;
+        for _ in 0..n {
+            let target = XyUm::from([rng.gen_range(0.0..9500.0), rng.gen_range(0.0..4200.0)]);
+            let bias = [rng.gen_range(-3.0..3.0), rng.gen_range(-3.0..3.0)];
+            match scattering_stage(target, bias, [0.02, 1.0], 1.0, cfg, &mut rng).0 {
+                Action::Done { .. } => done += 1,
+                Action::Failed {
+                    reason: FailReason::RetryLimit,
+                    ..
+                } => {}
+                a => panic!("scatter read as {a:?}"),
+            }
+        }
+        done as f64 / n as f64
+    }
+
+    /// Averaging the offsets (every arrival alike) against chasing the last
+    /// draw: a try lands within 0.1 µm with P ≈ 8 % (σ 1 µm, 1/√n shrinking
+    /// command error) against ≈ 6 % (σ√2), so over 30 corrections ≈ 92 %
+    /// against ≈ 84 %; and neither calls the scatter a divergence.
+    #[test]
+    fn a_scattering_stage_is_re_approached_until_a_draw_lands() {
+        let cfg = ClosedLoopConfig {
+            max_corrections: 30,
+            ..ClosedLoopConfig::default()
+        };
+        let averaged = landed_share(cfg, 11);
+        let chased = landed_share(
+            ClosedLoopConfig {
+                always_reapproach: false,
+                ..cfg
+            },
+            11,
+        );
+        assert!(averaged > 0.85, "{averaged}");
+        assert!(averaged > chased, "{averaged} vs {chased}");
+        // A clean stage converges at once, whatever the bias.
+        use rand::SeedableRng;
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
+        let t = XyUm::from([100.0, 200.0]);
+        let (a, _) = scattering_stage(t, [2.5, -1.5], [0.0; 2], 1.0, cfg, &mut rng);
+        assert!(matches!(a, Action::Done { corrections: 1, .. }), "{a:?}");
+    }
+
+    /// A wrong transform (the camera's axes reversed) grows the residual
+    /// linearly under the averaging step: the loop stops as diverging once
+    /// the command would leave `max_correction_um` around the first.
+    #[test]
+    fn a_wrong_transform_stops_within_the_correction_bound() {
+        use rand::SeedableRng;
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
+        let cfg = ClosedLoopConfig {
+            max_corrections: 100,
+            ..ClosedLoopConfig::default()
+        };
+        let t = XyUm::from([1.0, 2.0]);
+        let (a, cmd) = scattering_stage(t, [0.0; 2], [0.0; 2], -1.0, cfg, &mut rng);
+        assert!(
+            matches!(
+                a,
+                Action::Failed {
+                    reason: FailReason::Diverging,
+                    ..
+                }
+            ),
+            "{a:?}"
+        );
+        let moved = (cmd.x_um - t.x_um).hypot(cmd.y_um - t.y_um);
+        assert!(moved <= cfg.max_correction_um, "{moved}");
+    }
+
     #[test]
     fn retry_limit_and_divergence_stop_the_loop() {
         let t = XyUm::from([0.0, 0.0]);
@@ -643,10 +849,23 @@ mod tests {
                 ..
             }
         ));
-        let mut cl = ClosedLoop::new(t, t, [Direction::Forward; 2], cfg).unwrap();
-        assert!(matches!(step(&mut cl, -1.0), Action::Move { .. }));
+        // Growth is judged once five alike corrections' offsets are known:
+        // a stage at 0.5 µm off, scattering ±0.2 µm, never within the
+        // 0.1 µm tolerance; then a 5 µm jump (the platform slipped) is far
+        // beyond its scatter.
+        let cfg7 = ClosedLoopConfig {
+            max_corrections: 7,
+            ..cfg
+        };
+        let mut cl = ClosedLoop::new(t, t, [Direction::Forward; 2], cfg7).unwrap();
+        for k in 0..6 {
+            let e = if k % 2 == 0 { 0.2 } else { -0.2 };
+            let x = cl.cmd().x_um - 0.5 + e;
+            assert!(matches!(step(&mut cl, x), Action::Move { .. }), "{k}");
+        }
+        let x = cl.cmd().x_um - 0.5 - 5.0;
         assert!(matches!(
-            step(&mut cl, -3.0),
+            step(&mut cl, x),
             Action::Failed {
                 reason: FailReason::Diverging,
                 ..

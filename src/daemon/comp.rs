@@ -317,6 +317,7 @@ pub fn loop_config(rig: &Rig, tolerance_um: Option<f64>) -> ClosedLoopConfig {
     ClosedLoopConfig {
         tolerance_um: tolerance_um.unwrap_or(rig.cfg.closed_loop.tolerance_um),
         max_corrections: rig.cfg.closed_loop.max_iterations,
+        max_correction_um: rig.cfg.closed_loop.max_correction_um,
         min_quality: rig.cfg.camera.min_quality,
         always_reapproach: rig.cfg.closed_loop.always_reapproach,
         // The same approach length as the planned moves, so the first

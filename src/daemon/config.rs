@@ -574,8 +574,15 @@ impl Default for CharacterizeDefaults {
 pub struct ClosedLoop {
     /// Residual accepted, µm.
     pub tolerance_um: f64,
-    /// Corrections tried before giving up.
+    /// Corrections tried before giving up. Many are cheap: a stage that
+    /// is deterministic at the target converges in one or two; where it
+    /// scatters at arrival (stick-slip, σ ≈ 10× the tolerance) each try
+    /// lands with ≈ 8 % chance, so 30 give ≈ 90 %.
     pub max_iterations: u32,
+    /// Farthest the loop may move the command from the compensated one, µm
+    /// (larger than the stage's whole raw error: beyond it the loop is
+    /// chasing a wrong transform or a slipping platform, and stops).
+    pub max_correction_um: f64,
     /// Every correction re-approaches from behind, so each ends with a move
     /// of the same length (`comp::closed_loop`); false: only corrections
     /// against the arrival direction do.
@@ -586,7 +593,8 @@ impl Default for ClosedLoop {
     fn default() -> Self {
         Self {
             tolerance_um: 0.1,
-            max_iterations: 5,
+            max_iterations: 30,
+            max_correction_um: 25.0,
             always_reapproach: true,
         }
     }
@@ -902,6 +910,12 @@ impl DaemonConfig {
         }
         if !(1..=100).contains(&cl.max_iterations) {
             return Err(bad("closed_loop.max_iterations", "must be within 1..=100"));
+        }
+        if !(cl.max_correction_um.is_finite() && cl.max_correction_um > 0.0) {
+            return Err(bad(
+                "closed_loop.max_correction_um",
+                "must be a positive number of µm",
+            ));
         }
         let o = self.compensation.overshoot_um;
         if !(o.is_finite() && (10.0..=1000.0).contains(&o)) {

@@ -56,6 +56,13 @@ pub use term::{Effect, ParamInfo, Term, TermBuilder, TermRegistry, MAX_PARAM_MAG
 /// The documented default model file (PI M-111.1DG stack of the paper).
 pub const PAPER_DEFAULT_TOML: &str = include_str!("../../config/stage-model.toml");
 
+/// The paper-faithful model file: the default plus the effects that make
+/// the paper's own procedure land on the paper's measured figures
+/// (docs/design/paper-faithful.md). Compiled in because it is the stage the
+/// main job simulates by default: the figures a user reproduces should be
+/// measured on the stage the paper measured, not a kinder one.
+pub const PAPER_FAITHFUL_TOML: &str = include_str!("../../config/stage-model-paper.toml");
+
 /// Everything that can go wrong loading, evaluating or fitting a model. Every
 /// message names the key, term or parameter at fault.
 #[derive(Debug, Error, Clone, PartialEq)]

@@ -6,7 +6,9 @@
 //! `command − stage(vision)` over the X tie line is zero; no scale, so lead
 //! errors stay in the data; squareness stays in the Y scan). The X line runs
 //! through the start corner of the scanned area, so the frame's origin is
-//! that corner's X axis, as the paper's.
+//! that corner's X axis, as the paper's; where the corner is at the end of
+//! the travel, the lines move inside by whole screw pitches so that every
+//! tie point can be approached from below ([`with_room_below`]).
 //!
 //! Why a pre-scan rather than a fit on the finished log: the log is
 //! appended point by point in the stage frame, so the frame must be known
@@ -383,6 +385,9 @@ pub async fn measure_frame(
 ) -> Result<Tie, ProtoError> {
     let settle = Duration::try_from_secs_f64(settle_s).unwrap_or_default();
     let began_s = rig.clock.now_s();
+    // The travel's lower ends (unchanged far-off values when unknown).
+    let (lo_x, lo_y) = clamp_to_travel(rig, f64::MIN / 4.0, f64::MIN / 4.0);
+    let lines = with_room_below(lines, [lo_x, lo_y]);
     let plan = tie_plan(&lines);
     let mut samples: [Vec<TimedSample>; 2] = [Vec::new(), Vec::new()];
     let mut visits: Vec<TimedSample> = Vec::with_capacity(3);
@@ -426,6 +431,71 @@ pub async fn measure_frame(
         uncorrected_rotation_rad,
         measurements: plan.len(),
         duration_s,
+    })
+}
+
+/// The lines moved inside the travel, by whole screw pitches, until every
+/// tie point can be approached from [`PARK_APPROACH_UM`] below on both
+/// axes (`lower_um`: the travel's lower ends, x and y).
+///
+/// Why: the anchor must be reached the same way at each visit, or it reads
+/// the difference as drift. At the end of the travel there is no room
+/// below, so every visit arrives by whatever move brought it there, from
+/// above: on a stage whose lost motion grows with the length of the last
+/// move (the paper-faithful stage: 5 µm after millimetre moves) the
+/// anchor showed 4.9 µm of y "drift" between a visit after a move from the
+/// reference position and one after the Y line's return, and the drift
+/// correction moved the tie's samples by up to 1.4 µm. A shift by whole
+/// pitches keeps the screw's cyclic phase at the tie points; the X line
+/// then defines the frame's origin one pitch inside the corner.
+pub fn with_room_below(lines: [TieLine; 2], lower_um: [f64; 2]) -> [TieLine; 2] {
+    // Lift per stage axis (0: x, 1: y): whole pitches until start − approach
+    // is inside the travel.
+    let lift = |start: f64, lower: f64| {
+        let short = lower + PARK_APPROACH_UM - start;
+        if short > 0.0 && short.is_finite() {
+            (short / PITCH_UM).ceil() * PITCH_UM
+        } else {
+            0.0
+        }
+    };
+    let axis_start = |a: usize| {
+        lines
+            .iter()
+            .find(|l| l.x_axis == (a == 0))
+            .map_or(f64::NAN, |l| l.start_um)
+    };
+    let axis_range = |a: usize| {
+        lines
+            .iter()
+            .find(|l| l.x_axis == (a == 0))
+            .map_or(0.0, |l| l.range_um)
+    };
+    // Never lift past the range: keep at least half of it (whole pitches
+    // where the range allows). One lift per axis, for the line along it and
+    // the other line's hold alike, so the lines still cross at the anchor.
+    let lifts = [0, 1].map(|a| {
+        let up = lift(axis_start(a), lower_um[a]);
+        let cap = axis_range(a) / 2.0;
+        if up <= cap {
+            up
+        } else {
+            let whole = (cap / PITCH_UM).floor() * PITCH_UM;
+            if whole > 0.0 {
+                whole
+            } else {
+                cap
+            }
+        }
+    });
+    lines.map(|l| {
+        let (moving, held) = if l.x_axis { (0, 1) } else { (1, 0) };
+        TieLine {
+            start_um: l.start_um + lifts[moving],
+            range_um: l.range_um - lifts[moving],
+            hold_um: l.hold_um + lifts[held],
+            ..l
+        }
     })
 }
 
@@ -544,6 +614,65 @@ mod tests {
         t += return_s;
         let a2 = see(anchor, t);
         (xs, ys, [a0, a1, a2])
+    }
+
+    /// The paper's frame starts at the travel's lower corner: the tie moves
+    /// in by whole pitches, only on the axes that lack room below.
+    #[test]
+    fn lines_at_the_end_of_the_travel_move_in_by_whole_pitches() {
+        let corner = |x0: f64, y0: f64| {
+            [
+                TieLine {
+                    x_axis: true,
+                    start_um: x0,
+                    range_um: 9500.0,
+                    hold_um: y0,
+                },
+                TieLine {
+                    x_axis: false,
+                    start_um: y0,
+                    range_um: 4200.0,
+                    hold_um: x0,
+                },
+            ]
+        };
+        // The paper's frame: the scan starts at the lower end of both axes.
+        let l = with_room_below(corner(0.0, 0.0), [0.0, 0.0]);
+        assert_eq!(
+            (l[0].start_um, l[0].range_um, l[0].hold_um),
+            (PITCH_UM, 9500.0 - PITCH_UM, PITCH_UM)
+        );
+        assert_eq!(
+            (l[1].start_um, l[1].range_um, l[1].hold_um),
+            (PITCH_UM, 4200.0 - PITCH_UM, PITCH_UM)
+        );
+        // Every tie point, and its approach from below, is inside the travel.
+        for v in tie_plan(&l) {
+            if let Some(via) = v.via {
+                assert!(via.x_um >= 0.0 && via.y_um >= 0.0, "{v:?}");
+            }
+        }
+        // The anchor is still the Y line's first point.
+        assert_eq!(tie_plan(&l).iter().filter(|v| v.anchor).count(), 3);
+        // Room below already (10 µm is not enough for the 20 µm approach;
+        // 500 µm is): only the axis that needs it moves, by whole pitches.
+        let l = with_room_below(corner(500.0, 10.0), [0.0, 0.0]);
+        assert_eq!((l[0].start_um, l[0].hold_um), (500.0, 10.0 + PITCH_UM));
+        assert_eq!((l[1].start_um, l[1].hold_um), (10.0 + PITCH_UM, 500.0));
+        let l = with_room_below(corner(500.0, 500.0), [0.0, 0.0]);
+        assert_eq!(l[0].start_um, 500.0);
+        assert_eq!(l[1].start_um, 500.0);
+        // A range shorter than two pitches: lifted by half of it, on the
+        // line along that axis and the other line's hold alike (the lines
+        // still cross at the anchor).
+        let mut short = corner(0.0, 0.0);
+        short[1].range_um = 400.0;
+        let l = with_room_below(short, [0.0, 0.0]);
+        assert_eq!((l[1].start_um, l[1].range_um), (200.0, 200.0));
+        assert_eq!(l[0].hold_um, 200.0);
+        // Unknown limits: unchanged.
+        let l = with_room_below(corner(0.0, 0.0), [f64::MIN / 4.0, f64::MIN / 4.0]);
+        assert_eq!((l[0].start_um, l[1].start_um), (0.0, 0.0));
     }
 
     /// The job's tie (X 2400 µm, Y 2000 µm from the corner (500, 500)):
