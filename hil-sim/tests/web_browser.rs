@@ -5,9 +5,11 @@
 //! positions update after a move sent over the socket, the camera image
 //! changes when the stage moves, a small job's progress advances, the
 //! figures panel says "no characterization yet" before it and draws the
-//! job's Figs. 4–5 (from the `figures` command) after it, and the page
-//! logs no console error and throws no exception. A screenshot is
-//! kept as `target/artifacts/web-view.png`.
+//! job's Figs. 4–5 (from the `figures` command) after it, a small
+//! validation's end draws Fig. 10 with its AP/RP table, and the page logs
+//! no console error and throws no exception. Screenshots are kept as
+//! `target/artifacts/web-view.png` (the top of the page) and
+//! `web-figures.png` (the validation figures).
 //!
 //! Without Chromium the test is skipped with a printed reason, except
 //! under `CI=true`, where it fails (`.ci/run` installs it).
@@ -357,8 +359,46 @@ async fn the_page_shows_the_live_rig() {
             json!("x")
         );
         assert!(text(&mut b, "charact-status").starts_with("web.csv"));
-        let shot = Path::new(env!("CARGO_MANIFEST_DIR")).join("../target/artifacts/web-view.png");
-        b.screenshot(&shot);
+        assert!(text(&mut b, "validation-status").starts_with("no validation yet"));
+    });
+
+    // A small validation: its end draws Fig. 10 (plan view, deviations, AP
+    // per pose on a log axis, AP/RP bars) and the AP/RP table.
+    cl.call_ok(
+        json!({"cmd": "validate", "action": "start", "test": "square", "modes": ["raw"],
+           "cycles": 2, "square_step_um": 4000.0, "origin_x_um": 100.0, "origin_y_um": 100.0,
+           "frames_per_point": 1, "settle_s": 0.05, "log": "web-val.csv"}),
+    )
+    .await;
+    tokio::task::block_in_place(|| {
+        b.wait_for(
+            "the validation figures are drawn",
+            "document.getElementById('validation-figures').dataset.drawn === 'web-val.csv'",
+            Duration::from_secs(120),
+        );
+        let kinds = b.eval(
+            "Array.from(document.querySelectorAll('#validation-figures svg.fig-panel')).map((s) => s.dataset.kind + ':' + s.dataset.marks)",
+        );
+        let kinds: Vec<String> = kinds
+            .as_array()
+            .unwrap()
+            .iter()
+            .filter_map(|v| v.as_str().map(str::to_owned))
+            .collect();
+        assert!(kinds.len() >= 3, "{kinds:?}");
+        assert!(kinds.iter().any(|k| k.starts_with("bars:")), "{kinds:?}");
+        assert!(
+            kinds.iter().all(|k| !k.ends_with(":0")),
+            "every panel has marks: {kinds:?}"
+        );
+        assert_eq!(
+            b.eval("document.querySelector('#validation-table tbody td:nth-child(2)').textContent"),
+            json!("raw")
+        );
+        let artifacts = Path::new(env!("CARGO_MANIFEST_DIR")).join("../target/artifacts");
+        b.screenshot(&artifacts.join("web-view.png"));
+        b.eval("document.getElementById('validation-figures').scrollIntoView(), true");
+        b.screenshot(&artifacts.join("web-figures.png"));
         assert!(
             b.errors.is_empty(),
             "the page logged errors: {:#?}",
