@@ -1,13 +1,9 @@
 //! Decoder speed on a rendered 1024×768 8-bit frame: cold decode, tracking
 //! decode, each stage, and a plain full-frame real 2-D FFT as the baseline.
 //! The reference C++ decoder takes 90.9 ms per such frame on this machine.
-//! `web_camera_1024x768`: the web view's render of the same frame (box
-//! downscale to 480 px, 8-bit stretch, PNG, lattice overlay), which runs on
-//! the blocking pool at most `[web] camera_max_hz` times a second.
+//! The web view's render of the same frame: `benches/web_camera.rs`.
 
 use criterion::{criterion_group, criterion_main, Criterion};
-use micropos::daemon::vision::{Snapshot, SnapshotDecode};
-use micropos::daemon::web::camera;
 use micropos::frame::Frame;
 use micropos::pattern::decode::{DecodeOptions, Decoder};
 use micropos::pattern::render::{Pose, RenderConfig, Renderer};
@@ -82,25 +78,6 @@ fn bench(c: &mut Criterion) {
         })
     });
     grp.finish();
-
-    let dec = d.decode(&f).expect("decode");
-    let snap = Snapshot {
-        frame: std::sync::Arc::new(f.clone()),
-        decoded: Some(SnapshotDecode {
-            x_um: dec.x_um,
-            y_um: dec.y_um,
-            theta_rad: dec.theta_rad,
-            pixel_um: dec.pixel_um,
-            quality: dec.quality,
-            grid: dec.grid,
-        }),
-    };
-    let mut web = c.benchmark_group("web_camera_1024x768");
-    web.sample_size(20);
-    web.bench_function("render_480px", |b| {
-        b.iter(|| camera::render(&snap, 480).expect("render"))
-    });
-    web.finish();
 }
 
 criterion_group!(benches, bench);

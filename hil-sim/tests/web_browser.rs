@@ -3,9 +3,13 @@
 //! (ptys, camera socket, scaled clock; free-running capture as on
 //! hardware) and the test reads the DOM over the DevTools protocol:
 //! positions update after a move sent over the socket, the camera image
-//! changes when the stage moves, a small job's progress advances, and the
-//! page logs no console error and throws no exception. A screenshot is
-//! kept as `target/artifacts/web-view.png`.
+//! changes when the stage moves, a small job's progress advances, the
+//! figures panel says "no characterization yet" before it and draws the
+//! job's Figs. 4–5 (from the `figures` command) after it, a small
+//! validation's end draws Fig. 10 with its AP/RP table, and the page logs
+//! no console error and throws no exception. Screenshots are kept as
+//! `target/artifacts/web-view.png` (the top of the page) and
+//! `web-figures.png` (the validation figures).
 //!
 //! Without Chromium the test is skipped with a printed reason, except
 //! under `CI=true`, where it fails (`.ci/run` installs it).
@@ -260,6 +264,16 @@ async fn the_page_shows_the_live_rig() {
             "Number(document.getElementById('camera').dataset.updates) > 0",
             Duration::from_secs(30),
         );
+        // No log yet: the figures panel says so (the `figures` error reply).
+        b.wait_for(
+            "the figures panel says there is no characterization yet",
+            "document.getElementById('charact-status').textContent.startsWith('no characterization yet')",
+            Duration::from_secs(30),
+        );
+        assert_eq!(
+            b.eval("document.querySelectorAll('#charact-figures svg').length"),
+            json!(0)
+        );
         b
     })
     .await
@@ -321,8 +335,70 @@ async fn the_page_shows_the_live_rig() {
         let done = text(&mut b, "job-done");
         let total = text(&mut b, "job-total");
         assert_eq!(done, total);
-        let shot = Path::new(env!("CARGO_MANIFEST_DIR")).join("../target/artifacts/web-view.png");
-        b.screenshot(&shot);
+        // The job's end redraws the figures panel from `figures`: the
+        // paper's Figs. 4 and 5 of web.csv (one cycle: no Fig. 6), every
+        // panel with marks, and the summary row of the x scan.
+        b.wait_for(
+            "the characterization figures are drawn",
+            "document.getElementById('charact-figures').dataset.drawn === 'web.csv'",
+            Duration::from_secs(30),
+        );
+        let panels = b.eval(
+            "Array.from(document.querySelectorAll('#charact-figures svg.fig-panel')).map((s) => Number(s.dataset.marks))",
+        );
+        let marks: Vec<f64> = panels
+            .as_array()
+            .unwrap()
+            .iter()
+            .filter_map(Value::as_f64)
+            .collect();
+        assert_eq!(marks.len(), 2, "Figs. 4 and 5, one panel each: {panels}");
+        assert!(marks.iter().all(|&m| m > 0.0), "{panels}");
+        assert_eq!(
+            b.eval("document.querySelector('#charact-table tbody td').textContent"),
+            json!("x")
+        );
+        assert!(text(&mut b, "charact-status").starts_with("web.csv"));
+        assert!(text(&mut b, "validation-status").starts_with("no validation yet"));
+    });
+
+    // A small validation: its end draws Fig. 10 (plan view, deviations, AP
+    // per pose on a log axis, AP/RP bars) and the AP/RP table.
+    cl.call_ok(
+        json!({"cmd": "validate", "action": "start", "test": "square", "modes": ["raw"],
+           "cycles": 2, "square_step_um": 4000.0, "origin_x_um": 100.0, "origin_y_um": 100.0,
+           "frames_per_point": 1, "settle_s": 0.05, "log": "web-val.csv"}),
+    )
+    .await;
+    tokio::task::block_in_place(|| {
+        b.wait_for(
+            "the validation figures are drawn",
+            "document.getElementById('validation-figures').dataset.drawn === 'web-val.csv'",
+            Duration::from_secs(120),
+        );
+        let kinds = b.eval(
+            "Array.from(document.querySelectorAll('#validation-figures svg.fig-panel')).map((s) => s.dataset.kind + ':' + s.dataset.marks)",
+        );
+        let kinds: Vec<String> = kinds
+            .as_array()
+            .unwrap()
+            .iter()
+            .filter_map(|v| v.as_str().map(str::to_owned))
+            .collect();
+        assert!(kinds.len() >= 3, "{kinds:?}");
+        assert!(kinds.iter().any(|k| k.starts_with("bars:")), "{kinds:?}");
+        assert!(
+            kinds.iter().all(|k| !k.ends_with(":0")),
+            "every panel has marks: {kinds:?}"
+        );
+        assert_eq!(
+            b.eval("document.querySelector('#validation-table tbody td:nth-child(2)').textContent"),
+            json!("raw")
+        );
+        let artifacts = Path::new(env!("CARGO_MANIFEST_DIR")).join("../target/artifacts");
+        b.screenshot(&artifacts.join("web-view.png"));
+        b.eval("document.getElementById('validation-figures').scrollIntoView(), true");
+        b.screenshot(&artifacts.join("web-figures.png"));
         assert!(
             b.errors.is_empty(),
             "the page logged errors: {:#?}",

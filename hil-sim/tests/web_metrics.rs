@@ -4,7 +4,10 @@
 //! decode times, job progress); `POST /api/command` runs the socket's
 //! commands with the socket's rules (anonymous reads only, the token for
 //! anything else, the role, the audit trail); `GET /api/events` streams
-//! the event bus; the page and its script are served.
+//! the event bus; the page and its script are served. Also: `figures`
+//! over both paths against the logs' own analysis, the sign of
+//! `micropos_vision_residual_um`, and the listener's connection cap and
+//! idle timeout.
 
 mod common;
 use common::{http, Client};
@@ -307,6 +310,420 @@ async fn metrics_and_commands_follow_the_rig() {
         get(&m2, "micropos_move_errors_total{code=fault_latched}"),
         1.0
     );
+
+    daemon.shutdown().await;
+    sim.shutdown();
+}
+
+/// Whether two JSON values are equal up to the last bits of their numbers
+/// (a reply line parsed back is not bit-exact).
+fn same(a: &Value, b: &Value) -> bool {
+    match (a, b) {
+        (Value::Number(x), Value::Number(y)) => {
+            let (x, y) = (x.as_f64().unwrap(), y.as_f64().unwrap());
+            (x - y).abs() <= 1e-9 * x.abs().max(1.0)
+        }
+        (Value::Array(x), Value::Array(y)) => {
+            x.len() == y.len() && x.iter().zip(y).all(|(a, b)| same(a, b))
+        }
+        (Value::Object(x), Value::Object(y)) => {
+            x.len() == y.len() && x.iter().all(|(k, v)| y.get(k).is_some_and(|w| same(v, w)))
+        }
+        _ => a == b,
+    }
+}
+
+/// Waits until the job started last is no longer running; its final state.
+async fn job_end(cl: &mut Client, cmd: &str) -> Value {
+    loop {
+        let s = cl.call_ok(json!({"cmd": cmd, "action": "status"})).await;
+        if s["job"]["state"] != "running" {
+            return s["job"].clone();
+        }
+        tokio::time::sleep(std::time::Duration::from_millis(200)).await;
+    }
+}
+
+/// `figures` over the socket and `POST /api/command` alike: a clear error
+/// before any log, then the figures of a small characterization and
+/// validation whose numbers are the logs' own analysis (recomputed here from
+/// the files with `plot`); bad names and a corrupted log are error replies.
+#[tokio::test(start_paused = true)]
+async fn figures_of_the_latest_logs_over_socket_and_http() {
+    use micropos::charact::log::read_file;
+    use micropos::plot::charact::{backlash_um, mean_errors, repeatability, scans};
+    use micropos::plot::validation::gather;
+
+    let dir = tempfile::tempdir().unwrap();
+    let rig_dir = dir.path().join("rig");
+    let data = dir.path().join("data");
+    std::fs::create_dir_all(&rig_dir).unwrap();
+    std::fs::create_dir_all(&data).unwrap();
+    let cfg = common::serve_config(&rig_dir, 50.0, 17);
+    let rig_cfg = cfg.rig.clone();
+    let sim = common::serve_in_process(cfg);
+    let socket = dir.path().join("d.sock");
+    let mut c = daemon_config(&rig_dir, &data, &socket, &rig_cfg, &RunPlan::reduced()).unwrap();
+    c.web = Some(WebSection {
+        listen: "127.0.0.1:0".to_owned(),
+        ..WebSection::default()
+    });
+    c.validate().unwrap();
+    let daemon = common::start_daemon_in_process(c, &sim, &socket);
+    let addr = daemon.web_addr.expect("the web listener is bound");
+    let mut cl = Client::connect(&socket).await;
+    common::connect_and_reference(&mut cl).await;
+
+    // Nothing measured yet: the same error reply on both paths.
+    for job in ["characterize", "validate"] {
+        let req = json!({"cmd": "figures", "job": job});
+        let r = cl.call(req.clone()).await;
+        assert_eq!(r["error"]["code"], "log_error", "{r}");
+        let (s, h) = command(addr, req, None).await;
+        assert_eq!(s, 200);
+        assert_eq!(h["error"], r["error"]);
+    }
+    let r = cl
+        .call(json!({"cmd": "figures", "job": "characterize"}))
+        .await;
+    assert!(
+        r["error"]["message"]
+            .as_str()
+            .unwrap()
+            .starts_with("no characterization yet"),
+        "{r}"
+    );
+
+    cl.call_ok(
+        json!({"cmd": "characterize", "action": "start", "log": "fig.csv", "axes": "x",
+           "step_um": 200.0, "x_range_um": 400.0, "y_range_um": 400.0, "cycles": 2,
+           "frames_per_point": 1, "settle_s": 0.05, "drift_every_s": 0.0}),
+    )
+    .await;
+    assert_eq!(job_end(&mut cl, "characterize").await["state"], "done");
+
+    // The newest characterization, by default, over both paths.
+    let sock = cl
+        .call_ok(json!({"cmd": "figures", "job": "characterize"}))
+        .await;
+    let (s, http) = command(addr, json!({"cmd": "figures"}), None).await;
+    assert_eq!(s, 200);
+    assert_eq!(http["ok"], true, "{http}");
+    for k in ["log", "records", "axes", "figures", "notes"] {
+        assert_eq!(sock[k], http[k], "{k}");
+    }
+    assert_eq!(sock["log"], "fig.csv");
+    // Against the log's own analysis.
+    let log = read_file(data.join("fig.csv")).unwrap();
+    assert_eq!(sock["records"], log.records.len());
+    let [sx, sy] = scans(&log);
+    assert!(sy.is_none(), "x only");
+    let sx = sx.unwrap();
+    let axes = sock["axes"].as_array().unwrap();
+    assert_eq!(axes.len(), 1);
+    let a = &axes[0];
+    assert_eq!(a["axis"], "x");
+    assert_eq!(a["points"], sx.points.len());
+    assert_eq!(a["cycles"], 2);
+    assert!(same(&a["backlash_um"], &json!(backlash_um(&sx))), "{a}");
+    let [fwd, bwd] = mean_errors(&sx);
+    assert!(same(&a["mean_error_um"]["forward"], &json!(fwd)));
+    assert!(same(&a["mean_error_um"]["backward"], &json!(bwd)));
+    let [rf, rb] = repeatability(&sx);
+    let rp_max = rf.iter().chain(&rb).map(|p| p.1).fold(f64::NAN, f64::max);
+    assert!(same(&a["rp_max_um"], &json!(rp_max)), "{a}");
+    // The simulated M-111 has backlash: the stage stops short both ways.
+    assert!(a["backlash_um"].as_f64().unwrap() > 0.0, "{a}");
+    assert_eq!(sock["figures"].as_array().unwrap().len(), 3, "Figs. 4–6");
+
+    // A small validation: its AP/RP are the log's, and the job's.
+    cl.call_ok(
+        json!({"cmd": "validate", "action": "start", "test": "square", "modes": ["raw"],
+           "cycles": 2, "square_step_um": 4000.0, "origin_x_um": 100.0, "origin_y_um": 100.0,
+           "frames_per_point": 1, "settle_s": 0.05, "log": "fig-val.csv"}),
+    )
+    .await;
+    assert_eq!(job_end(&mut cl, "validate").await["state"], "done");
+    let job = cl
+        .call_ok(json!({"cmd": "validate", "action": "status"}))
+        .await;
+    let v = cl
+        .call_ok(json!({"cmd": "figures", "job": "validate"}))
+        .await;
+    let (_, vh) = command(addr, json!({"cmd": "figures", "job": "validate"}), None).await;
+    assert_eq!(v["results"], vh["results"]);
+    assert_eq!(v["log"], "fig-val.csv");
+    let vlog = read_file(data.join("fig-val.csv")).unwrap();
+    let (sets, _) = gather(&[("fig-val.csv", "fig-val", &vlog)]);
+    let raw = sets[0].modes.iter().find(|m| m.name == "raw").unwrap();
+    let sum = raw.summary(&sets[0].poses).unwrap();
+    let r = &v["results"][0];
+    assert_eq!((&r["test"], &r["mode"]), (&json!("square"), &json!("raw")));
+    assert!(same(&r["ap_max_um"], &json!(sum.ap_max_um)), "{r}");
+    assert!(same(&r["rp_max_um"], &json!(sum.rp_max_um)), "{r}");
+    let ap_job = job
+        .pointer("/validation/results/square/raw/ap_um")
+        .and_then(Value::as_f64)
+        .unwrap();
+    assert!((ap_job - sum.ap_max_um).abs() < 1e-3, "{ap_job} vs {sum:?}");
+    // The characterization is still the newest of its kind.
+    let again = cl.call_ok(json!({"cmd": "figures"})).await;
+    assert_eq!(again["log"], "fig.csv");
+
+    // Bad input: refused by the parser (HTTP 400) or a log_error reply.
+    let r = cl
+        .call(json!({"cmd": "figures", "log": "../fig.csv"}))
+        .await;
+    assert_eq!(r["error"]["code"], "bad_value");
+    let (s, _) = command(addr, json!({"cmd": "figures", "job": "diagnose"}), None).await;
+    assert_eq!(s, 400);
+    std::fs::write(
+        data.join("broken.csv"),
+        "# job: characterize\nt_s,segment,cycle,x_target_um,y_target_um,x_cmd_um,y_cmd_um,x_meas_um,y_meas_um\n0,scan_x,1,0,0,0,0,\u{1}\n",
+    )
+    .unwrap();
+    for name in ["broken.csv", "missing.csv"] {
+        let req = json!({"cmd": "figures", "log": name});
+        let r = cl.call(req.clone()).await;
+        assert_eq!(r["error"]["code"], "log_error", "{r}");
+        assert!(r["error"]["message"].as_str().unwrap().contains(name));
+        let (s, h) = command(addr, req, None).await;
+        assert_eq!((s, &h["error"]), (200, &r["error"]));
+    }
+    // The broken log is now the newest characterization: it is named, not
+    // skipped for an older one.
+    let r = cl.call(json!({"cmd": "figures"})).await;
+    assert!(
+        r["error"]["message"]
+            .as_str()
+            .unwrap()
+            .contains("broken.csv"),
+        "{r}"
+    );
+
+    daemon.shutdown().await;
+    sim.shutdown();
+}
+
+/// `micropos_vision_residual_um{axis}` = vision, mapped to the stage frame
+/// by the active table's tie, minus the controller's position: absent
+/// without an active table; after a closed-loop move (vision on target,
+/// the controller where the stage's errors put it) it is
+/// `target − controller` within the loop's tolerance, and it is exactly
+/// what `position` gives through the table's frame.
+#[tokio::test(start_paused = true)]
+async fn the_vision_residual_is_vision_minus_controller() {
+    use micropos::charact::log::read_file;
+    use micropos::comp::VisionFrame;
+    use micropos::model::XyUm;
+    use rand::{Rng, SeedableRng};
+
+    let dir = tempfile::tempdir().unwrap();
+    let rig_dir = dir.path().join("rig");
+    let data = dir.path().join("data");
+    std::fs::create_dir_all(&rig_dir).unwrap();
+    std::fs::create_dir_all(&data).unwrap();
+    let cfg = common::serve_config(&rig_dir, 50.0, 29);
+    let rig_cfg = cfg.rig.clone();
+    let sim = common::serve_in_process(cfg);
+    let socket = dir.path().join("d.sock");
+    let mut c = daemon_config(&rig_dir, &data, &socket, &rig_cfg, &RunPlan::reduced()).unwrap();
+    c.web = Some(WebSection {
+        listen: "127.0.0.1:0".to_owned(),
+        ..WebSection::default()
+    });
+    c.validate().unwrap();
+    let tolerance_um = c.closed_loop.tolerance_um;
+    let poll = std::time::Duration::from_millis(c.daemon.poll_interval_ms);
+    let daemon = common::start_daemon_in_process(c, &sim, &socket);
+    let addr = daemon.web_addr.expect("the web listener is bound");
+    let mut cl = Client::connect(&socket).await;
+    common::connect_and_reference(&mut cl).await;
+
+    cl.call_ok(
+        json!({"cmd": "characterize", "action": "start", "log": "res.csv",
+           "step_um": 500.0, "x_range_um": 1000.0, "y_range_um": 1000.0, "cycles": 1,
+           "frames_per_point": 1, "settle_s": 0.05, "drift_every_s": 0.0}),
+    )
+    .await;
+    assert_eq!(job_end(&mut cl, "characterize").await["state"], "done");
+    // Frames were decoded, but no table is active: no residual.
+    let m = metrics(addr).await;
+    assert!(
+        !m.keys()
+            .any(|k| k.starts_with("micropos_vision_residual_um")),
+        "{m:?}"
+    );
+    let built = cl
+        .call_ok(json!({"cmd": "tables", "action": "build", "log": "res.csv",
+                        "kinds": ["paper"], "activate": true}))
+        .await;
+    let frame: VisionFrame = serde_json::from_value(built["frame"].clone()).unwrap();
+    let md = read_file(data.join("res.csv")).unwrap().metadata;
+    let num = |k: &str| md.get(k).unwrap().parse::<f64>().unwrap();
+    let (x0, y0) = (num("x_start_um"), num("y_start_um"));
+
+    let mut rng = rand::rngs::StdRng::seed_from_u64(0x7e5d);
+    let mut signs = [[false; 2]; 2];
+    for _ in 0..4 {
+        let target = [
+            x0 + rng.gen_range(100.0..900.0),
+            y0 + rng.gen_range(100.0..900.0),
+        ];
+        cl.call_ok(json!({"cmd": "move", "x_um": target[0], "y_um": target[1],
+                          "mode": "closed_loop", "wait": true}))
+            .await;
+        // The gauge subtracts the controller's last *polled* position:
+        // compare a scrape taken once the poll caught up with the move and
+        // between two `position` replies showing the same frame.
+        let (m, p) = 'settled: {
+            for _ in 0..40 {
+                tokio::time::sleep(poll).await;
+                let before = cl.call_ok(json!({"cmd": "position"})).await;
+                let m = metrics(addr).await;
+                let p = cl.call_ok(json!({"cmd": "position"})).await;
+                let polled = get(&m, "micropos_position_um{axis=x,source=controller}");
+                let same_frame = before["vision"]["sequence"] == p["vision"]["sequence"];
+                let caught_up = (polled - p["controller"]["x_um"].as_f64().unwrap()).abs() < 1e-3;
+                if same_frame && caught_up {
+                    break 'settled (m, p);
+                }
+            }
+            panic!("the controller poll never caught up with the move");
+        };
+        let ctl = [
+            p["controller"]["x_um"].as_f64().unwrap(),
+            p["controller"]["y_um"].as_f64().unwrap(),
+        ];
+        let v = frame.to_stage(XyUm {
+            x_um: p["vision"]["x_um"].as_f64().unwrap(),
+            y_um: p["vision"]["y_um"].as_f64().unwrap(),
+        });
+        for (k, axis) in ["x", "y"].into_iter().enumerate() {
+            let r = get(&m, &format!("micropos_vision_residual_um{{axis={axis}}}"));
+            let vision = [v.x_um, v.y_um][k];
+            assert!(
+                (r - (vision - ctl[k])).abs() < 1e-6,
+                "{axis}: gauge {r} vs vision {vision} − controller {}",
+                ctl[k]
+            );
+            // Vision sits on the target: the residual is the controller's
+            // distance from it, with this sign.
+            let want = target[k] - ctl[k];
+            assert!(
+                (r - want).abs() <= tolerance_um + 1e-3,
+                "{axis}: residual {r} vs target − controller {want}"
+            );
+            if want.abs() > 10.0 * tolerance_um {
+                signs[k][usize::from(want > 0.0)] = true;
+            }
+        }
+    }
+    // The stage's errors put the controller off the target (by more than
+    // the tolerance) on at least one axis, so the comparison above has
+    // weight.
+    assert!(signs.iter().flatten().any(|&s| s), "{signs:?}");
+
+    daemon.shutdown().await;
+    sim.shutdown();
+}
+
+/// The listener holds at most `MAX_CONNECTIONS` connections (one more is
+/// closed unanswered, and served again once one closes) and closes a
+/// connection that sends no request header within `IDLE_TIMEOUT`, also
+/// after a keep-alive response; before that it stays open.
+#[tokio::test(start_paused = true)]
+async fn the_listener_caps_connections_and_closes_idle_ones() {
+    use micropos::daemon::web::router::{IDLE_TIMEOUT, MAX_CONNECTIONS};
+    use std::time::Duration;
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    use tokio::net::TcpStream;
+
+    let dir = tempfile::tempdir().unwrap();
+    let rig_dir = dir.path().join("rig");
+    let data = dir.path().join("data");
+    std::fs::create_dir_all(&rig_dir).unwrap();
+    std::fs::create_dir_all(&data).unwrap();
+    let cfg = common::serve_config(&rig_dir, 50.0, 5);
+    let rig_cfg = cfg.rig.clone();
+    let sim = common::serve_in_process(cfg);
+    let socket = dir.path().join("d.sock");
+    let mut c = daemon_config(&rig_dir, &data, &socket, &rig_cfg, &RunPlan::reduced()).unwrap();
+    c.web = Some(WebSection {
+        listen: "127.0.0.1:0".to_owned(),
+        ..WebSection::default()
+    });
+    c.validate().unwrap();
+    let daemon = common::start_daemon_in_process(c, &sim, &socket);
+    let addr = daemon.web_addr.expect("the web listener is bound");
+
+    /// Reads until the peer closes; what it sent (or `None` if it did not
+    /// close within `within`).
+    async fn until_closed(s: &mut TcpStream, within: Duration) -> Option<Vec<u8>> {
+        let mut out = Vec::new();
+        match tokio::time::timeout(within, s.read_to_end(&mut out)).await {
+            Ok(Ok(_)) => Some(out),
+            Ok(Err(_)) => Some(out),
+            Err(_) => None,
+        }
+    }
+
+    // Idle: open and silent stays open short of the timeout, then closes.
+    let mut idle = TcpStream::connect(addr).await.unwrap();
+    assert!(
+        until_closed(&mut idle, IDLE_TIMEOUT / 2).await.is_none(),
+        "closed before the idle timeout"
+    );
+    let got = until_closed(&mut idle, IDLE_TIMEOUT).await;
+    assert_eq!(got.map(|b| b.is_empty()), Some(true), "closed, unanswered");
+
+    // Keep-alive: one answered request, then silence: closed likewise.
+    let mut ka = TcpStream::connect(addr).await.unwrap();
+    ka.write_all(format!("GET /metrics HTTP/1.1\r\nHost: {addr}\r\n\r\n").as_bytes())
+        .await
+        .unwrap();
+    let mut first = [0u8; 12];
+    ka.read_exact(&mut first).await.unwrap();
+    assert_eq!(&first, b"HTTP/1.1 200");
+    let rest = until_closed(&mut ka, IDLE_TIMEOUT * 2).await;
+    assert!(rest.is_some(), "a keep-alive connection idles forever");
+
+    // The cap: MAX_CONNECTIONS silent connections held, one more is closed
+    // without an answer.
+    let mut held = Vec::new();
+    for _ in 0..MAX_CONNECTIONS {
+        held.push(TcpStream::connect(addr).await.unwrap());
+    }
+    // Let the listener accept them all before the extra one.
+    tokio::time::sleep(Duration::from_millis(100)).await;
+    let mut extra = TcpStream::connect(addr).await.unwrap();
+    let _ = extra
+        .write_all(format!("GET /metrics HTTP/1.1\r\nHost: {addr}\r\n\r\n").as_bytes())
+        .await;
+    let got = until_closed(&mut extra, IDLE_TIMEOUT / 2).await;
+    assert_eq!(
+        got.map(|b| b.len()),
+        Some(0),
+        "over the cap: closed unanswered"
+    );
+    // One closes: a new client is served again.
+    drop(held.pop());
+    let mut served = false;
+    for _ in 0..50 {
+        tokio::time::sleep(Duration::from_millis(20)).await;
+        let mut s = TcpStream::connect(addr).await.unwrap();
+        let req = format!("GET /metrics HTTP/1.1\r\nHost: {addr}\r\nConnection: close\r\n\r\n");
+        let _ = s.write_all(req.as_bytes()).await;
+        let got = until_closed(&mut s, IDLE_TIMEOUT / 2)
+            .await
+            .unwrap_or_default();
+        if got.starts_with(b"HTTP/1.1 200") {
+            served = true;
+            break;
+        }
+    }
+    assert!(served, "no client served after a connection closed");
+    drop(held);
 
     daemon.shutdown().await;
     sim.shutdown();

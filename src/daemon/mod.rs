@@ -17,6 +17,7 @@
 //! - [`jobs`]: characterization with resume (and its own camera tie),
 //!   validation, `tables build`;
 //! - [`drift`]: live drift correction of compensated moves;
+//! - [`figures`]: the paper's figures of the newest logs, read-only;
 //! - [`config`]: the validated configuration;
 //! - [`reload`]: what SIGHUP may change live, and its running values;
 //! - [`notify`]: systemd readiness, status and a health-fed watchdog;
@@ -34,6 +35,7 @@ pub mod config;
 pub mod connection;
 pub mod deviation;
 pub mod drift;
+pub mod figures;
 pub mod jobs;
 pub mod notify;
 pub mod protocol;
@@ -250,6 +252,7 @@ impl Daemon {
                 TablesAction::Activate { name } => rig.comp.activate(name.as_deref()),
                 TablesAction::Build(p) => jobs::tables::build(rig, p).await,
             },
+            Command::Figures(p) => figures::figures(&rig.cfg.daemon.data_dir, p).await,
             Command::Subscribe(_) => Err(ProtoError::new(
                 ErrorCode::Internal,
                 "subscribe is handled by the connection",

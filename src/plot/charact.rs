@@ -152,7 +152,8 @@ fn passes(scan: &Scan, value: impl Fn(&ScanPoint) -> f64) -> Vec<(Direction, Pas
         .collect()
 }
 
-fn cycles(scan: &Scan) -> usize {
+/// Number of distinct cycles among the points of a scan.
+pub fn cycles(scan: &Scan) -> usize {
     let mut c: Vec<u32> = scan.points.iter().map(|p| p.cycle).collect();
     c.sort_unstable();
     c.dedup();
@@ -240,11 +241,12 @@ pub fn fig5_coupling(name: &str, scans: &[Scan]) -> Figure {
     }
 }
 
-/// RP (µm, ISO 9283) at each target of a scan, per direction:
-/// `[forward, backward]`, each `(target, RP)` in target order. Targets
-/// visited fewer than twice in a direction have no RP and are left out.
-pub fn repeatability(scan: &Scan) -> [Vec<(f64, f64)>; 2] {
-    let mut groups: [BTreeMap<i64, (f64, Vec<Xy>)>; 2] = [BTreeMap::new(), BTreeMap::new()];
+/// Per direction (`[forward, backward]`), the points of a scan grouped by
+/// target: `target key → (target, values)`, in target order.
+type ByTarget<T> = [BTreeMap<i64, (f64, Vec<T>)>; 2];
+
+fn by_target<T>(scan: &Scan, value: impl Fn(&ScanPoint) -> T) -> ByTarget<T> {
+    let mut groups: ByTarget<T> = [BTreeMap::new(), BTreeMap::new()];
     for p in &scan.points {
         let k = usize::from(p.direction == Direction::Backward);
         let key = (p.target_um / SAME_TARGET_UM).round() as i64;
@@ -252,9 +254,16 @@ pub fn repeatability(scan: &Scan) -> [Vec<(f64, f64)>; 2] {
             .entry(key)
             .or_insert((p.target_um, Vec::new()))
             .1
-            .push(p.meas);
+            .push(value(p));
     }
-    groups.map(|g| {
+    groups
+}
+
+/// RP (µm, ISO 9283) at each target of a scan, per direction:
+/// `[forward, backward]`, each `(target, RP)` in target order. Targets
+/// visited fewer than twice in a direction have no RP and are left out.
+pub fn repeatability(scan: &Scan) -> [Vec<(f64, f64)>; 2] {
+    by_target(scan, |p| p.meas).map(|g| {
         g.into_values()
             .filter(|(_, v)| v.len() >= 2)
             .filter_map(|(t, v)| {
@@ -267,6 +276,34 @@ pub fn repeatability(scan: &Scan) -> [Vec<(f64, f64)>; 2] {
             })
             .collect()
     })
+}
+
+/// Mean error along the moving axis at each target over the cycles, per
+/// direction: `[forward, backward]`, each `(target, mean µm)` in target
+/// order. What the paper's lookup tables hold at their points (Fig. 4's
+/// passes averaged); the gap between the two is the backlash.
+pub fn mean_errors(scan: &Scan) -> [Vec<(f64, f64)>; 2] {
+    by_target(scan, |p| p.along_um).map(|g| {
+        g.into_values()
+            .map(|(t, v)| (t, v.iter().sum::<f64>() / v.len() as f64))
+            .collect()
+    })
+}
+
+/// Backlash of a scan, µm: the mean over the targets reached from both
+/// directions of (forward − backward) mean error along the moving axis.
+/// Positive when each direction stops short of its target (lost motion:
+/// error = target − measured is positive forward, negative backward);
+/// `None` when no target was reached both ways.
+pub fn backlash_um(scan: &Scan) -> Option<f64> {
+    let [f, b] = mean_errors(scan);
+    let key = |t: f64| (t / SAME_TARGET_UM).round() as i64;
+    let back: BTreeMap<i64, f64> = b.into_iter().map(|(t, e)| (key(t), e)).collect();
+    let gaps: Vec<f64> = f
+        .into_iter()
+        .filter_map(|(t, e)| back.get(&key(t)).map(|eb| e - eb))
+        .collect();
+    (!gaps.is_empty()).then(|| gaps.iter().sum::<f64>() / gaps.len() as f64)
 }
 
 /// Fig. 6: ISO 9283 repeatability RP at every target, forward and backward,

@@ -7,7 +7,11 @@
 //! several traces sharing one colour and one legend entry (three cycles of
 //! a forward pass), a logarithmic scale (raw 22 µm next to closed-loop
 //! 0.1 µm) and bars. [`Figure`] is still plain data built by the numeric
-//! code; [`render_figure`] alone knows plotters.
+//! code; [`render_figure`] alone knows plotters. The same data serializes
+//! to JSON (`serde`: panels tagged `kind` = `xy` / `bars`, points as
+//! `[x, y]`, non-finite values as `null`): the daemon's `figures` command
+//! sends it and the web page draws it, so browser and files show one
+//! computation.
 //!
 //! Ticks are computed here (1-2-5 steps on linear axes, decades and 2/5
 //! subdivisions on log axes) and handed to plotters as fixed key points, so
@@ -60,7 +64,8 @@ impl FromStr for Format {
 }
 
 /// How a trace is drawn.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
 pub enum Style {
     /// Polyline through the points in the given order.
     Line,
@@ -73,7 +78,7 @@ pub enum Style {
 }
 
 /// One trace of an x–y panel.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct Trace {
     /// Legend text; `None` keeps the trace out of the legend (e.g. the
     /// second and third cycle of a pass, which share the first one's entry).
@@ -88,7 +93,8 @@ pub struct Trace {
 }
 
 /// Scale of the y axis.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
 pub enum Scale {
     /// Linear.
     #[default]
@@ -98,7 +104,7 @@ pub enum Scale {
 }
 
 /// An x–y panel.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct XyPanel {
     /// Panel caption.
     pub title: String,
@@ -115,7 +121,7 @@ pub struct XyPanel {
 }
 
 /// One bar series of a [`BarPanel`]: one value per category.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct BarGroup {
     /// Legend text.
     pub label: String,
@@ -127,7 +133,7 @@ pub struct BarGroup {
 
 /// A grouped bar chart with the value printed above each bar (bars of very
 /// different heights stay readable).
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct BarPanel {
     /// Panel caption.
     pub title: String,
@@ -142,7 +148,8 @@ pub struct BarPanel {
 }
 
 /// A panel of a figure.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+#[serde(tag = "kind", rename_all = "snake_case")]
 pub enum Panel {
     /// x–y traces.
     Xy(XyPanel),
@@ -151,7 +158,7 @@ pub enum Panel {
 }
 
 /// A figure: a title and rows of panels (each row split evenly).
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct Figure {
     /// Figure title (names the data it comes from).
     pub title: String,

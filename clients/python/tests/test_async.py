@@ -70,6 +70,8 @@ def test_async_job_handle_events_and_tables(shared_rig):
                     if ev.get("state") != "running":
                         break
                 assert last is not None and last["state"] == "done"
+            figs = await rig.figures(log="py-async.csv")
+            assert figs["log"] == "py-async.csv" and figs["figures"]
             built = await rig.tables.build("py-async.csv", kinds=["paper"], activate=True)
             assert built["active"] == "py-async-paper.toml"
             r = await rig.move(2500, 2500)

@@ -108,7 +108,7 @@ def parse_rs_fields():
     for m in re.finditer(r'((?:"\w+"\s*\|\s*)*"\w+")\s*=>\s*&\[(.*?)\]', block, re.S):
         for name in re.findall(r'"(\w+)"', m.group(1)):
             fields[name] = set(re.findall(r'"(\w+)"', m.group(2)))
-    assert {"move", "characterize", "validate", "tables", "drift"} <= set(fields)
+    assert {"move", "characterize", "validate", "tables", "drift", "figures"} <= set(fields)
     return fields
 
 
@@ -135,6 +135,8 @@ def test_requests_use_exactly_the_daemons_field_names():
         proto.tables_activate("t.toml"))
     assert tables == known["tables"]
     assert keys(proto.drift_set("static", 1.0, 10.0)) == known["drift"]
+    assert keys(proto.figures("validate", "v.csv")) == known["figures"]
+    assert proto.figures("characterize", None) == {"cmd": "figures", "job": "characterize"}
     for cmd in ("status", "position", "stop", "config", "version"):
         assert known[cmd] == set()
 

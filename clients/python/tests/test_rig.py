@@ -118,6 +118,14 @@ def test_characterize_job_tables_build_and_compensated_move(rig, shared_rig):
     log = shared_rig.data_dir() / "py-char.csv"
     assert log.exists()
 
+    # The paper's figures of that log, as data: Figs. 4 and 5 (one cycle:
+    # no repeatability figure, and a note says why) and a summary per axis.
+    figs = rig.figures(log="py-char.csv")
+    assert figs["job"] == "characterize" and figs["log"] == "py-char.csv"
+    assert len(figs["figures"]) >= 2
+    assert {a["axis"] for a in figs["axes"]} == {"x", "y"}
+    assert all(a["points"] > 0 for a in figs["axes"])
+
     # Nothing to resume any more; cancelling a finished job changes nothing.
     job.cancel()
     assert job.progress["state"] == "done"
@@ -183,6 +191,11 @@ def test_validate_job_with_results_and_cancel(rig, paper_table):
     square = final["validation"]["results"]["square"]
     assert set(square) == {"raw", "table"}
     assert square["table"]["ap_um"] < square["raw"]["ap_um"]
+    # The figures of the log agree with the job's own results.
+    figs = rig.figures("validate", log="py-val.csv")
+    ap = {(r["test"], r["mode"]): r["ap_max_um"] for r in figs["results"]}
+    for mode in ("raw", "table"):
+        assert ap[("square", mode)] == pytest.approx(square[mode]["ap_um"], abs=1e-3)
 
     job = rig.validate("random", modes=["raw"], cycles=3, origin_x_um=1000, origin_y_um=1000,
                        log="py-val-cancel.csv", settle_s=0.1)
@@ -286,6 +299,9 @@ def test_drift_show_set_reset_measure(rig):
     (lambda r: r.tables.activate("no-such-table.toml"), micropos.BadValue),
     (lambda r: r.tables.load("../../etc/passwd"), micropos.BadValue),
     (lambda r: r.tables.build("no-such-log.csv"), micropos.LogError),
+    (lambda r: r.figures(log="no-such-log.csv"), micropos.LogError),
+    (lambda r: r.figures("diagnose"), micropos.BadValue),
+    (lambda r: r.figures(log="../escape.csv"), micropos.BadValue),
     (lambda r: r.tables.build("x.csv", kinds=["lookup"]), micropos.BadValue),
     (lambda r: r.drift.set("sometimes"), micropos.BadValue),
     (lambda r: r.drift.set(every_s=0), micropos.BadValue),

@@ -283,6 +283,35 @@ pub enum ValidateAction {
     Cancel,
 }
 
+/// Which job's log `figures` reads.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum FiguresJob {
+    /// A characterization (`scan_x` / `scan_y`): the paper's Figs. 4–6.
+    Characterize,
+    /// A validation (`square` / `random`): Figs. 10–11 with ISO 9283 AP/RP.
+    Validate,
+}
+
+impl FiguresJob {
+    /// The protocol word, also the log's `job` metadata value.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Characterize => "characterize",
+            Self::Validate => "validate",
+        }
+    }
+}
+
+/// Parameters of `figures`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FiguresParams {
+    /// Whose figures.
+    pub job: FiguresJob,
+    /// The log (file name in the data directory); `None`: the newest log
+    /// whose `job` metadata names [`FiguresParams::job`].
+    pub log: Option<String>,
+}
+
 /// Event topics a client can subscribe to.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Topic {
@@ -333,6 +362,8 @@ pub enum Command {
     Tables(TablesAction),
     /// Live drift correction.
     Drift(DriftAction),
+    /// The paper's figures of a characterization or validation log.
+    Figures(FiguresParams),
     /// The effective configuration.
     Config,
     /// Daemon and protocol version.
@@ -352,6 +383,7 @@ pub const COMMANDS: &[&str] = &[
     "validate",
     "tables",
     "drift",
+    "figures",
     "config",
     "version",
 ];

@@ -30,9 +30,9 @@ mod role;
 mod tests;
 
 pub use command::{
-    Axes, CharacterizeAction, CharacterizeMode, CharacterizeParams, Command, DriftAction, MoveMode,
-    MoveRequest, Refusal, Request, TablesAction, TablesBuildParams, Topic, ValidateAction,
-    ValidateMode, ValidateParams, COMMANDS,
+    Axes, CharacterizeAction, CharacterizeMode, CharacterizeParams, Command, DriftAction,
+    FiguresJob, FiguresParams, MoveMode, MoveRequest, Refusal, Request, TablesAction,
+    TablesBuildParams, Topic, ValidateAction, ValidateMode, ValidateParams, COMMANDS,
 };
 pub use error::{ErrorCode, ProtoError};
 pub use parse::{parse_request, too_large};

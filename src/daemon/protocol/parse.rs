@@ -7,9 +7,9 @@
 use serde_json::{Map, Value};
 
 use super::command::{
-    Axes, CharacterizeAction, CharacterizeMode, CharacterizeParams, Command, DriftAction, MoveMode,
-    MoveRequest, Refusal, Request, TablesAction, TablesBuildParams, Topic, ValidateAction,
-    ValidateMode, ValidateParams, COMMANDS,
+    Axes, CharacterizeAction, CharacterizeMode, CharacterizeParams, Command, DriftAction,
+    FiguresJob, FiguresParams, MoveMode, MoveRequest, Refusal, Request, TablesAction,
+    TablesBuildParams, Topic, ValidateAction, ValidateMode, ValidateParams, COMMANDS,
 };
 use super::fields::{
     check_file_name, opt_axes, opt_bool, opt_count, opt_f64, opt_f64_within, opt_str, opt_xy,
@@ -103,6 +103,7 @@ fn parse_command(obj: &Map<String, Value>) -> Result<Command, ProtoError> {
         ],
         "tables" => &["action", "name", "log", "kinds", "activate"],
         "drift" => &["action", "method", "every_s", "time_constant_s"],
+        "figures" => &["job", "log"],
         other => {
             return Err(ProtoError::new(
                 ErrorCode::UnknownCommand,
@@ -143,6 +144,7 @@ fn parse_command(obj: &Map<String, Value>) -> Result<Command, ProtoError> {
         "characterize" => Command::Characterize(parse_characterize(obj)?),
         "validate" => Command::Validate(parse_validate(obj)?),
         "drift" => Command::Drift(parse_drift(obj)?),
+        "figures" => Command::Figures(parse_figures(obj)?),
         _ => Command::Tables(parse_tables(obj)?),
     })
 }
@@ -289,6 +291,22 @@ fn parse_characterize(obj: &Map<String, Value>) -> Result<CharacterizeAction, Pr
             "start, status, cancel, resume",
         )),
     }
+}
+
+fn parse_figures(obj: &Map<String, Value>) -> Result<FiguresParams, ProtoError> {
+    let job = match opt_str(obj, "job")?.unwrap_or("characterize") {
+        "characterize" => FiguresJob::Characterize,
+        "validate" => FiguresJob::Validate,
+        other => return Err(unknown_word("figures job", other, "characterize, validate")),
+    };
+    let log = match opt_str(obj, "log")? {
+        Some(l) => {
+            check_file_name("log", l)?;
+            Some(l.to_owned())
+        }
+        None => None,
+    };
+    Ok(FiguresParams { job, log })
 }
 
 fn parse_drift(obj: &Map<String, Value>) -> Result<DriftAction, ProtoError> {

@@ -46,6 +46,7 @@ impl Command {
             | Command::Position
             | Command::Version
             | Command::Subscribe(_)
+            | Command::Figures(_)
             | Command::Stop => Role::Read,
             Command::Characterize(CharacterizeAction::Status)
             | Command::Validate(ValidateAction::Status)
@@ -104,6 +105,7 @@ impl Command {
                 DriftAction::Reset => "drift reset",
                 DriftAction::Measure => "drift measure",
             },
+            Command::Figures(_) => "figures",
             Command::Config => "config",
             Command::Version => "version",
         }
@@ -134,6 +136,12 @@ mod tests {
             (r#"{"cmd":"validate"}"#, Role::Read, false),
             (r#"{"cmd":"tables"}"#, Role::Read, false),
             (r#"{"cmd":"drift"}"#, Role::Read, false),
+            (r#"{"cmd":"figures"}"#, Role::Read, false),
+            (
+                r#"{"cmd":"figures","job":"validate","log":"v.csv"}"#,
+                Role::Read,
+                false,
+            ),
             (r#"{"cmd":"move","x_um":1}"#, Role::Operate, true),
             (r#"{"cmd":"reference"}"#, Role::Operate, true),
             (

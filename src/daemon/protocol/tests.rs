@@ -60,6 +60,49 @@ fn drift_command_and_topic() {
 }
 
 #[test]
+fn figures_command() {
+    assert_eq!(
+        parse(r#"{"cmd":"figures"}"#).unwrap().command,
+        Command::Figures(FiguresParams {
+            job: FiguresJob::Characterize,
+            log: None
+        })
+    );
+    let r = parse(r#"{"id":9,"cmd":"figures","job":"validate","log":"v-1.csv"}"#).unwrap();
+    assert_eq!(r.id, json!(9));
+    assert_eq!(
+        r.command,
+        Command::Figures(FiguresParams {
+            job: FiguresJob::Validate,
+            log: Some("v-1.csv".to_owned())
+        })
+    );
+    for (bad, want) in [
+        (r#"{"cmd":"figures","job":"diagnose"}"#, ErrorCode::BadValue),
+        (
+            r#"{"cmd":"figures","log":"../etc/passwd"}"#,
+            ErrorCode::BadValue,
+        ),
+        (r#"{"cmd":"figures","log":".hidden"}"#, ErrorCode::BadValue),
+        (r#"{"cmd":"figures","log":""}"#, ErrorCode::BadValue),
+        (r#"{"cmd":"figures","log":7}"#, ErrorCode::WrongType),
+        (r#"{"cmd":"figures","job":true}"#, ErrorCode::WrongType),
+        (r#"{"cmd":"figures","action":"list"}"#, ErrorCode::BadValue),
+    ] {
+        let refusal = parse(bad).unwrap_err();
+        assert_eq!(refusal.error.code, want, "{bad}: {:?}", refusal.error);
+    }
+    // The refusal of an unknown job names the choices.
+    let e = parse(r#"{"cmd":"figures","job":"diagnose"}"#).unwrap_err();
+    assert!(
+        e.error.message.contains("characterize, validate"),
+        "{}",
+        e.error.message
+    );
+    assert!(COMMANDS.contains(&"figures"));
+}
+
+#[test]
 fn parses_every_command() {
     assert_eq!(
         parse(r#"{"id":1,"cmd":"status"}"#).unwrap().command,

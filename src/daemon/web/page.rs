@@ -9,6 +9,8 @@ use axum::response::IntoResponse;
 pub const INDEX_HTML: &str = include_str!("static/index.html");
 /// `app.js`: EventSource on `/api/events`, the camera canvas, the panels.
 pub const APP_JS: &str = include_str!("static/app.js");
+/// `figures.js`: draws the `figures` command's data as SVG.
+pub const FIGURES_JS: &str = include_str!("static/figures.js");
 /// `style.css`.
 pub const STYLE_CSS: &str = include_str!("static/style.css");
 
@@ -37,6 +39,11 @@ pub async fn index() -> impl IntoResponse {
 /// `GET /app.js`.
 pub async fn app_js() -> impl IntoResponse {
     page("text/javascript; charset=utf-8", APP_JS)
+}
+
+/// `GET /figures.js`.
+pub async fn figures_js() -> impl IntoResponse {
+    page("text/javascript; charset=utf-8", FIGURES_JS)
 }
 
 /// `GET /style.css`.

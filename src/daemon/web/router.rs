@@ -1,20 +1,28 @@
 //! The routes of the web listener and its lifetime: bound at start (a bad
 //! address stops the daemon with a message), served until the daemon's
 //! shutdown, which also ends every event stream.
+//!
+//! Why an accept loop of its own instead of `axum::serve`: the listener may
+//! face a network, so it caps the connections it holds open
+//! ([`MAX_CONNECTIONS`]) and closes those that idle or never finish a
+//! request header ([`IDLE_TIMEOUT`]); `axum::serve` does neither.
 
 use super::{camera, command, live, page};
 use crate::daemon::config::WebSection;
 use crate::daemon::protocol::{ErrorCode, ProtoError, Role};
 use crate::daemon::Daemon;
-use axum::extract::{Query, State};
+use axum::extract::{ConnectInfo, Query, State};
 use axum::http::{header, StatusCode};
 use axum::response::{IntoResponse, Response};
 use axum::routing::{get, post};
-use axum::Router;
+use axum::{Extension, Router};
+use hyper_util::rt::{TokioIo, TokioTimer};
+use hyper_util::service::TowerToHyperService;
 use serde::Deserialize;
 use serde_json::json;
 use std::net::SocketAddr;
 use std::sync::Arc;
+use std::time::Duration;
 use tokio::sync::{broadcast, Semaphore};
 
 /// A bound web listener and what its clients may do.
@@ -93,6 +101,7 @@ pub fn router(web: Arc<Web>) -> Router {
     Router::new()
         .route("/", get(page::index))
         .route("/app.js", get(page::app_js))
+        .route("/figures.js", get(page::figures_js))
         .route("/style.css", get(page::style_css))
         .route("/api/events", get(live::events))
         .route("/api/command", post(command::command))
@@ -102,7 +111,26 @@ pub fn router(web: Arc<Web>) -> Router {
         .with_state(web)
 }
 
-/// Serves until the daemon's shutdown.
+/// HTTP connections open at once at most (event streams included, which
+/// have their own cap, [`MAX_STREAMS`]); a connection beyond it is closed
+/// as soon as it is accepted, so a flood of clients costs a socket each and
+/// nothing more.
+pub const MAX_CONNECTIONS: usize = 64;
+
+/// A connection that has not sent a complete request header this long
+/// after it opened, or after its last response, is closed (hyper's header
+/// read timeout, which also runs while a keep-alive connection idles).
+pub const IDLE_TIMEOUT: Duration = Duration::from_secs(30);
+
+/// How long the shutdown waits for open connections to finish their
+/// responses (event streams end at once on shutdown).
+const DRAIN_TIMEOUT: Duration = Duration::from_secs(5);
+
+/// Serves until the daemon's shutdown: accepts at most
+/// [`MAX_CONNECTIONS`] connections at once, each an HTTP/1.1 connection
+/// with the [`IDLE_TIMEOUT`]; at shutdown stops accepting, lets open
+/// connections finish their current response and waits for them
+/// (bounded).
 pub async fn serve(daemon: Arc<Daemon>, l: WebListener) {
     let camera = daemon
         .rig
@@ -118,15 +146,55 @@ pub async fn serve(daemon: Arc<Daemon>, l: WebListener) {
         streams: Arc::new(Semaphore::new(MAX_STREAMS)),
         shutdown: daemon.shutdown.clone(),
     });
-    let app = router(web).into_make_service_with_connect_info::<SocketAddr>();
-    let r = axum::serve(l.listener, app)
-        .with_graceful_shutdown(async move {
-            let _ = shutdown.recv().await;
-        })
-        .await;
-    if let Err(e) = r {
-        tracing::error!("web listener failed: {e}");
+    let app = router(web);
+    let open = Arc::new(Semaphore::new(MAX_CONNECTIONS));
+    loop {
+        // Subscribed before the accept: a shutdown sent after it reaches
+        // the connection accepted now.
+        let mut stop = daemon.shutdown.subscribe();
+        let (stream, remote) = tokio::select! {
+            _ = shutdown.recv() => break,
+            r = l.listener.accept() => match r {
+                Ok(c) => c,
+                Err(e) => {
+                    // Out of file descriptors and the like: wait instead of
+                    // spinning on the same error.
+                    tracing::warn!("web listener: accept failed: {e}");
+                    tokio::time::sleep(Duration::from_millis(100)).await;
+                    continue;
+                }
+            },
+        };
+        let Ok(permit) = open.clone().try_acquire_owned() else {
+            tracing::debug!("web listener: {remote} refused, {MAX_CONNECTIONS} connections open");
+            drop(stream);
+            continue;
+        };
+        let svc = TowerToHyperService::new(app.clone().layer(Extension(ConnectInfo(remote))));
+        tokio::spawn(async move {
+            let _permit = permit;
+            let conn = hyper::server::conn::http1::Builder::new()
+                .timer(TokioTimer::new())
+                .header_read_timeout(IDLE_TIMEOUT)
+                .serve_connection(TokioIo::new(stream), svc);
+            tokio::pin!(conn);
+            let r = tokio::select! {
+                r = conn.as_mut() => r,
+                _ = stop.recv() => {
+                    conn.as_mut().graceful_shutdown();
+                    conn.await
+                }
+            };
+            if let Err(e) = r {
+                tracing::debug!("web connection {remote}: {e}");
+            }
+        });
     }
+    let _ = tokio::time::timeout(
+        DRAIN_TIMEOUT,
+        open.acquire_many(u32::try_from(MAX_CONNECTIONS).unwrap_or(u32::MAX)),
+    )
+    .await;
 }
 
 fn json_response(status: StatusCode, v: serde_json::Value) -> Response {

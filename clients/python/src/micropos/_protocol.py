@@ -20,7 +20,7 @@ from .errors import (
     ProtocolError,
     error_from_reply,
 )
-from .types import Axes, DriftMethod, Json, MoveMode, ValidateTest
+from .types import Axes, DriftMethod, JobKind, Json, MoveMode, ValidateTest
 
 #: The protocol version this client speaks (``version`` → ``protocol``).
 PROTOCOL_VERSION = 1
@@ -255,6 +255,12 @@ def drift_set(
     return request(
         "drift", action="set", method=method, every_s=every_s, time_constant_s=time_constant_s
     )
+
+
+def figures(job: JobKind, log: Optional[str]) -> Json:
+    """``figures``: the paper's figures of a job's log; ``log`` ``None`` = the
+    newest log of that job in the daemon's data directory."""
+    return request("figures", job=job, log=log)
 
 
 # --- jobs ---------------------------------------------------------------------

@@ -400,6 +400,10 @@ class AsyncRig:
         """``validate cancel``."""
         return await self._call(proto.cancel_action("validate"), self.long_timeout)
 
+    async def figures(self, job: JobKind = "characterize", log: Optional[str] = None) -> Json:
+        """``figures``; see :meth:`Rig.figures`."""
+        return await self._call(proto.figures(job, log), self.long_timeout)
+
     async def current_job(self) -> "Optional[AsyncJob]":
         """A handle on the daemon's current or last job; see :meth:`Rig.current_job`."""
         job = (await self.status()).get("job")

@@ -395,6 +395,15 @@ class Rig:
         """``validate cancel``: ends the validation between poses."""
         return self._call(proto.cancel_action("validate"), self.long_timeout)
 
+    def figures(self, job: JobKind = "characterize", log: Optional[str] = None) -> Json:
+        """``figures``: the paper's figures of the newest ``job`` log (or of
+        ``log``) as data: ``figures`` (panels and traces, as ``micropos plot``
+        draws them), a summary (``axes`` with backlash, largest errors and RP
+        for a characterization; ``results`` with ISO 9283 AP/RP per test and
+        mode for a validation) and ``notes``. No such log yet, or one that
+        does not read, raises :class:`LogError`."""
+        return self._call(proto.figures(job, log), self.long_timeout)
+
     def current_job(self) -> "Optional[Job]":
         """A handle on the daemon's current or last job (from ``status``), for
         a script that reconnects to a job it started earlier; ``None`` if no

@@ -77,6 +77,7 @@ function onJob(j) {
   bar.value = done;
   setText('job-eta', typeof j.eta_s === 'number' ? formatDuration(j.eta_s) : '–');
   setText('job-error', j.error || '');
+  setText('job-result', j.result ? JSON.stringify(j.result) : '');
   if (view.jobState === 'running' && j.state && j.state !== 'running') loadResults();
   view.jobState = j.state || null;
 }
@@ -207,68 +208,52 @@ async function cameraTick() {
   if (again) setTimeout(cameraTick, 500);
 }
 
-const MODE_COLOURS = { raw: '#c44', table: '#48c', model: '#4a4', closed_loop: '#a4c' };
-
-function drawValidation(results) {
-  const c = $('validation-chart');
-  const ctx = c.getContext('2d');
-  ctx.clearRect(0, 0, c.width, c.height);
-  const tbody = $('validation-table').tBodies[0];
+function fillTable(id, rows) {
+  const tbody = $(id).tBodies[0];
   while (tbody.firstChild) tbody.removeChild(tbody.firstChild);
-  const tests = Object.keys(results || {});
-  if (!tests.length) {
-    ctx.fillStyle = '#666';
-    ctx.fillText('no validation yet', 10, 20);
+  for (const row of rows) {
+    const tr = document.createElement('tr');
+    for (const v of row) {
+      const td = document.createElement('td');
+      td.textContent = v;
+      tr.appendChild(td);
+    }
+    tbody.appendChild(tr);
+  }
+}
+
+// One `figures` reply into its panel: the summary table and the figures,
+// or the daemon's reason when there is nothing to show ("no
+// characterization yet: ...").
+function showFigures(prefix, r) {
+  const box = $(prefix + '-figures');
+  if (!r.ok) {
+    setText(prefix + '-status', r.error.message);
+    fillTable(prefix + '-table', []);
+    FIG.draw(box, []);
+    box.dataset.drawn = '';
+    box.dataset.panels = '0';
     return;
   }
-  for (const test of tests) {
-    for (const [mode, r] of Object.entries(results[test])) {
-      const tr = document.createElement('tr');
-      for (const v of [test, mode, num(r.ap_um, 2), num(r.ap_mean_um, 2), num(r.rp_um, 2)]) {
-        const td = document.createElement('td');
-        td.textContent = v;
-        tr.appendChild(td);
-      }
-      tbody.appendChild(tr);
-    }
+  const notes = (r.notes || []).join('; ');
+  setText(prefix + '-status', r.log + ' · ' + r.records + ' records' + (notes ? ' · ' + notes : ''));
+  if (prefix === 'charact') {
+    fillTable('charact-table', (r.axes || []).map((a) => [a.axis, String(a.points), String(a.cycles),
+      num(a.backlash_um, 3), num(a.max_abs_error_um, 3), num(a.max_abs_coupling_um, 3), num(a.rp_max_um, 3)]));
+  } else {
+    fillTable('validation-table', (r.results || []).map((v) => [v.test, v.mode, String(v.poses),
+      num(v.ap_max_um, 3), num(v.ap_mean_um, 3), num(v.rp_max_um, 3)]));
   }
-  // Fig. 10/11 of the paper: AP of each pose, one bar per mode.
-  const test = tests[0];
-  const modes = Object.keys(results[test]);
-  const poses = (results[test][modes[0]].poses || []).map((p) => p.pose);
-  let max = 0;
-  for (const m of modes) for (const p of results[test][m].poses || []) max = Math.max(max, p.ap_um || 0);
-  if (!poses.length || max <= 0) return;
-  const left = 40, bottom = c.height - 30, top = 20;
-  const slot = (c.width - left - 10) / poses.length;
-  const bw = Math.max(1, (slot - 4) / modes.length);
-  ctx.fillStyle = '#222';
-  ctx.fillText(test + ': AP µm per pose', left, 12);
-  ctx.fillText(num(max, 1), 2, top + 4);
-  ctx.fillText('0', 2, bottom);
-  modes.forEach((m, mi) => {
-    ctx.fillStyle = MODE_COLOURS[m] || '#888';
-    ctx.fillText(m, left + 10 + mi * 90, c.height - 5);
-    (results[test][m].poses || []).forEach((p, pi) => {
-      const h = (bottom - top) * (p.ap_um || 0) / max;
-      ctx.fillRect(left + pi * slot + 2 + mi * bw, bottom - h, bw, h);
-    });
-  });
-  ctx.fillStyle = '#222';
-  poses.forEach((p, pi) => ctx.fillText(String(p), left + pi * slot + slot / 2 - 3, bottom + 12));
+  box.dataset.panels = String(FIG.draw(box, r.figures));
+  box.dataset.drawn = r.log;
 }
 
 async function loadResults() {
-  try {
-    const v = await command({ cmd: 'validate', action: 'status' }, false);
-    if (v.ok) drawValidation(v.validation ? v.validation.results : null);
-    const k = await command({ cmd: 'characterize', action: 'status' }, false);
-    if (k.ok && k.job && k.job.kind && k.job.kind !== 'validate') {
-      const j = k.job;
-      $('charact-result').textContent = j.kind + ' ' + (j.log || '') + ' ' + (j.state || '') + ' ' +
-        (j.done || 0) + '/' + (j.total || 0) + (j.result ? '\n' + JSON.stringify(j.result, null, 1) : '');
-    }
-  } catch (e) { /* next job end */ }
+  for (const [job, prefix] of [['characterize', 'charact'], ['validate', 'validation']]) {
+    try {
+      showFigures(prefix, await command({ cmd: 'figures', job }, false));
+    } catch (e) { /* next job end */ }
+  }
 }
 
 function setupControl() {
