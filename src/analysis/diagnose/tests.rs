@@ -199,18 +199,35 @@ fn replicates_give_the_repeatability_and_the_unexplained_error() {
     }
     let log = parse_bytes(s.as_bytes()).unwrap();
     let base = StageModel::paper_default().unwrap();
+    // Without findings, the per-target error is stated against the noise.
+    let none = DiagnoseOptions {
+        max_findings: 0,
+        ..DiagnoseOptions::default()
+    };
+    let d0 = diagnose(&log, &base, &none).unwrap();
+    let x0 = &d0.noise.components[0];
+    let rep = x0.repeatability_um.unwrap();
+    assert!(rep > 0.1 && rep < 1.0, "{rep}");
+    assert!(x0.unexplained);
+    assert!(x0.systematic_rms_um.unwrap() > 10.0 * rep);
+    assert!(!d0.to_text().contains("explains the log to its noise"));
+    // With them, the non-linearity read from the replicates becomes a
+    // table the extended model carries, and its held-out residual drops
+    // to the scatter's order.
     let d = diagnose(&log, &base, &DiagnoseOptions::default()).unwrap();
     let x = &d.noise.components[0];
-    let rep = x.repeatability_um.unwrap();
-    assert!(rep > 0.1 && rep < 1.0, "{rep}");
     assert_eq!(x.replicated_targets, 10);
     assert!(x.iso230_2.is_some());
-    assert!(x.unexplained);
-    assert!(x.systematic_rms_um.unwrap() > 10.0 * rep);
+    let f = d
+        .findings
+        .iter()
+        .find(|f| f.kind == FindingKind::Nonlinearity)
+        .unwrap_or_else(|| panic!("{}", d.to_text()));
+    assert!(f.heldout_rms_after_um < 3.0 * rep, "{f:?}");
+    assert!(x.systematic_rms_um.unwrap() < 3.0 * rep, "{x:?}");
     let s = &d.noise.sampling[0];
     assert_eq!(s.positions, 5);
     assert!((s.shortest_period_um - 20_000.0).abs() < 1e-6);
-    assert!(!d.to_text().contains("explains the log to its noise"));
     // The model's 400 µm harmonics cannot be resolved on 10 mm targets:
     // no periodic parameter is freed, and the screw table's are aliased.
     assert!(d
