@@ -15,7 +15,7 @@
 
 use std::path::PathBuf;
 
-use micropos::analysis::{diagnose, DiagnoseOptions, Diagnosis, Reading, ReadingKind};
+use micropos::analysis::{diagnose, DiagnoseOptions, Diagnosis, FindingKind, Reading, ReadingKind};
 use micropos::charact::log::read_file;
 use micropos::model::{Axis, StageModel};
 
@@ -129,6 +129,49 @@ fn iso_log(d: &Diagnosis) {
     assert!(d.to_json()["noise"]["components"][0]["readings"].is_array());
 }
 
+/// Every reading a model term could carry says which term, what it gains
+/// on held-out cycles and whether the extended model carries it; a term
+/// the extended model carries is a finding, one it does not is none.
+fn reading_terms_are_reported(d: &Diagnosis) {
+    let text = d.to_text();
+    for r in &d.noise.components[0].readings {
+        let kind = match r.kind {
+            ReadingKind::ReversalVaries => FindingKind::ReversalVaries,
+            ReadingKind::Nonlinearity => FindingKind::Nonlinearity,
+            ReadingKind::FirstApproach => {
+                let t = r.term.as_ref().expect("a first approach says why no term");
+                assert!(
+                    !t.in_extended_model && t.sentence.contains("no model term"),
+                    "{t:?}"
+                );
+                continue;
+            }
+            _ => continue,
+        };
+        let Some(t) = r.term.as_ref() else {
+            // Only what the model's held-out residual no longer shows
+            // goes without a term.
+            assert_eq!(r.model_explains, Some(true), "{r:?}");
+            continue;
+        };
+        assert!(text.contains(&t.sentence), "{text}");
+        let finding = d.findings.iter().any(|f| f.kind == kind);
+        assert_eq!(t.in_extended_model, finding, "{t:?} vs {:?}", d.findings);
+        if t.knots > 0 {
+            assert!(t.heldout_rms_before_um.is_finite() && t.heldout_rms_after_um.is_finite());
+            // A term that does not predict held-out cycles better says so.
+            if t.gain_pct <= 0.0 {
+                assert!(t.sentence.contains("does not generalize"), "{t:?}");
+            }
+        }
+    }
+    assert!(d.to_json()["noise"]["components"][0]["readings"]
+        .as_array()
+        .is_some_and(|a| a.iter().all(|r| r["kind"] != "reversal_varies"
+            || r["model_explains"] == true
+            || r["term"].is_object())));
+}
+
 fn reading(d: &Diagnosis, kind: ReadingKind) -> Vec<&Reading> {
     d.noise.components[0]
         .readings
@@ -154,6 +197,18 @@ fn ecmc_iso230_2_log_states_its_unexplained_error() {
     let f = reading(&d, ReadingKind::FirstApproach);
     assert_eq!(f.len(), 2, "{f:#?}");
     assert!(f.iter().all(|r| r.value > 50.0), "{f:#?}");
+    reading_terms_are_reported(&d);
+    // The varying reversal as a reversal table at the 5 targets predicts
+    // held-out cycles better: the held-out mean square drops by more than
+    // the repeatability's variance (a table fitting noise alone would
+    // raise it by about its knots/visits share of that variance).
+    let t = v[0].term.as_ref().expect("the reading becomes a term");
+    let s = d.noise.components[0].repeatability_um.unwrap();
+    assert_eq!(t.knots, 5, "{t:?}");
+    assert!(
+        t.heldout_rms_before_um.powi(2) - t.heldout_rms_after_um.powi(2) > s * s,
+        "{t:?}, σ {s}"
+    );
 }
 
 #[test]
@@ -169,6 +224,7 @@ fn bifrost_iso230_2_log_states_its_unexplained_error() {
         n.len() == 1 && n[0].value.abs() > 3.0 && n[0].model_explains == Some(false),
         "{n:#?}"
     );
+    reading_terms_are_reported(&d);
 }
 
 #[test]
@@ -188,4 +244,5 @@ fn flexure_log_fits_no_more_than_it_supports() {
     );
     // Dense steps: the noise from neighbouring positions is estimated.
     assert!(x.neighbour_noise_um.is_some(), "{x:?}");
+    reading_terms_are_reported(&d);
 }

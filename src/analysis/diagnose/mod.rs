@@ -903,6 +903,9 @@ fn reading_terms(
             };
             let axis = r.component;
             let knots = search::table_knots(d, axis).map_or(0, |k| k.len());
+            // What the model's held-out residual no longer shows needs no
+            // term (unless it is one: found below).
+            let lacks = r.model_explains == Some(false);
             let what = if lost_motion {
                 "a reversal table"
             } else {
@@ -928,6 +931,8 @@ fn reading_terms(
                         f.heldout_rms_before_um, f.heldout_rms_after_um, f.gain_pct, f.significance, f.term
                     ),
                 });
+            } else if !lacks {
+                continue;
             } else if knots == 0 {
                 r.term = Some(untested(
                     what,
@@ -961,7 +966,8 @@ fn reading_terms(
             } else {
                 r.term = Some(untested(
                     what,
-                    "the base fit's held-out residual did not show it (it shows in the final model's)".into(),
+                    "the base fit's held-out residual did not show it (the final model's does)"
+                        .into(),
                 ));
             }
         }
