@@ -70,8 +70,9 @@ fn one_dimensional(d: &Diagnosis) {
 }
 
 /// An ISO 230-2 plan: sparse targets with replicates. The systematic error
-/// left per target must be stated and be well above what the replicate
-/// scatter alone would leave.
+/// left per target must be stated, and be well above what the replicate
+/// scatter alone would leave unless the extended model carries the tables
+/// read from the replicates (the only findings such a plan can support).
 fn iso_log(d: &Diagnosis) {
     one_dimensional(d);
     let x = &d.noise.components[0];
@@ -80,14 +81,27 @@ fn iso_log(d: &Diagnosis) {
     let floor = x.systematic_noise_floor_um.expect("noise floor stated");
     assert!(x.replicated_targets >= 10, "{x:?}");
     assert!(x.iso230_2.is_some(), "a complete bidirectional test: {x:?}");
-    assert!(x.unexplained, "{x:?}");
-    assert!(
-        sys > 2.0 * s && sys > 3.0 * floor,
-        "{sys} vs σ {s}, floor {floor}"
-    );
     let text = d.to_text();
-    assert!(!text.contains("explains the log to its noise"), "{text}");
-    assert!(text.contains("UNEXPLAINED"), "{text}");
+    assert!(
+        d.findings.iter().all(|f| matches!(
+            f.kind,
+            FindingKind::ReversalVaries | FindingKind::Nonlinearity
+        )),
+        "{:?}",
+        d.findings
+    );
+    if d.findings.is_empty() {
+        assert!(x.unexplained, "{x:?}");
+        assert!(
+            sys > 2.0 * s && sys > 3.0 * floor,
+            "{sys} vs σ {s}, floor {floor}"
+        );
+        assert!(!text.contains("explains the log to its noise"), "{text}");
+        assert!(text.contains("UNEXPLAINED"), "{text}");
+    } else {
+        // The tables predict held-out cycles better than the base.
+        assert!(d.extended_rms_um.x < d.baseline_rms_um.x, "{text}");
+    }
     // Targets ≥ 10 mm apart: the model's 400 µm screw harmonics are
     // aliased, so the base fit frees none of them and says why; what it
     // frees (scale, play, drift) is reported as parameter corrections.
@@ -115,7 +129,8 @@ fn iso_log(d: &Diagnosis) {
         "{text}"
     );
     assert!(
-        x.readings.iter().any(|r| r.model_explains == Some(false)
+        x.readings.iter().any(|r| (r.model_explains == Some(false)
+            || r.term.as_ref().is_some_and(|t| t.in_extended_model))
             && matches!(
                 r.kind,
                 ReadingKind::Reversal
@@ -189,10 +204,7 @@ fn ecmc_iso230_2_log_states_its_unexplained_error() {
     // B_i changes sign along the axis (−6.2 … +27.3 … −46.5 µm): lost
     // motion that varies with position, which the model's one play lacks.
     let v = reading(&d, ReadingKind::ReversalVaries);
-    assert!(
-        v.len() == 1 && v[0].value > 30.0 && v[0].model_explains == Some(false),
-        "{v:#?}"
-    );
+    assert!(v.len() == 1 && v[0].value > 30.0, "{v:#?}");
     // The two first forward visits of cycle 1 (+128 and +64 µm).
     let f = reading(&d, ReadingKind::FirstApproach);
     assert_eq!(f.len(), 2, "{f:#?}");
@@ -209,6 +221,14 @@ fn ecmc_iso230_2_log_states_its_unexplained_error() {
         t.heldout_rms_before_um.powi(2) - t.heldout_rms_after_um.powi(2) > s * s,
         "{t:?}, σ {s}"
     );
+    // Carried by the extended model, it leaves held-out cycles at the
+    // scale of the repeatability; not carried, the model lacks it.
+    if t.in_extended_model {
+        assert!(d.extended_rms_um.x < 2.0 * s, "{t:?}, σ {s}");
+        assert_eq!(v[0].model_explains, Some(true), "{v:#?}");
+    } else {
+        assert_eq!(v[0].model_explains, Some(false), "{v:#?}");
+    }
 }
 
 #[test]

@@ -296,6 +296,11 @@ pub(super) fn describe(
                 cause = "progressive pitch error of the screw, a worn or bent section, or guide straightness seen through an Abbe offset".into();
             }
         }
+        Spec::Tables { .. } => {
+            return Err(AnalysisError::Invalid(
+                "two tables judged jointly are described one by one".into(),
+            ))
+        }
         Spec::Other { comp: c, var } => {
             let x = d
                 .extra

@@ -43,6 +43,14 @@ fn spec_param_names(spec: &Spec, model: &StageModel) -> Vec<String> {
                 .map(|k| format!("value{k}_um"))
                 .collect()
         }
+        Spec::Tables { .. } => {
+            return spec
+                .clone()
+                .split()
+                .iter()
+                .flat_map(|s| spec_param_names(s, model))
+                .collect()
+        }
     };
     fixed.iter().map(|s| s.to_string()).collect()
 }
@@ -276,6 +284,11 @@ fn add_term(
                     lost_motion,
                 }),
             )
+        }
+        Spec::Tables { .. } => {
+            return Err(AnalysisError::Invalid(
+                "two tables judged jointly become two terms (split them first)".into(),
+            ))
         }
         Spec::Other { comp, .. } => {
             return Err(AnalysisError::Invalid(format!(

@@ -523,7 +523,7 @@ pub fn diagnose(
             let train: Vec<bool> = d.fold.iter().map(|&k| k != f).collect();
             let fb = fold_base(&d, &base, train);
             keep_heldout(&d, &mut before, &fb.resid, &fb.train);
-            if round == opts.max_findings {
+            if round >= opts.max_findings {
                 continue;
             }
             for (fi, fam) in fams.iter().enumerate() {
@@ -540,7 +540,7 @@ pub fn diagnose(
         }
         last_heldout = heldout;
         final_heldout = before.clone();
-        if round == opts.max_findings {
+        if round >= opts.max_findings {
             break;
         }
         let all_verdicts: Vec<Verdict> = fams
@@ -567,21 +567,29 @@ pub fn diagnose(
             })
             .collect();
         for v in &all_verdicts {
-            if let Family::Table { axis, lost_motion } = v.family {
-                table_tests.retain(|t| (t.axis, t.lost_motion) != (axis, lost_motion));
-                table_tests.push(TableTest {
-                    axis,
-                    lost_motion,
-                    rms_before_um: v.rms_before,
-                    rms_after_um: v.rms_after,
-                    gain_pct: v.gain_pct,
-                    z: v.z,
-                });
-            }
+            let (axis, lost_motion, joint) = match v.family {
+                Family::Table { axis, lost_motion } => (axis, lost_motion, false),
+                Family::Tables { axis } => (axis, true, true),
+                _ => continue,
+            };
+            table_tests.retain(|t| (t.axis, t.lost_motion, t.joint) != (axis, lost_motion, joint));
+            table_tests.push(TableTest {
+                axis,
+                lost_motion,
+                joint,
+                rms_before_um: v.rms_before,
+                rms_after_um: v.rms_after,
+                gain_pct: v.gain_pct,
+                z: v.z,
+            });
         }
         let mut verdicts: Vec<Verdict> = all_verdicts
             .into_iter()
             .filter(|v| v.z >= opts.z_threshold && v.gain_pct >= opts.min_gain_pct)
+            // Two tables at once are two findings: only within the cap.
+            .filter(|v| {
+                !matches!(v.family, Family::Tables { .. }) || round + 2 <= opts.max_findings
+            })
             .collect();
         verdicts.sort_by(|a, b| b.reduction.total_cmp(&a.reduction));
         let Some(mut best) = verdicts.first().map(|v| v.family) else {
@@ -636,7 +644,9 @@ pub fn diagnose(
             continue;
         }
         base.extend(spec_cols);
-        accepted.push((spec, verdict));
+        for s in spec.split() {
+            accepted.push((s, verdict.clone()));
+        }
     }
 
     // The extended model cannot carry `other` findings (log columns it has
@@ -829,6 +839,8 @@ pub fn diagnose(
 struct TableTest {
     axis: Axis,
     lost_motion: bool,
+    /// Both tables of the axis jointly (`lost_motion` is then true).
+    joint: bool,
     rms_before_um: f64,
     rms_after_um: f64,
     gain_pct: f64,
@@ -866,6 +878,17 @@ fn tables_wanted(log: &MeasurementLog, d: &data::Data, base: &[Vec<f64>]) -> Vec
         };
         if !out.contains(&f) {
             out.push(f);
+        }
+    }
+    // Both tables of one axis: also jointly (a bidirectional table). A
+    // test with few targets gives each table few points; where both are
+    // there, neither alone leaves the held-out cycles as close as the two.
+    for axis in Axis::ALL {
+        let both = [true, false]
+            .iter()
+            .all(|&lost_motion| out.contains(&Family::Table { axis, lost_motion }));
+        if both {
+            out.push(Family::Tables { axis });
         }
     }
     out
@@ -917,6 +940,22 @@ fn reading_terms(
                 FindingKind::Nonlinearity
             };
             if let Some(f) = findings.iter().find(|f| f.kind == want && f.axis == axis) {
+                // Two tables accepted together share one held-out verdict.
+                let other = if lost_motion {
+                    FindingKind::Nonlinearity
+                } else {
+                    FindingKind::ReversalVaries
+                };
+                let jointly = if findings.iter().any(|g| {
+                    g.kind == other
+                        && g.axis == axis
+                        && g.significance == f.significance
+                        && g.gain_pct == f.gain_pct
+                }) {
+                    " (judged jointly with the other table of the axis)"
+                } else {
+                    ""
+                };
                 r.term = Some(ReadingTerm {
                     kind: crate::model::terms::discovered::POSITION_TABLE_KIND,
                     name: f.term.clone(),
@@ -927,7 +966,7 @@ fn reading_terms(
                     z: f.significance,
                     in_extended_model: true,
                     sentence: format!(
-                        "{what} at {knots} knots predicts held-out cycles better: {axis} {:.3} → {:.3} µm ({:+.0} %, z {:.1}); the extended model carries it (`{}`)",
+                        "{what} at {knots} knots{jointly} predicts held-out cycles better: {axis} {:.3} → {:.3} µm ({:+.0} %, z {:.1}); the extended model carries it (`{}`)",
                         f.heldout_rms_before_um, f.heldout_rms_after_um, f.gain_pct, f.significance, f.term
                     ),
                 });
@@ -940,8 +979,22 @@ fn reading_terms(
                 ));
             } else if let Some(t) = tests
                 .iter()
-                .find(|t| t.axis == axis && t.lost_motion == lost_motion)
+                .find(|t| t.axis == axis && t.lost_motion == lost_motion && !t.joint)
             {
+                let jointly = tests
+                    .iter()
+                    .find(|t| t.axis == axis && t.joint)
+                    .map(|j| {
+                        format!(
+                            "; with the {} table jointly: {axis} {:.3} → {:.3} µm ({:+.0} %, z {:.1}), not added either",
+                            if lost_motion { "non-linearity" } else { "reversal" },
+                            j.rms_before_um,
+                            j.rms_after_um,
+                            j.gain_pct,
+                            j.z
+                        )
+                    })
+                    .unwrap_or_default();
                 let verdict = if t.gain_pct <= 0.0 {
                     "it does not generalize: the per-target values of the training cycles do not predict the held-out ones"
                 } else if t.z < opts.z_threshold || t.gain_pct < opts.min_gain_pct {
@@ -959,7 +1012,7 @@ fn reading_terms(
                     z: t.z,
                     in_extended_model: false,
                     sentence: format!(
-                        "{what} at {knots} knots, held out: {axis} {:.3} → {:.3} µm ({:+.0} %, z {:.1}); not added: {verdict}",
+                        "{what} at {knots} knots, held out: {axis} {:.3} → {:.3} µm ({:+.0} %, z {:.1}); not added: {verdict}{jointly}",
                         t.rms_before_um, t.rms_after_um, t.gain_pct, t.z
                     ),
                 });

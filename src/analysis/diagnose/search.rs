@@ -61,6 +61,35 @@ pub(super) enum Spec {
         knots: Vec<f64>,
         lost_motion: bool,
     },
+    /// Both tables of `axis` at once (a bidirectional table, as ISO 230-2
+    /// compensation tables are): judged jointly, then carried as its two
+    /// [`Spec::Table`]s ([`Spec::split`]).
+    Tables {
+        axis: Axis,
+        knots: Vec<f64>,
+    },
+}
+
+impl Spec {
+    /// The specs that become model terms: [`Spec::Tables`] is its two
+    /// tables, every other spec itself.
+    pub(super) fn split(self) -> Vec<Spec> {
+        match self {
+            Spec::Tables { axis, knots } => vec![
+                Spec::Table {
+                    axis,
+                    knots: knots.clone(),
+                    lost_motion: false,
+                },
+                Spec::Table {
+                    axis,
+                    knots,
+                    lost_motion: true,
+                },
+            ],
+            other => vec![other],
+        }
+    }
 }
 
 /// A search family (what varies, before the search fixes it).
@@ -104,6 +133,10 @@ pub(super) enum Family {
         axis: Axis,
         lost_motion: bool,
     },
+    /// Both tables jointly, where both readings say the model lacks them.
+    Tables {
+        axis: Axis,
+    },
 }
 
 impl Family {
@@ -116,9 +149,10 @@ impl Family {
             | Family::TimePeriodic { comp }
             | Family::Temperature { comp }
             | Family::Other { comp, .. } => comp,
-            Family::Reversal { axis } | Family::StepSize { axis } | Family::Table { axis, .. } => {
-                axis
-            }
+            Family::Reversal { axis }
+            | Family::StepSize { axis }
+            | Family::Table { axis, .. }
+            | Family::Tables { axis } => axis,
         }
     }
 }
@@ -460,6 +494,10 @@ pub(super) fn search(f: Family, d: &Data, resid: &[f64], train: &[bool]) -> Opti
             knots: table_knots(d, axis)?,
             lost_motion,
         }),
+        Family::Tables { axis } => Some(Spec::Tables {
+            axis,
+            knots: table_knots(d, axis)?,
+        }),
         Family::TimePeriodic { comp } => {
             let idx: Vec<usize> = (0..d.n).filter(|&i| train[i] && !d.excluded[i]).collect();
             let x: Vec<f64> = idx.iter().map(|&i| d.states[i].time_s).collect();
@@ -559,6 +597,14 @@ pub(super) fn columns(spec: &Spec, d: &Data, model: &StageModel) -> Vec<Vec<f64>
             let m = s.axis(axis);
             step_size_shape(m.dir.sign(), m.last_move_um, length_um)
         }),
+        Spec::Tables { .. } => {
+            return spec
+                .clone()
+                .split()
+                .iter()
+                .flat_map(|s| columns(s, d, model))
+                .collect()
+        }
         Spec::Table {
             axis,
             ref knots,
