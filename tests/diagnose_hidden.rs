@@ -15,7 +15,8 @@
 //!
 //! Default: 18 seeds with an effect (2 per kind), 6 without, 4 with a
 //! column effect. `MICROPOS_FULL=1`: 108 with (12 per kind), 40 without,
-//! 10 with a column effect. Each run prints a table (kind, size/noise,
+//! 10 with a column effect. `MICROPOS_SEEDS=a,b`: only those effect seeds,
+//! each diagnosis printed. Each run prints a table (kind, size/noise,
 //! recovered vs true) for the report.
 
 use std::collections::BTreeMap;
@@ -27,6 +28,14 @@ use micropos::analysis::generate::{
 use micropos::analysis::{diagnose, DiagnoseOptions, Diagnosis, FindingKind};
 use micropos::charact::log::{parse_bytes, Columns};
 use micropos::model::{Axis, StageModel};
+
+/// `MICROPOS_SEEDS=1070,1087`: run only these seeds of the effect test
+/// (with `MICROPOS_FULL=1` for seeds of the full run), printing each
+/// diagnosis, to look at one case.
+fn only_seeds() -> Option<Vec<u64>> {
+    let v = std::env::var("MICROPOS_SEEDS").ok()?;
+    Some(v.split(',').filter_map(|s| s.trim().parse().ok()).collect())
+}
 
 fn full() -> bool {
     std::env::var("MICROPOS_FULL").is_ok_and(|v| v == "1")
@@ -201,9 +210,15 @@ fn check(e: &InjectedEffect, d: &Diagnosis) -> Result<(), String> {
 fn hidden_effects_are_named_and_recovered() {
     let per_kind = if full() { 12 } else { 2 };
     let plan = SimPlan::default();
+    let only = only_seeds();
     let cases: Vec<(u64, FindingKind)> = (0..per_kind)
         .flat_map(|i| GENERATED_KINDS.map(|k| (1000 + i as u64 * 17 + k as u64, k)))
+        .filter(|(seed, _)| only.as_ref().is_none_or(|o| o.contains(seed)))
         .collect();
+    if cases.is_empty() {
+        println!("no seed of this run is in MICROPOS_SEEDS={only:?}");
+        return;
+    }
     let results: Vec<(u64, InjectedEffect, Result<(), String>, f64)> = std::thread::scope(|s| {
         let chunks: Vec<Vec<(u64, FindingKind)>> = cases
             .chunks(cases.len().div_ceil(2))
@@ -220,6 +235,9 @@ fn hidden_effects_are_named_and_recovered() {
                             let e = draw_effect(seed, Some(kind), &plan).unwrap();
                             let d = run(seed, Some(&e));
                             let r = check(&e, &d);
+                            if only_seeds().is_some() {
+                                println!("seed {seed}: drawn {:?}\n{}", e.params, d.to_text());
+                            }
                             let gain = d.findings.first().map_or(0.0, |f| f.gain_pct);
                             (seed, e, r, gain)
                         })
@@ -264,11 +282,12 @@ fn hidden_effects_are_named_and_recovered() {
     for (k, (n, ok, min_snr)) in &by_kind {
         println!("{k:18} recovered {ok}/{n}, smallest recovered size/noise {min_snr:.1}");
     }
-    // Known hard case (about 1 in 100): an error of one axis localized in
-    // the other axis's position right where the first axis's scan line
-    // sits; it then also offsets that whole scan, and the search names a
-    // distorted bump. Allowed: at most 2 % of the seeds (none in the
-    // default run of 16).
+    // Hard cases: an error of one axis localized in the other axis's
+    // position right where the first axis's scan line sits (it also
+    // offsets that whole scan), or a bump as broad as a freed guide
+    // waviness; the place and width refined against the joint fit
+    // (`search::refine_localized`) recover both kinds. Allowed: at most
+    // 2 % of the seeds.
     println!(
         "recovered {}/{} hidden effects",
         results.len() - failures.len(),

@@ -375,7 +375,7 @@ fn draw_with(
                 }),
             )
         }
-        FindingKind::Other => {
+        FindingKind::Other | FindingKind::ReversalVaries | FindingKind::Nonlinearity => {
             return Err(AnalysisError::Invalid(format!(
                 "the generator cannot hide a `{}` effect (it can: {})",
                 kind.as_str(),

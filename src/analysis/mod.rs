@@ -35,7 +35,9 @@ pub mod paper;
 pub mod periodogram;
 pub mod physical;
 
-pub use diagnose::{diagnose, DiagnoseOptions, Diagnosis, Finding, Reading, ReadingKind};
+pub use diagnose::{
+    diagnose, DiagnoseOptions, Diagnosis, Finding, Reading, ReadingKind, ReadingTerm,
+};
 
 /// Why an analysis could not run.
 #[derive(Debug, Error)]
@@ -76,6 +78,11 @@ pub enum FindingKind {
     CrossAxis,
     /// Proportional to temperature.
     Temperature,
+    /// Lost motion that changes along the travel (a reversal table).
+    ReversalVaries,
+    /// Departure of the mean deviation from a straight line between
+    /// targets (a non-linearity table).
+    Nonlinearity,
     /// Anything else (named by its variable).
     Other,
 }
@@ -93,6 +100,8 @@ impl FindingKind {
             FindingKind::StepSize => "step_size",
             FindingKind::CrossAxis => "cross_axis",
             FindingKind::Temperature => "temperature",
+            FindingKind::ReversalVaries => "reversal_varies",
+            FindingKind::Nonlinearity => "nonlinearity",
             FindingKind::Other => "other",
         }
     }
@@ -109,6 +118,8 @@ impl FindingKind {
             FindingKind::StepSize,
             FindingKind::CrossAxis,
             FindingKind::Temperature,
+            FindingKind::ReversalVaries,
+            FindingKind::Nonlinearity,
             FindingKind::Other,
         ]
         .into_iter()

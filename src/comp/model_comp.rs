@@ -143,6 +143,11 @@ pub fn compensation_template_for(model: &StageModel, moves: bool) -> Result<Stag
                 // On constant-step scans a step-size term's amplitude is one
                 // number times the direction: the same column as the play.
                 || (t.kind() == step_size && !identified(t.as_ref()))
+                // A zero table is a documented placeholder; its knots are no
+                // claim about the stage (a fitted two-knot table is a line,
+                // the same columns as the origin and the lead).
+                || (t.kind() == crate::model::terms::discovered::POSITION_TABLE_KIND
+                    && t.params().iter().all(|p| p.value == 0.0))
                 // Angular errors act through Abbe arms: on a 1-DoF scan line
                 // a yaw slope × arm is the same straight line as squareness
                 // or lead, and its periodic part the same as the cyclic and

@@ -45,6 +45,14 @@ pub(super) struct Data {
     /// direction) lies outside the range the other folds sampled is an
     /// extrapolation the fold was never trained on, and is not scored.
     pub(super) judged: Vec<bool>,
+    /// Rows left out of every fit and every held-out score: visits the
+    /// replicates show to be wild (more than `noise::OUTLIER_SIGMAS`
+    /// robust σ from the other visits of their target, e.g. a first
+    /// approach after rest). A single such visit of +128 µm among visits
+    /// that agree within 3 µm would otherwise set both the fit of every
+    /// per-target term and the held-out score of every candidate. They are
+    /// reported (noise section, `first_approach` readings), not fitted.
+    pub(super) excluded: Vec<bool>,
     /// Approach direction per row of the moving axis (`+1`, `−1`, `0`):
     /// the log's `approach` column when it has one (the true approach of
     /// ISO 230-2 exports, which a replay of logged commands cannot see
@@ -77,33 +85,42 @@ impl Data {
     /// Removes the nuisance constants (centring groups) from a residual or
     /// design column (index `2i + c`) and zeroes the components the log
     /// did not measure.
+    /// Excluded rows ([`Data::excluded`]) are zero afterwards (a zero row
+    /// adds nothing to a least-squares fit) and take no part in the means.
     pub(super) fn center(&self, v: &mut [f64]) {
+        let rows = self.n.min(v.len() / 2);
         for c in 0..2 {
             if !self.measured[c] {
-                for i in 0..self.n.min(v.len() / 2) {
+                for i in 0..rows {
                     v[2 * i + c] = 0.0;
                 }
             }
         }
-        if self.ngroups == 0 {
-            return;
-        }
-        let mut sum = vec![0.0; self.ngroups];
-        let mut cnt = vec![0usize; self.ngroups];
-        for i in 0..self.n {
-            for c in 0..2 {
-                if let Some(g) = self.group[i][c] {
-                    sum[g] += v[2 * i + c];
-                    cnt[g] += 1;
+        let out = |i: usize| self.excluded.get(i).copied().unwrap_or(false);
+        if self.ngroups > 0 {
+            let mut sum = vec![0.0; self.ngroups];
+            let mut cnt = vec![0usize; self.ngroups];
+            for i in (0..rows).filter(|&i| !out(i)) {
+                for c in 0..2 {
+                    if let Some(g) = self.group[i][c] {
+                        sum[g] += v[2 * i + c];
+                        cnt[g] += 1;
+                    }
+                }
+            }
+            for i in 0..rows {
+                for c in 0..2 {
+                    if let Some(g) = self.group[i][c] {
+                        if cnt[g] > 0 {
+                            v[2 * i + c] -= sum[g] / cnt[g] as f64;
+                        }
+                    }
                 }
             }
         }
-        for i in 0..self.n {
-            for c in 0..2 {
-                if let Some(g) = self.group[i][c] {
-                    v[2 * i + c] -= sum[g] / cnt[g] as f64;
-                }
-            }
+        for i in (0..rows).filter(|&i| out(i)) {
+            v[2 * i] = 0.0;
+            v[2 * i + 1] = 0.0;
         }
     }
 }
@@ -232,8 +249,15 @@ pub(super) fn prepare(
         measured,
         measured_source,
         judged,
+        excluded: vec![false; n],
         approach,
     };
+    for c in Axis::ALL.into_iter().filter(|c| measured[c.index()]) {
+        for i in super::noise::outlier_rows(log, &d, c) {
+            d.excluded[i] = true;
+            d.judged[i] = false;
+        }
+    }
     let mut r = std::mem::take(&mut d.r0);
     d.center(&mut r);
     d.r0 = r;

@@ -227,6 +227,80 @@ pub(super) fn describe(
             );
             cause = "elastic wind-up of screw, coupling or nut, or guide friction, that is only fully loaded after a long move (the play of the model depends on the direction only); a nut preload that yields over a travel of about the build-up length".into();
         }
+        Spec::Table {
+            axis: a,
+            ref knots,
+            lost_motion,
+        } => {
+            // The lost motion a table describes is the play plus the
+            // table (the play carries its first knot); a non-linearity is
+            // the table alone (zero at both ends).
+            let play = if lost_motion {
+                super::search::backlash_term_of(fitted, a)
+                    .and_then(|t| fitted.param(&format!("{}.backlash_um", t.name())).ok())
+                    .unwrap_or(0.0)
+            } else {
+                0.0
+            };
+            let mut vals = Vec::with_capacity(knots.len());
+            for (k, &pos) in knots.iter().enumerate() {
+                let v = p(&format!("value{k}_um"))? + play;
+                params.insert(format!("knot{k}_um"), pos);
+                params.insert(format!("value{k}_um"), v);
+                if let Some(e) = se(&format!("value{k}_um")) {
+                    unc.insert(format!("value{k}_um"), e);
+                }
+                vals.push((pos, v));
+            }
+            let span = knots.last().copied().unwrap_or(0.0) - knots.first().copied().unwrap_or(0.0);
+            let at = |x: f64| -> String {
+                if span >= 10_000.0 {
+                    format!("{:.1} mm", x / 1e3)
+                } else {
+                    format!("{x:.1} µm")
+                }
+            };
+            let first = *vals
+                .first()
+                .ok_or_else(|| AnalysisError::Invalid("a table without knots".into()))?;
+            let (lo, hi) = vals.iter().fold((first, first), |(lo, hi), v| {
+                (
+                    if v.1 < lo.1 { *v } else { lo },
+                    if v.1 > hi.1 { *v } else { hi },
+                )
+            });
+            axis = a;
+            comp = a;
+            if lost_motion {
+                kind = FindingKind::ReversalVaries;
+                explanation = format!(
+                    "{a}'s lost motion on reversal changes along the travel, from {:+.3} µm at {} to {:+.3} µm at {} (a reversal table at {} knots, linear between them; > 0: the platform trails the command)",
+                    lo.1,
+                    at(lo.0),
+                    hi.1,
+                    at(hi.0),
+                    knots.len()
+                );
+                cause = "nut preload or wear that varies along the screw, a bent screw or misaligned coupling whose wind-up changes with position, or guide friction that varies; one constant play cannot follow it".into();
+            } else {
+                kind = FindingKind::Nonlinearity;
+                let k = (0..vals.len())
+                    .max_by(|&i, &j| vals[i].1.abs().total_cmp(&vals[j].1.abs()))
+                    .unwrap_or(0);
+                explanation = format!(
+                    "{a}'s error departs from a straight line between the ends of the travel by up to {:+.3} µm (at {}; a table at {} knots, linear between them)",
+                    vals[k].1,
+                    at(vals[k].0),
+                    knots.len()
+                );
+                cause = "progressive pitch error of the screw, a worn or bent section, or guide straightness seen through an Abbe offset".into();
+            }
+        }
+        Spec::Tables { .. } => {
+            return Err(AnalysisError::Invalid(
+                "two tables judged jointly are described one by one".into(),
+            ))
+        }
         Spec::Other { comp: c, var } => {
             let x = d
                 .extra

@@ -10,19 +10,19 @@ use std::collections::HashMap;
 
 use crate::model::terms::{
     BacklashConfig, BacklashTerm, DiscoveredConfig, DiscoveredTerm, LocalizedConfig,
-    PositionPeriodicConfig, PositionSlopeConfig, StepSizeConfig, TemperatureConfig,
-    TimeDriftConfig, TimePeriodicConfig,
+    PositionPeriodicConfig, PositionSlopeConfig, PositionTableConfig, StepSizeConfig,
+    TemperatureConfig, TimeDriftConfig, TimePeriodicConfig,
 };
 use crate::model::{StageModel, DEFAULT_TEMP_C};
 
 use super::data::Data;
 use super::fit::{fold_base, solve_with_cov};
-use super::search::{backlash_term_of, base_columns, columns, Spec};
+use super::search::{backlash_term_of, base_columns, columns, table_free_knots, Spec};
 use super::AnalysisError;
 
 /// Linear-parameter names of a spec's columns, in column order.
-fn spec_param_names(spec: &Spec) -> &'static [&'static str] {
-    match spec {
+fn spec_param_names(spec: &Spec, model: &StageModel) -> Vec<String> {
+    let fixed: &[&str] = match spec {
         Spec::PosPeriodic { .. } | Spec::TimePeriodic { .. } => &["sin_um", "cos_um"],
         Spec::Localized { .. } => &["amplitude_um"],
         Spec::Slope { .. } => &["ppm"],
@@ -34,7 +34,25 @@ fn spec_param_names(spec: &Spec) -> &'static [&'static str] {
         Spec::Reversal { .. } => &["backlash_um"],
         Spec::StepSize { .. } => &["amplitude_um"],
         Spec::Other { .. } => &["um_per_unit"],
-    }
+        Spec::Table {
+            axis,
+            knots,
+            lost_motion,
+        } => {
+            return table_free_knots(knots.len(), *lost_motion, model, *axis)
+                .map(|k| format!("value{k}_um"))
+                .collect()
+        }
+        Spec::Tables { .. } => {
+            return spec
+                .clone()
+                .split()
+                .iter()
+                .flat_map(|s| spec_param_names(s, model))
+                .collect()
+        }
+    };
+    fixed.iter().map(|s| s.to_string()).collect()
 }
 
 /// The model extended by `specs`, linear coefficients from the centred
@@ -88,10 +106,17 @@ pub(super) fn extended_with_se(
     let sigma2 = fb.resid.iter().map(|v| v * v).sum::<f64>() / dof;
     let mut se: HashMap<String, f64> = HashMap::new();
     let mut ext = model.clone();
+    // A play the fit wants below zero, by backlash term: a lost-motion
+    // table on the same axis takes it over (its values are relative to the
+    // play, see `search::table_free_knots`).
+    let mut play_deficit: HashMap<String, f64> = HashMap::new();
     for (j, name) in base_names.iter().enumerate() {
         let mut v = ext.param(name)? + beta[j];
         // Play cannot be negative (the fit's linear step can overshoot).
-        if name.ends_with(".backlash_um") {
+        if let Some(term) = name.strip_suffix(".backlash_um") {
+            if v < 0.0 {
+                play_deficit.insert(term.to_string(), v);
+            }
             v = v.max(0.0);
         }
         ext.set_param(name, v)?;
@@ -101,7 +126,7 @@ pub(super) fn extended_with_se(
     let mut term_names = Vec::new();
     let mut unmodelled = HashMap::new();
     for (k, spec) in specs.iter().enumerate() {
-        let pn = spec_param_names(spec);
+        let pn = spec_param_names(spec, model);
         let coef: Vec<f64> = (col..col + pn.len()).map(|j| beta[j]).collect();
         let name = if let Spec::Other { comp, var } = *spec {
             // Fitted jointly, but no model term: the model has no input for
@@ -113,7 +138,17 @@ pub(super) fn extended_with_se(
             }
             name
         } else {
-            add_term(&mut ext, spec, &coef, k + 1, d.t0)?
+            let shift = match spec {
+                Spec::Table {
+                    axis,
+                    lost_motion: true,
+                    ..
+                } => backlash_term_of(model, *axis)
+                    .and_then(|t| play_deficit.get(t.name()).copied())
+                    .unwrap_or(0.0),
+                _ => 0.0,
+            };
+            add_term(&mut ext, model, spec, &coef, shift, k + 1, d.t0)?
         };
         for (m, p) in pn.iter().enumerate() {
             se.insert(format!("{name}.{p}"), (sigma2 * pdiag[col + m]).sqrt());
@@ -138,10 +173,14 @@ fn base_kinds_of(model: &StageModel, names: &[String]) -> Vec<String> {
 }
 
 /// Adds the term for an accepted candidate; returns its name.
+/// `shift_um` is added to every value of a lost-motion table: the part of
+/// the lost motion a play (which cannot be negative) could not take.
 fn add_term(
     m: &mut StageModel,
+    original: &StageModel,
     spec: &Spec,
     coef: &[f64],
+    shift_um: f64,
     k: usize,
     t0: f64,
 ) -> Result<String, AnalysisError> {
@@ -219,6 +258,38 @@ fn add_term(
                 length_um,
             }),
         ),
+        Spec::Table {
+            axis,
+            ref knots,
+            lost_motion,
+        } => {
+            let mut values_um = vec![if lost_motion { shift_um } else { 0.0 }; knots.len()];
+            for (j, k) in table_free_knots(knots.len(), lost_motion, original, axis).enumerate() {
+                values_um[k] += coef.get(j).copied().unwrap_or(0.0);
+            }
+            (
+                format!(
+                    "found{k}_{axis}_{}_table",
+                    if lost_motion {
+                        "reversal"
+                    } else {
+                        "nonlinearity"
+                    }
+                ),
+                DiscoveredConfig::PositionTable(PositionTableConfig {
+                    axis,
+                    component: axis,
+                    positions_um: knots.clone(),
+                    values_um,
+                    lost_motion,
+                }),
+            )
+        }
+        Spec::Tables { .. } => {
+            return Err(AnalysisError::Invalid(
+                "two tables judged jointly become two terms (split them first)".into(),
+            ))
+        }
         Spec::Other { comp, .. } => {
             return Err(AnalysisError::Invalid(format!(
                 "a dependence of the {comp} error on a log column cannot become a model term (the model has no input for it)"

@@ -200,6 +200,7 @@ pub(super) fn unjudged(d: &Data) -> Vec<f64> {
 }
 
 /// Held-out verdict on one family.
+#[derive(Clone)]
 pub(super) struct Verdict {
     pub(super) family: Family,
     /// Pooled held-out residual after, `2i + c`.

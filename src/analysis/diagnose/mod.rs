@@ -129,9 +129,11 @@ use extend::{extended, extended_with_se};
 use fit::{fit_with, fold_base, keep_heldout, paired_z, rms_comp, select_base, unjudged, Verdict};
 pub use ident::Unidentifiable;
 pub use noise::{ComponentNoise, IsoFigures, NoiseReport, Outlier, Sampling, TargetRepeat};
-pub use readings::{Reading, ReadingKind, READING_Z};
+pub use readings::{Reading, ReadingKind, ReadingTerm, READING_Z};
 pub use search::ALL_KINDS;
-use search::{base_columns, columns, families, refine_period, search, Family, Spec};
+use search::{
+    base_columns, columns, families, refine_localized, refine_period, search, Family, Spec,
+};
 
 /// How to diagnose.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -500,7 +502,14 @@ pub fn diagnose(
     let mut dropped: Vec<usize> = (0..cand_names.len())
         .filter(|j| !keep.contains(j))
         .collect();
-    let fams = families(&d);
+    // Readings of the replicates that the base leaves (a reversal that
+    // varies along the travel, a non-linearity between targets) become
+    // candidate terms, tables judged on held-out data like every family.
+    let mut fams = families(&d);
+    fams.extend(tables_wanted(log, &d, &base));
+    // The last held-out test of each table family (against the final
+    // model when it was not accepted).
+    let mut table_tests: Vec<TableTest> = Vec::new();
     let mut accepted: Vec<(Spec, Verdict)> = Vec::new();
     let mut baseline_rms = [0.0; 2];
     let mut last_heldout: [f64; 2];
@@ -514,7 +523,7 @@ pub fn diagnose(
             let train: Vec<bool> = d.fold.iter().map(|&k| k != f).collect();
             let fb = fold_base(&d, &base, train);
             keep_heldout(&d, &mut before, &fb.resid, &fb.train);
-            if round == opts.max_findings {
+            if round >= opts.max_findings {
                 continue;
             }
             for (fi, fam) in fams.iter().enumerate() {
@@ -531,10 +540,10 @@ pub fn diagnose(
         }
         last_heldout = heldout;
         final_heldout = before.clone();
-        if round == opts.max_findings {
+        if round >= opts.max_findings {
             break;
         }
-        let mut verdicts: Vec<Verdict> = fams
+        let all_verdicts: Vec<Verdict> = fams
             .iter()
             .zip(after)
             .map(|(fam, after)| {
@@ -556,7 +565,31 @@ pub fn diagnose(
                     rms_after: ra,
                 }
             })
+            .collect();
+        for v in &all_verdicts {
+            let (axis, lost_motion, joint) = match v.family {
+                Family::Table { axis, lost_motion } => (axis, lost_motion, false),
+                Family::Tables { axis } => (axis, true, true),
+                _ => continue,
+            };
+            table_tests.retain(|t| (t.axis, t.lost_motion, t.joint) != (axis, lost_motion, joint));
+            table_tests.push(TableTest {
+                axis,
+                lost_motion,
+                joint,
+                rms_before_um: v.rms_before,
+                rms_after_um: v.rms_after,
+                gain_pct: v.gain_pct,
+                z: v.z,
+            });
+        }
+        let mut verdicts: Vec<Verdict> = all_verdicts
+            .into_iter()
             .filter(|v| v.z >= opts.z_threshold && v.gain_pct >= opts.min_gain_pct)
+            // Two tables at once are two findings: only within the cap.
+            .filter(|v| {
+                !matches!(v.family, Family::Tables { .. }) || round + 2 <= opts.max_findings
+            })
             .collect();
         verdicts.sort_by(|a, b| b.reduction.total_cmp(&a.reduction));
         let Some(mut best) = verdicts.first().map(|v| v.family) else {
@@ -592,7 +625,7 @@ pub fn diagnose(
         let Some(spec) = search(best, &d, &fb.resid, &all) else {
             break;
         };
-        let spec = refine_period(spec, &d, &base, model);
+        let spec = refine_localized(refine_period(spec, &d, &base, model), &d, &base, model);
         let spec_cols = columns(&spec, &d, model);
         // A finding the model's own parameters can carry is a parameter
         // correction: a candidate the base selection left at the model's
@@ -611,7 +644,9 @@ pub fn diagnose(
             continue;
         }
         base.extend(spec_cols);
-        accepted.push((spec, verdict));
+        for s in spec.split() {
+            accepted.push((s, verdict.clone()));
+        }
     }
 
     // The extended model cannot carry `other` findings (log columns it has
@@ -743,7 +778,8 @@ pub fn diagnose(
             }
         }
     }
-    let noise = noise::noise_report(log, &d, &final_heldout);
+    let mut noise = noise::noise_report(log, &d, &final_heldout);
+    reading_terms(&mut noise, &findings, &table_tests, &d, opts);
     // What the aliased parameters contribute at the log's points.
     let mut aliased_rms = [0.0; 2];
     if base_fixed.iter().any(|p| p.aliased) {
@@ -796,6 +832,214 @@ pub fn diagnose(
         base_model,
         series,
     })
+}
+
+/// The held-out test of a table family (a reading as a model term).
+#[derive(Debug, Clone, Copy)]
+struct TableTest {
+    axis: Axis,
+    lost_motion: bool,
+    /// Both tables of the axis jointly (`lost_motion` is then true).
+    joint: bool,
+    rms_before_um: f64,
+    rms_after_um: f64,
+    gain_pct: f64,
+    z: f64,
+}
+
+/// The table families worth searching: a reading of the replicates
+/// (`readings::read`, on the base fit's held-out residual, as the report's
+/// readings are) of a reversal that varies along the travel or of a
+/// non-linearity between targets that the base leaves. Why gated: a table has a parameter per knot; searched on every
+/// log it would compete with the periodic and localized families for
+/// structure they describe with two or three parameters, and its evidence
+/// is the replicates' (same target, same approach, several cycles).
+fn tables_wanted(log: &MeasurementLog, d: &data::Data, base: &[Vec<f64>]) -> Vec<Family> {
+    let mut heldout = unjudged(d);
+    for f in 0..d.nfolds {
+        let train: Vec<bool> = d.fold.iter().map(|&k| k != f).collect();
+        let fb = fold_base(d, base, train);
+        keep_heldout(d, &mut heldout, &fb.resid, &fb.train);
+    }
+    let nr = noise::noise_report(log, d, &heldout);
+    let mut out = Vec::new();
+    for r in nr.components.iter().flat_map(|c| &c.readings) {
+        let lost_motion = match r.kind {
+            ReadingKind::ReversalVaries => true,
+            ReadingKind::Nonlinearity => false,
+            _ => continue,
+        };
+        if r.model_explains != Some(false) || search::table_knots(d, r.component).is_none() {
+            continue;
+        }
+        let f = Family::Table {
+            axis: r.component,
+            lost_motion,
+        };
+        if !out.contains(&f) {
+            out.push(f);
+        }
+    }
+    // Both tables of one axis: also jointly (a bidirectional table). A
+    // test with few targets gives each table few points; where both are
+    // there, neither alone leaves the held-out cycles as close as the two.
+    for axis in Axis::ALL {
+        let both = [true, false]
+            .iter()
+            .all(|&lost_motion| out.contains(&Family::Table { axis, lost_motion }));
+        if both {
+            out.push(Family::Tables { axis });
+        }
+    }
+    out
+}
+
+/// Attaches to each reading the model term it became and its held-out
+/// gain (or why no term can carry it).
+fn reading_terms(
+    noise: &mut NoiseReport,
+    findings: &[Finding],
+    tests: &[TableTest],
+    d: &data::Data,
+    opts: &DiagnoseOptions,
+) {
+    for c in &mut noise.components {
+        for r in &mut c.readings {
+            let lost_motion = match r.kind {
+                ReadingKind::ReversalVaries => true,
+                ReadingKind::Nonlinearity => false,
+                ReadingKind::FirstApproach => {
+                    r.term = Some(ReadingTerm {
+                        kind: "",
+                        name: String::new(),
+                        knots: 0,
+                        heldout_rms_before_um: f64::NAN,
+                        heldout_rms_after_um: f64::NAN,
+                        gain_pct: f64::NAN,
+                        z: f64::NAN,
+                        in_extended_model: false,
+                        sentence: "no model term: it happens once, on the first visit, so no held-out cycle can test a term for it (and a model has no state for \"first visit of the log\"); the visit is left out of every fit and held-out score, the repeatability and the per-target means".into(),
+                    });
+                    continue;
+                }
+                _ => continue,
+            };
+            let axis = r.component;
+            let knots = search::table_knots(d, axis).map_or(0, |k| k.len());
+            // What the model's held-out residual no longer shows needs no
+            // term (unless it is one: found below).
+            let lacks = r.model_explains == Some(false);
+            let what = if lost_motion {
+                "a reversal table"
+            } else {
+                "a non-linearity table"
+            };
+            let want = if lost_motion {
+                FindingKind::ReversalVaries
+            } else {
+                FindingKind::Nonlinearity
+            };
+            if let Some(f) = findings.iter().find(|f| f.kind == want && f.axis == axis) {
+                // Two tables accepted together share one held-out verdict.
+                let other = if lost_motion {
+                    FindingKind::Nonlinearity
+                } else {
+                    FindingKind::ReversalVaries
+                };
+                let jointly = if findings.iter().any(|g| {
+                    g.kind == other
+                        && g.axis == axis
+                        && g.significance == f.significance
+                        && g.gain_pct == f.gain_pct
+                }) {
+                    " (judged jointly with the other table of the axis)"
+                } else {
+                    ""
+                };
+                r.term = Some(ReadingTerm {
+                    kind: crate::model::terms::discovered::POSITION_TABLE_KIND,
+                    name: f.term.clone(),
+                    knots,
+                    heldout_rms_before_um: f.heldout_rms_before_um,
+                    heldout_rms_after_um: f.heldout_rms_after_um,
+                    gain_pct: f.gain_pct,
+                    z: f.significance,
+                    in_extended_model: true,
+                    sentence: format!(
+                        "{what} at {knots} knots{jointly} predicts held-out cycles better: {axis} {:.3} → {:.3} µm ({:+.0} %, z {:.1}); the extended model carries it (`{}`)",
+                        f.heldout_rms_before_um, f.heldout_rms_after_um, f.gain_pct, f.significance, f.term
+                    ),
+                });
+            } else if !lacks {
+                continue;
+            } else if knots == 0 {
+                r.term = Some(untested(
+                    what,
+                    "the log has fewer than 3 positions along the axis".into(),
+                ));
+            } else if let Some(t) = tests
+                .iter()
+                .find(|t| t.axis == axis && t.lost_motion == lost_motion && !t.joint)
+            {
+                let jointly = tests
+                    .iter()
+                    .find(|t| t.axis == axis && t.joint)
+                    .map(|j| {
+                        format!(
+                            "; with the {} table jointly: {axis} {:.3} → {:.3} µm ({:+.0} %, z {:.1}), not added either",
+                            if lost_motion { "non-linearity" } else { "reversal" },
+                            j.rms_before_um,
+                            j.rms_after_um,
+                            j.gain_pct,
+                            j.z
+                        )
+                    })
+                    .unwrap_or_default();
+                let verdict = if t.gain_pct <= 0.0 {
+                    "it does not generalize: the per-target values of the training cycles do not predict the held-out ones"
+                } else if t.z < opts.z_threshold || t.gain_pct < opts.min_gain_pct {
+                    "the gain is not significant"
+                } else {
+                    "the finding cap was reached first"
+                };
+                r.term = Some(ReadingTerm {
+                    kind: crate::model::terms::discovered::POSITION_TABLE_KIND,
+                    name: String::new(),
+                    knots,
+                    heldout_rms_before_um: t.rms_before_um,
+                    heldout_rms_after_um: t.rms_after_um,
+                    gain_pct: t.gain_pct,
+                    z: t.z,
+                    in_extended_model: false,
+                    sentence: format!(
+                        "{what} at {knots} knots, held out: {axis} {:.3} → {:.3} µm ({:+.0} %, z {:.1}); not added: {verdict}{jointly}",
+                        t.rms_before_um, t.rms_after_um, t.gain_pct, t.z
+                    ),
+                });
+            } else {
+                r.term = Some(untested(
+                    what,
+                    "the base fit's held-out residual did not show it (the final model's does)"
+                        .into(),
+                ));
+            }
+        }
+    }
+}
+
+/// A reading's term that was not tested, and why.
+fn untested(what: &str, why: String) -> ReadingTerm {
+    ReadingTerm {
+        kind: crate::model::terms::discovered::POSITION_TABLE_KIND,
+        name: String::new(),
+        knots: 0,
+        heldout_rms_before_um: f64::NAN,
+        heldout_rms_after_um: f64::NAN,
+        gain_pct: f64::NAN,
+        z: f64::NAN,
+        in_extended_model: false,
+        sentence: format!("{what} was not tested: {why}"),
+    }
 }
 
 /// The log's temperature record as a model environment (linear between

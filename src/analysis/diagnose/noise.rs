@@ -210,10 +210,29 @@ fn key_of(v: f64) -> i64 {
     (v * 1e3).round() as i64
 }
 
-fn component(log: &MeasurementLog, d: &Data, heldout: &[f64], c: Axis) -> ComponentNoise {
+/// Replicate-group key: (segment, target x, target y, approach x, approach y).
+type Key<'a> = (&'a str, i64, i64, i64, i64);
+
+/// The replicated targets of component `c` (groups of ≥ 2 visits), each
+/// group's median deviation, and the robust σ.
+struct Replicates<'a> {
+    reps: Vec<(Key<'a>, Vec<usize>)>,
+    medians: Vec<f64>,
+    robust: Option<f64>,
+}
+
+/// Deviation `meas − target` of row `i` on component `ci`.
+fn deviation(log: &MeasurementLog, i: usize, ci: usize) -> f64 {
+    let r = &log.records[i];
+    if ci == 0 {
+        r.x_meas_um - r.x_target_um
+    } else {
+        r.y_meas_um - r.y_target_um
+    }
+}
+
+fn replicates<'a>(log: &'a MeasurementLog, d: &Data, c: Axis) -> Replicates<'a> {
     let ci = c.index();
-    // Replicate groups: (segment, target x, target y, approach x, approach y).
-    type Key<'a> = (&'a str, i64, i64, i64, i64);
     let mut groups: BTreeMap<Key, Vec<usize>> = BTreeMap::new();
     for (i, r) in log.records.iter().enumerate().take(d.n) {
         let ap = d.approach[i];
@@ -226,19 +245,11 @@ fn component(log: &MeasurementLog, d: &Data, heldout: &[f64], c: Axis) -> Compon
         );
         groups.entry(k).or_default().push(i);
     }
-    let dev = |i: usize| -> f64 {
-        let r = &log.records[i];
-        if ci == 0 {
-            r.x_meas_um - r.x_target_um
-        } else {
-            r.y_meas_um - r.y_target_um
-        }
-    };
+    let dev = |i: usize| deviation(log, i, ci);
     // Robust σ: the median over targets of the variance between visits
     // (one wild visit inflates its own target's variance, not the median),
-    // and each target's median as its centre. A target needs three visits
-    // before one of them can be called the odd one out.
-    let reps: Vec<(&Key, &Vec<usize>)> = groups.iter().filter(|(_, r)| r.len() >= 2).collect();
+    // and each target's median as its centre.
+    let reps: Vec<(Key, Vec<usize>)> = groups.into_iter().filter(|(_, r)| r.len() >= 2).collect();
     let medians: Vec<f64> = reps
         .iter()
         .map(|(_, rows)| super::data::median(rows.iter().map(|&i| dev(i)).collect()).unwrap_or(0.0))
@@ -253,11 +264,46 @@ fn component(log: &MeasurementLog, d: &Data, heldout: &[f64], c: Axis) -> Compon
             .collect(),
     )
     .map(f64::sqrt);
+    Replicates {
+        reps,
+        medians,
+        robust,
+    }
+}
+
+/// Whether a visit `excess_um` from its target's median, in a group of
+/// `visits`, is an outlier: a target needs three visits before one of them
+/// can be called the odd one out.
+fn is_outlier(visits: usize, robust: Option<f64>, excess_um: f64) -> bool {
+    matches!(robust, Some(r) if visits >= 3 && r > 0.0 && excess_um.abs() > OUTLIER_SIGMAS * r)
+}
+
+/// Rows of component `c` that are outliers among the visits of their
+/// target (see [`Data::excluded`]).
+pub(super) fn outlier_rows(log: &MeasurementLog, d: &Data, c: Axis) -> Vec<usize> {
+    let ci = c.index();
+    let rep = replicates(log, d, c);
+    let mut out = Vec::new();
+    for ((_, rows), med) in rep.reps.iter().zip(&rep.medians) {
+        for &i in rows {
+            if is_outlier(rows.len(), rep.robust, deviation(log, i, ci) - med) {
+                out.push(i);
+            }
+        }
+    }
+    out
+}
+
+fn component(log: &MeasurementLog, d: &Data, heldout: &[f64], c: Axis) -> ComponentNoise {
+    let ci = c.index();
+    let rep = replicates(log, d, c);
+    let (reps, medians, robust) = (&rep.reps, &rep.medians, rep.robust);
+    let dev = |i: usize| deviation(log, i, ci);
     let mut targets = Vec::new();
     let mut outliers = Vec::new();
     let mut visits: Vec<Visit> = Vec::new();
     let (mut ss, mut dof) = (0.0, 0usize);
-    for ((k, rows), med) in reps.iter().zip(&medians) {
+    for ((k, rows), med) in reps.iter().zip(medians) {
         // The moving axis names the target (x when both or neither move).
         let first = rows[0];
         let along = if d.moving[first][0] || !d.moving[first][1] {
@@ -270,17 +316,16 @@ fn component(log: &MeasurementLog, d: &Data, heldout: &[f64], c: Axis) -> Compon
         let mut kept = Vec::with_capacity(rows.len());
         for &i in rows.iter() {
             let excess = dev(i) - med;
-            match robust {
-                Some(r) if rows.len() >= 3 && r > 0.0 && excess.abs() > OUTLIER_SIGMAS * r => {
-                    outliers.push(Outlier {
-                        cycle: log.records[i].cycle,
-                        target_um,
-                        approach,
-                        excess_um: excess,
-                        first_visit: i == first,
-                    })
-                }
-                _ => kept.push(i),
+            if is_outlier(rows.len(), robust, excess) {
+                outliers.push(Outlier {
+                    cycle: log.records[i].cycle,
+                    target_um,
+                    approach,
+                    excess_um: excess,
+                    first_visit: i == first,
+                });
+            } else {
+                kept.push(i);
             }
         }
         if kept.len() < 2 {

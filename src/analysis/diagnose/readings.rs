@@ -113,6 +113,39 @@ pub struct Reading {
     pub sentence: String,
     /// The likely physical causes.
     pub cause: &'static str,
+    /// The model term this reading becomes and what it gains on held-out
+    /// data (reversal that varies, non-linearity), or why no term can
+    /// carry it (first approach); absent for readings the model's own
+    /// parameters carry (reversal, scale, drift).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub term: Option<ReadingTerm>,
+}
+
+/// A reading as a model term: the term, its held-out test, and whether the
+/// extended model carries it.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct ReadingTerm {
+    /// Term kind (`position_table`), empty when no term can carry it.
+    pub kind: &'static str,
+    /// Name of the term in the extended model (empty when not added).
+    pub name: String,
+    /// Knots of the table (its targets, or evenly spaced on a dense axis).
+    pub knots: usize,
+    /// Held-out RMS of the component without the term, µm (NaN when not
+    /// tested).
+    pub heldout_rms_before_um: f64,
+    /// ... and with it, µm.
+    pub heldout_rms_after_um: f64,
+    /// `100·(1 − after/before)`, % (negative: the term predicts held-out
+    /// data worse, it does not generalize).
+    pub gain_pct: f64,
+    /// Paired z of the held-out reduction of squared error.
+    pub z: f64,
+    /// Whether the extended model carries it (it passed the same held-out
+    /// test as every finding).
+    pub in_extended_model: bool,
+    /// What the test says, in words.
+    pub sentence: String,
 }
 
 /// Normal z of a χ² statistic with `k` degrees of freedom (Wilson–Hilferty).
@@ -260,6 +293,7 @@ pub(super) fn read(
                     rev.len(),
                     sw.sqrt().recip()
                 ),
+                term: None,
                 cause: ReadingKind::Reversal.cause(),
             });
         }
@@ -293,7 +327,8 @@ pub(super) fn read(
                         rev.len(),
                         (rev.iter().map(|r| r.2).sum::<f64>() / rev.len() as f64).sqrt()
                     ),
-                    cause: ReadingKind::ReversalVaries.cause(),
+                    term: None,
+                cause: ReadingKind::ReversalVaries.cause(),
                 });
             }
         }
@@ -348,7 +383,8 @@ pub(super) fn read(
                         b * span,
                         span / 1e3
                     ),
-                    cause: ReadingKind::Scale.cause(),
+                    term: None,
+                cause: ReadingKind::Scale.cause(),
                 });
             }
             let dof = tg.len() as f64 - 2.0;
@@ -375,7 +411,8 @@ pub(super) fn read(
                             at(x[k]),
                             tg[k].2.sqrt()
                         ),
-                        cause: ReadingKind::Nonlinearity.cause(),
+                        term: None,
+                cause: ReadingKind::Nonlinearity.cause(),
                     });
                 }
             }
@@ -430,7 +467,8 @@ pub(super) fn read(
                         cycles[0].0,
                         cycles[cycles.len() - 1].0
                     ),
-                    cause: ReadingKind::CycleDrift.cause(),
+                    term: None,
+                cause: ReadingKind::CycleDrift.cause(),
                 });
             }
         }
@@ -450,6 +488,7 @@ pub(super) fn read(
                     "the first visit of {} on {name} (cycle {cycle}) is {excess_um:+.3} µm from the other visits of that target",
                     at(target_um)
                 ),
+                term: None,
                 cause: ReadingKind::FirstApproach.cause(),
             });
         }

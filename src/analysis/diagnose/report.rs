@@ -337,6 +337,9 @@ impl Diagnosis {
                     r.sentence,
                     r.cause
                 );
+                if let Some(t) = &r.term {
+                    let _ = writeln!(out, "    as a model term: {}", t.sentence);
+                }
             }
         }
         out

@@ -6,7 +6,7 @@
 //! Why a file of its own: the families are where a new kind of finding is
 //! added; the held-out judging ([`super::fit`]) is the same for all.
 
-use crate::model::terms::discovered::step_size_shape;
+use crate::model::terms::discovered::{step_size_shape, table_basis};
 use crate::model::{Axis, Direction, MotionState, StageModel, Term, DEFAULT_TEMP_C};
 
 use super::data::{median, move_lengths, Data};
@@ -54,20 +54,89 @@ pub(super) enum Spec {
         comp: Axis,
         var: usize,
     },
+    /// A table of `axis`'s own error at `knots`, linear between them: lost
+    /// motion (`lost_motion`, a reversal table) or a non-linearity.
+    Table {
+        axis: Axis,
+        knots: Vec<f64>,
+        lost_motion: bool,
+    },
+    /// Both tables of `axis` at once (a bidirectional table, as ISO 230-2
+    /// compensation tables are): judged jointly, then carried as its two
+    /// [`Spec::Table`]s ([`Spec::split`]).
+    Tables {
+        axis: Axis,
+        knots: Vec<f64>,
+    },
+}
+
+impl Spec {
+    /// The specs that become model terms: [`Spec::Tables`] is its two
+    /// tables, every other spec itself.
+    pub(super) fn split(self) -> Vec<Spec> {
+        match self {
+            Spec::Tables { axis, knots } => vec![
+                Spec::Table {
+                    axis,
+                    knots: knots.clone(),
+                    lost_motion: false,
+                },
+                Spec::Table {
+                    axis,
+                    knots,
+                    lost_motion: true,
+                },
+            ],
+            other => vec![other],
+        }
+    }
 }
 
 /// A search family (what varies, before the search fixes it).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub(super) enum Family {
-    PosPeriodic { axis: Axis, comp: Axis },
-    Localized { axis: Axis, comp: Axis },
-    Slope { axis: Axis, comp: Axis },
-    Drift { comp: Axis, quadratic: bool },
-    TimePeriodic { comp: Axis },
-    Temperature { comp: Axis },
-    Reversal { axis: Axis },
-    StepSize { axis: Axis },
-    Other { comp: Axis, var: usize },
+    PosPeriodic {
+        axis: Axis,
+        comp: Axis,
+    },
+    Localized {
+        axis: Axis,
+        comp: Axis,
+    },
+    Slope {
+        axis: Axis,
+        comp: Axis,
+    },
+    Drift {
+        comp: Axis,
+        quadratic: bool,
+    },
+    TimePeriodic {
+        comp: Axis,
+    },
+    Temperature {
+        comp: Axis,
+    },
+    Reversal {
+        axis: Axis,
+    },
+    StepSize {
+        axis: Axis,
+    },
+    Other {
+        comp: Axis,
+        var: usize,
+    },
+    /// Searched only where a reading of the replicates says the model
+    /// lacks it (see `tables_wanted`).
+    Table {
+        axis: Axis,
+        lost_motion: bool,
+    },
+    /// Both tables jointly, where both readings say the model lacks them.
+    Tables {
+        axis: Axis,
+    },
 }
 
 impl Family {
@@ -80,7 +149,10 @@ impl Family {
             | Family::TimePeriodic { comp }
             | Family::Temperature { comp }
             | Family::Other { comp, .. } => comp,
-            Family::Reversal { axis } | Family::StepSize { axis } => axis,
+            Family::Reversal { axis }
+            | Family::StepSize { axis }
+            | Family::Table { axis, .. }
+            | Family::Tables { axis } => axis,
         }
     }
 }
@@ -229,6 +301,55 @@ fn step_size_search(d: &Data, axis: Axis, resid: &[f64], train: &[bool]) -> Opti
     })
 }
 
+/// Knots of a table along `axis`: its distinct positions when there are at
+/// most [`MAX_TABLE_TARGETS`] (a test with few targets: one value per
+/// target, nothing claimed between them), else [`DENSE_TABLE_KNOTS`]
+/// evenly spaced over its span (a dense scan: a smooth curve, the finer
+/// structure is the periodic and localized families' business); `None`
+/// with fewer than three positions (two knots are a constant and a slope,
+/// which the base already has).
+pub(super) fn table_knots(d: &Data, axis: Axis) -> Option<Vec<f64>> {
+    let pos = super::data::distinct_positions(d, axis);
+    if pos.len() < 3 {
+        return None;
+    }
+    if pos.len() <= MAX_TABLE_TARGETS {
+        return Some(pos);
+    }
+    let (lo, hi) = (pos[0], pos[pos.len() - 1]);
+    let k = DENSE_TABLE_KNOTS - 1;
+    Some(
+        (0..=k)
+            .map(|j| lo + (hi - lo) * j as f64 / k as f64)
+            .collect(),
+    )
+}
+
+/// Distinct positions up to which a table has one knot per target.
+pub(super) const MAX_TABLE_TARGETS: usize = 12;
+
+/// Knots of a table along a densely sampled axis.
+pub(super) const DENSE_TABLE_KNOTS: usize = 6;
+
+/// Indices of a table's knots the fit frees. A non-linearity table is zero
+/// at both ends: a constant and a slope are the origin and the scale, which
+/// the base already carries. A lost-motion table is zero at its first knot
+/// when the model has a play for the axis (the play carries the constant
+/// lost motion, the table how it changes along the travel), else free at
+/// every knot.
+pub(super) fn table_free_knots(
+    k: usize,
+    lost_motion: bool,
+    model: &StageModel,
+    axis: Axis,
+) -> std::ops::Range<usize> {
+    match (lost_motion, backlash_term_of(model, axis).is_some()) {
+        (false, _) => 1..k.saturating_sub(1).max(1),
+        (true, true) => 1..k,
+        (true, false) => 0..k,
+    }
+}
+
 /// Distinct positions an axis needs before its periodic and localized
 /// families are searched (fewer cannot place a period or a bump).
 pub(super) const MIN_PROFILE_POSITIONS: usize = 16;
@@ -244,7 +365,7 @@ fn position_profile(
     train: &[bool],
 ) -> (Vec<f64>, Vec<f64>) {
     let mut pts: Vec<(f64, f64)> = (0..d.n)
-        .filter(|&i| train[i] && d.moving[i][a.index()])
+        .filter(|&i| train[i] && !d.excluded[i] && d.moving[i][a.index()])
         .map(|i| (d.states[i].cmd_um(a), resid[2 * i + comp.index()]))
         .collect();
     pts.sort_by(|p, q| p.0.total_cmp(&q.0));
@@ -368,8 +489,17 @@ pub(super) fn search(f: Family, d: &Data, resid: &[f64], train: &[bool]) -> Opti
         }
         Family::StepSize { axis } => step_size_search(d, axis, resid, train),
         Family::Other { comp, var } => Some(Spec::Other { comp, var }),
+        Family::Table { axis, lost_motion } => Some(Spec::Table {
+            axis,
+            knots: table_knots(d, axis)?,
+            lost_motion,
+        }),
+        Family::Tables { axis } => Some(Spec::Tables {
+            axis,
+            knots: table_knots(d, axis)?,
+        }),
         Family::TimePeriodic { comp } => {
-            let idx: Vec<usize> = (0..d.n).filter(|&i| train[i]).collect();
+            let idx: Vec<usize> = (0..d.n).filter(|&i| train[i] && !d.excluded[i]).collect();
             let x: Vec<f64> = idx.iter().map(|&i| d.states[i].time_s).collect();
             let y: Vec<f64> = idx.iter().map(|&i| resid[2 * i + comp.index()]).collect();
             if x.len() < 16 {
@@ -467,6 +597,30 @@ pub(super) fn columns(spec: &Spec, d: &Data, model: &StageModel) -> Vec<Vec<f64>
             let m = s.axis(axis);
             step_size_shape(m.dir.sign(), m.last_move_um, length_um)
         }),
+        Spec::Tables { .. } => {
+            return spec
+                .clone()
+                .split()
+                .iter()
+                .flat_map(|s| columns(s, d, model))
+                .collect()
+        }
+        Spec::Table {
+            axis,
+            ref knots,
+            lost_motion,
+        } => {
+            for k in table_free_knots(knots.len(), lost_motion, model, axis) {
+                one(axis, &|s| {
+                    let f = if lost_motion {
+                        -0.5 * s.axis(axis).dir.sign()
+                    } else {
+                        1.0
+                    };
+                    f * table_basis(knots, s.cmd_um(axis))[k]
+                });
+            }
+        }
         Spec::Other { comp, var } => {
             let mut v = vec![0.0; 2 * n];
             if let Some(x) = d.extra.get(var) {
@@ -495,10 +649,16 @@ pub(super) fn base_kind_selected(kinds: &[String], kind: &str) -> bool {
 /// claim about the stage, so the base fit does not fit an amplitude at a
 /// period nobody measured (it would take part of a real periodic error at
 /// a nearby period and extrapolate it in time). A periodic error is the
-/// search's job; once found, its term has an amplitude and is freed.
+/// search's job; once found, its term has an amplitude and is freed. The
+/// same holds for a zero `position_table`: its knots are the file's, not
+/// the stage's targets.
 fn placeholder(t: &dyn Term) -> bool {
-    use crate::model::terms::discovered::{POSITION_PERIODIC_KIND, TIME_PERIODIC_KIND};
-    (t.kind() == POSITION_PERIODIC_KIND || t.kind() == TIME_PERIODIC_KIND)
+    use crate::model::terms::discovered::{
+        POSITION_PERIODIC_KIND, POSITION_TABLE_KIND, TIME_PERIODIC_KIND,
+    };
+    (t.kind() == POSITION_PERIODIC_KIND
+        || t.kind() == TIME_PERIODIC_KIND
+        || t.kind() == POSITION_TABLE_KIND)
         && t.params().iter().all(|p| p.value == 0.0)
 }
 
@@ -643,6 +803,105 @@ pub(super) fn refine_period(spec: Spec, d: &Data, base: &[Vec<f64>], model: &Sta
         spec
     }
 }
+
+/// A localized spec's place and width refined against the joint fit of
+/// `base` and the spec's own (centred) column on every row: the place and
+/// width whose least-squares fit, every linear parameter free, leaves the
+/// smallest residual (a pattern search from the search's values). Other
+/// specs come back unchanged.
+///
+/// Why: the search scores an uncentred Gaussian against the base fit's
+/// residual. Two things bias it that only the joint fit undoes: base
+/// parameters that share variance with a broad bump (a guide waviness whose
+/// period is near the scan's span, freed by the base) have taken part of it,
+/// so the bump left in the residual is smaller and flatter; and a bump of
+/// one component along the other axis is seen only on lines where that
+/// component's axis stands still, whose block constant is profiled out, so
+/// the residual holds the bump minus its mean over the line, which looks
+/// narrower. The column the extended model is fitted with is centred the
+/// same way, so its joint fit is where the term predicts.
+pub(super) fn refine_localized(
+    spec: Spec,
+    d: &Data,
+    base: &[Vec<f64>],
+    model: &StageModel,
+) -> Spec {
+    let Spec::Localized {
+        axis,
+        comp,
+        position_um,
+        width_um,
+    } = spec
+    else {
+        return spec;
+    };
+    let pos = super::data::distinct_positions(d, axis);
+    let (Some(&lo), Some(&hi)) = (pos.first(), pos.last()) else {
+        return spec;
+    };
+    let spacing = median(pos.windows(2).map(|w| w[1] - w[0]).collect()).unwrap_or(0.0);
+    if !(position_um.is_finite() && width_um.is_finite() && width_um > 0.0 && spacing > 0.0) {
+        return spec;
+    }
+    let with = |p: f64, w: f64| Spec::Localized {
+        axis,
+        comp,
+        position_um: p,
+        width_um: w,
+    };
+    let all = vec![true; d.n];
+    let sse = |p: f64, w: f64| -> f64 {
+        let mut cols = base.to_vec();
+        cols.extend(columns(&with(p, w), d, model));
+        let fb = super::fit::fold_base(d, &cols, all.clone());
+        (0..d.n)
+            .map(|i| {
+                (0..2)
+                    .filter(|&c| d.measured[c])
+                    .map(|c| fb.resid[2 * i + c].powi(2))
+                    .sum::<f64>()
+            })
+            .sum()
+    };
+    let (mut p, mut w) = (position_um, width_um);
+    let mut best = sse(p, w);
+    let start = best;
+    let (mut dp, mut dw) = (w / 4.0, 0.25);
+    let w_max = (hi - lo).max(spacing);
+    for _ in 0..REFINE_STEPS {
+        let mut improved = false;
+        for (np, nw) in [
+            (p + dp, w),
+            (p - dp, w),
+            (p, w * (1.0 + dw)),
+            (p, w / (1.0 + dw)),
+        ] {
+            if nw < spacing || nw > w_max || np < lo - w_max || np > hi + w_max {
+                continue;
+            }
+            let v = sse(np, nw);
+            if v < best {
+                (best, p, w) = (v, np, nw);
+                improved = true;
+            }
+        }
+        if !improved {
+            dp /= 2.0;
+            dw /= 2.0;
+            if dp < 0.01 * spacing && dw < 1e-3 {
+                break;
+            }
+        }
+    }
+    if best < start {
+        with(p, w)
+    } else {
+        spec
+    }
+}
+
+/// Most probes of [`refine_localized`]'s pattern search (four per step).
+const REFINE_STEPS: usize = 40;
 
 /// Golden-section search for the largest `f` on `[lo, hi]` (unimodal there):
 /// `(x, f(x))` of the better of the last two probes.

@@ -199,18 +199,35 @@ fn replicates_give_the_repeatability_and_the_unexplained_error() {
     }
     let log = parse_bytes(s.as_bytes()).unwrap();
     let base = StageModel::paper_default().unwrap();
+    // Without findings, the per-target error is stated against the noise.
+    let none = DiagnoseOptions {
+        max_findings: 0,
+        ..DiagnoseOptions::default()
+    };
+    let d0 = diagnose(&log, &base, &none).unwrap();
+    let x0 = &d0.noise.components[0];
+    let rep = x0.repeatability_um.unwrap();
+    assert!(rep > 0.1 && rep < 1.0, "{rep}");
+    assert!(x0.unexplained);
+    assert!(x0.systematic_rms_um.unwrap() > 10.0 * rep);
+    assert!(!d0.to_text().contains("explains the log to its noise"));
+    // With them, the non-linearity read from the replicates becomes a
+    // table the extended model carries, and its held-out residual drops
+    // to the scatter's order.
     let d = diagnose(&log, &base, &DiagnoseOptions::default()).unwrap();
     let x = &d.noise.components[0];
-    let rep = x.repeatability_um.unwrap();
-    assert!(rep > 0.1 && rep < 1.0, "{rep}");
     assert_eq!(x.replicated_targets, 10);
     assert!(x.iso230_2.is_some());
-    assert!(x.unexplained);
-    assert!(x.systematic_rms_um.unwrap() > 10.0 * rep);
+    let f = d
+        .findings
+        .iter()
+        .find(|f| f.kind == FindingKind::Nonlinearity)
+        .unwrap_or_else(|| panic!("{}", d.to_text()));
+    assert!(f.heldout_rms_after_um < 3.0 * rep, "{f:?}");
+    assert!(x.systematic_rms_um.unwrap() < 3.0 * rep, "{x:?}");
     let s = &d.noise.sampling[0];
     assert_eq!(s.positions, 5);
     assert!((s.shortest_period_um - 20_000.0).abs() < 1e-6);
-    assert!(!d.to_text().contains("explains the log to its noise"));
     // The model's 400 µm harmonics cannot be resolved on 10 mm targets:
     // no periodic parameter is freed, and the screw table's are aliased.
     assert!(d
@@ -298,4 +315,40 @@ fn another_stage_of_the_same_design_gives_corrections_not_findings() {
     assert!(json["parameters"].as_array().is_some_and(|a| !a.is_empty()));
     assert!(json["findings"].as_array().is_some_and(|a| a.is_empty()));
     assert!(d.to_text().contains("parameter corrections"));
+}
+
+#[test]
+fn tables_have_a_knot_per_target_on_sparse_axes_and_free_what_the_base_lacks() {
+    use super::search::{table_free_knots, table_knots, DENSE_TABLE_KNOTS};
+    let base = StageModel::paper_default().unwrap();
+    let targets: Vec<f64> = [1000.0, 3500.0, 5000.0, 9000.0].to_vec();
+    let back: Vec<f64> = targets.iter().rev().copied().collect();
+    let passes: Vec<(u32, Vec<f64>, &str)> = (1..=5u32)
+        .flat_map(|c| [(c, targets.clone(), "fwd"), (c, back.clone(), "bwd")])
+        .collect();
+    let d = prepare(&hand_log(&passes), &base, 4).unwrap();
+    assert_eq!(table_knots(&d, Axis::X), Some(targets.clone()));
+    // y never moves: no table along it.
+    assert_eq!(table_knots(&d, Axis::Y), None);
+    // Non-linearity: zero at both ends; lost motion: zero at the first
+    // knot when the model has a play for the axis, free everywhere without.
+    assert_eq!(table_free_knots(4, false, &base, Axis::X), 1..3);
+    assert_eq!(table_free_knots(4, true, &base, Axis::X), 1..4);
+    let mut no_play = base.clone();
+    no_play.remove_term("x_backlash");
+    assert_eq!(table_free_knots(4, true, &no_play, Axis::X), 0..4);
+    // A dense scan: evenly spaced knots over its span.
+    let dense: Vec<f64> = (0..=40).map(|k| 10.0 * f64::from(k)).collect();
+    let d = prepare(
+        &hand_log(&[(1, dense.clone(), "fwd"), (2, dense, "fwd")]),
+        &base,
+        4,
+    )
+    .unwrap();
+    let k = table_knots(&d, Axis::X).unwrap();
+    assert_eq!(k.len(), DENSE_TABLE_KNOTS);
+    assert!(
+        (k[0] - 0.0).abs() < 1e-9 && (k[k.len() - 1] - 400.0).abs() < 1e-9,
+        "{k:?}"
+    );
 }

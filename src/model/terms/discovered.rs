@@ -20,9 +20,21 @@
 //! time_periodic:      d = s·sin(2π·t/T) + c·cos(2π·t/T)
 //! temperature_linear: d = k·(temp − reference)
 //! step_size:          d = −dir·A·(1 − exp(−L/λ))                   L = last move of `axis`
+//! position_table:     d = T(p)            (lost_motion: d = −½·dir·T(p))
+//!                     T = linear interpolation of `values_um` between `positions_um`,
+//!                     constant beyond the first and last knot
 //! ```
 //! All are linear in their parameters except `localized` (position and
 //! width) and `step_size` (length λ).
+//!
+//! `position_table` is what a metrologist reads from a test with few
+//! targets (an ISO 230-2 plan): a per-target table, not a formula. With
+//! `lost_motion = false` it is a non-linearity of the drive (the
+//! bidirectional mean deviation between targets); with `lost_motion = true`
+//! it is a reversal table, lost motion that changes along the travel (a
+//! constant play cannot follow it). Between knots the error is interpolated
+//! linearly: nothing is claimed about structure shorter than the knot
+//! spacing.
 //!
 //! `step_size` is lost motion that depends on the length `L` of the axis's
 //! last single commanded move ([`crate::model::AxisMotion::last_move_um`]):
@@ -59,6 +71,8 @@ pub const TIME_PERIODIC_KIND: &str = "time_periodic";
 pub const TEMPERATURE_KIND: &str = "temperature_linear";
 /// Kind name: lost motion that saturates with the length of the last move.
 pub const STEP_SIZE_KIND: &str = "step_size";
+/// Kind name: error (or lost motion) tabulated at knots along an axis.
+pub const POSITION_TABLE_KIND: &str = "position_table";
 
 fn default_reference_temp_c() -> f64 {
     DEFAULT_TEMP_C
@@ -168,6 +182,73 @@ pub struct StepSizeConfig {
     pub length_um: f64,
 }
 
+/// `position_table` table: an error tabulated at knots along `axis`,
+/// interpolated linearly between them (see the module docs).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PositionTableConfig {
+    /// Axis whose commanded position indexes the table.
+    pub axis: Axis,
+    /// Error component the term moves (for a lost-motion table, `axis`).
+    pub component: Axis,
+    /// Knots, µm of commanded `axis` position, strictly increasing (≥ 2).
+    pub positions_um: Vec<f64>,
+    /// Value at each knot, µm (same length as `positions_um`): the error,
+    /// or with `lost_motion` the lost motion (> 0: the platform trails the
+    /// command in the direction it moved, as a play does).
+    pub values_um: Vec<f64>,
+    /// Whether the table is lost motion: the contribution is `−½·dir·T(p)`
+    /// (`dir` of `axis`: +1 forward, −1 backward, 0 unknown).
+    #[serde(default)]
+    pub lost_motion: bool,
+}
+
+impl PositionTableConfig {
+    /// `T(p)`: linear between knots, the end values beyond them.
+    pub fn table_um(&self, p_um: f64) -> f64 {
+        table_weights(&self.positions_um, p_um)
+            .map(|(k, w)| {
+                let a = self.values_um.get(k).copied().unwrap_or(0.0);
+                let b = self.values_um.get(k + 1).copied().unwrap_or(a);
+                a + w * (b - a)
+            })
+            .unwrap_or(0.0)
+    }
+}
+
+/// `(k, w)`: `p` lies between knot `k` and `k + 1` at fraction `w` (0 at or
+/// below the first knot, 1 at or beyond the last: `k` is then the second
+/// last); `None` without two knots or for a non-finite `p`.
+pub fn table_weights(knots_um: &[f64], p_um: f64) -> Option<(usize, f64)> {
+    if knots_um.len() < 2 || !p_um.is_finite() {
+        return None;
+    }
+    let last = knots_um.len() - 2;
+    let k = knots_um
+        .partition_point(|&q| q <= p_um)
+        .saturating_sub(1)
+        .min(last);
+    let (a, b) = (knots_um[k], knots_um[k + 1]);
+    let w = if b > a {
+        ((p_um - a) / (b - a)).clamp(0.0, 1.0)
+    } else {
+        0.0
+    };
+    Some((k, w))
+}
+
+/// Hat-function values of the knots at `p` (each knot's weight in the
+/// linear interpolation; they sum to 1): the table's basis, one entry per
+/// knot.
+pub fn table_basis(knots_um: &[f64], p_um: f64) -> Vec<f64> {
+    let mut out = vec![0.0; knots_um.len()];
+    if let Some((k, w)) = table_weights(knots_um, p_um) {
+        out[k] += 1.0 - w;
+        out[k + 1] += w;
+    }
+    out
+}
+
 /// The configuration of a discovered term, one variant per kind.
 #[derive(Debug, Clone, PartialEq)]
 pub enum DiscoveredConfig {
@@ -185,6 +266,8 @@ pub enum DiscoveredConfig {
     Temperature(TemperatureConfig),
     /// See [`StepSizeConfig`].
     StepSize(StepSizeConfig),
+    /// See [`PositionTableConfig`].
+    PositionTable(PositionTableConfig),
 }
 
 impl DiscoveredConfig {
@@ -197,6 +280,7 @@ impl DiscoveredConfig {
             DiscoveredConfig::TimePeriodic(_) => TIME_PERIODIC_KIND,
             DiscoveredConfig::Temperature(_) => TEMPERATURE_KIND,
             DiscoveredConfig::StepSize(_) => STEP_SIZE_KIND,
+            DiscoveredConfig::PositionTable(_) => POSITION_TABLE_KIND,
         }
     }
 
@@ -209,6 +293,7 @@ impl DiscoveredConfig {
             DiscoveredConfig::TimePeriodic(c) => c.component,
             DiscoveredConfig::Temperature(c) => c.component,
             DiscoveredConfig::StepSize(c) => c.axis,
+            DiscoveredConfig::PositionTable(c) => c.component,
         }
     }
 
@@ -244,6 +329,28 @@ impl DiscoveredConfig {
             DiscoveredConfig::StepSize(c) => {
                 require_finite(name, "amplitude_um", c.amplitude_um)?;
                 require_positive(name, "length_um", c.length_um)?;
+            }
+            DiscoveredConfig::PositionTable(c) => {
+                let bad = |why: &str| ModelError::Invalid {
+                    key: format!("term `{name}`: positions_um"),
+                    reason: why.to_string(),
+                };
+                if c.positions_um.len() < 2 {
+                    return Err(bad("needs at least two knots"));
+                }
+                if c.values_um.len() != c.positions_um.len() {
+                    return Err(ModelError::Invalid {
+                        key: format!("term `{name}`: values_um"),
+                        reason: "needs one value per knot of positions_um".into(),
+                    });
+                }
+                for (k, (&p, &v)) in c.positions_um.iter().zip(&c.values_um).enumerate() {
+                    require_finite(name, &format!("positions_um[{k}]"), p)?;
+                    require_finite(name, &format!("values_um[{k}]"), v)?;
+                }
+                if c.positions_um.windows(2).any(|w| w[1] <= w[0]) {
+                    return Err(bad("must be strictly increasing"));
+                }
             }
         }
         Ok(())
@@ -311,6 +418,17 @@ fn linear_basis(cfg: &DiscoveredConfig, state: &MotionState) -> Vec<f64> {
             state.axis(c.axis).last_move_um,
             c.length_um,
         )],
+        DiscoveredConfig::PositionTable(c) => {
+            let f = if c.lost_motion {
+                -0.5 * state.axis(c.axis).dir.sign()
+            } else {
+                1.0
+            };
+            table_basis(&c.positions_um, state.cmd_um(c.axis))
+                .into_iter()
+                .map(|b| f * b)
+                .collect()
+        }
     }
 }
 
@@ -427,6 +545,25 @@ impl Term for DiscoveredTerm {
                     ),
                 ),
             ],
+            DiscoveredConfig::PositionTable(c) => c
+                .positions_um
+                .iter()
+                .zip(&c.values_um)
+                .enumerate()
+                .map(|(k, (p, v))| {
+                    let what = if c.lost_motion {
+                        format!("{} lost motion", c.axis)
+                    } else {
+                        format!("{comp} error")
+                    };
+                    ParamInfo::new(
+                        format!("value{k}_um"),
+                        "µm",
+                        *v,
+                        format!("{what} at {} = {p} µm", c.axis),
+                    )
+                })
+                .collect(),
         }
     }
 
@@ -458,6 +595,7 @@ impl Term for DiscoveredTerm {
                 c.amplitude_um = values[0];
                 c.length_um = values[1];
             }
+            DiscoveredConfig::PositionTable(c) => c.values_um = values.to_vec(),
         }
         // Values from a fit may be anything finite (checked above); a
         // negative or zero width or length is read as |w| (floored) by the evaluation,
@@ -514,6 +652,7 @@ impl Term for DiscoveredTerm {
             DiscoveredConfig::TimePeriodic(c) => config_table(&self.name, c),
             DiscoveredConfig::Temperature(c) => config_table(&self.name, c),
             DiscoveredConfig::StepSize(c) => config_table(&self.name, c),
+            DiscoveredConfig::PositionTable(c) => config_table(&self.name, c),
         }
     }
 
@@ -574,6 +713,14 @@ pub(crate) fn build_temperature(
 pub(crate) fn build_step_size(name: &str, table: toml::Table) -> Result<Box<dyn Term>, ModelError> {
     let c = parse_term_config(name, STEP_SIZE_KIND, table)?;
     boxed(name, DiscoveredConfig::StepSize(c))
+}
+
+pub(crate) fn build_position_table(
+    name: &str,
+    table: toml::Table,
+) -> Result<Box<dyn Term>, ModelError> {
+    let c = parse_term_config(name, POSITION_TABLE_KIND, table)?;
+    boxed(name, DiscoveredConfig::PositionTable(c))
 }
 
 #[cfg(test)]
@@ -716,5 +863,68 @@ mod tests {
         let mut odd = back.clone();
         odd.set_param("s.length_um", 0.0).unwrap();
         assert!(odd.observed_error_um(&s)[1].is_finite());
+    }
+
+    #[test]
+    fn position_table_interpolates_and_carries_lost_motion() {
+        let cfg = PositionTableConfig {
+            axis: Axis::X,
+            component: Axis::X,
+            positions_um: vec![0.0, 1000.0, 3000.0],
+            values_um: vec![1.0, -1.0, 3.0],
+            lost_motion: false,
+        };
+        let t = DiscoveredTerm::new("t", DiscoveredConfig::PositionTable(cfg.clone())).unwrap();
+        let at = |x: f64| t.contribution(&MotionState::at_rest(x, 0.0))[0];
+        // At the knots, between them, and constant beyond the ends.
+        assert!((at(1000.0) + 1.0).abs() < 1e-12);
+        assert!((at(500.0) - 0.0).abs() < 1e-12);
+        assert!((at(2000.0) - 1.0).abs() < 1e-12);
+        assert!((at(-50.0) - 1.0).abs() < 1e-12 && (at(9e9) - 3.0).abs() < 1e-12);
+        assert_eq!(
+            t.contribution(&MotionState::at_rest(f64::NAN, 0.0)),
+            [0.0, 0.0]
+        );
+        // Linear in its values: the Jacobian is the hat functions.
+        let j = t.jacobian(&MotionState::at_rest(2500.0, 0.0));
+        assert_eq!(j.len(), 3);
+        assert!((j[1][0] - 0.25).abs() < 1e-12 && (j[2][0] - 0.75).abs() < 1e-12);
+        // Lost motion: −½·dir·T, the play's sign (forward: short of target).
+        let lm = DiscoveredTerm::new(
+            "r",
+            DiscoveredConfig::PositionTable(PositionTableConfig {
+                lost_motion: true,
+                ..cfg
+            }),
+        )
+        .unwrap();
+        let fwd = MotionState::arrived(3000.0, Direction::Forward, 0.0, Direction::Unknown);
+        let bwd = MotionState::arrived(3000.0, Direction::Backward, 0.0, Direction::Unknown);
+        assert!((lm.contribution(&fwd)[0] + 1.5).abs() < 1e-12);
+        assert!((lm.contribution(&bwd)[0] - 1.5).abs() < 1e-12);
+        // Round trip; malformed tables are refused with the key named.
+        let mut m = StageModel::ideal();
+        m.push_term(Box::new(lm)).unwrap();
+        let text = m.to_toml().unwrap();
+        let back = StageModel::from_toml(&text).unwrap();
+        assert_eq!(back.parameter_vector(), m.parameter_vector());
+        for bad in [
+            text.replace(
+                "positions_um = [0.0, 1000.0, 3000.0]",
+                "positions_um = [0.0, 3000.0, 1000.0]",
+            ),
+            text.replace(
+                "positions_um = [0.0, 1000.0, 3000.0]",
+                "positions_um = [0.0, 1000.0]",
+            ),
+            text.replace(
+                "positions_um = [0.0, 1000.0, 3000.0]",
+                "positions_um = [0.0]",
+            ),
+        ] {
+            assert_ne!(bad, text, "the replacement must apply: {text}");
+            let e = StageModel::from_toml(&bad).unwrap_err().to_string();
+            assert!(e.contains("_um"), "{e}");
+        }
     }
 }

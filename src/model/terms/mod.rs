@@ -18,7 +18,7 @@ pub use backlash::{play_offset_um, Backlash, BacklashConfig, BacklashTerm, PlayO
 pub use cyclic::{CyclicConfig, CyclicTerm};
 pub use discovered::{
     DiscoveredConfig, DiscoveredTerm, LocalizedConfig, PositionPeriodicConfig, PositionSlopeConfig,
-    StepSizeConfig, TemperatureConfig, TimeDriftConfig, TimePeriodicConfig,
+    PositionTableConfig, StepSizeConfig, TemperatureConfig, TimeDriftConfig, TimePeriodicConfig,
 };
 pub use lead::{Lead, LeadConfig, LeadTerm};
 pub use offset::{OriginOffset, OriginOffsetConfig, OriginOffsetTerm};
@@ -108,6 +108,11 @@ pub(crate) const BUILTIN: &[(&str, &str, TermBuilder)] = &[
         discovered::STEP_SIZE_KIND,
         "lost motion that grows with the length of the last move (found by `micropos diagnose`)",
         discovered::build_step_size,
+    ),
+    (
+        discovered::POSITION_TABLE_KIND,
+        "error or lost motion tabulated at knots along an axis, linear between them (found by `micropos diagnose`)",
+        discovered::build_position_table,
     ),
 ];
 
