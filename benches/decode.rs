@@ -4,29 +4,12 @@
 //! The web view's render of the same frame: `benches/web_camera.rs`.
 
 use criterion::{criterion_group, criterion_main, Criterion};
-use micropos::frame::Frame;
 use micropos::pattern::decode::{DecodeOptions, Decoder};
-use micropos::pattern::render::{Pose, RenderConfig, Renderer};
 use realfft::RealFftPlanner;
 use rustfft::FftPlanner;
 
-fn frame() -> Frame {
-    let mut r = Renderer::new(RenderConfig {
-        period_um: 9.0,
-        bits: 12,
-        read_noise: 0.01,
-        ..RenderConfig::default()
-    })
-    .expect("renderer");
-    let pose = Pose {
-        x_um: 12_345.6,
-        y_um: 23_456.7,
-        theta_rad: 0.3,
-        pixel_um: 0.9,
-        mirrored: false,
-    };
-    r.render(&pose, 1, 0.0, 0).expect("render")
-}
+mod common;
+use common::frame;
 
 fn bench(c: &mut Criterion) {
     let f = frame();

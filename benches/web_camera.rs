@@ -9,29 +9,10 @@
 use criterion::{criterion_group, criterion_main, Criterion};
 use micropos::daemon::vision::{Snapshot, SnapshotDecode};
 use micropos::daemon::web::camera;
-use micropos::frame::Frame;
 use micropos::pattern::decode::{DecodeOptions, Decoder};
-use micropos::pattern::render::{Pose, RenderConfig, Renderer};
 
-/// The frame of `benches/decode.rs`: the pattern at a pose away from the
-/// origin, rotated, with read noise.
-fn frame() -> Frame {
-    let mut r = Renderer::new(RenderConfig {
-        period_um: 9.0,
-        bits: 12,
-        read_noise: 0.01,
-        ..RenderConfig::default()
-    })
-    .expect("renderer");
-    let pose = Pose {
-        x_um: 12_345.6,
-        y_um: 23_456.7,
-        theta_rad: 0.3,
-        pixel_um: 0.9,
-        mirrored: false,
-    };
-    r.render(&pose, 1, 0.0, 0).expect("render")
-}
+mod common;
+use common::frame;
 
 fn bench(c: &mut Criterion) {
     let f = frame();

@@ -909,17 +909,10 @@ fn reading_terms(
                 ReadingKind::ReversalVaries => true,
                 ReadingKind::Nonlinearity => false,
                 ReadingKind::FirstApproach => {
-                    r.term = Some(ReadingTerm {
-                        kind: "",
-                        name: String::new(),
-                        knots: 0,
-                        heldout_rms_before_um: f64::NAN,
-                        heldout_rms_after_um: f64::NAN,
-                        gain_pct: f64::NAN,
-                        z: f64::NAN,
-                        in_extended_model: false,
-                        sentence: "no model term: it happens once, on the first visit, so no held-out cycle can test a term for it (and a model has no state for \"first visit of the log\"); the visit is left out of every fit and held-out score, the repeatability and the per-target means".into(),
-                    });
+                    r.term = Some(no_term(
+                        "",
+                        "no model term: it happens once, on the first visit, so no held-out cycle can test a term for it (and a model has no state for \"first visit of the log\"); the visit is left out of every fit and held-out score, the repeatability and the per-target means".into(),
+                    ));
                     continue;
                 }
                 _ => continue,
@@ -1029,8 +1022,17 @@ fn reading_terms(
 
 /// A reading's term that was not tested, and why.
 fn untested(what: &str, why: String) -> ReadingTerm {
+    no_term(
+        crate::model::terms::discovered::POSITION_TABLE_KIND,
+        format!("{what} was not tested: {why}"),
+    )
+}
+
+/// A reading without a tested term of `kind`: no knots, no held-out
+/// figures, only the `sentence` saying why.
+fn no_term(kind: &'static str, sentence: String) -> ReadingTerm {
     ReadingTerm {
-        kind: crate::model::terms::discovered::POSITION_TABLE_KIND,
+        kind,
         name: String::new(),
         knots: 0,
         heldout_rms_before_um: f64::NAN,
@@ -1038,7 +1040,7 @@ fn untested(what: &str, why: String) -> ReadingTerm {
         gain_pct: f64::NAN,
         z: f64::NAN,
         in_extended_model: false,
-        sentence: format!("{what} was not tested: {why}"),
+        sentence,
     }
 }
 

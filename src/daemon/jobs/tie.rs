@@ -459,24 +459,14 @@ pub fn with_room_below(lines: [TieLine; 2], lower_um: [f64; 2]) -> [TieLine; 2] 
             0.0
         }
     };
-    let axis_start = |a: usize| {
-        lines
-            .iter()
-            .find(|l| l.x_axis == (a == 0))
-            .map_or(f64::NAN, |l| l.start_um)
-    };
-    let axis_range = |a: usize| {
-        lines
-            .iter()
-            .find(|l| l.x_axis == (a == 0))
-            .map_or(0.0, |l| l.range_um)
-    };
+    // The line along axis `a` (0: x, 1: y).
+    let along = |a: usize| lines.iter().find(|l| l.x_axis == (a == 0));
     // Never lift past the range: keep at least half of it (whole pitches
     // where the range allows). One lift per axis, for the line along it and
     // the other line's hold alike, so the lines still cross at the anchor.
     let lifts = [0, 1].map(|a| {
-        let up = lift(axis_start(a), lower_um[a]);
-        let cap = axis_range(a) / 2.0;
+        let up = lift(along(a).map_or(f64::NAN, |l| l.start_um), lower_um[a]);
+        let cap = along(a).map_or(0.0, |l| l.range_um) / 2.0;
         if up <= cap {
             up
         } else {
