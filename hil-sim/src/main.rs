@@ -107,12 +107,15 @@ enum Cmd {
         /// move length; default 40, 0 with --short).
         #[arg(long)]
         short_moves: Option<u32>,
-        /// Settle time per characterization point, s (default 0.3: the
-        /// paper characterization then takes 1.9 simulated hours; about 2.0
-        /// reproduces the paper's 2.08 s per point and its 9.5 hours, and
-        /// with them the thermal drift its tables carry).
+        /// Settle time after each move of the short characterization, the
+        /// validations and the sweep, s (default 0.3).
         #[arg(long)]
         settle_s: Option<f64>,
+        /// Settle time per point of the paper characterization, s (default
+        /// 2.0: the paper's 2.08 s per point and its 9.5 hours, and with
+        /// them the thermal drift its tables carry; 0.3 with --short).
+        #[arg(long)]
+        paper_settle_s: Option<f64>,
         /// Serve the rig on ptys in real time, this many simulated seconds
         /// per wall second, instead of in process on the virtual clock
         /// (results then depend on the machine's load; default: virtual,
@@ -143,6 +146,7 @@ fn main() -> anyhow::Result<()> {
             square_step_um,
             short_moves,
             settle_s,
+            paper_settle_s,
             time_scale,
         } => main_job(
             seed,
@@ -152,7 +156,7 @@ fn main() -> anyhow::Result<()> {
             plots,
             out,
             short,
-            (square_step_um, short_moves, settle_s),
+            (square_step_um, short_moves, settle_s, paper_settle_s),
             time_scale,
         ),
         Cmd::Demo { seed, rig } => {
@@ -310,7 +314,12 @@ fn main_job(
     plots: Option<PathBuf>,
     out: Option<PathBuf>,
     short: bool,
-    (square_step_um, short_moves, settle_s): (Option<f64>, Option<u32>, Option<f64>),
+    (square_step_um, short_moves, settle_s, paper_settle_s): (
+        Option<f64>,
+        Option<u32>,
+        Option<f64>,
+        Option<f64>,
+    ),
     time_scale: Option<f64>,
 ) -> anyhow::Result<()> {
     use hil_sim::run::{format_table, run, RunOptions, RunPlan};
@@ -353,12 +362,17 @@ fn main_job(
             if let Some(n) = short_moves {
                 p.short_moves_per_cycle = n;
             }
-            if let Some(s) = settle_s {
-                anyhow::ensure!(
-                    s.is_finite() && (0.0..=60.0).contains(&s),
-                    "--settle-s must be a number of seconds within 0..=60"
-                );
-                p.settle_s = s;
+            for (flag, value, slot) in [
+                ("--settle-s", settle_s, &mut p.settle_s),
+                ("--paper-settle-s", paper_settle_s, &mut p.paper_settle_s),
+            ] {
+                if let Some(s) = value {
+                    anyhow::ensure!(
+                        s.is_finite() && (0.0..=60.0).contains(&s),
+                        "{flag} must be a number of seconds within 0..=60"
+                    );
+                    *slot = s;
+                }
             }
             p
         },

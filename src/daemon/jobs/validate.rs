@@ -403,6 +403,36 @@ impl Jobs {
 
 /// Moves to `target` in `mode`; returns the command finally sent and
 /// whether a closed loop ended outside its tolerance (logged, counted).
+/// `target`, given in the measuring frame, expressed in `active`, the frame
+/// of the compensation that reaches it (unchanged for raw moves, tables
+/// without a frame and tables in the measuring frame itself).
+///
+/// Why: each characterization ties the camera anew, so a table's stage frame
+/// absorbs the drift at the time of its own tie, and two tables from
+/// characterizations hours apart differ by that drift (a translation of
+/// about 0.5 µm between the main job's paper and short characterizations).
+/// A compensation lands its command in its own frame; measured in another,
+/// it would carry the frames' offset as a bias of every arrival. Converting
+/// the target makes every mode aim at the same physical point, so the modes
+/// are compared on the compensation alone.
+fn in_frame_of(measuring: &VisionFrame, active: Option<VisionFrame>, target: XyUm) -> XyUm {
+    match active {
+        Some(f) if f != *measuring => f.to_stage(measuring.to_vision(target)),
+        _ => target,
+    }
+}
+
+/// The offset of `active`'s frame from the measuring frame at `at`, µm
+/// (`None`: same frame or none): recorded in the validation log.
+fn frame_offset_um(
+    measuring: &VisionFrame,
+    active: Option<VisionFrame>,
+    at: XyUm,
+) -> Option<[f64; 2]> {
+    let a = in_frame_of(measuring, active, at);
+    (a != at).then_some([a.x_um - at.x_um, a.y_um - at.y_um])
+}
+
 async fn reach(
     rig: &Arc<Rig>,
     plan: &Plan,
@@ -596,6 +626,25 @@ async fn run(
     if let Some(t) = &plan.comps.model {
         md.insert("model_table", t.name.clone());
     }
+    for mode in [ValidateMode::Table, ValidateMode::Model] {
+        if !plan.modes.contains(&mode) {
+            continue;
+        }
+        if let Some([dx, dy]) = frame_offset_um(
+            &frame,
+            plan.comps.for_mode(mode).and_then(|a| a.frame),
+            plan.origin,
+        ) {
+            md.insert(
+                format!("{}_frame_offset_x_um", mode.as_str()),
+                format!("{dx:.4}"),
+            );
+            md.insert(
+                format!("{}_frame_offset_y_um", mode.as_str()),
+                format!("{dy:.4}"),
+            );
+        }
+    }
     md.insert("vision_frame_rotation_rad", frame.rotation_rad.to_string());
     md.insert("vision_frame_mirrored", frame.mirrored.to_string());
     md.insert(
@@ -661,8 +710,13 @@ async fn run(
                         target.x_um,
                         target.y_um
                     );
+                    let aim = in_frame_of(
+                        &frame,
+                        plan.comps.for_mode(mode).and_then(|a| a.frame),
+                        target,
+                    );
                     let (cmd, reported, failure, correction) = tokio::select! {
-                        r = rig.retry_transient(&what, || reach(rig, plan, mode, target)) => r?,
+                        r = rig.retry_transient(&what, || reach(rig, plan, mode, aim)) => r?,
                         _ = cancel.changed() => return Ok(("cancelled", None)),
                     };
                     if failure.is_some() {
@@ -739,6 +793,69 @@ async fn run(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_target_is_aimed_in_the_frame_of_its_compensation() {
+        use proptest::prelude::*;
+        use proptest::test_runner::{Config, TestRunner};
+        let xy = |x_um, y_um| XyUm { x_um, y_um };
+        let same = VisionFrame {
+            rotation_rad: -3.13,
+            mirrored: false,
+            translation_um: [12038.0, 12164.0],
+        };
+        assert_eq!(in_frame_of(&same, Some(same), xy(1.0, 2.0)), xy(1.0, 2.0));
+        assert_eq!(in_frame_of(&same, None, xy(1.0, 2.0)), xy(1.0, 2.0));
+        assert_eq!(frame_offset_um(&same, Some(same), xy(1.0, 2.0)), None);
+        // A later tie that absorbed (0.66, 0.51) µm more drift: the target
+        // is aimed that much further in the later frame.
+        let later = VisionFrame {
+            translation_um: [12038.66, 12164.51],
+            ..same
+        };
+        let off = frame_offset_um(&same, Some(later), xy(4000.0, 2000.0)).unwrap_or([0.0; 2]);
+        assert!(
+            (off[0] - 0.66).abs() < 1e-9 && (off[1] - 0.51).abs() < 1e-9,
+            "{off:?}"
+        );
+        // Any two frames: the point aimed at in the compensation's frame is
+        // the target once seen through the measuring frame.
+        let frame = (-3.14f64..3.14, any::<bool>(), -2e4f64..2e4, -2e4f64..2e4).prop_map(
+            |(r, m, tx, ty)| VisionFrame {
+                rotation_rad: r,
+                mirrored: m,
+                translation_um: [tx, ty],
+            },
+        );
+        let mut runner = TestRunner::new(Config::with_cases(300));
+        runner
+            .run(
+                &(
+                    frame,
+                    -1e-5f64..1e-5,
+                    -5.0f64..5.0,
+                    -5.0f64..5.0,
+                    0.0f64..1e4,
+                    0.0f64..1e4,
+                ),
+                |(measuring, dr, dx, dy, x, y)| {
+                    let other = VisionFrame {
+                        rotation_rad: measuring.rotation_rad + dr,
+                        translation_um: [
+                            measuring.translation_um[0] + dx,
+                            measuring.translation_um[1] + dy,
+                        ],
+                        ..measuring
+                    };
+                    let t = xy(x, y);
+                    let aim = in_frame_of(&measuring, Some(other), t);
+                    let seen = measuring.to_stage(other.to_vision(aim));
+                    prop_assert!((seen.x_um - x).abs() < 1e-6 && (seen.y_um - y).abs() < 1e-6);
+                    Ok(())
+                },
+            )
+            .unwrap_or_else(|e| panic!("{e}"));
+    }
 
     #[test]
     fn poses_follow_the_paper() {
