@@ -250,7 +250,8 @@ impl Profile {
         for ph in &self.phases {
             let dt = t.min(ph.duration_s);
             let a = ph.accel;
-            e = tau * (v + a * dt) - tau * tau * a + (e - tau * v + tau * tau * a) * (-dt / tau).exp();
+            e = tau * (v + a * dt) - tau * tau * a
+                + (e - tau * v + tau * tau * a) * (-dt / tau).exp();
             if t <= ph.duration_s {
                 return e;
             }

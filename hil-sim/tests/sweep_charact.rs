@@ -47,7 +47,7 @@ const START: f64 = 3000.0;
 /// Starts the in-process rig `rig_cfg` with `seed` and microposd on it,
 /// references, runs the reduced sweep plan and builds tables from both
 /// logs.
-async fn sweep_on(rig_cfg: RigConfig, seed: u64, cycles: u32) -> Swept {
+async fn sweep_on(rig_cfg: RigConfig, seed: u64, cycles: u32, drift_every_s: f64) -> Swept {
     let wall = Instant::now();
     let dir = tempfile::tempdir().unwrap();
     let rig_dir = dir.path().join("rig");
@@ -80,7 +80,7 @@ async fn sweep_on(rig_cfg: RigConfig, seed: u64, cycles: u32) -> Swept {
             json!({"cmd": "characterize", "action": "start", "log": "sweep.csv",
             "mode": "sweep", "velocity_um_per_s": V, "step_um": STEP,
             "x_range_um": X_RANGE, "y_range_um": Y_RANGE, "cycles": cycles,
-            "uncorrected_log": "sweep-nodelay.csv"}),
+            "uncorrected_log": "sweep-nodelay.csv", "drift_every_s": drift_every_s}),
         )
         .await;
     assert_eq!(r["job"]["state"], "running", "{r}");
@@ -128,20 +128,23 @@ async fn sweep_estimates_the_hidden_delay_and_logs_the_step_grid() {
         ..RigConfig::default()
     };
     let (x_range, y_range, step, v) = (X_RANGE, Y_RANGE, STEP, V);
-    let sw = sweep_on(rig_cfg, SEED, 2).await;
+    // Drift references every 15 s: before the first pass and between
+    // passes.
+    let sw = sweep_on(rig_cfg, SEED, 2, 15.0).await;
     let res = &sw.result;
     let est_s = res["camera_delay_s"].as_f64().unwrap();
     let err_ms = (est_s - latency_us * 1e-6) * 1e3;
     let duration_s = res["duration_s"].as_f64().unwrap();
     println!(
         "hidden latency {:.3} ms, estimated {:.3} ms (error {err_ms:+.4} ms, residual {:.4} µm); \
-         {} frames, {} POS? samples, {} records; sweep {duration_s:.1} s simulated; wall {:.1} s",
+         {} frames, {} POS? samples, {} records, {} drift references; sweep {duration_s:.1} s simulated; wall {:.1} s",
         latency_us * 1e-3,
         est_s * 1e3,
         res["camera_delay_residual_um"],
         res["frames"],
         res["pos_samples"],
         res["records"],
+        res["drift_references"],
         wall.elapsed().as_secs_f64()
     );
     assert!(err_ms.abs() < 0.2, "delay off by {err_ms} ms");
@@ -158,17 +161,33 @@ async fn sweep_estimates_the_hidden_delay_and_logs_the_step_grid() {
             .filter(|r| r.segment.starts_with(seg))
             .count();
         // Four passes per axis; at most the first and last cells may miss.
+        // (`starts_with`: drift references are not scan records.)
         assert!(k <= 4 * n && k + 8 >= 4 * n, "{seg}: {k} of {}", 4 * n);
     }
     for r in &log.records {
         let on_grid = |p: f64, s: f64| ((p - s) / step - ((p - s) / step).round()).abs() < 1e-9;
         assert!(on_grid(r.x_cmd_um, START) || on_grid(r.y_cmd_um, START));
     }
+    // The drift references stand between the passes; tables build removes
+    // the drift they measure from both logs.
+    let refs = res["drift_references"].as_u64().unwrap();
+    let logged = log
+        .records
+        .iter()
+        .filter(|r| r.segment == "drift_ref")
+        .count();
+    assert!(
+        refs >= 2 && logged as u64 == refs,
+        "{refs} references, {logged} logged"
+    );
+    assert_eq!(log.records[0].segment, "drift_ref");
     for b in &sw.built {
         assert!(b["paper"]["name"].is_string(), "{b}");
+        assert_eq!(b["drift"]["references"].as_u64(), Some(refs), "{b}");
+        assert!(b["drift"]["corrected"].as_u64().unwrap() > 0, "{b}");
     }
-    // Simulated time: the motion (ranges plus run-ups at v, 2v) and the tie,
-    // no settles per point.
+    // Simulated time: the motion (ranges plus run-ups at v, 2v), the tie
+    // and the reference detours (a few s each), no settles per point.
     let motion_s: f64 = [x_range, y_range]
         .iter()
         .map(|r| {
@@ -177,8 +196,8 @@ async fn sweep_estimates_the_hidden_delay_and_logs_the_step_grid() {
         .sum();
     let tie_s: f64 = log.metadata.get("tie_duration_s").unwrap().parse().unwrap();
     assert!(
-        duration_s < motion_s + tie_s + 30.0,
-        "{duration_s} s vs motion {motion_s} s + tie {tie_s} s"
+        duration_s < motion_s + tie_s + 5.0 * refs as f64 + 30.0,
+        "{duration_s} s vs motion {motion_s} s + tie {tie_s} s + {refs} references"
     );
     // A sweep log is not resumable.
     assert_eq!(sw.resume["ok"], false, "{}", sw.resume);
@@ -218,7 +237,7 @@ async fn the_delay_goal_holds_on_random_rigs() {
             },
             ..RigConfig::default()
         };
-        let sw = sweep_on(rig_cfg, seed, 3).await;
+        let sw = sweep_on(rig_cfg, seed, 3, 0.0).await;
         let est_s = sw.result["camera_delay_s"].as_f64().unwrap();
         let err_ms = (est_s - latency_us * 1e-6) * 1e3;
         println!(

@@ -191,8 +191,16 @@ impl StageSimulator {
             cycle,
         })?;
         let settling = [
-            if x_um == rest[0] { self.settling_um[0] } else { 0.0 },
-            if y_um == rest[1] { self.settling_um[1] } else { 0.0 },
+            if x_um == rest[0] {
+                self.settling_um[0]
+            } else {
+                0.0
+            },
+            if y_um == rest[1] {
+                self.settling_um[1]
+            } else {
+                0.0
+            },
         ];
         let mut step = checked(self.evaluate_with(state, [false; 2], settling))?;
         step.commanded = XyUm { x_um, y_um };

@@ -17,11 +17,11 @@
 //! sweep as it does over a step characterization. The swept axis's velocity
 //! is restored after every pass, also on errors.
 
+use super::plan::DriftPlan;
 use super::sweep::{
     estimate_delay, frames_at, resample, DelayEstimate, PassData, PassSpec, PosSample, SweepFrame,
     SweepPlan,
 };
-use super::plan::DriftPlan;
 use super::{
     clamp_to_travel, lock, measure_retrying, move_raw_retrying, tie, Progress, PARK_APPROACH_UM,
 };
