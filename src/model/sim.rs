@@ -171,17 +171,19 @@ impl StageSimulator {
     /// settling draw. For rendering the camera while the stage is still
     /// travelling.
     ///
-    /// An axis whose screw is away from where it last came to rest is
-    /// travelling: its settling error, the servo's scatter at rest, does
-    /// not apply (the servo tracks the trajectory; a new error is drawn
-    /// where it stops). An axis at rest keeps its own. Why it matters: a
+    /// An axis away from where it was last sent is travelling: its
+    /// settling error, the servo's scatter at rest, does not apply (the
+    /// servo tracks the trajectory; a new error is drawn where it stops).
+    /// An axis at rest keeps its own. Why it matters: a
     /// rest error carried through a constant-velocity pass is an offset
     /// constant over the pass, which a sweep characterization cannot tell
     /// from the camera delay (σ 0.035 µm per pass read as ≈ ±0.2 ms).
     pub fn preview(&self, x_um: f64, y_um: f64, time_s: f64) -> Result<SimStep, ModelError> {
         let mut tracker = self.tracker.clone();
         let temp_c = self.model.environment().temperature_at(time_s);
-        let rest = tracker.state().cmd_xy_um();
+        // Where each axis was last sent (its target, before rounding to the
+        // quantum and the minimum motion): equal to it means at rest.
+        let rest = [self.last_commanded.x_um, self.last_commanded.y_um];
         let cycle = tracker.state().cycle;
         let state = tracker.step(Waypoint {
             x_um,
