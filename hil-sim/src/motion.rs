@@ -9,6 +9,16 @@
 //! Units: positions in mm, velocities in mm/s, accelerations in mm/s², times
 //! as [`Duration`] since the simulation started. Sign convention: positive
 //! velocity moves towards larger positions.
+//!
+//! Following error: the profile is the *command*; the axis's actual
+//! position trails it through a first-order servo lag of time constant τ
+//! ([`Profile::with_lag`]): `e' = v_cmd − e/τ`, `actual = command − e`. At
+//! constant velocity `e = v·τ` (the `v/Kv` of a velocity-gain servo, Kv =
+//! 1/τ). Per constant-acceleration phase the lag is closed-form too:
+//! `e(t) = τ(v₀ + a·t) − τ²a + (e₀ − τv₀ + τ²a)·exp(−t/τ)`. After the
+//! command ends, `e` decays as `exp(−t/τ)`; the motion ends (the actual
+//! position is snapped onto the target) [`LAG_TAIL_TIME_CONSTANTS`] τ
+//! later, when the rest is below a picometre.
 
 use std::time::Duration;
 
@@ -30,6 +40,11 @@ pub struct Limits {
     pub deceleration: f64,
 }
 
+/// Time constants of following-error decay after the command ends before
+/// the motion counts as over: the error left is `exp(−12)` ≈ 6e-6 of what
+/// it was when the command stopped (≤ τ·v, a few µm at most).
+pub const LAG_TAIL_TIME_CONSTANTS: f64 = 12.0;
+
 /// A planned motion from a start state to a rest position.
 ///
 /// Invariant: the profile ends at rest exactly at `end_mm` (the last phase is
@@ -41,6 +56,10 @@ pub struct Profile {
     start_vel: f64,
     phases: Vec<Phase>,
     end_mm: f64,
+    /// Servo lag time constant τ, s (0: the axis is where the command is).
+    lag_s: f64,
+    /// Following error (command − actual) at the start, mm.
+    lag0_mm: f64,
 }
 
 /// Distance covered when braking from `v` to rest with deceleration `dec`.
@@ -133,6 +152,8 @@ impl Profile {
             start_vel: v0,
             phases,
             end_mm: target,
+            lag_s: 0.0,
+            lag0_mm: 0.0,
         }
     }
 
@@ -156,17 +177,42 @@ impl Profile {
             start_vel: v0,
             phases,
             end_mm: end,
+            lag_s: 0.0,
+            lag0_mm: 0.0,
         }
     }
 
-    /// Total duration of the motion.
+    /// The same command followed by an axis with servo lag `lag_s` (τ, s;
+    /// non-finite or negative: none) that trails it by `lag0_mm` at the
+    /// start (the following error of the motion this one replaces). See
+    /// the module docs.
+    pub fn with_lag(mut self, lag_s: f64, lag0_mm: f64) -> Profile {
+        if lag_s.is_finite() && lag_s > 0.0 && lag0_mm.is_finite() {
+            self.lag_s = lag_s;
+            self.lag0_mm = lag0_mm;
+        }
+        self
+    }
+
+    /// Duration of the command.
     pub fn duration(&self) -> Duration {
         Duration::from_secs_f64(self.phases.iter().map(|p| p.duration_s).sum::<f64>())
     }
 
-    /// When the motion ends (the axis is at rest at [`Profile::end_mm`]).
-    pub fn end_time(&self) -> Duration {
+    /// When the command ends (the trajectory generator is at the target).
+    pub fn command_end_time(&self) -> Duration {
         self.start + self.duration()
+    }
+
+    /// When the motion ends (the axis is at rest at [`Profile::end_mm`]):
+    /// the command's end plus the following error's decay.
+    pub fn end_time(&self) -> Duration {
+        let tail = if self.lag_s > 0.0 {
+            Duration::from_secs_f64(LAG_TAIL_TIME_CONSTANTS * self.lag_s)
+        } else {
+            Duration::ZERO
+        };
+        self.command_end_time() + tail
     }
 
     /// Where the motion comes to rest.
@@ -174,10 +220,51 @@ impl Profile {
         self.end_mm
     }
 
-    /// Position (mm) and velocity (mm/s) at time `now`. Before the start it
-    /// is the start state; after the end it is at rest at the end position.
+    /// Actual position (mm) and velocity (mm/s) at time `now`: the
+    /// command less the following error. Before the start it is the start
+    /// state; after the end it is at rest at the end position.
     pub fn state_at(&self, now: Duration) -> (f64, f64) {
         if now >= self.end_time() {
+            return (self.end_mm, 0.0);
+        }
+        let (p, v) = self.command_at(now);
+        if self.lag_s <= 0.0 {
+            return (p, v);
+        }
+        let e = self.following_error_at(now);
+        // e' = v − e/τ, so the actual velocity v − e' is e/τ.
+        (p - e, e / self.lag_s)
+    }
+
+    /// Following error (command − actual position) at `now`, mm.
+    pub fn following_error_at(&self, now: Duration) -> f64 {
+        let tau = self.lag_s;
+        if tau <= 0.0 || now >= self.end_time() {
+            return 0.0;
+        }
+        let Some(mut t) = now.checked_sub(self.start).map(|d| d.as_secs_f64()) else {
+            return self.lag0_mm;
+        };
+        let mut e = self.lag0_mm;
+        let mut v = self.start_vel;
+        for ph in &self.phases {
+            let dt = t.min(ph.duration_s);
+            let a = ph.accel;
+            e = tau * (v + a * dt) - tau * tau * a
+                + (e - tau * v + tau * tau * a) * (-dt / tau).exp();
+            if t <= ph.duration_s {
+                return e;
+            }
+            v += a * ph.duration_s;
+            t -= ph.duration_s;
+        }
+        e * (-t / tau).exp()
+    }
+
+    /// Commanded position (mm) and velocity (mm/s) at time `now` (the
+    /// trajectory generator's, without the following error).
+    pub fn command_at(&self, now: Duration) -> (f64, f64) {
+        if now >= self.command_end_time() {
             return (self.end_mm, 0.0);
         }
         let Some(mut t) = now.checked_sub(self.start).map(|d| d.as_secs_f64()) else {
@@ -271,7 +358,68 @@ mod tests {
         assert_eq!(p.end_mm(), 3.0);
     }
 
+    /// At constant velocity the axis trails the command by v·τ; the lag is
+    /// continuous across a re-plan and decays after the command ends.
+    #[test]
+    fn following_error_is_v_tau_at_cruise_and_decays() {
+        let tau = 0.002;
+        let p = Profile::plan(s(1.0), 0.0, 0.0, 2.0, L).with_lag(tau, 0.0);
+        // Cruise from 1.1 s to ≈ 2.95 s at 1 mm/s: e = τ·v after the
+        // acceleration's transient (≫ τ).
+        let e = p.following_error_at(s(2.0));
+        assert!((e - tau * 1.0).abs() < 1e-12, "{e}");
+        let (x, v) = p.state_at(s(2.0));
+        let (xc, vc) = p.command_at(s(2.0));
+        assert!((xc - x - tau).abs() < 1e-12 && (v - vc).abs() < 1e-9);
+        // The command has ended, the axis has not yet.
+        let ce = p.command_end_time();
+        assert!(p.end_time() > ce && p.is_done(p.end_time()) && !p.is_done(ce));
+        // Braking at 5 mm/s² it trailed by τ²·dec when the command
+        // stopped; one τ later by e⁻¹ of that.
+        let (x, _) = p.state_at(ce + s(tau));
+        let left = tau * tau * 5.0 * (-1.0f64).exp();
+        assert!((2.0 - x - left).abs() < 1e-3 * left, "{x}");
+        assert_eq!(p.state_at(p.end_time()), (2.0, 0.0));
+        // A re-plan from the command state carrying the error is continuous.
+        let t = s(2.0);
+        let (c, vc) = p.command_at(t);
+        let q = Profile::plan(t, c, vc, 1.0, L).with_lag(tau, p.following_error_at(t));
+        assert!((q.state_at(t).0 - p.state_at(t).0).abs() < 1e-12);
+        assert!((q.state_at(t).1 - p.state_at(t).1).abs() < 1e-9);
+        // Without lag the actual is the command.
+        let r = Profile::plan(s(1.0), 0.0, 0.0, 2.0, L);
+        assert_eq!(r.state_at(s(2.0)), r.command_at(s(2.0)));
+        assert_eq!(r.end_time(), r.command_end_time());
+    }
+
     proptest! {
+        /// With a lag the axis stays continuous, never overshoots the
+        /// command's span by more than the lag allows, and its velocity is
+        /// the position's derivative.
+        #[test]
+        fn lagged_profiles_are_continuous_and_end_on_target(
+            p0 in -5.0f64..5.0, target in -5.0f64..5.0, vel in 0.01f64..2.0,
+            acc in 0.5f64..50.0, tau in 0.0001f64..0.02, e0 in -0.01f64..0.01,
+        ) {
+            let lim = Limits { velocity: vel, acceleration: acc, deceleration: acc };
+            let p = Profile::plan(s(1.0), p0, 0.0, target, lim).with_lag(tau, e0);
+            prop_assert_eq!(p.state_at(p.end_time()), (target, 0.0));
+            let total = (p.end_time() - s(1.0)).as_secs_f64();
+            let n = 400;
+            let dt = total / f64::from(n);
+            let mut prev = p.state_at(s(1.0));
+            for i in 1..=n {
+                let (x, v) = p.state_at(s(1.0 + dt * f64::from(i)));
+                // |v_actual| ≤ vmax + |e0|/τ-ish: bounded steps.
+                prop_assert!((x - prev.0).abs() <= (vel + e0.abs() / tau) * dt + 1e-6);
+                prop_assert!(v.is_finite());
+                prev = (x, v);
+            }
+            // The snap at the end is below a nanometre.
+            let before = p.state_at(p.end_time() - s(1e-6)).0;
+            prop_assert!((before - target).abs() < 1e-6, "{} vs {}", before, target);
+        }
+
         #[test]
         fn profiles_respect_limits_and_end_on_target(
             p0 in -20.0f64..20.0, v0 in -3.0f64..3.0, target in -20.0f64..20.0,

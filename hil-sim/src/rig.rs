@@ -308,6 +308,30 @@ pub struct RigConfig {
     pub mounting: Mounting,
     /// Simulated camera.
     pub camera: crate::camera::config::CameraConfig,
+    /// The controllers' servo loops.
+    pub servo: ServoConfig,
+}
+
+/// The controllers' servo loops (`[servo]` of the rig file).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ServoConfig {
+    /// Following-error time constant τ = 1/Kv, ms: at velocity `v` the
+    /// encoder (what `POS?` reports) and with it the carriage trail the
+    /// commanded trajectory by `v·τ` (0.24 µm at 120 µm/s for the default
+    /// 2 ms), as a velocity-gain servo does. Why it is modelled: a sweep
+    /// characterization that placed frames on the *commanded* trajectory
+    /// would read the lag as camera delay; micropos places them on the
+    /// sampled `POS?` positions, which contain it. 0..=20; 0 = none.
+    pub following_lag_ms: f64,
+}
+
+impl Default for ServoConfig {
+    fn default() -> Self {
+        ServoConfig {
+            following_lag_ms: 2.0,
+        }
+    }
 }
 
 impl RigConfig {
@@ -347,6 +371,12 @@ impl RigConfig {
                 m.offset_um
             ));
         }
+        let lag = self.servo.following_lag_ms;
+        if !(lag.is_finite() && (0.0..=20.0).contains(&lag)) {
+            return Err(format!(
+                "servo.following_lag_ms = {lag}: must be within 0..=20"
+            ));
+        }
         self.camera.validate()
     }
 }
@@ -374,6 +404,7 @@ mod tests {
         let c = RigConfig::from_toml(text, Some(&base)).unwrap();
         assert_eq!(c.mounting, Mounting::default());
         assert_eq!(c.camera, crate::camera::config::CameraConfig::default());
+        assert_eq!(c.servo, ServoConfig::default());
         let m = load_model(c.model.as_deref()).unwrap();
         assert_eq!(
             m.to_toml().unwrap(),
@@ -383,6 +414,8 @@ mod tests {
         assert!(e.contains("camera.fps"), "{e}");
         let e = RigConfig::from_toml("[mounting]\ntheta = 1\n", None).unwrap_err();
         assert!(e.contains("theta"), "{e}");
+        let e = RigConfig::from_toml("[servo]\nfollowing_lag_ms = -1\n", None).unwrap_err();
+        assert!(e.contains("servo.following_lag_ms"), "{e}");
     }
 
     #[test]

@@ -776,10 +776,11 @@ async fn pipeline(
     Ok((summary, results, files))
 }
 
-/// The sweep row: `characterize start mode=sweep` over the plan's ranges,
-/// tables from the corrected and the delay-ignored log, each validated in
-/// `table` mode with live drift off (compare with the drift comparison's
-/// `off` row of the step tables).
+/// The sweep row: `characterize start mode=sweep` over the plan's ranges
+/// with the step characterization's drift references, tables from the
+/// corrected and the delay-ignored log, each validated in `table` mode
+/// with live drift off (compare with the drift comparison's `off` row of
+/// the step tables).
 async fn sweep_phase(
     opts: &RunOptions,
     c: &mut Client,
@@ -802,7 +803,8 @@ async fn sweep_phase(
                   "uncorrected_log": "charact-sweep-nodelay.csv", "step_um": p.step_um,
                   "x_range_um": p.x_range_um, "y_range_um": p.y_range_um,
                   "cycles": p.cycles.max(2), "frames_per_point": p.frames_per_point,
-                  "settle_s": p.settle_s}),
+                  "settle_s": p.settle_s, "drift_every_s": p.drift_every_s,
+                  "drift_reference_um": p.drift_reference_um}),
     )
     .await?;
     let s = c

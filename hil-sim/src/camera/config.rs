@@ -61,6 +61,8 @@ pub struct CameraConfig {
     /// Fixed delay from the true exposure mid-point to the frame's
     /// timestamp, µs (a camera's trigger-to-stamp latency; hidden from
     /// micropos, which estimates it from a sweep characterization).
+    /// Negative: the stamp precedes the mid-point (a camera that stamps
+    /// the exposure's start, or a trigger sent ahead of it).
     pub latency_us: f64,
     /// Timestamp jitter σ, µs (Gaussian, drawn per frame from the frame's
     /// noise seed).
@@ -233,8 +235,8 @@ impl CameraConfig {
         chk(
             "latency_us",
             self.latency_us,
-            (0.0..=1e6).contains(&self.latency_us),
-            "0..=1e6",
+            (-1e6..=1e6).contains(&self.latency_us),
+            "−1e6..=1e6",
         )?;
         chk(
             "timestamp_jitter_us",

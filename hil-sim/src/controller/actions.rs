@@ -5,7 +5,7 @@
 //! control characters (`#24`) and the GCS commands (`MOV`, `FRF`, `STP`, ...).
 
 use super::{Activity, Controller, RefKind, E, EDGE_SEARCH_TIME, SETTLE_TIME};
-use crate::motion::{Limits, Profile};
+use crate::motion::Limits;
 use crate::params;
 use micropos::gcs::AxisId;
 use std::time::Duration;
@@ -30,9 +30,9 @@ impl Controller {
     /// Starts (or re-plans) a move to `target` from the current state.
     pub(super) fn start_move(&mut self, now: Duration, target: f64) {
         self.stalled = false;
-        let (p, v) = self.state_at(now);
+        let profile = self.plan_from_here(now, target, self.limits());
         self.target_mm = target;
-        self.activity = Activity::Moving(Profile::plan(now, p, v, target, self.limits()));
+        self.activity = Activity::Moving(profile);
     }
 
     /// After VEL/ACC/DEC change while moving: continue to the same target
@@ -89,13 +89,13 @@ impl Controller {
             RefKind::NegativeLimit => self.stage.negative_limit_mm,
             RefKind::PositiveLimit => self.stage.positive_limit_mm,
         };
-        let (p, v) = self.state_at(now);
         let limits = Limits {
             velocity: self.params.number(params::REFERENCE_VELOCITY, 0.5),
             ..self.limits()
         };
-        let profile = Profile::plan(now, p, v, switch_actuator - self.offset_mm, limits);
-        let done_at = profile.end_time() + EDGE_SEARCH_TIME;
+        let profile = self.plan_from_here(now, switch_actuator - self.offset_mm, limits);
+        // The following error's decay is part of the edge search.
+        let done_at = profile.command_end_time() + EDGE_SEARCH_TIME;
         self.referenced = false;
         self.activity = Activity::Referencing {
             profile,

@@ -379,7 +379,7 @@ impl Controller {
             C::Hlt(a) => {
                 Self::axes(a)?;
                 self.stalled = false;
-                let (p, v) = self.state_at(now);
+                let (p, v, e) = self.command_state_at(now);
                 match &self.activity {
                     Activity::Idle => {}
                     Activity::Moving(_) | Activity::Referencing { .. } => {
@@ -387,7 +387,7 @@ impl Controller {
                             self.referenced = false;
                         }
                         let dec = self.limits().deceleration;
-                        let profile = Profile::brake(now, p, v, dec);
+                        let profile = Profile::brake(now, p, v, dec).with_lag(self.lag_s, e);
                         self.target_mm = profile.end_mm();
                         self.activity = Activity::Moving(profile);
                     }

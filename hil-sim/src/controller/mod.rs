@@ -88,6 +88,10 @@ pub struct ControllerConfig {
     pub stage: StageGeometry,
     /// Actuator → platform mapping.
     pub platform: Box<dyn Platform>,
+    /// Servo lag time constant τ, s (`crate::motion`): at velocity `v` the
+    /// encoder (`POS?`) and the carriage trail the commanded trajectory by
+    /// `v·τ`. 0: they are the command.
+    pub following_lag_s: f64,
 }
 
 impl ControllerConfig {
@@ -100,6 +104,7 @@ impl ControllerConfig {
             initial_actuator_mm,
             stage: StageGeometry::default(),
             platform: Box::new(IdealPlatform),
+            following_lag_s: 0.0,
         }
     }
 }
@@ -152,4 +157,6 @@ pub struct Controller {
     /// controller still tries (moving, not on target) until a stop, a halt
     /// or a new move.
     stalled: bool,
+    /// Servo lag time constant, s ([`ControllerConfig::following_lag_s`]).
+    lag_s: f64,
 }

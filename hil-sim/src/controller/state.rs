@@ -10,7 +10,7 @@
 use super::{
     Activity, ActuatorPath, Controller, ControllerConfig, Platform, RefKind, E, SETTLE_TIME,
 };
-use crate::motion::Limits;
+use crate::motion::{Limits, Profile};
 use crate::params::{self, ParamSet};
 use micropos::gcs::Address;
 use std::time::Duration;
@@ -36,6 +36,7 @@ impl Controller {
             last_now: Duration::ZERO,
             reported: None,
             stalled: false,
+            lag_s: cfg.following_lag_s,
         }
     }
 
@@ -206,7 +207,7 @@ impl Controller {
         }
         match &self.activity {
             Activity::Idle => now >= self.settled_at,
-            Activity::Moving(p) => now >= p.end_time() + SETTLE_TIME,
+            Activity::Moving(p) => now >= settles_at(p),
             Activity::Referencing { .. } => false,
         }
     }
@@ -270,6 +271,36 @@ impl Controller {
         }
     }
 
+    /// Commanded position, velocity and following error at `now`: where a
+    /// new command continues from (the command is continuous and the
+    /// following error carries over, as in a servo whose trajectory
+    /// generator is re-planned).
+    pub(super) fn command_state_at(&self, now: Duration) -> (f64, f64, f64) {
+        let p = match &self.activity {
+            Activity::Idle => return (self.encoder_mm, 0.0, 0.0),
+            Activity::Moving(p) => p,
+            Activity::Referencing {
+                profile,
+                done_at,
+                kind,
+            } => {
+                if now >= *done_at {
+                    return (self.reference_value(*kind), 0.0, 0.0);
+                }
+                profile
+            }
+        };
+        let (c, v) = p.command_at(now);
+        (c, v, p.following_error_at(now))
+    }
+
+    /// A new command from the current state to `target` at `limits`,
+    /// followed with the controller's servo lag.
+    pub(super) fn plan_from_here(&self, now: Duration, target: f64, limits: Limits) -> Profile {
+        let (c, v, e) = self.command_state_at(now);
+        Profile::plan(now, c, v, target, limits).with_lag(self.lag_s, e)
+    }
+
     /// Encoder value assigned at the switch a referencing move finds.
     pub(super) fn reference_value(&self, kind: RefKind) -> f64 {
         let at_ref = self.params.number(params::VALUE_AT_REFERENCE, 7.5);
@@ -293,7 +324,7 @@ impl Controller {
             Activity::Moving(p) => {
                 if p.is_done(now) {
                     self.encoder_mm = p.end_mm();
-                    self.settled_at = p.end_time() + SETTLE_TIME;
+                    self.settled_at = settles_at(p);
                     self.activity = Activity::Idle;
                 }
             }
@@ -333,4 +364,10 @@ impl Controller {
             deceleration: self.params.number(params::DECELERATION, 10.0),
         }
     }
+}
+
+/// When a move's axis is on target: the servo's settle after the command
+/// ends, and not before the following error has decayed.
+pub(super) fn settles_at(p: &Profile) -> Duration {
+    (p.command_end_time() + SETTLE_TIME).max(p.end_time())
 }

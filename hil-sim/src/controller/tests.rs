@@ -605,3 +605,45 @@ proptest! {
         }
     }
 }
+
+/// With a servo lag τ, `POS?` (the encoder) trails the commanded
+/// trajectory by v·τ at cruise, the platform is where the encoder is (ideal
+/// platform), a re-plan mid-move (`VEL`) keeps position continuous, and the
+/// axis still ends exactly on target and reports on target no earlier than
+/// without lag.
+#[test]
+fn following_error_trails_the_command_at_velocity() {
+    let tau = 0.004;
+    let mut c = Controller::new(ControllerConfig {
+        following_lag_s: tau,
+        ..ControllerConfig::new(Address::DEFAULT, "0115500001", 3.0)
+    });
+    let mut free = ctl(3.0);
+    let t0 = referenced(&mut c);
+    let t0f = referenced(&mut free);
+    assert!((t0 - t0f).abs() < 1e-9, "referencing takes as long");
+    assert_eq!(pos(&mut c, t0), 7.5);
+    assert_eq!(q(&mut c, t0, "VEL 1 0.5"), None);
+    assert_eq!(q(&mut c, t0, "MOV 1 9.5"), None);
+    // Accelerates in 0.05 s, cruises at 0.5 mm/s: the command is at
+    // 7.5 + 0.0125 + 0.5·(t − 0.05).
+    let t = t0 + 1.0;
+    let cmd = 7.5 + 0.0125 + 0.5 * 0.95;
+    let p = pos(&mut c, t);
+    assert!((cmd - p - 0.5 * tau).abs() < 2e-7, "lag {} mm", cmd - p);
+    assert!((c.true_position_mm(s(t)) - p).abs() < 2e-7);
+    // Slower from here: the axis goes on from where it is.
+    let before = c.encoder_mm(s(t + 0.01));
+    assert_eq!(q(&mut c, t + 0.01, "VEL 1 0.25"), None);
+    assert!((c.encoder_mm(s(t + 0.01)) - before).abs() < 1e-12);
+    let p2 = c.encoder_mm(s(t + 0.5));
+    let p3 = c.encoder_mm(s(t + 0.6));
+    assert!(((p3 - p2) / 0.1 - 0.25).abs() < 1e-6);
+    let mut te = t + 0.6;
+    while q(&mut c, te, "ONT? 1").unwrap() != "1=1\n" {
+        te += 0.01;
+        assert!(te < t0 + 30.0);
+    }
+    assert_eq!(pos(&mut c, te), 9.5);
+    assert!(!c.is_moving(s(te)));
+}

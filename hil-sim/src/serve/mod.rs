@@ -233,8 +233,12 @@ impl fmt::Debug for SimHandle {
 }
 
 /// Serial numbers and power-up carriage positions for both controllers,
-/// drawn from the seed.
-fn controller_configs(seed: u64, daisy: bool) -> Result<[ControllerConfig; 2], SimError> {
+/// drawn from the seed; the servo lag from the rig.
+fn controller_configs(
+    seed: u64,
+    daisy: bool,
+    servo: &crate::rig::ServoConfig,
+) -> Result<[ControllerConfig; 2], SimError> {
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
     let mut make = |axis: AxisName| -> Result<ControllerConfig, SimError> {
         let addr = if daisy { axis.index() as u8 + 1 } else { 1 };
@@ -242,7 +246,10 @@ fn controller_configs(seed: u64, daisy: bool) -> Result<[ControllerConfig; 2], S
         let serial = format!("01155{:05}", rng.gen_range(0..100_000u32));
         // Somewhere inside the travel; the controller does not know where.
         let initial = rng.gen_range(1.0..14.0);
-        Ok(ControllerConfig::new(address, &serial, initial))
+        Ok(ControllerConfig {
+            following_lag_s: servo.following_lag_ms * 1e-3,
+            ..ControllerConfig::new(address, &serial, initial)
+        })
     };
     Ok([make(AxisName::X)?, make(AxisName::Y)?])
 }
@@ -311,8 +318,8 @@ impl SimHandle {
                 cfg.link_dir.display()
             )));
         }
-        let [cx, cy] = controller_configs(cfg.seed, cfg.daisy_chain)?;
         cfg.rig.validate().map_err(SimError::Config)?;
+        let [cx, cy] = controller_configs(cfg.seed, cfg.daisy_chain, &cfg.rig.servo)?;
         let model_path = cfg.model.clone().or_else(|| cfg.rig.model.clone());
         let model = match &cfg.stage_model {
             Some(m) => m.clone(),

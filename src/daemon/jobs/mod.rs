@@ -246,6 +246,14 @@ impl Jobs {
                     ));
                 }
             }
+            let drift_every_s = p.drift_every_s.unwrap_or(d.drift_every_s);
+            let drift = (drift_every_s > 0.0).then(|| DriftPlan {
+                every_s: drift_every_s,
+                reference_um: p
+                    .drift_reference_um
+                    .or(d.drift_reference_um)
+                    .unwrap_or([plan.x_start_um, plan.y_start_um]),
+            });
             rig.begin_job()?;
             let total = sweep.records_total();
             let args = sweep_job::SweepArgs {
@@ -254,6 +262,7 @@ impl Jobs {
                 uncorrected: p.uncorrected_log,
                 frames_per_point: plan.frames_per_point,
                 settle_s: plan.settle_s,
+                drift,
             };
             return self.launch_sweep(rig, args, total);
         }

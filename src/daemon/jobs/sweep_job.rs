@@ -9,14 +9,23 @@
 //! Unlike the step job, records are written when the sweep ends (the delay
 //! they are corrected by is estimated from all passes): an interrupted
 //! sweep logs nothing and is started again; `characterize resume` refuses
-//! sweep logs. There are no drift re-measurements (the sweep is short).
-//! The swept axis's velocity is restored after every pass, also on errors.
+//! sweep logs. With a drift plan (`drift_every_s`, as the step job) the
+//! job re-measures the drift reference before the first pass and before
+//! each pass that starts `every_s` or more after the last re-measurement,
+//! approached as the step job approaches it, and logs it between the
+//! passes (segment `drift_ref`): `tables build` removes the drift over the
+//! sweep as it does over a step characterization. The swept axis's velocity
+//! is restored after every pass, also on errors.
 
+use super::plan::DriftPlan;
 use super::sweep::{
     estimate_delay, frames_at, resample, DelayEstimate, PassData, PassSpec, PosSample, SweepFrame,
     SweepPlan,
 };
-use super::{lock, move_raw_retrying, tie, Progress, PARK_APPROACH_UM};
+use super::{
+    clamp_to_travel, lock, measure_retrying, move_raw_retrying, tie, Progress, PARK_APPROACH_UM,
+};
+use crate::analysis::drift::DRIFT_REF_SEGMENT;
 use crate::charact::log::{self, Columns, Metadata, Record, SyncPolicy};
 use crate::comp::VisionFrame;
 use crate::daemon::protocol::{ErrorCode, MoveRequest, ProtoError, Topic};
@@ -61,8 +70,10 @@ pub struct SweepArgs {
     pub uncorrected: Option<String>,
     /// Frames per tie point.
     pub frames_per_point: u32,
-    /// Settle before each tie point, s.
+    /// Settle before each tie point and drift reference, s.
     pub settle_s: f64,
+    /// Drift reference re-measurements between passes, if any.
+    pub drift: Option<DriftPlan>,
 }
 
 /// Runs the sweep; returns the final state and the result (delay estimate,
@@ -102,6 +113,9 @@ pub(super) async fn run(
     ];
     let specs = plan.passes();
     let mut passes: Vec<PassData> = Vec::with_capacity(specs.len());
+    // Drift references, each with the index of the pass it precedes.
+    let mut refs: Vec<(usize, Record)> = Vec::new();
+    let mut last_ref_s: Option<f64> = None;
     let total = plan.records_total();
     for (k, spec) in specs.iter().enumerate() {
         if *cancel.borrow_and_update() {
@@ -110,9 +124,21 @@ pub(super) async fn run(
         if rig.stop_generation() != gen {
             return Ok(("stopped", Value::Null));
         }
-        let first_of_axis = k == 0 || specs[k - 1].x_axis != spec.x_axis;
+        let mut park = k == 0 || specs[k - 1].x_axis != spec.x_axis;
+        if let Some(d) = &a.drift {
+            if last_ref_s.is_none_or(|t| rig.clock.now_s() - t >= d.every_s) {
+                let rec = tokio::select! {
+                    r = drift_reference(rig, d, a, &tied.frame, origin, spec.cycle) => r?,
+                    _ = cancel.changed() => return Ok(("cancelled", Value::Null)),
+                };
+                refs.push((k, rec));
+                last_ref_s = Some(rig.clock.now_s());
+                // The detour left both axes at the reference.
+                park = true;
+            }
+        }
         let r = tokio::select! {
-            r = one_pass(rig, spec, first_of_axis, &tied.frame) => r?,
+            r = one_pass(rig, spec, park, &tied.frame) => r?,
             _ = cancel.changed() => {
                 // The pass was dropped mid-sweep: its velocity is still set.
                 restore_velocities(rig, velocities).await;
@@ -143,6 +169,9 @@ pub(super) async fn run(
     let samples: usize = passes.iter().map(|p| p.samples.len()).sum();
     let mut md = Metadata::new();
     plan.to_metadata(&mut md);
+    if let Some(d) = &a.drift {
+        d.to_metadata(&mut md);
+    }
     tie::to_metadata(&mut md, &tied);
     md.insert("daemon_version", env!("CARGO_PKG_VERSION"));
     md.insert("sweep_frames", frames.to_string());
@@ -153,17 +182,24 @@ pub(super) async fn run(
         "camera_delay_residual_um",
         format!("{:.5}", est.residual_um),
     );
-    let records = records(&passes, plan, est.delay_s, origin);
-    let n_records = records.len();
+    let records = records(&passes, &refs, plan, est.delay_s, origin);
+    let n_records = records.len() - refs.len();
     let mut md_c = md.clone();
     md_c.insert("camera_delay_applied_s", format!("{:.7}", est.delay_s));
     write_log(rig, &a.name, md_c, records).await?;
     if let Some(u) = &a.uncorrected {
         let mut md_u = md;
         md_u.insert("camera_delay_applied_s", "0");
-        write_log(rig, u, md_u, self::records(&passes, plan, 0.0, origin)).await?;
+        write_log(
+            rig,
+            u,
+            md_u,
+            self::records(&passes, &refs, plan, 0.0, origin),
+        )
+        .await?;
     }
-    let result = result_json(&est, frames, samples, n_records, duration_s);
+    let mut result = result_json(&est, frames, samples, n_records, duration_s);
+    result["drift_references"] = json!(refs.len());
     if let Some(p) = lock(progress).as_mut() {
         p.done = n_records;
         p.total = n_records;
@@ -204,10 +240,22 @@ fn result_json(
 
 /// The resampled records of every pass, in plan order (forward passes
 /// ascending, backward descending, as the step plan), frames placed at
-/// `stamp − delay_s`; times relative to `origin`.
-fn records(passes: &[PassData], plan: &SweepPlan, delay_s: f64, origin: f64) -> Vec<Record> {
+/// `stamp − delay_s`; times relative to `origin`. The drift references go
+/// before the pass they preceded.
+fn records(
+    passes: &[PassData],
+    refs: &[(usize, Record)],
+    plan: &SweepPlan,
+    delay_s: f64,
+    origin: f64,
+) -> Vec<Record> {
     let mut out = Vec::new();
-    for p in passes {
+    for (k, p) in passes.iter().enumerate() {
+        out.extend(
+            refs.iter()
+                .filter(|(before, _)| *before == k)
+                .map(|(_, r)| r.clone()),
+        );
         let s = p.spec;
         let grid = plan.grid(s.x_axis);
         let mut vals: Vec<_> = resample(&frames_at(p, delay_s), &grid, plan.step_um)
@@ -250,6 +298,53 @@ fn records(passes: &[PassData], plan: &SweepPlan, delay_s: f64, origin: f64) -> 
     out
 }
 
+/// Measures the drift reference as the step job does (approached forward
+/// on both axes from [`PARK_APPROACH_UM`] below, settled, `frames_per_point`
+/// frames) and returns its record (segment `drift_ref`, cycle of the next
+/// pass, time relative to `origin`; no velocity, one record of its own).
+async fn drift_reference(
+    rig: &Arc<Rig>,
+    d: &DriftPlan,
+    a: &SweepArgs,
+    frame: &VisionFrame,
+    origin: f64,
+    cycle: u32,
+) -> Result<Record, ProtoError> {
+    let [rx, ry] = d.reference_um;
+    let (ax, ay) = clamp_to_travel(rig, rx - PARK_APPROACH_UM, ry - PARK_APPROACH_UM);
+    move_raw_retrying(rig, ax, ay).await?;
+    let moved = move_raw_retrying(rig, rx, ry).await?;
+    rig.clock
+        .sleep(Duration::try_from_secs_f64(a.settle_s).unwrap_or_default())
+        .await;
+    let (m, quality) = measure_retrying(rig, a.frames_per_point).await?;
+    let meas = frame.to_stage(XyUm {
+        x_um: m.x_um,
+        y_um: m.y_um,
+    });
+    let rep = |axis: &str| moved["reported"][axis].as_f64();
+    Ok(Record {
+        t_s: rig.clock.now_s() - origin,
+        segment: DRIFT_REF_SEGMENT.to_owned(),
+        cycle,
+        x_target_um: rx,
+        y_target_um: ry,
+        x_cmd_um: rx,
+        y_cmd_um: ry,
+        x_meas_um: meas.x_um,
+        y_meas_um: meas.y_um,
+        temp_c: None,
+        extra: vec![
+            rep("x_um").map_or(String::new(), |v| format!("{v:.4}")),
+            rep("y_um").map_or(String::new(), |v| format!("{v:.4}")),
+            format!("{quality:.3}"),
+            "0".to_owned(),
+            format!("{:.6}", m.frame_t_s - origin),
+            a.frames_per_point.to_string(),
+        ],
+    })
+}
+
 /// Creates `name` in the data directory and writes the records (one sync
 /// at the end: the data exist in memory until the sweep ends anyway).
 async fn write_log(
@@ -277,12 +372,13 @@ fn run_up_um(spec: &PassSpec) -> f64 {
     PARK_APPROACH_UM + spec.velocity_um_per_s * RUN_UP_S
 }
 
-/// One pass: park first if it is the axis's first (held axis by a forward
-/// approach, swept axis at the run-up before the range), then sweep.
+/// One pass: park first if it is the axis's first or follows a drift
+/// reference (held axis by a forward approach, swept axis at the run-up
+/// before the range), then sweep.
 async fn one_pass(
     rig: &Arc<Rig>,
     spec: &PassSpec,
-    first_of_axis: bool,
+    park: bool,
     frame: &VisionFrame,
 ) -> Result<PassData, ProtoError> {
     let r = run_up_um(spec);
@@ -294,12 +390,12 @@ async fn one_pass(
     // (x, y) of a swept and a held position, clamped into the travel.
     let place = |scan: f64, held: f64| {
         if spec.x_axis {
-            super::clamp_to_travel(rig, scan, held)
+            clamp_to_travel(rig, scan, held)
         } else {
-            super::clamp_to_travel(rig, held, scan)
+            clamp_to_travel(rig, held, scan)
         }
     };
-    if first_of_axis {
+    if park {
         let (x, y) = place(from, spec.hold_um - PARK_APPROACH_UM);
         move_raw_retrying(rig, x, y).await?;
         let (x, y) = place(from, spec.hold_um);
