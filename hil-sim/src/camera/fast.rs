@@ -280,14 +280,14 @@ impl FastRenderer {
                 let dx = (c as f64 * p - x_um) / s;
                 let uc = cxi + e1.0 * dx + e2.0 * dy;
                 let vc = cyi + e1.1 * dx + e2.1 * dy;
-                let mut j0 = uc.floor();
-                let mut a = ((uc - j0) * Q as f64).round() as usize;
+                let mut j0 = floor(uc);
+                let mut a = round_non_negative((uc - j0) * Q as f64) as usize;
                 if a >= Q {
                     a = 0;
                     j0 += 1.0;
                 }
-                let mut i0 = vc.floor();
-                let mut b = ((vc - i0) * Q as f64).round() as usize;
+                let mut i0 = floor(vc);
+                let mut b = round_non_negative((vc - i0) * Q as f64) as usize;
                 if b >= Q {
                     b = 0;
                     i0 += 1.0;
@@ -542,6 +542,32 @@ struct FinishParams {
     offsets: Vec<usize>,
 }
 
+/// `x.floor()`, exactly, for |x| < 2⁶³ (a dot's image position). Why not
+/// `f64::floor`: the baseline x86-64 target has no rounding instruction,
+/// so that is a libm call, two per dot and instant of every frame.
+#[inline(always)]
+fn floor(x: f64) -> f64 {
+    let t = x as i64 as f64;
+    if t > x {
+        t - 1.0
+    } else {
+        t
+    }
+}
+
+/// `x.round()` (half away from zero), exactly, for 0 ≤ x < 2⁶³: the
+/// fractional part `x − trunc(x)` of a float is exact. Same reason as
+/// [`floor`].
+#[inline(always)]
+fn round_non_negative(x: f64) -> f64 {
+    let t = x as i64 as f64;
+    if x - t >= 0.5 {
+        t + 1.0
+    } else {
+        t
+    }
+}
+
 /// 2²³ as f32: adding it to a value in [0, 2²³) leaves that value rounded
 /// to an integer (ties to even) in the low mantissa bits.
 const ROUND_MAGIC: f32 = 8_388_608.0;
@@ -577,6 +603,37 @@ mod tests {
         }
         for i in 0..=65535u16 {
             assert_eq!(quantize(f32::from(i)), i);
+        }
+    }
+
+    #[test]
+    fn inline_floor_and_round_are_the_std_ones() {
+        let mut xs = vec![
+            0.0,
+            -0.0,
+            0.5,
+            1.5,
+            2.5,
+            0.499_999_999_999_999_94,
+            -0.5,
+            -1.0,
+            -1.000_000_000_000_000_2,
+            31.999_999_999_999_996,
+            1e9,
+            -1e9 + 0.5,
+            4_503_599_627_370_497.0,
+        ];
+        let mut z = 0.123_456_789f64;
+        for _ in 0..10_000 {
+            z = (z * 3.9 * (1.0 - z)).clamp(1e-9, 1.0 - 1e-9);
+            xs.push((z - 0.5) * 2e4);
+            xs.push(z * 32.0);
+        }
+        for x in xs {
+            assert_eq!(floor(x), x.floor(), "floor({x})");
+            if x >= 0.0 {
+                assert_eq!(round_non_negative(x), x.round(), "round({x})");
+            }
         }
     }
 
