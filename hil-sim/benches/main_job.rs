@@ -91,7 +91,11 @@ fn main() {
                 .iter()
                 .filter_map(|run| run.iter().find(|(n, _)| n == k).map(|(_, w)| *w))
                 .collect();
-            let w = if w.is_empty() { f64::NAN } else { median(&mut w) };
+            let w = if w.is_empty() {
+                f64::NAN
+            } else {
+                median(&mut w)
+            };
             println!(
                 "  {k:<28} {:>9.1} s  {w:>7.2} s wall",
                 v.as_f64().unwrap_or(f64::NAN)
