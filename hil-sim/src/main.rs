@@ -380,9 +380,18 @@ fn main_job(
     let mut progress = |l: &str| eprintln!("hil-sim run: {l}");
     let report = run(opts, &mut progress)?;
     eprintln!("hil-sim run: finished in {:.1} wall s", report.wall_s);
+    let walls: Vec<String> = report
+        .phases_wall_s
+        .iter()
+        .map(|(k, v)| format!("{k} {v:.1}"))
+        .collect();
+    eprintln!("hil-sim run: wall s per phase: {}", walls.join(", "));
     if let Some(dir) = &report.data_dir {
         let full = serde_json::json!({"summary": report.summary, "validation": report.validation,
-                                      "wall_s": report.wall_s, "files": report.files});
+                                      "wall_s": report.wall_s,
+                                      "phases_wall_s": serde_json::Map::from_iter(
+                                          report.phases_wall_s.iter().map(|(k, v)| (k.clone(), serde_json::json!(v)))),
+                                      "files": report.files});
         std::fs::write(dir.join("run.json"), format!("{full:#}\n"))
             .with_context(|| format!("writing {}", dir.join("run.json").display()))?;
         eprintln!(

@@ -239,6 +239,10 @@ pub struct RunReport {
     pub files: Vec<String>,
     /// Wall time, s.
     pub wall_s: f64,
+    /// Wall time per phase of `summary.phases_s`, s, in the same order.
+    /// Not in `summary`: wall time depends on the machine and its load, the
+    /// summary only on the seed.
+    pub phases_wall_s: Vec<(String, f64)>,
 }
 
 /// A JSON-lines client of the daemon's socket.
@@ -381,6 +385,10 @@ pub fn daemon_config(
     // On the virtual clock an idle limit counts simulated seconds: a client
     // that waits out a simulated hour of a job would be closed for it.
     c.daemon.idle_timeout_s = 0.0;
+    // No power cut can hit a simulated rig: a sync per record would cost
+    // more wall time than the point (a process crash loses nothing either
+    // way: every record reaches the OS at once).
+    c.daemon.log_sync_every = 0;
     c.camera.source = format!("sim:{}", rig_dir.join("camera.sock").display());
     c.camera.period_um = rig.camera.period_um;
     c.camera.bits = rig.camera.bits;
@@ -572,7 +580,7 @@ pub async fn run_on_this_runtime(
     st.daemon.shutdown().await;
     let sim = st.sim;
     let _ = tokio::task::spawn_blocking(move || sim.shutdown()).await;
-    let (summary, validation, files) = r?;
+    let (summary, validation, files, phases_wall_s) = r?;
     if !keep {
         let _ = std::fs::remove_dir_all(&dir);
     }
@@ -582,6 +590,7 @@ pub async fn run_on_this_runtime(
         data_dir: keep.then_some(st.data_dir),
         files,
         wall_s: wall.elapsed().as_secs_f64(),
+        phases_wall_s,
     })
 }
 
@@ -589,7 +598,7 @@ async fn pipeline(
     opts: &RunOptions,
     st: &Started,
     progress: &mut dyn FnMut(&str),
-) -> Result<(Value, Value, Vec<String>), RunError> {
+) -> Result<(Value, Value, Vec<String>, Vec<(String, f64)>), RunError> {
     let p = &opts.plan;
     let mut c = Client::connect(&st.socket).await?;
     let t0 = Instant::now();
@@ -609,10 +618,15 @@ async fn pipeline(
     // Simulated seconds per phase, in order (the `phases_s` block).
     let mut phases = serde_json::Map::new();
     let mut mark = c.now_s().await?;
+    // Wall seconds per phase, beside the simulated ones (not in the JSON).
+    let mut walls = Vec::new();
+    let mut wall_mark = Instant::now();
     c.call(json!({"cmd": "reference", "axes": "xy"})).await?;
     let mut lap = |c_now: f64, name: &str, phases: &mut serde_json::Map<String, Value>| {
         phases.insert(name.to_owned(), json!(c_now - mark));
         mark = c_now;
+        walls.push((name.to_owned(), wall_mark.elapsed().as_secs_f64()));
+        wall_mark = Instant::now();
     };
     lap(c.now_s().await?, "reference", &mut phases);
     let mut chars = Vec::new();
@@ -773,7 +787,7 @@ async fn pipeline(
     // cannot avoid (the main-job benchmark's baseline is their cost).
     let cam = &c.call(json!({"cmd": "status"})).await?["camera"];
     summary["frames"] = json!({"grabbed": cam["frames"], "decoded": cam["decoded"]});
-    Ok((summary, results, files))
+    Ok((summary, results, files, walls))
 }
 
 /// The sweep row: `characterize start mode=sweep` over the plan's ranges

@@ -175,37 +175,61 @@ impl FastRenderer {
         });
     }
 
-    /// Sums the dot stamps for the pattern points `path_um` (each the
-    /// pattern point at the image centre at one instant of the exposure,
-    /// weighted equally: the exposure's integral of the moving pattern)
-    /// into the accumulator: the top and bottom halves of the image on two
-    /// threads. Each half takes the part of every dot's stamp that falls on
-    /// its rows, in the same dot order, so every pixel gets the same
-    /// additions in the same order as on one thread (same bits). One point
-    /// has weight exactly 1: a still frame is bit for bit what it was
-    /// before motion blur existed.
+    /// Renders the frame's pixels for the pattern points `path_um` (each
+    /// the pattern point at the image centre at one instant of the
+    /// exposure, weighted equally: the exposure's integral of the moving
+    /// pattern): the top and bottom halves of the image on two threads,
+    /// each zeroing its half of the accumulator, summing into it the part
+    /// of every dot's stamp that falls on its rows (in the same dot order,
+    /// so every pixel gets the same additions in the same order as on one
+    /// thread: same bits), and turning its rows into pixels while they are
+    /// still in cache. One point has weight exactly 1: a still frame is bit
+    /// for bit what it was before motion blur existed. Why one pass per
+    /// half rather than accumulate-then-finish over the whole frame: one
+    /// thread start per frame instead of two, and the 3 MB accumulator is
+    /// zeroed on both cores and read back while its half is hot.
+    fn render_pixels(&mut self, path_um: &[[f64; 2]], p: &FinishParams) -> Vec<u16> {
+        let mut acc = std::mem::take(&mut self.acc);
+        let (w, h) = (self.cfg.width, self.cfg.height);
+        let weight = 1.0 / path_um.len().max(1) as f32;
+        let mut out16 = vec![0u16; w * h];
+        let (acc_top, acc_bottom) = acc.split_at_mut(h / 2 * w);
+        let (out_top, out_bottom) = out16.split_at_mut(h / 2 * w);
+        let this = &*self;
+        let band = |acc: &mut [f32], out: &mut [u16], row0: usize| {
+            acc.fill(0.0);
+            for &[x, y] in path_um {
+                this.stamp_rows(acc, row0, x, y, weight);
+            }
+            this.finish_rows(p, acc, out, row0);
+        };
+        std::thread::scope(|s| {
+            s.spawn(|| band(acc_bottom, out_bottom, h / 2));
+            band(acc_top, out_top, 0);
+        });
+        self.acc = acc;
+        out16
+    }
+
+    /// The accumulator as the reference two-pass render computes it (all
+    /// stamps into the whole frame, then [`FastRenderer::finish`]): what
+    /// [`FastRenderer::render_pixels`] must reproduce bit for bit.
+    #[cfg(test)]
     fn accumulate(&mut self, path_um: &[[f64; 2]]) {
         let mut acc = std::mem::take(&mut self.acc);
         acc.fill(0.0);
-        let (w, h) = (self.cfg.width, self.cfg.height);
+        let h = self.cfg.height;
         let weight = 1.0 / path_um.len().max(1) as f32;
-        let (top, bottom) = acc.split_at_mut(h / 2 * w);
-        let this = &*self;
-        std::thread::scope(|s| {
-            s.spawn(|| {
-                for &[x, y] in path_um {
-                    this.stamp_rows(bottom, h / 2, x, y, weight);
-                }
-            });
-            for &[x, y] in path_um {
-                this.stamp_rows(top, 0, x, y, weight);
-            }
-        });
+        for &[x, y] in path_um {
+            self.stamp_rows(&mut acc[..h / 2 * self.cfg.width], 0, x, y, weight);
+            self.stamp_rows(&mut acc[h / 2 * self.cfg.width..], h / 2, x, y, weight);
+        }
         self.acc = acc;
     }
 
-    /// [`FastRenderer::accumulate`] for the image rows `row0..` that `band`
-    /// (whole rows) holds.
+    /// Adds the stamps of the dots seen with `(x_um, y_um)` at the image
+    /// centre, times `weight`, to the image rows `row0..` that `band`
+    /// (whole rows of the accumulator) holds.
     fn stamp_rows(&self, band: &mut [f32], row0: usize, x_um: f64, y_um: f64, weight: f32) {
         let (w, h) = (self.cfg.width as i64, self.cfg.height as i64);
         let band_lo = row0 as i64;
@@ -256,14 +280,14 @@ impl FastRenderer {
                 let dx = (c as f64 * p - x_um) / s;
                 let uc = cxi + e1.0 * dx + e2.0 * dy;
                 let vc = cyi + e1.1 * dx + e2.1 * dy;
-                let mut j0 = uc.floor();
-                let mut a = ((uc - j0) * Q as f64).round() as usize;
+                let mut j0 = floor(uc);
+                let mut a = round_non_negative((uc - j0) * Q as f64) as usize;
                 if a >= Q {
                     a = 0;
                     j0 += 1.0;
                 }
-                let mut i0 = vc.floor();
-                let mut b = ((vc - i0) * Q as f64).round() as usize;
+                let mut i0 = floor(vc);
+                let mut b = round_non_negative((vc - i0) * Q as f64) as usize;
                 if b >= Q {
                     b = 0;
                     i0 += 1.0;
@@ -363,8 +387,9 @@ impl FastRenderer {
                 "sensor settings: light {light} and analog gain {analog_gain} must be finite, light ≥ 0, gain > 0"
             ));
         }
-        self.accumulate(path_um);
-        self.finish(light, analog_gain, noise_seed, timestamp_s, sequence)
+        let p = self.finish_params(light, analog_gain, noise_seed);
+        let out16 = self.render_pixels(path_um, &p);
+        self.to_frame(out16, timestamp_s, sequence)
     }
 
     /// A frame with no pattern: background (with shading and noise) when
@@ -399,6 +424,70 @@ impl FastRenderer {
         self.finish(1.0, 1.0, noise_seed, timestamp_s, sequence)
     }
 
+    /// The sensor model's constants for one frame and its noise offsets:
+    /// each row reads the noise table from its own random offset, drawn in
+    /// row order (so the frame is a function of the seed alone).
+    fn finish_params(&self, gain: f64, analog_gain: f64, noise_seed: u64) -> FinishParams {
+        let (w, h) = (self.cfg.width, self.cfg.height);
+        let (bg, fg) = if self.cfg.dark_dots {
+            (self.cfg.foreground as f32, self.cfg.background as f32)
+        } else {
+            (self.cfg.background as f32, self.cfg.foreground as f32)
+        };
+        let inv_fw = if self.cfg.full_well_e > 0.0 {
+            (1.0 / self.cfg.full_well_e) as f32
+        } else {
+            0.0
+        };
+        let mut rng = ChaCha8Rng::seed_from_u64(noise_seed);
+        FinishParams {
+            fs: ((1u32 << self.cfg.bit_depth) - 1) as f32,
+            bg,
+            fg,
+            g: gain as f32,
+            ag: analog_gain as f32,
+            inv_fw,
+            rn2: (self.cfg.read_noise * self.cfg.read_noise) as f32,
+            offsets: (0..h)
+                .map(|_| rng.gen_range(0..NOISE_LEN.saturating_sub(w).max(1)))
+                .collect(),
+        }
+    }
+
+    /// Shades, adds noise to and quantises the image rows `row0..` whose
+    /// accumulated stamps `acc` holds (whole rows) into `out`. Row by row
+    /// over equal-length slices, written in place: the loop body is
+    /// branch-free, so its arithmetic compiles to vector code.
+    fn finish_rows(&self, p: &FinishParams, acc: &[f32], out: &mut [u16], row0: usize) {
+        let w = self.cfg.width;
+        let (shade, noise) = (&self.shade, &self.noise);
+        let FinishParams {
+            fs,
+            bg,
+            fg,
+            g,
+            ag,
+            inv_fw,
+            rn2,
+            ..
+        } = *p;
+        for (k, (out, acc)) in out.chunks_exact_mut(w).zip(acc.chunks_exact(w)).enumerate() {
+            let i = row0 + k;
+            let shade = &shade[i * w..(i + 1) * w];
+            let off = p.offsets[i];
+            let noise_row = &noise[off..(off + w).min(NOISE_LEN)];
+            for (((o, &c), &sh), &n) in out.iter_mut().zip(acc).zip(shade).zip(noise_row) {
+                let v = (bg + (fg - bg) * c) * sh * g;
+                let var = v.max(0.0) * inv_fw + rn2;
+                let v = ag * (v + n * var.sqrt());
+                *o = quantize((v * fs).max(0.0).min(fs));
+            }
+        }
+    }
+
+    /// The sensor model applied to the whole accumulator (the blank frames
+    /// of [`FastRenderer::garbage`]): two halves on two threads, the pixels
+    /// being independent.
     fn finish(
         &mut self,
         gain: f64,
@@ -408,53 +497,22 @@ impl FastRenderer {
         sequence: u64,
     ) -> Result<Frame, String> {
         let (w, h) = (self.cfg.width, self.cfg.height);
-        let fs = ((1u32 << self.cfg.bit_depth) - 1) as f32;
-        let (bg, fg) = if self.cfg.dark_dots {
-            (self.cfg.foreground as f32, self.cfg.background as f32)
-        } else {
-            (self.cfg.background as f32, self.cfg.foreground as f32)
-        };
-        let g = gain as f32;
-        let ag = analog_gain as f32;
-        let inv_fw = if self.cfg.full_well_e > 0.0 {
-            (1.0 / self.cfg.full_well_e) as f32
-        } else {
-            0.0
-        };
-        let rn2 = (self.cfg.read_noise * self.cfg.read_noise) as f32;
-        let mut rng = ChaCha8Rng::seed_from_u64(noise_seed);
-        // Each row reads the noise table from its own random offset, drawn
-        // in row order (so the frame is a function of the seed alone).
-        let offsets: Vec<usize> = (0..h)
-            .map(|_| rng.gen_range(0..NOISE_LEN.saturating_sub(w).max(1)))
-            .collect();
-        let (acc, shade, noise) = (&self.acc, &self.shade, &self.noise);
-        // Row by row over equal-length slices, written in place: the loop
-        // body is branch-free, so its arithmetic compiles to vector code.
-        let rows = |out: &mut [u16], row0: usize| {
-            for (k, out) in out.chunks_exact_mut(w).enumerate() {
-                let i = row0 + k;
-                let acc = &acc[i * w..(i + 1) * w];
-                let shade = &shade[i * w..(i + 1) * w];
-                let off = offsets[i];
-                let noise_row = &noise[off..(off + w).min(NOISE_LEN)];
-                for (((o, &c), &sh), &n) in out.iter_mut().zip(acc).zip(shade).zip(noise_row) {
-                    let v = (bg + (fg - bg) * c) * sh * g;
-                    let var = v.max(0.0) * inv_fw + rn2;
-                    let v = ag * (v + n * var.sqrt());
-                    *o = quantize((v * fs).max(0.0).min(fs));
-                }
-            }
-        };
+        let p = self.finish_params(gain, analog_gain, noise_seed);
         let mut out16 = vec![0u16; w * h];
-        // Two halves on two threads: the pixels are independent, and the
-        // simulated rig renders one frame at a time while its other core
-        // would idle (the main job's wall time is mostly frames).
         let (top, bottom) = out16.split_at_mut(h / 2 * w);
+        let (acc_top, acc_bottom) = self.acc.split_at(h / 2 * w);
+        let this = &*self;
         std::thread::scope(|s| {
-            s.spawn(|| rows(bottom, h / 2));
-            rows(top, 0);
+            s.spawn(|| this.finish_rows(&p, acc_bottom, bottom, h / 2));
+            this.finish_rows(&p, acc_top, top, 0);
         });
+        self.to_frame(out16, timestamp_s, sequence)
+    }
+
+    /// The frame of quantised pixels `out16` (narrowed to bytes for depths
+    /// up to 8 bits).
+    fn to_frame(&self, out16: Vec<u16>, timestamp_s: f64, sequence: u64) -> Result<Frame, String> {
+        let (w, h) = (self.cfg.width, self.cfg.height);
         let pixels = if self.cfg.bit_depth <= 8 {
             Pixels::U8(out16.iter().map(|&v| v as u8).collect())
         } else {
@@ -462,6 +520,51 @@ impl FastRenderer {
         };
         Frame::new(w, h, self.cfg.bit_depth, pixels, timestamp_s, sequence)
             .map_err(|e| e.to_string())
+    }
+}
+
+/// The sensor model's constants for one frame (see
+/// [`FastRenderer::finish_params`]).
+#[derive(Debug, Clone)]
+struct FinishParams {
+    /// Full scale, ADC codes.
+    fs: f32,
+    /// Background and dot levels, fractions of full scale.
+    bg: f32,
+    fg: f32,
+    /// Illumination × exposure, and analog gain.
+    g: f32,
+    ag: f32,
+    /// 1 / full well, and read noise², in the model's units.
+    inv_fw: f32,
+    rn2: f32,
+    /// Per row: the start of its noise in the Gaussian table.
+    offsets: Vec<usize>,
+}
+
+/// `x.floor()`, exactly, for |x| < 2⁶³ (a dot's image position). Why not
+/// `f64::floor`: the baseline x86-64 target has no rounding instruction,
+/// so that is a libm call, two per dot and instant of every frame.
+#[inline(always)]
+fn floor(x: f64) -> f64 {
+    let t = x as i64 as f64;
+    if t > x {
+        t - 1.0
+    } else {
+        t
+    }
+}
+
+/// `x.round()` (half away from zero), exactly, for 0 ≤ x < 2⁶³: the
+/// fractional part `x − trunc(x)` of a float is exact. Same reason as
+/// [`floor`].
+#[inline(always)]
+fn round_non_negative(x: f64) -> f64 {
+    let t = x as i64 as f64;
+    if x - t >= 0.5 {
+        t + 1.0
+    } else {
+        t
     }
 }
 
@@ -504,6 +607,37 @@ mod tests {
     }
 
     #[test]
+    fn inline_floor_and_round_are_the_std_ones() {
+        let mut xs = vec![
+            0.0,
+            -0.0,
+            0.5,
+            1.5,
+            2.5,
+            0.499_999_999_999_999_94,
+            -0.5,
+            -1.0,
+            -1.000_000_000_000_000_2,
+            31.999_999_999_999_996,
+            1e9,
+            -1e9 + 0.5,
+            4_503_599_627_370_497.0,
+        ];
+        let mut z = 0.123_456_789f64;
+        for _ in 0..10_000 {
+            z = (z * 3.9 * (1.0 - z)).clamp(1e-9, 1.0 - 1e-9);
+            xs.push((z - 0.5) * 2e4);
+            xs.push(z * 32.0);
+        }
+        for x in xs {
+            assert_eq!(floor(x), x.floor(), "floor({x})");
+            if x >= 0.0 {
+                assert_eq!(round_non_negative(x), x.round(), "round({x})");
+            }
+        }
+    }
+
+    #[test]
     fn erfc_is_accurate() {
         for (x, want) in [
             (0.0, 1.0),
@@ -513,6 +647,36 @@ mod tests {
             (2.5, 4.069_520_174_449_59e-4),
         ] {
             assert!((erfc(x) - want).abs() < 2e-7, "erfc({x})");
+        }
+    }
+
+    #[test]
+    fn one_pass_per_half_renders_the_two_pass_frame_bit_for_bit() {
+        // Odd height: the halves differ in size. A still frame and a blurred
+        // one (three instants), rendered both ways on the same renderer.
+        let cfg = CameraConfig {
+            width: 96,
+            height: 71,
+            ..CameraConfig::default()
+        };
+        let mut r = FastRenderer::new(&cfg, 0.3f64.to_radians()).unwrap();
+        let paths: [&[[f64; 2]]; 2] = [
+            &[[1234.5, 987.25]],
+            &[[2000.0, 1500.0], [2000.3, 1500.1], [2000.6, 1500.2]],
+        ];
+        for (k, path) in paths.into_iter().enumerate() {
+            let seed = 17 + k as u64;
+            let fused = r.render_path(path, 0.9, 1.3, seed, 1.0, 5).unwrap();
+            r.accumulate(path);
+            let two_pass = r.finish(0.9, 1.3, seed, 1.0, 5).unwrap();
+            assert_eq!(fused.pixels(), two_pass.pixels(), "path {k}");
+            assert_ne!(
+                r.render_path(path, 0.9, 1.3, seed + 1, 1.0, 5)
+                    .unwrap()
+                    .pixels(),
+                fused.pixels(),
+                "another noise seed gives another frame"
+            );
         }
     }
 

@@ -19,7 +19,7 @@ use super::protocol::{
 use super::rig::Rig;
 use super::vision::Measurement;
 use crate::analysis::drift::DRIFT_REF_SEGMENT;
-use crate::charact::log::{self, Columns, LogWriter, Metadata, Record, SyncPolicy};
+use crate::charact::log::{self, Columns, LogWriter, Metadata, Record};
 use crate::comp::VisionFrame;
 use crate::model::XyUm;
 use plan::{DriftPlan, ScanPlan};
@@ -292,12 +292,14 @@ impl Jobs {
         }
         let path = Self::log_path(rig, name);
         let cols = columns();
-        let (writer, resume) = tokio::task::spawn_blocking(move || {
-            log::open_append(&path, &cols, SyncPolicy::default())
-        })
-        .await
-        .map_err(|e| ProtoError::new(ErrorCode::Internal, e.to_string()))?
-        .map_err(|e| ProtoError::new(ErrorCode::LogError, format!("cannot resume {name}: {e}")))?;
+        let sync = rig.cfg.log_sync();
+        let (writer, resume) =
+            tokio::task::spawn_blocking(move || log::open_append(&path, &cols, sync))
+                .await
+                .map_err(|e| ProtoError::new(ErrorCode::Internal, e.to_string()))?
+                .map_err(|e| {
+                    ProtoError::new(ErrorCode::LogError, format!("cannot resume {name}: {e}"))
+                })?;
         if resume.metadata.get("mode") == Some("sweep") {
             return Err(ProtoError::new(
                 ErrorCode::JobState,
@@ -640,12 +642,13 @@ async fn run(
         tie::to_metadata(&mut md, &tied);
         md.insert("daemon_version", env!("CARGO_PKG_VERSION"));
         let path = rig.cfg.daemon.data_dir.join(name);
-        let w = tokio::task::spawn_blocking(move || {
-            log::create_file(&path, &md, columns(), SyncPolicy::default())
-        })
-        .await
-        .map_err(|e| ProtoError::new(ErrorCode::Internal, e.to_string()))?
-        .map_err(|e| ProtoError::new(ErrorCode::LogError, format!("cannot create {name}: {e}")))?;
+        let sync = rig.cfg.log_sync();
+        let w = tokio::task::spawn_blocking(move || log::create_file(&path, &md, columns(), sync))
+            .await
+            .map_err(|e| ProtoError::new(ErrorCode::Internal, e.to_string()))?
+            .map_err(|e| {
+                ProtoError::new(ErrorCode::LogError, format!("cannot create {name}: {e}"))
+            })?;
         writer = Arc::new(Mutex::new(w));
         origin = clock.now_s();
     }

@@ -31,7 +31,7 @@ use super::super::protocol::{
 use super::super::rig::Rig;
 use super::{append_record, lock, measure_retrying, tie, Jobs, Progress, Running};
 use crate::analysis::drift::DRIFT_REF_SEGMENT;
-use crate::charact::log::{self, Columns, LogWriter, Metadata, Record, SyncPolicy};
+use crate::charact::log::{self, Columns, LogWriter, Metadata, Record};
 use crate::charact::scan::{
     random_targets, square_pose_label, square_poses, SEGMENT_RANDOM, SEGMENT_SQUARE,
 };
@@ -663,13 +663,14 @@ async fn run(
     md.insert("live_drift_every_s", live["every_s"].to_string());
     md.insert("daemon_version", env!("CARGO_PKG_VERSION"));
     let path = rig.cfg.daemon.data_dir.join(name);
+    let sync = rig.cfg.log_sync();
     let writer: Arc<Mutex<LogWriter<File>>> = Arc::new(Mutex::new(
-        tokio::task::spawn_blocking(move || {
-            log::create_file(&path, &md, columns(), SyncPolicy::default())
-        })
-        .await
-        .map_err(|e| ProtoError::new(ErrorCode::Internal, e.to_string()))?
-        .map_err(|e| ProtoError::new(ErrorCode::LogError, format!("cannot create {name}: {e}")))?,
+        tokio::task::spawn_blocking(move || log::create_file(&path, &md, columns(), sync))
+            .await
+            .map_err(|e| ProtoError::new(ErrorCode::Internal, e.to_string()))?
+            .map_err(|e| {
+                ProtoError::new(ErrorCode::LogError, format!("cannot create {name}: {e}"))
+            })?,
     ));
     let origin_t = clock.now_s();
     let total = plan.total();
