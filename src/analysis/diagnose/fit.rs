@@ -111,6 +111,17 @@ pub(super) struct FoldBase {
     sigma2: f64,
 }
 
+impl FoldBase {
+    /// `G⁺ x` for the fold's base Gram matrix `G` (empty without base
+    /// columns).
+    pub(super) fn gram_solve(&self, x: &DVector<f64>) -> DVector<f64> {
+        match &self.eig {
+            Some(e) => e.solve(x),
+            None => DVector::zeros(0),
+        }
+    }
+}
+
 pub(super) fn fold_base(d: &Data, base: &[Vec<f64>], train: Vec<bool>) -> FoldBase {
     let p = base.len();
     let mut gbb = DMatrix::zeros(p, p);
@@ -229,6 +240,9 @@ pub(super) struct Verdict {
     pub(super) gain_pct: f64,
     pub(super) rms_before: f64,
     pub(super) rms_after: f64,
+    /// For a table family: z of the held-out per-target χ² against the
+    /// replicates' σ (`tables::heldout_chi_z`); −∞ for other families.
+    pub(super) table_z: f64,
 }
 
 /// Paired held-out test of `after` against `before` on component `c`:

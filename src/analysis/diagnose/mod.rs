@@ -572,13 +572,19 @@ pub fn diagnose(
                     },
                     rms_before: rb,
                     rms_after: ra,
+                    table_z: tables::heldout_chi_z(&d, &base, &before, *fam)
+                        .unwrap_or(f64::NEG_INFINITY),
                 }
             })
             .collect();
-        tables::record(&mut table_tests, &all_verdicts);
+        let taken: Vec<Family> = accepted.iter().map(|(_, v)| v.family).collect();
+        tables::record(&mut table_tests, &all_verdicts, &taken);
         let mut verdicts: Vec<Verdict> = all_verdicts
             .into_iter()
-            .filter(|v| v.z >= opts.z_threshold && v.gain_pct >= opts.min_gain_pct)
+            .filter(|v| {
+                v.gain_pct >= opts.min_gain_pct
+                    && (v.z >= opts.z_threshold || v.table_z >= tables::TABLE_CHI_Z)
+            })
             // Two tables at once are two findings: only within the cap.
             .filter(|v| {
                 !matches!(v.family, Family::Tables { .. }) || round + 2 <= opts.max_findings
