@@ -49,8 +49,12 @@
 //!    every point's held-out error before and after; a family is significant
 //!    when the paired mean reduction of squared error is at least
 //!    `z_threshold` standard errors above zero and the held-out RMS drops by
-//!    at least `min_gain_pct`. A term that only fits noise predicts held-out
-//!    data worse, so it fails.
+//!    at least `min_gain_pct`. The standard error counts, besides the rows'
+//!    own scatter, the base's estimation error that a fold's held-out rows
+//!    share (`fit::base_share`). A table with a knot per target may pass
+//!    instead by the χ² of its held-out per-target means against the
+//!    replicates' σ (`tables::heldout_chi_z`). A term that only fits noise
+//!    predicts held-out data worse, so it fails.
 //! 6. **Greedy.** The most useful significant candidate (largest held-out
 //!    reduction) is accepted, added to the base, and the search repeats.
 //! 7. **Extension.** Accepted candidates become model terms
