@@ -105,6 +105,21 @@ pub(super) struct FoldBase {
     pub(super) rb: DVector<f64>,
     /// Residual of every row after the fold's base fit.
     pub(super) resid: Vec<f64>,
+    /// The base Gram matrix's decomposition (`None` without base columns).
+    eig: Option<ScaledEigen>,
+    /// Residual variance over the training rows' measured components.
+    sigma2: f64,
+}
+
+impl FoldBase {
+    /// `G⁺ x` for the fold's base Gram matrix `G` (empty without base
+    /// columns).
+    pub(super) fn gram_solve(&self, x: &DVector<f64>) -> DVector<f64> {
+        match &self.eig {
+            Some(e) => e.solve(x),
+            None => DVector::zeros(0),
+        }
+    }
 }
 
 pub(super) fn fold_base(d: &Data, base: &[Vec<f64>], train: Vec<bool>) -> FoldBase {
@@ -118,7 +133,10 @@ pub(super) fn fold_base(d: &Data, base: &[Vec<f64>], train: Vec<bool>) -> FoldBa
         }
     }
     let rb = DVector::from_fn(p, |j, _| dot_rows(&base[j], &d.r0, &train));
-    let beta = solve_normal(&gbb, &rb);
+    let eig = (p > 0).then(|| ScaledEigen::new(&gbb));
+    let beta = eig
+        .as_ref()
+        .map_or_else(|| DVector::zeros(0), |e| e.solve(&rb));
     let mut resid = d.r0.clone();
     for (j, col) in base.iter().enumerate() {
         let b = beta[j];
@@ -128,11 +146,23 @@ pub(super) fn fold_base(d: &Data, base: &[Vec<f64>], train: Vec<bool>) -> FoldBa
             }
         }
     }
+    let (mut ss, mut k) = (0.0, 0usize);
+    for (i, &t) in train.iter().enumerate() {
+        if t && !d.excluded[i] {
+            for c in (0..2).filter(|&c| d.measured[c]) {
+                ss += resid[2 * i + c] * resid[2 * i + c];
+                k += 1;
+            }
+        }
+    }
+    let dof = k.saturating_sub(p).max(1);
     FoldBase {
         train,
         gbb,
         rb,
         resid,
+        eig,
+        sigma2: ss / dof as f64,
     }
 }
 
@@ -210,9 +240,20 @@ pub(super) struct Verdict {
     pub(super) gain_pct: f64,
     pub(super) rms_before: f64,
     pub(super) rms_after: f64,
+    /// For a table family: z of the held-out per-target χ² against the
+    /// replicates' σ (`tables::heldout_chi_z`); −∞ for other families.
+    pub(super) table_z: f64,
 }
 
-pub(super) fn paired_z(before: &[f64], after: &[f64], c: usize) -> (f64, f64) {
+/// Paired held-out test of `after` against `before` on component `c`:
+/// `(sum, z)`, the summed reduction of squared error `b² − a²` over the
+/// judged rows and its mean over its standard error. The variance of the
+/// sum is the rows' own (their sample variance, `m` of them) plus
+/// `base_var`: the part the rows share because the held-out residuals
+/// carry the error of the base fitted on the other folds (see
+/// [`base_share`]; 0 for a comparison where both sides carry the same
+/// base).
+pub(super) fn paired_z(before: &[f64], after: &[f64], c: usize, base_var: f64) -> (f64, f64) {
     let diffs: Vec<f64> = before
         .iter()
         .zip(after)
@@ -228,12 +269,59 @@ pub(super) fn paired_z(before: &[f64], after: &[f64], c: usize) -> (f64, f64) {
     let sum: f64 = diffs.iter().sum();
     let mean = sum / m as f64;
     let var = diffs.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / (m - 1) as f64;
-    let z = if var > 0.0 {
-        mean / (var / m as f64).sqrt()
+    let var_sum = m as f64 * var + base_var.max(0.0);
+    let z = if var_sum > 0.0 {
+        sum / var_sum.sqrt()
     } else {
         0.0
     };
     (sum, z)
+}
+
+/// The variance the held-out rows of fold `fb` share in a candidate's
+/// summed reduction `Σ (b² − a²)` on component `c`, through the base's
+/// estimation error: `4·σ²·wᵀ G⁺ w`, `w = Σ_held-out x_i·u_i` (the base
+/// columns `x_i` at the held-out rows weighted by the candidate's change
+/// of prediction `u_i = b_i − a_i`), `G` the fold's base Gram matrix and
+/// `σ²` its training residual variance.
+///
+/// Why: a held-out residual is `b_i = ε_i + e_i`, its noise plus the
+/// error `e_i = x_i·(β̂ − β)` of the base fitted on the other folds. The
+/// reduction is `Σ (2 b_i u_i − u_i²)`; its part `2 Σ e_i u_i` is one
+/// random number for the whole fold (`e` is one smooth function over
+/// the held-out cycle, an extrapolation in time for the first and the
+/// last cycle), which the rows' sample variance counts as `m` independent
+/// pieces of evidence. A candidate whose prediction change follows the
+/// base's extrapolation error (a y drift against a thermal offset fitted
+/// on the other cycles) then looks significant on a clean stage: a
+/// clean random stage's first cycle gave such a drift a row-wise z of 6.4.
+/// `Var(Σ e_i u_i) = σ²·wᵀ G⁻¹ w` is that part's variance.
+pub(super) fn base_share(
+    d: &Data,
+    base: &[Vec<f64>],
+    fb: &FoldBase,
+    after: &[f64],
+    c: usize,
+) -> f64 {
+    let Some(eig) = &fb.eig else {
+        return 0.0;
+    };
+    let p = base.len();
+    let mut w = DVector::zeros(p);
+    for i in 0..d.n {
+        if fb.train[i] || !d.judged[i] {
+            continue;
+        }
+        let u = fb.resid[2 * i + c] - after[2 * i + c];
+        if u == 0.0 || !u.is_finite() {
+            continue;
+        }
+        for (j, col) in base.iter().enumerate() {
+            w[j] += col[2 * i + c] * u;
+        }
+    }
+    let x = eig.solve(&w);
+    4.0 * fb.sigma2 * w.dot(&x)
 }
 
 /// RMS of component `c` of `v` (index `2i + c`) over its finite entries

@@ -49,8 +49,12 @@
 //!    every point's held-out error before and after; a family is significant
 //!    when the paired mean reduction of squared error is at least
 //!    `z_threshold` standard errors above zero and the held-out RMS drops by
-//!    at least `min_gain_pct`. A term that only fits noise predicts held-out
-//!    data worse, so it fails.
+//!    at least `min_gain_pct`. The standard error counts, besides the rows'
+//!    own scatter, the base's estimation error that a fold's held-out rows
+//!    share (`fit::base_share`). A table with a knot per target may pass
+//!    instead by the χ² of its held-out per-target means against the
+//!    replicates' σ (`tables::heldout_chi_z`). A term that only fits noise
+//!    predicts held-out data worse, so it fails.
 //! 6. **Greedy.** The most useful significant candidate (largest held-out
 //!    reduction) is accepted, added to the base, and the search repeats.
 //! 7. **Extension.** Accepted candidates become model terms
@@ -96,6 +100,8 @@
 //! * `extend`: step 7, accepted candidates turned into model terms.
 //! * `describe`: a finding's parameters, uncertainty, sentence and likely
 //!   cause.
+//! * `tables`: the readings of the replicates as table families, their
+//!   held-out tests, and the term attached to each reading.
 //! * `report`: the text and JSON reports of a [`Diagnosis`].
 
 mod corrections;
@@ -108,6 +114,7 @@ mod noise;
 mod readings;
 mod report;
 mod search;
+mod tables;
 #[cfg(test)]
 mod tests;
 
@@ -126,7 +133,10 @@ pub use data::{parse_approach, APPROACH_COLUMN, MEASURED_AXES_KEY};
 use data::{prepare, MeasuredSource};
 use describe::describe;
 use extend::{extended, extended_with_se};
-use fit::{fit_with, fold_base, keep_heldout, paired_z, rms_comp, select_base, unjudged, Verdict};
+use fit::{
+    base_share, fit_with, fold_base, keep_heldout, paired_z, rms_comp, select_base, unjudged,
+    Verdict,
+};
 pub use ident::Unidentifiable;
 pub use noise::{ComponentNoise, IsoFigures, NoiseReport, Outlier, Sampling, TargetRepeat};
 pub use readings::{Reading, ReadingKind, ReadingTerm, READING_Z};
@@ -506,10 +516,10 @@ pub fn diagnose(
     // varies along the travel, a non-linearity between targets) become
     // candidate terms, tables judged on held-out data like every family.
     let mut fams = families(&d);
-    fams.extend(tables_wanted(log, &d, &base));
+    fams.extend(tables::wanted(log, &d, &base));
     // The last held-out test of each table family (against the final
     // model when it was not accepted).
-    let mut table_tests: Vec<TableTest> = Vec::new();
+    let mut table_tests: Vec<tables::TableTest> = Vec::new();
     let mut accepted: Vec<(Spec, Verdict)> = Vec::new();
     let mut baseline_rms = [0.0; 2];
     let mut last_heldout: [f64; 2];
@@ -519,6 +529,7 @@ pub fn diagnose(
         // Held-out residuals of the current base, and each family's verdict.
         let mut before = unjudged(&d);
         let mut after: Vec<Vec<f64>> = vec![unjudged(&d); fams.len()];
+        let mut shared = vec![0.0; fams.len()];
         for f in 0..d.nfolds {
             let train: Vec<bool> = d.fold.iter().map(|&k| k != f).collect();
             let fb = fold_base(&d, &base, train);
@@ -531,6 +542,7 @@ pub fn diagnose(
                     Some(spec) => fit_with(&d, &base, &fb, &columns(&spec, &d, model)),
                     None => (fb.resid.clone(), Vec::new()),
                 };
+                shared[fi] += base_share(&d, &base, &fb, &resid, fam.comp().index());
                 keep_heldout(&d, &mut after[fi], &resid, &fb.train);
             }
         }
@@ -546,9 +558,10 @@ pub fn diagnose(
         let all_verdicts: Vec<Verdict> = fams
             .iter()
             .zip(after)
-            .map(|(fam, after)| {
+            .zip(shared)
+            .map(|((fam, after), shared)| {
                 let c = fam.comp().index();
-                let (reduction, z) = paired_z(&before, &after, c);
+                let (reduction, z) = paired_z(&before, &after, c, shared);
                 let rb = rms_comp(&before, c);
                 let ra = rms_comp(&after, c);
                 Verdict {
@@ -563,29 +576,19 @@ pub fn diagnose(
                     },
                     rms_before: rb,
                     rms_after: ra,
+                    table_z: tables::heldout_chi_z(&d, &base, &before, *fam)
+                        .unwrap_or(f64::NEG_INFINITY),
                 }
             })
             .collect();
-        for v in &all_verdicts {
-            let (axis, lost_motion, joint) = match v.family {
-                Family::Table { axis, lost_motion } => (axis, lost_motion, false),
-                Family::Tables { axis } => (axis, true, true),
-                _ => continue,
-            };
-            table_tests.retain(|t| (t.axis, t.lost_motion, t.joint) != (axis, lost_motion, joint));
-            table_tests.push(TableTest {
-                axis,
-                lost_motion,
-                joint,
-                rms_before_um: v.rms_before,
-                rms_after_um: v.rms_after,
-                gain_pct: v.gain_pct,
-                z: v.z,
-            });
-        }
+        let taken: Vec<Family> = accepted.iter().map(|(_, v)| v.family).collect();
+        tables::record(&mut table_tests, &all_verdicts, &taken);
         let mut verdicts: Vec<Verdict> = all_verdicts
             .into_iter()
-            .filter(|v| v.z >= opts.z_threshold && v.gain_pct >= opts.min_gain_pct)
+            .filter(|v| {
+                v.gain_pct >= opts.min_gain_pct
+                    && (v.z >= opts.z_threshold || v.table_z >= tables::TABLE_CHI_Z)
+            })
             // Two tables at once are two findings: only within the cap.
             .filter(|v| {
                 !matches!(v.family, Family::Tables { .. }) || round + 2 <= opts.max_findings
@@ -609,7 +612,7 @@ pub fn diagnose(
                 verdicts.iter().find(|v| v.family == best),
                 verdicts.iter().find(|v| v.family == lin),
             ) {
-                let (_, z) = paired_z(&l.after, &q.after, comp.index());
+                let (_, z) = paired_z(&l.after, &q.after, comp.index(), 0.0);
                 if z < opts.z_threshold {
                     best = lin;
                 }
@@ -779,7 +782,7 @@ pub fn diagnose(
         }
     }
     let mut noise = noise::noise_report(log, &d, &final_heldout);
-    reading_terms(&mut noise, &findings, &table_tests, &d, opts);
+    tables::reading_terms(&mut noise, &findings, &table_tests, &d, opts);
     // What the aliased parameters contribute at the log's points.
     let mut aliased_rms = [0.0; 2];
     if base_fixed.iter().any(|p| p.aliased) {
@@ -832,216 +835,6 @@ pub fn diagnose(
         base_model,
         series,
     })
-}
-
-/// The held-out test of a table family (a reading as a model term).
-#[derive(Debug, Clone, Copy)]
-struct TableTest {
-    axis: Axis,
-    lost_motion: bool,
-    /// Both tables of the axis jointly (`lost_motion` is then true).
-    joint: bool,
-    rms_before_um: f64,
-    rms_after_um: f64,
-    gain_pct: f64,
-    z: f64,
-}
-
-/// The table families worth searching: a reading of the replicates
-/// (`readings::read`, on the base fit's held-out residual, as the report's
-/// readings are) of a reversal that varies along the travel or of a
-/// non-linearity between targets that the base leaves. Why gated: a table has a parameter per knot; searched on every
-/// log it would compete with the periodic and localized families for
-/// structure they describe with two or three parameters, and its evidence
-/// is the replicates' (same target, same approach, several cycles).
-fn tables_wanted(log: &MeasurementLog, d: &data::Data, base: &[Vec<f64>]) -> Vec<Family> {
-    let mut heldout = unjudged(d);
-    for f in 0..d.nfolds {
-        let train: Vec<bool> = d.fold.iter().map(|&k| k != f).collect();
-        let fb = fold_base(d, base, train);
-        keep_heldout(d, &mut heldout, &fb.resid, &fb.train);
-    }
-    let nr = noise::noise_report(log, d, &heldout);
-    let mut out = Vec::new();
-    for r in nr.components.iter().flat_map(|c| &c.readings) {
-        let lost_motion = match r.kind {
-            ReadingKind::ReversalVaries => true,
-            ReadingKind::Nonlinearity => false,
-            _ => continue,
-        };
-        if r.model_explains != Some(false) || search::table_knots(d, r.component).is_none() {
-            continue;
-        }
-        let f = Family::Table {
-            axis: r.component,
-            lost_motion,
-        };
-        if !out.contains(&f) {
-            out.push(f);
-        }
-    }
-    // Both tables of one axis: also jointly (a bidirectional table). A
-    // test with few targets gives each table few points; where both are
-    // there, neither alone leaves the held-out cycles as close as the two.
-    for axis in Axis::ALL {
-        let both = [true, false]
-            .iter()
-            .all(|&lost_motion| out.contains(&Family::Table { axis, lost_motion }));
-        if both {
-            out.push(Family::Tables { axis });
-        }
-    }
-    out
-}
-
-/// Attaches to each reading the model term it became and its held-out
-/// gain (or why no term can carry it).
-fn reading_terms(
-    noise: &mut NoiseReport,
-    findings: &[Finding],
-    tests: &[TableTest],
-    d: &data::Data,
-    opts: &DiagnoseOptions,
-) {
-    for c in &mut noise.components {
-        for r in &mut c.readings {
-            let lost_motion = match r.kind {
-                ReadingKind::ReversalVaries => true,
-                ReadingKind::Nonlinearity => false,
-                ReadingKind::FirstApproach => {
-                    r.term = Some(no_term(
-                        "",
-                        "no model term: it happens once, on the first visit, so no held-out cycle can test a term for it (and a model has no state for \"first visit of the log\"); the visit is left out of every fit and held-out score, the repeatability and the per-target means".into(),
-                    ));
-                    continue;
-                }
-                _ => continue,
-            };
-            let axis = r.component;
-            let knots = search::table_knots(d, axis).map_or(0, |k| k.len());
-            // What the model's held-out residual no longer shows needs no
-            // term (unless it is one: found below).
-            let lacks = r.model_explains == Some(false);
-            let what = if lost_motion {
-                "a reversal table"
-            } else {
-                "a non-linearity table"
-            };
-            let want = if lost_motion {
-                FindingKind::ReversalVaries
-            } else {
-                FindingKind::Nonlinearity
-            };
-            if let Some(f) = findings.iter().find(|f| f.kind == want && f.axis == axis) {
-                // Two tables accepted together share one held-out verdict.
-                let other = if lost_motion {
-                    FindingKind::Nonlinearity
-                } else {
-                    FindingKind::ReversalVaries
-                };
-                let jointly = if findings.iter().any(|g| {
-                    g.kind == other
-                        && g.axis == axis
-                        && g.significance == f.significance
-                        && g.gain_pct == f.gain_pct
-                }) {
-                    " (judged jointly with the other table of the axis)"
-                } else {
-                    ""
-                };
-                r.term = Some(ReadingTerm {
-                    kind: crate::model::terms::discovered::POSITION_TABLE_KIND,
-                    name: f.term.clone(),
-                    knots,
-                    heldout_rms_before_um: f.heldout_rms_before_um,
-                    heldout_rms_after_um: f.heldout_rms_after_um,
-                    gain_pct: f.gain_pct,
-                    z: f.significance,
-                    in_extended_model: true,
-                    sentence: format!(
-                        "{what} at {knots} knots{jointly} predicts held-out cycles better: {axis} {:.3} → {:.3} µm ({:+.0} %, z {:.1}); the extended model carries it (`{}`)",
-                        f.heldout_rms_before_um, f.heldout_rms_after_um, f.gain_pct, f.significance, f.term
-                    ),
-                });
-            } else if !lacks {
-                continue;
-            } else if knots == 0 {
-                r.term = Some(untested(
-                    what,
-                    "the log has fewer than 3 positions along the axis".into(),
-                ));
-            } else if let Some(t) = tests
-                .iter()
-                .find(|t| t.axis == axis && t.lost_motion == lost_motion && !t.joint)
-            {
-                let jointly = tests
-                    .iter()
-                    .find(|t| t.axis == axis && t.joint)
-                    .map(|j| {
-                        format!(
-                            "; with the {} table jointly: {axis} {:.3} → {:.3} µm ({:+.0} %, z {:.1}), not added either",
-                            if lost_motion { "non-linearity" } else { "reversal" },
-                            j.rms_before_um,
-                            j.rms_after_um,
-                            j.gain_pct,
-                            j.z
-                        )
-                    })
-                    .unwrap_or_default();
-                let verdict = if t.gain_pct <= 0.0 {
-                    "it does not generalize: the per-target values of the training cycles do not predict the held-out ones"
-                } else if t.z < opts.z_threshold || t.gain_pct < opts.min_gain_pct {
-                    "the gain is not significant"
-                } else {
-                    "the finding cap was reached first"
-                };
-                r.term = Some(ReadingTerm {
-                    kind: crate::model::terms::discovered::POSITION_TABLE_KIND,
-                    name: String::new(),
-                    knots,
-                    heldout_rms_before_um: t.rms_before_um,
-                    heldout_rms_after_um: t.rms_after_um,
-                    gain_pct: t.gain_pct,
-                    z: t.z,
-                    in_extended_model: false,
-                    sentence: format!(
-                        "{what} at {knots} knots, held out: {axis} {:.3} → {:.3} µm ({:+.0} %, z {:.1}); not added: {verdict}{jointly}",
-                        t.rms_before_um, t.rms_after_um, t.gain_pct, t.z
-                    ),
-                });
-            } else {
-                r.term = Some(untested(
-                    what,
-                    "the base fit's held-out residual did not show it (the final model's does)"
-                        .into(),
-                ));
-            }
-        }
-    }
-}
-
-/// A reading's term that was not tested, and why.
-fn untested(what: &str, why: String) -> ReadingTerm {
-    no_term(
-        crate::model::terms::discovered::POSITION_TABLE_KIND,
-        format!("{what} was not tested: {why}"),
-    )
-}
-
-/// A reading without a tested term of `kind`: no knots, no held-out
-/// figures, only the `sentence` saying why.
-fn no_term(kind: &'static str, sentence: String) -> ReadingTerm {
-    ReadingTerm {
-        kind,
-        name: String::new(),
-        knots: 0,
-        heldout_rms_before_um: f64::NAN,
-        heldout_rms_after_um: f64::NAN,
-        gain_pct: f64::NAN,
-        z: f64::NAN,
-        in_extended_model: false,
-        sentence,
-    }
 }
 
 /// The log's temperature record as a model environment (linear between

@@ -352,3 +352,131 @@ fn tables_have_a_knot_per_target_on_sparse_axes_and_free_what_the_base_lacks() {
         "{k:?}"
     );
 }
+
+/// An ISO 230-2-like test of one leadscrew axis (5–11 targets, 5 cycles,
+/// both approaches): a lead error, a play, Gaussian noise, and, when
+/// `bow_sigmas > 0`, a bow of that many σ between the targets (a
+/// non-linearity the model lacks).
+fn iso_log(seed: u64, bow_sigmas: f64) -> crate::charact::log::MeasurementLog {
+    use rand::{Rng, SeedableRng};
+    use rand_distr::{Distribution, Normal};
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed ^ 0x150_2302);
+    let n: usize = rng.gen_range(5..=11);
+    let spacing = rng.gen_range(2_000.0..15_000.0);
+    let targets: Vec<f64> = (0..n)
+        .map(|k| {
+            let jitter = if k == 0 || k == n - 1 {
+                0.0
+            } else {
+                rng.gen_range(-0.2..0.2) * spacing
+            };
+            (k as f64 * spacing + jitter).round()
+        })
+        .collect();
+    let sigma = rng.gen_range(0.2..3.0);
+    let ppm = rng.gen_range(-300.0..300.0);
+    let play = rng.gen_range(0.3..5.0);
+    let noise = Normal::new(0.0, sigma).unwrap();
+    let span = targets[n - 1];
+    let mut s = String::from(
+        "t_s,segment,cycle,x_target_um,y_target_um,x_cmd_um,y_cmd_um,x_meas_um,y_meas_um,approach\n",
+    );
+    let mut t = 0.0;
+    for cycle in 1..=5u32 {
+        for dir in [1.0, -1.0] {
+            let order: Vec<f64> = if dir > 0.0 {
+                targets.clone()
+            } else {
+                targets.iter().rev().copied().collect()
+            };
+            for x in order {
+                let u = x / span;
+                let dev = ppm * 1e-6 * x - dir * play / 2.0
+                    + bow_sigmas * sigma * 4.0 * u * (1.0 - u)
+                    + noise.sample(&mut rng);
+                let ap = if dir > 0.0 { "fwd" } else { "bwd" };
+                s += &format!("{t},scan_x,{cycle},{x},0,{x},0,{},0,{ap}\n", x + dev);
+                t += 10.0;
+            }
+        }
+    }
+    parse_bytes(s.as_bytes()).unwrap()
+}
+
+/// The model a user writes for such an axis: a play and a lead error.
+const AXIS_MODEL: &str = r#"
+format_version = 1
+[[term]]
+kind = "backlash"
+name = "x_backlash"
+axis = "x"
+backlash_um = 2.0
+
+[[term]]
+kind = "lead_error"
+name = "x_lead"
+axis = "x"
+ppm = 0.0
+"#;
+
+/// The held-out χ² z of every table family of axis x, on the base the
+/// analysis selects.
+fn table_chi_zs(log: &crate::charact::log::MeasurementLog) -> Vec<f64> {
+    use super::fit::{fold_base, keep_heldout, select_base, unjudged};
+    use super::search::{base_columns, Family};
+    let model = StageModel::from_toml(AXIS_MODEL).unwrap();
+    let d = prepare(log, &model, 4).unwrap();
+    let (names, cols) = base_columns(&d, &model, &[ALL_KINDS.into()]);
+    let keep = select_base(&d, &names, &cols);
+    let base: Vec<Vec<f64>> = keep.iter().map(|&j| cols[j].clone()).collect();
+    let mut before = unjudged(&d);
+    for f in 0..d.nfolds {
+        let train: Vec<bool> = d.fold.iter().map(|&k| k != f).collect();
+        let fb = fold_base(&d, &base, train);
+        keep_heldout(&d, &mut before, &fb.resid, &fb.train);
+    }
+    [
+        Family::Table {
+            axis: Axis::X,
+            lost_motion: true,
+        },
+        Family::Table {
+            axis: Axis::X,
+            lost_motion: false,
+        },
+        Family::Tables { axis: Axis::X },
+    ]
+    .into_iter()
+    .map(|f| super::tables::heldout_chi_z(&d, &base, &before, f).unwrap())
+    .collect()
+}
+
+#[test]
+fn the_heldout_chi2_of_a_table_holds_its_false_acceptance_rate() {
+    use super::tables::TABLE_CHI_Z;
+    // Clean axes: the base (play, scale) is right, the rest is noise. The
+    // z must be N(0, 1)-like: about 5 % above 1.645, about 0.1 % above
+    // the acceptance threshold.
+    let (mut n, mut above_5pct, mut accepted) = (0, 0, 0);
+    for seed in 0..200u64 {
+        for z in table_chi_zs(&iso_log(seed, 0.0)) {
+            n += 1;
+            above_5pct += usize::from(z >= 1.645);
+            accepted += usize::from(z >= TABLE_CHI_Z);
+        }
+    }
+    eprintln!("clean: {above_5pct}/{n} at z ≥ 1.645, {accepted}/{n} at z ≥ {TABLE_CHI_Z}");
+    // Binomial bounds: 5 % of 600 is 30 ± 5.3; 0.1 % is 0.6.
+    assert!(above_5pct <= 45, "{above_5pct}/{n} above the 5 % point");
+    assert!(accepted <= 3, "{accepted}/{n} accepted on clean axes");
+    // A bow of 3 σ between the targets (each target's mean has σ/√5
+    // of noise): the non-linearity and the joint tables see it.
+    let mut seen = 0;
+    let cases = 100u64;
+    for seed in 0..cases {
+        let z = table_chi_zs(&iso_log(1000 + seed, 3.0));
+        seen += usize::from(z[1] >= TABLE_CHI_Z && z[2] >= TABLE_CHI_Z);
+    }
+    eprintln!("3 σ bow: {seen}/{cases} accepted");
+    assert!(seen * 100 >= 90 * cases as usize, "{seen}/{cases}");
+}
