@@ -114,23 +114,6 @@ pub(crate) struct CoarseStage {
     pub(crate) single_sample: bool,
 }
 
-/// Lattices smaller than this many sites are sampled on one thread: a
-/// thread start (tens of µs) is not worth it below a few thousand sites.
-const PARALLEL_SITES: usize = 2048;
-
-/// Runs `a` and `b`, on two threads when `parallel`.
-fn both(parallel: bool, a: impl FnOnce() + Send, b: impl FnOnce()) {
-    if parallel {
-        std::thread::scope(|s| {
-            s.spawn(a);
-            b();
-        });
-    } else {
-        a();
-        b();
-    }
-}
-
 /// Samples the frame bilinearly at the lattice points u0 + i·da + j·db
 /// (i < ni, j < nj; pixel centres at integer + 0.5), row-major into `out`;
 /// each value is the sum over the sample offsets `offs` about the point, NaN
@@ -366,22 +349,37 @@ impl CoarseStage {
         } else {
             &offs
         };
-        // The two lattices are independent: on large frames the second is
-        // sampled on a second thread (each output is the same as on one
-        // thread; the decode is most of a simulated frame's wall time).
-        let (g0, g1) = (&mut self.g0, &mut self.g1);
-        let parallel = na * nb >= PARALLEL_SITES;
         match frame.pixels() {
-            Pixels::U8(p) => both(
-                parallel,
-                || sample_lattice(p, w, h, g0_origin, da, db, na, nb, offs, g0),
-                || sample_lattice(p, w, h, g1_origin, da, db, na + 1, nb + 1, offs, g1),
-            ),
-            Pixels::U16(p) => both(
-                parallel,
-                || sample_lattice(p, w, h, g0_origin, da, db, na, nb, offs, g0),
-                || sample_lattice(p, w, h, g1_origin, da, db, na + 1, nb + 1, offs, g1),
-            ),
+            Pixels::U8(p) => {
+                sample_lattice(p, w, h, g0_origin, da, db, na, nb, offs, &mut self.g0);
+                sample_lattice(
+                    p,
+                    w,
+                    h,
+                    g1_origin,
+                    da,
+                    db,
+                    na + 1,
+                    nb + 1,
+                    offs,
+                    &mut self.g1,
+                );
+            }
+            Pixels::U16(p) => {
+                sample_lattice(p, w, h, g0_origin, da, db, na, nb, offs, &mut self.g0);
+                sample_lattice(
+                    p,
+                    w,
+                    h,
+                    g1_origin,
+                    da,
+                    db,
+                    na + 1,
+                    nb + 1,
+                    offs,
+                    &mut self.g1,
+                );
+            }
         }
         Ok((na, nb, a0, b0))
     }
