@@ -221,6 +221,15 @@ impl Jobs {
                 format!("log {name} exists already; resume it or choose another name"),
             ));
         }
+        // Both modes re-measure the same drift reference.
+        let drift_every_s = p.drift_every_s.unwrap_or(d.drift_every_s);
+        let drift = (drift_every_s > 0.0).then(|| DriftPlan {
+            every_s: drift_every_s,
+            reference_um: p
+                .drift_reference_um
+                .or(d.drift_reference_um)
+                .unwrap_or([plan.x_start_um, plan.y_start_um]),
+        });
         if p.mode == Some(CharacterizeMode::Sweep) {
             let sweep = sweep::SweepPlan {
                 scan_x: plan.scan_x,
@@ -246,14 +255,6 @@ impl Jobs {
                     ));
                 }
             }
-            let drift_every_s = p.drift_every_s.unwrap_or(d.drift_every_s);
-            let drift = (drift_every_s > 0.0).then(|| DriftPlan {
-                every_s: drift_every_s,
-                reference_um: p
-                    .drift_reference_um
-                    .or(d.drift_reference_um)
-                    .unwrap_or([plan.x_start_um, plan.y_start_um]),
-            });
             rig.begin_job()?;
             let total = sweep.records_total();
             let args = sweep_job::SweepArgs {
@@ -266,14 +267,6 @@ impl Jobs {
             };
             return self.launch_sweep(rig, args, total);
         }
-        let drift_every_s = p.drift_every_s.unwrap_or(d.drift_every_s);
-        let drift = (drift_every_s > 0.0).then(|| DriftPlan {
-            every_s: drift_every_s,
-            reference_um: p
-                .drift_reference_um
-                .or(d.drift_reference_um)
-                .unwrap_or([plan.x_start_um, plan.y_start_um]),
-        });
         rig.begin_job()?;
         let total = plan.points().len();
         self.launch(rig, plan, drift, name, None, 0, total)
