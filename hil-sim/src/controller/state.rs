@@ -252,22 +252,31 @@ impl Controller {
         s
     }
 
-    /// (encoder position, velocity) at `now`.
-    pub(super) fn state_at(&self, now: Duration) -> (f64, f64) {
+    /// The motion profile in force at `now`, or the position the axis rests
+    /// at (idle, or a reference move that has ended).
+    fn profile_at(&self, now: Duration) -> Result<&Profile, f64> {
         match &self.activity {
-            Activity::Idle => (self.encoder_mm, 0.0),
-            Activity::Moving(p) => p.state_at(now),
+            Activity::Idle => Err(self.encoder_mm),
+            Activity::Moving(p) => Ok(p),
             Activity::Referencing {
                 profile,
                 done_at,
                 kind,
             } => {
                 if now >= *done_at {
-                    (self.reference_value(*kind), 0.0)
+                    Err(self.reference_value(*kind))
                 } else {
-                    profile.state_at(now)
+                    Ok(profile)
                 }
             }
+        }
+    }
+
+    /// (encoder position, velocity) at `now`.
+    pub(super) fn state_at(&self, now: Duration) -> (f64, f64) {
+        match self.profile_at(now) {
+            Ok(p) => p.state_at(now),
+            Err(rest) => (rest, 0.0),
         }
     }
 
@@ -276,19 +285,9 @@ impl Controller {
     /// following error carries over, as in a servo whose trajectory
     /// generator is re-planned).
     pub(super) fn command_state_at(&self, now: Duration) -> (f64, f64, f64) {
-        let p = match &self.activity {
-            Activity::Idle => return (self.encoder_mm, 0.0, 0.0),
-            Activity::Moving(p) => p,
-            Activity::Referencing {
-                profile,
-                done_at,
-                kind,
-            } => {
-                if now >= *done_at {
-                    return (self.reference_value(*kind), 0.0, 0.0);
-                }
-                profile
-            }
+        let p = match self.profile_at(now) {
+            Ok(p) => p,
+            Err(rest) => return (rest, 0.0, 0.0),
         };
         let (c, v) = p.command_at(now);
         (c, v, p.following_error_at(now))

@@ -835,11 +835,37 @@ async fn measure_reference(
         x_um: m.x_um,
         y_um: m.y_um,
     });
+    let rec = drift_ref_record(
+        d.reference_um,
+        &moved,
+        meas,
+        quality,
+        next.cycle,
+        clock.now_s() - ctx.origin,
+    );
+    append_record(ctx.writer, rec, ctx.name).await?;
+    let (x, y) = scan_approach(rig, next);
+    Ok(move_raw(rig, x, y, cancel).await?.is_some())
+}
+
+/// The log record of a drift reference re-measurement (segment
+/// `drift_ref`, target = command = the reference, the controllers' reported
+/// position and the frame quality as extra columns): one shape for the step
+/// and the sweep job, whose readers (`tables build`) treat both alike.
+fn drift_ref_record(
+    reference_um: [f64; 2],
+    moved: &Value,
+    meas: XyUm,
+    quality: f64,
+    cycle: u32,
+    t_s: f64,
+) -> Record {
+    let [rx, ry] = reference_um;
     let rep = |axis: &str| moved["reported"][axis].as_f64();
-    let rec = Record {
-        t_s: clock.now_s() - ctx.origin,
+    Record {
+        t_s,
         segment: DRIFT_REF_SEGMENT.to_owned(),
-        cycle: next.cycle,
+        cycle,
         x_target_um: rx,
         y_target_um: ry,
         x_cmd_um: rx,
@@ -852,10 +878,7 @@ async fn measure_reference(
             rep("y_um").map_or(String::new(), |v| format!("{v:.4}")),
             format!("{quality:.3}"),
         ],
-    };
-    append_record(ctx.writer, rec, ctx.name).await?;
-    let (x, y) = scan_approach(rig, next);
-    Ok(move_raw(rig, x, y, cancel).await?.is_some())
+    }
 }
 
 /// The scan line a segment belongs to (`Some('x')` for `scan_x_fwd` and

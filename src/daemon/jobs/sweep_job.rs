@@ -23,9 +23,9 @@ use super::sweep::{
     SweepPlan,
 };
 use super::{
-    clamp_to_travel, lock, measure_retrying, move_raw_retrying, tie, Progress, PARK_APPROACH_UM,
+    clamp_to_travel, drift_ref_record, lock, measure_retrying, move_raw_retrying, tie, Progress,
+    PARK_APPROACH_UM,
 };
-use crate::analysis::drift::DRIFT_REF_SEGMENT;
 use crate::charact::log::{self, Columns, Metadata, Record, SyncPolicy};
 use crate::comp::VisionFrame;
 use crate::daemon::protocol::{ErrorCode, MoveRequest, ProtoError, Topic};
@@ -322,27 +322,20 @@ async fn drift_reference(
         x_um: m.x_um,
         y_um: m.y_um,
     });
-    let rep = |axis: &str| moved["reported"][axis].as_f64();
-    Ok(Record {
-        t_s: rig.clock.now_s() - origin,
-        segment: DRIFT_REF_SEGMENT.to_owned(),
+    let mut rec = drift_ref_record(
+        d.reference_um,
+        &moved,
+        meas,
+        quality,
         cycle,
-        x_target_um: rx,
-        y_target_um: ry,
-        x_cmd_um: rx,
-        y_cmd_um: ry,
-        x_meas_um: meas.x_um,
-        y_meas_um: meas.y_um,
-        temp_c: None,
-        extra: vec![
-            rep("x_um").map_or(String::new(), |v| format!("{v:.4}")),
-            rep("y_um").map_or(String::new(), |v| format!("{v:.4}")),
-            format!("{quality:.3}"),
-            "0".to_owned(),
-            format!("{:.6}", m.frame_t_s - origin),
-            a.frames_per_point.to_string(),
-        ],
-    })
+        rig.clock.now_s() - origin,
+    );
+    rec.extra.extend([
+        "0".to_owned(),
+        format!("{:.6}", m.frame_t_s - origin),
+        a.frames_per_point.to_string(),
+    ]);
+    Ok(rec)
 }
 
 /// Creates `name` in the data directory and writes the records (one sync
