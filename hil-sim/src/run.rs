@@ -497,7 +497,7 @@ async fn start(opts: &RunOptions, dir: &Path) -> Result<Started, RunError> {
 pub fn in_process_environment(sim: &SimHandle) -> Environment {
     Environment {
         // The rig's clock reads the simulator's time: the camera's frame
-        // stamps are then rig times (`FrameSource::stamps_on_rig_clock`).
+        // stamps are then rig times (`FrameSource::frame_clock`).
         clock: Arc::new(WallClock::since(
             tokio::time::Instant::now()
                 .checked_sub(sim.sim_time())

@@ -13,8 +13,13 @@
 //! which aravis leaves out of its normal device lookup): handy to try the
 //! CLI or the daemon without hardware, and what the integration test uses.
 //!
-//! Timestamps: see [`TimeAnchor`] (host clock at the first frame, camera
-//! clock after that). Sequence numbers follow the camera's frame ids, unwrapped, so
+//! Timestamps: the buffer's timestamp is the camera's own clock (a GigE
+//! camera's tick counter from the GVSP leader, scaled by aravis with the
+//! camera's `GevTimestampTickFrequency`); [`TimeAnchor`] makes it seconds
+//! since the source opened and [`FrameSource::frame_clock`] says so, and the
+//! vision pipeline maps it onto the rig clock
+//! ([`super::timebase::CameraTimebase`]). A camera without timestamps
+//! (stamp 0) gets the host's time. Sequence numbers follow the camera's frame ids, unwrapped, so
 //! frames the camera or the network dropped leave gaps.
 
 use std::time::Duration;
@@ -25,7 +30,8 @@ use aravis::{AcquisitionMode, Buffer, BufferStatus, Camera, Stream};
 
 use super::convert::to_frame;
 use super::{
-    unwrap_counter, CameraError, CameraInfo, CameraListing, FrameSource, PixelFormat, TimeAnchor,
+    unwrap_counter, CameraError, CameraInfo, CameraListing, FrameClock, FrameSource, PixelFormat,
+    TimeAnchor,
 };
 use crate::frame::Frame;
 
@@ -69,6 +75,8 @@ pub struct GenicamSource {
     /// (raw frame id, sequence) of the last frame.
     last_id: Option<(u64, u64)>,
     frame_id_modulus: u64,
+    /// Whether the last frame carried the camera's own timestamp.
+    camera_stamped: bool,
 }
 
 impl std::fmt::Debug for GenicamSource {
@@ -146,6 +154,7 @@ impl GenicamSource {
             clock: TimeAnchor::new(),
             last_id: None,
             frame_id_modulus,
+            camera_stamped: false,
         };
         source.start()?;
         Ok(source)
@@ -235,7 +244,10 @@ impl GenicamSource {
         let stride = width * super::convert::bytes_per_pixel(format) + x_pad;
         let data = buffer.image_data();
         let ns = buffer.timestamp();
-        let ts = self.clock.stamp((ns != 0).then_some(ns as f64 * 1e-9));
+        self.camera_stamped = ns != 0;
+        let ts = self
+            .clock
+            .stamp(self.camera_stamped.then_some(ns as f64 * 1e-9));
         let seq = self.sequence(buffer.frame_id());
         to_frame(format, width, height, stride, &data, ts, seq)
     }
@@ -252,6 +264,16 @@ impl Drop for GenicamSource {
 impl FrameSource for GenicamSource {
     fn info(&self) -> CameraInfo {
         self.info.clone()
+    }
+
+    /// The camera's tick counter (GVSP leader, U3V trailer), when the last
+    /// frame carried one.
+    fn frame_clock(&self) -> FrameClock {
+        if self.camera_stamped {
+            FrameClock::Camera
+        } else {
+            FrameClock::None
+        }
     }
 
     fn next_frame(&mut self) -> Result<Frame, CameraError> {

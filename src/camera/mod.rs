@@ -25,6 +25,7 @@ pub mod files;
 #[cfg(feature = "genicam")]
 pub mod genicam;
 pub mod simsocket;
+pub mod timebase;
 #[cfg(feature = "v4l2")]
 pub mod v4l2;
 
@@ -282,16 +283,10 @@ pub trait FrameSource: Send + fmt::Debug {
         None
     }
 
-    /// Whether [`Frame::timestamp_s`] of this source's frames is a time on
-    /// the rig's clock (seconds since the daemon's `RigClock` read 0): the
-    /// simulator's in-process camera, whose clock is the rig's. Then the
-    /// vision pipeline passes the camera's own stamp on
-    /// (`daemon::vision::Measurement::frame_t_s`); otherwise (`false`, the
-    /// default: a camera's clock is its own) the grab's request time stands
-    /// in for it, and a sweep characterization's delay estimate absorbs the
-    /// difference.
-    fn stamps_on_rig_clock(&self) -> bool {
-        false
+    /// What clock the last frame's [`Frame::timestamp_s`] is on (see
+    /// [`FrameClock`]); the vision pipeline turns it into a rig time.
+    fn frame_clock(&self) -> FrameClock {
+        FrameClock::None
     }
 
     /// Sets the exposure time and returns the value the camera applied
@@ -531,6 +526,27 @@ pub fn frame_mean(frame: &Frame) -> f64 {
         crate::frame::Pixels::U16(p) => p.iter().map(|&v| u64::from(v)).sum(),
     };
     sum as f64 / n
+}
+
+/// What clock a source's frame timestamps are on: it decides how the vision
+/// pipeline times a frame on the rig clock
+/// (`daemon::vision::Measurement::frame_t_s`), which the sweep
+/// characterization places frames by.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum FrameClock {
+    /// No clock of its own (files, the socket camera): the grab's request
+    /// time stands in, and a sweep's delay estimate absorbs the
+    /// difference along with the transfer's jitter.
+    #[default]
+    None,
+    /// The camera's own clock (a GigE Vision camera's tick counter, the
+    /// kernel's V4L2 stamp), seconds since the source opened
+    /// ([`TimeAnchor`]): free of host jitter, but with its own origin and
+    /// rate, which [`timebase::CameraTimebase`] maps onto the rig clock.
+    Camera,
+    /// The rig's clock itself: the simulator's in-process camera, whose
+    /// clock is the rig's. Passed on as it is.
+    Rig,
 }
 
 /// Turns camera frame timestamps into source timestamps: seconds since the

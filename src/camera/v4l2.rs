@@ -26,7 +26,8 @@ use v4l::{Device, FourCC};
 
 use super::convert::to_frame;
 use super::{
-    unwrap_counter, CameraError, CameraInfo, CameraListing, FrameSource, PixelFormat, TimeAnchor,
+    unwrap_counter, CameraError, CameraInfo, CameraListing, FrameClock, FrameSource, PixelFormat,
+    TimeAnchor,
 };
 use crate::frame::Frame;
 
@@ -74,6 +75,8 @@ pub struct V4l2Source {
     timeout: Duration,
     clock: TimeAnchor,
     last_seq: Option<(u64, u64)>,
+    /// Whether the last frame carried the driver's timestamp.
+    camera_stamped: bool,
 }
 
 impl std::fmt::Debug for V4l2Source {
@@ -127,6 +130,7 @@ impl V4l2Source {
             },
             timeout: Duration::from_secs(2),
             clock: TimeAnchor::new(),
+            camera_stamped: false,
             last_seq: None,
         };
         let current = source
@@ -246,6 +250,7 @@ impl FrameSource for V4l2Source {
             }
         };
         let cam_s = meta.timestamp.sec as f64 + meta.timestamp.usec as f64 * 1e-6;
+        self.camera_stamped = cam_s > 0.0;
         let ts = self.clock.stamp(Some(cam_s));
         let raw = u64::from(meta.sequence);
         let seq = match self.last_seq {
@@ -254,6 +259,16 @@ impl FrameSource for V4l2Source {
         };
         self.last_seq = Some((raw, seq));
         to_frame(format, width, height, stride, &data, ts, seq)
+    }
+
+    /// The driver's timestamp (the kernel's monotonic clock at the frame,
+    /// for most drivers), when the last frame carried one.
+    fn frame_clock(&self) -> FrameClock {
+        if self.camera_stamped {
+            FrameClock::Camera
+        } else {
+            FrameClock::None
+        }
     }
 
     fn set_timeout(&mut self, timeout: Duration) {

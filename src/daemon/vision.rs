@@ -18,7 +18,8 @@
 //! `t_s >= T`; stamping arrival times let such frames through (a
 //! characterization logged the previous point's position).
 
-use crate::camera::FrameSource;
+use crate::camera::timebase::CameraTimebase;
+use crate::camera::{FrameClock, FrameSource};
 use crate::clock::RigClock;
 use crate::frame::Frame;
 use crate::pattern::decode::{DecodeOptions, Decoder};
@@ -35,11 +36,14 @@ pub struct Measurement {
     /// camera (the simulator, a software-triggered grab) the exposure
     /// began no earlier, so `t_s >= T` means "exposed after `T`".
     pub t_s: f64,
-    /// The frame's own timestamp on the rig clock, s: the camera's stamp
-    /// when the source stamps on the rig clock
-    /// ([`FrameSource::stamps_on_rig_clock`]; the simulator's camera: the
-    /// exposure mid-point plus the camera's latency and jitter), else `t_s`.
-    /// The sweep characterization times frames by it.
+    /// The frame's own timestamp on the rig clock, s, by the source's
+    /// [`FrameSource::frame_clock`]: the camera's stamp as it is when the
+    /// camera's clock is the rig's (the simulator's camera: the exposure
+    /// mid-point plus the camera's latency and jitter); a camera's own
+    /// clock mapped onto the rig clock ([`CameraTimebase`]: its origin and
+    /// rate removed, the shortest stamp-to-arrival delay left as a
+    /// constant); else `t_s`. The sweep characterization times frames by
+    /// it and estimates the constant delay.
     pub frame_t_s: f64,
     /// Camera frame sequence number.
     pub sequence: u64,
@@ -78,6 +82,10 @@ pub struct VisionStats {
     /// Why wall time even on a virtual rig clock: decoding is CPU work,
     /// and its cost is what a lab watches.
     pub decode_seconds: prometheus_client::metrics::histogram::Histogram,
+    /// The camera clock's map onto the rig clock, for a source with a clock
+    /// of its own ([`FrameClock::Camera`]): rate error (ppm, rig seconds
+    /// per camera second − 1) and how often the map started over.
+    pub camera_clock: std::sync::Mutex<Option<(f64, u64)>>,
 }
 
 impl Default for VisionStats {
@@ -93,6 +101,7 @@ impl Default for VisionStats {
             decode_seconds: prometheus_client::metrics::histogram::Histogram::new(
                 prometheus_client::metrics::histogram::exponential_buckets(0.0005, 2.0, 14),
             ),
+            camera_clock: std::sync::Mutex::new(None),
         }
     }
 }
@@ -307,6 +316,7 @@ impl Vision {
             last_error: last_error.clone(),
             stop: stop.clone(),
             demand: demand.clone(),
+            timebase: CameraTimebase::new(),
         }));
         Ok(Vision {
             latest: rx,
@@ -329,9 +339,8 @@ impl Vision {
         let stats = Arc::new(VisionStats::default());
         let last_error = Arc::new(std::sync::Mutex::new(None::<String>));
         let stop = Arc::new(AtomicBool::new(false));
-        let (ftx, frx) = mpsc::sync_channel::<(f64, Frame)>(1);
+        let (ftx, frx) = mpsc::sync_channel::<(f64, f64, Frame)>(1);
         let tap = Arc::new(FrameTap::default());
-        let on_rig_clock = source.stamps_on_rig_clock();
         {
             let stats = stats.clone();
             let stop = stop.clone();
@@ -339,13 +348,26 @@ impl Vision {
             thread::Builder::new()
                 .name("microposd-capture".into())
                 .spawn(move || {
+                    let mut timebase = CameraTimebase::new();
                     while !stop.load(Ordering::Relaxed) {
                         // Before the grab: see the module docs.
                         let t = clock.now_s();
                         match source.next_frame() {
                             Ok(frame) => {
                                 stats.frames.fetch_add(1, Ordering::Relaxed);
-                                if let Err(mpsc::TrySendError::Full(_)) = ftx.try_send((t, frame)) {
+                                // Every frame teaches the camera clock's
+                                // map, dropped or not.
+                                let frame_t = frame_time(
+                                    source.frame_clock(),
+                                    &frame,
+                                    t,
+                                    clock.now_s(),
+                                    &mut timebase,
+                                    &stats,
+                                );
+                                if let Err(mpsc::TrySendError::Full(_)) =
+                                    ftx.try_send((t, frame_t, frame))
+                                {
                                     stats.dropped.fetch_add(1, Ordering::Relaxed);
                                 }
                             }
@@ -376,7 +398,7 @@ impl Vision {
                 .name("microposd-decode".into())
                 .spawn(move || {
                     // Ends when the capture thread ends (sender dropped).
-                    while let Ok((t_s, frame)) = frx.recv() {
+                    while let Ok((t_s, frame_t_s, frame)) = frx.recv() {
                         // Cold decode of every frame: tracking assumes
                         // less than half a period of motion between frames,
                         // which a job's steps (5-500 µm between frames on a
@@ -389,7 +411,7 @@ impl Vision {
                         stats.decode_seconds.observe(t0.elapsed().as_secs_f64());
                         let stamp = Stamp {
                             request_t_s: t_s,
-                            frame_t_s: if on_rig_clock { frame.timestamp_s } else { t_s },
+                            frame_t_s,
                             sequence: frame.sequence,
                         };
                         tap.offer(frame, &decoded);
@@ -418,7 +440,7 @@ impl Vision {
     /// Status as JSON.
     pub fn to_json(&self) -> Value {
         let s = &self.stats;
-        json!({
+        let mut v = json!({
             "frames": s.frames.load(Ordering::Relaxed),
             "decoded": s.decoded.load(Ordering::Relaxed),
             "failed": s.failed.load(Ordering::Relaxed),
@@ -426,7 +448,38 @@ impl Vision {
             "dropped": s.dropped.load(Ordering::Relaxed),
             "last_error": self.last_error.lock().map(|g| g.clone()).unwrap_or(None),
             "latest": (*self.latest.borrow()).map(|m| m.to_json()),
-        })
+        });
+        if let Some((rate_ppm, resets)) = s.camera_clock.lock().ok().and_then(|g| *g) {
+            v["camera_clock"] = json!({"rate_ppm": rate_ppm, "resets": resets});
+        }
+        v
+    }
+}
+
+/// The rig time of a frame (see [`Measurement::frame_t_s`]): its own stamp
+/// when that is on the rig clock, the camera's stamp mapped onto the rig
+/// clock by `timebase` (which learns from this frame's `arrival_s`), else
+/// the grab's request time.
+fn frame_time(
+    clock: FrameClock,
+    frame: &Frame,
+    request_s: f64,
+    arrival_s: f64,
+    timebase: &mut CameraTimebase,
+    stats: &VisionStats,
+) -> f64 {
+    match clock {
+        FrameClock::Rig => frame.timestamp_s,
+        FrameClock::None => request_s,
+        FrameClock::Camera => {
+            let t = timebase
+                .observe(frame.timestamp_s, arrival_s)
+                .unwrap_or(request_s);
+            if let Ok(mut g) = stats.camera_clock.lock() {
+                *g = Some(((timebase.rate() - 1.0) * 1e6, timebase.resets()));
+            }
+            t
+        }
     }
 }
 
@@ -450,6 +503,7 @@ struct OnDemandLoop {
     last_error: Arc<std::sync::Mutex<Option<String>>>,
     stop: Arc<AtomicBool>,
     demand: Arc<Demand>,
+    timebase: CameraTimebase,
 }
 
 /// Pause after a failed grab before the next one, rig time: a camera that
@@ -509,13 +563,17 @@ async fn on_demand_loop(mut l: OnDemandLoop) {
         }
         l.stats.frames.fetch_add(1, Ordering::Relaxed);
         let mut decoder = l.decoder;
+        let frame_t_s = frame_time(
+            l.source.frame_clock(),
+            &frame,
+            t,
+            l.clock.now_s(),
+            &mut l.timebase,
+            &l.stats,
+        );
         let stamp = Stamp {
             request_t_s: t,
-            frame_t_s: if l.source.stamps_on_rig_clock() {
-                frame.timestamp_s
-            } else {
-                t
-            },
+            frame_t_s,
             sequence: frame.sequence,
         };
         let stats = l.stats.clone();
@@ -725,5 +783,51 @@ mod tests {
             h.update(10, 4, w, t0 + Duration::from_millis(9100)),
             Some(Health::Ok)
         );
+    }
+
+    /// Each kind of source clock gives the frame time its docs promise: the
+    /// rig's stamp as it is, the request time for a source without a
+    /// clock, and a camera's own clock (any origin, 300 ppm fast, arrivals
+    /// 2–5 ms late) mapped onto the rig clock with a constant delay, the
+    /// rate reported in the status.
+    #[test]
+    fn frame_times_follow_the_source_clock() {
+        let frame =
+            |t: f64| Frame::new(2, 2, 8, crate::frame::Pixels::U8(vec![0; 4]), t, 0).unwrap();
+        let stats = VisionStats::default();
+        let mut tb = CameraTimebase::new();
+        let f = frame(123.5);
+        assert_eq!(
+            frame_time(FrameClock::Rig, &f, 1.0, 2.0, &mut tb, &stats),
+            123.5
+        );
+        assert_eq!(
+            frame_time(FrameClock::None, &f, 1.0, 2.0, &mut tb, &stats),
+            1.0
+        );
+        assert!(stats.camera_clock.lock().unwrap().is_none());
+        let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
+        for k in 0..3000 {
+            let t = 20.0 + k as f64 / 50.0;
+            let stamp = (t + 86_400.0) * (1.0 + 300e-6);
+            let arrival = t + 0.002 + 0.003 * ((k * 7919) % 101) as f64 / 100.0;
+            let m = frame_time(
+                FrameClock::Camera,
+                &frame(stamp),
+                t - 0.04,
+                arrival,
+                &mut tb,
+                &stats,
+            );
+            if k >= 1000 {
+                lo = lo.min(m - t);
+                hi = hi.max(m - t);
+            }
+        }
+        assert!(hi - lo < 5e-5, "mapped delay spread {} s", hi - lo);
+        assert!((lo - 0.002).abs() < 1e-4, "constant delay {lo} s");
+        let (rate_ppm, resets) = stats.camera_clock.lock().unwrap().unwrap();
+        assert!((rate_ppm + 300.0).abs() < 5.0, "rate {rate_ppm} ppm");
+        assert_eq!(resets, 0);
     }
 }

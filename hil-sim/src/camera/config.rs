@@ -67,6 +67,15 @@ pub struct CameraConfig {
     /// Timestamp jitter σ, µs (Gaussian, drawn per frame from the frame's
     /// noise seed).
     pub timestamp_jitter_us: f64,
+    /// The camera's own clock (the tick counter a GigE Vision camera puts
+    /// in each frame's leader) reads `(t + clock_offset_s) · (1 +
+    /// clock_rate_ppm · 1e-6)` at rig time `t`, s: a camera powered up
+    /// before the rig started. Only the served GigE camera stamps on it;
+    /// in process the camera stamps rig times.
+    pub clock_offset_s: f64,
+    /// The camera clock's rate error, ppm (a crystal's tens of ppm; either
+    /// sign). See `clock_offset_s`.
+    pub clock_rate_ppm: f64,
 }
 
 impl Default for CameraConfig {
@@ -97,6 +106,8 @@ impl Default for CameraConfig {
             illumination_period_s: 3600.0,
             latency_us: 3700.0,
             timestamp_jitter_us: 20.0,
+            clock_offset_s: 5400.0,
+            clock_rate_ppm: 30.0,
         }
     }
 }
@@ -244,7 +255,31 @@ impl CameraConfig {
             (0.0..=1e4).contains(&self.timestamp_jitter_us),
             "0..=1e4",
         )?;
+        chk(
+            "clock_offset_s",
+            self.clock_offset_s,
+            (0.0..=1e8).contains(&self.clock_offset_s),
+            "0..=1e8 (a tick counter starts at 0 when the camera powers up)",
+        )?;
+        chk(
+            "clock_rate_ppm",
+            self.clock_rate_ppm,
+            (-500.0..=500.0).contains(&self.clock_rate_ppm),
+            "−500..=500",
+        )?;
         Ok(())
+    }
+
+    /// The camera clock's reading at rig time `rig_s`, ns (see
+    /// `clock_offset_s`); 0 before the counter started.
+    pub fn camera_clock_ns(&self, rig_s: f64) -> u64 {
+        let s = (rig_s + self.clock_offset_s) * (1.0 + self.clock_rate_ppm * 1e-6);
+        if s.is_finite() && s > 0.0 {
+            // Saturates at u64::MAX (585 years of nanoseconds).
+            (s * 1e9).round() as u64
+        } else {
+            0
+        }
     }
 
     /// The equivalent configuration of micropos's exact renderer (no noise

@@ -26,9 +26,16 @@
 //!   black and the failure is counted ([`GigeStats`]).
 //! - Timing: frames follow wall time at `AcquisitionFrameRate` (starts at
 //!   `camera.fps`; aravis's thread sleeps to each frame slot); each frame
-//!   shows the rig's truth at the simulated time of its fill (no frame-slot
-//!   bookkeeping and no clock advance, unlike the socket camera's grab:
-//!   a free-running camera does not drive the rig's clock).
+//!   integrates the rig's truth over the exposure that ends at the
+//!   simulated time of its fill (no frame-slot bookkeeping and no clock
+//!   advance, unlike the socket camera's grab: a free-running camera does
+//!   not drive the rig's clock).
+//! - Timestamps: each frame's GVSP leader carries its stamp (exposure
+//!   mid-point + `camera.latency_us` + jitter) on the camera's own clock,
+//!   `camera.clock_offset_s` ahead of the rig's and `camera.clock_rate_ppm`
+//!   fast, in ns (the fake camera's `GevTimestampTickFrequency` is 1 GHz):
+//!   a client must map it onto its own clock, as with a real camera
+//!   ([`ServedFrame`] keeps both for tests).
 //! - Exposure and gain: the rig's `[camera]` grey levels hold at its
 //!   configured `exposure_us` and 0 dB. A client's `ExposureTime` scales
 //!   the collected signal (and with it the shot noise), its `Gain` (whole
@@ -136,6 +143,9 @@ impl Default for GigeConfig {
     }
 }
 
+/// How many served frames [`GigeStats::recent`] keeps.
+pub const RECENT_FRAMES: usize = 512;
+
 /// One frame the camera filled, with the truth it shows.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ServedFrame {
@@ -146,6 +156,12 @@ pub struct ServedFrame {
     /// The exposure and gain the frame was rendered with (the client's
     /// `ExposureTime` and `Gain` at that frame).
     pub sensor: SensorSettings,
+    /// The frame's stamp on the rig clock (exposure mid-point + latency +
+    /// jitter), simulated s.
+    pub stamp_s: f64,
+    /// The same stamp on the camera's own clock, as sent in the frame's
+    /// GVSP leader, ns (`CameraConfig::camera_clock_ns`).
+    pub camera_ns: u64,
 }
 
 /// What the camera has served so far (ground truth for tests and logs).
@@ -157,6 +173,9 @@ pub struct GigeStats {
     pub failures: u64,
     /// The last frame rendered.
     pub last: Option<ServedFrame>,
+    /// The last [`RECENT_FRAMES`] frames rendered, oldest first (to pair a
+    /// client's frames with their truth and stamps).
+    pub recent: std::collections::VecDeque<ServedFrame>,
     /// Why the last failure happened.
     pub last_error: Option<String>,
     /// Wall time from the first to the last rendered frame, s.
@@ -398,18 +417,20 @@ impl Drop for GigeCamera {
     }
 }
 
-/// The fill callback's body (on aravis's GV camera thread).
+/// The fill callback's body (on aravis's GV camera thread): renders the
+/// frame, packs it, and returns its stamp on the camera's clock (`None` for
+/// a frame sent black: aravis's host stamp stays).
 fn fill_frame(
     camera: &SimCamera,
     stop: &AtomicBool,
     stats: &Mutex<StatsCell>,
     req: ffi::FillRequest<'_>,
-) {
+) -> Option<u64> {
     while camera.mode() == CameraMode::Stall && !stop.load(Ordering::SeqCst) {
         std::thread::sleep(Duration::from_millis(20));
     }
     if stop.load(Ordering::SeqCst) {
-        return;
+        return None;
     }
     let sensor = sensor_settings(&req, camera.config().exposure_us);
     let result = camera
@@ -423,20 +444,29 @@ fn fill_frame(
                 [req.width, req.height],
                 req.data,
             )?;
-            Ok(grab.truth)
+            Ok((grab.truth, grab.frame.timestamp_s))
         });
     let mut cell = lock(stats);
     match result {
-        Ok(truth) => {
+        Ok((truth, stamp_s)) => {
+            let camera_ns = camera.config().camera_clock_ns(stamp_s);
             let now = Instant::now();
             let first = *cell.first.get_or_insert(now);
             cell.stats.frames += 1;
             cell.stats.span_s = now.duration_since(first).as_secs_f64();
-            cell.stats.last = Some(ServedFrame {
+            let served = ServedFrame {
                 frame_id: req.frame_id,
                 truth,
                 sensor,
-            });
+                stamp_s,
+                camera_ns,
+            };
+            cell.stats.last = Some(served);
+            if cell.stats.recent.len() == RECENT_FRAMES {
+                cell.stats.recent.pop_front();
+            }
+            cell.stats.recent.push_back(served);
+            Some(camera_ns)
         }
         Err(e) => {
             req.data.fill(0);
@@ -449,6 +479,7 @@ fn fill_frame(
                 );
             }
             cell.stats.last_error = Some(e);
+            None
         }
     }
 }

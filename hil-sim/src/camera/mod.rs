@@ -22,7 +22,9 @@
 //! `timestamp_jitter_us`, drawn from the frame's noise seed (so a seed gives
 //! the same stamps). micropos is not told the latency: the sweep
 //! characterization estimates it. [`SimCamera::render_now`] (the GigE
-//! server's free-running frames) stamps the render time, without blur.
+//! server's free-running frames) exposes over the time before the fill and
+//! is stamped the same way; the GigE server then puts the stamp on the
+//! camera's own clock (`CameraConfig::camera_clock_ns`).
 //!
 //! Faults (contract): [`CameraMode::Stall`] (no answer: the socket server
 //! drops the request, the in-process source times out), [`CameraMode::Garbage`]
@@ -42,7 +44,7 @@ use crate::clock::Clock;
 use crate::rig::{Rig, RigTruth};
 pub use config::CameraConfig;
 use fast::FastRenderer;
-use micropos::camera::{CameraError, CameraInfo, FrameSource};
+use micropos::camera::{CameraError, CameraInfo, FrameClock, FrameSource};
 use micropos::frame::Frame;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -199,20 +201,35 @@ impl SimCamera {
         (!self.clock.advances_on_request()).then(|| self.lock().ready_after)
     }
 
-    /// Renders the platform's pose at the clock's current time, without the
-    /// frame-slot timing of [`SimCamera::grab`] and without advancing the
-    /// clock: for a free-running camera paced by wall time (the GigE Vision
-    /// server), whose frames observe the rig rather than drive its clock.
-    /// `sensor` is what the client set (exposure, gain); `None` renders at
-    /// the rig's configured exposure and unity gain.
+    /// Fills a free-running camera's frame at the clock's current time: the
+    /// exposure ended now (a frame is read out after it), so the frame
+    /// integrates the pattern over the `exposure_us` before now (motion
+    /// blur as for [`SimCamera::grab`]) and is stamped with its mid-point
+    /// plus latency and jitter; the clock is not advanced. For a camera
+    /// paced by wall time (the GigE Vision server), whose frames observe
+    /// the rig rather than drive its clock. `sensor` is what the client set
+    /// (exposure, gain); `None` renders at the rig's configured exposure
+    /// and unity gain.
     pub fn render_now(&self, sensor: Option<SensorSettings>) -> Result<Grab, GrabError> {
         let mut st = self.lock();
         if st.mode == CameraMode::Stall {
             return Err(GrabError::Stalled);
         }
         let cfg = st.renderer.config().clone();
-        let now = self.clock.now().as_secs_f64();
-        self.render_locked(&mut st, &cfg, now, Exposure::Instant, sensor)
+        let end = self.clock.now().as_secs_f64();
+        let exposure = sensor.map_or(cfg.exposure_us, |s| s.exposure_us) * 1e-6;
+        let start = (end - exposure).max(0.0);
+        let samples = self.blur_samples(&cfg, start, end);
+        self.render_locked(
+            &mut st,
+            &cfg,
+            (start + end) / 2.0,
+            Exposure::Grab {
+                exposure: end - start,
+                samples,
+            },
+            sensor,
+        )
     }
 
     /// Renders the truth around simulated time `at_s` (mode: normal or
@@ -234,10 +251,6 @@ impl SimCamera {
         // The instants of the exposure in time order (the rig's model only
         // moves forward); the mid-point's truth is the frame's truth.
         let (truth, path, stamp) = match exposure {
-            Exposure::Instant => {
-                let truth = self.rig.truth(at(mid));
-                (truth, vec![truth.observed_pattern_um], mid)
-            }
             Exposure::Grab { exposure, samples } => {
                 let n = samples.max(1);
                 let mut truth = None;
@@ -292,8 +305,6 @@ pub const MAX_BLUR_SAMPLES: usize = 63;
 /// What a render integrates over.
 #[derive(Debug, Clone, Copy)]
 enum Exposure {
-    /// One instant, stamped with it (free-running GigE frames).
-    Instant,
     /// A grab's exposure of `exposure` s centred on the render time,
     /// averaged over `samples` instants, stamped with latency and jitter.
     Grab { exposure: f64, samples: usize },
@@ -377,8 +388,8 @@ impl FrameSource for SimCameraSource {
 
     /// In process the camera's clock is the rig's (the daemon's clock
     /// reads the simulator's time: `hil_sim::run::in_process_environment`).
-    fn stamps_on_rig_clock(&self) -> bool {
-        true
+    fn frame_clock(&self) -> FrameClock {
+        FrameClock::Rig
     }
 
     fn exposure_us(&self) -> Result<f64, CameraError> {

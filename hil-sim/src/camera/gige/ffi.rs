@@ -10,7 +10,8 @@
 //! calls the installed callback with the buffer, the user data pointer,
 //! the exposure (µs), the raw gain and the pixel format (exposure and gain
 //! are not used: the simulated image does not depend on them). The thread then
-//! sends the buffer's bytes as GVSP packets. `set_fill_pattern` takes the
+//! sends the buffer's bytes as GVSP packets, with the buffer's timestamp in
+//! the leader (which the callback may set: aravis set it before the call). `set_fill_pattern` takes the
 //! same mutex, and `NULL` restores aravis's own diagonal ramp.
 //!
 //! The buffer's size: in aravis 0.8 `arv_buffer_get_data` reports the
@@ -66,8 +67,12 @@ pub struct FillRequest<'a> {
     pub data: &'a mut [u8],
 }
 
-/// The closure that fills frames (runs on aravis's GV camera thread).
-pub type FillFn = dyn FnMut(FillRequest<'_>) + Send;
+/// The closure that fills frames (runs on aravis's GV camera thread). It
+/// returns the frame's timestamp on the camera's clock, ns, which replaces
+/// the one aravis set (the host's real time at the fill): the GV camera
+/// thread puts the buffer's timestamp in the GVSP leader after the fill.
+/// `None` keeps aravis's.
+pub type FillFn = dyn FnMut(FillRequest<'_>) -> Option<u64> + Send;
 
 /// What the callback's user data points to.
 struct Context {
@@ -181,7 +186,7 @@ unsafe extern "C" fn trampoline(
         // the slice does not outlive it.
         let bytes = unsafe { std::slice::from_raw_parts_mut(data, payload) };
         let mut fill = context.fill.lock().unwrap_or_else(|e| e.into_inner());
-        fill(FillRequest {
+        let stamp_ns = fill(FillRequest {
             width,
             height,
             offset: [x, y],
@@ -191,5 +196,10 @@ unsafe extern "C" fn trampoline(
             gain_raw,
             data: bytes,
         });
+        if let Some(ns) = stamp_ns {
+            // SAFETY: `buffer` is live and private to this thread for the
+            // call (see above); setting its timestamp is a plain field write.
+            unsafe { aravis_sys::arv_buffer_set_timestamp(buffer, ns) };
+        }
     }));
 }
