@@ -17,7 +17,8 @@
 //! - [`live`]: `GET /api/events`, the event bus as server-sent events;
 //! - [`camera`]: the downscaled camera frame and its overlay;
 //! - [`metrics`]: `GET /metrics` (OpenMetrics text);
-//! - [`page`]: the embedded page (HTML, JS, CSS; no build step).
+//! - [`page`]: the embedded page (HTML, JS, CSS; no build step);
+//! - [`shared`]: what every handler shares.
 
 pub mod camera;
 pub mod command;
@@ -25,5 +26,6 @@ pub mod live;
 pub mod metrics;
 pub mod page;
 pub mod router;
+pub mod shared;
 
 pub use router::{bind, serve, WebListener};
