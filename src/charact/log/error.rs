@@ -62,7 +62,7 @@ pub enum LineError {
         /// The text found.
         value: String,
     },
-    /// A numeric field is beyond ±[`MAX_ABS_VALUE`].
+    /// A numeric field is beyond ±[`MAX_ABS_VALUE`](super::MAX_ABS_VALUE).
     #[error("column {column}: {value:?} is beyond ±1e9")]
     OutOfRange {
         /// Column name.
@@ -129,7 +129,7 @@ pub enum LogError {
         found: String,
     },
     /// An earlier write failed part-way; the file may end in a partial line.
-    /// Reopen it with [`open_append`], which repairs it.
+    /// Reopen it with [`open_append`](super::open_append), which repairs it.
     #[error("an earlier write to this log failed; reopen it with open_append to repair it")]
     Poisoned,
     /// The operating system refused a read or write.

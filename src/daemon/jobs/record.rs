@@ -48,10 +48,10 @@ pub struct Progress {
     /// Why it failed or stopped.
     pub error: Option<String>,
     /// Operations retried after transient faults so far in this run of the
-    /// job (the rig's [`Rig::job_retries`], shared so status is live).
+    /// job (the rig's [`Rig::job_retries`](crate::daemon::rig::Rig::job_retries), shared so status is live).
     pub retries: Arc<AtomicU64>,
     /// What a finished sweep found (camera delay, frames; see
-    /// [`sweep_job`]); `null` otherwise.
+    /// [`sweep_job`](super::sweep_job)); `null` otherwise.
     pub result: Value,
 }
 

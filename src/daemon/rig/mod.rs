@@ -22,7 +22,7 @@
 //! - [`drift`]: re-measuring the drift reference, a move's correction;
 //! - [`measure`]: the park approach, averaged frames, retried moves;
 //! - [`job`]: a job's ownership of the axes, retries after transient faults;
-//! - [`reference`]: the reference run.
+//! - [`reference`](mod@reference): the reference run.
 
 pub mod closed_loop;
 pub mod drift;
