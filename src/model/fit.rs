@@ -455,6 +455,18 @@ pub fn fit(
     })
 }
 
+impl StageModel {
+    /// Fits the parameters to measurements by least squares; see
+    /// [`fit::fit`](super::fit::fit). On success the model holds the fitted values.
+    pub fn fit(
+        &mut self,
+        samples: &[Sample],
+        options: &FitOptions,
+    ) -> Result<FitReport, ModelError> {
+        fit(self, samples, options)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

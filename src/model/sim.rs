@@ -273,7 +273,7 @@ fn checked(step: SimStep) -> Result<SimStep, ModelError> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::model::file::Stochastic;
+    use crate::model::env::Stochastic;
     use crate::model::terms::{BacklashConfig, BacklashTerm};
 
     fn backlash_only(min_inc: f64, sigma: f64) -> StageModel {

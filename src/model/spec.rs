@@ -18,7 +18,7 @@ use serde::Serialize;
 use super::state::MotionState;
 use super::term::{
     check_param_values, config_table, numeric_jacobian, parse_term_config, require_finite,
-    require_non_negative, require_positive, ParamInfo, Term,
+    require_non_negative, require_positive, Effect, ParamInfo, Term,
 };
 use super::ModelError;
 
@@ -113,6 +113,9 @@ pub trait TermSpec: fmt::Debug + Clone + PartialEq + Send + Sync + 'static {
     type Config: fmt::Debug + Clone + PartialEq + Serialize + DeserializeOwned + Send + Sync;
     /// Kind name in model files.
     const KIND: &'static str;
+    /// Where the contribution acts (the platform, or only what the camera
+    /// sees).
+    const EFFECT: Effect = Effect::Platform;
     /// The fit parameters, in the order of [`Term::params`].
     const PARAMS: &'static [ParamSpec<Self::Config>];
     /// Checks beyond the parameter ranges (none by default).
@@ -161,6 +164,10 @@ impl<D: TermSpec> Term for SpecTerm<D> {
 
     fn kind(&self) -> &'static str {
         D::KIND
+    }
+
+    fn effect(&self) -> Effect {
+        D::EFFECT
     }
 
     fn params(&self) -> Vec<ParamInfo> {

@@ -285,7 +285,9 @@ pub type TermBuilder = fn(name: &str, table: toml::Table) -> Result<Box<dyn Term
 /// on top.
 #[derive(Clone)]
 pub struct TermRegistry {
-    kinds: BTreeMap<String, (TermBuilder, &'static str)>,
+    /// Kind → (builder, one-line doc); `terms` fills it with the built-in
+    /// kinds ([`TermRegistry::builtin`]).
+    pub(super) kinds: BTreeMap<String, (TermBuilder, &'static str)>,
 }
 
 impl fmt::Debug for TermRegistry {
@@ -300,15 +302,6 @@ impl TermRegistry {
         TermRegistry {
             kinds: BTreeMap::new(),
         }
-    }
-
-    /// The built-in terms.
-    pub fn builtin() -> Self {
-        let mut r = TermRegistry::empty();
-        for (kind, doc, builder) in super::terms::BUILTIN {
-            r.kinds.insert((*kind).to_string(), (*builder, *doc));
-        }
-        r
     }
 
     /// Adds a kind. Refuses to replace an existing one (two terms answering

@@ -7,90 +7,40 @@
 //! every case: each point is appended and flushed before the next move.
 
 pub mod plan;
+pub mod record;
 pub mod sweep;
 pub mod sweep_job;
 pub mod tables;
 pub mod tie;
 pub mod validate;
 
-use super::protocol::{
-    Axes, CharacterizeMode, CharacterizeParams, ErrorCode, MoveRequest, ProtoError, Topic,
+/// The record helpers the job files share.
+pub(crate) use record::{append_record, drift_ref_record, lock};
+pub use record::{columns, Progress};
+
+/// The measuring helpers every job uses, from the rig (`rig::measure`).
+pub(crate) use super::rig::measure::{
+    clamp_to_travel, measure_retrying, move_raw_retrying, PARK_APPROACH_UM,
 };
+
+use super::protocol::{Axes, CharacterizeMode, CharacterizeParams, ErrorCode, ProtoError, Topic};
 use super::rig::Rig;
-use super::vision::Measurement;
 use crate::analysis::drift::DRIFT_REF_SEGMENT;
-use crate::charact::log::{self, Columns, LogWriter, Metadata, Record};
+use crate::charact::log::{self, LogWriter, Metadata, Record};
 use crate::comp::VisionFrame;
 use crate::model::XyUm;
 use plan::{DriftPlan, ScanPlan};
 use serde_json::{json, Value};
 use std::fs::File;
 use std::path::PathBuf;
-use std::sync::atomic::AtomicU64;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 use tokio::sync::watch;
-
-fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
-    m.lock().unwrap_or_else(|p| p.into_inner())
-}
-
-/// The log's columns: the standard ones plus the controller-reported
-/// positions and the mean decode quality, so every position source is kept.
-pub fn columns() -> Columns {
-    Columns {
-        temp_c: false,
-        extra: vec![
-            "x_reported_um".to_owned(),
-            "y_reported_um".to_owned(),
-            "vision_quality".to_owned(),
-        ],
-    }
-}
 
 /// Velocity of a sweep's odd cycles when the request names none, µm/s:
 /// at the simulated camera's 30 frames/s the even cycles (twice it) still
 /// put a frame within every 5 µm cell (8 µm apart: neighbours interpolate).
 pub const DEFAULT_SWEEP_VELOCITY_UM_PER_S: f64 = 120.0;
-
-/// Distance below the first point from which the held axis is parked, µm
-/// (10× the M-111's 2 µm backlash, as `charact::scan`'s approach).
-pub const PARK_APPROACH_UM: f64 = 20.0;
-
-/// Progress of the current or last job.
-#[derive(Debug, Clone)]
-pub struct Progress {
-    /// `characterize`.
-    pub kind: &'static str,
-    /// Log file name.
-    pub log: String,
-    /// `running`, `done`, `cancelled`, `stopped`, `failed`.
-    pub state: &'static str,
-    /// Points logged.
-    pub done: usize,
-    /// Points in the plan.
-    pub total: usize,
-    /// Estimated remaining rig time, s.
-    pub eta_s: Option<f64>,
-    /// Why it failed or stopped.
-    pub error: Option<String>,
-    /// Operations retried after transient faults so far in this run of the
-    /// job (the rig's [`Rig::job_retries`], shared so status is live).
-    pub retries: Arc<AtomicU64>,
-    /// What a finished sweep found (camera delay, frames; see
-    /// [`sweep_job`]); `null` otherwise.
-    pub result: Value,
-}
-
-impl Progress {
-    /// As JSON.
-    pub fn to_json(&self) -> Value {
-        json!({"kind": self.kind, "log": self.log, "state": self.state, "done": self.done,
-               "total": self.total, "eta_s": self.eta_s, "error": self.error,
-               "retries": self.retries.load(std::sync::atomic::Ordering::SeqCst),
-               "result": self.result})
-    }
-}
 
 #[derive(Debug)]
 struct Running {
@@ -467,121 +417,6 @@ fn unix_seconds() -> u64 {
         .map_or(0, |d| d.as_secs())
 }
 
-/// Waits for `n` fresh, good measurements and averages them. Fresh: the
-/// grab was requested at or after `after_s` (so the frame was exposed after
-/// the settle; see `daemon::vision`) and the frame is newer than any taken
-/// before the call. Good: quality ≥ `camera.min_quality`.
-///
-/// Each accepted frame must come within `camera.timeout_ms` (wall time: it
-/// guards an I/O stall, not a physical duration) of the previous one, or of
-/// the call; otherwise the point fails with `camera_stalled` (no frame
-/// arrived) or `low_quality` (frames arrived but did not decode, or decoded
-/// below the minimum quality). Nothing is made up: the caller logs only what
-/// this returns.
-pub(crate) async fn measure(
-    rig: &Rig,
-    n: u32,
-    after_s: f64,
-) -> Result<(Measurement, f64), ProtoError> {
-    let Some(v) = &rig.vision else {
-        return Err(ProtoError::new(ErrorCode::CameraUnavailable, "no camera"));
-    };
-    let _want = v.want();
-    let mut rx = v.latest.clone();
-    let timeout = Duration::from_millis(rig.cfg.camera.timeout_ms);
-    let counters = || {
-        use std::sync::atomic::Ordering::Relaxed;
-        (
-            v.stats.frames.load(Relaxed),
-            v.stats.failed.load(Relaxed),
-            v.stats.decoded.load(Relaxed),
-        )
-    };
-    let mut got: Vec<Measurement> = Vec::new();
-    let mut last_seq = None;
-    let mut below_quality = false;
-    let mut deadline = tokio::time::Instant::now() + timeout;
-    let mut at_start = counters();
-    while got.len() < n as usize {
-        let m = *rx.borrow_and_update();
-        if let Some(m) = m {
-            let fresh = m.t_s >= after_s && Some(m.sequence) != last_seq;
-            below_quality |= fresh && m.quality < rig.cfg.camera.min_quality;
-            if fresh && m.quality >= rig.cfg.camera.min_quality {
-                last_seq = Some(m.sequence);
-                got.push(m);
-                deadline = tokio::time::Instant::now() + timeout;
-                at_start = counters();
-                continue;
-            }
-        }
-        match tokio::time::timeout_at(deadline, rx.changed()).await {
-            Ok(Ok(())) => {}
-            Ok(Err(_)) => {
-                return Err(ProtoError::new(
-                    ErrorCode::CameraUnavailable,
-                    "the camera pipeline ended",
-                ))
-            }
-            Err(_) => {
-                let why = lock(&v.last_error)
-                    .clone()
-                    .unwrap_or_else(|| "no error reported".to_owned());
-                // A frame in flight when the camera stalled may still
-                // arrive (and be refused as too old): only frames that fail
-                // to decode, or fresh ones below the quality, mean that the
-                // camera delivers but the data is unusable.
-                let (_, failed, _) = counters();
-                let (code, what) = if failed > at_start.1 {
-                    (
-                        ErrorCode::LowQuality,
-                        format!(
-                            "frames arrive but do not decode ({} failed)",
-                            failed - at_start.1
-                        ),
-                    )
-                } else if below_quality {
-                    (
-                        ErrorCode::LowQuality,
-                        format!(
-                            "frames decode below camera.min_quality = {}",
-                            rig.cfg.camera.min_quality
-                        ),
-                    )
-                } else {
-                    (
-                        ErrorCode::CameraStalled,
-                        "no frame exposed after the settle arrived from the camera".to_owned(),
-                    )
-                };
-                // Transient: the next frames may well decode (a stalled
-                // grab, a blurred or garbled frame); jobs retry it.
-                return Err(ProtoError::new(
-                    code,
-                    format!(
-                        "{what} within {} ms (last error: {why}); {} of {n} frames measured, the point was not logged",
-                        timeout.as_millis(),
-                        got.len()
-                    ),
-                )
-                .into_transient());
-            }
-        }
-    }
-    let k = got.len() as f64;
-    let mean = |f: fn(&Measurement) -> f64| got.iter().map(f).sum::<f64>() / k;
-    let m = Measurement {
-        t_s: mean(|m| m.t_s),
-        frame_t_s: mean(|m| m.frame_t_s),
-        sequence: got.last().map_or(0, |m| m.sequence),
-        x_um: mean(|m| m.x_um),
-        y_um: mean(|m| m.y_um),
-        theta_rad: mean(|m| m.theta_rad),
-        quality: mean(|m| m.quality),
-    };
-    Ok((m, m.quality))
-}
-
 #[allow(clippy::too_many_arguments)]
 async fn run(
     rig: &Arc<Rig>,
@@ -758,21 +593,6 @@ struct RefContext<'a> {
     name: &'a str,
 }
 
-/// Appends `rec` to a job's log on a blocking thread; the record is written,
-/// flushed and synced before this returns (every logged point survives a
-/// crash). `name` is the log's file name, for the error.
-pub(super) async fn append_record(
-    writer: &Arc<Mutex<LogWriter<File>>>,
-    rec: Record,
-    name: &str,
-) -> Result<(), ProtoError> {
-    let w = writer.clone();
-    tokio::task::spawn_blocking(move || lock(&w).append(&rec))
-        .await
-        .map_err(|e| ProtoError::new(ErrorCode::Internal, e.to_string()))?
-        .map_err(|e| ProtoError::new(ErrorCode::LogError, format!("cannot append to {name}: {e}")))
-}
-
 /// Moves to `x`, `y` (µm, raw) and waits; `Ok(None)` if cancelled meanwhile.
 /// Transient faults are retried (an absolute move: sending it again is
 /// harmless; see [`Rig::retry_transient`]).
@@ -786,22 +606,6 @@ async fn move_raw(
         r = move_raw_retrying(rig, x, y) => r.map(Some),
         _ = cancel.changed() => Ok(None),
     }
-}
-
-/// An absolute raw move and wait, retried after transient faults.
-pub(crate) async fn move_raw_retrying(rig: &Arc<Rig>, x: f64, y: f64) -> Result<Value, ProtoError> {
-    let req = MoveRequest::raw_to(x, y);
-    rig.retry_transient(&format!("move to ({x}, {y}) µm"), || {
-        rig.move_to(&req, true)
-    })
-    .await
-}
-
-/// [`measure`] of `n` frames exposed from now on, retried after transient
-/// camera faults (each retry waits for frames exposed after it began).
-pub(crate) async fn measure_retrying(rig: &Rig, n: u32) -> Result<(Measurement, f64), ProtoError> {
-    rig.retry_transient("measure", || measure(rig, n, rig.clock.now_s()))
-        .await
 }
 
 /// Measures the drift reference and logs it (segment `drift_ref`, cycle of
@@ -848,39 +652,6 @@ async fn measure_reference(
     Ok(move_raw(rig, x, y, cancel).await?.is_some())
 }
 
-/// The log record of a drift reference re-measurement (segment
-/// `drift_ref`, target = command = the reference, the controllers' reported
-/// position and the frame quality as extra columns): one shape for the step
-/// and the sweep job, whose readers (`tables build`) treat both alike.
-fn drift_ref_record(
-    reference_um: [f64; 2],
-    moved: &Value,
-    meas: XyUm,
-    quality: f64,
-    cycle: u32,
-    t_s: f64,
-) -> Record {
-    let [rx, ry] = reference_um;
-    let rep = |axis: &str| moved["reported"][axis].as_f64();
-    Record {
-        t_s,
-        segment: DRIFT_REF_SEGMENT.to_owned(),
-        cycle,
-        x_target_um: rx,
-        y_target_um: ry,
-        x_cmd_um: rx,
-        y_cmd_um: ry,
-        x_meas_um: meas.x_um,
-        y_meas_um: meas.y_um,
-        temp_c: None,
-        extra: vec![
-            rep("x_um").map_or(String::new(), |v| format!("{v:.4}")),
-            rep("y_um").map_or(String::new(), |v| format!("{v:.4}")),
-            format!("{quality:.3}"),
-        ],
-    }
-}
-
 /// The scan line a segment belongs to (`Some('x')` for `scan_x_fwd` and
 /// `scan_x_bwd`), `None` for the other segments (moves).
 fn scan_line(segment: &str) -> Option<char> {
@@ -918,18 +689,4 @@ fn scan_approach(rig: &Rig, next: &plan::Point) -> (f64, f64) {
         )
     };
     clamp_to_travel(rig, x, y)
-}
-
-/// `(x, y)` clamped into the allowed travel (soft limits ∩ controller
-/// travel, as `status.limits`); unchanged when the limits are unknown.
-pub(crate) fn clamp_to_travel(rig: &Rig, x: f64, y: f64) -> (f64, f64) {
-    let status = rig.status();
-    let clamp = |v: f64, axis: &str| {
-        let l = &status["limits"][axis];
-        match (l[0].as_f64(), l[1].as_f64()) {
-            (Some(lo), Some(hi)) if lo <= hi => v.clamp(lo, hi),
-            _ => v,
-        }
-    };
-    (clamp(x, "x_um"), clamp(y, "y_um"))
 }

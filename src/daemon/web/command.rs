@@ -16,7 +16,7 @@
 //! is needed, 403 for a role too low, 400 for a request that does not parse,
 //! 413 for one over the protocol's size limit.
 
-use super::router::Web;
+use super::shared::Web;
 use crate::daemon::audit::{Origin, Outcome};
 use crate::daemon::protocol::{self, Command, ErrorCode, ProtoError, Role};
 use crate::daemon::Daemon;

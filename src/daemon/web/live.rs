@@ -7,10 +7,10 @@
 //!
 //! A slow browser loses events (`lagged` says how many) rather than
 //! slowing the daemon, as on the socket. Streams end at the daemon's
-//! shutdown, and at most [`MAX_STREAMS`](super::router::MAX_STREAMS) run
+//! shutdown, and at most [`MAX_STREAMS`](super::shared::MAX_STREAMS) run
 //! at once.
 
-use super::router::Web;
+use super::shared::Web;
 use crate::daemon::protocol::{self, Command};
 use axum::extract::State;
 use axum::http::StatusCode;

@@ -7,6 +7,7 @@
 //! ([`MAX_CONNECTIONS`]) and closes those that idle or never finish a
 //! request header ([`IDLE_TIMEOUT`]); `axum::serve` does neither.
 
+use super::shared::{Web, MAX_STREAMS};
 use super::{camera, command, live, page};
 use crate::daemon::config::WebSection;
 use crate::daemon::protocol::{ErrorCode, ProtoError, Role};
@@ -23,7 +24,7 @@ use serde_json::json;
 use std::net::SocketAddr;
 use std::sync::Arc;
 use std::time::Duration;
-use tokio::sync::{broadcast, Semaphore};
+use tokio::sync::Semaphore;
 
 /// A bound web listener and what its clients may do.
 #[derive(Debug)]
@@ -75,26 +76,6 @@ pub fn bind(cfg: &WebSection) -> Result<WebListener, ProtoError> {
         camera_max_px: cfg.camera_max_px,
     })
 }
-
-/// What every handler shares.
-#[derive(Debug)]
-pub struct Web {
-    /// The daemon.
-    pub daemon: Arc<Daemon>,
-    /// The bearer token; `None`: no command beyond anonymous reads.
-    pub token: Option<String>,
-    /// The role of a client holding the token.
-    pub role: Role,
-    /// The camera view, if a camera is configured.
-    pub camera: Option<camera::CameraView>,
-    /// Event streams open at most at once.
-    pub streams: Arc<Semaphore>,
-    /// Ends event streams at shutdown.
-    pub shutdown: broadcast::Sender<()>,
-}
-
-/// Event streams served at once at most (each holds a bus receiver).
-pub const MAX_STREAMS: usize = 32;
 
 /// The routes.
 pub fn router(web: Arc<Web>) -> Router {

@@ -2,16 +2,19 @@
 //! struct (the model-file table), the term, its builder and unit tests with
 //! hand-computed values.
 
-use super::term::TermBuilder;
+use super::term::{TermBuilder, TermRegistry};
 
 pub mod angular;
 pub mod backlash;
+mod basis;
 pub mod cyclic;
 pub mod discovered;
 pub mod lead;
 pub mod offset;
 pub mod squareness;
 pub mod thermal;
+
+pub(crate) use basis::{direction_weights, harmonics};
 
 pub use angular::{AngularConfig, AngularTerm, Rotation};
 pub use backlash::{play_offset_um, Backlash, BacklashConfig, BacklashTerm, PlayOperator};
@@ -24,7 +27,8 @@ pub use lead::{Lead, LeadConfig, LeadTerm};
 pub use offset::{OriginOffset, OriginOffsetConfig, OriginOffsetTerm};
 pub use squareness::{Squareness, SquarenessConfig, SquarenessTerm};
 pub use thermal::{
-    OpticsDriftConfig, OpticsDriftTerm, ThermalExpansionConfig, ThermalExpansionTerm,
+    OpticsDrift, OpticsDriftConfig, OpticsDriftTerm, ThermalExpansion, ThermalExpansionConfig,
+    ThermalExpansionTerm,
 };
 
 /// `(kind, one-line doc, builder)` of every built-in term.
@@ -67,12 +71,12 @@ pub(crate) const BUILTIN: &[(&str, &str, TermBuilder)] = &[
     (
         thermal::EXPANSION_KIND,
         "thermal expansion and drift of the stage with ambient temperature",
-        thermal::build_expansion,
+        thermal::ThermalExpansionTerm::build,
     ),
     (
         thermal::OPTICS_KIND,
         "apparent shift of the camera's view with ambient temperature",
-        thermal::build_optics,
+        thermal::OpticsDriftTerm::build,
     ),
     (
         discovered::POSITION_PERIODIC_KIND,
@@ -116,24 +120,13 @@ pub(crate) const BUILTIN: &[(&str, &str, TermBuilder)] = &[
     ),
 ];
 
-/// Weights of the forward and backward parameter sets for a direction: the
-/// direction's own set, or the mean of both when the direction is unknown.
-pub(crate) fn direction_weights(dir: super::state::Direction) -> (f64, f64) {
-    match dir {
-        super::state::Direction::Forward => (1.0, 0.0),
-        super::state::Direction::Backward => (0.0, 1.0),
-        super::state::Direction::Unknown => (0.5, 0.5),
+impl TermRegistry {
+    /// The built-in terms.
+    pub fn builtin() -> Self {
+        let mut r = TermRegistry::empty();
+        for (kind, doc, builder) in BUILTIN {
+            r.kinds.insert((*kind).to_string(), (*builder, *doc));
+        }
+        r
     }
-}
-
-/// `2π·k·p/period` for k = 1..=n as `(sin, cos)` pairs, with `p` reduced
-/// modulo the period first so huge positions stay exact and finite.
-pub(crate) fn harmonics(p_um: f64, period_um: f64, n: usize) -> Vec<(f64, f64)> {
-    let frac = p_um.rem_euclid(period_um) / period_um;
-    (1..=n)
-        .map(|k| {
-            let phi = std::f64::consts::TAU * ((k as f64 * frac).fract());
-            phi.sin_cos()
-        })
-        .collect()
 }

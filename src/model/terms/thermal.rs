@@ -18,11 +18,10 @@
 
 use serde::{Deserialize, Serialize};
 
+use super::super::error::ModelError;
+use super::super::spec::{ParamRange, ParamSpec, SpecTerm, TermSpec};
 use super::super::state::{MotionState, DEFAULT_TEMP_C};
-use super::super::term::{
-    check_param_values, config_table, parse_term_config, require_finite, Effect, ParamInfo, Term,
-};
-use super::super::ModelError;
+use super::super::term::{require_finite, Effect};
 
 /// Kind name of the stage term.
 pub const EXPANSION_KIND: &str = "thermal_expansion";
@@ -63,98 +62,83 @@ pub struct OpticsDriftConfig {
     pub y_um_per_c: f64,
 }
 
-/// The stage thermal term.
+/// The stage thermal kind: four parameters, linear.
 #[derive(Debug, Clone, PartialEq)]
-pub struct ThermalExpansionTerm {
-    name: String,
-    cfg: ThermalExpansionConfig,
+pub struct ThermalExpansion;
+
+/// The stage thermal term.
+pub type ThermalExpansionTerm = SpecTerm<ThermalExpansion>;
+
+/// ∂contribution/∂(the four parameters, in table order), µm per unit.
+fn expansion_basis(cfg: &ThermalExpansionConfig, s: &MotionState) -> [[f64; 2]; 4] {
+    let dt = s.temp_c - cfg.reference_temp_c;
+    [
+        [dt * s.axes[0].cmd_um / 1000.0, 0.0],
+        [0.0, dt * s.axes[1].cmd_um / 1000.0],
+        [dt, 0.0],
+        [0.0, dt],
+    ]
 }
 
-impl ThermalExpansionTerm {
-    /// Builds and validates.
-    pub fn new(name: &str, cfg: ThermalExpansionConfig) -> Result<Self, ModelError> {
+impl TermSpec for ThermalExpansion {
+    type Config = ThermalExpansionConfig;
+    const KIND: &'static str = EXPANSION_KIND;
+    const PARAMS: &'static [ParamSpec<ThermalExpansionConfig>] = &[
+        ParamSpec {
+            key: "x_um_per_c_per_mm",
+            unit: "µm/°C/mm",
+            range: ParamRange::Finite,
+            get: |c| c.x_um_per_c_per_mm,
+            set: |c, v| c.x_um_per_c_per_mm = v,
+            doc: |_| {
+                "differential thermal expansion along x (stage vs pattern), per mm of x".to_owned()
+            },
+            column: Some(|c, s| expansion_basis(c, s)[0]),
+        },
+        ParamSpec {
+            key: "y_um_per_c_per_mm",
+            unit: "µm/°C/mm",
+            range: ParamRange::Finite,
+            get: |c| c.y_um_per_c_per_mm,
+            set: |c, v| c.y_um_per_c_per_mm = v,
+            doc: |_| {
+                "differential thermal expansion along y (stage vs pattern), per mm of y".to_owned()
+            },
+            column: Some(|c, s| expansion_basis(c, s)[1]),
+        },
+        ParamSpec {
+            key: "x_offset_um_per_c",
+            unit: "µm/°C",
+            range: ParamRange::Finite,
+            get: |c| c.x_offset_um_per_c,
+            set: |c, v| c.x_offset_um_per_c = v,
+            doc: |_| "position-independent thermal drift of the platform along x".to_owned(),
+            column: Some(|c, s| expansion_basis(c, s)[2]),
+        },
+        ParamSpec {
+            key: "y_offset_um_per_c",
+            unit: "µm/°C",
+            range: ParamRange::Finite,
+            get: |c| c.y_offset_um_per_c,
+            set: |c, v| c.y_offset_um_per_c = v,
+            doc: |_| "position-independent thermal drift of the platform along y".to_owned(),
+            column: Some(|c, s| expansion_basis(c, s)[3]),
+        },
+    ];
+
+    fn check(name: &str, cfg: &ThermalExpansionConfig) -> Result<(), ModelError> {
         require_finite(name, "reference_temp_c", cfg.reference_temp_c)?;
-        require_finite(name, "x_um_per_c_per_mm", cfg.x_um_per_c_per_mm)?;
-        require_finite(name, "y_um_per_c_per_mm", cfg.y_um_per_c_per_mm)?;
-        require_finite(name, "x_offset_um_per_c", cfg.x_offset_um_per_c)?;
-        require_finite(name, "y_offset_um_per_c", cfg.y_offset_um_per_c)?;
-        Ok(ThermalExpansionTerm {
-            name: name.to_string(),
-            cfg,
-        })
-    }
-
-    fn basis(&self, s: &MotionState) -> [[f64; 2]; 4] {
-        let dt = s.temp_c - self.cfg.reference_temp_c;
-        [
-            [dt * s.axes[0].cmd_um / 1000.0, 0.0],
-            [0.0, dt * s.axes[1].cmd_um / 1000.0],
-            [dt, 0.0],
-            [0.0, dt],
-        ]
-    }
-
-    fn values(&self) -> [f64; 4] {
-        [
-            self.cfg.x_um_per_c_per_mm,
-            self.cfg.y_um_per_c_per_mm,
-            self.cfg.x_offset_um_per_c,
-            self.cfg.y_offset_um_per_c,
-        ]
-    }
-}
-
-impl Term for ThermalExpansionTerm {
-    fn name(&self) -> &str {
-        &self.name
-    }
-
-    fn kind(&self) -> &'static str {
-        EXPANSION_KIND
-    }
-
-    fn params(&self) -> Vec<ParamInfo> {
-        let v = self.values();
-        vec![
-            ParamInfo::new(
-                "x_um_per_c_per_mm",
-                "µm/°C/mm",
-                v[0],
-                "differential thermal expansion along x (stage vs pattern), per mm of x",
-            ),
-            ParamInfo::new(
-                "y_um_per_c_per_mm",
-                "µm/°C/mm",
-                v[1],
-                "differential thermal expansion along y (stage vs pattern), per mm of y",
-            ),
-            ParamInfo::new(
-                "x_offset_um_per_c",
-                "µm/°C",
-                v[2],
-                "position-independent thermal drift of the platform along x",
-            ),
-            ParamInfo::new(
-                "y_offset_um_per_c",
-                "µm/°C",
-                v[3],
-                "position-independent thermal drift of the platform along y",
-            ),
-        ]
-    }
-
-    fn set_params(&mut self, values: &[f64]) -> Result<(), ModelError> {
-        check_param_values(&self.name, 4, values)?;
-        self.cfg.x_um_per_c_per_mm = values[0];
-        self.cfg.y_um_per_c_per_mm = values[1];
-        self.cfg.x_offset_um_per_c = values[2];
-        self.cfg.y_offset_um_per_c = values[3];
         Ok(())
     }
 
-    fn contribution(&self, state: &MotionState) -> [f64; 2] {
-        let b = self.basis(state);
-        let v = self.values();
+    fn contribution(cfg: &ThermalExpansionConfig, state: &MotionState) -> [f64; 2] {
+        let b = expansion_basis(cfg, state);
+        let v = [
+            cfg.x_um_per_c_per_mm,
+            cfg.y_um_per_c_per_mm,
+            cfg.x_offset_um_per_c,
+            cfg.y_offset_um_per_c,
+        ];
         let mut out = [0.0; 2];
         for (bi, vi) in b.iter().zip(v) {
             out[0] += bi[0] * vi;
@@ -162,116 +146,55 @@ impl Term for ThermalExpansionTerm {
         }
         out
     }
-
-    fn is_linear(&self) -> bool {
-        true
-    }
-
-    fn jacobian(&self, state: &MotionState) -> Vec<[f64; 2]> {
-        self.basis(state).to_vec()
-    }
-
-    fn to_config(&self) -> Result<toml::Table, ModelError> {
-        config_table(&self.name, &self.cfg)
-    }
-
-    fn clone_box(&self) -> Box<dyn Term> {
-        Box::new(self.clone())
-    }
 }
 
-/// The optics thermal term (an [`Effect::Observation`] term).
+/// The optics thermal kind (an [`Effect::Observation`]): two parameters,
+/// linear.
 #[derive(Debug, Clone, PartialEq)]
-pub struct OpticsDriftTerm {
-    name: String,
-    cfg: OpticsDriftConfig,
-}
+pub struct OpticsDrift;
 
-impl OpticsDriftTerm {
-    /// Builds and validates.
-    pub fn new(name: &str, cfg: OpticsDriftConfig) -> Result<Self, ModelError> {
+/// The optics thermal term.
+pub type OpticsDriftTerm = SpecTerm<OpticsDrift>;
+
+impl TermSpec for OpticsDrift {
+    type Config = OpticsDriftConfig;
+    const KIND: &'static str = OPTICS_KIND;
+    const EFFECT: Effect = Effect::Observation;
+    const PARAMS: &'static [ParamSpec<OpticsDriftConfig>] = &[
+        ParamSpec {
+            key: "x_um_per_c",
+            unit: "µm/°C",
+            range: ParamRange::Finite,
+            get: |c| c.x_um_per_c,
+            set: |c, v| c.x_um_per_c = v,
+            doc: |_| "apparent shift of the camera's view along x (microscope drift)".to_owned(),
+            column: Some(|c, s| [s.temp_c - c.reference_temp_c, 0.0]),
+        },
+        ParamSpec {
+            key: "y_um_per_c",
+            unit: "µm/°C",
+            range: ParamRange::Finite,
+            get: |c| c.y_um_per_c,
+            set: |c, v| c.y_um_per_c = v,
+            doc: |_| "apparent shift of the camera's view along y (microscope drift)".to_owned(),
+            column: Some(|c, s| [0.0, s.temp_c - c.reference_temp_c]),
+        },
+    ];
+
+    fn check(name: &str, cfg: &OpticsDriftConfig) -> Result<(), ModelError> {
         require_finite(name, "reference_temp_c", cfg.reference_temp_c)?;
-        require_finite(name, "x_um_per_c", cfg.x_um_per_c)?;
-        require_finite(name, "y_um_per_c", cfg.y_um_per_c)?;
-        Ok(OpticsDriftTerm {
-            name: name.to_string(),
-            cfg,
-        })
-    }
-}
-
-impl Term for OpticsDriftTerm {
-    fn name(&self) -> &str {
-        &self.name
-    }
-
-    fn kind(&self) -> &'static str {
-        OPTICS_KIND
-    }
-
-    fn effect(&self) -> Effect {
-        Effect::Observation
-    }
-
-    fn params(&self) -> Vec<ParamInfo> {
-        vec![
-            ParamInfo::new(
-                "x_um_per_c",
-                "µm/°C",
-                self.cfg.x_um_per_c,
-                "apparent shift of the camera's view along x (microscope drift)",
-            ),
-            ParamInfo::new(
-                "y_um_per_c",
-                "µm/°C",
-                self.cfg.y_um_per_c,
-                "apparent shift of the camera's view along y (microscope drift)",
-            ),
-        ]
-    }
-
-    fn set_params(&mut self, values: &[f64]) -> Result<(), ModelError> {
-        check_param_values(&self.name, 2, values)?;
-        self.cfg.x_um_per_c = values[0];
-        self.cfg.y_um_per_c = values[1];
         Ok(())
     }
 
-    fn contribution(&self, state: &MotionState) -> [f64; 2] {
-        let dt = state.temp_c - self.cfg.reference_temp_c;
-        [dt * self.cfg.x_um_per_c, dt * self.cfg.y_um_per_c]
+    fn contribution(cfg: &OpticsDriftConfig, state: &MotionState) -> [f64; 2] {
+        let dt = state.temp_c - cfg.reference_temp_c;
+        [dt * cfg.x_um_per_c, dt * cfg.y_um_per_c]
     }
-
-    fn is_linear(&self) -> bool {
-        true
-    }
-
-    fn jacobian(&self, state: &MotionState) -> Vec<[f64; 2]> {
-        let dt = state.temp_c - self.cfg.reference_temp_c;
-        vec![[dt, 0.0], [0.0, dt]]
-    }
-
-    fn to_config(&self) -> Result<toml::Table, ModelError> {
-        config_table(&self.name, &self.cfg)
-    }
-
-    fn clone_box(&self) -> Box<dyn Term> {
-        Box::new(self.clone())
-    }
-}
-
-pub(crate) fn build_expansion(name: &str, table: toml::Table) -> Result<Box<dyn Term>, ModelError> {
-    let cfg = parse_term_config(name, EXPANSION_KIND, table)?;
-    Ok(Box::new(ThermalExpansionTerm::new(name, cfg)?))
-}
-
-pub(crate) fn build_optics(name: &str, table: toml::Table) -> Result<Box<dyn Term>, ModelError> {
-    let cfg = parse_term_config(name, OPTICS_KIND, table)?;
-    Ok(Box::new(OpticsDriftTerm::new(name, cfg)?))
 }
 
 #[cfg(test)]
 mod tests {
+    use super::super::super::term::Term;
     use super::*;
 
     #[test]

@@ -1,0 +1,49 @@
+//! `[camera]`: the frame source and its decoding.
+
+use serde::{Deserialize, Serialize};
+
+/// `[camera]`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct CameraSection {
+    /// Frame source (`v4l2:/dev/video0`, `genicam[:ID]`, `files:GLOB`,
+    /// `sim:PATH` for hil-sim's camera socket); empty = no camera (vision features
+    /// answer `camera_unavailable`).
+    pub source: String,
+    /// Longest wait for a frame, ms.
+    pub timeout_ms: u64,
+    /// Replay sources: start again after the last file.
+    pub looping: bool,
+    /// Pattern period, µm.
+    pub period_um: f64,
+    /// Pattern code depth (4..=12).
+    pub bits: u32,
+    /// The optics mirror the image.
+    pub mirrored: bool,
+    /// Oldest measurement a closed-loop move or a job point may use, s.
+    pub max_age_s: f64,
+    /// Lowest decode quality accepted: the code evidence in bits (log₂
+    /// likelihood ratio of the best code position over the runner-up). The
+    /// decoder itself refuses less than 16 bits; clean frames score hundreds,
+    /// so a lab can raise this to reject marginal frames (dust, defocus).
+    pub min_quality: f64,
+    /// Angle from the pattern frame to the stage frame, rad
+    /// (counter-clockwise positive): stage = R(angle)·vision + offset.
+    pub rotation_rad: f64,
+}
+
+impl Default for CameraSection {
+    fn default() -> Self {
+        Self {
+            source: String::new(),
+            timeout_ms: 2000,
+            looping: false,
+            period_um: 9.0,
+            bits: 12,
+            mirrored: false,
+            max_age_s: 1.0,
+            min_quality: 16.0,
+            rotation_rad: 0.0,
+        }
+    }
+}

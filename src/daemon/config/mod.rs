@@ -1,0 +1,350 @@
+//! The daemon configuration (`microposd.toml`), validated at start so a bad
+//! file stops the daemon with a message naming the key and the problem
+//! instead of failing hours later in a job.
+
+mod access;
+mod camera;
+mod characterize;
+mod compensation;
+mod daemon;
+mod drift;
+mod error;
+mod safety;
+mod web;
+
+pub use access::AccessSection;
+pub use camera::CameraSection;
+pub use characterize::CharacterizeDefaults;
+pub use compensation::{Approach, ClosedLoop, CompensationSection};
+pub use daemon::{ClockSpec, DaemonSection, RigSection};
+pub use drift::{DriftMethodName, DriftSection};
+pub use error::ConfigError;
+pub use safety::{DeviationFrame, Limits, SafetySection};
+pub use web::{WebSection, MIN_WEB_TOKEN_CHARS};
+
+use crate::camera::SourceSpec;
+use crate::driver::DriverConfig;
+use error::bad;
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+
+/// The whole file.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
+#[serde(deny_unknown_fields, default)]
+pub struct DaemonConfig {
+    /// Process and socket settings.
+    pub daemon: DaemonSection,
+    /// The two controllers (see `config/driver.example.toml`).
+    pub driver: DriverConfig,
+    /// Soft limits, tighter than the controllers' travel.
+    pub limits: Limits,
+    /// The motion supervisor's bounds.
+    pub safety: SafetySection,
+    /// The camera and the decoder.
+    pub camera: CameraSection,
+    /// Defaults of the characterization job.
+    pub characterize: CharacterizeDefaults,
+    /// Closed-loop moves.
+    pub closed_loop: ClosedLoop,
+    /// How compensated and closed-loop moves approach their target.
+    pub compensation: CompensationSection,
+    /// The rig's clock.
+    pub rig: RigSection,
+    /// Live drift correction of compensated moves.
+    pub drift: DriftSection,
+    /// Roles of the socket's clients; `None` (no `[access]` section): the
+    /// socket's file permissions are the only gate and every client that
+    /// can connect is `admin` (see [`AccessSection`]).
+    pub access: Option<AccessSection>,
+    /// The web view and `/metrics` (`docs/design/web.md`); `None` (no
+    /// `[web]` section): no network listener at all.
+    pub web: Option<WebSection>,
+}
+
+impl DaemonConfig {
+    /// Parses and validates a TOML text.
+    pub fn from_toml(text: &str) -> Result<Self, ConfigError> {
+        let cfg: DaemonConfig = toml::from_str(text).map_err(|e| ConfigError {
+            key: e
+                .span()
+                .map(|s| format!("at byte {}", s.start))
+                .unwrap_or_else(|| "(file)".to_owned()),
+            problem: e.message().to_owned(),
+        })?;
+        cfg.validate()?;
+        Ok(cfg)
+    }
+
+    /// Reads, parses and validates a file.
+    pub fn load(path: &Path) -> Result<Self, ConfigError> {
+        let text = std::fs::read_to_string(path)
+            .map_err(|e| bad("(file)", format!("cannot read {}: {e}", path.display())))?;
+        Self::from_toml(&text)
+    }
+
+    /// How the daemon's jobs sync their logs (`daemon.log_sync_every`).
+    pub fn log_sync(&self) -> crate::charact::log::SyncPolicy {
+        use crate::charact::log::SyncPolicy;
+        std::num::NonZeroU32::new(self.daemon.log_sync_every)
+            .map_or(SyncPolicy::FlushOnly, SyncPolicy::Every)
+    }
+
+    /// The socket mode as a number.
+    pub fn socket_mode(&self) -> Result<u32, ConfigError> {
+        let s = self.daemon.socket_mode.trim_start_matches("0o");
+        u32::from_str_radix(s, 8)
+            .ok()
+            .filter(|m| *m <= 0o777)
+            .ok_or_else(|| {
+                bad(
+                    "daemon.socket_mode",
+                    format!(
+                        "{:?} is not an octal mode like \"0660\"",
+                        self.daemon.socket_mode
+                    ),
+                )
+            })
+    }
+
+    /// The camera source, if one is configured.
+    pub fn camera_source(&self) -> Result<Option<SourceSpec>, ConfigError> {
+        if self.camera.source.trim().is_empty() {
+            return Ok(None);
+        }
+        self.camera
+            .source
+            .parse()
+            .map(Some)
+            .map_err(|e| bad("camera.source", format!("{e}")))
+    }
+
+    /// The parsed `[rig] clock`.
+    pub fn clock_spec(&self) -> Result<ClockSpec, ConfigError> {
+        let c = self.rig.clock.trim();
+        if c == "wall" {
+            return Ok(ClockSpec::Wall);
+        }
+        match c.strip_prefix("sim:") {
+            Some(p) if !p.is_empty() => Ok(ClockSpec::Sim(PathBuf::from(p))),
+            _ => Err(bad(
+                "rig.clock",
+                format!("{c:?}: expected \"wall\" or \"sim:PATH\" (hil-sim's control socket)"),
+            )),
+        }
+    }
+
+    /// Checks every value that can be checked without hardware.
+    pub fn validate(&self) -> Result<(), ConfigError> {
+        self.clock_spec()?;
+        if self.daemon.socket.as_os_str().is_empty() {
+            return Err(bad("daemon.socket", "must be a path"));
+        }
+        self.socket_mode()?;
+        if self.daemon.data_dir.as_os_str().is_empty() {
+            return Err(bad("daemon.data_dir", "must be a directory path"));
+        }
+        if !(10..=60_000).contains(&self.daemon.poll_interval_ms) {
+            return Err(bad("daemon.poll_interval_ms", "must be within 10..=60000"));
+        }
+        let sf = &self.safety;
+        if !(10..=60_000).contains(&sf.supervise_interval_ms) {
+            return Err(bad(
+                "safety.supervise_interval_ms",
+                "must be within 10..=60000",
+            ));
+        }
+        if !(sf.following_error_um.is_finite() && sf.following_error_um >= 0.0) {
+            return Err(bad(
+                "safety.following_error_um",
+                "must be a finite number of µm ≥ 0 (0 = off)",
+            ));
+        }
+        if !(sf.read_fail_s.is_finite() && sf.read_fail_s > 0.0 && sf.read_fail_s <= 600.0) {
+            return Err(bad("safety.read_fail_s", "must be within (0, 600] s"));
+        }
+        if !(sf.halt_wait_s.is_finite() && sf.halt_wait_s > 0.0 && sf.halt_wait_s <= 60.0) {
+            return Err(bad("safety.halt_wait_s", "must be within (0, 60] s"));
+        }
+        if !(sf.deviation_um.is_finite() && sf.deviation_um >= 0.0) {
+            return Err(bad(
+                "safety.deviation_um",
+                "must be a finite number of µm ≥ 0 (0 = off)",
+            ));
+        }
+        if self.daemon.max_clients == 0 {
+            return Err(bad("daemon.max_clients", "must be at least 1"));
+        }
+        if !(1..=64).contains(&self.daemon.stop_slots) {
+            return Err(bad(
+                "daemon.stop_slots",
+                "must be within 1..=64 (a full daemon must still accept stop)",
+            ));
+        }
+        let d = &self.daemon;
+        if !(d.idle_timeout_s.is_finite() && (0.0..=864_000.0).contains(&d.idle_timeout_s)) {
+            return Err(bad(
+                "daemon.idle_timeout_s",
+                "must be within 0..=864000 s (0 = never)",
+            ));
+        }
+        for (key, v) in [
+            ("daemon.read_timeout_s", d.read_timeout_s),
+            ("daemon.write_timeout_s", d.write_timeout_s),
+        ] {
+            if !(v.is_finite() && (0.01..=3600.0).contains(&v)) {
+                return Err(bad(key, "must be within 0.01..=3600 s"));
+            }
+        }
+        if let Some(w) = &self.web {
+            w.validate()?;
+        }
+        if let Some(a) = &self.access {
+            a.validate()?;
+        }
+        if self.daemon.job_retries > 100 {
+            return Err(bad(
+                "daemon.job_retries",
+                "must be within 0..=100 (a fault that persists over 100 retries is not transient)",
+            ));
+        }
+        if !(0.0..=60.0).contains(&self.daemon.job_retry_backoff_s) {
+            return Err(bad(
+                "daemon.job_retry_backoff_s",
+                "must be within 0..=60 s (finite)",
+            ));
+        }
+        self.driver
+            .validate()
+            .map_err(|e| bad("driver", e.to_string()))?;
+        for (axis, lo, hi) in [
+            ("x", self.limits.x_min_um, self.limits.x_max_um),
+            ("y", self.limits.y_min_um, self.limits.y_max_um),
+        ] {
+            for (k, v) in [("min", lo), ("max", hi)] {
+                if let Some(v) = v {
+                    if !v.is_finite() {
+                        return Err(bad(&format!("limits.{axis}_{k}_um"), "must be finite"));
+                    }
+                }
+            }
+            if let (Some(lo), Some(hi)) = (lo, hi) {
+                if lo >= hi {
+                    return Err(bad(
+                        &format!("limits.{axis}_min_um"),
+                        format!("{lo} must be below {axis}_max_um = {hi}"),
+                    ));
+                }
+            }
+        }
+        self.camera_source()?;
+        let c = &self.camera;
+        if c.timeout_ms == 0 {
+            return Err(bad("camera.timeout_ms", "must be positive"));
+        }
+        if !(c.period_um.is_finite() && c.period_um > 0.0) {
+            return Err(bad("camera.period_um", "must be a positive number of µm"));
+        }
+        if !(4..=12).contains(&c.bits) {
+            return Err(bad("camera.bits", "must be within 4..=12"));
+        }
+        if !(c.max_age_s.is_finite() && c.max_age_s > 0.0) {
+            return Err(bad("camera.max_age_s", "must be a positive number of s"));
+        }
+        if !c.min_quality.is_finite() {
+            return Err(bad("camera.min_quality", "must be a number"));
+        }
+        if !c.rotation_rad.is_finite() {
+            return Err(bad("camera.rotation_rad", "must be a number"));
+        }
+        let k = &self.characterize;
+        for (key, v) in [
+            ("characterize.step_um", k.step_um),
+            ("characterize.x_range_um", k.x_range_um),
+            ("characterize.y_range_um", k.y_range_um),
+        ] {
+            if !(v.is_finite() && v > 0.0) {
+                return Err(bad(
+                    key,
+                    format!("must be a positive number of µm, got {v}"),
+                ));
+            }
+        }
+        if k.step_um > k.x_range_um.min(k.y_range_um) {
+            return Err(bad(
+                "characterize.step_um",
+                "must not exceed the scan ranges",
+            ));
+        }
+        if !(1..=1000).contains(&k.cycles) {
+            return Err(bad("characterize.cycles", "must be within 1..=1000"));
+        }
+        if !(1..=1000).contains(&k.frames_per_point) {
+            return Err(bad(
+                "characterize.frames_per_point",
+                "must be within 1..=1000",
+            ));
+        }
+        if !(k.settle_s.is_finite() && (0.0..=3600.0).contains(&k.settle_s)) {
+            return Err(bad("characterize.settle_s", "must be within 0..=3600 s"));
+        }
+        if !(k.drift_every_s.is_finite() && (0.0..=86_400.0).contains(&k.drift_every_s)) {
+            return Err(bad(
+                "characterize.drift_every_s",
+                "must be within 0..=86400 s (0 = off)",
+            ));
+        }
+        if k.drift_reference_um
+            .is_some_and(|r| !r.iter().all(|v| v.is_finite()))
+        {
+            return Err(bad(
+                "characterize.drift_reference_um",
+                "must be two finite numbers [x, y] µm",
+            ));
+        }
+        let d = &self.drift;
+        if !(d.every_s.is_finite() && (0.001..=86_400.0).contains(&d.every_s)) {
+            return Err(bad("drift.every_s", "must be within 0.001..=86400 s"));
+        }
+        if !(d.time_constant_s.is_finite() && d.time_constant_s > 0.0) {
+            return Err(bad(
+                "drift.time_constant_s",
+                "must be a positive number of s",
+            ));
+        }
+        if d.reference_um
+            .is_some_and(|r| !r.iter().all(|v| v.is_finite()))
+        {
+            return Err(bad(
+                "drift.reference_um",
+                "must be two finite numbers [x, y] µm",
+            ));
+        }
+        let cl = &self.closed_loop;
+        if !(cl.tolerance_um.is_finite() && cl.tolerance_um > 0.0) {
+            return Err(bad(
+                "closed_loop.tolerance_um",
+                "must be a positive number of µm",
+            ));
+        }
+        if !(1..=100).contains(&cl.max_iterations) {
+            return Err(bad("closed_loop.max_iterations", "must be within 1..=100"));
+        }
+        if !(cl.max_correction_um.is_finite() && cl.max_correction_um > 0.0) {
+            return Err(bad(
+                "closed_loop.max_correction_um",
+                "must be a positive number of µm",
+            ));
+        }
+        let o = self.compensation.overshoot_um;
+        if !(o.is_finite() && (10.0..=1000.0).contains(&o)) {
+            return Err(bad(
+                "compensation.overshoot_um",
+                format!("must be within 10..=1000 µm (beyond the backlash), got {o}"),
+            ));
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,192 @@
+//! The configuration's tests: defaults, every checked key, the shipped files.
+
+use super::*;
+
+const MIN: &str = "[driver.x]\nport = \"/dev/ttyUSB0\"\n[driver.y]\nport = \"/dev/ttyUSB1\"\n";
+
+#[test]
+fn minimal_file_gets_defaults() {
+    let c = DaemonConfig::from_toml(MIN).unwrap();
+    assert_eq!(
+        c.daemon.socket,
+        PathBuf::from("/run/micropos/micropos.sock")
+    );
+    assert_eq!(c.socket_mode().unwrap(), 0o660);
+    assert_eq!(c.characterize.step_um, 5.0);
+    assert_eq!(c.characterize.cycles, 3);
+    assert!(c.camera_source().unwrap().is_none());
+}
+
+#[test]
+fn errors_name_the_key() {
+    let e = DaemonConfig::from_toml(&format!("{MIN}[characterize]\nstep_um = -1\n")).unwrap_err();
+    assert_eq!(e.key, "characterize.step_um");
+    let e =
+        DaemonConfig::from_toml(&format!("{MIN}[daemon]\nsocket_mode = \"999\"\n")).unwrap_err();
+    assert_eq!(e.key, "daemon.socket_mode");
+    let e = DaemonConfig::from_toml(&format!("{MIN}[limits]\nx_min_um = 5\nx_max_um = 1\n"))
+        .unwrap_err();
+    assert_eq!(e.key, "limits.x_min_um");
+    let e = DaemonConfig::from_toml(&format!("{MIN}[camera]\nsource = \"webcam\"\n")).unwrap_err();
+    assert_eq!(e.key, "camera.source");
+    let e = DaemonConfig::from_toml("[driver.x]\nport = \"/dev/a\"\n").unwrap_err();
+    assert_eq!(e.key, "driver");
+    let e = DaemonConfig::from_toml(&format!("{MIN}[daemon]\nsokcet = \"/x\"\n")).unwrap_err();
+    assert!(e.problem.contains("sokcet"), "{e}");
+}
+
+#[test]
+fn compensation_approach_selects_the_backlash_strategy() {
+    use crate::comp::ApproachPolicy;
+    use crate::model::Direction;
+    let c = DaemonConfig::from_toml(MIN).unwrap();
+    assert_eq!(
+        c.compensation.plan_options().policy,
+        ApproachPolicy::DirectionAware
+    );
+    let c = DaemonConfig::from_toml(&format!(
+        "{MIN}[compensation]\napproach = \"unidirectional\"\novershoot_um = 30\n"
+    ))
+    .unwrap();
+    let o = c.compensation.plan_options();
+    assert_eq!(
+        o.policy,
+        ApproachPolicy::Unidirectional([Direction::Forward, Direction::Forward])
+    );
+    assert_eq!(o.overshoot_um, 30.0);
+    o.validate().unwrap();
+    let e = DaemonConfig::from_toml(&format!("{MIN}[compensation]\napproach = \"sideways\"\n"))
+        .unwrap_err();
+    assert!(e.problem.contains("sideways"), "{e}");
+    let e =
+        DaemonConfig::from_toml(&format!("{MIN}[compensation]\novershoot_um = 1\n")).unwrap_err();
+    assert_eq!(e.key, "compensation.overshoot_um");
+}
+
+#[test]
+fn drift_section_defaults_off_and_is_checked() {
+    use crate::analysis::drift::LiveMethod;
+    let c = DaemonConfig::from_toml(MIN).unwrap();
+    assert_eq!(c.drift.live_method(), LiveMethod::Off);
+    let c = DaemonConfig::from_toml(&format!(
+        "{MIN}[drift]\nmethod = \"adaptive\"\nevery_s = 60\ntime_constant_s = 600\n"
+    ))
+    .unwrap();
+    assert_eq!(
+        c.drift.live_method(),
+        LiveMethod::Adaptive {
+            time_constant_s: 600.0
+        }
+    );
+    assert_eq!(c.drift.every_s, 60.0);
+    for (text, key) in [
+        ("every_s = 0", "drift.every_s"),
+        ("time_constant_s = -1", "drift.time_constant_s"),
+    ] {
+        let e = DaemonConfig::from_toml(&format!("{MIN}[drift]\n{text}\n")).unwrap_err();
+        assert_eq!(e.key, key);
+    }
+    let e = DaemonConfig::from_toml(&format!("{MIN}[drift]\nmethod = \"kalman\"\n")).unwrap_err();
+    assert!(e.problem.contains("kalman"), "{e}");
+}
+
+#[test]
+fn web_section_is_checked() {
+    let c = DaemonConfig::from_toml(MIN).unwrap();
+    assert_eq!(c.web, None);
+    let c = DaemonConfig::from_toml(&format!("{MIN}[web]\n")).unwrap();
+    let w = c.web.unwrap();
+    assert_eq!(w.listen_addr().unwrap().to_string(), "127.0.0.1:8080");
+    assert!(!w.control);
+    assert_eq!(w.resolve_token().unwrap(), None);
+    for (extra, key) in [
+        ("listen = \"localhost\"", "web.listen"),
+        ("role = \"root\"", "web.role"),
+        ("control = true", "web.control"),
+        ("control = true\ntoken = \"short\"", "web.token"),
+        (
+            "token = \"0123456789abcdef\"\ntoken_file = \"/x\"",
+            "web.token",
+        ),
+        ("camera_max_hz = 0", "web.camera_max_hz"),
+        ("camera_max_px = 4", "web.camera_max_px"),
+    ] {
+        let e = DaemonConfig::from_toml(&format!("{MIN}[web]\n{extra}\n")).unwrap_err();
+        assert_eq!(e.key, key, "{extra}: {e}");
+    }
+    let c = DaemonConfig::from_toml(&format!(
+        "{MIN}[web]\ncontrol = true\ntoken = \"0123456789abcdef\"\nrole = \"read\"\n"
+    ))
+    .unwrap();
+    let w = c.web.clone().unwrap();
+    assert_eq!(
+        w.resolve_token().unwrap().as_deref(),
+        Some("0123456789abcdef")
+    );
+    assert_eq!(w.role().unwrap(), crate::daemon::protocol::Role::Read);
+    // The token never leaves through `config`.
+    let shown = serde_json::to_string(&c).unwrap();
+    assert!(!shown.contains("0123456789abcdef"), "{shown}");
+}
+
+#[test]
+fn web_token_file_must_be_private() {
+    use std::os::unix::fs::PermissionsExt;
+    let dir = tempfile::tempdir().unwrap();
+    let f = dir.path().join("token");
+    std::fs::write(&f, "0123456789abcdef0123\n").unwrap();
+    let w = WebSection {
+        control: true,
+        token_file: Some(f.clone()),
+        ..WebSection::default()
+    };
+    std::fs::set_permissions(&f, std::fs::Permissions::from_mode(0o644)).unwrap();
+    let e = w.resolve_token().unwrap_err();
+    assert_eq!(e.key, "web.token_file");
+    assert!(e.problem.contains("chmod 600"), "{e}");
+    std::fs::set_permissions(&f, std::fs::Permissions::from_mode(0o600)).unwrap();
+    assert_eq!(
+        w.resolve_token().unwrap().as_deref(),
+        Some("0123456789abcdef0123")
+    );
+    let missing = WebSection {
+        token_file: Some(dir.path().join("none")),
+        ..w
+    };
+    assert_eq!(missing.resolve_token().unwrap_err().key, "web.token_file");
+}
+
+#[test]
+fn access_and_client_limits_are_checked() {
+    let c = DaemonConfig::from_toml(MIN).unwrap();
+    assert_eq!(c.access, None);
+    assert_eq!(c.daemon.stop_slots, 4);
+    let c = DaemonConfig::from_toml(&format!(
+        "{MIN}[access]\nread = [\"users\", \"1000\"]\noperate = [\"lab-ops\"]\n"
+    ))
+    .unwrap();
+    let a = c.access.unwrap();
+    assert_eq!(a.read, ["users", "1000"]);
+    assert!(a.admin.is_empty());
+    for (text, key) in [
+        ("[access]\nread = [\"a b\"]", "access.read"),
+        ("[access]\nadmin = [\"\"]", "access.admin"),
+        ("[daemon]\nstop_slots = 0", "daemon.stop_slots"),
+        ("[daemon]\nidle_timeout_s = -1", "daemon.idle_timeout_s"),
+        ("[daemon]\nread_timeout_s = 0", "daemon.read_timeout_s"),
+        ("[daemon]\nwrite_timeout_s = inf", "daemon.write_timeout_s"),
+    ] {
+        let e = DaemonConfig::from_toml(&format!("{MIN}{text}\n")).unwrap_err();
+        assert_eq!(e.key, key, "{text}");
+    }
+    let e = DaemonConfig::from_toml(&format!("{MIN}[access]\nwrite = [\"x\"]\n")).unwrap_err();
+    assert!(e.problem.contains("write"), "{e}");
+}
+
+#[test]
+fn shipped_configs_are_valid() {
+    for f in ["config/microposd.toml", "config/microposd-sim.toml"] {
+        let p = Path::new(env!("CARGO_MANIFEST_DIR")).join(f);
+        DaemonConfig::load(&p).unwrap_or_else(|e| panic!("{f}: {e}"));
+    }
+}

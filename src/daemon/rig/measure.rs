@@ -1,0 +1,163 @@
+//! Measuring at a point: the park approach, averaged fresh frames, and the
+//! absolute raw move and the measurement retried after transient faults
+//! (what jobs and the drift re-measurement share).
+
+use super::Rig;
+use crate::daemon::protocol::{ErrorCode, MoveRequest, ProtoError};
+use crate::daemon::vision::Measurement;
+use serde_json::Value;
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+
+fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(|p| p.into_inner())
+}
+
+/// Distance below the first point from which the held axis is parked, µm
+/// (10× the M-111's 2 µm backlash, as `charact::scan`'s approach).
+pub const PARK_APPROACH_UM: f64 = 20.0;
+
+/// Waits for `n` fresh, good measurements and averages them. Fresh: the
+/// grab was requested at or after `after_s` (so the frame was exposed after
+/// the settle; see `daemon::vision`) and the frame is newer than any taken
+/// before the call. Good: quality ≥ `camera.min_quality`.
+///
+/// Each accepted frame must come within `camera.timeout_ms` (wall time: it
+/// guards an I/O stall, not a physical duration) of the previous one, or of
+/// the call; otherwise the point fails with `camera_stalled` (no frame
+/// arrived) or `low_quality` (frames arrived but did not decode, or decoded
+/// below the minimum quality). Nothing is made up: the caller logs only what
+/// this returns.
+pub(crate) async fn measure(
+    rig: &Rig,
+    n: u32,
+    after_s: f64,
+) -> Result<(Measurement, f64), ProtoError> {
+    let Some(v) = &rig.vision else {
+        return Err(ProtoError::new(ErrorCode::CameraUnavailable, "no camera"));
+    };
+    let _want = v.want();
+    let mut rx = v.latest.clone();
+    let timeout = Duration::from_millis(rig.cfg.camera.timeout_ms);
+    let counters = || {
+        use std::sync::atomic::Ordering::Relaxed;
+        (
+            v.stats.frames.load(Relaxed),
+            v.stats.failed.load(Relaxed),
+            v.stats.decoded.load(Relaxed),
+        )
+    };
+    let mut got: Vec<Measurement> = Vec::new();
+    let mut last_seq = None;
+    let mut below_quality = false;
+    let mut deadline = tokio::time::Instant::now() + timeout;
+    let mut at_start = counters();
+    while got.len() < n as usize {
+        let m = *rx.borrow_and_update();
+        if let Some(m) = m {
+            let fresh = m.t_s >= after_s && Some(m.sequence) != last_seq;
+            below_quality |= fresh && m.quality < rig.cfg.camera.min_quality;
+            if fresh && m.quality >= rig.cfg.camera.min_quality {
+                last_seq = Some(m.sequence);
+                got.push(m);
+                deadline = tokio::time::Instant::now() + timeout;
+                at_start = counters();
+                continue;
+            }
+        }
+        match tokio::time::timeout_at(deadline, rx.changed()).await {
+            Ok(Ok(())) => {}
+            Ok(Err(_)) => {
+                return Err(ProtoError::new(
+                    ErrorCode::CameraUnavailable,
+                    "the camera pipeline ended",
+                ))
+            }
+            Err(_) => {
+                let why = lock(&v.last_error)
+                    .clone()
+                    .unwrap_or_else(|| "no error reported".to_owned());
+                // A frame in flight when the camera stalled may still
+                // arrive (and be refused as too old): only frames that fail
+                // to decode, or fresh ones below the quality, mean that the
+                // camera delivers but the data is unusable.
+                let (_, failed, _) = counters();
+                let (code, what) = if failed > at_start.1 {
+                    (
+                        ErrorCode::LowQuality,
+                        format!(
+                            "frames arrive but do not decode ({} failed)",
+                            failed - at_start.1
+                        ),
+                    )
+                } else if below_quality {
+                    (
+                        ErrorCode::LowQuality,
+                        format!(
+                            "frames decode below camera.min_quality = {}",
+                            rig.cfg.camera.min_quality
+                        ),
+                    )
+                } else {
+                    (
+                        ErrorCode::CameraStalled,
+                        "no frame exposed after the settle arrived from the camera".to_owned(),
+                    )
+                };
+                // Transient: the next frames may well decode (a stalled
+                // grab, a blurred or garbled frame); jobs retry it.
+                return Err(ProtoError::new(
+                    code,
+                    format!(
+                        "{what} within {} ms (last error: {why}); {} of {n} frames measured, the point was not logged",
+                        timeout.as_millis(),
+                        got.len()
+                    ),
+                )
+                .into_transient());
+            }
+        }
+    }
+    let k = got.len() as f64;
+    let mean = |f: fn(&Measurement) -> f64| got.iter().map(f).sum::<f64>() / k;
+    let m = Measurement {
+        t_s: mean(|m| m.t_s),
+        frame_t_s: mean(|m| m.frame_t_s),
+        sequence: got.last().map_or(0, |m| m.sequence),
+        x_um: mean(|m| m.x_um),
+        y_um: mean(|m| m.y_um),
+        theta_rad: mean(|m| m.theta_rad),
+        quality: mean(|m| m.quality),
+    };
+    Ok((m, m.quality))
+}
+
+/// An absolute raw move and wait, retried after transient faults.
+pub(crate) async fn move_raw_retrying(rig: &Arc<Rig>, x: f64, y: f64) -> Result<Value, ProtoError> {
+    let req = MoveRequest::raw_to(x, y);
+    rig.retry_transient(&format!("move to ({x}, {y}) µm"), || {
+        rig.move_to(&req, true)
+    })
+    .await
+}
+
+/// [`measure`] of `n` frames exposed from now on, retried after transient
+/// camera faults (each retry waits for frames exposed after it began).
+pub(crate) async fn measure_retrying(rig: &Rig, n: u32) -> Result<(Measurement, f64), ProtoError> {
+    rig.retry_transient("measure", || measure(rig, n, rig.clock.now_s()))
+        .await
+}
+
+/// `(x, y)` clamped into the allowed travel (soft limits ∩ controller
+/// travel, as `status.limits`); unchanged when the limits are unknown.
+pub(crate) fn clamp_to_travel(rig: &Rig, x: f64, y: f64) -> (f64, f64) {
+    let status = rig.status();
+    let clamp = |v: f64, axis: &str| {
+        let l = &status["limits"][axis];
+        match (l[0].as_f64(), l[1].as_f64()) {
+            (Some(lo), Some(hi)) if lo <= hi => v.clamp(lo, hi),
+            _ => v,
+        }
+    };
+    (clamp(x, "x_um"), clamp(y, "y_um"))
+}

@@ -1,0 +1,325 @@
+//! The rig as the daemon sees it: the stage (once connected), the safe-state
+//! machine, the motion coordinator (one move at a time per stage, `stop`
+//! overtakes the queue), soft limits, positions from every source, and the
+//! event bus to subscribers.
+//!
+//! Halting: a fault (from the driver, a failed wait, the motion supervisor
+//! of `daemon::supervisor`) halts both axes and latches; `reset` clears the
+//! latch; [`Rig::halt_and_wait`] halts and waits (bounded) until both axes
+//! are at rest (shutdown, job cancel); a line that comes back has its axis
+//! halted and read back before anything else ([`Rig::recover_axis`]).
+
+//!
+//! Files, one job each (each adds methods to [`Rig`] or takes it as an
+//! argument; this file holds the rig's state and its status):
+//! - [`safety`]: the safe state carried out (halts, faults, reset,
+//!   recovery) and the vision deviation check;
+//! - [`tasks`]: connecting the lines, driver events, the poller, the
+//!   camera's frames to subscribers;
+//! - [`supervise`]: the motion supervisor's sampling task;
+//! - [`motion`]: the motion coordinator (raw and planned moves, `stop`);
+//! - [`closed_loop`]: the closed-loop runner of `closed_loop` moves;
+//! - [`drift`]: re-measuring the drift reference, a move's correction;
+//! - [`measure`]: the park approach, averaged frames, retried moves;
+//! - [`job`]: a job's ownership of the axes, retries after transient faults;
+//! - [`reference`](mod@reference): the reference run.
+
+pub mod closed_loop;
+pub mod drift;
+pub mod job;
+pub mod measure;
+pub mod motion;
+pub mod reference;
+pub mod safety;
+pub mod supervise;
+pub mod tasks;
+
+use super::config::DaemonConfig;
+use super::deviation::DeviationJudge;
+use super::protocol::{ErrorCode, ProtoError, Topic};
+use super::state::{Activity, AxisId, Input, Refusal, SafetyState};
+use super::supervisor::{Bounds, Supervisor};
+use super::vision::{Measurement, Vision};
+use crate::clock::RigClock;
+use crate::driver::{DriverError, Stage};
+use serde_json::{json, Map, Value};
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, Mutex};
+use tokio::sync::broadcast;
+
+/// An event for subscribers, serialized once for all of them.
+#[derive(Debug, Clone)]
+pub struct Pushed {
+    /// Its topic (subscribers filter on it).
+    pub topic: Topic,
+    /// The complete line, newline included.
+    pub line: Arc<str>,
+}
+
+/// Positions last read from the controllers.
+#[derive(Debug, Clone, Copy, Default)]
+struct Reported {
+    t_s: f64,
+    x_um: Option<f64>,
+    y_um: Option<f64>,
+}
+
+/// The rig. Shared by every task through an `Arc`.
+#[derive(Debug)]
+pub struct Rig {
+    /// The validated configuration.
+    pub cfg: DaemonConfig,
+    /// The rig's clock: every wait and timestamp goes through it.
+    pub clock: Arc<dyn RigClock>,
+    stage: Mutex<Option<Stage>>,
+    state: Mutex<SafetyState>,
+    commanded: Mutex<[Option<f64>; 2]>,
+    reported: Mutex<Reported>,
+    motion: tokio::sync::Mutex<()>,
+    stop_gen: AtomicU64,
+    supervisor: Mutex<Supervisor>,
+    /// Vision against controller (`daemon::deviation`).
+    deviation: Mutex<DeviationJudge>,
+    /// Held by the supervisor and the position poller while they read
+    /// positions: a reference run takes it after it owns the axes, so no
+    /// read begun before the run ends after it began (its `FRF?` would read
+    /// the run as a lost reference, its `POS?` a count the run is about to
+    /// change, taken for fresh), and none begins during it.
+    pub(super) sampling: tokio::sync::Mutex<()>,
+    events: broadcast::Sender<Pushed>,
+    /// The camera pipeline, if a camera is configured.
+    pub vision: Option<Vision>,
+    /// Bumped by the position poller on every healthy round: the watchdog
+    /// is only fed while it moves.
+    pub heartbeat: AtomicU64,
+    /// Compensation tables, the active compensator, the motion history.
+    pub comp: super::comp::CompState,
+    /// Live drift correction (`[drift]`, the `drift` command).
+    pub drift: super::drift::DriftControl,
+    /// Running values of the settings a reload may change (limits,
+    /// compensation, drift); read these, not `cfg`'s.
+    pub live: super::reload::Live,
+    /// Retries after transient faults in the current (or last) job, reset
+    /// when a job begins; the job's progress reads it (`retries`).
+    pub job_retries: Arc<AtomicU64>,
+    /// Opens the controller lines instead of serial devices (the
+    /// simulator's in-process rig); `None` on hardware.
+    links: Option<Arc<dyn crate::driver::LinkOpener>>,
+    /// Counters for `/metrics` (moves, faults, reconnects, …).
+    pub metrics: super::web::metrics::Metrics,
+}
+
+fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(|p| p.into_inner())
+}
+
+/// Ends an activity in the state machine when dropped (also on error or
+/// cancellation of the future).
+struct ActivityGuard<'a> {
+    rig: &'a Rig,
+    activity: Activity,
+}
+
+impl Drop for ActivityGuard<'_> {
+    fn drop(&mut self) {
+        let t = self.rig.clock.now_s();
+        lock(&self.rig.state).apply(Input::End(self.activity), t);
+    }
+}
+
+/// Maps a driver error to a protocol error with a stable code.
+pub fn driver_error(e: DriverError) -> ProtoError {
+    let code = match &e {
+        DriverError::OutOfTravel { .. } => ErrorCode::OutOfTravel,
+        DriverError::NotReferenced { .. } => ErrorCode::NotReferenced,
+        DriverError::Halted { .. } => ErrorCode::Halted,
+        e if e.is_link_fault() => ErrorCode::NotConnected,
+        _ => ErrorCode::DriverError,
+    };
+    let p = ProtoError::new(code, e.to_string());
+    if e.is_transient() {
+        p.into_transient()
+    } else {
+        p
+    }
+}
+
+fn refusal(r: Refusal) -> ProtoError {
+    match r {
+        Refusal::NotConnected(m) => ProtoError::new(ErrorCode::NotConnected, m),
+        Refusal::NotReferenced(a) => ProtoError::new(
+            ErrorCode::NotReferenced,
+            format!("axis {} is not referenced; send reference first", a.name()),
+        ),
+        Refusal::Busy(a) => ProtoError::new(
+            ErrorCode::Busy,
+            format!("the axes are busy ({a:?}); stop it or wait"),
+        ),
+        Refusal::FaultLatched(m) => ProtoError::new(
+            ErrorCode::FaultLatched,
+            format!("a fault is latched ({m}); find its cause, then send reset"),
+        ),
+    }
+}
+
+impl Rig {
+    /// A rig with no stage yet.
+    pub fn new(
+        cfg: DaemonConfig,
+        clock: Arc<dyn RigClock>,
+        vision: Option<Vision>,
+        links: Option<Arc<dyn crate::driver::LinkOpener>>,
+    ) -> Rig {
+        let (events, _) = broadcast::channel(1024);
+        let drift = super::drift::DriftControl::new(&cfg);
+        let metrics = super::web::metrics::Metrics::new(vision.as_ref().map(|v| &*v.stats));
+        let supervisor = Supervisor::new(Bounds {
+            following_error_um: cfg.safety.following_error_um,
+            read_fail_s: cfg.safety.read_fail_s,
+            motion_timeout_s: [cfg.driver.x.motion_timeout_s, cfg.driver.y.motion_timeout_s],
+        });
+        Rig {
+            supervisor: Mutex::new(supervisor),
+            deviation: Mutex::new(DeviationJudge::new(cfg.safety.deviation_um)),
+            sampling: tokio::sync::Mutex::new(()),
+            drift,
+            live: super::reload::Live::new(&cfg),
+            cfg,
+            clock,
+            stage: Mutex::new(None),
+            state: Mutex::new(SafetyState::new()),
+            commanded: Mutex::new([None, None]),
+            reported: Mutex::new(Reported::default()),
+            motion: tokio::sync::Mutex::new(()),
+            stop_gen: AtomicU64::new(0),
+            events,
+            vision,
+            heartbeat: AtomicU64::new(0),
+            comp: super::comp::CompState::default(),
+            job_retries: Arc::default(),
+            links,
+            metrics,
+        }
+    }
+
+    /// A receiver of every pushed event.
+    pub fn subscribe(&self) -> broadcast::Receiver<Pushed> {
+        self.events.subscribe()
+    }
+
+    /// Pushes an event to subscribers of `topic`.
+    pub fn push(&self, topic: Topic, name: &str, fields: Value) {
+        let fields = match fields {
+            Value::Object(m) => m,
+            _ => Map::new(),
+        };
+        let line = super::protocol::event_line(name, fields);
+        // No subscriber is fine.
+        let _ = self.events.send(Pushed {
+            topic,
+            line: line.into(),
+        });
+    }
+
+    /// The motion supervisor's judge (`daemon::supervisor`).
+    pub(super) fn supervisor(&self) -> std::sync::MutexGuard<'_, Supervisor> {
+        lock(&self.supervisor)
+    }
+
+    /// The stage, once connected.
+    pub(super) fn connected_stage(&self) -> Option<Stage> {
+        lock(&self.stage).clone()
+    }
+
+    /// Whether a reference run owns the axes.
+    pub(super) fn referencing(&self) -> bool {
+        lock(&self.state).activity() == Activity::Referencing
+    }
+
+    /// Feeds the watchdog heartbeat: the rig is supervised.
+    pub(super) fn beat(&self) {
+        self.heartbeat.fetch_add(1, Ordering::Relaxed);
+    }
+
+    pub(crate) fn stage(&self) -> Result<Stage, ProtoError> {
+        lock(&self.stage).clone().ok_or_else(|| {
+            ProtoError::new(
+                ErrorCode::NotConnected,
+                "the controllers are not connected (yet); see status",
+            )
+        })
+    }
+
+    /// Positions from every source, each named, with its time.
+    pub async fn position(&self) -> Value {
+        let commanded = *lock(&self.commanded);
+        let mut controller = json!(null);
+        if let Ok(stage) = self.stage() {
+            let t = self.clock.now_s();
+            let (x, y) = tokio::join!(stage.x.position_um(), stage.y.position_um());
+            let err = |r: &Result<f64, DriverError>| r.as_ref().err().map(|e| e.to_string());
+            controller = json!({"t_s": t, "x_um": x.as_ref().ok(), "y_um": y.as_ref().ok(),
+                                "x_error": err(&x), "y_error": err(&y)});
+        } else {
+            let r = *lock(&self.reported);
+            if r.x_um.is_some() || r.y_um.is_some() {
+                controller = json!({"t_s": r.t_s, "x_um": r.x_um, "y_um": r.y_um});
+            }
+        }
+        let vision = self.vision.as_ref().and_then(|v| {
+            let m = (*v.latest.borrow())?;
+            let (sx, sy) = self.vision_to_stage(&m);
+            let mut j = m.to_json();
+            j["age_s"] = json!(self.clock.now_s() - m.t_s);
+            j["stage_x_um"] = json!(sx);
+            j["stage_y_um"] = json!(sy);
+            Some(j)
+        });
+        json!({
+            "commanded": {"x_um": commanded[0], "y_um": commanded[1]},
+            "controller": controller,
+            "vision": vision,
+        })
+    }
+
+    /// The commanded position `[x, y]` µm (what the last move asked).
+    pub fn commanded_um(&self) -> [Option<f64>; 2] {
+        *lock(&self.commanded)
+    }
+
+    /// The controllers' positions as last polled: `(t_s, x_um, y_um)`.
+    pub fn reported_um(&self) -> (f64, Option<f64>, Option<f64>) {
+        let r = *lock(&self.reported);
+        (r.t_s, r.x_um, r.y_um)
+    }
+
+    /// The state part of `status`.
+    pub fn status(&self) -> Value {
+        let stage = lock(&self.stage).clone();
+        let travel = stage.map(|s| {
+            let (xl, xh) = self.limits_um(&s.x, AxisId::X);
+            let (yl, yh) = self.limits_um(&s.y, AxisId::Y);
+            json!({"x_um": [xl, xh], "y_um": [yl, yh]})
+        });
+        json!({
+            "t_s": self.clock.now_s(),
+            "rig": lock(&self.state).to_json(),
+            "limits": travel,
+            "camera": self.vision.as_ref().map(|v| v.to_json()),
+            "drift": self.drift.to_json(self.clock.now_s()),
+            "deviation": self.deviation_json(),
+        })
+    }
+
+    /// The newest vision measurement if it is fresh and good enough.
+    pub fn fresh_measurement(&self, newer_than_s: f64) -> Result<Option<Measurement>, ProtoError> {
+        let Some(v) = &self.vision else {
+            return Err(ProtoError::new(
+                ErrorCode::CameraUnavailable,
+                "no camera is configured (camera.source)",
+            ));
+        };
+        let m = *v.latest.borrow();
+        Ok(m.filter(|m| m.t_s > newer_than_s && m.quality >= self.cfg.camera.min_quality))
+    }
+}

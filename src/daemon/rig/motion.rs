@@ -1,0 +1,363 @@
+//! The motion coordinator: one move at a time per stage, soft limits,
+//! raw and planned (`compensated`, `closed_loop`) moves, `stop`.
+
+use super::{driver_error, lock, refusal, ActivityGuard, Rig};
+use crate::daemon::protocol::{ErrorCode, MoveMode, MoveRequest, ProtoError, Topic};
+use crate::daemon::state::{Activity, AxisId, Input};
+use crate::daemon::vision::Measurement;
+use crate::driver::{Axis, DriverError};
+use serde_json::{json, Value};
+use std::sync::atomic::Ordering;
+use std::sync::Arc;
+
+impl Rig {
+    /// Vision (pattern frame) to stage frame with the configured rotation;
+    /// the offset is not known here (jobs establish it), so these are
+    /// pattern coordinates rotated into the stage axes.
+    pub fn vision_to_stage(&self, m: &Measurement) -> (f64, f64) {
+        let (s, c) = self.cfg.camera.rotation_rad.sin_cos();
+        (c * m.x_um - s * m.y_um, s * m.x_um + c * m.y_um)
+    }
+
+    /// Soft limits ∩ controller travel for an axis, µm.
+    pub fn limits_um(&self, axis: &Axis, a: AxisId) -> (f64, f64) {
+        let (tmin, tmax) = axis.travel_um();
+        let l = &self.live.limits();
+        let (lo, hi) = match a {
+            AxisId::X => (l.x_min_um, l.x_max_um),
+            AxisId::Y => (l.y_min_um, l.y_max_um),
+        };
+        (
+            lo.map_or(tmin, |v| v.max(tmin)),
+            hi.map_or(tmax, |v| v.min(tmax)),
+        )
+    }
+
+    /// A client or job move. Refused before any byte is sent if the state
+    /// forbids it or a target is outside the limits.
+    pub async fn move_to(
+        self: &Arc<Self>,
+        req: &MoveRequest,
+        from_job: bool,
+    ) -> Result<Value, ProtoError> {
+        self.move_with(req, from_job, None).await
+    }
+
+    /// [`Rig::move_to`] with the compensator (and the vision frame for
+    /// closed loop) named by the caller instead of the active table: the
+    /// validation job compares several tables without changing which one
+    /// client moves use.
+    pub async fn move_with(
+        self: &Arc<Self>,
+        req: &MoveRequest,
+        from_job: bool,
+        comp: Option<crate::daemon::comp::Active>,
+    ) -> Result<Value, ProtoError> {
+        let r = match req.mode {
+            MoveMode::Raw => self.raw_move(req, from_job, true).await,
+            MoveMode::Compensated | MoveMode::ClosedLoop => {
+                self.planned_move(req, from_job, comp).await
+            }
+        };
+        self.metrics
+            .record_move(r.as_ref().map(|_| ()).map_err(|e| e.code));
+        r
+    }
+
+    /// The commanded position of both axes (cached, else queried).
+    pub(super) async fn current_cmd(&self) -> Result<[f64; 2], ProtoError> {
+        let stage = self.stage()?;
+        let cached = *lock(&self.commanded);
+        let x = match cached[0] {
+            Some(v) => v,
+            None => stage.x.target_um().await.map_err(driver_error)?,
+        };
+        let y = match cached[1] {
+            Some(v) => v,
+            None => stage.y.target_um().await.map_err(driver_error)?,
+        };
+        Ok([x, y])
+    }
+
+    /// A `compensated` or `closed_loop` move: plan with the active
+    /// compensator (closed loop without a table plans uncompensated), send
+    /// the waypoints waiting for each, commit the plan to the history, then
+    /// for closed loop correct from fresh frames.
+    pub(super) async fn planned_move(
+        self: &Arc<Self>,
+        req: &MoveRequest,
+        from_job: bool,
+        named: Option<crate::daemon::comp::Active>,
+    ) -> Result<Value, ProtoError> {
+        use super::closed_loop as c;
+        let active = named.or_else(|| self.comp.active());
+        let comp = match &active {
+            Some(a) => a.comp.clone(),
+            None => c::compensator_for(self, req.mode == MoveMode::Compensated)?,
+        };
+        let frame = if req.mode == MoveMode::ClosedLoop {
+            if self.vision.is_none() {
+                return Err(ProtoError::new(
+                    ErrorCode::CameraUnavailable,
+                    "closed_loop needs a camera (camera.source)",
+                ));
+            }
+            let f = active.as_ref().and_then(|a| a.frame).ok_or_else(|| {
+                ProtoError::new(
+                    ErrorCode::NoActiveTable,
+                    "closed_loop needs the vision → stage transform: activate a table built from a characterization (it records the frame)",
+                )
+            })?;
+            Some(f)
+        } else {
+            None
+        };
+        let start = self.current_cmd().await?;
+        let base = self
+            .comp
+            .last_user_target()
+            .map_or(start, |t| [t.x_um, t.y_um]);
+        let pick = |v: Option<f64>, b: f64| match v {
+            Some(v) if req.relative => b + v,
+            Some(v) => v,
+            None => b,
+        };
+        let target = crate::model::XyUm {
+            x_um: pick(req.x_um, base[0]),
+            y_um: pick(req.y_um, base[1]),
+        };
+        // Live drift: the table's command for `target − drift` lands on
+        // `target` in today's state of the rig (see `daemon::drift`).
+        let drift = if req.mode == MoveMode::Compensated {
+            self.drift_correction(active.as_ref(), !from_job).await?
+        } else {
+            crate::daemon::drift::Correction::default()
+        };
+        let offset = drift.offset_um.unwrap_or([0.0, 0.0]);
+        let planned_target = crate::model::XyUm {
+            x_um: target.x_um - offset[0],
+            y_um: target.y_um - offset[1],
+        };
+        // A re-measurement moved the stage: plan from where it is now.
+        let start = if drift.info.get("measured").is_some() {
+            self.current_cmd().await?
+        } else {
+            start
+        };
+        let mut opts = self.live.compensation().plan_options();
+        if frame.is_some() {
+            // The first arrival ends with the loop's re-approach, as every
+            // correction does (`ClosedLoopConfig::plan_options`).
+            opts = c::loop_config(self, req.tolerance_um).plan_options(opts);
+        }
+        let plan = self.comp.plan(&*comp, planned_target, start, &opts)?;
+        for w in &plan.waypoints {
+            let r = MoveRequest::raw_to(w.x_um, w.y_um);
+            self.raw_move(&r, from_job, false).await?;
+        }
+        self.comp.commit_plan(&plan, self.clock.now_s());
+        self.comp.set_target_offset(offset);
+        let mut out = json!({
+            "mode": req.mode.as_str(),
+            "compensator": comp.kind(),
+            "target": {"x_um": target.x_um, "y_um": target.y_um},
+            "commanded": {"x_um": plan.cmd.x_um, "y_um": plan.cmd.y_um},
+            "waypoints": plan.waypoints.len(),
+            "predicted_offset_um": plan.predicted_offset_um,
+            "on_target": true,
+        });
+        if self.drift.enabled() && req.mode == MoveMode::Compensated {
+            out["drift"] = drift.info;
+        }
+        if let Some(frame) = frame {
+            let cl = crate::comp::closed_loop::ClosedLoop::new(
+                target,
+                plan.cmd,
+                plan.arrival,
+                c::loop_config(self, req.tolerance_um),
+            )
+            .map_err(|e| ProtoError::new(ErrorCode::BadValue, format!("closed loop: {e}")))?;
+            let me = self.clone();
+            let res = c::run_loop(self, cl, frame, move |wps| {
+                let me = me.clone();
+                Box::pin(async move {
+                    for w in wps {
+                        let r = MoveRequest::raw_to(w.x_um, w.y_um);
+                        me.raw_move(&r, from_job, true).await?;
+                    }
+                    Ok(())
+                })
+            })
+            .await;
+            // Done or not, the move was for the user's target.
+            self.comp.restore_target(plan.target, offset);
+            out["closed_loop"] = res?;
+        }
+        Ok(out)
+    }
+
+    /// A raw move (also each waypoint of a planned move). `commit` records
+    /// it in the motion history (planned moves commit their whole plan).
+    pub(crate) async fn raw_move(
+        self: &Arc<Self>,
+        req: &MoveRequest,
+        from_job: bool,
+        commit: bool,
+    ) -> Result<Value, ProtoError> {
+        let stage = self.stage()?;
+        let gen = self.stop_gen.load(Ordering::SeqCst);
+        let _queue = self.motion.lock().await;
+        if self.stop_gen.load(Ordering::SeqCst) != gen {
+            return Err(ProtoError::new(
+                ErrorCode::Halted,
+                "a stop or fault came before this move started; it was not sent",
+            ));
+        }
+        let want = [req.x_um.is_some(), req.y_um.is_some()];
+        lock(&self.state)
+            .may_move(want, from_job)
+            .map_err(refusal)?;
+        let mut targets = [None, None];
+        for (i, (a, axis, v)) in [
+            (AxisId::X, &stage.x, req.x_um),
+            (AxisId::Y, &stage.y, req.y_um),
+        ]
+        .into_iter()
+        .enumerate()
+        {
+            let Some(v) = v else { continue };
+            let t = if req.relative {
+                let cached = lock(&self.commanded)[i];
+                let base = match cached {
+                    Some(c) => c,
+                    None => axis.target_um().await.map_err(driver_error)?,
+                };
+                base + v
+            } else {
+                v
+            };
+            let (lo, hi) = self.limits_um(axis, a);
+            if !(lo..=hi).contains(&t) {
+                return Err(ProtoError::new(
+                    ErrorCode::OutOfTravel,
+                    format!(
+                        "axis {} target {t} µm is outside the allowed range {lo}..{hi} µm (soft limits ∩ controller travel); nothing was sent",
+                        a.name()
+                    ),
+                ));
+            }
+            targets[i] = Some(t);
+        }
+        self.apply(Input::Begin(Activity::Moving));
+        let _guard = ActivityGuard {
+            rig: self,
+            activity: Activity::Moving,
+        };
+        let send = |axis: &Axis, t: Option<f64>| {
+            let axis = axis.clone();
+            async move {
+                match t {
+                    Some(t) => axis.move_abs_um(t).await.map(Some),
+                    None => Ok(None),
+                }
+            }
+        };
+        let (rx, ry) = tokio::join!(send(&stage.x, targets[0]), send(&stage.y, targets[1]));
+        {
+            let mut c = lock(&self.commanded);
+            if rx.is_ok() && targets[0].is_some() {
+                c[0] = targets[0];
+            }
+            if ry.is_ok() && targets[1].is_some() {
+                c[1] = targets[1];
+            }
+        }
+        if let Err(e) = rx.and(ry) {
+            // One axis may have started: a half-accepted move is halted.
+            self.halt_all().await;
+            return Err(driver_error(e));
+        }
+        if self.stop_gen.load(Ordering::SeqCst) != gen {
+            // A stop or a fault came while the move was being sent: its
+            // halt (written ahead of the queue) may have reached the
+            // controller before this `MOV`, which would then run on.
+            self.halt_all().await;
+            return Err(ProtoError::new(
+                ErrorCode::Halted,
+                "a stop or fault came while this move was being sent; both axes were halted again",
+            ));
+        }
+        {
+            let t = self.clock.now_s();
+            let mut sup = self.supervisor();
+            for (a, tg) in [(AxisId::X, targets[0]), (AxisId::Y, targets[1])] {
+                if let Some(tg) = tg {
+                    sup.watch(a, tg, t);
+                }
+            }
+        }
+        if commit {
+            self.comp.commit_raw(targets, self.clock.now_s());
+        }
+        let mut out = json!({"commanded": {"x_um": targets[0], "y_um": targets[1]}});
+        if req.wait {
+            let wait = |axis: &Axis, t: Option<f64>| {
+                let axis = axis.clone();
+                async move {
+                    match t {
+                        Some(_) => axis.wait_on_target(None).await.map(Some),
+                        None => Ok(None),
+                    }
+                }
+            };
+            let (wx, wy) = tokio::join!(wait(&stage.x, targets[0]), wait(&stage.y, targets[1]));
+            // A controller error or a motion timeout while waiting is a
+            // fault (halt both, latch), not only this client's failure.
+            for r in [&wx, &wy] {
+                if let Err(e @ (DriverError::MotionTimeout { .. } | DriverError::Gcs { .. })) = r {
+                    self.apply(Input::Fault(format!("while waiting for a move: {e}")));
+                }
+            }
+            let (wx, wy) = (wx.map_err(driver_error)?, wy.map_err(driver_error)?);
+            out["reported"] = json!({"x_um": wx, "y_um": wy});
+            out["on_target"] = json!(true);
+        }
+        Ok(out)
+    }
+
+    /// Halts everything now: overtakes queued moves (they are refused when
+    /// their turn comes), stops a job, sends `#24` to both controllers.
+    pub async fn stop(self: &Arc<Self>) -> Result<Value, ProtoError> {
+        self.stop_gen.fetch_add(1, Ordering::SeqCst);
+        let t = self.clock.now_s();
+        lock(&self.state).apply(Input::Stop, t);
+        self.push(
+            Topic::Fault,
+            "stopped",
+            json!({"t_s": t, "reason": "stop requested by a client"}),
+        );
+        self.supervisor().clear();
+        let stage = self.stage()?;
+        let (x, y) = tokio::join!(stage.x.stop(), stage.y.stop());
+        *lock(&self.commanded) = [None, None];
+        let mut errors = Vec::new();
+        for (n, r) in [("x", x), ("y", y)] {
+            if let Err(e) = r {
+                errors.push(format!("axis {n}: {e}"));
+            }
+        }
+        if errors.is_empty() {
+            Ok(json!({"stopped": true}))
+        } else {
+            Err(ProtoError::new(
+                ErrorCode::DriverError,
+                format!("stop sent, but: {}", errors.join("; ")),
+            ))
+        }
+    }
+
+    /// A stop generation: jobs compare it to notice a stop or a fault.
+    pub fn stop_generation(&self) -> u64 {
+        self.stop_gen.load(Ordering::SeqCst)
+    }
+}

@@ -1,0 +1,213 @@
+//! The rig's safe state: the state machine's actions carried out (halts,
+//! faults, reset), a returning line's axis recovered, and the vision
+//! against controller deviation check.
+
+use super::{lock, Rig};
+use crate::daemon::protocol::Topic;
+use crate::daemon::state::{Action, AxisId, Input};
+use crate::driver::DriverError;
+use serde_json::{json, Value};
+use std::sync::atomic::Ordering;
+use std::sync::Arc;
+use std::time::Duration;
+
+impl Rig {
+    /// The vision → stage orientation for the deviation check: the active
+    /// table's frame, else with `safety.deviation_frame = "camera"` the
+    /// configured camera rotation, else none (no check).
+    pub(super) fn deviation_frame(&self) -> Option<crate::comp::VisionFrame> {
+        self.vision.as_ref()?;
+        if let Some(f) = self.comp.active().and_then(|a| a.frame) {
+            return Some(f);
+        }
+        (self.cfg.safety.deviation_frame == crate::daemon::config::DeviationFrame::Camera)
+            .then_some(crate::comp::VisionFrame {
+                rotation_rad: self.cfg.camera.rotation_rad,
+                mirrored: false,
+                translation_um: [0.0, 0.0],
+            })
+    }
+
+    /// A controller position read of `axis` between `t0_s` and `t1_s`
+    /// (poller or supervisor): input of the deviation check.
+    pub(crate) fn deviation_read(self: &Arc<Self>, axis: AxisId, t0_s: f64, t1_s: f64, um: f64) {
+        lock(&self.deviation).controller(axis, t0_s, t1_s, um);
+        self.judge_deviation();
+    }
+
+    /// Judges the frames that can be judged; a breach is a fault.
+    pub(super) fn judge_deviation(self: &Arc<Self>) {
+        let frame = self.deviation_frame();
+        // A tie needs both axes at rest: no move watched and no reference
+        // run (the judge also wants the reads around the frame to agree).
+        let quiet = self.supervisor().watching() == [false, false] && !self.referencing();
+        let r = {
+            let mut j = lock(&self.deviation);
+            j.set_frame(frame);
+            j.judge(quiet)
+        };
+        if let Some(tie) = r.tied_um {
+            tracing::info!(
+                "vision deviation check tied at rest: translation x {:.1} µm, y {:.1} µm",
+                tie[0],
+                tie[1]
+            );
+        }
+        if let Some(reason) = r.fault {
+            self.supervisor_fault(reason);
+        }
+    }
+
+    /// The deviation check's state (for `status`).
+    pub fn deviation_json(&self) -> Value {
+        lock(&self.deviation).to_json()
+    }
+
+    /// A breach found by the motion supervisor: halts both axes, latches.
+    pub(crate) fn supervisor_fault(self: &Arc<Self>, reason: String) {
+        tracing::error!("motion supervisor: {reason}");
+        self.apply(Input::Fault(reason));
+    }
+
+    /// Feeds the state machine and carries out what it asks.
+    pub fn apply(self: &Arc<Self>, input: Input) {
+        let t = self.clock.now_s();
+        let actions = lock(&self.state).apply(input, t);
+        for a in actions {
+            match a {
+                Action::HaltAll { reason } => {
+                    tracing::warn!("halting both axes: {reason}");
+                    self.metrics.record_fault();
+                    self.stop_gen.fetch_add(1, Ordering::SeqCst);
+                    self.supervisor().clear();
+                    self.push(
+                        Topic::Fault,
+                        "fault",
+                        json!({"t_s": t, "reason": reason, "latched": true}),
+                    );
+                    let rig = self.clone();
+                    tokio::spawn(async move {
+                        let r = rig.wait_at_rest(rig.halt_all().await).await;
+                        tracing::warn!("after the fault: {r}");
+                    });
+                }
+            }
+        }
+    }
+
+    /// Halts both axes at once (`HLT` ahead of each line's queue:
+    /// [`Axis::halt_now`]); errors (a dead line) are logged, not fatal.
+    pub(super) async fn halt_all(&self) -> Vec<(AxisId, Result<(), DriverError>)> {
+        let Ok(stage) = self.stage() else {
+            return vec![];
+        };
+        self.supervisor().clear();
+        let (x, y) = tokio::join!(stage.x.halt_now(), stage.y.halt_now());
+        let mut out = vec![(AxisId::X, x), (AxisId::Y, y)];
+        for (a, r) in &mut out {
+            if let Err(e) = r {
+                tracing::warn!("halt of axis {} failed: {e}", a.name());
+            }
+        }
+        *lock(&self.commanded) = [None, None];
+        out
+    }
+
+    /// Halts both axes (`HLT`, after overtaking queued moves and stopping
+    /// the supervisor's watches) and waits until both report no motion
+    /// (`#5`) or `safety.halt_wait_s` passed. Why wait: a shutdown or a
+    /// job cancel must not return while the stage still moves; a smooth
+    /// halt decelerates, it does not stop at once. `why` goes to the log
+    /// and to `fault` subscribers (`halted` event).
+    pub async fn halt_and_wait(&self, why: &str) -> Value {
+        self.stop_gen.fetch_add(1, Ordering::SeqCst);
+        tracing::warn!("halting both axes: {why}");
+        let t = self.clock.now_s();
+        let halts = self.halt_all().await;
+        let mut r = self.wait_at_rest(halts).await;
+        r["reason"] = json!(why);
+        self.push(
+            Topic::Fault,
+            "halted",
+            json!({"t_s": t, "reason": why, "at_rest": r["at_rest"], "wait_s": r["wait_s"]}),
+        );
+        tracing::info!("halt ({why}): {r}");
+        r
+    }
+
+    /// Polls `#5` on both axes until neither moves, at most
+    /// `safety.halt_wait_s` (tokio's timer: the wait must not advance a
+    /// simulated rig's clock). `halts`: what the halts returned.
+    pub(super) async fn wait_at_rest(
+        &self,
+        halts: Vec<(AxisId, Result<(), DriverError>)>,
+    ) -> Value {
+        let errors: Vec<String> = halts
+            .iter()
+            .filter_map(|(a, r)| r.as_ref().err().map(|e| format!("axis {}: {e}", a.name())))
+            .collect();
+        let Ok(stage) = self.stage() else {
+            return json!({"at_rest": false, "wait_s": 0.0, "errors": ["not connected"]});
+        };
+        let t0 = tokio::time::Instant::now();
+        let bound = Duration::try_from_secs_f64(self.cfg.safety.halt_wait_s).unwrap_or_default();
+        let step = Duration::from_millis(self.cfg.driver.x.poll_interval_ms.max(5));
+        let moving = loop {
+            let (x, y) = tokio::join!(stage.x.is_moving(), stage.y.is_moving());
+            // An axis that does not answer is not known to be at rest.
+            let moving = [x.unwrap_or(true), y.unwrap_or(true)];
+            if moving == [false, false] || t0.elapsed() >= bound {
+                break moving;
+            }
+            tokio::time::sleep(step).await;
+        };
+        json!({"at_rest": moving == [false, false],
+               "moving": {"x": moving[0], "y": moving[1]},
+               "wait_s": t0.elapsed().as_secs_f64(), "errors": errors})
+    }
+
+    /// `reset`: acknowledges the latched fault. Motion is allowed again
+    /// (an axis whose reference was lost stays unreferenced: reference it).
+    pub fn reset(&self) -> Value {
+        let t = self.clock.now_s();
+        let mut s = lock(&self.state);
+        let cleared = s
+            .latched()
+            .map(|f| json!({"t_s": f.t_s, "reason": f.reason}));
+        s.apply(Input::Reset, t);
+        let state = s.to_json();
+        drop(s);
+        lock(&self.deviation).retie();
+        if let Some(c) = &cleared {
+            tracing::info!("fault reset by a client: {}", c["reason"]);
+            self.push(Topic::Fault, "reset", json!({"t_s": t, "cleared": c}));
+        }
+        json!({"cleared": cleared, "rig": state})
+    }
+
+    /// A line came back: its axis is halted (the controller kept running
+    /// while nobody could reach it) and read back (`status`) before
+    /// anything else; the line loss stays latched until `reset`.
+    pub(super) async fn recover_axis(self: Arc<Self>, a: AxisId) {
+        let Ok(stage) = self.stage() else { return };
+        let axis = match a {
+            AxisId::X => stage.x.clone(),
+            AxisId::Y => stage.y.clone(),
+        };
+        let t = self.clock.now_s();
+        let halt = axis.halt().await;
+        let status = axis.status().await;
+        let fields = match (&halt, &status) {
+            (Ok(()), Ok(s)) => json!({"t_s": t, "axis": a.name(), "halted": true,
+                "referenced": s.referenced, "servo_on": s.servo_on, "on_target": s.on_target,
+                "position_um": s.position_um, "target_um": s.target_um}),
+            _ => json!({"t_s": t, "axis": a.name(), "halted": halt.is_ok(),
+                "error": halt.err().or(status.err()).map(|e| e.to_string())}),
+        };
+        tracing::warn!(
+            "axis {} reconnected, halted and read back: {fields}",
+            a.name()
+        );
+        self.push(Topic::Fault, "axis_recovered", fields);
+    }
+}
