@@ -9,6 +9,7 @@
 pub mod plan;
 pub mod sweep;
 pub mod sweep_job;
+pub mod sweep_recorder;
 pub mod tables;
 pub mod tie;
 pub mod validate;
