@@ -662,10 +662,7 @@ mod tests {
                 tables: vec![1]
             }
         );
-        assert_eq!(
-            Command::parse("DRT 0 4 0").unwrap().to_text(),
-            "DRT 0 4 0"
-        );
+        assert_eq!(Command::parse("DRT 0 4 0").unwrap().to_text(), "DRT 0 4 0");
         assert!(matches!(
             Command::parse("RTR -1"),
             Err(CommandError::BadNumber { .. })
@@ -699,18 +696,20 @@ mod tests {
             Just(Command::TnrQuery),
             Just(Command::RtrQuery),
             any::<u32>().prop_map(Command::Rtr),
-            proptest::collection::vec((0u32..9, any_axis(), 0u32..30), 1..3)
-                .prop_map(Command::Drc),
+            proptest::collection::vec((0u32..9, any_axis(), 0u32..30), 1..3).prop_map(Command::Drc),
             proptest::collection::vec((0u32..9, 0u32..10, "[0-9]{1,3}"), 1..3)
                 .prop_map(Command::Drt),
             proptest::collection::vec(0u32..9, 0..3).prop_map(Command::DrlQuery),
-            (any::<u32>(), any::<u32>(), proptest::collection::vec(0u32..9, 0..3)).prop_map(
-                |(a, n, tables)| Command::DrrQuery {
+            (
+                any::<u32>(),
+                any::<u32>(),
+                proptest::collection::vec(0u32..9, 0..3)
+            )
+                .prop_map(|(a, n, tables)| Command::DrrQuery {
                     start: Some(a),
                     count: Some(n),
                     tables
-                }
-            ),
+                }),
         ]
     }
 

@@ -294,7 +294,10 @@ mod tests {
     #[test]
     fn reads_what_the_encoder_writes() {
         let cols = vec![
-            ("Actual Position of 1".to_owned(), vec![7.5, 7.5001, 7.50025]),
+            (
+                "Actual Position of 1".to_owned(),
+                vec![7.5, 7.5001, 7.50025],
+            ),
             ("Commanded Position of 1".to_owned(), vec![7.5, 7.5, 7.5003]),
         ];
         let enc = encode_records(0.001, &cols);
@@ -328,12 +331,21 @@ mod tests {
             ("# DIM = 1\n# END_HEADER\n1.0", "no sample time"),
             ("# SAMPLE_TIME = -1\n# END_HEADER\n1.0", "negative"),
             ("# SAMPLE_TIME = nan\n# END_HEADER\n1.0", "nan"),
-            ("# SAMPLE_TIME = 0.001\n# END_HEADER\n1.0 2.0\n3.0", "ragged"),
+            (
+                "# SAMPLE_TIME = 0.001\n# END_HEADER\n1.0 2.0\n3.0",
+                "ragged",
+            ),
             ("# SAMPLE_TIME = 0.001\n# DIM = 2\n# END_HEADER\n1.0", "dim"),
             ("# SAMPLE_TIME = 0.001\n# END_HEADER\n1.0\ninf", "inf"),
             ("# SAMPLE_TIME = 0.001\n# END_HEADER\n1.0\n1=2", "text"),
-            ("# SAMPLE_TIME = 0.001\n# NDATA = 3\n# END_HEADER\n1.0", "ndata"),
-            ("# SAMPLE_TIME = 0.001\n# NDATA = 99999999999\n# END_HEADER", "huge"),
+            (
+                "# SAMPLE_TIME = 0.001\n# NDATA = 3\n# END_HEADER\n1.0",
+                "ndata",
+            ),
+            (
+                "# SAMPLE_TIME = 0.001\n# NDATA = 99999999999\n# END_HEADER",
+                "huge",
+            ),
             ("# SAMPLE_TIME = 0.001\n# no equals\n# END_HEADER", "key"),
         ];
         for (text, why) in bad {

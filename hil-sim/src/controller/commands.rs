@@ -430,10 +430,7 @@ impl Controller {
                 start,
                 count,
                 tables,
-            } => self
-                .recorder
-                .read(*start, *count, tables, AXIS)
-                .map(Some),
+            } => self.recorder.read(*start, *count, tables, AXIS).map(Some),
         }
     }
 

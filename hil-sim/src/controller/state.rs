@@ -322,12 +322,7 @@ impl Controller {
         // The recorder's samples due until now, from the trajectory in
         // force since the last request.
         let mut rec = std::mem::take(&mut self.recorder);
-        rec.fill(now, &|t| {
-            (
-                self.state_at(t).0,
-                self.command_state_at(t).0,
-            )
-        });
+        rec.fill(now, &|t| (self.state_at(t).0, self.command_state_at(t).0));
         self.recorder = rec;
         match &self.activity {
             Activity::Idle => {}

@@ -699,7 +699,11 @@ fn the_data_recorder_samples_the_actual_position_at_the_servo_rate() {
     for (tk, p) in at {
         let i = ((tk - t0) / 0.001).round() as usize;
         if ((tk - t0) / 0.001 - i as f64).abs() < 1e-6 {
-            assert!((r.columns[0][i] - p).abs() < 1e-7, "{i}: {} vs {p}", r.columns[0][i]);
+            assert!(
+                (r.columns[0][i] - p).abs() < 1e-7,
+                "{i}: {} vs {p}",
+                r.columns[0][i]
+            );
         }
     }
     assert!(r.columns[0].windows(2).all(|w| w[1] >= w[0]), "moving up");

@@ -589,7 +589,14 @@ mod tests {
     /// stamps `latency_s` late; samples every 5 ms, frames every 1/30 s;
     /// the pass from one end of its run-up to the other.
     fn pass(spec: PassSpec, latency_s: f64, b: f64) -> PassData {
-        pass_with(spec, latency_s, b, 30.0, &|c| 0.3 * (c / 37.0).sin(), &|_| 0.0)
+        pass_with(
+            spec,
+            latency_s,
+            b,
+            30.0,
+            &|c| 0.3 * (c / 37.0).sin(),
+            &|_| 0.0,
+        )
     }
 
     /// [`pass`] with the frame rate, the stage's error (of the command

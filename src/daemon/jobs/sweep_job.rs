@@ -18,13 +18,11 @@
 //! is restored after every pass, also on errors.
 
 use super::plan::DriftPlan;
-use super::sweep_recorder::{
-    merge, Chunk, CHUNK_S, POLL_WITH_RECORDER, RECORD_RATE, RECORD_TABLE,
-};
 use super::sweep::{
     estimate_delay, frames_at, resample, DelayEstimate, PassData, PassSpec, PosSample, SweepFrame,
     SweepPlan,
 };
+use super::sweep_recorder::{merge, Chunk, CHUNK_S, POLL_WITH_RECORDER, RECORD_RATE, RECORD_TABLE};
 use super::{
     clamp_to_travel, drift_ref_record, lock, measure_retrying, move_raw_retrying, tie, Progress,
     PARK_APPROACH_UM,
@@ -560,7 +558,11 @@ async fn sweep(
     };
     let sample = async {
         let mut chunks: Vec<Chunk> = Vec::new();
-        let mut armed = if recorder { Some(trigger().await?) } else { None };
+        let mut armed = if recorder {
+            Some(trigger().await?)
+        } else {
+            None
+        };
         rig.raw_move(&req, true, true).await?;
         let mut samples: Vec<PosSample> = Vec::new();
         loop {
@@ -582,7 +584,11 @@ async fn sweep(
             if let Some(trig) = armed {
                 if arrived || rig.clock.now_s() - trig.0 >= CHUNK_S {
                     chunks.push(read_chunk(trig).await?);
-                    armed = if arrived { None } else { Some(trigger().await?) };
+                    armed = if arrived {
+                        None
+                    } else {
+                        Some(trigger().await?)
+                    };
                 }
             }
             if arrived {

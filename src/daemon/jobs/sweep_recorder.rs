@@ -143,7 +143,10 @@ mod tests {
             let t0 = rng.gen_range(0.0..1.5);
             let dt = 0.001;
             let chunk = Chunk {
-                trigger_s: (t0 - rng.gen_range(0.0..0.002), t0 + rng.gen_range(0.0..0.002)),
+                trigger_s: (
+                    t0 - rng.gen_range(0.0..0.002),
+                    t0 + rng.gen_range(0.0..0.002),
+                ),
                 sample_time_s: dt,
                 positions_um: (0..500).map(|i| pos(t0 + dt * f64::from(i))).collect(),
             };

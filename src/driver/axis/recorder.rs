@@ -55,8 +55,12 @@ impl Axis {
     /// position when the controller reads the command. Returns the
     /// connection epoch.
     pub async fn trigger_recorder(&self, table: u32) -> Result<u64, DriverError> {
-        self.set(Command::Drt(vec![(table, TRIGGER_IMMEDIATELY, "0".to_owned())]))
-            .await
+        self.set(Command::Drt(vec![(
+            table,
+            TRIGGER_IMMEDIATELY,
+            "0".to_owned(),
+        )]))
+        .await
     }
 
     /// `DRL?`: records taken by `table` since its trigger.
