@@ -36,6 +36,11 @@
 //! −0.07 ms on a 25 µm grid in `the_delay_does_not_depend_on_the_grid`).
 //! [`estimate_delay`] iterates this from zero until the step is below a
 //! microsecond. With the cycles at v, 2v, v a drift linear in time cancels.
+//! Every pass of an axis starts and ends at the same points
+//! ([`SweepPlan::run_up_um`]), so an error that depends on the path since
+//! the pass began (lost motion building up with the distance, hysteresis)
+//! is the same at both velocities and drops out with the group means
+//! (`a_path_dependent_error_is_not_read_as_delay`).
 //!
 //! What the fit cannot tell from the delay: any error proportional to the
 //! signed velocity (a drive's viscous wind-up between encoder and platform
@@ -192,7 +197,7 @@ impl SweepPlan {
     /// path since the last reversal (lost motion that builds up with the
     /// distance travelled, hysteresis), and a run-up that grew with the
     /// velocity would start the faster passes farther back: on the paper's
-    /// ranges a lost motion of 5 µm over 1 mm read as +0.12 ms of delay.
+    /// ranges a lost motion of 5 µm over 1 mm reads as +0.12 ms of delay.
     /// Passes that start and end at the same points share that path, and
     /// only what depends on the velocity differs.
     pub fn run_up_um(&self) -> f64 {
