@@ -1,8 +1,10 @@
 //! The sweep characterization job (`characterize start` with `mode =
 //! sweep`): ties vision to stage as the step job does, then per pass sets
 //! the swept axis's velocity, sends one move across the range plus run-ups,
-//! samples `POS?` every [`POS_SAMPLE_PERIOD`] of rig time and collects every
-//! decoded frame until the axis arrives; at the end estimates the camera
+//! samples the axis's position (from the controller's data recorder where
+//! it has one, `jobs::sweep_recorder`, else `POS?` every
+//! [`POS_SAMPLE_PERIOD`] of rig time; the log's metadata says which) and
+//! collects every decoded frame until the axis arrives; at the end estimates the camera
 //! delay and writes the log resampled onto the step grid
 //! (`jobs::sweep` has the method).
 //!
