@@ -438,3 +438,37 @@ async fn missing_device_is_a_clear_error() {
         other => panic!("{other:?}"),
     }
 }
+
+/// The driver's data recorder calls over the pty: `TNR?`, `DRC`/`RTR`,
+/// `DRT` (immediately), `DRL?`, `DRR?` parsed into µm. The records are
+/// 1 ms apart, climb through the move and agree with `POS?` where the
+/// axis rests (before the move and after it).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn data_recorder_over_the_pty() {
+    let r = rig(false).await;
+    let x = r.stage.x.clone();
+    reference_both(&r).await;
+    assert_eq!(x.recorder_tables().await.unwrap(), Some(2));
+    x.record_actual_position(1, 20).await.unwrap();
+    x.set_velocity_um_per_s(1000.0).await.unwrap();
+    x.trigger_recorder(1).await.unwrap();
+    x.move_abs_um(7_800.0).await.unwrap();
+    assert_close(x.wait_on_target(None).await.unwrap(), 7_800.0, 1e-3);
+    // The move takes 0.3 s of 1.024 s of table at time scale 20: the
+    // table is full (or nearly) by now.
+    tokio::time::sleep(Duration::from_millis(100)).await;
+    let (n, _) = x.recorded_points(1).await.unwrap();
+    assert!(n > 300 && n <= 1024, "{n} records");
+    let rec = x.read_records(1, 1, n).await.unwrap();
+    assert_close(rec.sample_time_s, 0.001, 1e-12);
+    assert_eq!(rec.positions_um.len(), n as usize);
+    let p = &rec.positions_um;
+    assert!(p.windows(2).all(|w| w[1] >= w[0] - 1e-6), "monotone");
+    assert_close(p[0], 7_500.0, 1e-3);
+    assert_close(*p.last().unwrap(), 7_800.0, 1e-3);
+    // Part of the table, and nothing beyond it.
+    let part = x.read_records(1, 11, 5).await.unwrap();
+    assert_eq!(part.positions_um, p[10..15].to_vec());
+    let none = x.read_records(1, 2000, 5).await.unwrap();
+    assert!(none.positions_um.is_empty());
+}

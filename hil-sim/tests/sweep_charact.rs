@@ -137,12 +137,13 @@ async fn sweep_estimates_the_hidden_delay_and_logs_the_step_grid() {
     let duration_s = res["duration_s"].as_f64().unwrap();
     println!(
         "hidden latency {:.3} ms, estimated {:.3} ms (error {err_ms:+.4} ms, residual {:.4} µm); \
-         {} frames, {} POS? samples, {} records, {} drift references; sweep {duration_s:.1} s simulated; wall {:.1} s",
+         {} frames, {} position samples ({} records of the data recorder), {} records, {} drift references; sweep {duration_s:.1} s simulated; wall {:.1} s",
         latency_us * 1e-3,
         est_s * 1e3,
         res["camera_delay_residual_um"],
         res["frames"],
         res["pos_samples"],
+        res["recorder_records"],
         res["records"],
         res["drift_references"],
         wall.elapsed().as_secs_f64()
@@ -191,7 +192,8 @@ async fn sweep_estimates_the_hidden_delay_and_logs_the_step_grid() {
     let motion_s: f64 = [x_range, y_range]
         .iter()
         .map(|r| {
-            2.0 * (r + 2.0 * (20.0 + 0.3 * v)) / v + 2.0 * (r + 2.0 * (20.0 + 0.6 * v)) / (2.0 * v)
+            // One run-up for every pass: 20 µm + 0.3 s at 2v.
+            2.0 * (r + 2.0 * (20.0 + 0.6 * v)) / v + 2.0 * (r + 2.0 * (20.0 + 0.6 * v)) / (2.0 * v)
         })
         .sum();
     let tie_s: f64 = log.metadata.get("tie_duration_s").unwrap().parse().unwrap();
@@ -201,6 +203,20 @@ async fn sweep_estimates_the_hidden_delay_and_logs_the_step_grid() {
     );
     // A sweep log is not resumable.
     assert_eq!(sw.resume["ok"], false, "{}", sw.resume);
+    // The simulated C-863s have a data recorder: the positions came from
+    // it, a record per millisecond of every pass, and the log says so.
+    for key in ["sweep_position_source_x", "sweep_position_source_y"] {
+        assert_eq!(log.metadata.get(key), Some("data_recorder"), "{key}");
+    }
+    assert_eq!(
+        log.metadata.get("sweep_recorder_sample_time_s"),
+        Some("0.001000")
+    );
+    let records = res["recorder_records"].as_u64().unwrap() as f64;
+    assert!(
+        records > 0.9 * (motion_s * 1000.0) && records <= (duration_s + 1.0) * 1000.0,
+        "{records} records for {motion_s} s of passes"
+    );
 }
 
 /// Seeds of [`the_delay_goal_holds_on_random_rigs`]: kept apart from the

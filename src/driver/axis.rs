@@ -15,6 +15,9 @@
 //! - The driver never references or switches the servo on by itself after a
 //!   fault: referencing moves the stage, so only [`Axis::reference`] does it.
 
+mod recorder;
+pub use recorder::Records;
+
 use super::controller::Controller;
 use super::error::DriverError;
 use super::units::{mm_to_um, um_to_mm};

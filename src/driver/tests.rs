@@ -560,3 +560,15 @@ async fn urgent_halt_overtakes_reads_that_time_out_and_their_resync() {
     ax.halt_now().await.unwrap();
     assert!(rig.fake.axis(1, |a| a.target_mm) < 14.0);
 }
+
+/// A controller without a data recorder (the fake knows no `TNR?`, `DRC`)
+/// reads as having none, not as a fault: the sweep then polls `POS?`.
+#[tokio::test(start_paused = true)]
+async fn a_controller_without_a_data_recorder_reads_as_none() {
+    let rig = Rig::new(&[1]).await;
+    let ax = referenced_axis(&rig).await;
+    assert_eq!(ax.recorder_tables().await.unwrap(), None);
+    let e = ax.record_actual_position(1, 20).await.unwrap_err();
+    assert_eq!(e.gcs_code(), Some(GcsErrorCode::UNKNOWN_COMMAND), "{e}");
+    assert_eq!(ax.position_um().await.unwrap(), 7500.0);
+}

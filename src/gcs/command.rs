@@ -155,6 +155,33 @@ pub enum Command {
     Hlt(Axes),
     /// `STP`: stop all at once (sets error 10).
     Stp,
+    /// `TNR?`: number of data recorder tables (`gcs::recorder`).
+    TnrQuery,
+    /// `HDR?`: the data recorder's record options and trigger sources.
+    HdrQuery,
+    /// `DRC table source option ...`: what a record table records.
+    Drc(Vec<(u32, AxisId, u32)>),
+    /// `DRC? [tables]`: record table configuration.
+    DrcQuery(Vec<u32>),
+    /// `RTR rate`: record table rate, servo cycles per record.
+    Rtr(u32),
+    /// `RTR?`: record table rate.
+    RtrQuery,
+    /// `DRT table source value ...`: trigger source of a record table
+    /// (table 0: all tables).
+    Drt(Vec<(u32, u32, String)>),
+    /// `DRL? [tables]`: records taken since the last trigger.
+    DrlQuery(Vec<u32>),
+    /// `DRR? [start [count [tables]]]`: read records (GCS array data;
+    /// `start` counts from 1).
+    DrrQuery {
+        /// First record, 1-based.
+        start: Option<u32>,
+        /// Records per table.
+        count: Option<u32>,
+        /// Tables; empty: all.
+        tables: Vec<u32>,
+    },
 }
 
 fn axes_text(name: &str, axes: &[AxisId]) -> String {
@@ -226,6 +253,15 @@ impl Command {
             Self::Spa(_) => "SPA",
             Self::Hlt(_) => "HLT",
             Self::Stp => "STP",
+            Self::TnrQuery => "TNR?",
+            Self::HdrQuery => "HDR?",
+            Self::Drc(_) => "DRC",
+            Self::DrcQuery(_) => "DRC?",
+            Self::Rtr(_) => "RTR",
+            Self::RtrQuery => "RTR?",
+            Self::Drt(_) => "DRT",
+            Self::DrlQuery(_) => "DRL?",
+            Self::DrrQuery { .. } => "DRR?",
         }
     }
 
@@ -239,8 +275,54 @@ impl Command {
     pub fn to_text(&self) -> String {
         let bool_text = |b: &bool| if *b { "1".to_owned() } else { "0".to_owned() };
         match self {
-            Self::Idn | Self::Csv | Self::Err | Self::Hlp | Self::Hpa | Self::Ver | Self::Stp => {
-                self.mnemonic().to_owned()
+            Self::Idn
+            | Self::Csv
+            | Self::Err
+            | Self::Hlp
+            | Self::Hpa
+            | Self::Ver
+            | Self::Stp
+            | Self::TnrQuery
+            | Self::HdrQuery
+            | Self::RtrQuery => self.mnemonic().to_owned(),
+            Self::Rtr(r) => format!("RTR {r}"),
+            Self::Drc(items) => {
+                let mut s = "DRC".to_owned();
+                for (t, src, opt) in items {
+                    s.push_str(&format!(" {t} {src} {opt}"));
+                }
+                s
+            }
+            Self::Drt(items) => {
+                let mut s = "DRT".to_owned();
+                for (t, src, v) in items {
+                    s.push_str(&format!(" {t} {src} {v}"));
+                }
+                s
+            }
+            Self::DrcQuery(t) | Self::DrlQuery(t) => {
+                let mut s = self.mnemonic().to_owned();
+                for x in t {
+                    s.push_str(&format!(" {x}"));
+                }
+                s
+            }
+            Self::DrrQuery {
+                start,
+                count,
+                tables,
+            } => {
+                let mut s = "DRR?".to_owned();
+                if let Some(a) = start {
+                    s.push_str(&format!(" {a}"));
+                    if let Some(n) = count {
+                        s.push_str(&format!(" {n}"));
+                        for t in tables {
+                            s.push_str(&format!(" {t}"));
+                        }
+                    }
+                }
+                s
             }
             Self::SaiQuery { all } => {
                 if *all {
@@ -337,6 +419,67 @@ impl Command {
             "HPA?" => none("HPA?", Self::Hpa)?,
             "VER?" => none("VER?", Self::Ver)?,
             "STP" => none("STP", Self::Stp)?,
+            "TNR?" => none("TNR?", Self::TnrQuery)?,
+            "HDR?" => none("HDR?", Self::HdrQuery)?,
+            "RTR?" => none("RTR?", Self::RtrQuery)?,
+            "RTR" => match args.as_slice() {
+                [r] => Self::Rtr(parse_u32("RTR", r)?),
+                _ => return Err(CommandError::ArgCount { cmd: "RTR" }),
+            },
+            "DRC?" => Self::DrcQuery(u32_list("DRC?", &args)?),
+            "DRL?" => Self::DrlQuery(u32_list("DRL?", &args)?),
+            "DRC" => {
+                if args.is_empty() || args.len() % 3 != 0 {
+                    return Err(CommandError::ArgCount { cmd: "DRC" });
+                }
+                Self::Drc(
+                    args.chunks(3)
+                        .map(|c| {
+                            Ok((
+                                parse_u32("DRC", c[0])?,
+                                AxisId::new(c[1])?,
+                                parse_u32("DRC", c[2])?,
+                            ))
+                        })
+                        .collect::<Result<_, CommandError>>()?,
+                )
+            }
+            "DRT" => {
+                if args.is_empty() || args.len() % 3 != 0 {
+                    return Err(CommandError::ArgCount { cmd: "DRT" });
+                }
+                Self::Drt(
+                    args.chunks(3)
+                        .map(|c| {
+                            Ok((
+                                parse_u32("DRT", c[0])?,
+                                parse_u32("DRT", c[1])?,
+                                c[2].to_owned(),
+                            ))
+                        })
+                        .collect::<Result<_, CommandError>>()?,
+                )
+            }
+            "DRR?" => {
+                let nums = u32_list("DRR?", &args)?;
+                match nums.as_slice() {
+                    [] => Self::DrrQuery {
+                        start: None,
+                        count: None,
+                        tables: Vec::new(),
+                    },
+                    [a] => Self::DrrQuery {
+                        start: Some(*a),
+                        count: None,
+                        tables: Vec::new(),
+                    },
+                    [a, n, t @ ..] => Self::DrrQuery {
+                        start: Some(*a),
+                        count: Some(*n),
+                        tables: t.to_vec(),
+                    },
+                }
+            }
             "SAI?" => match args.as_slice() {
                 [] => Self::SaiQuery { all: false },
                 ["ALL"] => Self::SaiQuery { all: true },
@@ -404,6 +547,17 @@ fn parse_f64(cmd: &'static str, s: &str) -> Result<f64, CommandError> {
             arg: s.to_owned(),
         }),
     }
+}
+
+fn parse_u32(cmd: &'static str, s: &str) -> Result<u32, CommandError> {
+    s.parse::<u32>().map_err(|_| CommandError::BadNumber {
+        cmd,
+        arg: s.to_owned(),
+    })
+}
+
+fn u32_list(cmd: &'static str, args: &[&str]) -> Result<Vec<u32>, CommandError> {
+    args.iter().map(|a| parse_u32(cmd, a)).collect()
 }
 
 /// Parses a parameter id, written in hex (`0x3C`) or decimal (`60`).
@@ -495,6 +649,28 @@ mod tests {
             Err(CommandError::ArgCount { .. })
         ));
         assert_eq!(CommandError::Unknown("X".into()).gcs_code().0, 2);
+        // The data recorder, as PIPython sends it.
+        assert_eq!(
+            Command::parse("DRC 1 1 2").unwrap(),
+            Command::Drc(vec![(1, ax("1"), 2)])
+        );
+        assert_eq!(
+            Command::parse("DRR? 1 512 1").unwrap(),
+            Command::DrrQuery {
+                start: Some(1),
+                count: Some(512),
+                tables: vec![1]
+            }
+        );
+        assert_eq!(Command::parse("DRT 0 4 0").unwrap().to_text(), "DRT 0 4 0");
+        assert!(matches!(
+            Command::parse("RTR -1"),
+            Err(CommandError::BadNumber { .. })
+        ));
+        assert!(matches!(
+            Command::parse("DRC 1 1"),
+            Err(CommandError::ArgCount { .. })
+        ));
     }
 
     fn any_axis() -> impl Strategy<Value = AxisId> + Clone {
@@ -517,6 +693,23 @@ mod tests {
             proptest::collection::vec((any_axis(), any::<bool>()), 1..3).prop_map(Command::Svo),
             proptest::collection::vec((any_axis(), 0u32..0xFFFF_FFFF), 0..3)
                 .prop_map(Command::SpaQuery),
+            Just(Command::TnrQuery),
+            Just(Command::RtrQuery),
+            any::<u32>().prop_map(Command::Rtr),
+            proptest::collection::vec((0u32..9, any_axis(), 0u32..30), 1..3).prop_map(Command::Drc),
+            proptest::collection::vec((0u32..9, 0u32..10, "[0-9]{1,3}"), 1..3)
+                .prop_map(Command::Drt),
+            proptest::collection::vec(0u32..9, 0..3).prop_map(Command::DrlQuery),
+            (
+                any::<u32>(),
+                any::<u32>(),
+                proptest::collection::vec(0u32..9, 0..3)
+            )
+                .prop_map(|(a, n, tables)| Command::DrrQuery {
+                    start: Some(a),
+                    count: Some(n),
+                    tables
+                }),
         ]
     }
 

@@ -10,6 +10,7 @@ pub mod answer;
 pub mod command;
 pub mod error;
 pub mod frame;
+pub mod recorder;
 pub mod session;
 
 pub use command::{AxisId, Command, CommandError};

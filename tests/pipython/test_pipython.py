@@ -301,3 +301,36 @@ def test_help_and_parameters(dev):
     assert err.value.val == -7  # PIPython's COM_TIMEOUT
     dev.gcscommands._msgs.timeout = 7000
     assert dev.qERR() == 54
+
+
+def test_data_recorder_through_qdrr(ready_dev):
+    """PIPython's data recorder calls (TNR?, DRC, RTR, DRT, DRL?, DRR?) on
+    the simulated recorder: the actual position every 20 servo cycles
+    (1 ms) from the move that triggers it, read back as GCS array data."""
+    dev = ready_dev
+    assert dev.qTNR() == 2
+    dev.DRC(1, AXIS, 2)  # table 1: actual position of axis 1
+    dev.RTR(20)
+    assert dev.qRTR() == 20
+    dev.VEL(AXIS, 0.5)
+    dev.DRT(1, 1)  # start at the next position-changing command
+    dev.MOV(AXIS, 8.5)
+    pitools.waitontarget(dev, AXIS, timeout=30)
+    # 2 s of motion at 0.5 mm/s: the 1024-point table is full.
+    n = dev.qDRL(1)[1]
+    assert n == 1024
+    header = dev.qDRR(1, 1, n)
+    deadline = time.time() + 20
+    while dev.bufstate is not True:
+        assert time.time() < deadline, "qDRR data not read within 20 s"
+        time.sleep(0.05)
+    data = dev.bufdata
+    assert float(header["SAMPLE_TIME"]) == pytest.approx(0.001)
+    assert int(header["NDATA"]) == n
+    assert len(data) == 1 and len(data[0]) == n
+    values = data[0]
+    assert values[0] == pytest.approx(7.5, abs=1e-4)
+    assert all(b >= a for a, b in zip(values, values[1:]))
+    # 1.023 s after the start: past the acceleration, below the target.
+    assert 7.7 < values[-1] < 8.5
+    assert dev.qERR() == 0

@@ -45,6 +45,20 @@ const HELP: &[(&str, &str)] = &[
         "<AxisID> <Deceleration> Set Closed-Loop Deceleration",
     ),
     ("DEC?", "[{<AxisID>}] Get Closed-Loop Deceleration"),
+    (
+        "DRC",
+        "{<RecTableID> <Source> <RecOption>} Set Data Recorder Configuration",
+    ),
+    ("DRC?", "[{<RecTableID>}] Get Data Recorder Configuration"),
+    ("DRL?", "[{<RecTableID>}] Get Number Of Recorded Points"),
+    (
+        "DRR?",
+        "[<StartPoint> <NumberOfPoints> [{<RecTableID>}]] Get Recorded Data Values",
+    ),
+    (
+        "DRT",
+        "{<RecTableID> <TriggerSource> <Value>} Set Data Recorder Trigger Source",
+    ),
     ("ERR?", "Get Error Number"),
     ("FNL", "[{<AxisID>}] Fast Reference Move To Negative Limit"),
     ("FPL", "[{<AxisID>}] Fast Reference Move To Positive Limit"),
@@ -53,6 +67,7 @@ const HELP: &[(&str, &str)] = &[
         "[{<AxisID>}] Fast Reference Move To Reference Switch",
     ),
     ("FRF?", "[{<AxisID>}] Get Referencing Result"),
+    ("HDR?", "Get All Data Recorder Options"),
     ("HLP?", "Get List Of Available Commands"),
     ("HLT", "[{<AxisID>}] Halt Motion Smoothly"),
     ("HPA?", "Get List Of Available Parameters"),
@@ -66,6 +81,8 @@ const HELP: &[(&str, &str)] = &[
     ("POS?", "[{<AxisID>}] Get Real Position"),
     ("RON", "{<AxisID> <ReferenceOn>} Set Reference Mode"),
     ("RON?", "[{<AxisID>}] Get Reference Mode"),
+    ("RTR", "<RecordTableRate> Set Record Table Rate"),
+    ("RTR?", "Get Record Table Rate"),
     ("SAI?", "[ALL] Get List Of Current Axis Identifiers"),
     (
         "SPA",
@@ -79,6 +96,7 @@ const HELP: &[(&str, &str)] = &[
     ("SVO", "{<AxisID> <ServoState>} Set Servo Mode"),
     ("SVO?", "[{<AxisID>}] Get Servo Mode"),
     ("TMN?", "[{<AxisID>}] Get Minimum Commandable Position"),
+    ("TNR?", "Get Number Of Record Tables"),
     ("TMX?", "[{<AxisID>}] Get Maximum Commandable Position"),
     ("VEL", "{<AxisID> <Velocity>} Set Closed-Loop Velocity"),
     ("VEL?", "[{<AxisID>}] Get Closed-Loop Velocity"),
@@ -324,6 +342,7 @@ impl Controller {
                     self.check_limits(target)?;
                 }
                 self.start_move(now, target);
+                self.recorder.on_move(now);
                 Ok(None)
             }
             C::Vel(items) => {
@@ -399,6 +418,19 @@ impl Controller {
                 self.stop_now(now);
                 Ok(None)
             }
+            C::TnrQuery => Ok(Some(vec![super::recorder::TABLES.to_string()])),
+            C::HdrQuery => Ok(Some(super::recorder::Recorder::help())),
+            C::Drc(items) => self.recorder.configure(items, AXIS).map(|()| None),
+            C::DrcQuery(t) => self.recorder.configuration(t, AXIS).map(Some),
+            C::Rtr(r) => self.recorder.set_rate(*r).map(|()| None),
+            C::RtrQuery => Ok(Some(vec![self.recorder.rate().to_string()])),
+            C::Drt(items) => self.recorder.trigger(now, items).map(|()| None),
+            C::DrlQuery(t) => self.recorder.lengths(t).map(Some),
+            C::DrrQuery {
+                start,
+                count,
+                tables,
+            } => self.recorder.read(*start, *count, tables, AXIS).map(Some),
         }
     }
 

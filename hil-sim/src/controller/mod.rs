@@ -41,17 +41,21 @@
 //!   (positions, status register, finished activities brought to rest).
 //! * `actions`: what starts, re-plans and stops motion and referencing,
 //!   with the checks a real C-863 makes first.
+//! * `recorder`: the data recorder (`DRC`, `RTR`, `DRT`, `DRR?`, ...),
+//!   sampled at the servo rate on the rig clock.
 //! * `commands`: request handling: control characters, GCS commands and
 //!   their answers, the `HLP?` list.
 
 mod actions;
 mod commands;
 mod platform;
+mod recorder;
 mod state;
 #[cfg(test)]
 mod tests;
 
 pub use platform::{ActuatorPath, IdealPlatform, Platform, StageGeometry};
+pub use recorder::{SERVO_CYCLE_S, TABLES as RECORD_TABLES, TABLE_POINTS as RECORD_TABLE_POINTS};
 
 use crate::motion::Profile;
 use crate::params::ParamSet;
@@ -159,4 +163,6 @@ pub struct Controller {
     stalled: bool,
     /// Servo lag time constant, s ([`ControllerConfig::following_lag_s`]).
     lag_s: f64,
+    /// The data recorder (`recorder`).
+    recorder: recorder::Recorder,
 }

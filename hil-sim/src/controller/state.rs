@@ -37,6 +37,7 @@ impl Controller {
             reported: None,
             stalled: false,
             lag_s: cfg.following_lag_s,
+            recorder: super::recorder::Recorder::default(),
         }
     }
 
@@ -318,6 +319,11 @@ impl Controller {
     pub(super) fn tick(&mut self, now: Duration) -> Duration {
         let now = now.max(self.last_now);
         self.last_now = now;
+        // The recorder's samples due until now, from the trajectory in
+        // force since the last request.
+        let mut rec = std::mem::take(&mut self.recorder);
+        rec.fill(now, &|t| (self.state_at(t).0, self.command_state_at(t).0));
+        self.recorder = rec;
         match &self.activity {
             Activity::Idle => {}
             Activity::Moving(p) => {

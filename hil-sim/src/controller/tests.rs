@@ -647,3 +647,80 @@ fn following_error_trails_the_command_at_velocity() {
     assert_eq!(pos(&mut c, te), 9.5);
     assert!(!c.is_moving(s(te)));
 }
+
+/// The answer lines of a query at `t` (continuations removed).
+fn lines(c: &mut Controller, t: f64, line: &str) -> Vec<String> {
+    let mut d = RequestDecoder::new();
+    let reqs = d.push(format!("{line}\n").as_bytes());
+    let bytes = c.handle(s(t), &reqs[0]).expect("an answer");
+    let mut a = micropos::gcs::AnswerDecoder::new();
+    match a.push(&bytes).pop() {
+        Some(micropos::gcs::frame::AnswerItem::Answer(a)) => a.lines(),
+        other => panic!("{other:?}"),
+    }
+}
+
+/// The data recorder records the servo's actual position (what `POS?`
+/// says) every `RTR` servo cycles from its trigger, at most
+/// `RECORD_TABLE_POINTS` points, read back as GCS array data.
+#[test]
+fn the_data_recorder_samples_the_actual_position_at_the_servo_rate() {
+    use micropos::gcs::recorder::parse_records;
+    let mut c = Controller::new(ControllerConfig {
+        following_lag_s: 0.003,
+        ..ControllerConfig::new(Address::DEFAULT, "0115500001", 3.0)
+    });
+    let t = referenced(&mut c);
+    assert_eq!(q(&mut c, t, "TNR?").unwrap(), "2\n");
+    assert_eq!(q(&mut c, t, "DRC 1 1 2"), None);
+    assert_eq!(q(&mut c, t, "RTR 20"), None);
+    assert_eq!(err(&mut c, t), 0);
+    assert_eq!(q(&mut c, t, "RTR?").unwrap(), "20\n");
+    assert_eq!(q(&mut c, t, "DRC? 1").unwrap(), "1=1 2\n");
+    assert_eq!(q(&mut c, t, "VEL 1 0.2"), None);
+    // Triggered by the move: its first record is the start.
+    assert_eq!(q(&mut c, t, "DRT 1 1 0"), None);
+    assert_eq!(q(&mut c, t + 0.1, "DRL? 1").unwrap(), "1=0\n");
+    assert_eq!(q(&mut c, t + 0.1, "MOV 1 8.5"), None);
+    let t0 = t + 0.1;
+    // POS? at record instants while the recording runs (reading it never
+    // changes what is recorded).
+    let at: Vec<(f64, f64)> = (1..40)
+        .map(|k| {
+            let tk = t0 + 0.013 * f64::from(k);
+            (tk, pos(&mut c, tk))
+        })
+        .collect();
+    let end = t0 + 0.6;
+    assert_eq!(q(&mut c, end, "DRL? 1").unwrap(), "1=601\n");
+    let r = parse_records(&lines(&mut c, end, "DRR? 1 601 1")).unwrap();
+    assert!((r.sample_time_s - 0.001).abs() < 1e-12);
+    assert_eq!(r.rows(), 601);
+    for (tk, p) in at {
+        let i = ((tk - t0) / 0.001).round() as usize;
+        if ((tk - t0) / 0.001 - i as f64).abs() < 1e-6 {
+            assert!(
+                (r.columns[0][i] - p).abs() < 1e-7,
+                "{i}: {} vs {p}",
+                r.columns[0][i]
+            );
+        }
+    }
+    assert!(r.columns[0].windows(2).all(|w| w[1] >= w[0]), "moving up");
+    // Part of the table, from a later point.
+    let part = parse_records(&lines(&mut c, end, "DRR? 101 50 1")).unwrap();
+    assert_eq!(part.columns[0], r.columns[0][100..150].to_vec());
+    // A full table stops; an immediate trigger restarts it.
+    assert_eq!(q(&mut c, t0 + 5.0, "DRL? 1").unwrap(), "1=1024\n");
+    assert_eq!(q(&mut c, t0 + 5.0, "DRT 1 4 0"), None);
+    assert_eq!(q(&mut c, t0 + 5.0105, "DRL? 1").unwrap(), "1=11\n");
+    // Refused: a table that does not exist, an option it does not know.
+    assert_eq!(q(&mut c, t0 + 5.1, "DRC 3 1 2"), None);
+    assert_eq!(err(&mut c, t0 + 5.1), 17);
+    assert_eq!(q(&mut c, t0 + 5.1, "DRC 1 1 99"), None);
+    assert_eq!(err(&mut c, t0 + 5.1), 17);
+    assert_eq!(q(&mut c, t0 + 5.1, "RTR 0"), None);
+    assert_eq!(err(&mut c, t0 + 5.1), 17);
+    let hdr = q(&mut c, t0 + 5.1, "HDR?").unwrap();
+    assert!(hdr.contains("2=Real Position of Axis"), "{hdr}");
+}

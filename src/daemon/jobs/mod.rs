@@ -10,6 +10,7 @@ pub mod plan;
 pub mod record;
 pub mod sweep;
 pub mod sweep_job;
+pub mod sweep_recorder;
 pub mod tables;
 pub mod tie;
 pub mod validate;

@@ -36,6 +36,11 @@
 //! −0.07 ms on a 25 µm grid in `the_delay_does_not_depend_on_the_grid`).
 //! [`estimate_delay`] iterates this from zero until the step is below a
 //! microsecond. With the cycles at v, 2v, v a drift linear in time cancels.
+//! Every pass of an axis starts and ends at the same points
+//! ([`SweepPlan::run_up_um`]), so an error that depends on the path since
+//! the pass began (lost motion building up with the distance, hysteresis)
+//! is the same at both velocities and drops out with the group means
+//! (`a_path_dependent_error_is_not_read_as_delay`).
 //!
 //! What the fit cannot tell from the delay: any error proportional to the
 //! signed velocity (a drive's viscous wind-up between encoder and platform
@@ -44,6 +49,7 @@
 //! rest error persisted through the next pass: σ 0.035 µm per pass scatters
 //! the estimate by ≈ 0.2 ms on the paper plan).
 
+use super::PARK_APPROACH_UM;
 use crate::charact::log::Metadata;
 use crate::model::XyUm;
 
@@ -87,6 +93,9 @@ pub struct PassSpec {
     pub range_um: f64,
     /// Position of the held axis, µm.
     pub hold_um: f64,
+    /// Run-up beyond each end of the range, µm: the same for every pass of
+    /// the plan ([`SweepPlan::run_up_um`]).
+    pub run_up_um: f64,
 }
 
 impl PassSpec {
@@ -108,7 +117,26 @@ impl PassSpec {
             -1.0
         }
     }
+
+    /// Where the pass starts and ends on the swept axis, µm (the range plus
+    /// the run-up at each end, in the pass's direction).
+    pub fn ends_um(&self) -> (f64, f64) {
+        let (lo, hi) = (
+            self.start_um - self.run_up_um,
+            self.start_um + self.range_um + self.run_up_um,
+        );
+        if self.forward {
+            (lo, hi)
+        } else {
+            (hi, lo)
+        }
+    }
 }
+
+/// Run-up at the plan's highest velocity, as time at that velocity (plus
+/// [`PARK_APPROACH_UM`]): the acceleration zone must end before the first
+/// grid point (frames there are left out by their velocity anyway).
+pub const RUN_UP_S: f64 = 0.3;
 
 /// Why a sweep cannot be planned or evaluated.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -159,6 +187,24 @@ impl SweepPlan {
             ));
         }
         Ok(())
+    }
+
+    /// Run-up beyond each end of the range, µm, the same for every pass:
+    /// [`PARK_APPROACH_UM`] + [`RUN_UP_S`] at the plan's highest velocity.
+    /// Why one for all: the estimate of the camera delay compares passes of
+    /// one direction at two velocities, and takes whatever differs between
+    /// them with the velocity for delay. A stage's error can depend on the
+    /// path since the last reversal (lost motion that builds up with the
+    /// distance travelled, hysteresis), and a run-up that grew with the
+    /// velocity would start the faster passes farther back: on the paper's
+    /// ranges a lost motion of 5 µm over 1 mm reads as +0.12 ms of delay.
+    /// Passes that start and end at the same points share that path, and
+    /// only what depends on the velocity differs.
+    pub fn run_up_um(&self) -> f64 {
+        let top = (1..=self.cycles.min(2))
+            .map(|c| self.velocity_of_cycle(c))
+            .fold(0.0, f64::max);
+        PARK_APPROACH_UM + top * RUN_UP_S
     }
 
     /// Velocity of a cycle, µm/s.
@@ -213,6 +259,7 @@ impl SweepPlan {
                         start_um,
                         range_um,
                         hold_um,
+                        run_up_um: self.run_up_um(),
                     });
                 }
             }
@@ -545,34 +592,32 @@ mod tests {
     /// A synthetic pass: the platform follows the command with a backlash
     /// of `b` µm against the direction and a periodic error; the camera
     /// stamps `latency_s` late; samples every 5 ms, frames every 1/30 s;
-    /// 50 µm of acceleration zone at each end.
+    /// the pass from one end of its run-up to the other.
     fn pass(spec: PassSpec, latency_s: f64, b: f64) -> PassData {
-        pass_with(spec, latency_s, b, 30.0, &|c| 0.3 * (c / 37.0).sin())
+        pass_with(
+            spec,
+            latency_s,
+            b,
+            30.0,
+            &|c| 0.3 * (c / 37.0).sin(),
+            &|_| 0.0,
+        )
     }
 
-    /// [`pass`] with the frame rate and the stage's error (of the command
-    /// position, µm) chosen.
+    /// [`pass`] with the frame rate, the stage's error (of the command
+    /// position, µm) and its lost motion against the direction (of the
+    /// distance travelled since the pass started, µm) chosen.
     fn pass_with(
         spec: PassSpec,
         latency_s: f64,
         b: f64,
         fps: f64,
         error: &dyn Fn(f64) -> f64,
+        history: &dyn Fn(f64) -> f64,
     ) -> PassData {
         let v = spec.velocity_um_per_s;
         let acc = 2000.0; // µm/s²
-        let run_up = v * v / (2.0 * acc) + 20.0;
-        let (p0, p1) = if spec.forward {
-            (
-                spec.start_um - run_up,
-                spec.start_um + spec.range_um + run_up,
-            )
-        } else {
-            (
-                spec.start_um + spec.range_um + run_up,
-                spec.start_um - run_up,
-            )
-        };
+        let (p0, p1) = spec.ends_um();
         let ta = v / acc;
         let da = v * v / (2.0 * acc);
         let tc = ((p1 - p0).abs() - 2.0 * da) / v;
@@ -603,7 +648,7 @@ mod tests {
             .take_while(|&t| t < total + 0.05)
             .map(|t| {
                 let c = pos(t);
-                let err = error(c) - s * b;
+                let err = error(c) - s * b - s * history((c - p0).abs());
                 let scan = c + err;
                 let meas = if spec.x_axis {
                     XyUm {
@@ -744,7 +789,7 @@ mod tests {
                 let passes: Vec<PassData> = p
                     .passes()
                     .into_iter()
-                    .map(|s| pass_with(s, latency_s, b, 30.0, &err))
+                    .map(|s| pass_with(s, latency_s, b, 30.0, &err, &|_| 0.0))
                     .collect();
                 let est = estimate_delay(&passes).unwrap();
                 assert!(
@@ -788,6 +833,63 @@ mod tests {
         assert!((estimate(false) - latency_s - tau).abs() < 2e-5);
     }
 
+    /// Stages whose error depends on the path since the pass began: a lost
+    /// motion that builds up with the distance travelled,
+    /// `A·(1 − exp(−L/λ))`, and a hysteresis loop that closes over `w`
+    /// (`H·tanh(L/w)`), amplitudes and lengths drawn at random, with the
+    /// backlash and the leadscrew's cyclic error. Every pass of the plan
+    /// starts from the same run-up, so the path is the same at both
+    /// velocities and the delay comes out at every draw. The same stages
+    /// with a run-up that grows with the velocity (`20 µm + 0.3 s · v`, the
+    /// faster passes starting farther back) read the difference in path
+    /// as delay: that is checked too, so the test shows the effect exists.
+    #[test]
+    fn a_path_dependent_error_is_not_read_as_delay() {
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(29);
+        let mut worst_shifted = 0.0f64;
+        for _ in 0..12 {
+            let latency_s = rng.gen_range(-0.004..0.012);
+            let b = rng.gen_range(-2.5..2.5);
+            let (a, lambda) = (rng.gen_range(1.0..6.0), rng.gen_range(100.0..3000.0));
+            let (h, w) = (rng.gen_range(-1.0..1.0), rng.gen_range(20.0..300.0));
+            let (c1, ph) = (
+                rng.gen_range(-2.0..2.0),
+                rng.gen_range(0.0..std::f64::consts::TAU),
+            );
+            let err = move |c: f64| c1 * (std::f64::consts::TAU * c / 400.0 + ph).sin();
+            let hist = move |l: f64| a * (1.0 - (-l / lambda).exp()) + h * (l / w).tanh();
+            let p = SweepPlan {
+                x_range_um: rng.gen_range(500.0..4000.0),
+                y_range_um: rng.gen_range(300.0..2000.0),
+                velocity_um_per_s: rng.gen_range(60.0..200.0),
+                ..plan()
+            };
+            let on = |specs: Vec<PassSpec>| -> f64 {
+                let passes: Vec<PassData> = specs
+                    .into_iter()
+                    .map(|s| pass_with(s, latency_s, b, 30.0, &err, &hist))
+                    .collect();
+                estimate_delay(&passes).unwrap().delay_s - latency_s
+            };
+            let e = on(p.passes());
+            assert!(
+                e.abs() < 2e-5,
+                "error {e} s (A {a} λ {lambda} H {h} w {w} plan {p:?})"
+            );
+            let shifted = p
+                .passes()
+                .into_iter()
+                .map(|s| PassSpec {
+                    run_up_um: PARK_APPROACH_UM + RUN_UP_S * s.velocity_um_per_s,
+                    ..s
+                })
+                .collect();
+            worst_shifted = worst_shifted.max(on(shifted).abs());
+        }
+        assert!(worst_shifted > 1e-4, "{worst_shifted}");
+    }
+
     #[test]
     fn one_velocity_cannot_separate_delay_and_backlash() {
         let p = SweepPlan {
@@ -813,10 +915,7 @@ mod tests {
         let at = frames_at(&d, 0.0);
         assert!(!at.is_empty());
         let da = 200.0f64.powi(2) / 4000.0;
-        let (p0, p1) = (
-            spec.start_um - da - 20.0,
-            spec.start_um + spec.range_um + da + 20.0,
-        );
+        let (p0, p1) = spec.ends_um();
         for f in &at {
             assert!(
                 f.cmd_um >= p0 + da - 0.5 && f.cmd_um <= p1 - da + 0.5,

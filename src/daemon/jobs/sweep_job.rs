@@ -1,8 +1,10 @@
 //! The sweep characterization job (`characterize start` with `mode =
 //! sweep`): ties vision to stage as the step job does, then per pass sets
 //! the swept axis's velocity, sends one move across the range plus run-ups,
-//! samples `POS?` every [`POS_SAMPLE_PERIOD`] of rig time and collects every
-//! decoded frame until the axis arrives; at the end estimates the camera
+//! samples the axis's position (from the controller's data recorder where
+//! it has one, `jobs::sweep_recorder`, else `POS?` every
+//! [`POS_SAMPLE_PERIOD`] of rig time; the log's metadata says which) and
+//! collects every decoded frame until the axis arrives; at the end estimates the camera
 //! delay and writes the log resampled onto the step grid
 //! (`jobs::sweep` has the method).
 //!
@@ -22,6 +24,7 @@ use super::sweep::{
     estimate_delay, frames_at, resample, DelayEstimate, PassData, PassSpec, PosSample, SweepFrame,
     SweepPlan,
 };
+use super::sweep_recorder::{merge, Chunk, CHUNK_S, POLL_WITH_RECORDER, RECORD_RATE, RECORD_TABLE};
 use super::{
     clamp_to_travel, drift_ref_record, lock, measure_retrying, move_raw_retrying, tie, Progress,
     PARK_APPROACH_UM,
@@ -41,11 +44,6 @@ use tokio::sync::watch;
 /// `POS?` in ≈ 2 ms at 115200 baud; 5 ms leaves the line to the daemon's
 /// other queries.
 pub const POS_SAMPLE_PERIOD: Duration = Duration::from_millis(5);
-
-/// Run-up before and after the range, as time at the pass velocity plus
-/// [`PARK_APPROACH_UM`]: the acceleration zone must end before the first
-/// grid point (frames there are left out by their velocity anyway).
-pub const RUN_UP_S: f64 = 0.3;
 
 /// The log's columns: the step job's plus the pass velocity, the frames'
 /// mean camera stamp and how many frames a record averages.
@@ -111,6 +109,12 @@ pub(super) async fn run(
         stage.x.velocity_um_per_s().await.map_err(driver_error)?,
         stage.y.velocity_um_per_s().await.map_err(driver_error)?,
     ];
+    // Which axes' controllers record positions themselves.
+    let recorder = [
+        plan.scan_x && has_recorder(&stage.x).await?,
+        plan.scan_y && has_recorder(&stage.y).await?,
+    ];
+    let mut recorded = RecorderStats::default();
     let specs = plan.passes();
     let mut passes: Vec<PassData> = Vec::with_capacity(specs.len());
     // Drift references, each with the index of the pass it precedes.
@@ -137,8 +141,9 @@ pub(super) async fn run(
                 park = true;
             }
         }
+        let use_recorder = recorder[usize::from(!spec.x_axis)];
         let r = tokio::select! {
-            r = one_pass(rig, spec, park, &tied.frame) => r?,
+            r = one_pass(rig, spec, park, &tied.frame, use_recorder, &mut recorded) => r?,
             _ = cancel.changed() => {
                 // The pass was dropped mid-sweep: its velocity is still set.
                 restore_velocities(rig, velocities).await;
@@ -176,6 +181,21 @@ pub(super) async fn run(
     md.insert("daemon_version", env!("CARGO_PKG_VERSION"));
     md.insert("sweep_frames", frames.to_string());
     md.insert("sweep_pos_samples", samples.to_string());
+    for (key, used, swept) in [
+        ("sweep_position_source_x", recorder[0], plan.scan_x),
+        ("sweep_position_source_y", recorder[1], plan.scan_y),
+    ] {
+        if swept {
+            md.insert(key, if used { "data_recorder" } else { "pos_polling" });
+        }
+    }
+    if recorded.records > 0 {
+        md.insert("sweep_recorder_records", recorded.records.to_string());
+        md.insert(
+            "sweep_recorder_sample_time_s",
+            format!("{:.6}", recorded.sample_time_s),
+        );
+    }
     md.insert("sweep_duration_s", format!("{duration_s:.3}"));
     md.insert("camera_delay_s", format!("{:.7}", est.delay_s));
     md.insert(
@@ -200,11 +220,49 @@ pub(super) async fn run(
     }
     let mut result = result_json(&est, frames, samples, n_records, duration_s);
     result["drift_references"] = json!(refs.len());
+    result["position_source"] = json!({
+        "x": if recorder[0] { "data_recorder" } else { "pos_polling" },
+        "y": if recorder[1] { "data_recorder" } else { "pos_polling" },
+    });
+    result["recorder_records"] = json!(recorded.records);
     if let Some(p) = lock(progress).as_mut() {
         p.done = n_records;
         p.total = n_records;
     }
     Ok(("done", result))
+}
+
+/// What the data recorder delivered over the sweep.
+#[derive(Debug, Default)]
+struct RecorderStats {
+    /// Records read.
+    records: usize,
+    /// Their sample time, s (the last chunk's).
+    sample_time_s: f64,
+}
+
+/// Whether `axis`'s controller has a data recorder the sweep can use:
+/// `TNR?` answers with at least [`RECORD_TABLE`] tables and `DRC`/`RTR`
+/// are accepted. A controller that refuses either is polled instead; a
+/// link fault is an error.
+async fn has_recorder(axis: &Axis) -> Result<bool, ProtoError> {
+    match axis.recorder_tables().await {
+        Ok(Some(n)) if n >= RECORD_TABLE => {}
+        Ok(_) => return Ok(false),
+        Err(e) if e.gcs_code().is_some() => return Ok(false),
+        Err(e) => return Err(driver_error(e)),
+    }
+    match axis.record_actual_position(RECORD_TABLE, RECORD_RATE).await {
+        Ok(()) => Ok(true),
+        Err(e) if e.gcs_code().is_some() => {
+            tracing::info!(
+                "sweep: {} refuses the data recorder set-up ({e}); polling POS?",
+                axis.name()
+            );
+            Ok(false)
+        }
+        Err(e) => Err(driver_error(e)),
+    }
 }
 
 /// Sets both axes back to the velocities the job found (after a pass that
@@ -360,11 +418,6 @@ async fn write_log(
     .map_err(|e| ProtoError::new(ErrorCode::LogError, format!("cannot write {n}: {e}")))
 }
 
-/// Run-up beyond each end of the range, µm.
-fn run_up_um(spec: &PassSpec) -> f64 {
-    PARK_APPROACH_UM + spec.velocity_um_per_s * RUN_UP_S
-}
-
 /// One pass: park first if it is the axis's first or follows a drift
 /// reference (held axis by a forward approach, swept axis at the run-up
 /// before the range), then sweep.
@@ -373,13 +426,10 @@ async fn one_pass(
     spec: &PassSpec,
     park: bool,
     frame: &VisionFrame,
+    recorder: bool,
+    recorded: &mut RecorderStats,
 ) -> Result<PassData, ProtoError> {
-    let r = run_up_um(spec);
-    let (from, to) = if spec.forward {
-        (spec.start_um - r, spec.start_um + spec.range_um + r)
-    } else {
-        (spec.start_um + spec.range_um + r, spec.start_um - r)
-    };
+    let (from, to) = spec.ends_um();
     // (x, y) of a swept and a held position, clamped into the travel.
     let place = |scan: f64, held: f64| {
         if spec.x_axis {
@@ -404,7 +454,7 @@ async fn one_pass(
     axis.set_velocity_um_per_s(spec.velocity_um_per_s)
         .await
         .map_err(driver_error)?;
-    let swept = sweep(rig, axis, spec, target, frame).await;
+    let swept = sweep(rig, axis, spec, target, frame, recorder, recorded).await;
     let restored = axis
         .set_velocity_um_per_s(before)
         .await
@@ -415,13 +465,16 @@ async fn one_pass(
 }
 
 /// Sends the move to `target_um` and samples positions and frames until
-/// the axis is there.
+/// the axis is there; positions from the data recorder when `recorder`
+/// (`jobs::sweep_recorder`), else from `POS?` alone.
 async fn sweep(
     rig: &Arc<Rig>,
     axis: &Axis,
     spec: &PassSpec,
     target_um: f64,
     frame: &VisionFrame,
+    recorder: bool,
+    recorded: &mut RecorderStats,
 ) -> Result<PassData, ProtoError> {
     let Some(vision) = &rig.vision else {
         return Err(ProtoError::new(ErrorCode::CameraUnavailable, "no camera"));
@@ -464,7 +517,54 @@ async fn sweep(
     };
     let deadline_s =
         rig.clock.now_s() + (target_um - start_um).abs() / spec.velocity_um_per_s + 10.0;
+    let reconnected = || {
+        ProtoError::new(
+            ErrorCode::NotConnected,
+            "the line reconnected during a sweep; its positions are not trusted",
+        )
+        .into_transient()
+    };
+    // Starts the table now; the exchange's rig-time bracket.
+    let trigger = || async {
+        let a = rig.clock.now_s();
+        let e = axis
+            .trigger_recorder(RECORD_TABLE)
+            .await
+            .map_err(driver_error)?;
+        if e != epoch {
+            return Err(reconnected());
+        }
+        Ok::<_, ProtoError>((a, rig.clock.now_s()))
+    };
+    // Reads what the table holds since `trigger_s`.
+    let read_chunk = |trigger_s: (f64, f64)| async move {
+        let (n, e) = axis
+            .recorded_points(RECORD_TABLE)
+            .await
+            .map_err(driver_error)?;
+        if e != epoch {
+            return Err(reconnected());
+        }
+        let r = axis
+            .read_records(RECORD_TABLE, 1, n)
+            .await
+            .map_err(driver_error)?;
+        if r.epoch != epoch {
+            return Err(reconnected());
+        }
+        Ok::<_, ProtoError>(Chunk {
+            trigger_s,
+            sample_time_s: r.sample_time_s,
+            positions_um: r.positions_um,
+        })
+    };
     let sample = async {
+        let mut chunks: Vec<Chunk> = Vec::new();
+        let mut armed = if recorder {
+            Some(trigger().await?)
+        } else {
+            None
+        };
         rig.raw_move(&req, true, true).await?;
         let mut samples: Vec<PosSample> = Vec::new();
         loop {
@@ -482,7 +582,18 @@ async fn sweep(
                 t_s: (t0 + t1) / 2.0,
                 pos_um,
             });
-            if (pos_um - target_um).abs() < 0.01 {
+            let arrived = (pos_um - target_um).abs() < 0.01;
+            if let Some(trig) = armed {
+                if arrived || rig.clock.now_s() - trig.0 >= CHUNK_S {
+                    chunks.push(read_chunk(trig).await?);
+                    armed = if arrived {
+                        None
+                    } else {
+                        Some(trigger().await?)
+                    };
+                }
+            }
+            if arrived {
                 break;
             }
             if rig.stop_generation() != gen {
@@ -497,11 +608,17 @@ async fn sweep(
                     format!("the sweep to {target_um} µm did not arrive in time"),
                 ));
             }
-            rig.clock.sleep(POS_SAMPLE_PERIOD).await;
+            rig.clock
+                .sleep(if recorder {
+                    POLL_WITH_RECORDER
+                } else {
+                    POS_SAMPLE_PERIOD
+                })
+                .await;
         }
-        Ok(samples)
+        Ok((samples, chunks))
     };
-    let samples = tokio::select! {
+    let (polls, chunks) = tokio::select! {
         r = sample => r?,
         () = collect => {
             return Err(ProtoError::new(ErrorCode::CameraUnavailable, "the camera pipeline ended"));
@@ -517,6 +634,15 @@ async fn sweep(
         .into_transient());
     }
     let frames = frames.into_inner().unwrap_or_else(|p| p.into_inner());
+    let samples = if recorder {
+        for c in &chunks {
+            recorded.records += c.positions_um.len();
+            recorded.sample_time_s = c.sample_time_s;
+        }
+        merge(&chunks, &polls)
+    } else {
+        polls
+    };
     Ok(PassData {
         spec: *spec,
         samples,
