@@ -73,6 +73,11 @@ pub struct FastRenderer {
     shade: Vec<f32>,
     noise: Vec<f32>,
     acc: Vec<f32>,
+    /// The CPU's vector extensions, found once: the pixel loops run
+    /// compiled for them (`pulp`'s run-time dispatch). Same bits on every
+    /// width: each lane does the scalar loop's IEEE operations, in the
+    /// same order, and nothing is fused.
+    arch: pulp::Arch,
 }
 
 impl FastRenderer {
@@ -147,6 +152,7 @@ impl FastRenderer {
             shade: Vec::new(),
             noise,
             acc: vec![0.0; cfg.width * cfg.height],
+            arch: pulp::Arch::new(),
         };
         r.build_shade();
         Ok(r)
@@ -197,11 +203,15 @@ impl FastRenderer {
         let (out_top, out_bottom) = out16.split_at_mut(h / 2 * w);
         let this = &*self;
         let band = |acc: &mut [f32], out: &mut [u16], row0: usize| {
-            acc.fill(0.0);
-            for &[x, y] in path_um {
-                this.stamp_rows(acc, row0, x, y, weight);
-            }
-            this.finish_rows(p, acc, out, row0);
+            this.arch.dispatch(Band {
+                r: this,
+                path_um,
+                weight,
+                p,
+                acc,
+                out,
+                row0,
+            });
         };
         std::thread::scope(|s| {
             s.spawn(|| band(acc_bottom, out_bottom, h / 2));
@@ -230,6 +240,7 @@ impl FastRenderer {
     /// Adds the stamps of the dots seen with `(x_um, y_um)` at the image
     /// centre, times `weight`, to the image rows `row0..` that `band`
     /// (whole rows of the accumulator) holds.
+    #[inline(always)]
     fn stamp_rows(&self, band: &mut [f32], row0: usize, x_um: f64, y_um: f64, weight: f32) {
         let (w, h) = (self.cfg.width as i64, self.cfg.height as i64);
         let band_lo = row0 as i64;
@@ -458,6 +469,7 @@ impl FastRenderer {
     /// accumulated stamps `acc` holds (whole rows) into `out`. Row by row
     /// over equal-length slices, written in place: the loop body is
     /// branch-free, so its arithmetic compiles to vector code.
+    #[inline(always)]
     fn finish_rows(&self, p: &FinishParams, acc: &[f32], out: &mut [u16], row0: usize) {
         let w = self.cfg.width;
         let (shade, noise) = (&self.shade, &self.noise);
@@ -520,6 +532,32 @@ impl FastRenderer {
         };
         Frame::new(w, h, self.cfg.bit_depth, pixels, timestamp_s, sequence)
             .map_err(|e| e.to_string())
+    }
+}
+
+/// One image half of [`FastRenderer::render_pixels`], as a `pulp` operation:
+/// its body (and the inlined stamp and sensor loops) is compiled once per
+/// instruction set and run with the widest the CPU has.
+struct Band<'a> {
+    r: &'a FastRenderer,
+    path_um: &'a [[f64; 2]],
+    weight: f32,
+    p: &'a FinishParams,
+    acc: &'a mut [f32],
+    out: &'a mut [u16],
+    row0: usize,
+}
+
+impl pulp::WithSimd for Band<'_> {
+    type Output = ();
+
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, _: S) {
+        self.acc.fill(0.0);
+        for &[x, y] in self.path_um {
+            self.r.stamp_rows(self.acc, self.row0, x, y, self.weight);
+        }
+        self.r.finish_rows(self.p, self.acc, self.out, self.row0);
     }
 }
 
