@@ -32,8 +32,17 @@ unsafe impl GlobalAlloc for Counting {
 #[global_allocator]
 static GLOBAL: Counting = Counting;
 
+/// The counter is process-wide: the tests take turns (the test harness
+/// runs them on parallel threads).
+static ONE_AT_A_TIME: std::sync::Mutex<()> = std::sync::Mutex::new(());
+
+fn one_at_a_time() -> std::sync::MutexGuard<'static, ()> {
+    ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner())
+}
+
 #[test]
 fn warm_decoder_does_not_allocate() {
+    let _turn = one_at_a_time();
     let mut r = Renderer::new(RenderConfig::default()).unwrap();
     let pose = |i: u64| Pose {
         x_um: 20_000.0 + 0.4 * i as f64,
@@ -69,6 +78,7 @@ fn warm_decoder_does_not_allocate() {
 /// and its results are those of the one-thread decoder, bit for bit.
 #[test]
 fn warm_shared_decoder_does_not_allocate_and_matches_one_thread() {
+    let _turn = one_at_a_time();
     use std::sync::Arc;
     let mut r = Renderer::new(RenderConfig::default()).unwrap();
     let pose = |i: u64| Pose {

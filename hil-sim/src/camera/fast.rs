@@ -69,10 +69,18 @@ pub struct FastRenderer {
     seq: LineSequence,
     k: usize,
     side: usize,
+    /// Stride of a stamp row: `side` rounded up to whole vectors of 8,
+    /// padded with +0.0 (see [`FastRenderer::stamp_rows`]).
+    stride: usize,
     stamps: Vec<f32>,
     shade: Vec<f32>,
     noise: Vec<f32>,
     acc: Vec<f32>,
+    /// Whether `acc` is +0.0 everywhere: the sensor pass clears each row
+    /// once it has read it (the row is in cache then), so a render needs no
+    /// separate pass to zero 3 MB; false while a render is under way (a
+    /// render that panicked leaves it false, and the next one zeroes).
+    acc_zero: bool,
     /// The CPU's vector extensions, found once: the pixel loops run
     /// compiled for them (`pulp`'s run-time dispatch). Same bits on every
     /// width: each lane does the scalar loop's IEEE operations, in the
@@ -123,17 +131,18 @@ impl FastRenderer {
                 + sat[y0 * w + x0]
         };
         let norm = 1.0 / (Q * Q) as f64;
-        let mut stamps = vec![0f32; Q * Q * side * side];
+        let stride = side.div_ceil(8) * 8;
+        let mut stamps = vec![0f32; Q * Q * side * stride];
         for b in 0..Q {
             for a in 0..Q {
-                let base = (b * Q + a) * side * side;
+                let base = (b * Q + a) * side * stride;
                 for ky in 0..side {
                     let y0 = (ky as i64 - k as i64) * Q as i64 - b as i64 + g as i64;
                     for kx in 0..side {
                         let x0 = (kx as i64 - k as i64) * Q as i64 - a as i64 + g as i64;
                         // In range by construction (see the module docs).
                         let v = block(x0 as usize, y0 as usize) * norm;
-                        stamps[base + ky * side + kx] = v as f32;
+                        stamps[base + ky * stride + kx] = v as f32;
                     }
                 }
             }
@@ -148,10 +157,12 @@ impl FastRenderer {
             seq,
             k,
             side,
+            stride,
             stamps,
             shade: Vec::new(),
             noise,
             acc: vec![0.0; cfg.width * cfg.height],
+            acc_zero: true,
             arch: pulp::Arch::new(),
         };
         r.build_shade();
@@ -196,6 +207,7 @@ impl FastRenderer {
     /// zeroed on both cores and read back while its half is hot.
     fn render_pixels(&mut self, path_um: &[[f64; 2]], p: &FinishParams) -> Vec<u16> {
         let mut acc = std::mem::take(&mut self.acc);
+        let zeroed = std::mem::replace(&mut self.acc_zero, false);
         let (w, h) = (self.cfg.width, self.cfg.height);
         let weight = 1.0 / path_um.len().max(1) as f32;
         let mut out16 = vec![0u16; w * h];
@@ -205,6 +217,7 @@ impl FastRenderer {
         let band = |acc: &mut [f32], out: &mut [u16], row0: usize| {
             this.arch.dispatch(Band {
                 r: this,
+                zeroed,
                 path_um,
                 weight,
                 p,
@@ -218,6 +231,7 @@ impl FastRenderer {
             band(acc_top, out_top, 0);
         });
         self.acc = acc;
+        self.acc_zero = true;
         out16
     }
 
@@ -227,6 +241,7 @@ impl FastRenderer {
     #[cfg(test)]
     fn accumulate(&mut self, path_um: &[[f64; 2]]) {
         let mut acc = std::mem::take(&mut self.acc);
+        self.acc_zero = false;
         acc.fill(0.0);
         let h = self.cfg.height;
         let weight = 1.0 / path_um.len().max(1) as f32;
@@ -307,17 +322,35 @@ impl FastRenderer {
                 if j0 >= w || i0 >= h || j0 + side as i64 <= 0 || i0 + side as i64 <= 0 {
                     continue;
                 }
-                let stamp = &self.stamps[(b * Q + a) * side * side..(b * Q + a + 1) * side * side];
+                let ph = (b * Q + a) * side * stride;
+                let stamp = &self.stamps[ph..ph + side * stride];
                 let kx0 = (-j0).max(0) as usize;
                 let kx1 = ((w - j0).min(side as i64)) as usize;
                 let ky0 = (band_lo - i0).max(0);
                 let ky1 = (band_hi - i0).min(side as i64);
+                // A stamp whose padded rows fit in the image adds whole
+                // vectors: the padding adds +0.0 · weight = +0.0, which
+                // leaves every sum as it was (the accumulator starts at
+                // +0.0 and is never −0.0), so the bits are those of the
+                // unpadded row.
+                let whole = j0 >= 0 && j0 + stride as i64 <= w;
                 for ky in ky0..ky1 {
                     let row = (i0 + ky - band_lo) as usize * wu;
                     let ky = ky as usize;
+                    if whole {
+                        let at = row + j0 as usize;
+                        let dst = &mut band[at..at + stride];
+                        let src = &stamp[ky * stride..(ky + 1) * stride];
+                        for (d, s) in dst.chunks_exact_mut(8).zip(src.chunks_exact(8)) {
+                            for (d, s) in d.iter_mut().zip(s) {
+                                *d += s * weight;
+                            }
+                        }
+                        continue;
+                    }
                     let dst = &mut band
                         [row + (j0 + kx0 as i64) as usize..row + (j0 + kx1 as i64) as usize];
-                    let src = &stamp[ky * side + kx0..ky * side + kx1];
+                    let src = &stamp[ky * stride + kx0..ky * stride + kx1];
                     for (d, s) in dst.iter_mut().zip(src) {
                         *d += s * weight;
                     }
@@ -466,11 +499,12 @@ impl FastRenderer {
     }
 
     /// Shades, adds noise to and quantises the image rows `row0..` whose
-    /// accumulated stamps `acc` holds (whole rows) into `out`. Row by row
-    /// over equal-length slices, written in place: the loop body is
-    /// branch-free, so its arithmetic compiles to vector code.
+    /// accumulated stamps `acc` holds (whole rows) into `out`, and zeroes
+    /// each row of `acc` once read. Row by row over equal-length slices,
+    /// written in place: the loop body is branch-free, so its arithmetic
+    /// compiles to vector code.
     #[inline(always)]
-    fn finish_rows(&self, p: &FinishParams, acc: &[f32], out: &mut [u16], row0: usize) {
+    fn finish_rows(&self, p: &FinishParams, acc: &mut [f32], out: &mut [u16], row0: usize) {
         let w = self.cfg.width;
         let (shade, noise) = (&self.shade, &self.noise);
         let FinishParams {
@@ -483,17 +517,22 @@ impl FastRenderer {
             rn2,
             ..
         } = *p;
-        for (k, (out, acc)) in out.chunks_exact_mut(w).zip(acc.chunks_exact(w)).enumerate() {
+        for (k, (out, acc)) in out
+            .chunks_exact_mut(w)
+            .zip(acc.chunks_exact_mut(w))
+            .enumerate()
+        {
             let i = row0 + k;
             let shade = &shade[i * w..(i + 1) * w];
             let off = p.offsets[i];
             let noise_row = &noise[off..(off + w).min(NOISE_LEN)];
-            for (((o, &c), &sh), &n) in out.iter_mut().zip(acc).zip(shade).zip(noise_row) {
+            for (((o, &c), &sh), &n) in out.iter_mut().zip(&*acc).zip(shade).zip(noise_row) {
                 let v = (bg + (fg - bg) * c) * sh * g;
                 let var = v.max(0.0) * inv_fw + rn2;
                 let v = ag * (v + n * var.sqrt());
                 *o = quantize((v * fs).max(0.0).min(fs));
             }
+            acc.fill(0.0);
         }
     }
 
@@ -512,12 +551,15 @@ impl FastRenderer {
         let p = self.finish_params(gain, analog_gain, noise_seed);
         let mut out16 = vec![0u16; w * h];
         let (top, bottom) = out16.split_at_mut(h / 2 * w);
-        let (acc_top, acc_bottom) = self.acc.split_at(h / 2 * w);
+        let mut acc = std::mem::take(&mut self.acc);
+        let (acc_top, acc_bottom) = acc.split_at_mut(h / 2 * w);
         let this = &*self;
         std::thread::scope(|s| {
             s.spawn(|| this.finish_rows(&p, acc_bottom, bottom, h / 2));
             this.finish_rows(&p, acc_top, top, 0);
         });
+        self.acc = acc;
+        self.acc_zero = true;
         self.to_frame(out16, timestamp_s, sequence)
     }
 
@@ -540,6 +582,8 @@ impl FastRenderer {
 /// instruction set and run with the widest the CPU has.
 struct Band<'a> {
     r: &'a FastRenderer,
+    /// The accumulator is +0.0 already (see `FastRenderer::acc_zero`).
+    zeroed: bool,
     path_um: &'a [[f64; 2]],
     weight: f32,
     p: &'a FinishParams,
@@ -553,7 +597,9 @@ impl pulp::WithSimd for Band<'_> {
 
     #[inline(always)]
     fn with_simd<S: pulp::Simd>(self, _: S) {
-        self.acc.fill(0.0);
+        if !self.zeroed {
+            self.acc.fill(0.0);
+        }
         for &[x, y] in self.path_um {
             self.r.stamp_rows(self.acc, self.row0, x, y, self.weight);
         }
@@ -726,10 +772,10 @@ mod tests {
             ..CameraConfig::default()
         };
         let r = FastRenderer::new(&cfg, 0.3f64.to_radians()).unwrap();
-        let side = r.side;
+        let (side, stride) = (r.side, r.stride);
         let area_px = (cfg.period_um / 2.0 / cfg.pixel_um).powi(2);
         for ph in [0, 5, Q * Q - 1] {
-            let s: f32 = r.stamps[ph * side * side..(ph + 1) * side * side]
+            let s: f32 = r.stamps[ph * side * stride..(ph + 1) * side * stride]
                 .iter()
                 .sum();
             assert!(
