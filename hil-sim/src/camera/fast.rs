@@ -292,7 +292,7 @@ impl FastRenderer {
         let r0 = (rmin - 1.0).floor().max(0.0) as i64;
         let r1 = (rmax + 1.0).ceil().min(len) as i64;
         let k = self.k as i64;
-        let side = self.side;
+        let (side, stride) = (self.side, self.stride);
         let wu = w as usize;
         for r in r0..r1 {
             if !self.seq.line(r) {
