@@ -119,7 +119,7 @@ pub(crate) struct CoarseStage {
     /// ([`super::Decoder::decode_shared`]).
     pub(crate) helper: Option<Arc<Helper>>,
     /// The helper's lattice buffer while it has no job.
-    lattice_job: Option<LatticeJob>,
+    lattice_job: Option<Box<LatticeJob>>,
 }
 
 /// One lattice of [`sample_lattice`] for the helper thread: its

@@ -22,11 +22,13 @@ use super::fine::DemodJob;
 use crate::frame::Frame;
 
 /// Work for the helper thread.
+/// Boxed so that a job moves as one pointer (the boxes are made once per
+/// decoder, not per frame).
 pub(crate) enum Job {
     /// The lower band of tile rows of a demodulation pass.
-    Demod(DemodJob),
+    Demod(Box<DemodJob>),
     /// One code lattice's samples.
-    Lattice(LatticeJob),
+    Lattice(Box<LatticeJob>),
 }
 
 impl Job {

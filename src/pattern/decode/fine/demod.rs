@@ -436,7 +436,7 @@ impl FineStage {
                     &mut self.tile_dc[split * ntx..],
                     &mut self.tile_wsum[split * ntx..],
                 );
-                self.demod_job = Some(DemodJob::default());
+                self.demod_job = Some(Box::default());
                 return self.subtract_leakage(ntx, nty);
             };
             let a = split * ntx;

@@ -152,7 +152,7 @@ pub(crate) struct FineStage {
     /// ([`super::Decoder::decode_shared`]).
     pub(crate) helper: Option<Arc<Helper>>,
     /// The helper's demodulation buffers while it has no job.
-    demod_job: Option<DemodJob>,
+    demod_job: Option<Box<DemodJob>>,
 }
 
 impl std::fmt::Debug for FineStage {
@@ -206,7 +206,7 @@ impl FineStage {
             model_distortion: false,
             row_ph: Vec::new(),
             helper: None,
-            demod_job: Some(DemodJob::default()),
+            demod_job: Some(Box::default()),
         }
     }
 
