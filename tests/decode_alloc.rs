@@ -32,8 +32,17 @@ unsafe impl GlobalAlloc for Counting {
 #[global_allocator]
 static GLOBAL: Counting = Counting;
 
+/// The counter is process-wide: the tests take turns (the test harness
+/// runs them on parallel threads).
+static ONE_AT_A_TIME: std::sync::Mutex<()> = std::sync::Mutex::new(());
+
+fn one_at_a_time() -> std::sync::MutexGuard<'static, ()> {
+    ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner())
+}
+
 #[test]
 fn warm_decoder_does_not_allocate() {
+    let _turn = one_at_a_time();
     let mut r = Renderer::new(RenderConfig::default()).unwrap();
     let pose = |i: u64| Pose {
         x_um: 20_000.0 + 0.4 * i as f64,
@@ -62,4 +71,41 @@ fn warm_decoder_does_not_allocate() {
         0,
         "allocations in a warm decode()"
     );
+}
+
+/// The two-thread decode (`decode_shared`, `track_shared`): warm, it
+/// allocates nothing either, it leaves the frame unshared when it returns,
+/// and its results are those of the one-thread decoder, bit for bit.
+#[test]
+fn warm_shared_decoder_does_not_allocate_and_matches_one_thread() {
+    let _turn = one_at_a_time();
+    use std::sync::Arc;
+    let mut r = Renderer::new(RenderConfig::default()).unwrap();
+    let pose = |i: u64| Pose {
+        x_um: 21_000.0 + 3.7 * i as f64,
+        y_um: 8_000.0 - 2.9 * i as f64,
+        theta_rad: -0.2 + 0.01 * i as f64,
+        pixel_um: 0.9,
+        mirrored: false,
+    };
+    let frames: Vec<Arc<_>> = (0..6)
+        .map(|i| Arc::new(r.render(&pose(i), 100 + i, 0.0, i).unwrap()))
+        .collect();
+    let mut one = Decoder::new(DecodeOptions::new(9.0, 12)).unwrap();
+    let mut two = Decoder::new(DecodeOptions::new(9.0, 12)).unwrap();
+    for f in &frames[..3] {
+        assert_eq!(two.decode_shared(f), one.decode(f));
+        assert_eq!(two.track_shared(f), one.track(f));
+    }
+    let before = ALLOCS.load(Ordering::SeqCst);
+    let c = two.decode_shared(&frames[3]);
+    let t = two.track_shared(&frames[4]);
+    let after = ALLOCS.load(Ordering::SeqCst);
+    assert_eq!(after - before, 0, "allocations in a warm decode_shared()");
+    assert_eq!(c, one.decode(&frames[3]));
+    assert_eq!(t, one.track(&frames[4]));
+    assert!(c.is_ok() && t.is_ok());
+    for f in &frames {
+        assert_eq!(Arc::strong_count(f), 1, "the frame is unshared again");
+    }
 }

@@ -580,8 +580,12 @@ async fn on_demand_loop(mut l: OnDemandLoop) {
         let tap = l.tap.clone();
         let Ok((decoder, decoded)) = tokio::task::spawn_blocking(move || {
             let t0 = std::time::Instant::now();
-            let r = decoder.decode(&frame);
+            // On two threads (the decoder's helper reads the frame through
+            // the `Arc`; it is unshared again when the decode returns).
+            let frame = Arc::new(frame);
+            let r = decoder.decode_shared(&frame);
             stats.decode_seconds.observe(t0.elapsed().as_secs_f64());
+            let frame = Arc::try_unwrap(frame).unwrap_or_else(|f| (*f).clone());
             tap.offer(frame, &r);
             (decoder, r)
         })

@@ -69,10 +69,23 @@ pub struct FastRenderer {
     seq: LineSequence,
     k: usize,
     side: usize,
+    /// Stride of a stamp row: `side` rounded up to whole vectors of 8,
+    /// padded with +0.0 (see [`FastRenderer::stamp_rows`]).
+    stride: usize,
     stamps: Vec<f32>,
     shade: Vec<f32>,
     noise: Vec<f32>,
     acc: Vec<f32>,
+    /// Whether `acc` is +0.0 everywhere: the sensor pass clears each row
+    /// once it has read it (the row is in cache then), so a render needs no
+    /// separate pass to zero 3 MB; false while a render is under way (a
+    /// render that panicked leaves it false, and the next one zeroes).
+    acc_zero: bool,
+    /// The CPU's vector extensions, found once: the pixel loops run
+    /// compiled for them (`pulp`'s run-time dispatch). Same bits on every
+    /// width: each lane does the scalar loop's IEEE operations, in the
+    /// same order, and nothing is fused.
+    arch: pulp::Arch,
 }
 
 impl FastRenderer {
@@ -118,17 +131,18 @@ impl FastRenderer {
                 + sat[y0 * w + x0]
         };
         let norm = 1.0 / (Q * Q) as f64;
-        let mut stamps = vec![0f32; Q * Q * side * side];
+        let stride = side.div_ceil(8) * 8;
+        let mut stamps = vec![0f32; Q * Q * side * stride];
         for b in 0..Q {
             for a in 0..Q {
-                let base = (b * Q + a) * side * side;
+                let base = (b * Q + a) * side * stride;
                 for ky in 0..side {
                     let y0 = (ky as i64 - k as i64) * Q as i64 - b as i64 + g as i64;
                     for kx in 0..side {
                         let x0 = (kx as i64 - k as i64) * Q as i64 - a as i64 + g as i64;
                         // In range by construction (see the module docs).
                         let v = block(x0 as usize, y0 as usize) * norm;
-                        stamps[base + ky * side + kx] = v as f32;
+                        stamps[base + ky * stride + kx] = v as f32;
                     }
                 }
             }
@@ -143,10 +157,13 @@ impl FastRenderer {
             seq,
             k,
             side,
+            stride,
             stamps,
             shade: Vec::new(),
             noise,
             acc: vec![0.0; cfg.width * cfg.height],
+            acc_zero: true,
+            arch: pulp::Arch::new(),
         };
         r.build_shade();
         Ok(r)
@@ -179,17 +196,19 @@ impl FastRenderer {
     /// the pattern point at the image centre at one instant of the
     /// exposure, weighted equally: the exposure's integral of the moving
     /// pattern): the top and bottom halves of the image on two threads,
-    /// each zeroing its half of the accumulator, summing into it the part
-    /// of every dot's stamp that falls on its rows (in the same dot order,
-    /// so every pixel gets the same additions in the same order as on one
+    /// each summing into its half of the (zeroed) accumulator the part of
+    /// every dot's stamp that falls on its rows (in the same dot order, so
+    /// every pixel gets the same additions in the same order as on one
     /// thread: same bits), and turning its rows into pixels while they are
-    /// still in cache. One point has weight exactly 1: a still frame is bit
-    /// for bit what it was before motion blur existed. Why one pass per
-    /// half rather than accumulate-then-finish over the whole frame: one
-    /// thread start per frame instead of two, and the 3 MB accumulator is
-    /// zeroed on both cores and read back while its half is hot.
+    /// still in cache, zeroing each row once read. One point has weight
+    /// exactly 1: a still frame is bit for bit what it was before motion
+    /// blur existed. Why one pass per half rather than
+    /// accumulate-then-finish over the whole frame: one thread start per
+    /// frame instead of two, and the 3 MB accumulator is read back and
+    /// cleared on both cores while its half is hot.
     fn render_pixels(&mut self, path_um: &[[f64; 2]], p: &FinishParams) -> Vec<u16> {
         let mut acc = std::mem::take(&mut self.acc);
+        let zeroed = std::mem::replace(&mut self.acc_zero, false);
         let (w, h) = (self.cfg.width, self.cfg.height);
         let weight = 1.0 / path_um.len().max(1) as f32;
         let mut out16 = vec![0u16; w * h];
@@ -197,17 +216,23 @@ impl FastRenderer {
         let (out_top, out_bottom) = out16.split_at_mut(h / 2 * w);
         let this = &*self;
         let band = |acc: &mut [f32], out: &mut [u16], row0: usize| {
-            acc.fill(0.0);
-            for &[x, y] in path_um {
-                this.stamp_rows(acc, row0, x, y, weight);
-            }
-            this.finish_rows(p, acc, out, row0);
+            this.arch.dispatch(Band {
+                r: this,
+                zeroed,
+                path_um,
+                weight,
+                p,
+                acc,
+                out,
+                row0,
+            });
         };
         std::thread::scope(|s| {
             s.spawn(|| band(acc_bottom, out_bottom, h / 2));
             band(acc_top, out_top, 0);
         });
         self.acc = acc;
+        self.acc_zero = true;
         out16
     }
 
@@ -217,6 +242,7 @@ impl FastRenderer {
     #[cfg(test)]
     fn accumulate(&mut self, path_um: &[[f64; 2]]) {
         let mut acc = std::mem::take(&mut self.acc);
+        self.acc_zero = false;
         acc.fill(0.0);
         let h = self.cfg.height;
         let weight = 1.0 / path_um.len().max(1) as f32;
@@ -230,6 +256,7 @@ impl FastRenderer {
     /// Adds the stamps of the dots seen with `(x_um, y_um)` at the image
     /// centre, times `weight`, to the image rows `row0..` that `band`
     /// (whole rows of the accumulator) holds.
+    #[inline(always)]
     fn stamp_rows(&self, band: &mut [f32], row0: usize, x_um: f64, y_um: f64, weight: f32) {
         let (w, h) = (self.cfg.width as i64, self.cfg.height as i64);
         let band_lo = row0 as i64;
@@ -266,7 +293,7 @@ impl FastRenderer {
         let r0 = (rmin - 1.0).floor().max(0.0) as i64;
         let r1 = (rmax + 1.0).ceil().min(len) as i64;
         let k = self.k as i64;
-        let side = self.side;
+        let (side, stride) = (self.side, self.stride);
         let wu = w as usize;
         for r in r0..r1 {
             if !self.seq.line(r) {
@@ -296,17 +323,33 @@ impl FastRenderer {
                 if j0 >= w || i0 >= h || j0 + side as i64 <= 0 || i0 + side as i64 <= 0 {
                     continue;
                 }
-                let stamp = &self.stamps[(b * Q + a) * side * side..(b * Q + a + 1) * side * side];
+                let ph = (b * Q + a) * side * stride;
+                let stamp = &self.stamps[ph..ph + side * stride];
                 let kx0 = (-j0).max(0) as usize;
                 let kx1 = ((w - j0).min(side as i64)) as usize;
                 let ky0 = (band_lo - i0).max(0);
                 let ky1 = (band_hi - i0).min(side as i64);
+                // A stamp whose padded rows fit in the image adds whole
+                // vectors: the padding adds +0.0 · weight = +0.0, which
+                // leaves every sum as it was (the accumulator starts at
+                // +0.0 and is never −0.0), so the bits are those of the
+                // unpadded row.
+                let whole = j0 >= 0 && j0 + stride as i64 <= w;
                 for ky in ky0..ky1 {
                     let row = (i0 + ky - band_lo) as usize * wu;
                     let ky = ky as usize;
+                    if whole {
+                        let at = row + j0 as usize;
+                        let dst = &mut band[at..at + stride];
+                        let src = &stamp[ky * stride..(ky + 1) * stride];
+                        for (d, s) in dst.chunks_exact_mut(8).zip(src.chunks_exact(8)) {
+                            add8(d, s, weight);
+                        }
+                        continue;
+                    }
                     let dst = &mut band
                         [row + (j0 + kx0 as i64) as usize..row + (j0 + kx1 as i64) as usize];
-                    let src = &stamp[ky * side + kx0..ky * side + kx1];
+                    let src = &stamp[ky * stride + kx0..ky * stride + kx1];
                     for (d, s) in dst.iter_mut().zip(src) {
                         *d += s * weight;
                     }
@@ -455,10 +498,12 @@ impl FastRenderer {
     }
 
     /// Shades, adds noise to and quantises the image rows `row0..` whose
-    /// accumulated stamps `acc` holds (whole rows) into `out`. Row by row
-    /// over equal-length slices, written in place: the loop body is
-    /// branch-free, so its arithmetic compiles to vector code.
-    fn finish_rows(&self, p: &FinishParams, acc: &[f32], out: &mut [u16], row0: usize) {
+    /// accumulated stamps `acc` holds (whole rows) into `out`, and zeroes
+    /// each row of `acc` once read. Row by row over equal-length slices,
+    /// written in place: the loop body is branch-free, so its arithmetic
+    /// compiles to vector code.
+    #[inline(always)]
+    fn finish_rows(&self, p: &FinishParams, acc: &mut [f32], out: &mut [u16], row0: usize) {
         let w = self.cfg.width;
         let (shade, noise) = (&self.shade, &self.noise);
         let FinishParams {
@@ -471,17 +516,22 @@ impl FastRenderer {
             rn2,
             ..
         } = *p;
-        for (k, (out, acc)) in out.chunks_exact_mut(w).zip(acc.chunks_exact(w)).enumerate() {
+        for (k, (out, acc)) in out
+            .chunks_exact_mut(w)
+            .zip(acc.chunks_exact_mut(w))
+            .enumerate()
+        {
             let i = row0 + k;
             let shade = &shade[i * w..(i + 1) * w];
             let off = p.offsets[i];
             let noise_row = &noise[off..(off + w).min(NOISE_LEN)];
-            for (((o, &c), &sh), &n) in out.iter_mut().zip(acc).zip(shade).zip(noise_row) {
+            for (((o, &c), &sh), &n) in out.iter_mut().zip(&*acc).zip(shade).zip(noise_row) {
                 let v = (bg + (fg - bg) * c) * sh * g;
                 let var = v.max(0.0) * inv_fw + rn2;
                 let v = ag * (v + n * var.sqrt());
                 *o = quantize((v * fs).max(0.0).min(fs));
             }
+            acc.fill(0.0);
         }
     }
 
@@ -500,12 +550,15 @@ impl FastRenderer {
         let p = self.finish_params(gain, analog_gain, noise_seed);
         let mut out16 = vec![0u16; w * h];
         let (top, bottom) = out16.split_at_mut(h / 2 * w);
-        let (acc_top, acc_bottom) = self.acc.split_at(h / 2 * w);
+        let mut acc = std::mem::take(&mut self.acc);
+        let (acc_top, acc_bottom) = acc.split_at_mut(h / 2 * w);
         let this = &*self;
         std::thread::scope(|s| {
             s.spawn(|| this.finish_rows(&p, acc_bottom, bottom, h / 2));
             this.finish_rows(&p, acc_top, top, 0);
         });
+        self.acc = acc;
+        self.acc_zero = true;
         self.to_frame(out16, timestamp_s, sequence)
     }
 
@@ -520,6 +573,36 @@ impl FastRenderer {
         };
         Frame::new(w, h, self.cfg.bit_depth, pixels, timestamp_s, sequence)
             .map_err(|e| e.to_string())
+    }
+}
+
+/// One image half of [`FastRenderer::render_pixels`], as a `pulp` operation:
+/// its body (and the inlined stamp and sensor loops) is compiled once per
+/// instruction set and run with the widest the CPU has.
+struct Band<'a> {
+    r: &'a FastRenderer,
+    /// The accumulator is +0.0 already (see `FastRenderer::acc_zero`).
+    zeroed: bool,
+    path_um: &'a [[f64; 2]],
+    weight: f32,
+    p: &'a FinishParams,
+    acc: &'a mut [f32],
+    out: &'a mut [u16],
+    row0: usize,
+}
+
+impl pulp::WithSimd for Band<'_> {
+    type Output = ();
+
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, _: S) {
+        if !self.zeroed {
+            self.acc.fill(0.0);
+        }
+        for &[x, y] in self.path_um {
+            self.r.stamp_rows(self.acc, self.row0, x, y, self.weight);
+        }
+        self.r.finish_rows(self.p, self.acc, self.out, self.row0);
     }
 }
 
@@ -540,6 +623,22 @@ struct FinishParams {
     rn2: f32,
     /// Per row: the start of its noise in the Gaussian table.
     offsets: Vec<usize>,
+}
+
+/// `d += s · weight` over eight lanes: both read into registers before
+/// the store, so the compiler need not prove that `d` and `s` do not
+/// overlap and emits one vector multiply and add (a plain loop over the
+/// two slices stayed scalar).
+#[inline(always)]
+fn add8(d: &mut [f32], s: &[f32], weight: f32) {
+    let (Ok(dv), Ok(sv)) = (<[f32; 8]>::try_from(&*d), <[f32; 8]>::try_from(s)) else {
+        return;
+    };
+    let mut out = [0f32; 8];
+    for ((o, a), b) in out.iter_mut().zip(dv).zip(sv) {
+        *o = a + b * weight;
+    }
+    d.copy_from_slice(&out);
 }
 
 /// `x.floor()`, exactly, for |x| < 2⁶³ (a dot's image position). Why not
@@ -688,10 +787,10 @@ mod tests {
             ..CameraConfig::default()
         };
         let r = FastRenderer::new(&cfg, 0.3f64.to_radians()).unwrap();
-        let side = r.side;
+        let (side, stride) = (r.side, r.stride);
         let area_px = (cfg.period_um / 2.0 / cfg.pixel_um).powi(2);
         for ph in [0, 5, Q * Q - 1] {
-            let s: f32 = r.stamps[ph * side * side..(ph + 1) * side * side]
+            let s: f32 = r.stamps[ph * side * stride..(ph + 1) * side * stride]
                 .iter()
                 .sum();
             assert!(

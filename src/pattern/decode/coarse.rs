@@ -22,8 +22,11 @@
 
 // `!(x >= t)` is deliberate: it also rejects NaN. Index loops mirror the maths.
 #![allow(clippy::neg_cmp_op_on_partial_ord, clippy::needless_range_loop)]
+use std::sync::Arc;
+
 use super::error::DecodeError;
-use super::fine::Grid;
+use super::fine::{Grid, HELPER_MIN_PIXELS};
+use super::helper::{Helper, Job};
 use crate::frame::{Frame, Pixels};
 use crate::pattern::sequence::LineSequence;
 
@@ -112,6 +115,61 @@ pub(crate) struct CoarseStage {
     epad_bits: u32,
     /// One sample per site instead of five (faster, less robust).
     pub(crate) single_sample: bool,
+    /// The decoder's helper thread, once started
+    /// ([`super::Decoder::decode_shared`]).
+    pub(crate) helper: Option<Arc<Helper>>,
+    /// The helper's lattice buffer while it has no job.
+    lattice_job: Option<Box<LatticeJob>>,
+}
+
+/// One lattice of [`sample_lattice`] for the helper thread: its
+/// parameters and its own output buffer (swapped with the stage's).
+#[derive(Debug, Default)]
+pub(crate) struct LatticeJob {
+    w: usize,
+    h: usize,
+    origin: [f64; 2],
+    da: [f64; 2],
+    db: [f64; 2],
+    ni: usize,
+    nj: usize,
+    offs: [[f64; 2]; 5],
+    n_offs: usize,
+    out: Vec<f32>,
+}
+
+impl LatticeJob {
+    /// Samples the lattice (on the helper thread).
+    pub(crate) fn run(&mut self, frame: &Frame) {
+        let offs = &self.offs[..self.n_offs.min(5)];
+        let (w, h) = (self.w, self.h);
+        match frame.pixels() {
+            Pixels::U8(p) => sample_lattice(
+                p,
+                w,
+                h,
+                self.origin,
+                self.da,
+                self.db,
+                self.ni,
+                self.nj,
+                offs,
+                &mut self.out,
+            ),
+            Pixels::U16(p) => sample_lattice(
+                p,
+                w,
+                h,
+                self.origin,
+                self.da,
+                self.db,
+                self.ni,
+                self.nj,
+                offs,
+                &mut self.out,
+            ),
+        }
+    }
 }
 
 /// Samples the frame bilinearly at the lattice points u0 + i·da + j·db
@@ -349,25 +407,50 @@ impl CoarseStage {
         } else {
             &offs
         };
+        // The half lattice on the helper thread when the decode lent it
+        // this frame (see `decode::helper`), the integer one here.
+        let mut lent = false;
+        if let Some(helper) = &self.helper {
+            let mut job = self.lattice_job.take().unwrap_or_default();
+            if w * h >= HELPER_MIN_PIXELS {
+                job.w = w;
+                job.h = h;
+                job.origin = g1_origin;
+                job.da = da;
+                job.db = db;
+                job.ni = na + 1;
+                job.nj = nb + 1;
+                job.offs[..offs.len()].copy_from_slice(offs);
+                job.n_offs = offs.len();
+                match helper.submit(frame, Job::Lattice(job)) {
+                    Ok(()) => lent = true,
+                    Err(Job::Lattice(j)) => self.lattice_job = Some(j),
+                    Err(_) => {}
+                }
+            } else {
+                self.lattice_job = Some(job);
+            }
+        }
         match frame.pixels() {
             Pixels::U8(p) => {
                 sample_lattice(p, w, h, g0_origin, da, db, na, nb, offs, &mut self.g0);
-                sample_lattice(
-                    p,
-                    w,
-                    h,
-                    g1_origin,
-                    da,
-                    db,
-                    na + 1,
-                    nb + 1,
-                    offs,
-                    &mut self.g1,
-                );
             }
             Pixels::U16(p) => {
                 sample_lattice(p, w, h, g0_origin, da, db, na, nb, offs, &mut self.g0);
-                sample_lattice(
+            }
+        }
+        let done = if lent {
+            self.helper.as_ref().and_then(|h| h.wait())
+        } else {
+            None
+        };
+        if let Some(Job::Lattice(mut job)) = done {
+            std::mem::swap(&mut self.g1, &mut job.out);
+            self.lattice_job = Some(job);
+        } else {
+            // Not lent, or the helper failed (a panic): on this thread.
+            match frame.pixels() {
+                Pixels::U8(p) => sample_lattice(
                     p,
                     w,
                     h,
@@ -378,7 +461,19 @@ impl CoarseStage {
                     nb + 1,
                     offs,
                     &mut self.g1,
-                );
+                ),
+                Pixels::U16(p) => sample_lattice(
+                    p,
+                    w,
+                    h,
+                    g1_origin,
+                    da,
+                    db,
+                    na + 1,
+                    nb + 1,
+                    offs,
+                    &mut self.g1,
+                ),
             }
         }
         Ok((na, nb, a0, b0))

@@ -42,12 +42,15 @@
 pub mod coarse;
 mod error;
 pub mod fine;
+mod helper;
 mod simd;
 
 use realfft::num_complex::Complex;
 
 pub use coarse::CoarseThresholds;
 pub use fine::Grid;
+
+use std::sync::Arc;
 
 use crate::frame::Frame;
 use crate::pattern::sequence::LineSequence;
@@ -285,6 +288,8 @@ pub struct Decoder {
     last: Option<Grid>,
     /// Code fix of the last decoded frame and its centre line coordinates.
     last_fix: Option<LastFix>,
+    /// Whether [`Decoder::decode_shared`] tried to start the helper thread.
+    helper_tried: bool,
 }
 
 impl Decoder {
@@ -312,7 +317,51 @@ impl Decoder {
             coarse: coarse::CoarseStage::default(),
             last: None,
             last_fix: None,
+            helper_tried: false,
         })
+    }
+
+    /// [`Decoder::decode`] on two threads: the demodulation's lower tile
+    /// rows and one of the two code lattices run on a helper thread the
+    /// decoder starts on its first call (and stops when dropped), reading
+    /// `frame` through the `Arc` (a clone held for this call only: when it
+    /// returns, `frame` is unshared again). Same result, bit for bit, as
+    /// [`Decoder::decode`], and a warm decoder allocates nothing here
+    /// either. Why an `Arc`: the library has no `unsafe`, so a long-lived
+    /// thread can only read a frame it co-owns. Falls back to one thread
+    /// when the helper cannot start.
+    pub fn decode_shared(&mut self, frame: &Arc<Frame>) -> Result<Decoded, DecodeError> {
+        self.with_helper(frame, |d, f| d.decode(f))
+    }
+
+    /// [`Decoder::track`] on two threads, as [`Decoder::decode_shared`].
+    pub fn track_shared(&mut self, frame: &Arc<Frame>) -> Result<Decoded, DecodeError> {
+        self.with_helper(frame, |d, f| d.track(f))
+    }
+
+    fn with_helper(
+        &mut self,
+        frame: &Arc<Frame>,
+        op: impl FnOnce(&mut Self, &Frame) -> Result<Decoded, DecodeError>,
+    ) -> Result<Decoded, DecodeError> {
+        if !self.helper_tried {
+            self.helper_tried = true;
+            match helper::Helper::start() {
+                Ok(h) => {
+                    let h = Arc::new(h);
+                    self.coarse.helper = Some(h.clone());
+                    self.fine.helper = Some(h);
+                }
+                Err(e) => tracing::warn!("decoder: no helper thread ({e}); decoding on one"),
+            }
+        }
+        let Some(h) = self.fine.helper.clone() else {
+            return op(self, frame);
+        };
+        h.share(Some(frame.clone()));
+        let r = op(self, frame);
+        h.share(None);
+        r
     }
 
     /// The options in use.

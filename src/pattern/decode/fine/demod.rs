@@ -6,9 +6,199 @@
 
 use realfft::num_complex::Complex;
 
+use super::super::helper::Job;
 use super::super::simd;
 use super::{FineStage, TILE};
 use crate::frame::{Frame, Pixels};
+
+/// Frames from this many pixels up split their demodulation with the
+/// helper thread (below, waking it costs more than it saves).
+pub(crate) const HELPER_MIN_PIXELS: usize = 1 << 16;
+
+/// What the rows of one demodulation pass read: the column tables, the
+/// tiles, and the row phasors times the row window.
+#[derive(Clone, Copy)]
+struct RowCtx<'a> {
+    tab: [&'a [f32]; 4],
+    tab16: [&'a [i16]; 5],
+    tab_dc: &'a [f32],
+    tile_x: &'a [usize],
+    tile_y: &'a [usize],
+    wx_tile: &'a [f64],
+    wy: &'a [f64],
+    ph: &'a [[Complex<f64>; 2]],
+    scale16: f64,
+    kernels: simd::Kernels,
+}
+
+/// Sums the tile phasors, windowed means and window sums of the tile rows
+/// `ty0..ty1` into `tiles`, `dc` and `wsum` (indexed from tile row `ty0`),
+/// row by row in image order: per tile the same additions in the same
+/// order whichever thread runs which band.
+#[allow(clippy::too_many_arguments)]
+fn demod_rows(
+    frame: &Frame,
+    c: &RowCtx<'_>,
+    ty0: usize,
+    ty1: usize,
+    row: &mut Vec<f32>,
+    dots: &mut Vec<[i32; simd::TABLES]>,
+    tiles: [&mut [Complex<f64>]; 2],
+    dc_out: &mut [f64],
+    wsum: &mut [f64],
+) {
+    let w = frame.width();
+    let ntx = c.tile_x.len() - 1;
+    dots.clear();
+    dots.resize(ntx, [0; simd::TABLES]);
+    let [tiles_a, tiles_b] = tiles;
+    for ty in ty0..ty1 {
+        for i in c.tile_y[ty]..c.tile_y[ty + 1] {
+            // 8-bit frames: exact integer products on the raw row, all
+            // tiles in one kernel call; deeper frames: f32 on a converted
+            // row.
+            let row8 = match frame.pixels() {
+                Pixels::U8(p) => {
+                    let t = &c.tab16;
+                    c.kernels.tile_dots_u8(
+                        &p[i * w..(i + 1) * w],
+                        [t[0], t[1], t[2], t[3], t[4]],
+                        c.tile_x,
+                        dots,
+                    );
+                    true
+                }
+                Pixels::U16(_) => {
+                    row_raw(frame, i, row);
+                    false
+                }
+            };
+            let wy = c.wy[i];
+            let ph = c.ph[i];
+            for tx in 0..ntx {
+                let (j0, j1) = (c.tile_x[tx], c.tile_x[tx + 1]);
+                let (s, dc) = if row8 {
+                    let d = dots[tx].map(|v| f64::from(v) * c.scale16);
+                    ([d[0], d[1], d[2], d[3]], d[4])
+                } else {
+                    let x = &row[j0..j1];
+                    let s = dot4(
+                        x,
+                        &c.tab[0][j0..j1],
+                        &c.tab[1][j0..j1],
+                        &c.tab[2][j0..j1],
+                        &c.tab[3][j0..j1],
+                    );
+                    let dc = dot(x, &c.tab_dc[j0..j1]);
+                    (s.map(f64::from), f64::from(dc))
+                };
+                let za = Complex::new(s[0], s[1]);
+                let zb = Complex::new(s[2], s[3]);
+                let t = (ty - ty0) * ntx + tx;
+                tiles_a[t] += za * ph[0];
+                tiles_b[t] += zb * ph[1];
+                dc_out[t] += dc * wy;
+                wsum[t] += c.wx_tile[tx] * wy;
+            }
+        }
+    }
+}
+
+/// The helper thread's band of a demodulation pass: copies of the pass's
+/// tables (refilled in place each pass) and its own sums and scratch.
+#[derive(Default)]
+pub(crate) struct DemodJob {
+    tab: [Vec<f32>; 4],
+    tab16: [Vec<i16>; 5],
+    tab_dc: Vec<f32>,
+    tile_x: Vec<usize>,
+    tile_y: Vec<usize>,
+    wx_tile: Vec<f64>,
+    wy: Vec<f64>,
+    ph: Vec<[Complex<f64>; 2]>,
+    scale16: f64,
+    kernels: Option<simd::Kernels>,
+    ty0: usize,
+    ty1: usize,
+    pub(super) tiles: [Vec<Complex<f64>>; 2],
+    pub(super) dc: Vec<f64>,
+    pub(super) wsum: Vec<f64>,
+    row: Vec<f32>,
+    dots: Vec<[i32; simd::TABLES]>,
+}
+
+impl DemodJob {
+    /// Copies the pass's tables from `f` (no allocation once the buffers
+    /// have grown to the frame's size) for tile rows `ty0..ty1`.
+    fn load(&mut self, f: &FineStage, scale16: f64, ty0: usize, ty1: usize) {
+        fn fill<T: Copy>(dst: &mut Vec<T>, src: &[T]) {
+            dst.clear();
+            dst.extend_from_slice(src);
+        }
+        for (d, s) in self.tab.iter_mut().zip(&f.tab) {
+            fill(d, s);
+        }
+        for (d, s) in self.tab16.iter_mut().zip(&f.tab16) {
+            fill(d, s);
+        }
+        fill(&mut self.tab_dc, &f.tab_dc);
+        fill(&mut self.tile_x, &f.tile_x);
+        fill(&mut self.tile_y, &f.tile_y);
+        fill(&mut self.wx_tile, &f.wx_tile);
+        fill(&mut self.wy, &f.wy);
+        fill(&mut self.ph, &f.row_ph);
+        self.scale16 = scale16;
+        self.kernels = Some(f.kernels);
+        self.ty0 = ty0;
+        self.ty1 = ty1;
+        let n = (ty1 - ty0) * (f.tile_x.len() - 1);
+        for t in &mut self.tiles {
+            t.clear();
+            t.resize(n, Complex::new(0.0, 0.0));
+        }
+        self.dc.clear();
+        self.dc.resize(n, 0.0);
+        self.wsum.clear();
+        self.wsum.resize(n, 0.0);
+    }
+
+    /// Sums the band (on the helper thread).
+    pub(crate) fn run(&mut self, frame: &Frame) {
+        let Some(kernels) = self.kernels else {
+            return;
+        };
+        let c = RowCtx {
+            tab: [&self.tab[0], &self.tab[1], &self.tab[2], &self.tab[3]],
+            tab16: [
+                &self.tab16[0],
+                &self.tab16[1],
+                &self.tab16[2],
+                &self.tab16[3],
+                &self.tab16[4],
+            ],
+            tab_dc: &self.tab_dc,
+            tile_x: &self.tile_x,
+            tile_y: &self.tile_y,
+            wx_tile: &self.wx_tile,
+            wy: &self.wy,
+            ph: &self.ph,
+            scale16: self.scale16,
+            kernels,
+        };
+        let [t0, t1] = &mut self.tiles;
+        demod_rows(
+            frame,
+            &c,
+            self.ty0,
+            self.ty1,
+            &mut self.row,
+            &mut self.dots,
+            [t0, t1],
+            &mut self.dc,
+            &mut self.wsum,
+        );
+    }
+}
 
 /// Writes row `i` of `frame` as raw pixel values (no scaling: the
 /// demodulation tables carry the 1/full-scale factor).
@@ -164,68 +354,104 @@ impl FineStage {
         self.tile_dc.resize(ntx * nty, 0.0);
         self.tile_wsum.clear();
         self.tile_wsum.resize(ntx * nty, 0.0);
-        // e^{−i ky·y} of each row by the same recurrence as the columns.
+        // e^{−i ky·y} of each row by the same recurrence as the columns,
+        // times the row's window: one table for both bands of tile rows.
         let y0 = 0.5 - cy;
         let mut rz = [0, 1].map(|d| Complex::from_polar(1.0, -k[d][1] * y0));
         let rstep = [0, 1].map(|d| Complex::from_polar(1.0, -k[d][1]));
         let mut ty = 0;
-        self.dots.clear();
-        self.dots.resize(ntx, [0; simd::TABLES]);
+        self.row_ph.clear();
         for i in 0..h {
             while ty + 1 < nty && i >= self.tile_y[ty + 1] {
                 ty += 1;
             }
-            // 8-bit frames: exact integer products on the raw row, all
-            // tiles in one kernel call; deeper frames: f32 on a converted
-            // row.
-            let row8 = match frame.pixels() {
-                Pixels::U8(p) => {
-                    let t = &self.tab16;
-                    self.kernels.tile_dots_u8(
-                        &p[i * w..(i + 1) * w],
-                        [&t[0], &t[1], &t[2], &t[3], &t[4]],
-                        &self.tile_x,
-                        &mut self.dots,
-                    );
-                    true
-                }
-                Pixels::U16(_) => {
-                    row_raw(frame, i, &mut self.row);
-                    false
-                }
-            };
             let wy = self.wy[i];
             let ph = [rz[0] * wy, rz[1] * wy];
             rz[0] *= rstep[0];
             rz[1] *= rstep[1];
             self.leak_y[0][ty] += ph[0];
             self.leak_y[1][ty] += ph[1];
-            for tx in 0..ntx {
-                let (j0, j1) = (self.tile_x[tx], self.tile_x[tx + 1]);
-                let (s, dc) = if row8 {
-                    let d = self.dots[tx].map(|v| f64::from(v) * scale16);
-                    ([d[0], d[1], d[2], d[3]], d[4])
-                } else {
-                    let x = &self.row[j0..j1];
-                    let s = dot4(
-                        x,
-                        &self.tab[0][j0..j1],
-                        &self.tab[1][j0..j1],
-                        &self.tab[2][j0..j1],
-                        &self.tab[3][j0..j1],
-                    );
-                    let dc = dot(x, &self.tab_dc[j0..j1]);
-                    (s.map(f64::from), f64::from(dc))
-                };
-                let za = Complex::new(s[0], s[1]);
-                let zb = Complex::new(s[2], s[3]);
-                let t = ty * ntx + tx;
-                self.tiles[0][t] += za * ph[0];
-                self.tiles[1][t] += zb * ph[1];
-                self.tile_dc[t] += dc * wy;
-                self.tile_wsum[t] += self.wx_tile[tx] * wy;
+            self.row_ph.push(ph);
+        }
+        // The lower half of the tile rows on the helper thread when the
+        // decode lent it this frame (see `decode::helper`).
+        let split = nty / 2;
+        let mut lent = false;
+        if let (Some(helper), Some(mut job)) = (&self.helper, self.demod_job.take()) {
+            if split > 0 && w * h >= HELPER_MIN_PIXELS {
+                job.load(self, scale16, split, nty);
+                match helper.submit(frame, Job::Demod(job)) {
+                    Ok(()) => lent = true,
+                    Err(Job::Demod(j)) => self.demod_job = Some(j),
+                    Err(_) => {}
+                }
+            } else {
+                self.demod_job = Some(job);
             }
         }
+        let ctx = RowCtx {
+            tab: [&self.tab[0], &self.tab[1], &self.tab[2], &self.tab[3]],
+            tab16: [
+                &self.tab16[0],
+                &self.tab16[1],
+                &self.tab16[2],
+                &self.tab16[3],
+                &self.tab16[4],
+            ],
+            tab_dc: &self.tab_dc,
+            tile_x: &self.tile_x,
+            tile_y: &self.tile_y,
+            wx_tile: &self.wx_tile,
+            wy: &self.wy,
+            ph: &self.row_ph,
+            scale16,
+            kernels: self.kernels,
+        };
+        let ty1 = if lent { split } else { nty };
+        let [t0, t1] = &mut self.tiles;
+        demod_rows(
+            frame,
+            &ctx,
+            0,
+            ty1,
+            &mut self.row,
+            &mut self.dots,
+            [&mut t0[..ty1 * ntx], &mut t1[..ty1 * ntx]],
+            &mut self.tile_dc[..ty1 * ntx],
+            &mut self.tile_wsum[..ty1 * ntx],
+        );
+        if lent {
+            let done = self.helper.as_ref().and_then(|h| h.wait());
+            let Some(Job::Demod(job)) = done else {
+                // The helper failed (a panic): this band on this thread.
+                let [t0, t1] = &mut self.tiles;
+                demod_rows(
+                    frame,
+                    &ctx,
+                    split,
+                    nty,
+                    &mut self.row,
+                    &mut self.dots,
+                    [&mut t0[split * ntx..], &mut t1[split * ntx..]],
+                    &mut self.tile_dc[split * ntx..],
+                    &mut self.tile_wsum[split * ntx..],
+                );
+                self.demod_job = Some(Box::default());
+                return self.subtract_leakage(ntx, nty);
+            };
+            let a = split * ntx;
+            self.tiles[0][a..].copy_from_slice(&job.tiles[0]);
+            self.tiles[1][a..].copy_from_slice(&job.tiles[1]);
+            self.tile_dc[a..].copy_from_slice(&job.dc);
+            self.tile_wsum[a..].copy_from_slice(&job.wsum);
+            self.demod_job = Some(job);
+        }
+        self.subtract_leakage(ntx, nty);
+    }
+
+    /// Subtracts each tile's leakage of its windowed mean (see
+    /// [`FineStage::demod`]).
+    fn subtract_leakage(&mut self, ntx: usize, nty: usize) {
         for ty in 0..nty {
             for tx in 0..ntx {
                 let t = ty * ntx + tx;

@@ -31,6 +31,9 @@ mod demod;
 mod fit;
 mod peak;
 
+pub(crate) use demod::DemodJob;
+pub(crate) use demod::HELPER_MIN_PIXELS;
+
 use std::sync::Arc;
 
 use realfft::num_complex::Complex;
@@ -38,6 +41,7 @@ use realfft::{RealFftPlanner, RealToComplex};
 use rustfft::{Fft, FftPlanner};
 
 use super::error::DecodeError;
+use super::helper::Helper;
 use super::simd;
 use crate::frame::Frame;
 
@@ -142,6 +146,13 @@ pub(crate) struct FineStage {
     /// Take the centre phase and wave vector from the cubic tile-phase model
     /// (see `DecodeOptions::distortion`).
     pub(crate) model_distortion: bool,
+    /// Per image row: its phasor of each direction times the row window.
+    row_ph: Vec<[Complex<f64>; 2]>,
+    /// The decoder's helper thread, once started
+    /// ([`super::Decoder::decode_shared`]).
+    pub(crate) helper: Option<Arc<Helper>>,
+    /// The helper's demodulation buffers while it has no job.
+    demod_job: Option<Box<DemodJob>>,
 }
 
 impl std::fmt::Debug for FineStage {
@@ -193,6 +204,9 @@ impl FineStage {
             alts: [([[0.0; 2]; 2], [f64::NAN; 2]); MAX_ALTS],
             n_alts: 0,
             model_distortion: false,
+            row_ph: Vec::new(),
+            helper: None,
+            demod_job: Some(Box::default()),
         }
     }
 
