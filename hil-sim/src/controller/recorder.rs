@@ -12,12 +12,12 @@
 //! request is handled, so each sample is the servo's state at its own
 //! instant. Memory is bounded by the tables' length, as on the controller.
 
-use micropos::gcs::GcsErrorCode as E;
 use micropos::gcs::recorder::{
     encode_records, RECORD_ACTUAL_POSITION, RECORD_COMMANDED_POSITION, RECORD_POSITION_ERROR,
     TRIGGER_DEFAULT, TRIGGER_IMMEDIATELY, TRIGGER_POSITION_CHANGING_COMMAND,
 };
 use micropos::gcs::AxisId;
+use micropos::gcs::GcsErrorCode as E;
 use std::time::Duration;
 
 /// Record tables (`TNR?`).
