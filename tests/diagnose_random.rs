@@ -333,6 +333,7 @@ fn clean(n_model: u64, n_physical: u64) -> (usize, usize) {
         };
         let d = run(&log);
         check_corrections(&d);
+        check_findings_hold(&d);
         eprintln!(
             "clean {} stage {seed}: {} finding(s) {:?}; {} significant corrections; fixed: {:?}",
             if physical { "physical" } else { "model" },
@@ -368,9 +369,41 @@ fn check_corrections(d: &Diagnosis) {
     );
 }
 
+/// Seeds named in `MICROPOS_SEEDS` (comma-separated), if set: only those
+/// hidden-effect cases run, their diagnoses are printed and no rate is
+/// asserted (a look at single cases).
+fn only_seeds() -> Option<Vec<u64>> {
+    let v = std::env::var("MICROPOS_SEEDS").ok()?;
+    Some(v.split(',').filter_map(|s| s.trim().parse().ok()).collect())
+}
+
+/// A finding is reported only when the final joint fit still gives it an
+/// amplitude well above its uncertainty (a finding another one absorbed
+/// is dropped, not reported).
+fn check_findings_hold(d: &Diagnosis) {
+    for f in &d.findings {
+        for key in ["amplitude_um", "rate_um_per_h"] {
+            if let (Some(v), Some(e)) = (f.params.get(key), f.uncertainty.get(key)) {
+                assert!(
+                    v.abs() >= 3.0 * e,
+                    "{} {} vs {}: {key} {v} ± {e} in the final fit",
+                    f.kind,
+                    f.component,
+                    f.axis
+                );
+            }
+        }
+    }
+}
+
 #[test]
 fn random_stages_parameters_apart_from_hidden_structure() {
-    let (stages, false_findings) = clean(28, 12);
+    let seeds = only_seeds();
+    let (stages, false_findings) = if seeds.is_some() {
+        (0, 0)
+    } else {
+        clean(28, 12)
+    };
     // Detection per kind and size: (generator, kind index, size, seed).
     let plan = plan();
     let mut cases: Vec<(bool, usize, f64, u64)> = Vec::new();
@@ -384,6 +417,19 @@ fn random_stages_parameters_apart_from_hidden_structure() {
     for ki in 0..PHYSICAL_KINDS.len() {
         for &k in &SIZES {
             cases.push((true, ki, k, 2000 + ki as u64 * 101 + k as u64));
+        }
+    }
+    if let Some(seeds) = &seeds {
+        cases.retain(|c| seeds.contains(&c.3));
+        // `MICROPOS_KIND` (e.g. `time_drift`, `dent`) narrows them further.
+        if let Ok(kind) = std::env::var("MICROPOS_KIND") {
+            cases.retain(|&(physical, ki, _, _)| {
+                if physical {
+                    PHYSICAL_KINDS[ki] == kind
+                } else {
+                    MODEL_KINDS[ki].to_string() == kind
+                }
+            });
         }
     }
     let hits = par_map(&cases, |&(physical, ki, k, seed)| {
@@ -407,6 +453,10 @@ fn random_stages_parameters_apart_from_hidden_structure() {
             x,
             describe(&d)
         );
+        if seeds.is_some() {
+            eprintln!("{}", d.to_text());
+        }
+        check_findings_hold(&d);
         (name, k, ok)
     });
     let mut rows: Vec<(String, f64, usize, usize)> = Vec::new();
@@ -432,6 +482,9 @@ fn random_stages_parameters_apart_from_hidden_structure() {
     let (h12, n12) = at(12.0);
     let (h6, n6) = at(6.0);
     eprintln!("detected: 12× {h12}/{n12}, 6× {h6}/{n6}");
+    if seeds.is_some() {
+        return;
+    }
     assert!(stages >= 40);
     assert_eq!(
         false_findings, 0,
@@ -441,7 +494,7 @@ fn random_stages_parameters_apart_from_hidden_structure() {
     assert!(h6 * 100 >= DETECT_6X_PCT * n6, "6×: {h6}/{n6}");
 }
 
-/// Bounds the detection asserts hold with a margin (measured: 13/15
+/// Bounds the detection asserts hold with a margin (measured: 14/15
 /// detected at 12×, 15/15 at 6×, and 0 false findings on 40 clean stages,
 /// which the test requires; see `docs/design/analysis.md`).
 const DETECT_12X_PCT: usize = 75;

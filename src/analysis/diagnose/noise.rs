@@ -59,6 +59,12 @@ pub struct TargetRepeat {
     /// Mean held-out residual of the model at this target, µm (model
     /// sign: measured − model): the systematic error it leaves here.
     pub mean_residual_um: f64,
+    /// Whether the component's axis was held still at this target's
+    /// visits (read while the other axis positioned): such a target's
+    /// scatter is not a positioning repeat and does not set the
+    /// repeatability when the log has positioning repeats.
+    #[serde(skip_serializing_if = "std::ops::Not::not")]
+    pub held: bool,
 }
 
 /// A visit far from the other visits of its target (excluded from the
@@ -101,9 +107,28 @@ pub struct ComponentNoise {
     pub component: Axis,
     /// Targets (with approach) visited at least twice.
     pub replicated_targets: usize,
-    /// Pooled repeatability σ from the replicates, µm (absent without).
+    /// Pooled repeatability σ from the replicates, µm (absent without):
+    /// over the targets whose visits reposition the component's axis when
+    /// the log has any (ISO 230-2's positioning repeatability), and never
+    /// below `resolution_um`.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub repeatability_um: Option<f64>,
+    /// The finest step the log writes this component's readings with, µm:
+    /// no smaller scatter can be measured from the log.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub resolution_um: Option<f64>,
+    /// Whether the replicates scatter less than `resolution_um`, so that
+    /// the repeatability is that resolution (a bound, not a measurement;
+    /// no ratio against it is given).
+    pub repeatability_at_resolution: bool,
+    /// Replicated targets read while the component's axis was held still
+    /// (the other axis positioning), left out of the repeatability.
+    pub held_targets: usize,
+    /// Pooled scatter of those held readings, µm (absent without): what
+    /// the measurement repeats to when nothing moves, not the
+    /// repeatability of positioning.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub held_scatter_um: Option<f64>,
     /// Visits more than [`OUTLIER_SIGMAS`] robust σ from their target's
     /// median, excluded from the repeatability and the per-target means
     /// (not from the ISO 230-2 figures, which the standard defines on all).
@@ -124,7 +149,8 @@ pub struct ComponentNoise {
     /// (`√mean(s²/n)`), µm.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub systematic_noise_floor_um: Option<f64>,
-    /// `systematic_rms_um / repeatability_um`.
+    /// `systematic_rms_um / repeatability_um` (absent when the
+    /// repeatability is only the log's resolution).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub systematic_over_repeatability: Option<f64>,
     /// Noise estimated from neighbouring positions of one pass, µm (an
@@ -214,11 +240,74 @@ fn key_of(v: f64) -> i64 {
 type Key<'a> = (&'a str, i64, i64, i64, i64);
 
 /// The replicated targets of component `c` (groups of ≥ 2 visits), each
-/// group's median deviation, and the robust σ.
+/// group's median deviation, whether the group repositions `c`'s own axis
+/// ([`positions_axis`]), and the robust σ.
 struct Replicates<'a> {
     reps: Vec<(Key<'a>, Vec<usize>)>,
     medians: Vec<f64>,
+    /// Per group: whether its visits reposition the component's axis.
+    positioning: Vec<bool>,
     robust: Option<f64>,
+}
+
+/// Whether row `i` arrives by moving axis `a`: its command differs from
+/// the previous row's, or its approach direction does (a reversal at one
+/// target is a move through an overtravel the log did not record); the
+/// first row counts as arrived.
+fn arrives_moving(log: &MeasurementLog, d: &Data, i: usize, a: Axis) -> bool {
+    let cmd = |r: &crate::charact::log::Record| match a {
+        Axis::X => r.x_cmd_um,
+        Axis::Y => r.y_cmd_um,
+    };
+    i == 0
+        || (cmd(&log.records[i]) - cmd(&log.records[i - 1])).abs() > 1e-6
+        || d.approach[i][a.index()] != d.approach[i - 1][a.index()]
+}
+
+/// Whether a replicate group repositions axis `a` (at least half its
+/// visits arrive by moving it).
+///
+/// Why: the repeatability is the scatter of repeated *positioning* of an
+/// axis (ISO 230-2's `s_i`). The reading of an axis held still while the
+/// other one scans (y during an x scan) sees neither the drive nor its
+/// settling: on the simulated rig it repeats to 0.0001 µm, 300× below the
+/// y axis's positioning scatter, and pooled with the rest it set the
+/// repeatability, called every positioned visit an outlier and every
+/// 0.01 µm of systematic error "85× the repeatability".
+fn positions_axis(log: &MeasurementLog, d: &Data, rows: &[usize], a: Axis) -> bool {
+    2 * rows
+        .iter()
+        .filter(|&&i| arrives_moving(log, d, i, a))
+        .count()
+        >= rows.len()
+}
+
+/// The finest step the log writes its readings of component `c` with, µm
+/// (`10⁻ᵏ` for the smallest `k ≤ 9` at which every reading is a whole
+/// number of steps): no scatter smaller than it can be measured from the
+/// log, so the repeatability is not taken below it.
+fn resolution_um(log: &MeasurementLog, c: Axis) -> Option<f64> {
+    let vals: Vec<f64> = log
+        .records
+        .iter()
+        .map(|r| match c {
+            Axis::X => r.x_meas_um,
+            Axis::Y => r.y_meas_um,
+        })
+        .filter(|v| v.is_finite())
+        .collect();
+    if vals.is_empty() {
+        return None;
+    }
+    (0..=9).find_map(|k| {
+        let scale = 10f64.powi(k);
+        vals.iter()
+            .all(|v| {
+                let x = v * scale;
+                (x - x.round()).abs() <= 1e-3 + 1e-15 * x.abs()
+            })
+            .then(|| 1.0 / scale)
+    })
 }
 
 /// Deviation `meas − target` of row `i` on component `ci`.
@@ -254,9 +343,18 @@ fn replicates<'a>(log: &'a MeasurementLog, d: &Data, c: Axis) -> Replicates<'a> 
         .iter()
         .map(|(_, rows)| super::data::median(rows.iter().map(|&i| dev(i)).collect()).unwrap_or(0.0))
         .collect();
+    let positioning: Vec<bool> = reps
+        .iter()
+        .map(|(_, rows)| positions_axis(log, d, rows, c))
+        .collect();
+    // The robust σ from the groups that reposition the axis, when there
+    // are any (a held axis's reading is not a positioning repeat).
+    let any_positioning = positioning.iter().any(|&p| p);
     let robust = super::data::median(
         reps.iter()
-            .map(|(_, rows)| {
+            .zip(&positioning)
+            .filter(|(_, &p)| p || !any_positioning)
+            .map(|((_, rows), _)| {
                 let n = rows.len() as f64;
                 let m = rows.iter().map(|&i| dev(i)).sum::<f64>() / n;
                 rows.iter().map(|&i| (dev(i) - m).powi(2)).sum::<f64>() / (n - 1.0)
@@ -267,6 +365,7 @@ fn replicates<'a>(log: &'a MeasurementLog, d: &Data, c: Axis) -> Replicates<'a> 
     Replicates {
         reps,
         medians,
+        positioning,
         robust,
     }
 }
@@ -301,9 +400,12 @@ fn component(log: &MeasurementLog, d: &Data, heldout: &[f64], c: Axis) -> Compon
     let dev = |i: usize| deviation(log, i, ci);
     let mut targets = Vec::new();
     let mut outliers = Vec::new();
-    let mut visits: Vec<Visit> = Vec::new();
-    let (mut ss, mut dof) = (0.0, 0usize);
-    for ((k, rows), med) in reps.iter().zip(medians) {
+    // Visits, scatter and degrees of freedom of the groups that reposition
+    // the axis (`[1]`) and of those read while it was held (`[0]`).
+    let mut visits: [Vec<Visit>; 2] = [Vec::new(), Vec::new()];
+    let (mut ss, mut dof) = ([0.0; 2], [0usize; 2]);
+    for (((k, rows), med), &moved) in reps.iter().zip(medians).zip(&rep.positioning) {
+        let p = usize::from(moved);
         // The moving axis names the target (x when both or neither move).
         let first = rows[0];
         let along = if d.moving[first][0] || !d.moving[first][1] {
@@ -331,7 +433,7 @@ fn component(log: &MeasurementLog, d: &Data, heldout: &[f64], c: Axis) -> Compon
         if kept.len() < 2 {
             continue;
         }
-        visits.extend(kept.iter().map(|&i| Visit {
+        visits[p].extend(kept.iter().map(|&i| Visit {
             target_um,
             approach,
             cycle: log.records[i].cycle,
@@ -341,8 +443,8 @@ fn component(log: &MeasurementLog, d: &Data, heldout: &[f64], c: Axis) -> Compon
         let n = kept.len();
         let m = kept.iter().map(|&i| dev(i)).sum::<f64>() / n as f64;
         let s2 = kept.iter().map(|&i| (dev(i) - m).powi(2)).sum::<f64>() / (n - 1) as f64;
-        ss += s2 * (n - 1) as f64;
-        dof += n - 1;
+        ss[p] += s2 * (n - 1) as f64;
+        dof[p] += n - 1;
         let res: Vec<f64> = kept
             .iter()
             .map(|&i| heldout[2 * i + ci])
@@ -360,11 +462,34 @@ fn component(log: &MeasurementLog, d: &Data, heldout: &[f64], c: Axis) -> Compon
             mean_deviation_um: m,
             s_um: s2.sqrt(),
             mean_residual_um: mean_residual,
+            held: !moved,
         });
     }
     let heldout_rms = super::fit::rms_comp(heldout, ci);
-    let repeatability = (dof > 0).then(|| (ss / dof as f64).sqrt());
-    let max_s = targets.iter().map(|t| t.s_um).reduce(f64::max);
+    // The repeatability from the positioning repeats when the log has
+    // any, else from the held readings (a log that measures a component
+    // only while its axis stands still); never below the resolution the
+    // log writes its readings with.
+    let p = usize::from(dof[1] > 0);
+    let resolution = resolution_um(log, c);
+    let pooled = (dof[p] > 0).then(|| (ss[p] / dof[p] as f64).sqrt());
+    let at_resolution = matches!((pooled, resolution), (Some(s), Some(q)) if s < q);
+    let repeatability = pooled.map(|s| match resolution {
+        Some(q) => s.max(q),
+        None => s,
+    });
+    let held_scatter = (p == 1 && dof[0] > 0).then(|| (ss[0] / dof[0] as f64).sqrt());
+    let held_targets = if p == 1 {
+        targets.iter().filter(|t| t.held).count()
+    } else {
+        0
+    };
+    let visits = std::mem::take(&mut visits[p]);
+    let max_s = targets
+        .iter()
+        .filter(|t| p == 0 || !t.held)
+        .map(|t| t.s_um)
+        .reduce(f64::max);
     // Systematic error left per target, against what noise alone gives.
     let judged: Vec<&TargetRepeat> = targets
         .iter()
@@ -415,10 +540,16 @@ fn component(log: &MeasurementLog, d: &Data, heldout: &[f64], c: Axis) -> Compon
         iso230_2: iso_figures(log, d, c),
         systematic_rms_um: systematic,
         systematic_noise_floor_um: floor,
+        // A ratio against a repeatability at the log's resolution would
+        // measure the resolution, not the noise: not given.
         systematic_over_repeatability: match (systematic, repeatability) {
-            (Some(a), Some(s)) if s > 0.0 => Some(a / s),
+            (Some(a), Some(s)) if s > 0.0 && !at_resolution => Some(a / s),
             _ => None,
         },
+        resolution_um: resolution,
+        repeatability_at_resolution: at_resolution,
+        held_targets,
+        held_scatter_um: held_scatter,
         neighbour_noise_um: neighbour,
         heldout_rms_um: heldout_rms,
         unexplained,

@@ -220,16 +220,29 @@ impl Diagnosis {
         for c in &self.noise.components {
             let a = c.component;
             match (c.repeatability_um, c.max_s_um) {
+                (Some(s), _) if c.repeatability_at_resolution => {
+                    let _ = writeln!(
+                        out,
+                        "  {a}: repeatability ≤ {s:.4} µm: the replicates scatter less than the log's resolution ({s:.4} µm), taken as the repeatability (a bound, not a measurement)"
+                    );
+                }
                 (Some(s), Some(m)) => {
                     let _ = writeln!(
                         out,
                         "  {a}: repeatability σ {s:.4} µm pooled over {} replicated targets (max s_i {m:.4} µm)",
-                        c.replicated_targets
+                        c.replicated_targets - c.held_targets
                     );
                 }
                 _ => {
                     let _ = writeln!(out, "  {a}: no target visited twice (no replicates)");
                 }
+            }
+            if let Some(h) = c.held_scatter_um {
+                let _ = writeln!(
+                    out,
+                    "  {a}: {} replicated targets read while {a} was held still (the other axis positioning) scatter {h:.4} µm: not repeats of positioning {a}, left out of the repeatability",
+                    c.held_targets
+                );
             }
             if !c.outliers.is_empty() {
                 let firsts = c.outliers.iter().filter(|o| o.first_visit).count();
@@ -287,6 +300,16 @@ impl Diagnosis {
                     out,
                     "  {a}: {} {sys:.4} µm rms of per-target systematic error remains (held out), {ratio:.1}× the repeatability (noise alone would leave {floor:.4} µm)",
                     if c.unexplained { "UNEXPLAINED:" } else { "explained to the noise:" }
+                );
+            } else if let (Some(sys), Some(floor), true) = (
+                c.systematic_rms_um,
+                c.systematic_noise_floor_um,
+                c.repeatability_at_resolution,
+            ) {
+                let _ = writeln!(
+                    out,
+                    "  {a}: {} {sys:.4} µm rms of per-target systematic error remains (held out); the repeatability is only bounded by the log's resolution, so no ratio to it is given (the resolution alone would leave {floor:.4} µm)",
+                    if c.unexplained { "UNEXPLAINED:" } else { "explained to the log's resolution:" }
                 );
             } else if c.unexplained {
                 let _ = writeln!(

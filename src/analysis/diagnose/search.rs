@@ -804,6 +804,98 @@ pub(super) fn refine_period(spec: Spec, d: &Data, base: &[Vec<f64>], model: &Sta
     }
 }
 
+/// A time-periodic spec's period refined on one fold's training rows
+/// against the joint fit of the fold's base (`fb`, fitted on those rows)
+/// and the spec's own columns: the period whose fit, every linear
+/// parameter free, leaves the smallest training residual. Other specs
+/// come back unchanged.
+///
+/// Why: with whole-cycle folds, the training rows of a middle fold are
+/// the cycles before and after a gap (cycles 0 and 2 around cycle 1). A
+/// sinusoid fitted on two blocks apart is ambiguous in the number of
+/// periods that pass during the gap: its training periodogram has peaks
+/// of nearly equal height at the true frequency and at aliases
+/// `±k / (gap between the blocks' centres)`. The search reads the peak off
+/// the base residual, where base terms fitted without the periodic error
+/// (thermal coefficients while the room temperature wanders on the same
+/// time scale) have taken part of it differently in each block, which is
+/// enough to tip the choice to an alias; the alias predicts the held-out
+/// gap a quarter to half a period off. The joint fit undoes that bias as
+/// [`refine_period`] does on all rows. The window covers the nearest
+/// aliases (`±ALIAS_WINDOW / span`, a grid of `span / 8`-resolution, then
+/// golden section around its best point), and only training rows are
+/// used, so the held-out fold still judges a period it did not choose.
+pub(super) fn refine_period_on_fold(
+    spec: Spec,
+    d: &Data,
+    base: &[Vec<f64>],
+    fb: &super::fit::FoldBase,
+    model: &StageModel,
+) -> Spec {
+    let Spec::TimePeriodic { comp, period_s } = spec else {
+        return spec;
+    };
+    let (lo, hi) =
+        (0..d.n)
+            .filter(|&i| fb.train[i])
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), i| {
+                let t = d.states[i].time_s;
+                (a.min(t), b.max(t))
+            });
+    let span = hi - lo;
+    if !(period_s.is_finite() && period_s > 0.0 && span.is_finite() && span > 0.0) {
+        return spec;
+    }
+    let with = |f: f64| Spec::TimePeriodic {
+        comp,
+        period_s: 1.0 / f,
+    };
+    let sse = |f: f64| -> f64 {
+        let (resid, _) = super::fit::fit_with(d, base, fb, &columns(&with(f), d, model));
+        (0..d.n)
+            .filter(|&i| fb.train[i])
+            .map(|i| resid[2 * i + comp.index()].powi(2))
+            .sum()
+    };
+    let f0 = 1.0 / period_s;
+    let half = ALIAS_WINDOW / span;
+    let (flo, fhi) = ((f0 - half).max(0.5 * f0), (f0 + half).min(2.0 * f0));
+    let step = 1.0 / (ALIAS_GRID * span);
+    let k = ((fhi - flo) / step).ceil().max(1.0) as usize;
+    let grid: Vec<(f64, f64)> = (0..=k)
+        .map(|j| {
+            let f = flo + (fhi - flo) * j as f64 / k as f64;
+            (f, sse(f))
+        })
+        .collect();
+    let s0 = sse(f0);
+    let Some(&(fb_best, s_best)) = grid.iter().min_by(|a, b| a.1.total_cmp(&b.1)) else {
+        return spec;
+    };
+    let g = (fhi - flo) / k as f64;
+    let (f, neg) = golden_max(fb_best - g, fb_best + g, 20, |f| -sse(f));
+    let (f, s) = if -neg < s_best {
+        (f, -neg)
+    } else {
+        (fb_best, s_best)
+    };
+    if s < s0 {
+        with(f)
+    } else {
+        spec
+    }
+}
+
+/// Half-width of [`refine_period_on_fold`]'s window in periodogram
+/// resolutions (`1 / span` of the training rows): with three cycles and
+/// the middle one held out, the blocks' centres are ⅔ of the span apart,
+/// so the nearest aliases lie `1.5 / span` from the true frequency.
+const ALIAS_WINDOW: f64 = 2.0;
+
+/// Grid points per periodogram resolution in [`refine_period_on_fold`]
+/// (an alias peak is about `1 / span` wide: 8 points resolve it).
+const ALIAS_GRID: f64 = 8.0;
+
 /// A localized spec's place and width refined against the joint fit of
 /// `base` and the spec's own (centred) column on every row: the place and
 /// width whose least-squares fit, every linear parameter free, leaves the

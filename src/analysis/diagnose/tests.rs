@@ -480,3 +480,111 @@ fn the_heldout_chi2_of_a_table_holds_its_false_acceptance_rate() {
     eprintln!("3 σ bow: {seen}/{cases} accepted");
     assert!(seen * 100 >= 90 * cases as usize, "{seen}/{cases}");
 }
+
+/// An accepted finding with `spec`'s columns on `d` (the verdict is not
+/// looked at by the re-judging).
+fn accepted_as(family: Family, spec: Spec, d: &data::Data, model: &StageModel) -> Accepted {
+    Accepted {
+        family,
+        cols: columns(&spec, d, model),
+        spec,
+        verdict: Verdict {
+            family,
+            after: Vec::new(),
+            reduction: 0.0,
+            z: 0.0,
+            gain_pct: 0.0,
+            rms_before: 0.0,
+            rms_after: 0.0,
+            table_z: f64::NEG_INFINITY,
+        },
+    }
+}
+
+/// The log's time span, s.
+fn time_span_s(d: &data::Data) -> f64 {
+    let (lo, hi) = d
+        .states
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), s| {
+            (a.min(s.time_s), b.max(s.time_s))
+        });
+    hi - lo
+}
+
+#[test]
+fn a_finding_the_others_carry_is_dropped_when_rejudged() {
+    use crate::analysis::generate::draw_effect_sized;
+    let model = StageModel::paper_default().unwrap();
+    let plan = SimPlan {
+        cycles: 3,
+        ..small_plan(0)
+    };
+    let drawn = |kind: FindingKind, comp: Axis| {
+        (0u64..)
+            .map(|s| draw_effect_sized(s, kind, 0.8, &plan).unwrap())
+            .find(|e| e.component == comp)
+            .unwrap()
+    };
+    let opts = DiagnoseOptions::default();
+    let kinds = |acc: &[Accepted]| acc.iter().map(|a| a.family).collect::<Vec<_>>();
+    // A y drift alone. History: a time-periodic y term (at a third of the
+    // log's span, which cannot carry a drift) was accepted before the
+    // drift; with the drift in the model it predicts nothing.
+    let truth = truth_model(
+        &model,
+        Some(&drawn(FindingKind::TimeDrift, Axis::Y)),
+        &plan,
+        11,
+    )
+    .unwrap();
+    let log = simulate_log(&truth, &plan, 11).unwrap();
+    let d = prepare(&parse_bytes(&log.to_bytes().unwrap()).unwrap(), &model, 4).unwrap();
+    let tp = Family::TimePeriodic { comp: Axis::Y };
+    let drift = Family::Drift {
+        comp: Axis::Y,
+        quadratic: false,
+    };
+    let tp_spec = Spec::TimePeriodic {
+        comp: Axis::Y,
+        period_s: time_span_s(&d) / 3.0,
+    };
+    let drift_spec = Spec::Drift {
+        comp: Axis::Y,
+        quadratic: false,
+    };
+    let mut acc = vec![
+        accepted_as(tp, tp_spec, &d, &model),
+        accepted_as(drift, drift_spec, &d, &model),
+    ];
+    rejudge(&d, &[], &mut acc, &model, &opts);
+    assert_eq!(kinds(&acc), [drift]);
+
+    // Both real (an x drift in the stage, an x time-periodic error): both
+    // stay.
+    let mut stage = model.clone();
+    stage.set_param("extra_drift.rate_um_per_h", 1.5).unwrap();
+    let effect = drawn(FindingKind::TimePeriodic, Axis::X);
+    let truth = truth_model(&stage, Some(&effect), &plan, 12).unwrap();
+    let log = simulate_log(&truth, &plan, 12).unwrap();
+    let d = prepare(&parse_bytes(&log.to_bytes().unwrap()).unwrap(), &model, 4).unwrap();
+    let tp = Family::TimePeriodic { comp: Axis::X };
+    let drift = Family::Drift {
+        comp: Axis::X,
+        quadratic: false,
+    };
+    let tp_spec = Spec::TimePeriodic {
+        comp: Axis::X,
+        period_s: effect.params["period_s"],
+    };
+    let drift_spec = Spec::Drift {
+        comp: Axis::X,
+        quadratic: false,
+    };
+    let mut acc = vec![
+        accepted_as(tp, tp_spec, &d, &model),
+        accepted_as(drift, drift_spec, &d, &model),
+    ];
+    rejudge(&d, &[], &mut acc, &model, &opts);
+    assert_eq!(kinds(&acc), [tp, drift]);
+}
