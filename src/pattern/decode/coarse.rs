@@ -26,7 +26,7 @@ use std::sync::Arc;
 
 use super::error::DecodeError;
 use super::fine::{Grid, HELPER_MIN_PIXELS};
-use super::helper::{Helper, Job};
+use super::helper::{take_back, Helper, Work};
 use crate::frame::{Frame, Pixels};
 use crate::pattern::sequence::LineSequence;
 
@@ -138,9 +138,19 @@ pub(crate) struct LatticeJob {
     out: Vec<f32>,
 }
 
+impl Work for LatticeJob {
+    fn run(&mut self, frame: &Frame) {
+        self.sample(frame);
+    }
+
+    fn into_any(self: Box<Self>) -> Box<dyn std::any::Any + Send> {
+        self
+    }
+}
+
 impl LatticeJob {
     /// Samples the lattice (on the helper thread).
-    pub(crate) fn run(&mut self, frame: &Frame) {
+    fn sample(&mut self, frame: &Frame) {
         let offs = &self.offs[..self.n_offs.min(5)];
         let (w, h) = (self.w, self.h);
         match frame.pixels() {
@@ -422,10 +432,9 @@ impl CoarseStage {
                 job.nj = nb + 1;
                 job.offs[..offs.len()].copy_from_slice(offs);
                 job.n_offs = offs.len();
-                match helper.submit(frame, Job::Lattice(job)) {
+                match helper.submit(frame, job) {
                     Ok(()) => lent = true,
-                    Err(Job::Lattice(j)) => self.lattice_job = Some(j),
-                    Err(_) => {}
+                    Err(j) => self.lattice_job = take_back(j),
                 }
             } else {
                 self.lattice_job = Some(job);
@@ -444,7 +453,7 @@ impl CoarseStage {
         } else {
             None
         };
-        if let Some(Job::Lattice(mut job)) = done {
+        if let Some(mut job) = done.and_then(take_back::<LatticeJob>) {
             std::mem::swap(&mut self.g1, &mut job.out);
             self.lattice_job = Some(job);
         } else {

@@ -17,27 +17,28 @@
 use std::sync::{Arc, Condvar, Mutex, MutexGuard};
 use std::thread::JoinHandle;
 
-use super::coarse::LatticeJob;
-use super::fine::DemodJob;
 use crate::frame::Frame;
 
-/// Work for the helper thread.
-/// Boxed so that a job moves as one pointer (the boxes are made once per
-/// decoder, not per frame).
-pub(crate) enum Job {
-    /// The lower band of tile rows of a demodulation pass.
-    Demod(Box<DemodJob>),
-    /// One code lattice's samples.
-    Lattice(Box<LatticeJob>),
+/// Work the helper thread can run: one of the decoder's data-parallel
+/// halves (the demodulation's lower tile rows, one code lattice). A trait
+/// so that the helper knows no decode stage and the stages import only
+/// the helper.
+pub(crate) trait Work: Send + 'static {
+    /// Runs the job on `frame`.
+    fn run(&mut self, frame: &Frame);
+    /// The job as `Any`, so its owner can take its own type back
+    /// ([`take_back`]).
+    fn into_any(self: Box<Self>) -> Box<dyn std::any::Any + Send>;
 }
 
-impl Job {
-    fn run(&mut self, frame: &Frame) {
-        match self {
-            Job::Demod(j) => j.run(frame),
-            Job::Lattice(j) => j.run(frame),
-        }
-    }
+/// Work for the helper thread, boxed so that it moves as one pointer (the
+/// boxes are made once per decoder, not per frame).
+pub(crate) type Job = Box<dyn Work>;
+
+/// The owner's job back from the helper as its own type (a pointer cast:
+/// no allocation); `None` if it is another stage's.
+pub(crate) fn take_back<T: Work>(job: Job) -> Option<Box<T>> {
+    job.into_any().downcast::<T>().ok()
 }
 
 #[derive(Default)]

@@ -6,7 +6,7 @@
 
 use realfft::num_complex::Complex;
 
-use super::super::helper::Job;
+use super::super::helper::{take_back, Work};
 use super::super::simd;
 use super::{FineStage, TILE};
 use crate::frame::{Frame, Pixels};
@@ -127,6 +127,16 @@ pub(crate) struct DemodJob {
     dots: Vec<[i32; simd::TABLES]>,
 }
 
+impl Work for DemodJob {
+    fn run(&mut self, frame: &Frame) {
+        self.sum_band(frame);
+    }
+
+    fn into_any(self: Box<Self>) -> Box<dyn std::any::Any + Send> {
+        self
+    }
+}
+
 impl DemodJob {
     /// Copies the pass's tables from `f` (no allocation once the buffers
     /// have grown to the frame's size) for tile rows `ty0..ty1`.
@@ -163,7 +173,7 @@ impl DemodJob {
     }
 
     /// Sums the band (on the helper thread).
-    pub(crate) fn run(&mut self, frame: &Frame) {
+    fn sum_band(&mut self, frame: &Frame) {
         let Some(kernels) = self.kernels else {
             return;
         };
@@ -380,10 +390,9 @@ impl FineStage {
         if let (Some(helper), Some(mut job)) = (&self.helper, self.demod_job.take()) {
             if split > 0 && w * h >= HELPER_MIN_PIXELS {
                 job.load(self, scale16, split, nty);
-                match helper.submit(frame, Job::Demod(job)) {
+                match helper.submit(frame, job) {
                     Ok(()) => lent = true,
-                    Err(Job::Demod(j)) => self.demod_job = Some(j),
-                    Err(_) => {}
+                    Err(j) => self.demod_job = take_back(j),
                 }
             } else {
                 self.demod_job = Some(job);
@@ -422,7 +431,7 @@ impl FineStage {
         );
         if lent {
             let done = self.helper.as_ref().and_then(|h| h.wait());
-            let Some(Job::Demod(job)) = done else {
+            let Some(job) = done.and_then(take_back::<DemodJob>) else {
                 // The helper failed (a panic): this band on this thread.
                 let [t0, t1] = &mut self.tiles;
                 demod_rows(
