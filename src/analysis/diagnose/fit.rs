@@ -8,7 +8,7 @@
 use nalgebra::{DMatrix, DVector};
 
 use super::data::Data;
-use super::search::Family;
+use super::family::Family;
 
 fn dot_rows(a: &[f64], b: &[f64], train: &[bool]) -> f64 {
     let mut s = 0.0;

@@ -90,7 +90,9 @@
 //! its own file:
 //! * `data`: step 1 and 3, the log replayed into model states, residual
 //!   rows, folds, centring groups, and the extra columns worth searching.
-//! * `search`: step 4, the candidate families and the search that fixes a
+//! * `family`: the candidate families (what a discrepancy may vary with),
+//!   shared by the search and the held-out verdicts.
+//! * `search`: step 4, the families a log offers and the search that fixes a
 //!   family's period, place, width or length; a candidate's design columns.
 //! * `fit`: step 5, the centred least squares per fold and the held-out
 //!   verdict (paired z, RMS); the base fit's held-out selection.
@@ -108,6 +110,7 @@ mod corrections;
 mod data;
 mod describe;
 mod extend;
+mod family;
 mod fit;
 mod ident;
 mod noise;
@@ -143,8 +146,9 @@ pub use readings::{Reading, ReadingKind, ReadingTerm, READING_Z};
 pub use search::ALL_KINDS;
 use search::{
     base_columns, columns, families, refine_localized, refine_period, refine_period_on_fold,
-    search, Family, Spec,
+    search, Spec,
 };
+use family::Family;
 
 /// How to diagnose.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

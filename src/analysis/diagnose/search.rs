@@ -10,6 +10,7 @@ use crate::model::terms::discovered::{step_size_shape, table_basis};
 use crate::model::{Axis, Direction, MotionState, StageModel, Term, DEFAULT_TEMP_C};
 
 use super::data::{median, move_lengths, Data};
+use super::family::Family;
 use crate::analysis::periodogram::strongest_peak;
 
 /// A concrete candidate term (its nonlinear hyper-parameters chosen).
@@ -88,71 +89,6 @@ impl Spec {
                 },
             ],
             other => vec![other],
-        }
-    }
-}
-
-/// A search family (what varies, before the search fixes it).
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub(super) enum Family {
-    PosPeriodic {
-        axis: Axis,
-        comp: Axis,
-    },
-    Localized {
-        axis: Axis,
-        comp: Axis,
-    },
-    Slope {
-        axis: Axis,
-        comp: Axis,
-    },
-    Drift {
-        comp: Axis,
-        quadratic: bool,
-    },
-    TimePeriodic {
-        comp: Axis,
-    },
-    Temperature {
-        comp: Axis,
-    },
-    Reversal {
-        axis: Axis,
-    },
-    StepSize {
-        axis: Axis,
-    },
-    Other {
-        comp: Axis,
-        var: usize,
-    },
-    /// Searched only where a reading of the replicates says the model
-    /// lacks it (see `tables_wanted`).
-    Table {
-        axis: Axis,
-        lost_motion: bool,
-    },
-    /// Both tables jointly, where both readings say the model lacks them.
-    Tables {
-        axis: Axis,
-    },
-}
-
-impl Family {
-    pub(super) fn comp(&self) -> Axis {
-        match *self {
-            Family::PosPeriodic { comp, .. }
-            | Family::Localized { comp, .. }
-            | Family::Slope { comp, .. }
-            | Family::Drift { comp, .. }
-            | Family::TimePeriodic { comp }
-            | Family::Temperature { comp }
-            | Family::Other { comp, .. } => comp,
-            Family::Reversal { axis }
-            | Family::StepSize { axis }
-            | Family::Table { axis, .. }
-            | Family::Tables { axis } => axis,
         }
     }
 }

@@ -14,7 +14,8 @@ use super::data;
 use super::fit::{fold_base, keep_heldout, unjudged, Verdict};
 use super::noise::{self, NoiseReport};
 use super::readings::{ReadingKind, ReadingTerm};
-use super::search::{self, Family};
+use super::family::Family;
+use super::search;
 use super::{DiagnoseOptions, Finding, FindingKind};
 
 /// The held-out test of a table family (a reading as a model term).
