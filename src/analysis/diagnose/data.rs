@@ -12,7 +12,7 @@ use std::collections::HashMap;
 use crate::charact::log::MeasurementLog;
 use crate::model::{Axis, MotionState, MotionTracker, StageModel, Waypoint};
 
-use super::AnalysisError;
+use crate::analysis::AnalysisError;
 
 /// The log turned into model states and residual rows.
 pub(super) struct Data {

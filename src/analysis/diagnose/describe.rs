@@ -12,7 +12,8 @@ use crate::model::{Axis, StageModel};
 use super::data::{span_of, typical_move_um, Data};
 use super::fit::Verdict;
 use super::search::Spec;
-use super::{AnalysisError, Finding, FindingKind};
+use super::finding::Finding;
+use crate::analysis::{AnalysisError, FindingKind};
 
 #[allow(clippy::too_many_arguments)]
 pub(super) fn describe(

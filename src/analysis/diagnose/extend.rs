@@ -18,7 +18,7 @@ use crate::model::{StageModel, DEFAULT_TEMP_C};
 use super::data::Data;
 use super::fit::{fold_base, solve_with_cov};
 use super::search::{backlash_term_of, base_columns, columns, table_free_knots, Spec};
-use super::AnalysisError;
+use crate::analysis::AnalysisError;
 
 /// Linear-parameter names of a spec's columns, in column order.
 fn spec_param_names(spec: &Spec, model: &StageModel) -> Vec<String> {

@@ -88,6 +88,8 @@
 //! This file holds the public types, [`diagnose`] (the greedy loop of
 //! steps 4–6) and the log's temperature record; each step's machinery has
 //! its own file:
+//! * `options`: [`DiagnoseOptions`], how to diagnose.
+//! * `finding`: [`Finding`], one named discrepancy.
 //! * `data`: step 1 and 3, the log replayed into model states, residual
 //!   rows, folds, centring groups, and the extra columns worth searching.
 //! * `family`: the candidate families (what a discrepancy may vary with),
@@ -111,9 +113,11 @@ mod data;
 mod describe;
 mod extend;
 mod family;
+mod finding;
 mod fit;
 mod ident;
 mod noise;
+mod options;
 mod readings;
 mod report;
 mod search;
@@ -121,7 +125,7 @@ mod tables;
 #[cfg(test)]
 mod tests;
 
-use std::collections::{BTreeMap, HashMap};
+use std::collections::HashMap;
 
 use serde::{Deserialize, Serialize};
 
@@ -130,8 +134,10 @@ use crate::model::{
     Axis, Environment, FitOptions, Interpolation, Sample, StageModel, TemperaturePoint,
 };
 
-use super::{AnalysisError, FindingKind};
+use super::AnalysisError;
 pub use corrections::{ParamCorrection, SIGNIFICANT_SIGMAS};
+pub use finding::Finding;
+pub use options::DiagnoseOptions;
 pub use data::{parse_approach, APPROACH_COLUMN, MEASURED_AXES_KEY};
 use data::{prepare, MeasuredSource};
 use describe::describe;
@@ -149,37 +155,6 @@ use search::{
     search, Spec,
 };
 use family::Family;
-
-/// How to diagnose.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct DiagnoseOptions {
-    /// A candidate is significant when its held-out reduction of squared
-    /// error is at least this many standard errors above zero.
-    pub z_threshold: f64,
-    /// ... and the held-out RMS of its component drops by at least this, %.
-    pub min_gain_pct: f64,
-    /// At most this many findings.
-    pub max_findings: usize,
-    /// At most this many folds (whole cycles) for held-out judging.
-    pub max_folds: usize,
-    /// Kinds of model terms whose parameters the base fit identifies from
-    /// the log ([`ALL_KINDS`], `"*"`: every kind). Linear terms and
-    /// backlash qualify; other nonlinear parameters stay at the model's
-    /// values.
-    pub base_free_kinds: Vec<String>,
-}
-
-impl Default for DiagnoseOptions {
-    fn default() -> Self {
-        DiagnoseOptions {
-            z_threshold: 5.0,
-            min_gain_pct: 1.0,
-            max_findings: 4,
-            max_folds: 4,
-            base_free_kinds: vec![ALL_KINDS.into()],
-        }
-    }
-}
 
 /// RMS per error component, µm.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -202,52 +177,6 @@ impl RmsXy {
             Axis::Y => self.y,
         }
     }
-}
-
-/// One named discrepancy.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct Finding {
-    /// What kind of effect.
-    pub kind: FindingKind,
-    /// The variable axis (`x`/`y`); for time and temperature kinds, the
-    /// component.
-    pub axis: Axis,
-    /// The error component it affects.
-    pub component: Axis,
-    /// Parameters (names carry their unit), model sign.
-    pub params: BTreeMap<String, f64>,
-    /// 1-σ uncertainty of each parameter (same keys, where known).
-    pub uncertainty: BTreeMap<String, f64>,
-    /// Shape of a drift (`linear`/`quadratic`); absent otherwise.
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub shape: Option<String>,
-    /// Held-out z-score: paired mean reduction of squared error over its
-    /// standard error.
-    pub significance: f64,
-    /// Held-out RMS of the component before adding this term, µm.
-    pub heldout_rms_before_um: f64,
-    /// ... and after, µm.
-    pub heldout_rms_after_um: f64,
-    /// `100·(1 − after/before)`, %.
-    pub gain_pct: f64,
-    /// A sentence a person understands.
-    pub explanation: String,
-    /// Likely physical cause.
-    pub cause: String,
-    /// Name of the term that models it in the extended model (empty when
-    /// the model cannot express it: kind `other`).
-    pub term: String,
-    /// The log column the error follows (kind `other`); absent otherwise.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub variable: Option<String>,
-    /// Whether the extended model includes the effect (false for `other`:
-    /// the model has no input for a log's extra column).
-    #[serde(default = "yes")]
-    pub in_extended_model: bool,
-}
-
-fn yes() -> bool {
-    true
 }
 
 /// Residual series for plots: one entry per log point.

@@ -16,7 +16,9 @@ use super::noise::{self, NoiseReport};
 use super::readings::{ReadingKind, ReadingTerm};
 use super::family::Family;
 use super::search;
-use super::{DiagnoseOptions, Finding, FindingKind};
+use super::finding::Finding;
+use super::options::DiagnoseOptions;
+use crate::analysis::FindingKind;
 
 /// The held-out test of a table family (a reading as a model term).
 #[derive(Debug, Clone, Copy)]

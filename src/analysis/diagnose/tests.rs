@@ -4,6 +4,7 @@
 use super::search::step_length_range;
 use super::*;
 use crate::analysis::generate::{add_extra_column, simulate_log, truth_model, SimPlan};
+use crate::analysis::FindingKind;
 use crate::charact::log::{parse_bytes, Columns};
 
 fn small_plan(random_points: usize) -> SimPlan {
