@@ -125,6 +125,8 @@ impl Data {
     }
 }
 
+/// The log as [`Data`], its residual not yet centred: the caller
+/// (`super::prepare`) leaves out the replicates' outliers, then centres.
 pub(super) fn prepare(
     log: &MeasurementLog,
     model: &StageModel,
@@ -233,7 +235,7 @@ pub(super) fn prepare(
         // would leave nothing to judge (a known limit, see the docs).
         vec![true; n]
     };
-    let mut d = Data {
+    let d = Data {
         n,
         t0: states[0].time_s,
         states,
@@ -252,15 +254,6 @@ pub(super) fn prepare(
         excluded: vec![false; n],
         approach,
     };
-    for c in Axis::ALL.into_iter().filter(|c| measured[c.index()]) {
-        for i in super::noise::outlier_rows(log, &d, c) {
-            d.excluded[i] = true;
-            d.judged[i] = false;
-        }
-    }
-    let mut r = std::mem::take(&mut d.r0);
-    d.center(&mut r);
-    d.r0 = r;
     Ok(d)
 }
 

@@ -139,7 +139,7 @@ pub use corrections::{ParamCorrection, SIGNIFICANT_SIGMAS};
 pub use finding::Finding;
 pub use options::DiagnoseOptions;
 pub use data::{parse_approach, APPROACH_COLUMN, MEASURED_AXES_KEY};
-use data::{prepare, MeasuredSource};
+use data::MeasuredSource;
 use describe::describe;
 use extend::{extended, extended_with_se};
 use fit::{
@@ -981,6 +981,29 @@ fn joint_z(d: &data::Data, others: &[Vec<f64>], cols: &[Vec<f64>]) -> f64 {
 /// the joint fit (one-sided normal 0.13 %; a finding that carries error
 /// clears it by far).
 const JOINT_Z: f64 = 3.0;
+
+/// Steps 1 and 3: the log replayed into [`data::Data`] ([`data::prepare`]),
+/// the replicates' outliers ([`noise::outlier_rows`]) left out of the fit
+/// and of the judging, and the residual centred. Why here: the outliers are
+/// read from the replicates, on the rows `data` builds.
+fn prepare(
+    log: &MeasurementLog,
+    model: &StageModel,
+    max_folds: usize,
+) -> Result<data::Data, AnalysisError> {
+    let mut d = data::prepare(log, model, max_folds)?;
+    let measured = d.measured;
+    for c in Axis::ALL.into_iter().filter(|c| measured[c.index()]) {
+        for i in noise::outlier_rows(log, &d, c) {
+            d.excluded[i] = true;
+            d.judged[i] = false;
+        }
+    }
+    let mut r = std::mem::take(&mut d.r0);
+    d.center(&mut r);
+    d.r0 = r;
+    Ok(d)
+}
 
 /// The log's temperature record as a model environment (linear between
 /// points at least [`ENV_STEP_S`] apart), or `None` when the log holds no
