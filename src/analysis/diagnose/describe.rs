@@ -10,9 +10,9 @@ use std::collections::BTreeMap;
 use crate::model::{Axis, StageModel};
 
 use super::data::{span_of, typical_move_um, Data};
+use super::finding::Finding;
 use super::fit::Verdict;
 use super::search::Spec;
-use super::finding::Finding;
 use crate::analysis::{AnalysisError, FindingKind};
 
 #[allow(clippy::too_many_arguments)]

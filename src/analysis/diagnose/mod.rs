@@ -136,25 +136,25 @@ use crate::model::{
 
 use super::AnalysisError;
 pub use corrections::{ParamCorrection, SIGNIFICANT_SIGMAS};
-pub use finding::Finding;
-pub use options::DiagnoseOptions;
-pub use data::{parse_approach, APPROACH_COLUMN, MEASURED_AXES_KEY};
 use data::MeasuredSource;
+pub use data::{parse_approach, APPROACH_COLUMN, MEASURED_AXES_KEY};
 use describe::describe;
 use extend::{extended, extended_with_se};
+use family::Family;
+pub use finding::Finding;
 use fit::{
     base_share, fit_with, fold_base, keep_heldout, paired_z, rms_comp, select_base, unjudged,
     Verdict,
 };
 pub use ident::Unidentifiable;
 pub use noise::{ComponentNoise, IsoFigures, NoiseReport, Outlier, Sampling, TargetRepeat};
+pub use options::DiagnoseOptions;
 pub use readings::{Reading, ReadingKind, ReadingTerm, READING_Z};
 pub use search::ALL_KINDS;
 use search::{
     base_columns, columns, families, refine_localized, refine_period, refine_period_on_fold,
     search, Spec,
 };
-use family::Family;
 
 /// RMS per error component, µm.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]

@@ -11,13 +11,13 @@ use crate::charact::log::MeasurementLog;
 use crate::model::Axis;
 
 use super::data;
+use super::family::Family;
+use super::finding::Finding;
 use super::fit::{fold_base, keep_heldout, unjudged, Verdict};
 use super::noise::{self, NoiseReport};
-use super::readings::{ReadingKind, ReadingTerm};
-use super::family::Family;
-use super::search;
-use super::finding::Finding;
 use super::options::DiagnoseOptions;
+use super::readings::{ReadingKind, ReadingTerm};
+use super::search;
 use crate::analysis::FindingKind;
 
 /// The held-out test of a table family (a reading as a model term).

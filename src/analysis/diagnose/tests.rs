@@ -423,8 +423,8 @@ ppm = 0.0
 /// The held-out χ² z of every table family of axis x, on the base the
 /// analysis selects.
 fn table_chi_zs(log: &crate::charact::log::MeasurementLog) -> Vec<f64> {
-    use super::fit::{fold_base, keep_heldout, select_base, unjudged};
     use super::family::Family;
+    use super::fit::{fold_base, keep_heldout, select_base, unjudged};
     use super::search::base_columns;
     let model = StageModel::from_toml(AXIS_MODEL).unwrap();
     let d = prepare(log, &model, 4).unwrap();
