@@ -339,11 +339,15 @@ impl Client {
             }
             if last_print.elapsed() >= Duration::from_secs(5) {
                 last_print = Instant::now();
+                // No estimate before the job's first points.
+                let eta = job["eta_s"].as_f64().filter(|e| e.is_finite()).map_or_else(
+                    || "ETA not yet known".to_owned(),
+                    |e| format!("ETA {e:.0} simulated s"),
+                );
                 progress(&format!(
-                    "{what}: {}/{} points, ETA {:.0} simulated s",
+                    "{what}: {}/{} points, {eta}",
                     job["done"].as_u64().unwrap_or(0),
                     job["total"].as_u64().unwrap_or(0),
-                    job["eta_s"].as_f64().unwrap_or(f64::NAN)
                 ));
             }
             // Rig time (virtual on the in-process rig): the job's end is
