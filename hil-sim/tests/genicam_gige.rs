@@ -163,16 +163,20 @@ fn settled_mean(
     m
 }
 
-/// Takes one frame to skip it. A frame lost on the way (UDP packets
-/// dropped on a loaded loopback: aravis reports an incomplete buffer) is
-/// skipped too; a timeout (no frames at all) is a failure.
-fn skip_frame(cam: &mut Box<dyn micropos::camera::FrameSource>) {
-    if let Err(e) = cam.next_frame() {
-        assert!(
-            !matches!(e, micropos::camera::CameraError::Timeout { .. }),
-            "{e}"
-        );
-        println!("skipped a frame lost on the way ({e})");
+/// The next frame, or `None` for a frame lost on the way (UDP packets
+/// dropped on a loaded loopback: aravis reports an incomplete buffer); a
+/// timeout (no frames at all) is a failure.
+fn next_unless_lost(cam: &mut Box<dyn micropos::camera::FrameSource>) -> Option<Frame> {
+    match cam.next_frame() {
+        Ok(f) => Some(f),
+        Err(e) => {
+            assert!(
+                !matches!(e, micropos::camera::CameraError::Timeout { .. }),
+                "{e}"
+            );
+            println!("a frame was lost on the way ({e})");
+            None
+        }
     }
 }
 
@@ -355,20 +359,10 @@ fn the_daemons_genicam_source_decodes_the_served_simulator_to_its_ground_truth()
         })
     };
     for _ in 0..MAX_STALE {
-        skip_frame(&mut cam);
+        next_unless_lost(&mut cam);
     }
     let stamps: Vec<f64> = (0..60)
-        .filter_map(|_| match cam.next_frame() {
-            Ok(f) => Some(f.timestamp_s),
-            Err(e) => {
-                assert!(
-                    !matches!(e, micropos::camera::CameraError::Timeout { .. }),
-                    "{e}"
-                );
-                println!("timestamps: a frame was lost on the way ({e})");
-                None
-            }
-        })
+        .filter_map(|_| next_unless_lost(&mut cam).map(|f| f.timestamp_s))
         .take(40)
         .collect();
     running.store(false, Ordering::SeqCst);
@@ -410,7 +404,7 @@ fn the_daemons_genicam_source_decodes_the_served_simulator_to_its_ground_truth()
     // error, never an old frame passed off as new; frames showing the truth
     // resume when it recovers.
     for _ in 0..MAX_STALE {
-        skip_frame(&mut cam);
+        next_unless_lost(&mut cam);
     }
     camera.set_mode(CameraMode::Stall);
     let stall_start = Instant::now();

@@ -432,7 +432,8 @@ fn fill_frame(
     if stop.load(Ordering::SeqCst) {
         return None;
     }
-    let sensor = sensor_settings(&req, camera.config().exposure_us);
+    let cfg = camera.config();
+    let sensor = sensor_settings(&req, cfg.exposure_us);
     let result = camera
         .render_now(Some(sensor))
         .map_err(|e| e.to_string())
@@ -449,7 +450,7 @@ fn fill_frame(
     let mut cell = lock(stats);
     match result {
         Ok((truth, stamp_s)) => {
-            let camera_ns = camera.config().camera_clock_ns(stamp_s);
+            let camera_ns = cfg.camera_clock_ns(stamp_s);
             let now = Instant::now();
             let first = *cell.first.get_or_insert(now);
             cell.stats.frames += 1;

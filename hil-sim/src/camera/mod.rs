@@ -169,13 +169,7 @@ impl SimCamera {
         st.last_start_s = Some(start);
         let mid = start + exposure / 2.0;
         let samples = self.blur_samples(&cfg, start, end);
-        self.render_locked(
-            &mut st,
-            &cfg,
-            mid,
-            Exposure::Grab { exposure, samples },
-            None,
-        )
+        self.render_locked(&mut st, &cfg, mid, exposure, samples, None)
     }
 
     /// How many instants of the exposure `[start_s, end_s]` the frame
@@ -224,56 +218,49 @@ impl SimCamera {
             &mut st,
             &cfg,
             (start + end) / 2.0,
-            Exposure::Grab {
-                exposure: end - start,
-                samples,
-            },
+            end - start,
+            samples,
             sensor,
         )
     }
 
-    /// Renders the truth around simulated time `at_s` (mode: normal or
-    /// garbage): at that instant, or integrated over a grab's exposure
-    /// centred there, stamped with latency and jitter (module docs).
+    /// Renders the truth over an exposure of `exposure_s` centred on
+    /// simulated time `mid` (mode: normal or garbage), averaged over
+    /// `samples` instants and stamped with latency and jitter (module docs).
     fn render_locked(
         &self,
         st: &mut CameraState,
         cfg: &CameraConfig,
-        at_s: f64,
-        exposure: Exposure,
+        mid: f64,
+        exposure_s: f64,
+        samples: usize,
         sensor: Option<SensorSettings>,
     ) -> Result<Grab, GrabError> {
-        let mid = at_s;
         let at = |t: f64| Duration::try_from_secs_f64(t.max(0.0)).unwrap_or_default();
         st.sequence += 1;
         let seq = st.sequence;
         let noise_seed = st.seed.wrapping_mul(0x9e37_79b9_7f4a_7c15) ^ seq;
         // The instants of the exposure in time order (the rig's model only
         // moves forward); the mid-point's truth is the frame's truth.
-        let (truth, path, stamp) = match exposure {
-            Exposure::Grab { exposure, samples } => {
-                let n = samples.max(1);
-                let mut truth = None;
-                let mut path = Vec::with_capacity(n);
-                for k in 0..n {
-                    let t = if 2 * k + 1 == n {
-                        mid
-                    } else {
-                        mid + ((k as f64 + 0.5) / n as f64 - 0.5) * exposure
-                    };
-                    let tr = self.rig.truth(at(t));
-                    if 2 * k + 1 == n {
-                        truth = Some(tr);
-                    }
-                    path.push(tr.observed_pattern_um);
-                }
-                let truth = truth.unwrap_or_else(|| self.rig.truth(at(mid)));
-                let mut rng = ChaCha8Rng::seed_from_u64(noise_seed ^ 0x7469_6d65);
-                let jitter: f64 = rng.sample(rand_distr::StandardNormal);
-                let stamp = mid + (cfg.latency_us + cfg.timestamp_jitter_us * jitter) * 1e-6;
-                (truth, path, stamp)
+        let n = samples.max(1);
+        let mut truth = None;
+        let mut path = Vec::with_capacity(n);
+        for k in 0..n {
+            let t = if 2 * k + 1 == n {
+                mid
+            } else {
+                mid + ((k as f64 + 0.5) / n as f64 - 0.5) * exposure_s
+            };
+            let tr = self.rig.truth(at(t));
+            if 2 * k + 1 == n {
+                truth = Some(tr);
             }
-        };
+            path.push(tr.observed_pattern_um);
+        }
+        let truth = truth.unwrap_or_else(|| self.rig.truth(at(mid)));
+        let mut rng = ChaCha8Rng::seed_from_u64(noise_seed ^ 0x7469_6d65);
+        let jitter: f64 = rng.sample(rand_distr::StandardNormal);
+        let stamp = mid + (cfg.latency_us + cfg.timestamp_jitter_us * jitter) * 1e-6;
         let frame = match st.mode {
             CameraMode::Garbage => st.renderer.garbage(seq % 2 == 0, noise_seed, stamp, seq),
             _ => {
@@ -301,14 +288,6 @@ impl SimCamera {
 
 /// Renders of one exposure averaged for motion blur, at most.
 pub const MAX_BLUR_SAMPLES: usize = 63;
-
-/// What a render integrates over.
-#[derive(Debug, Clone, Copy)]
-enum Exposure {
-    /// A grab's exposure of `exposure` s centred on the render time,
-    /// averaged over `samples` instants, stamped with latency and jitter.
-    Grab { exposure: f64, samples: usize },
-}
 
 /// Exposure and gain as a client set them on the camera (GenICam
 /// `ExposureTime`, `Gain`). Why a type: the rig's `[camera]` levels
