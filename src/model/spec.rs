@@ -8,7 +8,8 @@
 //! than `set_params` writes, is a silent fit error). A term
 //! whose parameters are all scalars of its configuration is a [`TermSpec`]:
 //! its configuration struct (serde, `deny_unknown_fields`), a table of
-//! [`ParamSpec`] and its contribution; [`SpecTerm`] is its [`Term`].
+//! [`ParamSpec`] (one `param!` line each: the key is the field's name) and
+//! its contribution; [`SpecTerm`] is its [`Term`].
 
 use std::fmt;
 
@@ -55,6 +56,42 @@ pub struct ParamSpec<C> {
     /// term's Jacobian is numeric).
     pub column: Option<fn(&C, &MotionState) -> [f64; 2]>,
 }
+
+/// Declares one [`ParamSpec`] from a scalar field of the term's
+/// configuration: `param!(field, "unit", Range, doc, column)`.
+///
+/// Why a macro: the TOML key is the field's name (`stringify!`), which is
+/// also the name serde reads and writes, and the getter and setter are that
+/// field; so key, getter and setter cannot disagree, and a term declares
+/// only what is particular to each parameter. `doc` is a string literal or
+/// a `fn(&Config) -> String`; `column` is `linear(|cfg, state| …)` (the
+/// Jacobian column, µm per unit) or `nonlinear`.
+macro_rules! param {
+    ($field:ident, $unit:literal, $range:ident, $doc:literal, $($column:tt)+) => {
+        $crate::model::spec::param!(@spec $field, $unit, $range, |_| ::std::string::String::from($doc), $($column)+)
+    };
+    ($field:ident, $unit:literal, $range:ident, $doc:expr, $($column:tt)+) => {
+        $crate::model::spec::param!(@spec $field, $unit, $range, $doc, $($column)+)
+    };
+    (@spec $field:ident, $unit:literal, $range:ident, $doc:expr, linear($column:expr)) => {
+        $crate::model::spec::param!(@build $field, $unit, $range, $doc, Some($column))
+    };
+    (@spec $field:ident, $unit:literal, $range:ident, $doc:expr, nonlinear) => {
+        $crate::model::spec::param!(@build $field, $unit, $range, $doc, None)
+    };
+    (@build $field:ident, $unit:literal, $range:ident, $doc:expr, $column:expr) => {
+        $crate::model::spec::ParamSpec {
+            key: stringify!($field),
+            unit: $unit,
+            range: $crate::model::spec::ParamRange::$range,
+            get: |c| c.$field,
+            set: |c, v| c.$field = v,
+            doc: $doc,
+            column: $column,
+        }
+    };
+}
+pub(crate) use param;
 
 impl<C> fmt::Debug for ParamSpec<C> {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {

@@ -29,7 +29,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use super::super::spec::{ParamRange, ParamSpec, SpecTerm, TermSpec};
+use super::super::spec::{param, ParamSpec, SpecTerm, TermSpec};
 use super::super::state::{Axis, AxisMotion, Direction, MotionState};
 
 /// Kind name.
@@ -114,20 +114,18 @@ pub type BacklashTerm = SpecTerm<Backlash>;
 impl TermSpec for Backlash {
     type Config = BacklashConfig;
     const KIND: &'static str = KIND;
-    const PARAMS: &'static [ParamSpec<BacklashConfig>] = &[ParamSpec {
-        key: "backlash_um",
-        unit: "µm",
-        range: ParamRange::NonNegative,
-        get: |c| c.backlash_um,
-        set: |c, v| c.backlash_um = v,
-        doc: |c| {
+    const PARAMS: &'static [ParamSpec<BacklashConfig>] = &[param!(
+        backlash_um,
+        "µm",
+        NonNegative,
+        |c| {
             format!(
                 "play between screw and nut of {}: lost motion on reversal; the platform trails the screw by half of it",
                 c.axis
             )
         },
-        column: None,
-    }];
+        nonlinear
+    )];
 
     fn contribution(cfg: &BacklashConfig, state: &MotionState) -> [f64; 2] {
         let mut out = [0.0; 2];

@@ -12,7 +12,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use super::super::spec::{ParamRange, ParamSpec, SpecTerm, TermSpec};
+use super::super::spec::{param, ParamSpec, SpecTerm, TermSpec};
 use super::super::state::{Axis, MotionState};
 
 /// Kind name.
@@ -39,24 +39,22 @@ pub type LeadTerm = SpecTerm<Lead>;
 impl TermSpec for Lead {
     type Config = LeadConfig;
     const KIND: &'static str = KIND;
-    const PARAMS: &'static [ParamSpec<LeadConfig>] = &[ParamSpec {
-        key: "ppm",
-        unit: "ppm",
-        range: ParamRange::Finite,
-        get: |c| c.ppm,
-        set: |c, v| c.ppm = v,
-        doc: |c| {
+    const PARAMS: &'static [ParamSpec<LeadConfig>] = &[param!(
+        ppm,
+        "ppm",
+        Finite,
+        |c| {
             format!(
                 "scale error of {}: positive goes further than commanded",
                 c.axis
             )
         },
-        column: Some(|c, state| {
+        linear(|c, state| {
             let mut d = [0.0; 2];
             d[c.axis.index()] = 1e-6 * state.cmd_um(c.axis);
             d
-        }),
-    }];
+        })
+    )];
 
     fn contribution(cfg: &LeadConfig, state: &MotionState) -> [f64; 2] {
         let mut out = [0.0; 2];

@@ -22,7 +22,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use super::super::spec::{ParamRange, ParamSpec, SpecTerm, TermSpec};
+use super::super::spec::{param, ParamSpec, SpecTerm, TermSpec};
 use super::super::state::MotionState;
 
 /// Kind name.
@@ -50,30 +50,20 @@ impl TermSpec for OriginOffset {
     type Config = OriginOffsetConfig;
     const KIND: &'static str = KIND;
     const PARAMS: &'static [ParamSpec<OriginOffsetConfig>] = &[
-        ParamSpec {
-            key: "x_um",
-            unit: "µm",
-            range: ParamRange::Finite,
-            get: |c| c.x_um,
-            set: |c, v| c.x_um = v,
-            doc: |_| {
-                "constant x offset of the measuring frame's origin (platform further in +x)"
-                    .to_string()
-            },
-            column: Some(|_, _| [1.0, 0.0]),
-        },
-        ParamSpec {
-            key: "y_um",
-            unit: "µm",
-            range: ParamRange::Finite,
-            get: |c| c.y_um,
-            set: |c, v| c.y_um = v,
-            doc: |_| {
-                "constant y offset of the measuring frame's origin (platform further in +y)"
-                    .to_string()
-            },
-            column: Some(|_, _| [0.0, 1.0]),
-        },
+        param!(
+            x_um,
+            "µm",
+            Finite,
+            "constant x offset of the measuring frame's origin (platform further in +x)",
+            linear(|_, _| [1.0, 0.0])
+        ),
+        param!(
+            y_um,
+            "µm",
+            Finite,
+            "constant y offset of the measuring frame's origin (platform further in +y)",
+            linear(|_, _| [0.0, 1.0])
+        ),
     ];
 
     fn contribution(cfg: &OriginOffsetConfig, _state: &MotionState) -> [f64; 2] {

@@ -14,7 +14,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use super::super::spec::{ParamRange, ParamSpec, SpecTerm, TermSpec};
+use super::super::spec::{param, ParamSpec, SpecTerm, TermSpec};
 use super::super::state::{Axis, MotionState};
 
 /// Kind name.
@@ -38,17 +38,13 @@ pub type SquarenessTerm = SpecTerm<Squareness>;
 impl TermSpec for Squareness {
     type Config = SquarenessConfig;
     const KIND: &'static str = KIND;
-    const PARAMS: &'static [ParamSpec<SquarenessConfig>] = &[ParamSpec {
-        key: "angle_urad",
-        unit: "µrad",
-        range: ParamRange::Finite,
-        get: |c| c.angle_urad,
-        set: |c, v| c.angle_urad = v,
-        doc: |_| {
-            "out-of-squareness: +Y leans towards +X by this angle; x error = angle·y".to_string()
-        },
-        column: Some(|_, state| [1e-6 * state.cmd_um(Axis::Y), 0.0]),
-    }];
+    const PARAMS: &'static [ParamSpec<SquarenessConfig>] = &[param!(
+        angle_urad,
+        "µrad",
+        Finite,
+        "out-of-squareness: +Y leans towards +X by this angle; x error = angle·y",
+        linear(|_, state| [1e-6 * state.cmd_um(Axis::Y), 0.0])
+    )];
 
     fn contribution(cfg: &SquarenessConfig, state: &MotionState) -> [f64; 2] {
         [cfg.angle_urad * 1e-6 * state.cmd_um(Axis::Y), 0.0]

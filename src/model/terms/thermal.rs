@@ -19,7 +19,7 @@
 use serde::{Deserialize, Serialize};
 
 use super::super::error::ModelError;
-use super::super::spec::{ParamRange, ParamSpec, SpecTerm, TermSpec};
+use super::super::spec::{param, ParamSpec, SpecTerm, TermSpec};
 use super::super::state::{MotionState, DEFAULT_TEMP_C};
 use super::super::term::{require_finite, Effect};
 
@@ -84,46 +84,34 @@ impl TermSpec for ThermalExpansion {
     type Config = ThermalExpansionConfig;
     const KIND: &'static str = EXPANSION_KIND;
     const PARAMS: &'static [ParamSpec<ThermalExpansionConfig>] = &[
-        ParamSpec {
-            key: "x_um_per_c_per_mm",
-            unit: "µm/°C/mm",
-            range: ParamRange::Finite,
-            get: |c| c.x_um_per_c_per_mm,
-            set: |c, v| c.x_um_per_c_per_mm = v,
-            doc: |_| {
-                "differential thermal expansion along x (stage vs pattern), per mm of x".to_owned()
-            },
-            column: Some(|c, s| expansion_basis(c, s)[0]),
-        },
-        ParamSpec {
-            key: "y_um_per_c_per_mm",
-            unit: "µm/°C/mm",
-            range: ParamRange::Finite,
-            get: |c| c.y_um_per_c_per_mm,
-            set: |c, v| c.y_um_per_c_per_mm = v,
-            doc: |_| {
-                "differential thermal expansion along y (stage vs pattern), per mm of y".to_owned()
-            },
-            column: Some(|c, s| expansion_basis(c, s)[1]),
-        },
-        ParamSpec {
-            key: "x_offset_um_per_c",
-            unit: "µm/°C",
-            range: ParamRange::Finite,
-            get: |c| c.x_offset_um_per_c,
-            set: |c, v| c.x_offset_um_per_c = v,
-            doc: |_| "position-independent thermal drift of the platform along x".to_owned(),
-            column: Some(|c, s| expansion_basis(c, s)[2]),
-        },
-        ParamSpec {
-            key: "y_offset_um_per_c",
-            unit: "µm/°C",
-            range: ParamRange::Finite,
-            get: |c| c.y_offset_um_per_c,
-            set: |c, v| c.y_offset_um_per_c = v,
-            doc: |_| "position-independent thermal drift of the platform along y".to_owned(),
-            column: Some(|c, s| expansion_basis(c, s)[3]),
-        },
+        param!(
+            x_um_per_c_per_mm,
+            "µm/°C/mm",
+            Finite,
+            "differential thermal expansion along x (stage vs pattern), per mm of x",
+            linear(|c, s| expansion_basis(c, s)[0])
+        ),
+        param!(
+            y_um_per_c_per_mm,
+            "µm/°C/mm",
+            Finite,
+            "differential thermal expansion along y (stage vs pattern), per mm of y",
+            linear(|c, s| expansion_basis(c, s)[1])
+        ),
+        param!(
+            x_offset_um_per_c,
+            "µm/°C",
+            Finite,
+            "position-independent thermal drift of the platform along x",
+            linear(|c, s| expansion_basis(c, s)[2])
+        ),
+        param!(
+            y_offset_um_per_c,
+            "µm/°C",
+            Finite,
+            "position-independent thermal drift of the platform along y",
+            linear(|c, s| expansion_basis(c, s)[3])
+        ),
     ];
 
     fn check(name: &str, cfg: &ThermalExpansionConfig) -> Result<(), ModelError> {
@@ -161,24 +149,20 @@ impl TermSpec for OpticsDrift {
     const KIND: &'static str = OPTICS_KIND;
     const EFFECT: Effect = Effect::Observation;
     const PARAMS: &'static [ParamSpec<OpticsDriftConfig>] = &[
-        ParamSpec {
-            key: "x_um_per_c",
-            unit: "µm/°C",
-            range: ParamRange::Finite,
-            get: |c| c.x_um_per_c,
-            set: |c, v| c.x_um_per_c = v,
-            doc: |_| "apparent shift of the camera's view along x (microscope drift)".to_owned(),
-            column: Some(|c, s| [s.temp_c - c.reference_temp_c, 0.0]),
-        },
-        ParamSpec {
-            key: "y_um_per_c",
-            unit: "µm/°C",
-            range: ParamRange::Finite,
-            get: |c| c.y_um_per_c,
-            set: |c, v| c.y_um_per_c = v,
-            doc: |_| "apparent shift of the camera's view along y (microscope drift)".to_owned(),
-            column: Some(|c, s| [0.0, s.temp_c - c.reference_temp_c]),
-        },
+        param!(
+            x_um_per_c,
+            "µm/°C",
+            Finite,
+            "apparent shift of the camera's view along x (microscope drift)",
+            linear(|c, s| [s.temp_c - c.reference_temp_c, 0.0])
+        ),
+        param!(
+            y_um_per_c,
+            "µm/°C",
+            Finite,
+            "apparent shift of the camera's view along y (microscope drift)",
+            linear(|c, s| [0.0, s.temp_c - c.reference_temp_c])
+        ),
     ];
 
     fn check(name: &str, cfg: &OpticsDriftConfig) -> Result<(), ModelError> {
