@@ -25,13 +25,10 @@
 //! connection.
 
 use crate::fault::{AxisName, Corruption, Fault, SimError};
+use crate::linesock::{LineHandler, LineServer};
 use serde_json::{json, Value};
-use std::io::{self, BufRead, BufReader, Write};
-use std::os::unix::net::{UnixListener, UnixStream};
-use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::path::Path;
 use std::sync::Arc;
-use std::thread::JoinHandle;
 use std::time::Duration;
 
 /// Longest request line accepted (a garbage payload of 16 KiB in hex).
@@ -257,151 +254,38 @@ pub fn handle_line(inj: &dyn Injector, line: &str) -> String {
     reply.to_string()
 }
 
-/// The socket server thread.
+/// The running control socket server.
 pub struct ControlServer {
-    path: PathBuf,
-    stop: Arc<AtomicBool>,
-    thread: Option<JoinHandle<()>>,
+    server: LineServer,
 }
 
 impl ControlServer {
     /// Binds `path` (a stale socket file there is replaced; any other file
     /// is an error) and serves it on its own threads.
     pub fn start(path: &Path, inj: Arc<dyn Injector>) -> Result<ControlServer, SimError> {
-        use std::os::unix::fs::FileTypeExt;
-        if let Ok(meta) = std::fs::symlink_metadata(path) {
-            if meta.file_type().is_socket() {
-                let _ = std::fs::remove_file(path);
-            } else {
-                return Err(SimError::Config(format!(
-                    "control socket path {} exists and is not a socket",
-                    path.display()
-                )));
-            }
-        }
-        let listener = UnixListener::bind(path).map_err(|source| SimError::Io {
-            context: format!("bind control socket {}", path.display()),
-            source,
-        })?;
-        listener
-            .set_nonblocking(true)
-            .map_err(|source| SimError::Io {
-                context: "control socket non-blocking".into(),
-                source,
-            })?;
-        let stop = Arc::new(AtomicBool::new(false));
-        let stop2 = stop.clone();
-        let thread = std::thread::Builder::new()
-            .name("hil-sim-control".into())
-            .spawn(move || accept_loop(listener, inj, stop2))
-            .map_err(|source| SimError::Io {
-                context: "spawn control thread".into(),
-                source,
-            })?;
-        Ok(ControlServer {
-            path: path.to_owned(),
-            stop,
-            thread: Some(thread),
-        })
+        let server = LineServer::start(path, "control", MAX_REQUEST, Arc::new(Requests(inj)))?;
+        Ok(ControlServer { server })
     }
 
     /// Stops the server, joins its threads and removes the socket file.
-    pub fn stop(mut self) {
-        self.stop_inner();
-    }
-
-    fn stop_inner(&mut self) {
-        self.stop.store(true, Ordering::SeqCst);
-        if let Some(t) = self.thread.take() {
-            let _ = t.join();
-            let _ = std::fs::remove_file(&self.path);
-        }
+    pub fn stop(self) {
+        self.server.stop();
     }
 }
 
-impl Drop for ControlServer {
-    fn drop(&mut self) {
-        self.stop_inner();
-    }
-}
+/// The control socket's answer to a line: one JSON reply line; an empty
+/// line gets none.
+struct Requests(Arc<dyn Injector>);
 
-fn accept_loop(listener: UnixListener, inj: Arc<dyn Injector>, stop: Arc<AtomicBool>) {
-    let mut conns: Vec<JoinHandle<()>> = Vec::new();
-    while !stop.load(Ordering::SeqCst) {
-        match listener.accept() {
-            Ok((stream, _)) => {
-                let inj = inj.clone();
-                let stop = stop.clone();
-                match std::thread::Builder::new()
-                    .name("hil-sim-control-conn".into())
-                    .spawn(move || serve_conn(stream, inj.as_ref(), &stop))
-                {
-                    Ok(t) => conns.push(t),
-                    Err(e) => tracing::warn!("control connection thread: {e}"),
-                }
-                conns.retain(|t| !t.is_finished());
-            }
-            Err(e) if e.kind() == io::ErrorKind::WouldBlock => {
-                std::thread::sleep(Duration::from_millis(10));
-            }
-            Err(e) => {
-                tracing::warn!("control socket accept: {e}");
-                std::thread::sleep(Duration::from_millis(10));
-            }
-        }
+impl LineHandler for Requests {
+    fn reply(&self, line: &str) -> Option<Vec<u8>> {
+        let text = line.trim();
+        (!text.is_empty()).then(|| format!("{}\n", handle_line(self.0.as_ref(), text)).into_bytes())
     }
-    for t in conns {
-        let _ = t.join();
-    }
-}
 
-fn serve_conn(stream: UnixStream, inj: &dyn Injector, stop: &AtomicBool) {
-    if stream.set_nonblocking(false).is_err()
-        || stream
-            .set_read_timeout(Some(Duration::from_millis(50)))
-            .is_err()
-    {
-        return;
-    }
-    let Ok(mut writer) = stream.try_clone() else {
-        return;
-    };
-    let mut reader = BufReader::new(stream);
-    let mut line = Vec::new();
-    while !stop.load(Ordering::SeqCst) {
-        match reader.read_until(b'\n', &mut line) {
-            Ok(0) => return,
-            Ok(_) => {
-                if !line.ends_with(b"\n") {
-                    continue;
-                }
-                let text = String::from_utf8_lossy(&line).trim().to_owned();
-                line.clear();
-                if text.is_empty() {
-                    continue;
-                }
-                let reply = handle_line(inj, &text);
-                if writer.write_all(format!("{reply}\n").as_bytes()).is_err() {
-                    return;
-                }
-            }
-            Err(e)
-                if e.kind() == io::ErrorKind::WouldBlock
-                    || e.kind() == io::ErrorKind::TimedOut
-                    || e.kind() == io::ErrorKind::Interrupted =>
-            {
-                // Partial data stays in `line`; keep reading.
-            }
-            Err(_) => return,
-        }
-        if line.len() > MAX_REQUEST {
-            line.clear();
-            let msg =
-                json!({"ok": false, "error": format!("request longer than {MAX_REQUEST} bytes")});
-            if writer.write_all(format!("{msg}\n").as_bytes()).is_err() {
-                return;
-            }
-        }
+    fn too_long(&self, limit: usize) -> Vec<u8> {
+        let msg = json!({"ok": false, "error": format!("request longer than {limit} bytes")});
+        format!("{msg}\n").into_bytes()
     }
 }
 

@@ -30,6 +30,7 @@ pub mod control;
 pub mod controller;
 pub mod experiment;
 pub mod fault;
+pub mod linesock;
 pub mod motion;
 pub mod params;
 pub mod rig;
