@@ -12,7 +12,9 @@
 
 use super::protocol::{ErrorCode, ProtoError};
 use crate::analysis::drift::DriftBaseline;
-use crate::comp::{CompFile, Compensator, MotionHistory, MovePlan, PlanOptions, VisionFrame};
+use crate::comp::{
+    CompFile, CompKind, Compensator, MotionHistory, MovePlan, PlanOptions, VisionFrame,
+};
 use crate::model::state::MotionState;
 use crate::model::XyUm;
 use serde_json::{json, Value};
@@ -125,27 +127,19 @@ impl CompState {
             *lock(&self.active) = None;
             return Ok(json!({"active": null}));
         };
-        let file = lock(&self.loaded).get(name).cloned().ok_or_else(|| {
-            ProtoError::new(
-                ErrorCode::BadValue,
-                format!("table {name:?} is not loaded; tables load it first"),
-            )
-        })?;
-        let comp = file
-            .compensator()
-            .map_err(|e| comp_err(ErrorCode::BadValue, &format!("table {name}"), e))?;
-        *lock(&self.active) = Some(Active {
-            name: name.to_owned(),
-            comp: Arc::from(comp),
-            frame: file.frame,
-            drift_baseline: baseline_of(name, &file)?,
-        });
-        Ok(json!({"active": name, "kind": file.kind}))
+        let (active, kind) = self.load_active(name)?;
+        *lock(&self.active) = Some(active);
+        Ok(json!({"active": name, "kind": kind}))
     }
 
     /// A loaded table as a compensator with its frame, without activating
     /// it (a job that names its table, e.g. validation per mode).
     pub fn loaded(&self, name: &str) -> Result<Active, ProtoError> {
+        self.load_active(name).map(|(active, _)| active)
+    }
+
+    /// A loaded table as a compensator with its frame, and its kind.
+    fn load_active(&self, name: &str) -> Result<(Active, CompKind), ProtoError> {
         let file = lock(&self.loaded).get(name).cloned().ok_or_else(|| {
             ProtoError::new(
                 ErrorCode::BadValue,
@@ -155,17 +149,18 @@ impl CompState {
         let comp = file
             .compensator()
             .map_err(|e| comp_err(ErrorCode::BadValue, &format!("table {name}"), e))?;
-        Ok(Active {
+        let active = Active {
             name: name.to_owned(),
             comp: Arc::from(comp),
             frame: file.frame,
             drift_baseline: baseline_of(name, &file)?,
-        })
+        };
+        Ok((active, file.kind))
     }
 
     /// The most recently loaded table of `kind`, by name (validation's
     /// default table per mode: `tables build` loads what it wrote).
-    pub fn latest_of_kind(&self, kind: crate::comp::CompKind) -> Option<String> {
+    pub fn latest_of_kind(&self, kind: CompKind) -> Option<String> {
         lock(&self.order)
             .iter()
             .rev()

@@ -62,6 +62,22 @@ pub fn merged_scan_records(records: &[Record]) -> Vec<Record> {
     out
 }
 
+/// Records `frame` in a log's metadata, as [`frame_from_metadata`] reads
+/// it (full precision: a table built from the log must land in the same
+/// frame).
+pub fn frame_to_metadata(md: &mut Metadata, frame: &VisionFrame) {
+    md.insert("vision_frame_rotation_rad", frame.rotation_rad.to_string());
+    md.insert("vision_frame_mirrored", frame.mirrored.to_string());
+    md.insert(
+        "vision_frame_translation_x_um",
+        frame.translation_um[0].to_string(),
+    );
+    md.insert(
+        "vision_frame_translation_y_um",
+        frame.translation_um[1].to_string(),
+    );
+}
+
 /// The vision frame recorded in a log's metadata by the characterization
 /// tie, if any.
 pub fn frame_from_metadata(md: &Metadata) -> Result<Option<VisionFrame>, String> {
@@ -348,5 +364,14 @@ mod tests {
         assert_eq!(f.translation_um, [1.0, -2.0]);
         md.insert("vision_frame_rotation_rad", "9");
         assert!(frame_from_metadata(&md).is_err());
+        // What a job writes reads back bit for bit.
+        let frame = VisionFrame {
+            rotation_rad: -3.136_356_6,
+            mirrored: true,
+            translation_um: [0.1 + 0.2, -1e-17],
+        };
+        let mut md = Metadata::new();
+        frame_to_metadata(&mut md, &frame);
+        assert_eq!(frame_from_metadata(&md), Ok(Some(frame)));
     }
 }

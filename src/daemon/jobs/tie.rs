@@ -503,16 +503,7 @@ fn same_point(a: XyUm, b: XyUm) -> bool {
 /// time.
 pub fn to_metadata(md: &mut Metadata, tie: &Tie) {
     let (frame, report) = (&tie.frame, &tie.report);
-    md.insert("vision_frame_rotation_rad", frame.rotation_rad.to_string());
-    md.insert("vision_frame_mirrored", frame.mirrored.to_string());
-    md.insert(
-        "vision_frame_translation_x_um",
-        frame.translation_um[0].to_string(),
-    );
-    md.insert(
-        "vision_frame_translation_y_um",
-        frame.translation_um[1].to_string(),
-    );
+    super::tables::frame_to_metadata(md, frame);
     md.insert(
         "vision_frame_method",
         "tie pre-scan, drift-corrected (anchor visited before, between and after the lines; quadratic in time), estimate_vision_frame",

@@ -645,16 +645,7 @@ async fn run(
             );
         }
     }
-    md.insert("vision_frame_rotation_rad", frame.rotation_rad.to_string());
-    md.insert("vision_frame_mirrored", frame.mirrored.to_string());
-    md.insert(
-        "vision_frame_translation_x_um",
-        frame.translation_um[0].to_string(),
-    );
-    md.insert(
-        "vision_frame_translation_y_um",
-        frame.translation_um[1].to_string(),
-    );
+    super::tables::frame_to_metadata(&mut md, &frame);
     let live = rig.drift.to_json(clock.now_s());
     md.insert(
         "live_drift_method",
