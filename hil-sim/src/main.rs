@@ -2,9 +2,11 @@
 
 use anyhow::Context;
 use clap::{Parser, Subcommand};
+use hil_sim::clock::ManualClock;
 use hil_sim::{AxisName, ServeConfig, SimHandle};
 use std::io::Write;
 use std::path::PathBuf;
+use std::sync::Arc;
 
 #[derive(Parser)]
 #[command(
@@ -30,6 +32,15 @@ enum Cmd {
         /// Simulated seconds per wall second.
         #[arg(long, default_value_t = 1.0)]
         time_scale: f64,
+        /// Virtual time driven by the client: simulated time stands still
+        /// except for the control socket's `{"clock":"advance","s":S}` and
+        /// each camera grab's exposure, never following wall time, so a
+        /// client that sends the same requests in the same order gets the
+        /// same answers on any machine (one seed, one transcript). A client
+        /// that waits for a move in wall time (PIPython's `waitontarget`)
+        /// waits forever here: it must advance the clock itself.
+        #[arg(long, conflicts_with_all = ["time_scale", "genicam"])]
+        manual_clock: bool,
         /// Unix socket for JSON-lines fault injection.
         #[arg(long)]
         control: Option<PathBuf>,
@@ -186,6 +197,7 @@ async fn serve(cmd: Cmd) -> anyhow::Result<()> {
             link_dir,
             daisy_chain,
             time_scale,
+            manual_clock,
             control,
             seed,
             rig,
@@ -223,10 +235,16 @@ async fn serve(cmd: Cmd) -> anyhow::Result<()> {
             use tokio::signal::unix::{signal, SignalKind};
             let mut term = signal(SignalKind::terminate()).context("install SIGTERM handler")?;
             let mut int = signal(SignalKind::interrupt()).context("install SIGINT handler")?;
-            let sim = tokio::task::spawn_blocking(move || SimHandle::start(cfg))
-                .await
-                .context("simulator start task")?
-                .context("start simulator")?;
+            let sim = tokio::task::spawn_blocking(move || {
+                if manual_clock {
+                    SimHandle::start_with_clock(cfg, Arc::new(ManualClock::new()))
+                } else {
+                    SimHandle::start(cfg)
+                }
+            })
+            .await
+            .context("simulator start task")?
+            .context("start simulator")?;
             #[cfg(feature = "genicam")]
             let gige = if genicam {
                 let camera = sim.camera().clone();
@@ -261,6 +279,11 @@ async fn serve(cmd: Cmd) -> anyhow::Result<()> {
                     camera_socket.display(),
                     control.display()
                 )
+            };
+            let line = if manual_clock {
+                format!("{line} clock=manual")
+            } else {
+                line
             };
             #[cfg(feature = "genicam")]
             let line = match &gige {

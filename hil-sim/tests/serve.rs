@@ -504,3 +504,130 @@ fn binary_serves_until_sigterm() {
     assert!(!o.status.success());
     assert!(String::from_utf8_lossy(&o.stderr).contains("time_scale"));
 }
+
+/// One scripted session against `hil-sim serve --manual-clock --seed N`,
+/// as a separate process: the transcript of every answer (serial, control,
+/// camera: a frame's header and a hash of its pixels).
+fn manual_clock_session(seed: u64) -> Vec<String> {
+    use micropos::camera::simsocket::{parse_header, Reply, GRAB_REQUEST};
+    use std::collections::hash_map::DefaultHasher;
+    use std::hash::{Hash, Hasher};
+    use std::io::BufRead;
+    use std::os::unix::net::UnixStream;
+    use std::process::{Command, Stdio};
+    let dir = tempfile::tempdir().unwrap();
+    let mut child = Command::new(env!("CARGO_BIN_EXE_hil-sim"))
+        .args([
+            "serve",
+            "--manual-clock",
+            "--seed",
+            &seed.to_string(),
+            "--link-dir",
+        ])
+        .arg(dir.path())
+        .stdout(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut out = std::io::BufReader::new(child.stdout.take().unwrap());
+    let mut ready = String::new();
+    out.read_line(&mut ready).unwrap();
+    assert!(ready.trim_end().ends_with(" clock=manual"), "{ready}");
+    let control = UnixStream::connect(dir.path().join("control.sock")).unwrap();
+    control.set_read_timeout(Some(T)).unwrap();
+    let mut control_in = std::io::BufReader::new(control.try_clone().unwrap());
+    let mut control_out = control;
+    let mut ctl = |req: &str| {
+        control_out
+            .write_all(format!("{req}\n").as_bytes())
+            .unwrap();
+        let mut reply = String::new();
+        control_in.read_line(&mut reply).unwrap();
+        reply
+    };
+    let camera = UnixStream::connect(dir.path().join("camera.sock")).unwrap();
+    camera.set_read_timeout(Some(T)).unwrap();
+    let mut camera_in = std::io::BufReader::new(camera.try_clone().unwrap());
+    let mut camera_out = camera;
+    let mut grab = || {
+        camera_out.write_all(GRAB_REQUEST).unwrap();
+        let mut header = String::new();
+        camera_in.read_line(&mut header).unwrap();
+        let Ok(Reply::Frame(h)) = parse_header(header.as_bytes()) else {
+            panic!("no frame: {header}");
+        };
+        let mut payload = vec![0u8; h.bytes];
+        camera_in.read_exact(&mut payload).unwrap();
+        let mut hasher = DefaultHasher::new();
+        payload.hash(&mut hasher);
+        format!("{} pixels {:016x}", header.trim_end(), hasher.finish())
+    };
+    let mut x = open(&dir.path().join("x"));
+    let mut t = Vec::new();
+    // Time stands still while nobody advances it, whatever the wall clock.
+    let before = ctl(r#"{"clock":"now"}"#);
+    std::thread::sleep(Duration::from_millis(300));
+    assert_eq!(ctl(r#"{"clock":"now"}"#), before);
+    t.push(before);
+    for line in ["SVO 1 1\n", "FRF 1\n"] {
+        tell(&mut x, line);
+    }
+    t.push(ask(&mut x, "FRF? 1\n"));
+    t.push(ctl(r#"{"clock":"advance","s":20}"#));
+    t.push(ask(&mut x, "FRF? 1\n"));
+    let start = ask(&mut x, "POS? 1\n");
+    tell(&mut x, "MOV 1 4.5\n");
+    t.push(ask(&mut x, "ONT? 1\n"));
+    t.push(ctl(r#"{"clock":"advance","s":1.0}"#));
+    t.push(ask(&mut x, "POS? 1\n"));
+    t.push(ctl(r#"{"clock":"advance","s":10}"#));
+    t.push(ask(&mut x, "ONT? 1\n"));
+    t.push(ask(&mut x, "POS? 1\n"));
+    t.push(ctl(r#"{"query":"truth"}"#));
+    t.push(grab());
+    t.push(grab());
+    t.push(ctl(r#"{"clock":"now"}"#));
+    t.push(start);
+    let pid = nix::unistd::Pid::from_raw(i32::try_from(child.id()).unwrap());
+    nix::sys::signal::kill(pid, nix::sys::signal::Signal::SIGTERM).unwrap();
+    assert!(child.wait().unwrap().success());
+    t
+}
+
+#[test]
+fn a_manual_clock_gives_one_transcript_per_seed() {
+    let a = manual_clock_session(11);
+    let b = manual_clock_session(11);
+    assert_eq!(a, b);
+    // The session did something: referenced, moved, took frames.
+    assert_eq!(a[1], "1=0\n");
+    assert_eq!(a[3], "1=1\n");
+    assert_eq!(a[8], "1=1\n", "on target after the advance");
+    assert_eq!(a[4], "1=0\n", "moving before it");
+    let pos = |s: &str| -> f64 { s.trim_end().trim_start_matches("1=").parse().unwrap() };
+    let (from, mid) = (pos(&a[14]), pos(&a[6]));
+    assert!(
+        (from - 4.5).abs() > 1.0,
+        "a move of over a millimetre from {from}"
+    );
+    assert!(
+        (mid - 4.5) * (from - 4.5) > 0.0 && (mid - 4.5).abs() < (from - 4.5).abs(),
+        "mid-move {mid} between {from} and 4.5"
+    );
+    assert!((pos(&a[9]) - 4.5).abs() < 1e-3, "at the target {}", a[9]);
+    assert!(a[11] != a[12], "two grabs, two frames");
+    let c = manual_clock_session(12);
+    assert_ne!(a, c, "another seed, another rig");
+    // A manual clock and a time scale are exclusive.
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_hil-sim"))
+        .args([
+            "serve",
+            "--manual-clock",
+            "--time-scale",
+            "2",
+            "--link-dir",
+            "/tmp",
+        ])
+        .output()
+        .unwrap();
+    assert!(!o.status.success());
+}
