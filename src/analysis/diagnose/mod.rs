@@ -543,6 +543,18 @@ pub fn diagnose(
                 dropped.retain(|&k| k != j);
             }
         } else {
+            // A reversal table is the lost motion relative to the axis's
+            // play (zero at its first knot, `search::table_free_knots`):
+            // with the play left at the model's value by the base
+            // selection, the table's first knot would be the model's
+            // play, a value nothing in the log measured. The play is
+            // freed with it.
+            for j in table_plays(&spec, model, &cand_names, &dropped) {
+                base0.push(cand_cols[j].clone());
+                base_names.push(cand_names[j].clone());
+                base_fixed.retain(|f| f.name != cand_names[j]);
+                dropped.retain(|&k| k != j);
+            }
             acc.push(Accepted {
                 family: best,
                 spec,
@@ -684,6 +696,8 @@ pub fn diagnose(
         .zip(&term_names)
         .map(|((spec, v), name)| describe(spec, v, name, &fitted, model, &std_err, &value, &d))
         .collect::<Result<Vec<_>, _>>()?;
+    let mut parameters = parameters;
+    corrections::note_tables(&mut parameters, &findings, model);
     let mut r0 = vec![0.0; 2 * d.n];
     for i in 0..d.n {
         let o = model.observed_position(&d.states[i]);
@@ -747,6 +761,36 @@ pub fn diagnose(
         base_model,
         series,
     })
+}
+
+/// Indices in `cand_names` of the plays (`backlash_um`) a reversal table
+/// in `spec` is relative to, among the `dropped` candidates (left at the
+/// model's value by the base selection).
+fn table_plays(
+    spec: &Spec,
+    model: &StageModel,
+    cand_names: &[String],
+    dropped: &[usize],
+) -> Vec<usize> {
+    let mut out = Vec::new();
+    for s in spec.clone().split() {
+        let Spec::Table {
+            axis,
+            lost_motion: true,
+            ..
+        } = s
+        else {
+            continue;
+        };
+        let Some(t) = search::backlash_term_of(model, axis) else {
+            continue;
+        };
+        let play = format!("{}.backlash_um", t.name());
+        out.extend(dropped.iter().copied().filter(|&j| cand_names[j] == play));
+    }
+    out.sort_unstable();
+    out.dedup();
+    out
 }
 
 /// Passes of the greedy loop per allowed finding (each pass accepts a

@@ -90,12 +90,23 @@ pub struct Outlier {
 pub struct IsoFigures {
     /// Cycles.
     pub cycles: usize,
+    /// Visits the figures are computed from.
+    pub visits: usize,
     /// `R`, bidirectional repeatability, µm.
     pub r_um: f64,
-    /// `B`, reversal value, µm.
+    /// `R↑ = max 4 s↑_i`, unidirectional repeatability (forward), µm.
+    pub r_up_um: f64,
+    /// `R↓ = max 4 s↓_i`, unidirectional repeatability (backward), µm.
+    pub r_down_um: f64,
+    /// `B = max |B_i|`, reversal value, µm (≥ 0).
     pub b_um: f64,
+    /// `B̄ = mean B_i`, mean reversal value, µm, signed: `B_i = x̄↑ − x̄↓`
+    /// (measured − target), negative when the platform trails the command.
+    pub mean_b_um: f64,
     /// `E`, bidirectional systematic positional deviation, µm.
     pub e_um: f64,
+    /// `M`, range of the mean bidirectional positional deviation, µm.
+    pub m_um: f64,
     /// `A`, accuracy, µm.
     pub a_um: f64,
 }
@@ -138,9 +149,15 @@ pub struct ComponentNoise {
     #[serde(skip_serializing_if = "Option::is_none")]
     pub max_s_um: Option<f64>,
     /// ISO 230-2 figures when the log holds a complete bidirectional test
-    /// of this axis.
+    /// of this axis, on every visit (as the standard defines them, and as
+    /// a source's own report computes them).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub iso230_2: Option<IsoFigures>,
+    /// The same figures without the `outliers` (each target's mean and
+    /// `s_i` from its remaining visits): what the other visits repeat to.
+    /// Absent when nothing was excluded.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub iso230_2_without_outliers: Option<IsoFigures>,
     /// RMS over replicated targets of the mean held-out residual, µm: the
     /// systematic error the model leaves unexplained.
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -531,13 +548,19 @@ fn component(log: &MeasurementLog, d: &Data, heldout: &[f64], c: Axis) -> Compon
         ),
         None => Vec::new(),
     };
+    let without_outliers = if outliers.is_empty() {
+        None
+    } else {
+        iso_figures(log, d, c, true)
+    };
     ComponentNoise {
         component: c,
         replicated_targets: targets.len(),
         repeatability_um: repeatability,
         outliers,
         max_s_um: max_s,
-        iso230_2: iso_figures(log, d, c),
+        iso230_2: iso_figures(log, d, c, false),
+        iso230_2_without_outliers: without_outliers,
         systematic_rms_um: systematic,
         systematic_noise_floor_um: floor,
         // A ratio against a repeatability at the log's resolution would
@@ -611,14 +634,23 @@ fn neighbour_noise(log: &MeasurementLog, d: &Data, heldout: &[f64], c: Axis) -> 
 
 /// ISO 230-2 figures of axis `c` when the log is a complete bidirectional
 /// test of it (only `c` moves, every target approached both ways in every
-/// cycle); `None` otherwise.
-fn iso_figures(log: &MeasurementLog, d: &Data, c: Axis) -> Option<IsoFigures> {
+/// cycle); `None` otherwise. `without_excluded`: the excluded visits
+/// (outliers) left out, each target's figures from the visits it keeps.
+fn iso_figures(
+    log: &MeasurementLog,
+    d: &Data,
+    c: Axis,
+    without_excluded: bool,
+) -> Option<IsoFigures> {
     let ci = c.index();
     let other = 1 - ci;
     let mut obs = Vec::new();
     for (i, r) in log.records.iter().enumerate().take(d.n) {
         if d.moving[i][other] || !d.moving[i][ci] {
             return None;
+        }
+        if without_excluded && d.excluded.get(i).copied().unwrap_or(false) {
+            continue;
         }
         let approach = match d.approach[i][ci] {
             s if s > 0.0 => Approach::Positive,
@@ -637,12 +669,23 @@ fn iso_figures(log: &MeasurementLog, d: &Data, c: Axis) -> Option<IsoFigures> {
             measured_um,
         });
     }
-    let f = iso230_2::evaluate(&obs).ok()?;
+    let f = if without_excluded {
+        // The complete test must exist before its gaps are ours to leave.
+        iso_figures(log, d, c, false)?;
+        iso230_2::evaluate_allowing_gaps(&obs).ok()?
+    } else {
+        iso230_2::evaluate(&obs).ok()?
+    };
     Some(IsoFigures {
         cycles: f.cycles,
+        visits: obs.len(),
         r_um: f.r_um,
+        r_up_um: f.r_up_um,
+        r_down_um: f.r_down_um,
         b_um: f.reversal_um,
+        mean_b_um: f.mean_reversal_um,
         e_um: f.e_um,
+        m_um: f.m_um,
         a_um: f.a_um,
     })
 }

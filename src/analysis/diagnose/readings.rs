@@ -19,6 +19,11 @@ use crate::model::Axis;
 /// reported.
 pub const READING_Z: f64 = 3.0;
 
+/// Targets up to which a reading lists its per-target values (an ISO
+/// 230-2 plan has 5–11; a dense scan's list would be a table, not a
+/// sentence).
+const MAX_LISTED: usize = 12;
+
 /// One visit of a replicated target (outliers excluded, see `noise.rs`).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub(super) struct Visit {
@@ -289,9 +294,10 @@ pub(super) fn read(
                 z,
                 model_explains: res_mean.is_finite().then_some(res_z < READING_Z),
                 sentence: format!(
-                    "{name} reverses with a lost motion of {mean:+.3} µm on average (B = x̄↑ − x̄↓ over {} targets, ± {:.3} µm)",
+                    "{name} reverses with a lost motion of {:+.3} µm on average (> 0: the platform trails the command in both directions); in ISO 230-2's sign the mean reversal B̄ = mean of x̄↑ − x̄↓ (measured − target) = {mean:+.3} ± {:.3} µm over {} targets (outliers left out)",
+                    -mean,
+                    sw.sqrt().recip(),
                     rev.len(),
-                    sw.sqrt().recip()
                 ),
                 term: None,
                 cause: ReadingKind::Reversal.cause(),
@@ -319,13 +325,24 @@ pub(super) fn read(
                         wilson_hilferty(res_chi2, (rev.len() - 1) as f64) < READING_Z
                     }),
                     sentence: format!(
-                        "{name}'s lost motion changes along the travel: B = {:+.3} µm at {}, {:+.3} µm at {} ({} targets; noise alone would leave about ± {:.3} µm)",
+                        "{name}'s lost motion changes along the travel: B = {:+.3} µm at {}, {:+.3} µm at {} ({} targets; noise alone would leave about ± {:.3} µm){}",
                         lo.1,
                         at(lo.0),
                         hi.1,
                         at(hi.0),
                         rev.len(),
-                        (rev.iter().map(|r| r.2).sum::<f64>() / rev.len() as f64).sqrt()
+                        (rev.iter().map(|r| r.2).sum::<f64>() / rev.len() as f64).sqrt(),
+                        if rev.len() <= MAX_LISTED {
+                            format!(
+                                "; B_i = x̄↑ − x̄↓ (measured − target, outliers left out): {}; the lost motion is −B_i",
+                                rev.iter()
+                                    .map(|r| format!("{:+.3} µm at {}", r.1, at(r.0)))
+                                    .collect::<Vec<_>>()
+                                    .join(", ")
+                            )
+                        } else {
+                            String::new()
+                        }
                     ),
                     term: None,
                 cause: ReadingKind::ReversalVaries.cause(),
@@ -406,10 +423,29 @@ pub(super) fn read(
                         z: zn,
                         model_explains: rz.filter(|_| res_ok).map(|r| r < READING_Z),
                         sentence: format!(
-                            "{name}'s mean deviation departs from a straight line by up to {:+.3} µm (at {}; noise alone ± {:.3} µm per target)",
+                            "{name}'s mean deviation departs from a straight line by up to {:+.3} µm (at {}; the least-squares line through the bidirectional means x̄_i, measured − target; noise alone ± {:.3} µm per target){}",
                             resid[k],
                             at(x[k]),
-                            tg[k].2.sqrt()
+                            tg[k].2.sqrt(),
+                            if x.len() <= MAX_LISTED {
+                                let n = x.len() - 1;
+                                let chord = |i: usize| {
+                                    y[i] - y[0] - (y[n] - y[0]) * (x[i] - x[0]) / (x[n] - x[0])
+                                };
+                                format!(
+                                    "; x̄_i less that line: {}; less the chord through the end targets (how a table zero at its end knots reads it): {}",
+                                    (0..x.len())
+                                        .map(|i| format!("{:+.3} µm at {}", resid[i], at(x[i])))
+                                        .collect::<Vec<_>>()
+                                        .join(", "),
+                                    (0..x.len())
+                                        .map(|i| format!("{:+.3}", chord(i)))
+                                        .collect::<Vec<_>>()
+                                        .join(", ")
+                                )
+                            } else {
+                                String::new()
+                            }
                         ),
                         term: None,
                 cause: ReadingKind::Nonlinearity.cause(),

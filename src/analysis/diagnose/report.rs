@@ -278,11 +278,29 @@ impl Diagnosis {
                 );
             }
             if let Some(iso) = &c.iso230_2 {
+                let fig = |f: &super::noise::IsoFigures| {
+                    format!(
+                        "R {:.4} µm (R↑ {:.4}, R↓ {:.4}), B {:.4} µm (B̄ {:+.4} µm), E {:.4} µm, M {:.4} µm, A {:.4} µm",
+                        f.r_um, f.r_up_um, f.r_down_um, f.b_um, f.mean_b_um, f.e_um, f.m_um, f.a_um
+                    )
+                };
                 let _ = writeln!(
                     out,
-                    "  {a}: ISO 230-2 ({} cycles): R {:.4} µm, B {:.4} µm, E {:.4} µm, A {:.4} µm",
-                    iso.cycles, iso.r_um, iso.b_um, iso.e_um, iso.a_um
+                    "  {a}: ISO 230-2 ({} cycles, all {} visits{}, as the standard defines the figures and a test report computes them): {}",
+                    iso.cycles,
+                    iso.visits,
+                    if c.outliers.is_empty() { "" } else { " including the excluded ones" },
+                    fig(iso)
                 );
+                if let Some(w) = &c.iso230_2_without_outliers {
+                    let _ = writeln!(
+                        out,
+                        "  {a}: ISO 230-2 figures without the {} excluded visit(s) ({} visits; each target's x̄ and s from the visits it keeps; not the standard's figures): {}",
+                        iso.visits.saturating_sub(w.visits),
+                        w.visits,
+                        fig(w)
+                    );
+                }
             }
             if let Some(nb) = c.neighbour_noise_um {
                 let _ = writeln!(
