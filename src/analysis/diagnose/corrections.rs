@@ -76,6 +76,7 @@ pub(super) fn corrections(
     fitted: &StageModel,
     free: &[String],
     std_errs: &HashMap<String, f64>,
+    synthetic_time: bool,
 ) -> Vec<ParamCorrection> {
     let params = model.params();
     let mut out = Vec::new();
@@ -102,7 +103,7 @@ pub(super) fn corrections(
             (mv, unit.into())
         };
         let s = if big { se / 1000.0 } else { se };
-        let sentence = format!(
+        let mut sentence = format!(
             "this stage's {} is {f:+.4} ± {s:.4} {u}, the model says {m:+.4}{}",
             what(&p.kind, &p.term, &p.info.name),
             if significant {
@@ -111,6 +112,15 @@ pub(super) fn corrections(
                 " (the log agrees within 3 σ)"
             }
         );
+        // A rate against synthetic times is a rate per record.
+        if synthetic_time && unit.ends_with("/h") {
+            let per = unit.trim_end_matches("/h");
+            sentence.push_str(&format!(
+                "; the log's times are synthetic (one record per second), so this is {:+.4} ± {:.4} {per} per record, in the order the records were measured, not per hour",
+                fv / 3600.0,
+                se / 3600.0
+            ));
+        }
         out.push(ParamCorrection {
             term: p.term.clone(),
             kind: p.kind.clone(),
@@ -171,8 +181,7 @@ pub(super) fn note_tables(
             x0,
             if deficit.abs() > 1e-9 {
                 format!(
-                    " less {:+.3} µm the play cannot take (a play is not negative; the table holds it)",
-                    deficit
+                    " (there {v0:+.3} µm: a play cannot be negative, so the table holds the {deficit:+.3} µm below zero)"
                 )
             } else {
                 String::new()

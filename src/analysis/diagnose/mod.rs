@@ -255,6 +255,20 @@ fn unresolved(d: &data::Data, model: &StageModel, name: &str) -> Option<String> 
                 .into(),
         );
     }
+    if let Some((axis, r)) = d.time_with {
+        let per_time = unit.contains("/h") || unit.contains("/s");
+        let timed = model
+            .terms()
+            .iter()
+            .find(|t| t.name() == term_name)
+            .and_then(|t| t.to_config().ok())
+            .is_some_and(|c| c.get("period_s").is_some());
+        if per_time || timed {
+            return Some(format!(
+                "time and {axis} position move together over this log (r = {r:+.3}): a drift cannot be told from an error along {axis}"
+            ));
+        }
+    }
     if !(param.contains("sin") || param.contains("cos")) {
         return None;
     }
@@ -337,6 +351,18 @@ pub struct Diagnosis {
     /// `measured_axes` entry) or `data` (a constant `*_meas_um` column is a
     /// placeholder).
     pub measured_from: String,
+    /// Whether the log's times are synthetic (its `time_source` metadata
+    /// says so, as `micropos import` writes for exports without times):
+    /// rates per hour are then per 3600 records and say nothing about
+    /// time.
+    pub synthetic_time: bool,
+    /// The axis whose position follows time over the whole log, and the
+    /// correlation (a one-way scan at a steady rate): nothing is fitted or
+    /// searched as a function of time.
+    pub time_with: Option<(Axis, f64)>,
+    /// Whether the held-out folds are whole cycles (else contiguous
+    /// chunks of the log's one cycle).
+    pub whole_cycle_folds: bool,
     /// RMS over the log's rows of what the aliased base parameters (held
     /// at the model's value because the sampling cannot resolve their
     /// period) contribute to the model's prediction, µm: the part of the
@@ -555,12 +581,34 @@ pub fn diagnose(
                 base_fixed.retain(|f| f.name != cand_names[j]);
                 dropped.retain(|&k| k != j);
             }
+            let table = matches!(spec, Spec::Table { .. } | Spec::Tables { .. });
             acc.push(Accepted {
                 family: best,
                 spec,
                 verdict,
                 cols: spec_cols,
             });
+            // A table with a knot at every target takes any error of its
+            // axis at those targets: a base parameter whose effect it (with
+            // the other base parameters) spans is no longer separable and
+            // stays at the model's value (see `ident`). Fitted as well, the
+            // split between it and the table is arbitrary, and so is its σ.
+            if table {
+                let given: Vec<Vec<f64>> = acc.iter().flat_map(|a| a.cols.clone()).collect();
+                let (kept, unid) =
+                    ident::identifiable_given(&d, model, &base_names, &base0, &given);
+                if kept.len() < base_names.len() {
+                    for u in unid {
+                        base_fixed.push(FixedParam {
+                            name: u.name.clone(),
+                            reason: "the per-target table of a finding spans its effect at the log's targets: not separable from it".into(),
+                            aliased: false,
+                        });
+                    }
+                    base0 = kept.iter().map(|&j| base0[j].clone()).collect();
+                    base_names = kept.iter().map(|&j| base_names[j].clone()).collect();
+                }
+            }
         }
         // The findings so far, against what the base and each other now
         // carry (a freed carrier can take over an earlier finding's error).
@@ -652,7 +700,12 @@ pub fn diagnose(
         base_model.set_environment(env)?;
     }
     std_errs.extend(lin_se);
-    let parameters = corrections::corrections(model, &fitted, &base_names, &std_errs);
+    let synthetic_time = log
+        .metadata
+        .get(TIME_SOURCE_KEY)
+        .is_some_and(|v| v.trim_start().starts_with("synthetic"));
+    let parameters =
+        corrections::corrections(model, &fitted, &base_names, &std_errs, synthetic_time);
     let std_err = |name: &str| -> Option<f64> { std_errs.get(name).copied() };
     let accepted: Vec<(Spec, Verdict)> = specs
         .into_iter()
@@ -698,6 +751,7 @@ pub fn diagnose(
         .collect::<Result<Vec<_>, _>>()?;
     let mut parameters = parameters;
     corrections::note_tables(&mut parameters, &findings, model);
+    note_short_periods(&mut parameters, &d, model);
     let mut r0 = vec![0.0; 2 * d.n];
     for i in 0..d.n {
         let o = model.observed_position(&d.states[i]);
@@ -753,6 +807,9 @@ pub fn diagnose(
             MeasuredSource::Metadata => "metadata".into(),
             MeasuredSource::Data => "data".into(),
         },
+        synthetic_time,
+        time_with: d.time_with,
+        whole_cycle_folds: d.whole_cycle_folds,
         aliased_contribution_rms_um: RmsXy::from(aliased_rms),
         judged_points: d.judged.iter().filter(|&&j| j).count(),
         noise,
@@ -761,6 +818,59 @@ pub fn diagnose(
         base_model,
         series,
     })
+}
+
+/// Periods a log must span before a fitted periodic parameter reads as
+/// a periodic error rather than a bow of the travel.
+const PERIODS_FOR_A_PERIOD: f64 = 2.0;
+
+/// Says, in the sentence of a periodic parameter (`sin`/`cos`) that the
+/// log spans fewer than [`PERIODS_FOR_A_PERIOD`] periods of, that its
+/// value is as much a bow of the travel as a periodic error.
+///
+/// Why: the default model's 400 µm screw harmonics fitted on a flexure's
+/// 450 µm travel (a 500 µm micrometer) are freed, predict held-out cycles
+/// better and come out at 10σ, but over 1.1 periods a sinusoid is a smooth
+/// curve as much as a screw's periodic error; a reader must not take it
+/// for this stage's screw error at that period.
+fn note_short_periods(parameters: &mut [ParamCorrection], d: &data::Data, model: &StageModel) {
+    for p in parameters.iter_mut() {
+        if !(p.parameter.contains("sin") || p.parameter.contains("cos")) {
+            continue;
+        }
+        let Some(cfg) = model
+            .terms()
+            .iter()
+            .find(|t| t.name() == p.term)
+            .and_then(|t| t.to_config().ok())
+        else {
+            continue;
+        };
+        let Some(period_um) = cfg.get("period_um").and_then(|v| v.as_float()) else {
+            continue;
+        };
+        let axis = match cfg.get("axis").and_then(|v| v.as_str()) {
+            Some("x") => Axis::X,
+            Some("y") => Axis::Y,
+            _ => continue,
+        };
+        // Harmonic k of the term's fundamental (`forward_sin_3_um`: k = 3).
+        let k: f64 = p
+            .parameter
+            .split('_')
+            .skip_while(|w| *w != "sin" && *w != "cos")
+            .nth(1)
+            .and_then(|w| w.parse().ok())
+            .unwrap_or(1.0);
+        let period_um = period_um / k.max(1.0);
+        let span = data::span_of(d, axis);
+        let periods = span / period_um;
+        if periods < PERIODS_FOR_A_PERIOD {
+            p.sentence.push_str(&format!(
+                "; the log spans only {periods:.1} periods of it ({period_um:.0} µm over {span:.0} µm of {axis}): as much a bow of the travel as a periodic error at that period"
+            ));
+        }
+    }
 }
 
 /// Indices in `cand_names` of the plays (`backlash_um`) a reversal table
@@ -858,3 +968,7 @@ fn log_environment(log: &MeasurementLog) -> Result<Option<Environment>, Analysis
 /// Spacing of the temperature points taken from a log, s (room temperature
 /// changes over minutes; 30 s keeps a 9.5 h log to ~1000 points).
 const ENV_STEP_S: f64 = 30.0;
+
+/// Metadata key of a log's time source (`micropos import` writes
+/// `synthetic: …` for exports without times).
+pub const TIME_SOURCE_KEY: &str = "time_source";

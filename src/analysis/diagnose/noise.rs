@@ -92,6 +92,13 @@ pub struct IsoFigures {
     pub cycles: usize,
     /// Visits the figures are computed from.
     pub visits: usize,
+    /// When a target's forward and backward arrivals stopped at different
+    /// positions (a test program's offset): the largest such distance,
+    /// µm. They are paired as one target (as the test's own report pairs
+    /// them by index); the log is then not an ISO 230-2 test in the
+    /// standard's sense, whose reversal is read at one position.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub paired_within_um: Option<f64>,
     /// `R`, bidirectional repeatability, µm.
     pub r_um: f64,
     /// `R↑ = max 4 s↑_i`, unidirectional repeatability (forward), µm.
@@ -197,7 +204,17 @@ pub struct Sampling {
     pub axis: Axis,
     /// Distinct commanded positions.
     pub positions: usize,
-    /// Median spacing of the distinct positions, µm.
+    /// Targets they stand for: positions closer than 5 % of the spacing
+    /// are one target (the approaches of a test program that stop at
+    /// slightly different positions).
+    pub targets: usize,
+    /// The farthest apart two positions of one target are, µm (0 when
+    /// every target is one position).
+    pub target_width_um: f64,
+    /// Spacing at which the distinct positions sample the span, µm: the
+    /// smallest gap such that the gaps up to it cover 90 % of the span
+    /// (the step of an even grid; the targets' spacing when they come in
+    /// clusters).
     pub spacing_um: f64,
     /// Span, µm.
     pub span_um: f64,
@@ -226,13 +243,13 @@ pub(super) fn noise_report(log: &MeasurementLog, d: &Data, heldout: &[f64]) -> N
             continue;
         }
         let pos = super::data::distinct_positions(d, a);
-        if pos.len() >= 2 {
-            let mut gaps: Vec<f64> = pos.windows(2).map(|w| w[1] - w[0]).collect();
-            gaps.sort_by(f64::total_cmp);
-            let spacing = gaps[gaps.len() / 2];
+        if let Some(spacing) = super::data::sampling_spacing_um(&pos) {
+            let tg = super::data::targets_of(&pos);
             out.sampling.push(Sampling {
                 axis: a,
                 positions: pos.len(),
+                targets: tg.bounds.len(),
+                target_width_um: tg.widest_um(),
                 spacing_um: spacing,
                 span_um: pos[pos.len() - 1] - pos[0],
                 shortest_period_um: 2.0 * spacing,
@@ -644,6 +661,7 @@ fn iso_figures(
 ) -> Option<IsoFigures> {
     let ci = c.index();
     let other = 1 - ci;
+    let targets = super::data::targets_of(&super::data::distinct_positions(d, c));
     let mut obs = Vec::new();
     for (i, r) in log.records.iter().enumerate().take(d.n) {
         if d.moving[i][other] || !d.moving[i][ci] {
@@ -662,11 +680,18 @@ fn iso_figures(
         } else {
             (r.y_target_um, r.y_meas_um)
         };
+        // A target whose approaches stop at slightly different positions
+        // is one target (paired by `data::targets_of`), its deviation
+        // from the position it stopped at.
+        let dev = measured_um - target_um;
+        let t = targets
+            .index_of(target_um)
+            .map_or(target_um, |k| targets.centre(k));
         obs.push(Observation {
-            target_um,
+            target_um: t,
             cycle: r.cycle,
             approach,
-            measured_um,
+            measured_um: t + dev,
         });
     }
     let f = if without_excluded {
@@ -679,6 +704,7 @@ fn iso_figures(
     Some(IsoFigures {
         cycles: f.cycles,
         visits: obs.len(),
+        paired_within_um: (targets.widest_um() > 1e-3).then(|| targets.widest_um()),
         r_um: f.r_um,
         r_up_um: f.r_up_um,
         r_down_um: f.r_down_um,
