@@ -202,6 +202,9 @@ pub struct ResidualSeries {
     pub before_um: [Vec<f64>; 2],
     /// Residual after the extended fit, µm.
     pub after_um: [Vec<f64>; 2],
+    /// Rows left out as outliers (`Data::excluded`): their residuals above
+    /// are not fitted values (zero after the centring) and are not drawn.
+    pub excluded: Vec<bool>,
 }
 
 /// A base-fit parameter kept at the model's value, and why.
@@ -442,8 +445,22 @@ pub fn diagnose(
             aliased: false,
         });
     }
-    let cand_names: Vec<String> = separable.iter().map(|&j| res_names[j].clone()).collect();
-    let cand_cols: Vec<Vec<f64>> = separable.iter().map(|&j| res_cols[j].clone()).collect();
+    // A parameter the training rows of some fold do not vary (its effect
+    // lies in the held-out cycle or chunk alone, e.g. the forward screw
+    // harmonics of a log with four forward points in its first chunk)
+    // is fitted from a handful of points no held-out row ever tests.
+    let (testable, untestable): (Vec<usize>, Vec<usize>) = separable
+        .iter()
+        .partition(|&&j| testable_in_every_fold(&d, &res_cols[j]));
+    for &j in &untestable {
+        base_fixed.push(FixedParam {
+            name: res_names[j].clone(),
+            reason: "no held-out test can judge them: on the training rows of a fold their effect does not vary (it lies in the held-out part alone)".into(),
+            aliased: false,
+        });
+    }
+    let cand_names: Vec<String> = testable.iter().map(|&j| res_names[j].clone()).collect();
+    let cand_cols: Vec<Vec<f64>> = testable.iter().map(|&j| res_cols[j].clone()).collect();
     drop(res_cols);
     // Model selection on the base fit too: only the terms whose freeing
     // predicts held-out data better (see `fit::select_base`).
@@ -736,6 +753,7 @@ pub fn diagnose(
             series.before_um[c].push(base_only.resid[2 * i + c]);
             series.after_um[c].push(after[2 * i + c]);
         }
+        series.excluded.push(d.excluded[i]);
     }
     series.extra = d
         .extra
@@ -818,6 +836,38 @@ pub fn diagnose(
         base_model,
         series,
     })
+}
+
+/// Relative spread (standard deviation over the training rows of a fold
+/// against that over all rows) below which a base column cannot be
+/// fitted from the training rows, see [`testable_in_every_fold`].
+const TRAINING_SPREAD: f64 = 1e-3;
+
+/// Whether base column `col` varies over the training rows of every fold
+/// (measured components, rows not excluded): a parameter that does not is
+/// fitted on the full data from the held-out part alone, where no
+/// held-out test can judge it.
+fn testable_in_every_fold(d: &data::Data, col: &[f64]) -> bool {
+    let spread = |use_row: &dyn Fn(usize) -> bool| -> f64 {
+        let vals: Vec<f64> = (0..d.n)
+            .filter(|&i| use_row(i) && !d.excluded[i])
+            .flat_map(|i| {
+                (0..2)
+                    .filter(|&c| d.measured[c])
+                    .map(move |c| col[2 * i + c])
+            })
+            .collect();
+        if vals.len() < 2 {
+            return 0.0;
+        }
+        let m = vals.iter().sum::<f64>() / vals.len() as f64;
+        (vals.iter().map(|v| (v - m).powi(2)).sum::<f64>() / vals.len() as f64).sqrt()
+    };
+    let all = spread(&|_| true);
+    if all <= 0.0 {
+        return true;
+    }
+    (0..d.nfolds).all(|f| spread(&|i| d.fold[i] != f) >= TRAINING_SPREAD * all)
 }
 
 /// Periods a log must span before a fitted periodic parameter reads as
