@@ -1161,4 +1161,106 @@ mod tests {
             import_bytes(b"TGT_DATA[1]=15\nUNIT=furlong\n", &ImportOptions::default()).unwrap_err();
         assert!(e.to_string().starts_with("line 2, column UNIT"), "{e}");
     }
+
+    const REPORT_LONG: &str = "# Report\n\n# Forward test sequence\n\n\
+        i (pos id)| j (cycle)| Tgt_pos(i,j) [mm] | Motor(i,j) [mm] | Reference(i,j) [mm] | x(i,j) [mm]\n\
+        --- | --- | --- | --- | --- |--- |\n\
+        1 | 1 | 15.00000 | 15.00070 | 15.00161 | .00161 |\n\
+        2 | 1 | 25.00000 | 25.00078 | 25.02160 | .02160 |\n\
+        1 | 2 | 15.00000 | 15.00070 | 15.00141 | .00141 |\n\
+        2 | 2 | 25.00000 | 25.00078 | | |\n\
+        \n# Backward test sequence\n\
+        i (pos id)| j (cycle)| Tgt_pos(i,j) [mm] | Motor(i,j) [mm] | Reference(i,j) [mm] | x(i,j) [mm]\n\
+        --- | --- | --- | --- | --- |--- |\n\
+        1 | 1 | 15.20000 | 15.19945 | 15.19889 | -.00111 |\n\
+        2 | 1 | 25.20000 | 25.19929 | 25.22130 | .02130 |\n\
+        \n# Mean Position Deviation\n\
+        i (pos id) | Tgt_pos(i) [mm] | X_fwd(i) [mm]\n--- | --- | --- |\n1 | 15.0 | .001\n";
+
+    #[test]
+    fn a_report_with_a_row_per_arrival_is_read_by_its_headings() {
+        let p = parse_export(REPORT_LONG.as_bytes(), &ImportOptions::default()).unwrap();
+        let seq: Vec<(u32, f64, f64, f64)> = p
+            .arrivals
+            .iter()
+            .map(|a| (a.cycle, a.approach, a.target_um, a.measured_um))
+            .collect();
+        // Standard order; the empty cell is skipped and counted; targets
+        // as the rows give them (the backward ones 0.2 mm apart).
+        assert_eq!(seq.len(), 5);
+        assert_eq!(seq[0].0, 1);
+        assert_eq!((seq[0].1, seq[0].2), (1.0, 15_000.0));
+        assert!((seq[0].3 - 15_001.61).abs() < 1e-6);
+        assert_eq!((seq[2].1, seq[2].2), (-1.0, 25_200.0));
+        assert_eq!((seq[3].1, seq[3].2), (-1.0, 15_200.0));
+        assert_eq!(seq[4].0, 2);
+        let note = |k: &str| p.notes.iter().find(|n| n.0 == k).map(|n| n.1.clone());
+        assert_eq!(
+            note("direction_labels").as_deref(),
+            Some("as the headings say")
+        );
+        assert!(note("unmeasured_cells").is_some_and(|v| v.starts_with("1 ")));
+        let log =
+            parse_bytes(&import_bytes(REPORT_LONG.as_bytes(), &ImportOptions::default()).unwrap())
+                .unwrap();
+        assert_eq!(log.records.len(), 5);
+    }
+
+    const REPORT_WIDE: &str = "### Data forward direction\n\n\
+        i |tgt_pos(i) [mm]|ref_pos(i,1) [mm]|ref_pos(i,2) [mm]|\n--- |--- |--- |--- |\n\
+        1|15.0|15.00335|15.00233|\n2|25.2|25.19974|25.20015|\n\n\
+        ### Data backward direction\n\n\
+        i |tgt_pos(i) [mm]|ref_pos(i,1) [mm]|ref_pos(i,2) [mm]|\n--- |--- |--- |--- |\n\
+        1|15.0|15.00518|15.00518|\n2|25.2|25.19628|25.19607|\n";
+
+    #[test]
+    fn a_report_with_a_column_per_cycle_swaps_its_labels_unless_told() {
+        let p = parse_export(REPORT_WIDE.as_bytes(), &ImportOptions::default()).unwrap();
+        assert_eq!(p.arrivals.len(), 8);
+        // "forward" 15.00335 (cycle 1) is the approach from above.
+        let a = p
+            .arrivals
+            .iter()
+            .find(|a| a.cycle == 1 && a.target_um == 15_000.0 && a.approach < 0.0)
+            .unwrap();
+        assert!((a.measured_um - 15_003.35).abs() < 1e-6);
+        assert!(p
+            .notes
+            .iter()
+            .any(|n| n.0 == "direction_labels" && n.1.starts_with("swapped")));
+        let opts = ImportOptions {
+            directions: DirectionLabels::AsLabelled,
+            ..ImportOptions::default()
+        };
+        let p = parse_export(REPORT_WIDE.as_bytes(), &opts).unwrap();
+        let a = p
+            .arrivals
+            .iter()
+            .find(|a| a.cycle == 1 && a.target_um == 15_000.0 && a.approach > 0.0)
+            .unwrap();
+        assert!((a.measured_um - 15_003.35).abs() < 1e-6);
+    }
+
+    #[test]
+    fn report_errors_name_line_and_column() {
+        let e = import_bytes(
+            b"# x\n\nA | B\n--- | ---\n1 | 2\n",
+            &ImportOptions::default(),
+        )
+        .unwrap_err();
+        assert_eq!(e, ImportError::NoReadingTable);
+        let bad = REPORT_LONG.replace("15.00161", "1x.5");
+        let e = import_bytes(bad.as_bytes(), &ImportOptions::default()).unwrap_err();
+        assert!(
+            e.to_string()
+                .starts_with("line 7, column Reference(i,j) [mm]"),
+            "{e}"
+        );
+        let twice = format!("{REPORT_WIDE}\n### Data forward direction again\n\ni |tgt_pos(i) [mm]|ref_pos(i,1) [mm]|\n--- |--- |--- |\n1|15.0|15.1|\n");
+        let e = import_bytes(twice.as_bytes(), &ImportOptions::default()).unwrap_err();
+        assert!(e.to_string().contains("read twice"), "{e}");
+        let nounit = "# Forward\nj | tgt | reference\n--- | --- | ---\n1 | 1 | 1\n";
+        let e = import_bytes(nounit.as_bytes(), &ImportOptions::default()).unwrap_err();
+        assert!(matches!(e, ImportError::UnknownUnits { .. }), "{e}");
+    }
 }
