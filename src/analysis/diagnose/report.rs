@@ -336,10 +336,26 @@ impl Diagnosis {
                 c.systematic_noise_floor_um,
                 c.systematic_over_repeatability,
             ) {
+                // Per-target means can be explained while structure the
+                // means average out (a drift from cycle to cycle) is not.
+                let lacking: Vec<&str> = c
+                    .readings
+                    .iter()
+                    .filter(|r| r.model_explains == Some(false))
+                    .map(|r| r.kind.as_str())
+                    .collect();
                 let _ = writeln!(
                     out,
-                    "  {a}: {} {sys:.4} µm rms of per-target systematic error remains (held out), {ratio:.1}× the repeatability (noise alone would leave {floor:.4} µm)",
-                    if c.unexplained { "UNEXPLAINED:" } else { "explained to the noise:" }
+                    "  {a}: {} {sys:.4} µm rms of per-target systematic error remains (held out), {ratio:.1}× the repeatability (noise alone would leave {floor:.4} µm){}",
+                    if c.unexplained { "UNEXPLAINED:" } else { "explained to the noise:" },
+                    if !c.unexplained && !lacking.is_empty() {
+                        format!(
+                            "; the model still lacks {} (see the readings): the per-target means average it out",
+                            lacking.join(", ")
+                        )
+                    } else {
+                        String::new()
+                    }
                 );
             } else if let (Some(sys), Some(floor), true) = (
                 c.systematic_rms_um,
