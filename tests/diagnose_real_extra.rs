@@ -484,7 +484,7 @@ fn a_report_printed_with_swapped_direction_labels_is_imported_by_the_true_approa
     // BIFROST 11358 axis 1: ecmc's ecmcISO230_2.py prints REF_DATA_BWD
     // under "forward". Its first "Data forward direction" row (15.0 mm:
     // 15.00335 …) is imported as approached from above.
-    let log = read_file(&extra_dir().join("bifrost_11358_ax1.csv")).unwrap();
+    let log = read_file(extra_dir().join("bifrost_11358_ax1.csv")).unwrap();
     assert!(log
         .metadata
         .get("direction_labels")
