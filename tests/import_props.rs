@@ -107,9 +107,10 @@ proptest! {
     }
 
     #[test]
-    fn any_bytes_never_panic(data in prop::collection::vec(any::<u8>(), 0..400), fmt in 0u8..3) {
+    fn any_bytes_never_panic(data in prop::collection::vec(any::<u8>(), 0..400), fmt in 0u8..4) {
         let opts = ImportOptions {
-            format: [ImportFormat::Auto, ImportFormat::Csv, ImportFormat::Dat][usize::from(fmt)],
+            format: [ImportFormat::Auto, ImportFormat::Csv, ImportFormat::Dat, ImportFormat::Report]
+                [usize::from(fmt)],
             units: Some(Unit::Mm),
             ..ImportOptions::default()
         };
@@ -121,6 +122,24 @@ proptest! {
     #[test]
     fn csv_like_text_never_panics(lines in prop::collection::vec("[a-z0-9_,;.+ -]{0,30}", 0..8)) {
         let text = format!("cycle,direction,target_mm,measured_mm\n{}", lines.join("\n"));
+        if let Ok(bytes) = import_bytes(text.as_bytes(), &ImportOptions::default()) {
+            prop_assert!(parse_bytes(&bytes).is_ok());
+        }
+    }
+
+    #[test]
+    fn report_like_text_never_panics(
+        heading in "(# (Forward|Backward|positive|x) [a-z ]{0,8})?",
+        header in "[a-zA-Z_ ()\\[\\],0-9|]{0,60}",
+        rows in prop::collection::vec("[0-9.| -]{0,40}", 0..6),
+        wide in any::<bool>(),
+    ) {
+        let header = if wide {
+            format!("i |tgt_pos(i) [mm]|ref_pos(i,1) [mm]|{header}")
+        } else {
+            format!("i (pos id)| j (cycle)| Tgt_pos(i,j) [mm] | Reference(i,j) [mm] |{header}")
+        };
+        let text = format!("{heading}\n{header}\n--- | --- | --- |\n{}\n", rows.join("\n"));
         if let Ok(bytes) = import_bytes(text.as_bytes(), &ImportOptions::default()) {
             prop_assert!(parse_bytes(&bytes).is_ok());
         }

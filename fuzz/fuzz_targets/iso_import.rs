@@ -4,7 +4,9 @@
 #![no_main]
 
 use libfuzzer_sys::fuzz_target;
-use micropos::charact::import::{import_bytes, parse_arrivals, ImportFormat, ImportOptions, Unit};
+use micropos::charact::import::{
+    import_bytes, parse_arrivals, DirectionLabels, ImportFormat, ImportOptions, Unit,
+};
 use micropos::charact::log::parse_bytes;
 use micropos::model::Axis;
 
@@ -13,11 +15,21 @@ fuzz_target!(|data: &[u8]| {
         return;
     };
     let opts = ImportOptions {
-        format: [ImportFormat::Auto, ImportFormat::Csv, ImportFormat::Dat][usize::from(sel % 3)],
+        format: [
+            ImportFormat::Auto,
+            ImportFormat::Csv,
+            ImportFormat::Dat,
+            ImportFormat::Report,
+        ][usize::from(sel % 4)],
         axis: if sel & 4 == 0 { Axis::X } else { Axis::Y },
         units: [None, Some(Unit::Mm), Some(Unit::Um), Some(Unit::Nm), Some(Unit::M)]
             [usize::from((sel >> 3) % 5)],
         source: None,
+        directions: [
+            DirectionLabels::Auto,
+            DirectionLabels::AsLabelled,
+            DirectionLabels::Swapped,
+        ][usize::from((sel >> 6) % 3)],
     };
     let Ok(bytes) = import_bytes(body, &opts) else {
         return;

@@ -16,6 +16,17 @@
 //! * **`.dat`** (`KEY=VALUE` lines, as written by the ecmc ISO 230-2
 //!   tools): `TGT_DATA[i]` targets, `REF_DATA_FWD[i,j]` / `REF_DATA_BWD[i,j]`
 //!   readings of target `i` in cycle `j`, optional `UNIT` (default mm).
+//! * **Markdown reports** (pipe tables under headings, as the ecmc test
+//!   tools print them): a table under a heading that names the direction
+//!   (`forward`/`backward`, `positive`/`negative`) with either one row per
+//!   arrival (position index, cycle, target, reference reading; the drive's
+//!   own motor/resolver columns are ignored) or one row per target with a
+//!   reading column per cycle (`ref_pos(i,j)`). Empty cells are arrivals
+//!   that were not measured; they are skipped and counted in the metadata.
+//!   The second layout (written by ecmc's `ecmcISO230_2.py`) prints its
+//!   input's `REF_DATA_BWD` readings, the approaches from above, under
+//!   "forward" and vice versa in every version published (2021–2023), so
+//!   [`DirectionLabels::Auto`] swaps its labels and says so in the metadata.
 //!
 //! The log written is a 1-D log: the measured axis ([`ImportOptions::axis`])
 //! gets target = command = the target, meas = the reading; the other axis's
@@ -84,6 +95,22 @@ pub enum ImportFormat {
     Csv,
     /// `KEY=VALUE` lines (`TGT_DATA[i]`, `REF_DATA_FWD[i,j]`, …).
     Dat,
+    /// A markdown test report: pipe tables of readings under headings that
+    /// name the approach direction.
+    Report,
+}
+
+/// How to read the direction labels of a markdown report.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum DirectionLabels {
+    /// As labelled, except the one layout known to print them swapped
+    /// (ecmc's per-target `ref_pos(i,j)` tables, see the module docs).
+    #[default]
+    Auto,
+    /// As the headings say.
+    AsLabelled,
+    /// Forward tables are the approaches from above and vice versa.
+    Swapped,
 }
 
 /// How to import.
@@ -98,6 +125,9 @@ pub struct ImportOptions {
     pub units: Option<Unit>,
     /// Free text for the log's `source` metadata (e.g. the file name).
     pub source: Option<String>,
+    /// How a markdown report's direction labels are read (other formats
+    /// name the direction per row or per key and ignore it).
+    pub directions: DirectionLabels,
 }
 
 impl Default for ImportOptions {
@@ -107,6 +137,7 @@ impl Default for ImportOptions {
             axis: Axis::X,
             units: None,
             source: None,
+            directions: DirectionLabels::Auto,
         }
     }
 }
@@ -154,6 +185,9 @@ pub enum ImportError {
         /// The target index.
         index: u32,
     },
+    /// A report holds no table of readings the import can read.
+    #[error("no table of readings: a report needs a table under a heading naming the direction (forward/backward) with a target column and either a cycle and a reading (reference) column or a reading column per cycle (ref_pos(i,1), …)")]
+    NoReadingTable,
     /// The log writer refused the converted content.
     #[error("cannot write the log: {0}")]
     Log(String),
@@ -180,10 +214,23 @@ pub struct Arrival {
     pub t_s: Option<f64>,
 }
 
+/// An export parsed: its arrivals, the unit it was written in and what the
+/// log's metadata must say about how it was read.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Parsed {
+    /// The arrivals, in the order the log gets them.
+    pub arrivals: Vec<Arrival>,
+    /// The unit of the input's lengths.
+    pub unit: Unit,
+    /// Metadata entries (key, value) describing the reading of the input
+    /// (layout, direction labels, skipped cells).
+    pub notes: Vec<(String, String)>,
+}
+
 /// Converts an export into measurement-log bytes (see the module docs).
 pub fn import_bytes(data: &[u8], opts: &ImportOptions) -> Result<Vec<u8>, ImportError> {
-    let (arrivals, source_unit) = parse_arrivals(data, opts)?;
-    write_log(&arrivals, opts, source_unit)
+    let p = parse_export(data, opts)?;
+    write_log_with_notes(&p.arrivals, opts, p.unit, &p.notes)
 }
 
 /// Parses an export into arrivals (µm) and the unit the input was in.
@@ -191,6 +238,21 @@ pub fn parse_arrivals(
     data: &[u8],
     opts: &ImportOptions,
 ) -> Result<(Vec<Arrival>, Unit), ImportError> {
+    let p = parse_export(data, opts)?;
+    Ok((p.arrivals, p.unit))
+}
+
+/// Whether `l` is the separator row under a markdown table's header
+/// (`--- | --- |`, `|:--|--:|`).
+fn is_table_rule(l: &str) -> bool {
+    let t = l.trim();
+    t.contains('-')
+        && t.contains('|')
+        && t.chars().all(|c| matches!(c, '-' | '|' | ':' | ' ' | '\t'))
+}
+
+/// Parses an export (see the module docs).
+pub fn parse_export(data: &[u8], opts: &ImportOptions) -> Result<Parsed, ImportError> {
     let text = match std::str::from_utf8(data) {
         Ok(t) => t,
         Err(e) => {
@@ -213,6 +275,8 @@ pub fn parse_arrivals(
                 l.starts_with("TGT_DATA[") || l.starts_with("REF_DATA_")
             }) {
                 ImportFormat::Dat
+            } else if text.lines().any(is_table_rule) {
+                ImportFormat::Report
             } else {
                 ImportFormat::Csv
             }
@@ -220,10 +284,25 @@ pub fn parse_arrivals(
         f => f,
     };
     let out = match format {
-        ImportFormat::Dat => parse_dat(text, opts.units)?,
-        _ => parse_csv(text, opts.units)?,
+        ImportFormat::Dat => {
+            let (arrivals, unit) = parse_dat(text, opts.units)?;
+            Parsed {
+                arrivals,
+                unit,
+                notes: Vec::new(),
+            }
+        }
+        ImportFormat::Report => parse_report(text, opts.units, opts.directions)?,
+        _ => {
+            let (arrivals, unit) = parse_csv(text, opts.units)?;
+            Parsed {
+                arrivals,
+                unit,
+                notes: Vec::new(),
+            }
+        }
     };
-    if out.0.is_empty() {
+    if out.arrivals.is_empty() {
         return Err(ImportError::Empty);
     }
     Ok(out)
@@ -572,11 +651,314 @@ fn parse_dat(text: &str, units: Option<Unit>) -> Result<(Vec<Arrival>, Unit), Im
     Ok((out, unit))
 }
 
+/// The direction a report heading names: `+1` forward, `−1` backward,
+/// `None` when it names neither (or both).
+fn heading_direction(h: &str) -> Option<f64> {
+    let h = h.to_ascii_lowercase();
+    let fwd = ["forward", "positive", "fwd"].iter().any(|w| h.contains(w));
+    let bwd = ["backward", "negative", "bwd"]
+        .iter()
+        .any(|w| h.contains(w));
+    match (fwd, bwd) {
+        (true, false) => Some(1.0),
+        (false, true) => Some(-1.0),
+        _ => None,
+    }
+}
+
+/// Cells of a markdown table row (a leading and a trailing `|` delimit,
+/// they do not add cells).
+fn table_cells(l: &str) -> Vec<&str> {
+    let t = l.trim();
+    let t = t.strip_prefix('|').unwrap_or(t);
+    let t = t.strip_suffix('|').unwrap_or(t);
+    t.split('|').map(str::trim).collect()
+}
+
+/// A report table's header cell: its role name (lower case, units and
+/// parenthesized indices removed, spaces as `_`), its unit (`[mm]`) and
+/// the cycle it holds when it is a per-cycle column (`ref_pos(i,3)`).
+fn report_cell(c: &str) -> (String, Option<Unit>, Option<u32>) {
+    let lower = c.trim().trim_matches('*').to_ascii_lowercase();
+    let mut name = String::new();
+    let mut unit = None;
+    let mut cycle = None;
+    let mut rest = lower.as_str();
+    while let Some(pos) = rest.find(['(', '[']) {
+        name.push_str(&rest[..pos]);
+        let close = if rest[pos..].starts_with('(') {
+            ')'
+        } else {
+            ']'
+        };
+        let Some(end) = rest[pos..].find(close) else {
+            name.push_str(&rest[pos..]);
+            rest = "";
+            break;
+        };
+        let inner = rest[pos + 1..pos + end].trim();
+        if let Some(u) = Unit::parse(inner) {
+            unit = Some(u);
+        } else if let Some((i, j)) = inner.split_once(',') {
+            if i.trim() == "i" {
+                cycle = j.trim().parse().ok();
+            }
+        }
+        rest = &rest[pos + end + 1..];
+    }
+    name.push_str(rest);
+    let name = name
+        .trim()
+        .trim_matches(|c: char| c == ',' || c == ':' || c == '_')
+        .trim()
+        .replace(' ', "_");
+    (name, unit, cycle)
+}
+
+const REPORT_CYCLE_NAMES: &[&str] = &["j", "cycle", "cycle_id", "cycle_no", "run"];
+const REPORT_TARGET_NAMES: &[&str] = &[
+    "tgt_pos",
+    "tgt",
+    "target",
+    "target_position",
+    "setpoint",
+    "set_point",
+    "nominal",
+];
+const REPORT_READING_NAMES: &[&str] = &[
+    "reference",
+    "ref_pos",
+    "ref",
+    "reference_position",
+    "measured",
+    "reading",
+    "ild2300",
+];
+
+/// Whether a reading cell says the arrival was not measured.
+fn not_measured(cell: &str) -> bool {
+    matches!(
+        cell.trim().to_ascii_lowercase().as_str(),
+        "" | "-" | "nan" | "n/a" | "na" | "out of range"
+    )
+}
+
+/// One table of readings found in a report.
+struct ReportTable {
+    /// Per-target rows with a column per cycle (`ref_pos(i,j)`).
+    per_cycle_columns: bool,
+}
+
+/// Parses a markdown report (see the module docs).
+fn parse_report(
+    text: &str,
+    units: Option<Unit>,
+    directions: DirectionLabels,
+) -> Result<Parsed, ImportError> {
+    let lines: Vec<&str> = text.lines().collect();
+    let mut heading = String::new();
+    let mut arrivals: Vec<(Arrival, usize)> = Vec::new();
+    let mut seen: BTreeMap<(u32, i8, i64), usize> = BTreeMap::new();
+    let mut tables: Vec<ReportTable> = Vec::new();
+    let mut skipped = 0usize;
+    let mut unit_seen: Option<Unit> = None;
+    let mut k = 0;
+    while k < lines.len() {
+        let l = lines[k];
+        if l.trim_start().starts_with('#') {
+            heading = l.trim_start().trim_start_matches('#').trim().to_string();
+            k += 1;
+            continue;
+        }
+        let is_header = l.contains('|') && k + 1 < lines.len() && is_table_rule(lines[k + 1]);
+        if !is_header {
+            k += 1;
+            continue;
+        }
+        let header: Vec<(String, Option<Unit>, Option<u32>)> =
+            table_cells(l).into_iter().map(report_cell).collect();
+        let raw: Vec<String> = table_cells(l).iter().map(|c| c.to_string()).collect();
+        // The table's rows: up to the first line that is not a row.
+        let mut end = k + 2;
+        while end < lines.len() && lines[end].contains('|') && !is_table_rule(lines[end]) {
+            end += 1;
+        }
+        let rows = (k + 2)..end;
+        k = end;
+        let Some(dir) = heading_direction(&heading) else {
+            continue;
+        };
+        let find = |names: &[&str]| {
+            header
+                .iter()
+                .position(|(n, _, c)| c.is_none() && names.contains(&n.as_str()))
+        };
+        let target = find(REPORT_TARGET_NAMES);
+        let per_cycle: Vec<(usize, u32)> = header
+            .iter()
+            .enumerate()
+            .filter_map(|(i, (n, _, c))| {
+                c.filter(|_| REPORT_READING_NAMES.contains(&n.as_str()))
+                    .map(|c| (i, c))
+            })
+            .collect();
+        let reading = find(REPORT_READING_NAMES);
+        let cycle = find(REPORT_CYCLE_NAMES);
+        let Some(target) = target else {
+            continue;
+        };
+        // Long layout: one row per arrival; wide: a column per cycle.
+        let columns: Vec<(usize, Option<u32>)> = match (cycle, reading) {
+            (Some(_), Some(r)) => vec![(r, None)],
+            _ if !per_cycle.is_empty() => per_cycle.iter().map(|&(i, c)| (i, Some(c))).collect(),
+            _ => continue,
+        };
+        let unit_of = |col: usize| -> Result<Unit, ImportError> {
+            units
+                .or(header[col].1)
+                .ok_or_else(|| ImportError::UnknownUnits {
+                    column: raw[col].clone(),
+                })
+        };
+        let target_unit = unit_of(target)?;
+        let wide = cycle.is_none() || reading.is_none();
+        tables.push(ReportTable {
+            per_cycle_columns: wide,
+        });
+        // The layout printed swapped (module docs) is the wide one.
+        let swap = match directions {
+            DirectionLabels::Auto => wide,
+            DirectionLabels::AsLabelled => false,
+            DirectionLabels::Swapped => true,
+        };
+        let approach = if swap { -dir } else { dir };
+        for row in rows {
+            let line = row + 1;
+            let cells = table_cells(lines[row]);
+            let cell = |i: usize| cells.get(i).copied().unwrap_or("");
+            let name = |i: usize| raw.get(i).cloned().unwrap_or_default();
+            if not_measured(cell(target)) {
+                skipped += columns.len();
+                continue;
+            }
+            let t = to_um(
+                number(cell(target), line, &name(target))?,
+                target_unit,
+                line,
+                &name(target),
+            )?;
+            for &(col, cyc) in &columns {
+                let c = match (cyc, cycle) {
+                    (Some(c), _) => c,
+                    (None, Some(cc)) => cycle_of(cell(cc), line, &name(cc))?,
+                    (None, None) => continue,
+                };
+                if not_measured(cell(col)) {
+                    skipped += 1;
+                    continue;
+                }
+                let u = unit_of(col)?;
+                unit_seen.get_or_insert(u);
+                let v = to_um(number(cell(col), line, &name(col))?, u, line, &name(col))?;
+                let key = (c, approach as i8, (t * 1e3).round() as i64);
+                if let Some(first) = seen.insert(key, line) {
+                    return Err(ImportError::Line {
+                        line,
+                        column: Some(name(col)),
+                        message: format!(
+                            "target {} {}, cycle {c}, {} approach is read twice (first on line {first})",
+                            number(cell(target), line, &name(target))?,
+                            match target_unit {
+                                Unit::M => "m",
+                                Unit::Mm => "mm",
+                                Unit::Um => "µm",
+                                Unit::Nm => "nm",
+                            },
+                            if approach > 0.0 { "forward" } else { "backward" }
+                        ),
+                    });
+                }
+                arrivals.push((
+                    Arrival {
+                        target_um: t,
+                        measured_um: v,
+                        approach,
+                        cycle: c,
+                        t_s: None,
+                    },
+                    line,
+                ));
+            }
+        }
+    }
+    if tables.is_empty() {
+        return Err(ImportError::NoReadingTable);
+    }
+    // The standard's order (per cycle: forward over increasing targets,
+    // then backward over decreasing ones), as the test ran it.
+    arrivals.sort_by(|(a, _), (b, _)| {
+        a.cycle
+            .cmp(&b.cycle)
+            .then(b.approach.total_cmp(&a.approach))
+            .then(if a.approach > 0.0 {
+                a.target_um.total_cmp(&b.target_um)
+            } else {
+                b.target_um.total_cmp(&a.target_um)
+            })
+    });
+    let wide = tables.iter().any(|t| t.per_cycle_columns);
+    let mut notes = vec![(
+        "report_layout".to_string(),
+        if wide {
+            "markdown tables, a row per target and a reading column per cycle (ecmc ecmcISO230_2.py)"
+        } else {
+            "markdown tables, a row per arrival (position index, cycle, target, reference reading)"
+        }
+        .to_string(),
+    )];
+    let swapped = match directions {
+        DirectionLabels::Auto => wide,
+        DirectionLabels::AsLabelled => false,
+        DirectionLabels::Swapped => true,
+    };
+    notes.push((
+        "direction_labels".to_string(),
+        match (swapped, directions) {
+            (true, DirectionLabels::Auto) => "swapped: this layout prints its input's REF_DATA_BWD readings (approached from above) under 'forward' and vice versa; imported by the true approach (--directions as-labelled keeps the headings)",
+            (true, _) => "swapped on request (--directions swapped): 'forward' tables imported as approached from above",
+            (false, _) => "as the headings say",
+        }
+        .to_string(),
+    ));
+    if skipped > 0 {
+        notes.push((
+            "unmeasured_cells".to_string(),
+            format!("{skipped} arrivals without a reading (empty or 'out of range' cells) skipped"),
+        ));
+    }
+    Ok(Parsed {
+        arrivals: arrivals.into_iter().map(|(a, _)| a).collect(),
+        unit: units.or(unit_seen).unwrap_or(Unit::Mm),
+        notes,
+    })
+}
+
 /// Writes arrivals as a 1-D measurement log (see the module docs).
 pub fn write_log(
     arrivals: &[Arrival],
     opts: &ImportOptions,
     source_unit: Unit,
+) -> Result<Vec<u8>, ImportError> {
+    write_log_with_notes(arrivals, opts, source_unit, &[])
+}
+
+/// [`write_log`] with extra metadata entries describing how the input was
+/// read ([`Parsed::notes`]).
+pub fn write_log_with_notes(
+    arrivals: &[Arrival],
+    opts: &ImportOptions,
+    source_unit: Unit,
+    notes: &[(String, String)],
 ) -> Result<Vec<u8>, ImportError> {
     if arrivals.is_empty() {
         return Err(ImportError::Empty);
@@ -623,6 +1005,10 @@ pub fn write_log(
         },
     );
     md.insert("error_sign", "target - meas (micropos)");
+    for (k, v) in notes {
+        let clean: String = v.chars().filter(|c| !c.is_control()).collect();
+        md.insert(k.as_str(), clean);
+    }
     let columns = Columns::new(
         false,
         vec![crate::analysis::diagnose::APPROACH_COLUMN.into()],
@@ -774,5 +1160,107 @@ mod tests {
         let e =
             import_bytes(b"TGT_DATA[1]=15\nUNIT=furlong\n", &ImportOptions::default()).unwrap_err();
         assert!(e.to_string().starts_with("line 2, column UNIT"), "{e}");
+    }
+
+    const REPORT_LONG: &str = "# Report\n\n# Forward test sequence\n\n\
+        i (pos id)| j (cycle)| Tgt_pos(i,j) [mm] | Motor(i,j) [mm] | Reference(i,j) [mm] | x(i,j) [mm]\n\
+        --- | --- | --- | --- | --- |--- |\n\
+        1 | 1 | 15.00000 | 15.00070 | 15.00161 | .00161 |\n\
+        2 | 1 | 25.00000 | 25.00078 | 25.02160 | .02160 |\n\
+        1 | 2 | 15.00000 | 15.00070 | 15.00141 | .00141 |\n\
+        2 | 2 | 25.00000 | 25.00078 | | |\n\
+        \n# Backward test sequence\n\
+        i (pos id)| j (cycle)| Tgt_pos(i,j) [mm] | Motor(i,j) [mm] | Reference(i,j) [mm] | x(i,j) [mm]\n\
+        --- | --- | --- | --- | --- |--- |\n\
+        1 | 1 | 15.20000 | 15.19945 | 15.19889 | -.00111 |\n\
+        2 | 1 | 25.20000 | 25.19929 | 25.22130 | .02130 |\n\
+        \n# Mean Position Deviation\n\
+        i (pos id) | Tgt_pos(i) [mm] | X_fwd(i) [mm]\n--- | --- | --- |\n1 | 15.0 | .001\n";
+
+    #[test]
+    fn a_report_with_a_row_per_arrival_is_read_by_its_headings() {
+        let p = parse_export(REPORT_LONG.as_bytes(), &ImportOptions::default()).unwrap();
+        let seq: Vec<(u32, f64, f64, f64)> = p
+            .arrivals
+            .iter()
+            .map(|a| (a.cycle, a.approach, a.target_um, a.measured_um))
+            .collect();
+        // Standard order; the empty cell is skipped and counted; targets
+        // as the rows give them (the backward ones 0.2 mm apart).
+        assert_eq!(seq.len(), 5);
+        assert_eq!(seq[0].0, 1);
+        assert_eq!((seq[0].1, seq[0].2), (1.0, 15_000.0));
+        assert!((seq[0].3 - 15_001.61).abs() < 1e-6);
+        assert_eq!((seq[2].1, seq[2].2), (-1.0, 25_200.0));
+        assert_eq!((seq[3].1, seq[3].2), (-1.0, 15_200.0));
+        assert_eq!(seq[4].0, 2);
+        let note = |k: &str| p.notes.iter().find(|n| n.0 == k).map(|n| n.1.clone());
+        assert_eq!(
+            note("direction_labels").as_deref(),
+            Some("as the headings say")
+        );
+        assert!(note("unmeasured_cells").is_some_and(|v| v.starts_with("1 ")));
+        let log =
+            parse_bytes(&import_bytes(REPORT_LONG.as_bytes(), &ImportOptions::default()).unwrap())
+                .unwrap();
+        assert_eq!(log.records.len(), 5);
+    }
+
+    const REPORT_WIDE: &str = "### Data forward direction\n\n\
+        i |tgt_pos(i) [mm]|ref_pos(i,1) [mm]|ref_pos(i,2) [mm]|\n--- |--- |--- |--- |\n\
+        1|15.0|15.00335|15.00233|\n2|25.2|25.19974|25.20015|\n\n\
+        ### Data backward direction\n\n\
+        i |tgt_pos(i) [mm]|ref_pos(i,1) [mm]|ref_pos(i,2) [mm]|\n--- |--- |--- |--- |\n\
+        1|15.0|15.00518|15.00518|\n2|25.2|25.19628|25.19607|\n";
+
+    #[test]
+    fn a_report_with_a_column_per_cycle_swaps_its_labels_unless_told() {
+        let p = parse_export(REPORT_WIDE.as_bytes(), &ImportOptions::default()).unwrap();
+        assert_eq!(p.arrivals.len(), 8);
+        // "forward" 15.00335 (cycle 1) is the approach from above.
+        let a = p
+            .arrivals
+            .iter()
+            .find(|a| a.cycle == 1 && a.target_um == 15_000.0 && a.approach < 0.0)
+            .unwrap();
+        assert!((a.measured_um - 15_003.35).abs() < 1e-6);
+        assert!(p
+            .notes
+            .iter()
+            .any(|n| n.0 == "direction_labels" && n.1.starts_with("swapped")));
+        let opts = ImportOptions {
+            directions: DirectionLabels::AsLabelled,
+            ..ImportOptions::default()
+        };
+        let p = parse_export(REPORT_WIDE.as_bytes(), &opts).unwrap();
+        let a = p
+            .arrivals
+            .iter()
+            .find(|a| a.cycle == 1 && a.target_um == 15_000.0 && a.approach > 0.0)
+            .unwrap();
+        assert!((a.measured_um - 15_003.35).abs() < 1e-6);
+    }
+
+    #[test]
+    fn report_errors_name_line_and_column() {
+        let e = import_bytes(
+            b"# x\n\nA | B\n--- | ---\n1 | 2\n",
+            &ImportOptions::default(),
+        )
+        .unwrap_err();
+        assert_eq!(e, ImportError::NoReadingTable);
+        let bad = REPORT_LONG.replace("15.00161", "1x.5");
+        let e = import_bytes(bad.as_bytes(), &ImportOptions::default()).unwrap_err();
+        assert!(
+            e.to_string()
+                .starts_with("line 7, column Reference(i,j) [mm]"),
+            "{e}"
+        );
+        let twice = format!("{REPORT_WIDE}\n### Data forward direction again\n\ni |tgt_pos(i) [mm]|ref_pos(i,1) [mm]|\n--- |--- |--- |\n1|15.0|15.1|\n");
+        let e = import_bytes(twice.as_bytes(), &ImportOptions::default()).unwrap_err();
+        assert!(e.to_string().contains("read twice"), "{e}");
+        let nounit = "# Forward\nj | tgt | reference\n--- | --- | ---\n1 | 1 | 1\n";
+        let e = import_bytes(nounit.as_bytes(), &ImportOptions::default()).unwrap_err();
+        assert!(matches!(e, ImportError::UnknownUnits { .. }), "{e}");
     }
 }

@@ -84,20 +84,44 @@ pub fn write_all(d: &Diagnosis, dir: &Path) -> Result<Vec<PathBuf>, PlotError> {
         if !measured(c) {
             continue;
         }
+        // Visits left out as outliers have no fitted residual (they are
+        // zero after the centring): not drawn, and the legend says so.
+        let kept = |v: &[f64]| -> Vec<(f64, f64)> {
+            pairs(v, &s.before_um[c])
+                .into_iter()
+                .zip(&s.excluded)
+                .filter(|(_, &e)| !e)
+                .map(|(p, _)| p)
+                .collect()
+        };
+        let kept_after = |v: &[f64]| -> Vec<(f64, f64)> {
+            pairs(v, &s.after_um[c])
+                .into_iter()
+                .zip(&s.excluded)
+                .filter(|(_, &e)| !e)
+                .map(|(p, _)| p)
+                .collect()
+        };
+        let left_out = s.excluded.iter().filter(|&&e| e).count();
+        let note = if left_out > 0 {
+            format!(" ({left_out} outlier visit(s) left out, see the report)")
+        } else {
+            String::new()
+        };
         for (name, label, v) in &vars {
             let chart = Chart {
-                title: format!("{comp} residual (measured − model) vs {name}"),
+                title: format!("{comp} residual (measured − model) vs {name}{note}"),
                 x_label: label.clone(),
                 y_label: format!("{comp} residual (µm)"),
                 series: vec![
                     Series {
                         label: "parameter corrections (base fit)".into(),
-                        points: pairs(v, &s.before_um[c]),
+                        points: kept(v),
                         mark: Mark::Dots,
                     },
                     Series {
                         label: "corrections + findings (extended model)".into(),
-                        points: pairs(v, &s.after_um[c]),
+                        points: kept_after(v),
                         mark: Mark::Dots,
                     },
                 ],

@@ -169,6 +169,14 @@ where
         .light_line_style(RGBColor(235, 235, 235))
         .draw()
         .map_err(e)?;
+    // Dots large enough to see on a 50-point test, small enough not to
+    // merge on a 2000-point scan.
+    let total: usize = chart.series.iter().map(|s| s.points.len()).sum();
+    let radius = match total {
+        0..=300 => 3,
+        301..=2000 => 2,
+        _ => 1,
+    };
     for (i, s) in chart.series.iter().enumerate() {
         let color = PALETTE[i % PALETTE.len()];
         let pts = s
@@ -178,7 +186,7 @@ where
             .filter(|(x, y)| x.is_finite() && y.is_finite());
         let anno = match s.mark {
             Mark::Dots => c
-                .draw_series(pts.map(|p| Circle::new(p, 1, color.filled())))
+                .draw_series(pts.map(|p| Circle::new(p, radius, color.filled())))
                 .map_err(e)?,
             Mark::Line => c
                 .draw_series(LineSeries::new(pts, color.stroke_width(1)))

@@ -76,6 +76,7 @@ pub(super) fn corrections(
     fitted: &StageModel,
     free: &[String],
     std_errs: &HashMap<String, f64>,
+    synthetic_time: bool,
 ) -> Vec<ParamCorrection> {
     let params = model.params();
     let mut out = Vec::new();
@@ -102,7 +103,7 @@ pub(super) fn corrections(
             (mv, unit.into())
         };
         let s = if big { se / 1000.0 } else { se };
-        let sentence = format!(
+        let mut sentence = format!(
             "this stage's {} is {f:+.4} ± {s:.4} {u}, the model says {m:+.4}{}",
             what(&p.kind, &p.term, &p.info.name),
             if significant {
@@ -111,6 +112,15 @@ pub(super) fn corrections(
                 " (the log agrees within 3 σ)"
             }
         );
+        // A rate against synthetic times is a rate per record.
+        if synthetic_time && unit.ends_with("/h") {
+            let per = unit.trim_end_matches("/h");
+            sentence.push_str(&format!(
+                "; the log's times are synthetic (one record per second), so this is {:+.4} ± {:.4} {per} per record, in the order the records were measured, not per hour",
+                fv / 3600.0,
+                se / 3600.0
+            ));
+        }
         out.push(ParamCorrection {
             term: p.term.clone(),
             kind: p.kind.clone(),
@@ -124,4 +134,61 @@ pub(super) fn corrections(
         });
     }
     out
+}
+
+/// Says, in the sentence of a play fitted jointly with a reversal table on
+/// its axis, what that play is: the lost motion at the table's first knot
+/// (the table is zero there), not the axis's lost motion in general, which
+/// the table gives along the travel.
+///
+/// Why: a reader compares the play with the replicates' mean reversal;
+/// on a stage whose lost motion changes sign along the travel the two
+/// differ by tens of µm and agree only once this is said.
+pub(super) fn note_tables(
+    parameters: &mut [ParamCorrection],
+    findings: &[super::Finding],
+    model: &StageModel,
+) {
+    for f in findings {
+        if f.kind != crate::analysis::FindingKind::ReversalVaries {
+            continue;
+        }
+        let Some(t) = super::search::backlash_term_of(model, f.axis) else {
+            continue;
+        };
+        let Some(p) = parameters
+            .iter_mut()
+            .find(|p| p.term == t.name() && p.parameter == "backlash_um")
+        else {
+            continue;
+        };
+        let knots: Vec<(f64, f64)> = (0..)
+            .map_while(|k| {
+                Some((
+                    *f.params.get(&format!("knot{k}_um"))?,
+                    *f.params.get(&format!("value{k}_um"))?,
+                ))
+            })
+            .collect();
+        let Some(&(x0, v0)) = knots.first() else {
+            continue;
+        };
+        let mean = knots.iter().map(|k| k.1).sum::<f64>() / knots.len() as f64;
+        let deficit = v0 - p.fitted_value;
+        p.sentence.push_str(&format!(
+            "; fitted jointly with the reversal table `{}`, which is zero at its first knot ({:.1} µm): this is the lost motion there{}, the table gives it along the travel (from {:+.3} to {:+.3} µm, mean {mean:+.3} µm over its {} knots)",
+            f.term,
+            x0,
+            if deficit.abs() > 1e-9 {
+                format!(
+                    " (there {v0:+.3} µm: a play cannot be negative, so the table holds the {deficit:+.3} µm below zero)"
+                )
+            } else {
+                String::new()
+            },
+            knots.iter().map(|k| k.1).fold(f64::INFINITY, f64::min),
+            knots.iter().map(|k| k.1).fold(f64::NEG_INFINITY, f64::max),
+            knots.len()
+        ));
+    }
 }

@@ -58,6 +58,54 @@ pub(super) struct Data {
     /// ISO 230-2 exports, which a replay of logged commands cannot see
     /// when the approach moves were not logged), else the replayed one.
     pub(super) approach: Vec<[f64; 2]>,
+    /// Whether the folds are whole cycles (else contiguous chunks of the
+    /// log's one cycle).
+    pub(super) whole_cycle_folds: bool,
+    /// The axis whose commanded position moves with time over the whole
+    /// log (|r| ≥ [`TIME_POSITION_R`] over the rows where it moves: a
+    /// one-way scan at a steady rate), and that correlation.
+    pub(super) time_with: Option<(Axis, f64)>,
+}
+
+/// Correlation of time with an axis's position from which a log cannot
+/// tell a drift from an error that depends on that position.
+pub(super) const TIME_POSITION_R: f64 = 0.98;
+
+/// The axis (and the correlation) whose commanded position follows time
+/// over the rows where it moves, or `None`.
+///
+/// Why: on a one-way scan at a steady rate (a flexure's return leg
+/// recorded alone) position and time are one variable; a bow of the
+/// travel fits as a curving drift of 1000 µm/h, and a drift as a scale.
+/// Neither can be told from the other, so the log's time is not used to
+/// explain anything.
+fn time_position(states: &[MotionState], moving: &[[bool; 2]]) -> Option<(Axis, f64)> {
+    Axis::ALL.into_iter().find_map(|a| {
+        let pts: Vec<(f64, f64)> = states
+            .iter()
+            .zip(moving)
+            .filter(|(_, m)| m[a.index()])
+            .map(|(s, _)| (s.time_s, s.cmd_um(a)))
+            .collect();
+        if pts.len() < 10 || pts.len() * 10 < states.len() * 9 {
+            return None;
+        }
+        let n = pts.len() as f64;
+        let (mt, mx) = pts
+            .iter()
+            .fold((0.0, 0.0), |(t, x), p| (t + p.0 / n, x + p.1 / n));
+        let (mut stt, mut sxx, mut stx) = (0.0, 0.0, 0.0);
+        for &(t, x) in &pts {
+            stt += (t - mt) * (t - mt);
+            sxx += (x - mx) * (x - mx);
+            stx += (t - mt) * (x - mx);
+        }
+        if stt <= 0.0 || sxx <= 0.0 {
+            return None;
+        }
+        let r = stx / (stt * sxx).sqrt();
+        (r.abs() >= TIME_POSITION_R).then_some((a, r))
+    })
 }
 
 /// Where the measured/unmeasured decision came from.
@@ -253,7 +301,11 @@ pub(super) fn prepare(
         judged,
         excluded: vec![false; n],
         approach,
+        whole_cycle_folds: cycles.len() >= 2,
+        time_with: None,
     };
+    let mut d = d;
+    d.time_with = time_position(&d.states, &d.moving);
     Ok(d)
 }
 
@@ -606,10 +658,118 @@ pub(super) fn distinct_positions(d: &Data, a: Axis) -> Vec<f64> {
 }
 
 /// Shortest period the log resolves along axis `a`, µm: two positions per
-/// period at the median spacing of its distinct positions (`None` with
-/// fewer than two positions). A periodic error of a shorter period is
+/// period at the [`sampling_spacing_um`] of its distinct positions (`None`
+/// with fewer than two positions). A periodic error of a shorter period is
 /// aliased: the log cannot identify it.
 pub(super) fn shortest_period_um(d: &Data, a: Axis) -> Option<f64> {
-    let pos = distinct_positions(d, a);
-    median(pos.windows(2).map(|w| w[1] - w[0]).collect()).map(|s| 2.0 * s)
+    sampling_spacing_um(&distinct_positions(d, a)).map(|s| 2.0 * s)
+}
+
+/// Share of an axis's span that the gaps up to the sampling spacing must
+/// cover (see [`sampling_spacing_um`]).
+const COVERED_SPAN: f64 = 0.9;
+
+/// The spacing at which sorted positions `pos` sample their span: the
+/// smallest gap `g` such that the gaps no longer than `g` add up to
+/// [`COVERED_SPAN`] of the span.
+///
+/// Why not the median gap: positions in clusters (a test whose backward
+/// targets sit 0.2 mm from its forward ones, 10 mm apart) have a median
+/// gap of 0.2 mm, yet a period of 0.4 mm is sampled at two points per
+/// 10 mm; fitted there, a screw harmonic becomes an arbitrary per-target
+/// correction. On an even grid (with a few holes) this is the step.
+pub(super) fn sampling_spacing_um(pos: &[f64]) -> Option<f64> {
+    if pos.len() < 2 {
+        return None;
+    }
+    let span = pos[pos.len() - 1] - pos[0];
+    let mut gaps: Vec<f64> = pos.windows(2).map(|w| w[1] - w[0]).collect();
+    gaps.sort_by(f64::total_cmp);
+    let mut covered = 0.0;
+    for &g in &gaps {
+        covered += g;
+        if covered >= COVERED_SPAN * span {
+            return Some(g);
+        }
+    }
+    gaps.last().copied()
+}
+
+/// Fraction of the sampling spacing within which distinct positions count
+/// as one target (see [`targets_of`]).
+const CLUSTER_FRACTION: f64 = 0.05;
+
+/// Targets up to which nearby positions are merged into one target.
+const MAX_CLUSTERED_TARGETS: usize = 12;
+
+/// The targets a test's positions stand for: each a cluster of distinct
+/// positions closer than [`CLUSTER_FRACTION`] of the sampling spacing.
+#[derive(Debug, Clone, PartialEq)]
+pub(super) struct Targets {
+    /// Per target: its lowest and highest position, µm.
+    pub bounds: Vec<(f64, f64)>,
+}
+
+impl Targets {
+    /// Index of the target `x` belongs to (within 1 nm of its bounds).
+    pub fn index_of(&self, x: f64) -> Option<usize> {
+        self.bounds
+            .iter()
+            .position(|&(lo, hi)| x >= lo - 1e-3 && x <= hi + 1e-3)
+    }
+
+    /// Centre of target `k`, µm.
+    pub fn centre(&self, k: usize) -> f64 {
+        let (lo, hi) = self.bounds[k];
+        0.5 * (lo + hi)
+    }
+
+    /// Centres of all targets, µm.
+    pub fn centres(&self) -> Vec<f64> {
+        (0..self.bounds.len()).map(|k| self.centre(k)).collect()
+    }
+
+    /// Widest target (its highest less its lowest position), µm: 0 when
+    /// every target is one position.
+    pub fn widest_um(&self) -> f64 {
+        self.bounds
+            .iter()
+            .map(|(lo, hi)| hi - lo)
+            .fold(0.0, f64::max)
+    }
+}
+
+/// Groups sorted distinct positions `pos` into the targets of a test with
+/// few targets: positions closer than [`CLUSTER_FRACTION`] of the
+/// [`sampling_spacing_um`] are one target, when that leaves at most
+/// [`MAX_CLUSTERED_TARGETS`]; otherwise every position is its own target.
+///
+/// Why: a test program whose backward pass stops 0.2 mm from its forward
+/// targets (10 mm apart) measured 5 targets, not 10. Read as 10, a table
+/// with a knot at each position takes the reversal as a non-linearity
+/// (the forward and the backward positions get knots of their own), and
+/// the play, pinned only by the table's end knots, gets a σ of 0.1 µm for
+/// a value nothing measured. Read as 5, each target's reversal is the
+/// difference of its two approaches, as the test's own report pairs them;
+/// the report says how far apart they were.
+pub(super) fn targets_of(pos: &[f64]) -> Targets {
+    let single = Targets {
+        bounds: pos.iter().map(|&p| (p, p)).collect(),
+    };
+    let Some(spacing) = sampling_spacing_um(pos) else {
+        return single;
+    };
+    let tol = CLUSTER_FRACTION * spacing;
+    let mut bounds: Vec<(f64, f64)> = Vec::new();
+    for &p in pos {
+        match bounds.last_mut() {
+            Some(b) if p - b.1 < tol => b.1 = p,
+            _ => bounds.push((p, p)),
+        }
+    }
+    if bounds.len() == pos.len() || bounds.len() > MAX_CLUSTERED_TARGETS {
+        single
+    } else {
+        Targets { bounds }
+    }
 }

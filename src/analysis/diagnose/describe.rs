@@ -236,19 +236,26 @@ pub(super) fn describe(
             // The lost motion a table describes is the play plus the
             // table (the play carries its first knot); a non-linearity is
             // the table alone (zero at both ends).
-            let play = if lost_motion {
+            let play_name = if lost_motion {
                 super::search::backlash_term_of(fitted, a)
-                    .and_then(|t| fitted.param(&format!("{}.backlash_um", t.name())).ok())
-                    .unwrap_or(0.0)
+                    .map(|t| format!("{}.backlash_um", t.name()))
             } else {
-                0.0
+                None
             };
+            let play = play_name
+                .as_ref()
+                .and_then(|n| fitted.param(n).ok())
+                .unwrap_or(0.0);
             let mut vals = Vec::with_capacity(knots.len());
             for (k, &pos) in knots.iter().enumerate() {
                 let v = p(&format!("value{k}_um"))? + play;
                 params.insert(format!("knot{k}_um"), pos);
                 params.insert(format!("value{k}_um"), v);
-                if let Some(e) = se(&format!("value{k}_um")) {
+                // A knot the table holds at zero is the play there (its
+                // uncertainty the play's, when the log measured it).
+                let e = se(&format!("value{k}_um"))
+                    .or_else(|| play_name.as_ref().and_then(|n| std_err(n)));
+                if let Some(e) = e {
                     unc.insert(format!("value{k}_um"), e);
                 }
                 vals.push((pos, v));
@@ -275,12 +282,21 @@ pub(super) fn describe(
             if lost_motion {
                 kind = FindingKind::ReversalVaries;
                 explanation = format!(
-                    "{a}'s lost motion on reversal changes along the travel, from {:+.3} µm at {} to {:+.3} µm at {} (a reversal table at {} knots, linear between them; > 0: the platform trails the command)",
+                    "{a}'s lost motion on reversal changes along the travel, from {:+.3} µm at {} to {:+.3} µm at {} (a reversal table at {} knots, linear between them). Lost motion T = the model's play + the table, > 0 when the platform trails the command in both directions (the model's error is −½·T when arriving forward, +½·T backward), so T = −B in ISO 230-2's sign (B = x̄↑ − x̄↓, measured − target): {}; at {} the table is zero and T is the play{}",
                     lo.1,
                     at(lo.0),
                     hi.1,
                     at(hi.0),
-                    knots.len()
+                    knots.len(),
+                    vals.iter()
+                        .map(|(x, v)| format!("{v:+.3} µm at {}", at(*x)))
+                        .collect::<Vec<_>>()
+                        .join(", "),
+                    at(first.0),
+                    match &play_name {
+                        Some(n) => format!(" `{n}` ({play:+.3} µm)"),
+                        None => " (the model has no play term for this axis)".into(),
+                    }
                 );
                 cause = "nut preload or wear that varies along the screw, a bent screw or misaligned coupling whose wind-up changes with position, or guide friction that varies; one constant play cannot follow it".into();
             } else {
@@ -289,10 +305,14 @@ pub(super) fn describe(
                     .max_by(|&i, &j| vals[i].1.abs().total_cmp(&vals[j].1.abs()))
                     .unwrap_or(0);
                 explanation = format!(
-                    "{a}'s error departs from a straight line between the ends of the travel by up to {:+.3} µm (at {}; a table at {} knots, linear between them)",
+                    "{a}'s error departs from the straight line through the table's end knots by up to {:+.3} µm (at {}; a table at {} knots, linear between them, zero at both ends: the offset and the slope are the base fit's; model sign, measured − command): {}",
                     vals[k].1,
                     at(vals[k].0),
-                    knots.len()
+                    knots.len(),
+                    vals.iter()
+                        .map(|(x, v)| format!("{v:+.3} µm at {}", at(*x)))
+                        .collect::<Vec<_>>()
+                        .join(", ")
                 );
                 cause = "progressive pitch error of the screw, a worn or bent section, or guide straightness seen through an Abbe offset".into();
             }

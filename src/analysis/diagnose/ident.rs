@@ -76,6 +76,19 @@ pub(super) fn identifiable(
     names: &[String],
     cols: &[Vec<f64>],
 ) -> (Vec<usize>, Vec<Unidentifiable>) {
+    identifiable_given(d, model, names, cols, &[])
+}
+
+/// [`identifiable`] with the columns `given` (accepted findings' terms)
+/// in the span before any parameter: a parameter whose column they and the
+/// parameters kept before it span is not separable from them.
+pub(super) fn identifiable_given(
+    d: &Data,
+    model: &StageModel,
+    names: &[String],
+    cols: &[Vec<f64>],
+    given: &[Vec<f64>],
+) -> (Vec<usize>, Vec<Unidentifiable>) {
     let kinds: Vec<String> = names
         .iter()
         .map(|n| {
@@ -101,6 +114,28 @@ pub(super) fn identifiable(
     let mut basis: Vec<Vec<f64>> = Vec::new();
     let mut kept: Vec<usize> = Vec::new();
     let mut dropped: Vec<usize> = Vec::new();
+    let orthogonal = |basis: &[Vec<f64>], col: &[f64]| -> Option<Vec<f64>> {
+        let norm = dot(col, col).sqrt();
+        if norm <= 0.0 || !norm.is_finite() {
+            return None;
+        }
+        let mut r: Vec<f64> = col.iter().map(|v| v / norm).collect();
+        for _ in 0..2 {
+            for q in basis {
+                let c = dot(&r, q);
+                for (a, b) in r.iter_mut().zip(q) {
+                    *a -= c * b;
+                }
+            }
+        }
+        let rn = dot(&r, &r).sqrt();
+        (rn >= SEPARABLE_TOL).then(|| r.iter().map(|v| v / rn).collect())
+    };
+    for g in given {
+        if let Some(q) = orthogonal(&basis, &rows(g)) {
+            basis.push(q);
+        }
+    }
     for &j in &order {
         let col = rows(&cols[j]);
         let norm = dot(&col, &col).sqrt();

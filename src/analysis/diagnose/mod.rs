@@ -202,6 +202,9 @@ pub struct ResidualSeries {
     pub before_um: [Vec<f64>; 2],
     /// Residual after the extended fit, µm.
     pub after_um: [Vec<f64>; 2],
+    /// Rows left out as outliers (`Data::excluded`): their residuals above
+    /// are not fitted values (zero after the centring) and are not drawn.
+    pub excluded: Vec<bool>,
 }
 
 /// A base-fit parameter kept at the model's value, and why.
@@ -254,6 +257,20 @@ fn unresolved(d: &data::Data, model: &StageModel, name: &str) -> Option<String> 
             "the log's temperature does not change: temperature coefficients cannot be identified"
                 .into(),
         );
+    }
+    if let Some((axis, r)) = d.time_with {
+        let per_time = unit.contains("/h") || unit.contains("/s");
+        let timed = model
+            .terms()
+            .iter()
+            .find(|t| t.name() == term_name)
+            .and_then(|t| t.to_config().ok())
+            .is_some_and(|c| c.get("period_s").is_some());
+        if per_time || timed {
+            return Some(format!(
+                "time and {axis} position move together over this log (r = {r:+.3}): a drift cannot be told from an error along {axis}"
+            ));
+        }
     }
     if !(param.contains("sin") || param.contains("cos")) {
         return None;
@@ -337,6 +354,18 @@ pub struct Diagnosis {
     /// `measured_axes` entry) or `data` (a constant `*_meas_um` column is a
     /// placeholder).
     pub measured_from: String,
+    /// Whether the log's times are synthetic (its `time_source` metadata
+    /// says so, as `micropos import` writes for exports without times):
+    /// rates per hour are then per 3600 records and say nothing about
+    /// time.
+    pub synthetic_time: bool,
+    /// The axis whose position follows time over the whole log, and the
+    /// correlation (a one-way scan at a steady rate): nothing is fitted or
+    /// searched as a function of time.
+    pub time_with: Option<(Axis, f64)>,
+    /// Whether the held-out folds are whole cycles (else contiguous
+    /// chunks of the log's one cycle).
+    pub whole_cycle_folds: bool,
     /// RMS over the log's rows of what the aliased base parameters (held
     /// at the model's value because the sampling cannot resolve their
     /// period) contribute to the model's prediction, µm: the part of the
@@ -416,8 +445,22 @@ pub fn diagnose(
             aliased: false,
         });
     }
-    let cand_names: Vec<String> = separable.iter().map(|&j| res_names[j].clone()).collect();
-    let cand_cols: Vec<Vec<f64>> = separable.iter().map(|&j| res_cols[j].clone()).collect();
+    // A parameter the training rows of some fold do not vary (its effect
+    // lies in the held-out cycle or chunk alone, e.g. the forward screw
+    // harmonics of a log with four forward points in its first chunk)
+    // is fitted from a handful of points no held-out row ever tests.
+    let (testable, untestable): (Vec<usize>, Vec<usize>) = separable
+        .iter()
+        .partition(|&&j| testable_in_every_fold(&d, &res_cols[j]));
+    for &j in &untestable {
+        base_fixed.push(FixedParam {
+            name: res_names[j].clone(),
+            reason: "no held-out test can judge them: on the training rows of a fold their effect does not vary (it lies in the held-out part alone)".into(),
+            aliased: false,
+        });
+    }
+    let cand_names: Vec<String> = testable.iter().map(|&j| res_names[j].clone()).collect();
+    let cand_cols: Vec<Vec<f64>> = testable.iter().map(|&j| res_cols[j].clone()).collect();
     drop(res_cols);
     // Model selection on the base fit too: only the terms whose freeing
     // predicts held-out data better (see `fit::select_base`).
@@ -543,12 +586,46 @@ pub fn diagnose(
                 dropped.retain(|&k| k != j);
             }
         } else {
+            // A reversal table is the lost motion relative to the axis's
+            // play (zero at its first knot, `search::table_free_knots`):
+            // with the play left at the model's value by the base
+            // selection, the table's first knot would be the model's
+            // play, a value nothing in the log measured. The play is
+            // freed with it.
+            for j in table_plays(&spec, model, &cand_names, &dropped) {
+                base0.push(cand_cols[j].clone());
+                base_names.push(cand_names[j].clone());
+                base_fixed.retain(|f| f.name != cand_names[j]);
+                dropped.retain(|&k| k != j);
+            }
+            let table = matches!(spec, Spec::Table { .. } | Spec::Tables { .. });
             acc.push(Accepted {
                 family: best,
                 spec,
                 verdict,
                 cols: spec_cols,
             });
+            // A table with a knot at every target takes any error of its
+            // axis at those targets: a base parameter whose effect it (with
+            // the other base parameters) spans is no longer separable and
+            // stays at the model's value (see `ident`). Fitted as well, the
+            // split between it and the table is arbitrary, and so is its σ.
+            if table {
+                let given: Vec<Vec<f64>> = acc.iter().flat_map(|a| a.cols.clone()).collect();
+                let (kept, unid) =
+                    ident::identifiable_given(&d, model, &base_names, &base0, &given);
+                if kept.len() < base_names.len() {
+                    for u in unid {
+                        base_fixed.push(FixedParam {
+                            name: u.name.clone(),
+                            reason: "the per-target table of a finding spans its effect at the log's targets: not separable from it".into(),
+                            aliased: false,
+                        });
+                    }
+                    base0 = kept.iter().map(|&j| base0[j].clone()).collect();
+                    base_names = kept.iter().map(|&j| base_names[j].clone()).collect();
+                }
+            }
         }
         // The findings so far, against what the base and each other now
         // carry (a freed carrier can take over an earlier finding's error).
@@ -640,7 +717,12 @@ pub fn diagnose(
         base_model.set_environment(env)?;
     }
     std_errs.extend(lin_se);
-    let parameters = corrections::corrections(model, &fitted, &base_names, &std_errs);
+    let synthetic_time = log
+        .metadata
+        .get(TIME_SOURCE_KEY)
+        .is_some_and(|v| v.trim_start().starts_with("synthetic"));
+    let parameters =
+        corrections::corrections(model, &fitted, &base_names, &std_errs, synthetic_time);
     let std_err = |name: &str| -> Option<f64> { std_errs.get(name).copied() };
     let accepted: Vec<(Spec, Verdict)> = specs
         .into_iter()
@@ -671,6 +753,7 @@ pub fn diagnose(
             series.before_um[c].push(base_only.resid[2 * i + c]);
             series.after_um[c].push(after[2 * i + c]);
         }
+        series.excluded.push(d.excluded[i]);
     }
     series.extra = d
         .extra
@@ -684,6 +767,9 @@ pub fn diagnose(
         .zip(&term_names)
         .map(|((spec, v), name)| describe(spec, v, name, &fitted, model, &std_err, &value, &d))
         .collect::<Result<Vec<_>, _>>()?;
+    let mut parameters = parameters;
+    corrections::note_tables(&mut parameters, &findings, model);
+    note_short_periods(&mut parameters, &d, model);
     let mut r0 = vec![0.0; 2 * d.n];
     for i in 0..d.n {
         let o = model.observed_position(&d.states[i]);
@@ -718,6 +804,25 @@ pub fn diagnose(
         }
         aliased_rms = [rms_comp(&diff, 0), rms_comp(&diff, 1)];
     }
+    // A table with a knot per target also takes what the model's aliased
+    // terms (unverifiable, at the model's values) claim at the targets: on
+    // an axis whose real error is linear to 0.01 µm, a table can read
+    // 2.6 µm, all of it the model's own screw and guide claims.
+    let mut findings = findings;
+    for f in findings.iter_mut().filter(|f| {
+        matches!(
+            f.kind,
+            crate::analysis::FindingKind::Nonlinearity
+                | crate::analysis::FindingKind::ReversalVaries
+        )
+    }) {
+        let a = aliased_rms[f.component.index()];
+        if a > 0.0 {
+            f.explanation.push_str(&format!(
+                "; these values also correct the model's own aliased terms, which stay at the model's values and contribute {a:.3} µm rms at the log's points: where the model's claim is wrong there, the table holds the difference, and the stage's own departure is the replicates' reading (no model)"
+            ));
+        }
+    }
     Ok(Diagnosis {
         points: d.n,
         folds: d.nfolds,
@@ -739,6 +844,9 @@ pub fn diagnose(
             MeasuredSource::Metadata => "metadata".into(),
             MeasuredSource::Data => "data".into(),
         },
+        synthetic_time,
+        time_with: d.time_with,
+        whole_cycle_folds: d.whole_cycle_folds,
         aliased_contribution_rms_um: RmsXy::from(aliased_rms),
         judged_points: d.judged.iter().filter(|&&j| j).count(),
         noise,
@@ -747,6 +855,121 @@ pub fn diagnose(
         base_model,
         series,
     })
+}
+
+/// Relative spread (standard deviation over the training rows of a fold
+/// against that over all rows) below which a base column cannot be
+/// fitted from the training rows, see [`testable_in_every_fold`].
+const TRAINING_SPREAD: f64 = 1e-3;
+
+/// Whether base column `col` varies over the training rows of every fold
+/// (measured components, rows not excluded): a parameter that does not is
+/// fitted on the full data from the held-out part alone, where no
+/// held-out test can judge it.
+fn testable_in_every_fold(d: &data::Data, col: &[f64]) -> bool {
+    let spread = |use_row: &dyn Fn(usize) -> bool| -> f64 {
+        let vals: Vec<f64> = (0..d.n)
+            .filter(|&i| use_row(i) && !d.excluded[i])
+            .flat_map(|i| {
+                (0..2)
+                    .filter(|&c| d.measured[c])
+                    .map(move |c| col[2 * i + c])
+            })
+            .collect();
+        if vals.len() < 2 {
+            return 0.0;
+        }
+        let m = vals.iter().sum::<f64>() / vals.len() as f64;
+        (vals.iter().map(|v| (v - m).powi(2)).sum::<f64>() / vals.len() as f64).sqrt()
+    };
+    let all = spread(&|_| true);
+    if all <= 0.0 {
+        return true;
+    }
+    (0..d.nfolds).all(|f| spread(&|i| d.fold[i] != f) >= TRAINING_SPREAD * all)
+}
+
+/// Periods a log must span before a fitted periodic parameter reads as
+/// a periodic error rather than a bow of the travel.
+const PERIODS_FOR_A_PERIOD: f64 = 2.0;
+
+/// Says, in the sentence of a periodic parameter (`sin`/`cos`) that the
+/// log spans fewer than [`PERIODS_FOR_A_PERIOD`] periods of, that its
+/// value is as much a bow of the travel as a periodic error.
+///
+/// Why: the default model's 400 µm screw harmonics fitted on a flexure's
+/// 450 µm travel (a 500 µm micrometer) are freed, predict held-out cycles
+/// better and come out at 10σ, but over 1.1 periods a sinusoid is a smooth
+/// curve as much as a screw's periodic error; a reader must not take it
+/// for this stage's screw error at that period.
+fn note_short_periods(parameters: &mut [ParamCorrection], d: &data::Data, model: &StageModel) {
+    for p in parameters.iter_mut() {
+        if !(p.parameter.contains("sin") || p.parameter.contains("cos")) {
+            continue;
+        }
+        let Some(cfg) = model
+            .terms()
+            .iter()
+            .find(|t| t.name() == p.term)
+            .and_then(|t| t.to_config().ok())
+        else {
+            continue;
+        };
+        let Some(period_um) = cfg.get("period_um").and_then(|v| v.as_float()) else {
+            continue;
+        };
+        let axis = match cfg.get("axis").and_then(|v| v.as_str()) {
+            Some("x") => Axis::X,
+            Some("y") => Axis::Y,
+            _ => continue,
+        };
+        // Harmonic k of the term's fundamental (`forward_sin_3_um`: k = 3).
+        let k: f64 = p
+            .parameter
+            .split('_')
+            .skip_while(|w| *w != "sin" && *w != "cos")
+            .nth(1)
+            .and_then(|w| w.parse().ok())
+            .unwrap_or(1.0);
+        let period_um = period_um / k.max(1.0);
+        let span = data::span_of(d, axis);
+        let periods = span / period_um;
+        if periods < PERIODS_FOR_A_PERIOD {
+            p.sentence.push_str(&format!(
+                "; the log spans only {periods:.1} periods of it ({period_um:.0} µm over {span:.0} µm of {axis}): as much a bow of the travel as a periodic error at that period"
+            ));
+        }
+    }
+}
+
+/// Indices in `cand_names` of the plays (`backlash_um`) a reversal table
+/// in `spec` is relative to, among the `dropped` candidates (left at the
+/// model's value by the base selection).
+fn table_plays(
+    spec: &Spec,
+    model: &StageModel,
+    cand_names: &[String],
+    dropped: &[usize],
+) -> Vec<usize> {
+    let mut out = Vec::new();
+    for s in spec.clone().split() {
+        let Spec::Table {
+            axis,
+            lost_motion: true,
+            ..
+        } = s
+        else {
+            continue;
+        };
+        let Some(t) = search::backlash_term_of(model, axis) else {
+            continue;
+        };
+        let play = format!("{}.backlash_um", t.name());
+        out.extend(dropped.iter().copied().filter(|&j| cand_names[j] == play));
+    }
+    out.sort_unstable();
+    out.dedup();
+    out
 }
 
 /// Passes of the greedy loop per allowed finding (each pass accepts a
@@ -814,3 +1037,7 @@ fn log_environment(log: &MeasurementLog) -> Result<Option<Environment>, Analysis
 /// Spacing of the temperature points taken from a log, s (room temperature
 /// changes over minutes; 30 s keeps a 9.5 h log to ~1000 points).
 const ENV_STEP_S: f64 = 30.0;
+
+/// Metadata key of a log's time source (`micropos import` writes
+/// `synthetic: …` for exports without times).
+pub const TIME_SOURCE_KEY: &str = "time_source";

@@ -90,12 +90,30 @@ pub struct Outlier {
 pub struct IsoFigures {
     /// Cycles.
     pub cycles: usize,
+    /// Visits the figures are computed from.
+    pub visits: usize,
+    /// When a target's forward and backward arrivals stopped at different
+    /// positions (a test program's offset): the largest such distance,
+    /// µm. They are paired as one target (as the test's own report pairs
+    /// them by index); the log is then not an ISO 230-2 test in the
+    /// standard's sense, whose reversal is read at one position.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub paired_within_um: Option<f64>,
     /// `R`, bidirectional repeatability, µm.
     pub r_um: f64,
-    /// `B`, reversal value, µm.
+    /// `R↑ = max 4 s↑_i`, unidirectional repeatability (forward), µm.
+    pub r_up_um: f64,
+    /// `R↓ = max 4 s↓_i`, unidirectional repeatability (backward), µm.
+    pub r_down_um: f64,
+    /// `B = max |B_i|`, reversal value, µm (≥ 0).
     pub b_um: f64,
+    /// `B̄ = mean B_i`, mean reversal value, µm, signed: `B_i = x̄↑ − x̄↓`
+    /// (measured − target), negative when the platform trails the command.
+    pub mean_b_um: f64,
     /// `E`, bidirectional systematic positional deviation, µm.
     pub e_um: f64,
+    /// `M`, range of the mean bidirectional positional deviation, µm.
+    pub m_um: f64,
     /// `A`, accuracy, µm.
     pub a_um: f64,
 }
@@ -138,9 +156,15 @@ pub struct ComponentNoise {
     #[serde(skip_serializing_if = "Option::is_none")]
     pub max_s_um: Option<f64>,
     /// ISO 230-2 figures when the log holds a complete bidirectional test
-    /// of this axis.
+    /// of this axis, on every visit (as the standard defines them, and as
+    /// a source's own report computes them).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub iso230_2: Option<IsoFigures>,
+    /// The same figures without the `outliers` (each target's mean and
+    /// `s_i` from its remaining visits): what the other visits repeat to.
+    /// Absent when nothing was excluded.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub iso230_2_without_outliers: Option<IsoFigures>,
     /// RMS over replicated targets of the mean held-out residual, µm: the
     /// systematic error the model leaves unexplained.
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -180,7 +204,17 @@ pub struct Sampling {
     pub axis: Axis,
     /// Distinct commanded positions.
     pub positions: usize,
-    /// Median spacing of the distinct positions, µm.
+    /// Targets they stand for: positions closer than 5 % of the spacing
+    /// are one target (the approaches of a test program that stop at
+    /// slightly different positions).
+    pub targets: usize,
+    /// The farthest apart two positions of one target are, µm (0 when
+    /// every target is one position).
+    pub target_width_um: f64,
+    /// Spacing at which the distinct positions sample the span, µm: the
+    /// smallest gap such that the gaps up to it cover 90 % of the span
+    /// (the step of an even grid; the targets' spacing when they come in
+    /// clusters).
     pub spacing_um: f64,
     /// Span, µm.
     pub span_um: f64,
@@ -209,13 +243,13 @@ pub(super) fn noise_report(log: &MeasurementLog, d: &Data, heldout: &[f64]) -> N
             continue;
         }
         let pos = super::data::distinct_positions(d, a);
-        if pos.len() >= 2 {
-            let mut gaps: Vec<f64> = pos.windows(2).map(|w| w[1] - w[0]).collect();
-            gaps.sort_by(f64::total_cmp);
-            let spacing = gaps[gaps.len() / 2];
+        if let Some(spacing) = super::data::sampling_spacing_um(&pos) {
+            let tg = super::data::targets_of(&pos);
             out.sampling.push(Sampling {
                 axis: a,
                 positions: pos.len(),
+                targets: tg.bounds.len(),
+                target_width_um: tg.widest_um(),
                 spacing_um: spacing,
                 span_um: pos[pos.len() - 1] - pos[0],
                 shortest_period_um: 2.0 * spacing,
@@ -531,13 +565,19 @@ fn component(log: &MeasurementLog, d: &Data, heldout: &[f64], c: Axis) -> Compon
         ),
         None => Vec::new(),
     };
+    let without_outliers = if outliers.is_empty() {
+        None
+    } else {
+        iso_figures(log, d, c, true)
+    };
     ComponentNoise {
         component: c,
         replicated_targets: targets.len(),
         repeatability_um: repeatability,
         outliers,
         max_s_um: max_s,
-        iso230_2: iso_figures(log, d, c),
+        iso230_2: iso_figures(log, d, c, false),
+        iso230_2_without_outliers: without_outliers,
         systematic_rms_um: systematic,
         systematic_noise_floor_um: floor,
         // A ratio against a repeatability at the log's resolution would
@@ -611,14 +651,24 @@ fn neighbour_noise(log: &MeasurementLog, d: &Data, heldout: &[f64], c: Axis) -> 
 
 /// ISO 230-2 figures of axis `c` when the log is a complete bidirectional
 /// test of it (only `c` moves, every target approached both ways in every
-/// cycle); `None` otherwise.
-fn iso_figures(log: &MeasurementLog, d: &Data, c: Axis) -> Option<IsoFigures> {
+/// cycle); `None` otherwise. `without_excluded`: the excluded visits
+/// (outliers) left out, each target's figures from the visits it keeps.
+fn iso_figures(
+    log: &MeasurementLog,
+    d: &Data,
+    c: Axis,
+    without_excluded: bool,
+) -> Option<IsoFigures> {
     let ci = c.index();
     let other = 1 - ci;
+    let targets = super::data::targets_of(&super::data::distinct_positions(d, c));
     let mut obs = Vec::new();
     for (i, r) in log.records.iter().enumerate().take(d.n) {
         if d.moving[i][other] || !d.moving[i][ci] {
             return None;
+        }
+        if without_excluded && d.excluded.get(i).copied().unwrap_or(false) {
+            continue;
         }
         let approach = match d.approach[i][ci] {
             s if s > 0.0 => Approach::Positive,
@@ -630,19 +680,38 @@ fn iso_figures(log: &MeasurementLog, d: &Data, c: Axis) -> Option<IsoFigures> {
         } else {
             (r.y_target_um, r.y_meas_um)
         };
+        // A target whose approaches stop at slightly different positions
+        // is one target (paired by `data::targets_of`), its deviation
+        // from the position it stopped at.
+        let dev = measured_um - target_um;
+        let t = targets
+            .index_of(target_um)
+            .map_or(target_um, |k| targets.centre(k));
         obs.push(Observation {
-            target_um,
+            target_um: t,
             cycle: r.cycle,
             approach,
-            measured_um,
+            measured_um: t + dev,
         });
     }
-    let f = iso230_2::evaluate(&obs).ok()?;
+    let f = if without_excluded {
+        // The complete test must exist before its gaps are ours to leave.
+        iso_figures(log, d, c, false)?;
+        iso230_2::evaluate_allowing_gaps(&obs).ok()?
+    } else {
+        iso230_2::evaluate(&obs).ok()?
+    };
     Some(IsoFigures {
         cycles: f.cycles,
+        visits: obs.len(),
+        paired_within_um: (targets.widest_um() > 1e-3).then(|| targets.widest_um()),
         r_um: f.r_um,
+        r_up_um: f.r_up_um,
+        r_down_um: f.r_down_um,
         b_um: f.reversal_um,
+        mean_b_um: f.mean_reversal_um,
         e_um: f.e_um,
+        m_um: f.m_um,
         a_um: f.a_um,
     })
 }

@@ -19,6 +19,11 @@ use crate::model::Axis;
 /// reported.
 pub const READING_Z: f64 = 3.0;
 
+/// Targets up to which a reading lists its per-target values (an ISO
+/// 230-2 plan has 5–11; a dense scan's list would be a table, not a
+/// sentence).
+const MAX_LISTED: usize = 12;
+
 /// One visit of a replicated target (outliers excluded, see `noise.rs`).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub(super) struct Visit {
@@ -148,6 +153,18 @@ pub struct ReadingTerm {
     pub sentence: String,
 }
 
+/// What a reversal reading says when a target's approaches stopped at
+/// different positions (`widest_um` apart at most): they are paired.
+fn paired(widest_um: f64) -> String {
+    if widest_um > 1e-3 {
+        format!(
+            "; the forward and backward arrivals of a target stop up to {widest_um:.1} µm apart and are paired as one target (as the test's own report pairs them): a change of the error over that distance counts as reversal"
+        )
+    } else {
+        String::new()
+    }
+}
+
 /// Normal z of a χ² statistic with `k` degrees of freedom (Wilson–Hilferty).
 pub(super) fn wilson_hilferty(chi2: f64, k: f64) -> f64 {
     if k <= 0.0 {
@@ -259,12 +276,22 @@ pub(super) fn read(
         }
     };
 
+    // The targets the groups stand for: the approaches of one target may
+    // stop at slightly different positions (`data::targets_of`).
+    let mut tpos: Vec<f64> = gs.iter().map(|g| g.target_um).collect();
+    tpos.sort_by(f64::total_cmp);
+    tpos.dedup_by(|p, q| (*p - *q).abs() < 1e-3);
+    let targets = super::data::targets_of(&tpos);
+    let same = |a: f64, b: f64| match (targets.index_of(a), targets.index_of(b)) {
+        (Some(i), Some(j)) => i == j,
+        _ => (a - b).abs() < 1e-3,
+    };
     // Reversal per target: B_i = x̄↑ − x̄↓ (ISO 230-2 sign).
     let mut rev: Vec<(f64, f64, f64, f64)> = Vec::new(); // (target, B, var, B of residual)
     for g in gs.iter().filter(|g| g.approach > 0.0) {
         if let Some(h) = gs
             .iter()
-            .find(|h| h.approach < 0.0 && (h.target_um - g.target_um).abs() < 1e-3)
+            .find(|h| h.approach < 0.0 && same(h.target_um, g.target_um))
         {
             rev.push((
                 g.target_um,
@@ -289,9 +316,11 @@ pub(super) fn read(
                 z,
                 model_explains: res_mean.is_finite().then_some(res_z < READING_Z),
                 sentence: format!(
-                    "{name} reverses with a lost motion of {mean:+.3} µm on average (B = x̄↑ − x̄↓ over {} targets, ± {:.3} µm)",
+                    "{name} reverses with a lost motion of {:+.3} µm on average (> 0: the platform trails the command in both directions, < 0: it runs ahead); in ISO 230-2's sign the mean reversal B̄ = mean of x̄↑ − x̄↓ (measured − target) = {mean:+.3} ± {:.3} µm over {} targets (outliers left out){}",
+                    -mean,
+                    sw.sqrt().recip(),
                     rev.len(),
-                    sw.sqrt().recip()
+                    paired(targets.widest_um())
                 ),
                 term: None,
                 cause: ReadingKind::Reversal.cause(),
@@ -319,13 +348,25 @@ pub(super) fn read(
                         wilson_hilferty(res_chi2, (rev.len() - 1) as f64) < READING_Z
                     }),
                     sentence: format!(
-                        "{name}'s lost motion changes along the travel: B = {:+.3} µm at {}, {:+.3} µm at {} ({} targets; noise alone would leave about ± {:.3} µm)",
+                        "{name}'s lost motion changes along the travel: B = {:+.3} µm at {}, {:+.3} µm at {} ({} targets; noise alone would leave about ± {:.3} µm){}",
                         lo.1,
                         at(lo.0),
                         hi.1,
                         at(hi.0),
                         rev.len(),
-                        (rev.iter().map(|r| r.2).sum::<f64>() / rev.len() as f64).sqrt()
+                        (rev.iter().map(|r| r.2).sum::<f64>() / rev.len() as f64).sqrt(),
+                        if rev.len() <= MAX_LISTED {
+                            format!(
+                                "; B_i = x̄↑ − x̄↓ (measured − target, outliers left out): {}; the lost motion is −B_i{}",
+                                rev.iter()
+                                    .map(|r| format!("{:+.3} µm at {}", r.1, at(r.0)))
+                                    .collect::<Vec<_>>()
+                                    .join(", "),
+                                paired(targets.widest_um())
+                            )
+                        } else {
+                            String::new()
+                        }
                     ),
                     term: None,
                 cause: ReadingKind::ReversalVaries.cause(),
@@ -339,26 +380,30 @@ pub(super) fn read(
     // approach's mean, so a reversal, constant or varying, cancels).
     let mut tg: Vec<(f64, f64, f64, f64)> = Vec::new(); // (target, x̄, var, residual x̄)
     for g in &gs {
-        if tg.iter().any(|t| (t.0 - g.target_um).abs() < 1e-3) {
+        if tg.iter().any(|t| same(t.0, g.target_um)) {
             continue;
         }
-        let same: Vec<&Group> = gs
+        let here: Vec<&Group> = gs
             .iter()
-            .filter(|h| (h.target_um - g.target_um).abs() < 1e-3)
+            .filter(|h| same(h.target_um, g.target_um))
             .collect();
-        let k = same.len() as f64;
+        let k = here.len() as f64;
         tg.push((
-            g.target_um,
-            same.iter().map(|h| h.dev).sum::<f64>() / k,
-            s2 * same.iter().map(|h| 1.0 / h.n).sum::<f64>() / (k * k),
-            same.iter().map(|h| h.resid).sum::<f64>() / k,
+            here.iter().map(|h| h.target_um).sum::<f64>() / k,
+            here.iter().map(|h| h.dev).sum::<f64>() / k,
+            s2 * here.iter().map(|h| 1.0 / h.n).sum::<f64>() / (k * k),
+            here.iter().map(|h| h.resid).sum::<f64>() / k,
         ));
     }
-    // Every target seen from the same approaches, or the means are not
-    // comparable.
-    let napp = |t: f64| gs.iter().filter(|h| (h.target_um - t).abs() < 1e-3).count();
-    let comparable = tg.iter().all(|t| napp(t.0) == napp(tg[0].0));
-    if tg.len() >= 3 && comparable {
+    // Only targets seen from the same approaches have comparable means:
+    // those seen from the most (both ways, when any is). The turning
+    // points of a step test (its first and last target, reached one way
+    // only) are left out rather than the whole reading.
+    let napp = |t: f64| gs.iter().filter(|h| same(h.target_um, t)).count();
+    let most = tg.iter().map(|t| napp(t.0)).max().unwrap_or(0);
+    let all = tg.len();
+    tg.retain(|t| napp(t.0) == most);
+    if tg.len() >= 3 && all - tg.len() <= 2 {
         let x: Vec<f64> = tg.iter().map(|t| t.0).collect();
         let y: Vec<f64> = tg.iter().map(|t| t.1).collect();
         let yr: Vec<f64> = tg.iter().map(|t| t.3).collect();
@@ -406,10 +451,29 @@ pub(super) fn read(
                         z: zn,
                         model_explains: rz.filter(|_| res_ok).map(|r| r < READING_Z),
                         sentence: format!(
-                            "{name}'s mean deviation departs from a straight line by up to {:+.3} µm (at {}; noise alone ± {:.3} µm per target)",
+                            "{name}'s mean deviation departs from a straight line by up to {:+.3} µm (at {}; the least-squares line through the bidirectional means x̄_i, measured − target; noise alone ± {:.3} µm per target){}",
                             resid[k],
                             at(x[k]),
-                            tg[k].2.sqrt()
+                            tg[k].2.sqrt(),
+                            if x.len() <= MAX_LISTED {
+                                let n = x.len() - 1;
+                                let chord = |i: usize| {
+                                    y[i] - y[0] - (y[n] - y[0]) * (x[i] - x[0]) / (x[n] - x[0])
+                                };
+                                format!(
+                                    "; x̄_i less that line: {}; less the chord through the end targets (how a table zero at its end knots reads it): {}",
+                                    (0..x.len())
+                                        .map(|i| format!("{:+.3} µm at {}", resid[i], at(x[i])))
+                                        .collect::<Vec<_>>()
+                                        .join(", "),
+                                    (0..x.len())
+                                        .map(|i| format!("{:+.3}", chord(i)))
+                                        .collect::<Vec<_>>()
+                                        .join(", ")
+                                )
+                            } else {
+                                String::new()
+                            }
                         ),
                         term: None,
                 cause: ReadingKind::Nonlinearity.cause(),

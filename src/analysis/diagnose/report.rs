@@ -15,10 +15,15 @@ impl Diagnosis {
         let measured = |a: Axis| self.measured_axes.contains(&a);
         let _ = writeln!(
             out,
-            "{} points ({} judged held out), {} held-out folds (whole cycles); measured axes: {}{}",
+            "{} points ({} judged held out), {} held-out folds ({}); measured axes: {}{}",
             self.points,
             self.judged_points,
             self.folds,
+            if self.whole_cycle_folds {
+                "whole cycles"
+            } else {
+                "contiguous chunks of the log's one cycle"
+            },
             self.measured_axes
                 .iter()
                 .map(|a| a.as_str())
@@ -34,6 +39,19 @@ impl Diagnosis {
                 None => String::new(),
             }
         );
+        if let Some((a, r)) = self.time_with {
+            let _ = writeln!(
+                out,
+                "time and {a} position move together over this log (r = {r:+.3}; a one-way scan at a steady rate): a drift cannot be told from an error along {a}, so nothing is fitted or searched as a function of time"
+            );
+        }
+        if self.synthetic_time {
+            let _ = writeln!(
+                out,
+                "times: synthetic (the log's {}: record order, one record per second): a rate per hour below is per 3600 records, and no time structure is real time",
+                super::TIME_SOURCE_KEY
+            );
+        }
         let _ = writeln!(
             out,
             "base fit identified {} parameters of the model (its own structure, this stage's values)",
@@ -278,11 +296,33 @@ impl Diagnosis {
                 );
             }
             if let Some(iso) = &c.iso230_2 {
+                let fig = |f: &super::noise::IsoFigures| {
+                    format!(
+                        "R {:.4} µm (R↑ {:.4}, R↓ {:.4}), B {:.4} µm (B̄ {:+.4} µm), E {:.4} µm, M {:.4} µm, A {:.4} µm",
+                        f.r_um, f.r_up_um, f.r_down_um, f.b_um, f.mean_b_um, f.e_um, f.m_um, f.a_um
+                    )
+                };
                 let _ = writeln!(
                     out,
-                    "  {a}: ISO 230-2 ({} cycles): R {:.4} µm, B {:.4} µm, E {:.4} µm, A {:.4} µm",
-                    iso.cycles, iso.r_um, iso.b_um, iso.e_um, iso.a_um
+                    "  {a}: ISO 230-2 ({} cycles, all {} visits{}, as the standard defines the figures and a test report computes them{}): {}",
+                    iso.cycles,
+                    iso.visits,
+                    if c.outliers.is_empty() { "" } else { " including the excluded ones" },
+                    match iso.paired_within_um {
+                        Some(w) => format!("; a target's forward and backward arrivals stopped up to {w:.1} µm apart and are paired, as the test's own report pairs them: not a test of the standard's form"),
+                        None => String::new(),
+                    },
+                    fig(iso)
                 );
+                if let Some(w) = &c.iso230_2_without_outliers {
+                    let _ = writeln!(
+                        out,
+                        "  {a}: ISO 230-2 figures without the {} excluded visit(s) ({} visits; each target's x̄ and s from the visits it keeps; not the standard's figures): {}",
+                        iso.visits.saturating_sub(w.visits),
+                        w.visits,
+                        fig(w)
+                    );
+                }
             }
             if let Some(nb) = c.neighbour_noise_um {
                 let _ = writeln!(
@@ -296,10 +336,26 @@ impl Diagnosis {
                 c.systematic_noise_floor_um,
                 c.systematic_over_repeatability,
             ) {
+                // Per-target means can be explained while structure the
+                // means average out (a drift from cycle to cycle) is not.
+                let lacking: Vec<&str> = c
+                    .readings
+                    .iter()
+                    .filter(|r| r.model_explains == Some(false))
+                    .map(|r| r.kind.as_str())
+                    .collect();
                 let _ = writeln!(
                     out,
-                    "  {a}: {} {sys:.4} µm rms of per-target systematic error remains (held out), {ratio:.1}× the repeatability (noise alone would leave {floor:.4} µm)",
-                    if c.unexplained { "UNEXPLAINED:" } else { "explained to the noise:" }
+                    "  {a}: {} {sys:.4} µm rms of per-target systematic error remains (held out), {ratio:.1}× the repeatability (noise alone would leave {floor:.4} µm){}",
+                    if c.unexplained { "UNEXPLAINED:" } else { "explained to the noise:" },
+                    if !c.unexplained && !lacking.is_empty() {
+                        format!(
+                            "; the model still lacks {} (see the readings): the per-target means average it out",
+                            lacking.join(", ")
+                        )
+                    } else {
+                        String::new()
+                    }
                 );
             } else if let (Some(sys), Some(floor), true) = (
                 c.systematic_rms_um,
@@ -325,6 +381,13 @@ impl Diagnosis {
                 "  sampling {}: {} positions, {:.1} µm apart over {:.1} µm: periodic errors shorter than {:.1} µm are aliased",
                 s.axis, s.positions, s.spacing_um, s.span_um, s.shortest_period_um
             );
+            if s.targets < s.positions {
+                let _ = write!(
+                    out,
+                    "; the {} positions are {} targets (positions up to {:.1} µm apart stand for one target: the approaches stopped at different positions)",
+                    s.positions, s.targets, s.target_width_um
+                );
+            }
             if s.positions < super::search::MIN_PROFILE_POSITIONS {
                 let _ = write!(
                     out,
@@ -389,6 +452,9 @@ impl Diagnosis {
             "base_fixed_params": self.base_fixed_params,
             "measured_axes": self.measured_axes,
             "measured_from": self.measured_from,
+            "synthetic_time": self.synthetic_time,
+            "time_with": self.time_with.map(|(a, r)| serde_json::json!({"axis": a, "r": r})),
+            "whole_cycle_folds": self.whole_cycle_folds,
             "judged_points": self.judged_points,
             "aliased_contribution_rms_um": self.aliased_contribution_rms_um,
             "noise": self.noise,

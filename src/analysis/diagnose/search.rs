@@ -103,15 +103,19 @@ pub(super) fn families(d: &Data) -> Vec<Family> {
             out.push(Family::Localized { axis, comp });
             out.push(Family::Slope { axis, comp });
         }
-        out.push(Family::Drift {
-            comp,
-            quadratic: false,
-        });
-        out.push(Family::Drift {
-            comp,
-            quadratic: true,
-        });
-        out.push(Family::TimePeriodic { comp });
+        // Time families only when time is a variable of its own (see
+        // `data::Data::time_with`).
+        if d.time_with.is_none() {
+            out.push(Family::Drift {
+                comp,
+                quadratic: false,
+            });
+            out.push(Family::Drift {
+                comp,
+                quadratic: true,
+            });
+            out.push(Family::TimePeriodic { comp });
+        }
         if d.temp_varies {
             out.push(Family::Temperature { comp });
         }
@@ -237,7 +241,8 @@ fn step_size_search(d: &Data, axis: Axis, resid: &[f64], train: &[bool]) -> Opti
     })
 }
 
-/// Knots of a table along `axis`: its distinct positions when there are at
+/// Knots of a table along `axis`: its targets (distinct positions, those
+/// of one target merged, `data::targets_of`) when there are at
 /// most [`MAX_TABLE_TARGETS`] (a test with few targets: one value per
 /// target, nothing claimed between them), else [`DENSE_TABLE_KNOTS`]
 /// evenly spaced over its span (a dense scan: a smooth curve, the finer
@@ -246,11 +251,14 @@ fn step_size_search(d: &Data, axis: Axis, resid: &[f64], train: &[bool]) -> Opti
 /// which the base already has).
 pub(super) fn table_knots(d: &Data, axis: Axis) -> Option<Vec<f64>> {
     let pos = super::data::distinct_positions(d, axis);
-    if pos.len() < 3 {
+    // A target whose approaches stop at slightly different positions is
+    // one knot (see `data::targets_of`).
+    let targets = super::data::targets_of(&pos).centres();
+    if targets.len() < 3 {
         return None;
     }
-    if pos.len() <= MAX_TABLE_TARGETS {
-        return Some(pos);
+    if targets.len() <= MAX_TABLE_TARGETS {
+        return Some(targets);
     }
     let (lo, hi) = (pos[0], pos[pos.len() - 1]);
     let k = DENSE_TABLE_KNOTS - 1;

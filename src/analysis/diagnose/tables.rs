@@ -361,12 +361,15 @@ pub(super) fn heldout_chi_z(
         return None;
     }
     // Replicate groups: (target, approach) over the rows where the axis
-    // moves.
+    // moves; the positions of one target (`data::targets_of`) are one.
+    let tg = data::targets_of(&data::distinct_positions(d, axis));
     let mut keys: Vec<(i64, i64)> = Vec::new();
     let mut rows_of: Vec<Vec<usize>> = Vec::new();
     for i in (0..d.n).filter(|&i| d.moving[i][a] && !d.excluded[i]) {
+        let x = d.states[i].cmd_um(axis);
         let k = (
-            (d.states[i].cmd_um(axis) * 1e3).round() as i64,
+            tg.index_of(x)
+                .map_or_else(|| (x * 1e3).round() as i64, |t| t as i64),
             d.approach[i][a] as i64,
         );
         match keys.iter().position(|x| *x == k) {

@@ -590,3 +590,31 @@ fn a_finding_the_others_carry_is_dropped_when_rejudged() {
     rejudge(&d, &[], &mut acc, &model, &opts);
     assert_eq!(kinds(&acc), [tp, drift]);
 }
+
+#[test]
+fn positions_of_one_target_are_merged_only_on_a_sparse_test() {
+    use super::data::{sampling_spacing_um, targets_of};
+    // Forward targets 10 mm apart, backward ones 0.2 mm above: five
+    // targets, sampled every 10 mm.
+    let mut pos: Vec<f64> = (0..5)
+        .flat_map(|k| {
+            [
+                15_000.0 + 10_000.0 * k as f64,
+                15_200.0 + 10_000.0 * k as f64,
+            ]
+        })
+        .collect();
+    pos.sort_by(f64::total_cmp);
+    assert_eq!(sampling_spacing_um(&pos), Some(9_800.0));
+    let t = targets_of(&pos);
+    assert_eq!(t.bounds.len(), 5);
+    assert!((t.widest_um() - 200.0).abs() < 1e-9);
+    assert_eq!(t.index_of(15_200.0), Some(0));
+    // An even grid (with a hole): every position is its own target.
+    let grid: Vec<f64> = (0..40)
+        .filter(|&k| k != 17)
+        .map(|k| 11.25 * k as f64)
+        .collect();
+    assert_eq!(sampling_spacing_um(&grid), Some(11.25));
+    assert_eq!(targets_of(&grid).bounds.len(), grid.len());
+}

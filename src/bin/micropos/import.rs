@@ -1,6 +1,7 @@
 //! `micropos import EXPORT --out LOG.csv`: an ISO 230-2 export (a CSV of
-//! target, reading, direction, cycle, or an ecmc-style `.dat` of targets
-//! and forward/backward readings per cycle) converted into the measurement
+//! target, reading, direction, cycle, an ecmc-style `.dat` of targets
+//! and forward/backward readings per cycle, or an ecmc markdown test
+//! report's tables of readings) converted into the measurement
 //! log format, so `diagnose`, `plot` and `tables build` read it without a
 //! hand-edited file.
 
@@ -8,7 +9,7 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use anyhow::{bail, Context, Result};
-use micropos::charact::import::{import_bytes, ImportFormat, ImportOptions, Unit};
+use micropos::charact::import::{import_bytes, DirectionLabels, ImportFormat, ImportOptions, Unit};
 use micropos::model::Axis;
 
 /// Arguments of `micropos import`.
@@ -28,10 +29,27 @@ pub struct Args {
     /// CSV header's suffixes (`target_mm`), or the `.dat`'s UNIT (mm).
     #[arg(long, value_parser = parse_unit)]
     pub units: Option<Unit>,
-    /// Input format: auto (a `.dat` when it has TGT_DATA/REF_DATA keys),
-    /// csv or dat.
+    /// Input format: auto (a `.dat` when it has TGT_DATA/REF_DATA keys, a
+    /// markdown report when it has pipe tables, else CSV), csv, dat or
+    /// report.
     #[arg(long, default_value = "auto", value_parser = parse_format)]
     pub format: ImportFormat,
+    /// How a markdown report's forward/backward headings are read: auto
+    /// (as labelled, except ecmc's per-cycle-column tables, which print
+    /// them swapped), as-labelled or swapped.
+    #[arg(long, default_value = "auto", value_parser = parse_directions)]
+    pub directions: DirectionLabels,
+}
+
+fn parse_directions(s: &str) -> Result<DirectionLabels, String> {
+    match s {
+        "auto" => Ok(DirectionLabels::Auto),
+        "as-labelled" | "as-labeled" => Ok(DirectionLabels::AsLabelled),
+        "swapped" => Ok(DirectionLabels::Swapped),
+        _ => Err(format!(
+            "{s:?} is not a direction reading (auto, as-labelled, swapped)"
+        )),
+    }
 }
 
 fn parse_axis(s: &str) -> Result<Axis, String> {
@@ -51,7 +69,8 @@ fn parse_format(s: &str) -> Result<ImportFormat, String> {
         "auto" => Ok(ImportFormat::Auto),
         "csv" => Ok(ImportFormat::Csv),
         "dat" => Ok(ImportFormat::Dat),
-        _ => Err(format!("{s:?} is not a format (auto, csv, dat)")),
+        "report" | "md" => Ok(ImportFormat::Report),
+        _ => Err(format!("{s:?} is not a format (auto, csv, dat, report)")),
     }
 }
 
@@ -67,6 +86,7 @@ pub fn run(args: &Args) -> Result<ExitCode> {
             .input
             .file_name()
             .map(|n| n.to_string_lossy().into_owned()),
+        directions: args.directions,
     };
     let bytes = import_bytes(&data, &opts).with_context(|| args.input.display().to_string())?;
     if args.out.exists() {
