@@ -20,6 +20,9 @@
 //! interpolates its two neighbouring frames) and logged as if measured at
 //! the grid point: the log has the step plan's segments, cycles and
 //! targets, so `tables build`, `diagnose` and the plots read it unchanged.
+//! A record carries the motion state of its pass (one move since the run-up
+//! began); `jobs::sweep_anchor` measures the step plan's state at static
+//! anchors and corrects the records to it.
 //!
 //! # Camera delay
 //! A delay error Δ = true − assumed shifts the interpolated command by

@@ -602,14 +602,20 @@ async fn anchor_group(
 fn anchor_metadata(md: &mut Metadata, corr: &AnchorCorrection, measured: usize, duration_s: f64) {
     md.insert("sweep_anchors", measured.to_string());
     md.insert("sweep_anchor_positions", corr.points.len().to_string());
-    let rejected: Vec<String> = corr.rejected().map(|p| p.label()).collect();
-    md.insert(
-        "sweep_anchor_rejected",
-        if rejected.is_empty() {
+    let labels = |v: Vec<String>| {
+        if v.is_empty() {
             "none".to_owned()
         } else {
-            rejected.join(" ")
-        },
+            v.join(" ")
+        }
+    };
+    md.insert(
+        "sweep_anchor_rejected",
+        labels(corr.rejected().map(|p| p.label()).collect()),
+    );
+    md.insert(
+        "sweep_anchor_unmatched",
+        labels(corr.unmatched().map(|p| p.label()).collect()),
     );
     for (axis, x_axis) in [("x", true), ("y", false)] {
         let (scan, held) = corr.max_abs_um(x_axis);
@@ -635,6 +641,7 @@ fn anchor_json(plan: &SweepPlan, corr: &AnchorCorrection, measured: usize, durat
         "measured": measured,
         "positions": corr.points.len(),
         "rejected": corr.rejected().map(|p| p.label()).collect::<Vec<_>>(),
+        "unmatched": corr.unmatched().map(|p| p.label()).collect::<Vec<_>>(),
         "duration_s": duration_s,
         "x": axis(true),
         "y": axis(false),
