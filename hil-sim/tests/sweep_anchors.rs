@@ -162,7 +162,11 @@ fn by_point(log: &MeasurementLog) -> BTreeMap<Key, Vec<[f64; 2]>> {
             continue;
         }
         let e = [r.error_x_um(), r.error_y_um()];
-        let (along, across) = if axis == 0 { (e[0], e[1]) } else { (e[1], e[0]) };
+        let (along, across) = if axis == 0 {
+            (e[0], e[1])
+        } else {
+            (e[1], e[0])
+        };
         out.entry((axis, forward, ((pos - START) / STEP).round() as i64))
             .or_default()
             .push([along, across]);
@@ -209,9 +213,7 @@ fn rms_difference(sweep: &BTreeMap<Key, [f64; 2]>, step: &BTreeMap<Key, [f64; 2]
                 .filter_map(|(k, v)| step.get(k).map(|s| (k.2 as f64, v[c] - s[c])))
                 .collect();
             let m = d.len() as f64;
-            let (sx, sy) = d
-                .iter()
-                .fold((0.0, 0.0), |(a, b), (x, y)| (a + x, b + y));
+            let (sx, sy) = d.iter().fold((0.0, 0.0), |(a, b), (x, y)| (a + x, b + y));
             let (mx, my) = (sx / m, sy / m);
             let sxx: f64 = d.iter().map(|(x, _)| (x - mx).powi(2)).sum();
             let sxy: f64 = d.iter().map(|(x, y)| (x - mx) * (y - my)).sum();
@@ -318,7 +320,12 @@ async fn the_anchored_sweep_matches_the_step_log_on_random_stages() {
             logs.result["camera_delay_s"].as_f64().unwrap_or(f64::NAN) * 1e3,
             wall.elapsed().as_secs_f64()
         );
-        assert!(step.len() > 550 && sweep.len() > 550, "{} {}", step.len(), sweep.len());
+        assert!(
+            step.len() > 550 && sweep.len() > 550,
+            "{} {}",
+            step.len(),
+            sweep.len()
+        );
         assert!(
             rc < 3.0 * noise,
             "seed {seed}: anchored sweep {rc} µm from the step log (noise {noise})"

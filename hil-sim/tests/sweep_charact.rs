@@ -226,12 +226,22 @@ async fn sweep_estimates_the_hidden_delay_and_logs_the_step_grid() {
         .collect();
     assert_eq!(anchor_rows.len() as u64, measured);
     assert!(anchor_rows.iter().all(|r| !r.extra[cx].is_empty()));
-    for r in log.records.iter().filter(|r| r.segment.starts_with("scan_")) {
+    for r in log
+        .records
+        .iter()
+        .filter(|r| r.segment.starts_with("scan_"))
+    {
         let c: f64 = r.extra[cx].parse().unwrap();
         assert!(c.abs() < 0.2, "correction {c} µm on {r:?}");
     }
-    assert_eq!(log.metadata.get("sweep_anchor_correction_applied"), Some("true"));
-    assert_eq!(log.metadata.get("sweep_anchors"), Some(measured.to_string().as_str()));
+    assert_eq!(
+        log.metadata.get("sweep_anchor_correction_applied"),
+        Some("true")
+    );
+    assert_eq!(
+        log.metadata.get("sweep_anchors"),
+        Some(measured.to_string().as_str())
+    );
     // A sweep log is not resumable.
     assert_eq!(sw.resume["ok"], false, "{}", sw.resume);
     // The simulated C-863s have a data recorder: the positions came from

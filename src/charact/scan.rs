@@ -45,8 +45,12 @@ pub const SEGMENT_MOVES: &str = "moves";
 /// final move of one step, neither of which the log holds
 /// (`crate::daemon::jobs::sweep_anchor`). Readers that replay the logged
 /// commands as the motion (`crate::analysis::diagnose`) leave them out.
-pub const SEGMENTS_SWEEP_ANCHOR: [&str; 4] =
-    ["anchor_x_fwd", "anchor_x_bwd", "anchor_y_fwd", "anchor_y_bwd"];
+pub const SEGMENTS_SWEEP_ANCHOR: [&str; 4] = [
+    "anchor_x_fwd",
+    "anchor_x_bwd",
+    "anchor_y_fwd",
+    "anchor_y_bwd",
+];
 
 /// Whether `segment` is one of [`SEGMENTS_SWEEP_ANCHOR`].
 pub fn is_sweep_anchor(segment: &str) -> bool {

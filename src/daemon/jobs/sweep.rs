@@ -230,8 +230,7 @@ impl SweepPlan {
     /// The anchor spacing the plan uses, µm (a multiple of the step; 0 =
     /// none).
     pub fn anchor_spacing_used_um(&self) -> f64 {
-        self.anchor_every()
-            .map_or(0.0, |n| n as f64 * self.step_um)
+        self.anchor_every().map_or(0.0, |n| n as f64 * self.step_um)
     }
 
     /// Velocity of a cycle, µm/s.

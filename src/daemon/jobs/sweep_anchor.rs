@@ -48,6 +48,20 @@
 //! spread over the first interval: the spacing bounds what the correction
 //! can resolve, in both directions.
 //!
+//! # Noise
+//! An anchor carries the settling scatter of one stop per cycle (σ 0.035 µm
+//! on the simulated M-111), which an interpolated curve passes on to every
+//! record between its anchors. Where a curve does not vary beyond that noise
+//! the anchors' weighted mean is as good and much quieter: per axis,
+//! direction and component (along, across), the medians' χ² about their
+//! weighted mean, each weighted by its variance (the cycles' pooled scatter
+//! about their anchor's mean, π/2 of it per cycle for a median), is tested
+//! against its upper 99 % point; below it the curve is flat at the mean
+//! (a constant offset per direction, as a play that differs on the fly),
+//! above it the anchors are interpolated. A stage without path dependence
+//! thus gets a constant of noise σ/√(anchors · cycles); a wind-up of a few
+//! µm over a millimetre is thousands of σ above the point.
+//!
 //! # Robustness
 //! The cycles' differences at an anchor are reduced to their median. A stop
 //! on a rough stretch of the travel (stick-slip: the faithful stage's
@@ -280,6 +294,33 @@ impl AnchorPoint {
     }
 }
 
+/// Whether one axis and direction's curve varies beyond its noise (see the
+/// module docs, "Noise").
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct GroupFit {
+    /// On the X axis (else Y).
+    pub x_axis: bool,
+    /// In the forward direction.
+    pub forward: bool,
+    /// Along and across the axis: χ² of the used anchors' medians about
+    /// their weighted mean, per degree of freedom (NaN: not tested).
+    pub chi2_per_dof: [f64; 2],
+    /// Along and across: the curve is flat (every anchor takes the weighted
+    /// mean).
+    pub flat: [bool; 2],
+}
+
+impl GroupFit {
+    /// `x_fwd`: how the log's metadata names a group.
+    pub fn label(&self) -> String {
+        format!(
+            "{}_{}",
+            if self.x_axis { "x" } else { "y" },
+            if self.forward { "fwd" } else { "bwd" }
+        )
+    }
+}
+
 /// The offset curves the anchors give, per axis and direction.
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct AnchorCorrection {
@@ -287,6 +328,50 @@ pub struct AnchorCorrection {
     pub points: Vec<AnchorPoint>,
     /// Per axis (x, y), the median spread the rejection compares with, µm.
     pub typical_spread_um: [f64; 2],
+    /// Per axis (x, y) and component (along, across), the pooled variance
+    /// of one cycle's difference about its anchor's mean, µm².
+    pub cycle_variance_um2: [[f64; 2]; 2],
+    /// Per axis and direction with anchors, the flatness test.
+    pub groups: Vec<GroupFit>,
+}
+
+/// Variance of the median of `n` samples over that of one sample, times
+/// `n`: 1 for one or two (the median is the mean), π/2 beyond (the large-`n`
+/// value, above the exact 1.35 of three: the test errs towards a curve).
+fn median_variance_factor(n: usize) -> f64 {
+    if n <= 2 {
+        1.0
+    } else {
+        std::f64::consts::FRAC_PI_2
+    }
+}
+
+/// Upper 99 % point of χ² with `dof` degrees of freedom (Wilson–Hilferty).
+fn chi2_upper_99(dof: f64) -> f64 {
+    let a = 2.0 / (9.0 * dof);
+    dof * (1.0 - a + 2.326 * a.sqrt()).powi(3)
+}
+
+/// The flatness test of one group and component (see the module docs,
+/// "Noise"): `(χ²/dof, flat, weighted mean)`, or `None` when it cannot be
+/// made (fewer than two used anchors, no cycle scatter to weigh them by).
+fn flatness(values: &[(f64, usize)], cycle_var: f64) -> Option<(f64, bool, f64)> {
+    if values.len() < 2 || cycle_var.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
+        return None;
+    }
+    let var = |n: usize| median_variance_factor(n) * cycle_var / n.max(1) as f64;
+    let (sw, swc) = values.iter().fold((0.0, 0.0), |(a, b), &(c, n)| {
+        (a + 1.0 / var(n), b + c / var(n))
+    });
+    let mean = swc / sw;
+    let q: f64 = values
+        .iter()
+        .map(|&(c, n)| (c - mean).powi(2) / var(n))
+        .sum();
+    let dof = (values.len() - 1) as f64;
+    let chi = q / dof;
+    chi.is_finite()
+        .then_some((chi, q <= chi2_upper_99(dof), mean))
 }
 
 /// Median of `v` (mean of the middle two for an even count); `None` if
@@ -384,6 +469,69 @@ pub fn anchor_correction(
             p.used = false;
         }
     }
+    // The cycles' scatter about their anchor's mean, pooled per axis and
+    // component over the used anchors.
+    let mut cycle_var = [[0.0; 2]; 2];
+    for (a, v) in cycle_var.iter_mut().enumerate() {
+        let mut ss = [0.0; 2];
+        let mut dof = 0usize;
+        for p in points
+            .iter()
+            .filter(|p| p.used && usize::from(!p.x_axis) == a && p.diffs.len() >= 2)
+        {
+            let n = p.diffs.len() as f64;
+            let m = [
+                p.diffs.iter().map(|d| d.scan_um).sum::<f64>() / n,
+                p.diffs.iter().map(|d| d.held_um).sum::<f64>() / n,
+            ];
+            for d in &p.diffs {
+                ss[0] += (d.scan_um - m[0]).powi(2);
+                ss[1] += (d.held_um - m[1]).powi(2);
+            }
+            dof += p.diffs.len() - 1;
+        }
+        if dof > 0 {
+            *v = ss.map(|x| x / dof as f64);
+        }
+    }
+    let mut groups = Vec::new();
+    for x_axis in [true, false] {
+        for forward in [true, false] {
+            let in_group = |p: &AnchorPoint| p.x_axis == x_axis && p.forward == forward;
+            if !points.iter().any(in_group) {
+                continue;
+            }
+            let mut g = GroupFit {
+                x_axis,
+                forward,
+                chi2_per_dof: [f64::NAN; 2],
+                flat: [false; 2],
+            };
+            for c in 0..2 {
+                let values: Vec<(f64, usize)> = points
+                    .iter()
+                    .filter(|p| p.used && in_group(p))
+                    .map(|p| (if c == 0 { p.scan_um } else { p.held_um }, p.diffs.len()))
+                    .collect();
+                let Some((chi, flat, mean)) = flatness(&values, cycle_var[usize::from(!x_axis)][c])
+                else {
+                    continue;
+                };
+                g.chi2_per_dof[c] = chi;
+                g.flat[c] = flat;
+                if flat {
+                    for p in points.iter_mut().filter(|p| p.used && in_group(p)) {
+                        if c == 0 {
+                            p.scan_um = mean;
+                        } else {
+                            p.held_um = mean;
+                        }
+                    }
+                }
+            }
+            groups.push(g);
+        }
+    }
     points.sort_by(|a, b| {
         (!a.x_axis, a.forward)
             .cmp(&(!b.x_axis, b.forward))
@@ -392,6 +540,8 @@ pub fn anchor_correction(
     AnchorCorrection {
         points,
         typical_spread_um: typical,
+        cycle_variance_um2: cycle_var,
+        groups,
     }
 }
 
@@ -433,9 +583,7 @@ impl AnchorCorrection {
         self.points
             .iter()
             .find(|p| {
-                p.x_axis == m.x_axis
-                    && p.forward == m.forward
-                    && (p.pos_um - m.pos_um).abs() < 1e-6
+                p.x_axis == m.x_axis && p.forward == m.forward && (p.pos_um - m.pos_um).abs() < 1e-6
             })?
             .diffs
             .iter()
@@ -505,7 +653,11 @@ mod tests {
                 return;
             }
             let dir = d.signum();
-            self.run = if dir == self.dir { self.run + d.abs() } else { d.abs() };
+            self.run = if dir == self.dir {
+                self.run + d.abs()
+            } else {
+                d.abs()
+            };
             self.last = d.abs();
             self.dir = dir;
             self.pos = p;
@@ -749,7 +901,11 @@ mod tests {
             let run_up = plan.run_up_um();
             for forward in [true, false] {
                 let dir = if forward { 1.0 } else { -1.0 };
-                let turn = if forward { grid[0] } else { grid[grid.len() - 1] };
+                let turn = if forward {
+                    grid[0]
+                } else {
+                    grid[grid.len() - 1]
+                };
                 let start = turn - dir * run_up;
                 // The exact offset curve (step − sweep, noise-free).
                 let exact = |p: f64| {
@@ -782,7 +938,7 @@ mod tests {
                 points.sort_by(|a, b| a.pos_um.total_cmp(&b.pos_um));
                 let ideal = AnchorCorrection {
                     points,
-                    typical_spread_um: [0.0; 2],
+                    ..AnchorCorrection::default()
                 };
                 // Per grid point: Σ corrected, Σ uncorrected (scan, held), n.
                 let mut sum: Vec<([f64; 4], usize)> = vec![([0.0; 4], 0); grid.len()];
@@ -899,15 +1055,29 @@ mod tests {
                 c < tol,
                 "seed {seed} (kind {kind}): corrected off by {c:.3} µm > {tol:.3} (uncorrected {u:.3}, interpolation {ideal:.3}; {stage:?})"
             );
+            let flat: Vec<[bool; 2]> = corr.groups.iter().map(|g| g.flat).collect();
+            println!("  flat (along, across) per group: {flat:?}");
             if kind == 2 {
-                // Nothing to correct: the anchors' curve is noise.
+                // Nothing to correct: the anchors' curve is noise, and
+                // (flat where the test finds no variation) it moves the
+                // records by less than the noise of one anchor.
                 let (s, h) = (corr.max_abs_um(true), corr.max_abs_um(false));
                 let noise = 5.0 * SETTLE_SIGMA_UM;
                 assert!(
                     s.0.max(s.1).max(h.0).max(h.1) < noise,
                     "seed {seed}: correction {s:?} {h:?} on a stage without path dependence"
                 );
+                assert!(
+                    c < u + SETTLE_SIGMA_UM,
+                    "seed {seed}: the anchors move the records by {c} µm against {u} µm without"
+                );
             } else {
+                // A wind-up of a µm or more is far above the anchors' noise.
+                assert!(
+                    corr.groups.iter().all(|g| !g.flat[0]),
+                    "seed {seed}: {:?}",
+                    corr.groups
+                );
                 assert!(
                     u > tol,
                     "seed {seed} (kind {kind}): uncorrected only {u:.3} µm off (tolerance {tol:.3}; {stage:?})"
@@ -971,7 +1141,11 @@ mod tests {
                 let dir = if forward { 1.0 } else { -1.0 };
                 let route = anchor_route(&p, x_axis, forward);
                 let grid = p.grid(x_axis);
-                let turn = if forward { grid[0] } else { grid[grid.len() - 1] };
+                let turn = if forward {
+                    grid[0]
+                } else {
+                    grid[grid.len() - 1]
+                };
                 assert_eq!(route[1].pos_um, turn);
                 assert_eq!(route[0].pos_um, turn + dir * PARK_APPROACH_UM);
                 let measured: Vec<f64> = route
@@ -984,7 +1158,11 @@ mod tests {
                 assert_eq!(measured[0], turn + dir * p.step_um);
                 assert_eq!(
                     *measured.last().unwrap(),
-                    if forward { grid[grid.len() - 1] } else { grid[0] }
+                    if forward {
+                        grid[grid.len() - 1]
+                    } else {
+                        grid[0]
+                    }
                 );
                 for (k, s) in route.iter().enumerate().skip(2) {
                     let prev = route[k - 1].pos_um;
@@ -1024,8 +1202,12 @@ mod tests {
             used,
         };
         let c = AnchorCorrection {
-            points: vec![pt(10.0, 1.0, true), pt(20.0, 9.0, false), pt(30.0, 3.0, true)],
-            typical_spread_um: [0.0; 2],
+            points: vec![
+                pt(10.0, 1.0, true),
+                pt(20.0, 9.0, false),
+                pt(30.0, 3.0, true),
+            ],
+            ..AnchorCorrection::default()
         };
         assert_eq!(c.at(true, true, 0.0), (1.0, -1.0));
         assert_eq!(c.at(true, true, 20.0), (2.0, -2.0));

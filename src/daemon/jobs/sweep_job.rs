@@ -617,6 +617,18 @@ fn anchor_metadata(md: &mut Metadata, corr: &AnchorCorrection, measured: usize, 
         "sweep_anchor_unmatched",
         labels(corr.unmatched().map(|p| p.label()).collect()),
     );
+    let flat: Vec<String> = corr
+        .groups
+        .iter()
+        .flat_map(|g| {
+            ["along", "across"]
+                .into_iter()
+                .zip(g.flat)
+                .filter(|(_, f)| *f)
+                .map(move |(c, _)| format!("{}/{c}", g.label()))
+        })
+        .collect();
+    md.insert("sweep_anchor_flat", labels(flat));
     for (axis, x_axis) in [("x", true), ("y", false)] {
         let (scan, held) = corr.max_abs_um(x_axis);
         md.insert(format!("sweep_anchor_max_along_{axis}_um"), um(scan));
@@ -630,7 +642,12 @@ fn anchor_metadata(md: &mut Metadata, corr: &AnchorCorrection, measured: usize, 
 }
 
 /// The anchors' summary in the job's result.
-fn anchor_json(plan: &SweepPlan, corr: &AnchorCorrection, measured: usize, duration_s: f64) -> Value {
+fn anchor_json(
+    plan: &SweepPlan,
+    corr: &AnchorCorrection,
+    measured: usize,
+    duration_s: f64,
+) -> Value {
     let axis = |x_axis: bool| {
         let (scan, held) = corr.max_abs_um(x_axis);
         json!({"max_along_um": scan, "max_across_um": held,
@@ -645,6 +662,11 @@ fn anchor_json(plan: &SweepPlan, corr: &AnchorCorrection, measured: usize, durat
         "duration_s": duration_s,
         "x": axis(true),
         "y": axis(false),
+        "groups": corr.groups.iter().map(|g| json!({
+            "group": g.label(),
+            "chi2_per_dof": g.chi2_per_dof.map(|c| c.is_finite().then_some(c)),
+            "flat": g.flat,
+        })).collect::<Vec<_>>(),
     })
 }
 
