@@ -127,6 +127,10 @@ enum Cmd {
         /// them the thermal drift its tables carry; 0.3 with --short).
         #[arg(long)]
         paper_settle_s: Option<f64>,
+        /// Spacing of the sweep row's static anchors, µm (default 250; 0 =
+        /// none: the sweep's records then keep the pass's motion state).
+        #[arg(long)]
+        sweep_anchor_spacing_um: Option<f64>,
         /// Serve the rig on ptys in real time, this many simulated seconds
         /// per wall second, instead of in process on the virtual clock
         /// (results then depend on the machine's load; default: virtual,
@@ -158,6 +162,7 @@ fn main() -> anyhow::Result<()> {
             short_moves,
             settle_s,
             paper_settle_s,
+            sweep_anchor_spacing_um,
             time_scale,
         } => main_job(
             seed,
@@ -167,7 +172,13 @@ fn main() -> anyhow::Result<()> {
             plots,
             out,
             short,
-            (square_step_um, short_moves, settle_s, paper_settle_s),
+            (
+                square_step_um,
+                short_moves,
+                settle_s,
+                paper_settle_s,
+                sweep_anchor_spacing_um,
+            ),
             time_scale,
         ),
         Cmd::Demo { seed, rig } => {
@@ -337,9 +348,10 @@ fn main_job(
     plots: Option<PathBuf>,
     out: Option<PathBuf>,
     short: bool,
-    (square_step_um, short_moves, settle_s, paper_settle_s): (
+    (square_step_um, short_moves, settle_s, paper_settle_s, anchor_spacing_um): (
         Option<f64>,
         Option<u32>,
+        Option<f64>,
         Option<f64>,
         Option<f64>,
     ),
@@ -384,6 +396,13 @@ fn main_job(
             }
             if let Some(n) = short_moves {
                 p.short_moves_per_cycle = n;
+            }
+            if let Some(h) = anchor_spacing_um {
+                anyhow::ensure!(
+                    h.is_finite() && h >= 0.0,
+                    "--sweep-anchor-spacing-um must be a number ≥ 0"
+                );
+                p.sweep_anchor_spacing_um = h;
             }
             for (flag, value, slot) in [
                 ("--settle-s", settle_s, &mut p.settle_s),

@@ -137,6 +137,11 @@ pub struct RunPlan {
     /// without the camera delay correction. At least 2 cycles (two
     /// velocities). 0 = no sweep row.
     pub sweep_velocity_um_per_s: f64,
+    /// Spacing of the sweep's static anchors, µm (`characterize …
+    /// anchor_spacing_um`; 0 = none): the sweep's records are corrected to
+    /// the step plan's motion state by them, and the row validates the
+    /// tables without that correction too.
+    pub sweep_anchor_spacing_um: f64,
 }
 
 impl RunPlan {
@@ -163,6 +168,8 @@ impl RunPlan {
             live_drift_every_s: 120.0,
             drift_compare: true,
             sweep_velocity_um_per_s: 120.0,
+            sweep_anchor_spacing_um:
+                micropos::daemon::jobs::sweep_anchor::DEFAULT_ANCHOR_SPACING_UM,
         }
     }
 
@@ -795,10 +802,11 @@ async fn pipeline(
 }
 
 /// The sweep row: `characterize start mode=sweep` over the plan's ranges
-/// with the step characterization's drift references, tables from the
-/// corrected and the delay-ignored log, each validated in `table` mode
-/// with live drift off (compare with the drift comparison's `off` row of
-/// the step tables).
+/// with the step characterization's drift references and the plan's
+/// anchors, tables from the corrected log, the delay-ignored one and (with
+/// anchors) the unanchored one, each validated in `table` mode with live
+/// drift off (compare with the drift comparison's `off` row of the step
+/// tables).
 async fn sweep_phase(
     opts: &RunOptions,
     c: &mut Client,
@@ -815,16 +823,19 @@ async fn sweep_phase(
         p.cycles.max(2)
     ));
     let t0 = c.now_s().await?;
-    c.call(
-        json!({"cmd": "characterize", "action": "start", "log": "charact-sweep.csv",
+    let anchored = p.sweep_anchor_spacing_um > 0.0;
+    let mut req = json!({"cmd": "characterize", "action": "start", "log": "charact-sweep.csv",
                   "mode": "sweep", "velocity_um_per_s": p.sweep_velocity_um_per_s,
                   "uncorrected_log": "charact-sweep-nodelay.csv", "step_um": p.step_um,
                   "x_range_um": p.x_range_um, "y_range_um": p.y_range_um,
                   "cycles": p.cycles.max(2), "frames_per_point": p.frames_per_point,
                   "settle_s": p.settle_s, "drift_every_s": p.drift_every_s,
-                  "drift_reference_um": p.drift_reference_um}),
-    )
-    .await?;
+                  "drift_reference_um": p.drift_reference_um,
+                  "anchor_spacing_um": p.sweep_anchor_spacing_um});
+    if anchored {
+        req["unanchored_log"] = json!("charact-sweep-noanchor.csv");
+    }
+    c.call(req).await?;
     let s = c
         .follow(
             json!({"cmd": "characterize", "action": "status"}),
@@ -838,10 +849,14 @@ async fn sweep_phase(
         .await?;
     let mut out = json!({"simulated_s": simulated_s, "result": res,
                          "true_delay_s": opts.rig.camera.latency_us * 1e-6});
-    for (log, stem) in [
+    let mut logs = vec![
         ("charact-sweep.csv", "run-sweep"),
         ("charact-sweep-nodelay.csv", "run-sweep-nodelay"),
-    ] {
+    ];
+    if anchored {
+        logs.push(("charact-sweep-noanchor.csv", "run-sweep-noanchor"));
+    }
+    for (log, stem) in logs {
         c.call(
             json!({"cmd": "tables", "action": "build", "log": log, "name": stem,
                       "kinds": ["paper"]}),
@@ -932,7 +947,7 @@ pub fn format_table(summary: &Value) -> String {
         let ap = |k: &str, t: &str| f(&sw[k][t]["ap_um"]);
         s.push_str(&format!(
             "sweep: {:.0} simulated s (step plan {:.0} s); camera delay {:.3} ms estimated, {:.3} ms true\n\
-             table AP max µm (square / random), live drift off: step {} / {}, sweep {} / {}, sweep delay ignored {} / {}\n",
+             table AP max µm (square / random), live drift off: step {} / {}, sweep {} / {}, sweep delay ignored {} / {}, sweep without anchors {} / {}\n",
             sw["simulated_s"].as_f64().unwrap_or(f64::NAN),
             sw["step_simulated_s"].as_f64().unwrap_or(f64::NAN),
             sw["result"]["camera_delay_s"].as_f64().unwrap_or(f64::NAN) * 1e3,
@@ -943,6 +958,8 @@ pub fn format_table(summary: &Value) -> String {
             ap("run-sweep", "random"),
             ap("run-sweep-nodelay", "square"),
             ap("run-sweep-nodelay", "random"),
+            ap("run-sweep-noanchor", "square"),
+            ap("run-sweep-noanchor", "random"),
         ));
     }
     let ch = &summary["characterization"];

@@ -39,6 +39,23 @@ pub const SEGMENT_RANDOM: &str = "random";
 /// constant-step scans; these moves make it identifiable
 /// (`crate::comp::model_comp::scan_samples`).
 pub const SEGMENT_MOVES: &str = "moves";
+/// Log segments of a sweep characterization's static anchors (x forward,
+/// x backward, y forward, y backward): stops measured as the step plan
+/// measures its points, each reached by a move of the anchor spacing and a
+/// final move of one step, neither of which the log holds
+/// (`crate::daemon::jobs::sweep_anchor`). Readers that replay the logged
+/// commands as the motion (`crate::analysis::diagnose`) leave them out.
+pub const SEGMENTS_SWEEP_ANCHOR: [&str; 4] = [
+    "anchor_x_fwd",
+    "anchor_x_bwd",
+    "anchor_y_fwd",
+    "anchor_y_bwd",
+];
+
+/// Whether `segment` is one of [`SEGMENTS_SWEEP_ANCHOR`].
+pub fn is_sweep_anchor(segment: &str) -> bool {
+    SEGMENTS_SWEEP_ANCHOR.contains(&segment)
+}
 
 /// Largest number of points a plan may generate (a typo such as a 1 nm step
 /// over 10 mm must not allocate gigabytes).

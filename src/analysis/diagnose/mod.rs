@@ -131,6 +131,7 @@ use std::collections::HashMap;
 use serde::{Deserialize, Serialize};
 
 use crate::charact::log::MeasurementLog;
+use crate::charact::scan::is_sweep_anchor;
 use crate::model::{
     Axis, Environment, FitOptions, Interpolation, Sample, StageModel, TemperaturePoint,
 };
@@ -405,6 +406,19 @@ pub fn diagnose(
             "z_threshold and min_gain_pct must be finite".into(),
         ));
     }
+    // A sweep log's anchors: their approach (a move of the anchor spacing,
+    // then one step) is not in the log, and a replay would give them the
+    // spacing as their last move. The scan records the anchors corrected
+    // describe the step plan's motion, which the replay gives them.
+    let without_anchors;
+    let log = if log.records.iter().any(|r| is_sweep_anchor(&r.segment)) {
+        let mut l = log.clone();
+        l.records.retain(|r| !is_sweep_anchor(&r.segment));
+        without_anchors = l;
+        &without_anchors
+    } else {
+        log
+    };
     let d = prepare(log, model, opts.max_folds)?;
     let (all_names, all_base) = base_columns(&d, model, &opts.base_free_kinds);
     // A periodic base term whose period the log's sampling cannot resolve

@@ -618,3 +618,31 @@ fn positions_of_one_target_are_merged_only_on_a_sparse_test() {
     assert_eq!(sampling_spacing_um(&grid), Some(11.25));
     assert_eq!(targets_of(&grid).bounds.len(), grid.len());
 }
+
+/// A sweep log's anchor rows (`anchor_*` segments, their approach not in
+/// the log) are left out: the same log with anchor rows inserted between
+/// its records, measured 50 µm off, gives the same diagnosis.
+#[test]
+fn sweep_anchor_rows_are_left_out() {
+    let base = StageModel::paper_default().unwrap();
+    let plan = small_plan(0);
+    let truth = truth_model(&base, None, &plan, 7).unwrap();
+    let log = parse_bytes(&simulate_log(&truth, &plan, 7).unwrap().to_bytes().unwrap()).unwrap();
+    let mut with = log.clone();
+    let mut records = Vec::new();
+    for (i, r) in log.records.iter().enumerate() {
+        records.push(r.clone());
+        if i % 40 == 39 {
+            let mut a = r.clone();
+            a.segment = crate::charact::scan::SEGMENTS_SWEEP_ANCHOR[i / 40 % 4].to_owned();
+            a.x_meas_um += 50.0;
+            records.push(a);
+        }
+    }
+    with.records = records;
+    assert!(with.records.len() > log.records.len());
+    let opts = DiagnoseOptions::default();
+    let a = diagnose(&log, &base, &opts).unwrap();
+    let b = diagnose(&with, &base, &opts).unwrap();
+    assert_eq!(a.to_text(), b.to_text());
+}

@@ -91,6 +91,14 @@ pub enum ClientCommand {
         /// Sweep: also write the log without the delay correction.
         #[arg(long)]
         uncorrected_log: Option<String>,
+        /// Sweep: spacing of the static anchors, µm (0 = none; default
+        /// 250). The records are corrected to the step plan's motion state
+        /// by the anchors' offset curves.
+        #[arg(long)]
+        anchor_spacing_um: Option<f64>,
+        /// Sweep: also write the log without the anchor correction.
+        #[arg(long)]
+        unanchored_log: Option<String>,
         /// Follow progress with a progress bar until the job ends.
         #[arg(long)]
         follow: bool,
@@ -245,6 +253,8 @@ fn build(cmd: &ClientCommand) -> Value {
             mode,
             velocity_um_per_s,
             uncorrected_log,
+            anchor_spacing_um,
+            unanchored_log,
             ..
         } => {
             let mut v = json!({"cmd": "characterize", "action": action});
@@ -256,6 +266,12 @@ fn build(cmd: &ClientCommand) -> Value {
             }
             if let Some(u) = uncorrected_log {
                 v["uncorrected_log"] = json!(u);
+            }
+            if let Some(h) = anchor_spacing_um {
+                v["anchor_spacing_um"] = json!(h);
+            }
+            if let Some(u) = unanchored_log {
+                v["unanchored_log"] = json!(u);
             }
             if let Some(l) = log {
                 v["log"] = json!(l);

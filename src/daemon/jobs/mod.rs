@@ -9,6 +9,7 @@
 pub mod plan;
 pub mod record;
 pub mod sweep;
+pub mod sweep_anchor;
 pub mod sweep_job;
 pub mod sweep_recorder;
 pub mod tables;
@@ -194,15 +195,27 @@ impl Jobs {
                 velocity_um_per_s: p
                     .velocity_um_per_s
                     .unwrap_or(DEFAULT_SWEEP_VELOCITY_UM_PER_S),
+                anchor_spacing_um: p
+                    .anchor_spacing_um
+                    .unwrap_or(sweep_anchor::DEFAULT_ANCHOR_SPACING_UM),
             };
             sweep
                 .validate()
                 .map_err(|e| ProtoError::new(ErrorCode::BadValue, e.to_string()))?;
-            if let Some(u) = &p.uncorrected_log {
-                if u == &name || Self::log_path(rig, u).exists() {
+            let companions = [
+                ("uncorrected_log", &p.uncorrected_log),
+                ("unanchored_log", &p.unanchored_log),
+            ];
+            for (key, u) in companions {
+                let Some(u) = u else { continue };
+                let clash = u == &name
+                    || companions
+                        .iter()
+                        .any(|(k, o)| *k != key && o.as_ref() == Some(u));
+                if clash || Self::log_path(rig, u).exists() {
                     return Err(ProtoError::new(
                         ErrorCode::LogError,
-                        format!("uncorrected_log {u} exists already or is the log itself"),
+                        format!("{key} {u} exists already or names another log of the job"),
                     ));
                 }
             }
@@ -212,6 +225,7 @@ impl Jobs {
                 plan: sweep,
                 name,
                 uncorrected: p.uncorrected_log,
+                unanchored: p.unanchored_log,
                 frames_per_point: plan.frames_per_point,
                 settle_s: plan.settle_s,
                 drift,

@@ -20,6 +20,9 @@
 //! interpolates its two neighbouring frames) and logged as if measured at
 //! the grid point: the log has the step plan's segments, cycles and
 //! targets, so `tables build`, `diagnose` and the plots read it unchanged.
+//! A record carries the motion state of its pass (one move since the run-up
+//! began); `jobs::sweep_anchor` measures the step plan's state at static
+//! anchors and corrects the records to it.
 //!
 //! # Camera delay
 //! A delay error Δ = true − assumed shifts the interpolated command by
@@ -74,6 +77,10 @@ pub struct SweepPlan {
     pub cycles: u32,
     /// Velocity of the odd cycles, µm/s (even cycles: twice it).
     pub velocity_um_per_s: f64,
+    /// Spacing of the static anchors measured after each cycle's passes,
+    /// µm, rounded to a multiple of `step_um` (`jobs::sweep_anchor`); 0 =
+    /// none (the records then carry the pass's motion state).
+    pub anchor_spacing_um: f64,
 }
 
 /// One constant-velocity pass.
@@ -159,6 +166,7 @@ impl SweepPlan {
             self.y_start_um,
             self.y_range_um,
             self.velocity_um_per_s,
+            self.anchor_spacing_um,
         ]
         .iter()
         .all(|v| v.is_finite());
@@ -170,6 +178,11 @@ impl SweepPlan {
         if self.velocity_um_per_s <= 0.0 {
             return Err(SweepError::Plan(
                 "velocity_um_per_s must be positive".into(),
+            ));
+        }
+        if self.anchor_spacing_um < 0.0 {
+            return Err(SweepError::Plan(
+                "anchor_spacing_um must be 0 (no anchors) or positive".into(),
             ));
         }
         if self.cycles < 2 {
@@ -205,6 +218,19 @@ impl SweepPlan {
             .map(|c| self.velocity_of_cycle(c))
             .fold(0.0, f64::max);
         PARK_APPROACH_UM + top * RUN_UP_S
+    }
+
+    /// Grid steps between two anchors (at least one), `None` without
+    /// anchors.
+    pub fn anchor_every(&self) -> Option<usize> {
+        (self.anchor_spacing_um > 0.0 && self.step_um > 0.0)
+            .then(|| ((self.anchor_spacing_um / self.step_um).round() as usize).max(1))
+    }
+
+    /// The anchor spacing the plan uses, µm (a multiple of the step; 0 =
+    /// none).
+    pub fn anchor_spacing_used_um(&self) -> f64 {
+        self.anchor_every().map_or(0.0, |n| n as f64 * self.step_um)
     }
 
     /// Velocity of a cycle, µm/s.
@@ -288,6 +314,10 @@ impl SweepPlan {
         md.insert("y_range_um", self.y_range_um.to_string());
         md.insert("cycles", self.cycles.to_string());
         md.insert("velocity_um_per_s", self.velocity_um_per_s.to_string());
+        md.insert(
+            "anchor_spacing_um",
+            self.anchor_spacing_used_um().to_string(),
+        );
     }
 }
 
@@ -586,6 +616,7 @@ mod tests {
             y_range_um: 100.0,
             cycles: 3,
             velocity_um_per_s: 100.0,
+            anchor_spacing_um: 50.0,
         }
     }
 

@@ -8,8 +8,14 @@
 //! delay and writes the log resampled onto the step grid
 //! (`jobs::sweep` has the method).
 //!
+//! After the two passes of each cycle on an axis (with `anchor_spacing_um`
+//! > 0), the job stops at that axis's static anchors, forward then backward,
+//! each reached as the step plan reaches its points (`jobs::sweep_anchor`):
+//! the records are corrected by the anchors' offset curves, so that they
+//! describe the stage in the step plan's motion state.
+//!
 //! Unlike the step job, records are written when the sweep ends (the delay
-//! they are corrected by is estimated from all passes): an interrupted
+//! and the anchor correction come from all passes): an interrupted
 //! sweep logs nothing and is started again; `characterize resume` refuses
 //! sweep logs. With a drift plan (`drift_every_s`, as the step job) the
 //! job re-measures the drift reference before the first pass and before
@@ -24,12 +30,14 @@ use super::sweep::{
     estimate_delay, frames_at, resample, DelayEstimate, PassData, PassSpec, PosSample, SweepFrame,
     SweepPlan,
 };
+use super::sweep_anchor::{anchor_correction, anchor_route, AnchorCorrection, AnchorMeas};
 use super::sweep_recorder::{merge, Chunk, CHUNK_S, POLL_WITH_RECORDER, RECORD_RATE, RECORD_TABLE};
 use super::{
     clamp_to_travel, drift_ref_record, lock, measure_retrying, move_raw_retrying, tie, Progress,
     PARK_APPROACH_UM,
 };
 use crate::charact::log::{self, Columns, Metadata, Record, SyncPolicy};
+use crate::charact::scan::SEGMENTS_SWEEP_ANCHOR;
 use crate::comp::VisionFrame;
 use crate::daemon::protocol::{ErrorCode, MoveRequest, ProtoError, Topic};
 use crate::daemon::rig::{driver_error, Rig};
@@ -46,15 +54,31 @@ use tokio::sync::watch;
 pub const POS_SAMPLE_PERIOD: Duration = Duration::from_millis(5);
 
 /// The log's columns: the step job's plus the pass velocity, the frames'
-/// mean camera stamp and how many frames a record averages.
+/// mean camera stamp, how many frames a record averages and the anchor
+/// correction in x and y (on a scan record the one applied, on an anchor
+/// record that cycle's anchor − sweep difference; docs/measurement-log.md).
 pub fn columns() -> Columns {
     let mut c = super::columns();
     c.extra.extend(
-        ["velocity_um_per_s", "t_frame_s", "frames"]
-            .iter()
-            .map(|s| (*s).to_owned()),
+        [
+            "velocity_um_per_s",
+            "t_frame_s",
+            "frames",
+            "x_anchor_corr_um",
+            "y_anchor_corr_um",
+        ]
+        .iter()
+        .map(|s| (*s).to_owned()),
     );
     c
+}
+
+/// Log segment of an anchor record: `anchor_x_fwd`, `anchor_x_bwd`,
+/// `anchor_y_fwd`, `anchor_y_bwd`. Not `scan_*`: the lookup tables, the
+/// model fit and the plots take only the scan segments, and `diagnose`
+/// leaves these out (their approach is not in the log).
+pub fn anchor_segment(x_axis: bool, forward: bool) -> &'static str {
+    SEGMENTS_SWEEP_ANCHOR[2 * usize::from(!x_axis) + usize::from(!forward)]
 }
 
 /// What the job needs besides the rig.
@@ -64,8 +88,12 @@ pub struct SweepArgs {
     pub plan: SweepPlan,
     /// Log file name.
     pub name: String,
-    /// Optional second log resampled without the delay correction.
+    /// Optional second log resampled without the delay correction (the
+    /// anchor correction applied as in the log).
     pub uncorrected: Option<String>,
+    /// Optional third log without the anchor correction (the delay
+    /// correction applied as in the log).
+    pub unanchored: Option<String>,
     /// Frames per tie point.
     pub frames_per_point: u32,
     /// Settle before each tie point and drift reference, s.
@@ -117,9 +145,13 @@ pub(super) async fn run(
     let mut recorded = RecorderStats::default();
     let specs = plan.passes();
     let mut passes: Vec<PassData> = Vec::with_capacity(specs.len());
-    // Drift references, each with the index of the pass it precedes.
-    let mut refs: Vec<(usize, Record)> = Vec::new();
+    // Drift references and anchors in the order measured, each with the
+    // index of the pass it precedes (`specs.len()`: after the last).
+    let mut between: Vec<(usize, Between)> = Vec::new();
+    let mut anchors: Vec<AnchorMeas> = Vec::new();
+    let mut anchor_s = 0.0;
     let mut last_ref_s: Option<f64> = None;
+    let mut moved_away = false;
     let total = plan.records_total();
     for (k, spec) in specs.iter().enumerate() {
         if *cancel.borrow_and_update() {
@@ -128,14 +160,15 @@ pub(super) async fn run(
         if rig.stop_generation() != gen {
             return Ok(("stopped", Value::Null));
         }
-        let mut park = k == 0 || specs[k - 1].x_axis != spec.x_axis;
+        // The anchors or a reference detour left the axis elsewhere.
+        let mut park = k == 0 || specs[k - 1].x_axis != spec.x_axis || moved_away;
         if let Some(d) = &a.drift {
             if last_ref_s.is_none_or(|t| rig.clock.now_s() - t >= d.every_s) {
                 let rec = tokio::select! {
                     r = drift_reference(rig, d, a, &tied.frame, origin, spec.cycle) => r?,
                     _ = cancel.changed() => return Ok(("cancelled", Value::Null)),
                 };
-                refs.push((k, rec));
+                between.push((k, Between::Ref(rec)));
                 last_ref_s = Some(rig.clock.now_s());
                 // The detour left both axes at the reference.
                 park = true;
@@ -151,6 +184,32 @@ pub(super) async fn run(
             }
         };
         passes.push(r);
+        moved_away = false;
+        // The cycle's two passes of this axis are done: its anchors.
+        if !spec.forward && plan.anchor_every().is_some() {
+            let t0 = rig.clock.now_s();
+            for forward in [true, false] {
+                let group = AnchorGroup {
+                    x_axis: spec.x_axis,
+                    forward,
+                    cycle: spec.cycle,
+                    hold_um: spec.hold_um,
+                };
+                let rows = tokio::select! {
+                    r = anchor_group(rig, plan, &group, a, &tied.frame, gen) => r?,
+                    _ = cancel.changed() => return Ok(("cancelled", Value::Null)),
+                };
+                let Some(rows) = rows else {
+                    return Ok(("stopped", Value::Null));
+                };
+                for row in rows {
+                    anchors.push(row.m);
+                    between.push((k + 1, Between::Anchor(row)));
+                }
+            }
+            anchor_s += rig.clock.now_s() - t0;
+            moved_away = true;
+        }
         let done = total * (k + 1) / specs.len();
         let elapsed = rig.clock.now_s() - origin;
         let eta = elapsed / (k + 1) as f64 * (specs.len() - k - 1) as f64;
@@ -169,6 +228,7 @@ pub(super) async fn run(
             format!("sweep characterization: {e}"),
         )
     })?;
+    let corr = anchor_correction(&passes, &anchors, est.delay_s, plan.step_um);
     let duration_s = rig.clock.now_s() - began;
     let frames: usize = passes.iter().map(|p| p.frames.len()).sum();
     let samples: usize = passes.iter().map(|p| p.samples.len()).sum();
@@ -202,24 +262,51 @@ pub(super) async fn run(
         "camera_delay_residual_um",
         format!("{:.5}", est.residual_um),
     );
-    let records = records(&passes, &refs, plan, est.delay_s, origin);
-    let n_records = records.len() - refs.len();
-    let mut md_c = md.clone();
-    md_c.insert("camera_delay_applied_s", format!("{:.7}", est.delay_s));
-    write_log(rig, &a.name, md_c, records).await?;
+    anchor_metadata(&mut md, &corr, anchors.len(), anchor_s);
+    let anchored = plan.anchor_every().is_some();
+    let built = |delay_s: f64, apply: bool| {
+        let ctx = RecordContext {
+            plan,
+            delay_s,
+            origin,
+            corr: &corr,
+            apply,
+        };
+        records(&passes, &between, &ctx)
+    };
+    let records = built(est.delay_s, anchored);
+    let n_between = between.len();
+    let n_refs = between
+        .iter()
+        .filter(|(_, b)| matches!(b, Between::Ref(_)))
+        .count();
+    let n_records = records.len() - n_between;
+    // The log and its companions differ in the corrections applied only.
+    let variant = |delay_s: f64, apply: bool| {
+        let mut m = md.clone();
+        m.insert("camera_delay_applied_s", format!("{delay_s:.7}"));
+        m.insert(
+            "sweep_anchor_correction_applied",
+            (apply && anchored).to_string(),
+        );
+        m
+    };
+    write_log(rig, &a.name, variant(est.delay_s, true), records).await?;
     if let Some(u) = &a.uncorrected {
-        let mut md_u = md;
-        md_u.insert("camera_delay_applied_s", "0");
+        write_log(rig, u, variant(0.0, true), built(0.0, anchored)).await?;
+    }
+    if let Some(u) = &a.unanchored {
         write_log(
             rig,
             u,
-            md_u,
-            self::records(&passes, &refs, plan, 0.0, origin),
+            variant(est.delay_s, false),
+            built(est.delay_s, false),
         )
         .await?;
     }
     let mut result = result_json(&est, frames, samples, n_records, duration_s);
-    result["drift_references"] = json!(refs.len());
+    result["drift_references"] = json!(n_refs);
+    result["anchors"] = anchor_json(plan, &corr, anchors.len(), anchor_s);
     result["position_source"] = json!({
         "x": if recorder[0] { "data_recorder" } else { "pos_polling" },
         "y": if recorder[1] { "data_recorder" } else { "pos_polling" },
@@ -296,27 +383,62 @@ fn result_json(
     })
 }
 
+/// What the job measured between passes, in the log's order.
+enum Between {
+    /// A drift reference re-measurement (its record as logged).
+    Ref(Record),
+    /// An anchor.
+    Anchor(AnchorRow),
+}
+
+/// One anchor as the log holds it.
+struct AnchorRow {
+    /// The measurement.
+    m: AnchorMeas,
+    /// The controllers' reported positions after the final move, µm.
+    reported: [Option<f64>; 2],
+    /// Frames averaged.
+    frames: u32,
+}
+
+/// How [`records`] builds one log.
+struct RecordContext<'a> {
+    plan: &'a SweepPlan,
+    /// Frames are placed at `stamp − delay_s`.
+    delay_s: f64,
+    /// Rig time of the log's zero.
+    origin: f64,
+    /// The anchors' correction (its differences are logged in the anchor
+    /// rows in every variant).
+    corr: &'a AnchorCorrection,
+    /// Whether the scan records are corrected by it.
+    apply: bool,
+}
+
+/// `v` µm with 4 decimals.
+fn um(v: f64) -> String {
+    format!("{v:.4}")
+}
+
 /// The resampled records of every pass, in plan order (forward passes
 /// ascending, backward descending, as the step plan), frames placed at
-/// `stamp − delay_s`; times relative to `origin`. The drift references go
-/// before the pass they preceded.
-fn records(
-    passes: &[PassData],
-    refs: &[(usize, Record)],
-    plan: &SweepPlan,
-    delay_s: f64,
-    origin: f64,
-) -> Vec<Record> {
+/// `stamp − delay_s`, corrected by the anchors when `apply`; times relative
+/// to `origin`. What was measured between passes goes before the pass it
+/// preceded.
+fn records(passes: &[PassData], between: &[(usize, Between)], ctx: &RecordContext) -> Vec<Record> {
+    let plan = ctx.plan;
     let mut out = Vec::new();
-    for (k, p) in passes.iter().enumerate() {
-        out.extend(
-            refs.iter()
-                .filter(|(before, _)| *before == k)
-                .map(|(_, r)| r.clone()),
-        );
+    for k in 0..=passes.len() {
+        for (_, b) in between.iter().filter(|(before, _)| *before == k) {
+            out.push(match b {
+                Between::Ref(r) => r.clone(),
+                Between::Anchor(row) => anchor_record(row, ctx),
+            });
+        }
+        let Some(p) = passes.get(k) else { break };
         let s = p.spec;
         let grid = plan.grid(s.x_axis);
-        let mut vals: Vec<_> = resample(&frames_at(p, delay_s), &grid, plan.step_um)
+        let mut vals: Vec<_> = resample(&frames_at(p, ctx.delay_s), &grid, plan.step_um)
             .into_iter()
             .flatten()
             .collect();
@@ -324,15 +446,26 @@ fn records(
             vals.reverse();
         }
         for v in vals {
-            let scan_meas = v.pos_um - v.e_scan_um;
-            let held_meas = s.hold_um - v.e_held_um;
+            let (c_scan, c_held) = if ctx.apply {
+                ctx.corr.at(s.x_axis, s.forward, v.pos_um)
+            } else {
+                (0.0, 0.0)
+            };
+            let scan_meas = v.pos_um - (v.e_scan_um + c_scan);
+            let held_meas = s.hold_um - (v.e_held_um + c_held);
             let (x, y, xm, ym) = if s.x_axis {
                 (v.pos_um, s.hold_um, scan_meas, held_meas)
             } else {
                 (s.hold_um, v.pos_um, held_meas, scan_meas)
             };
+            let (cx, cy) = if s.x_axis {
+                (c_scan, c_held)
+            } else {
+                (c_held, c_scan)
+            };
+            let applied = |c: f64| if ctx.apply { um(c) } else { String::new() };
             out.push(Record {
-                t_s: v.t_s - origin,
+                t_s: v.t_s - ctx.origin,
                 segment: s.segment().to_owned(),
                 cycle: s.cycle,
                 x_target_um: x,
@@ -343,17 +476,198 @@ fn records(
                 y_meas_um: ym,
                 temp_c: None,
                 extra: vec![
-                    format!("{x:.4}"),
-                    format!("{y:.4}"),
+                    um(x),
+                    um(y),
                     format!("{:.3}", v.quality),
                     format!("{}", s.sign() * s.velocity_um_per_s),
-                    format!("{:.6}", v.t_s + delay_s - origin),
+                    format!("{:.6}", v.t_s + ctx.delay_s - ctx.origin),
                     v.frames.to_string(),
+                    applied(cx),
+                    applied(cy),
                 ],
             });
         }
     }
     out
+}
+
+/// An anchor's record: target = command = the anchor, the measured
+/// position, velocity 0, and that cycle's anchor − sweep difference in the
+/// correction columns (empty where the sweep had no value there).
+fn anchor_record(row: &AnchorRow, ctx: &RecordContext) -> Record {
+    let m = &row.m;
+    let (x, y) = if m.x_axis {
+        (m.pos_um, m.hold_um)
+    } else {
+        (m.hold_um, m.pos_um)
+    };
+    let diff = ctx.corr.diff_of(m).map(|d| {
+        if m.x_axis {
+            (d.scan_um, d.held_um)
+        } else {
+            (d.held_um, d.scan_um)
+        }
+    });
+    let t = m.t_s - ctx.origin;
+    Record {
+        t_s: t,
+        segment: anchor_segment(m.x_axis, m.forward).to_owned(),
+        cycle: m.cycle,
+        x_target_um: x,
+        y_target_um: y,
+        x_cmd_um: x,
+        y_cmd_um: y,
+        x_meas_um: m.meas.x_um,
+        y_meas_um: m.meas.y_um,
+        temp_c: None,
+        extra: vec![
+            row.reported[0].map_or(String::new(), um),
+            row.reported[1].map_or(String::new(), um),
+            format!("{:.3}", m.quality),
+            "0".to_owned(),
+            format!("{t:.6}"),
+            row.frames.to_string(),
+            diff.map_or(String::new(), |d| um(d.0)),
+            diff.map_or(String::new(), |d| um(d.1)),
+        ],
+    }
+}
+
+/// The anchors of one axis, direction and cycle.
+struct AnchorGroup {
+    x_axis: bool,
+    forward: bool,
+    cycle: u32,
+    /// Where the held axis stands (the passes' hold), µm.
+    hold_um: f64,
+}
+
+/// Runs one group's route (`sweep_anchor::anchor_route`): every stop a raw
+/// move of the swept axis (the held one stays), at each anchor the step
+/// job's settle and frames. `Ok(None)` if a stop or fault moved the stop
+/// generation past `gen`.
+async fn anchor_group(
+    rig: &Arc<Rig>,
+    plan: &SweepPlan,
+    g: &AnchorGroup,
+    a: &SweepArgs,
+    frame: &VisionFrame,
+    gen: u64,
+) -> Result<Option<Vec<AnchorRow>>, ProtoError> {
+    let mut rows = Vec::new();
+    for stop in anchor_route(plan, g.x_axis, g.forward) {
+        if rig.stop_generation() != gen {
+            return Ok(None);
+        }
+        let (x, y) = if g.x_axis {
+            clamp_to_travel(rig, stop.pos_um, g.hold_um)
+        } else {
+            clamp_to_travel(rig, g.hold_um, stop.pos_um)
+        };
+        let moved = move_raw_retrying(rig, x, y).await?;
+        if !stop.measure {
+            continue;
+        }
+        rig.clock
+            .sleep(Duration::try_from_secs_f64(a.settle_s).unwrap_or_default())
+            .await;
+        let (m, quality) = measure_retrying(rig, a.frames_per_point).await?;
+        let meas = frame.to_stage(XyUm {
+            x_um: m.x_um,
+            y_um: m.y_um,
+        });
+        rows.push(AnchorRow {
+            m: AnchorMeas {
+                x_axis: g.x_axis,
+                forward: g.forward,
+                cycle: g.cycle,
+                pos_um: if g.x_axis { x } else { y },
+                hold_um: if g.x_axis { y } else { x },
+                meas,
+                t_s: m.frame_t_s,
+                quality,
+            },
+            reported: [
+                moved["reported"]["x_um"].as_f64(),
+                moved["reported"]["y_um"].as_f64(),
+            ],
+            frames: a.frames_per_point,
+        });
+    }
+    Ok(Some(rows))
+}
+
+/// The anchors' summary in the log's metadata (docs/measurement-log.md,
+/// "Sweep logs").
+fn anchor_metadata(md: &mut Metadata, corr: &AnchorCorrection, measured: usize, duration_s: f64) {
+    md.insert("sweep_anchors", measured.to_string());
+    md.insert("sweep_anchor_positions", corr.points.len().to_string());
+    let labels = |v: Vec<String>| {
+        if v.is_empty() {
+            "none".to_owned()
+        } else {
+            v.join(" ")
+        }
+    };
+    md.insert(
+        "sweep_anchor_rejected",
+        labels(corr.rejected().map(|p| p.label()).collect()),
+    );
+    md.insert(
+        "sweep_anchor_unmatched",
+        labels(corr.unmatched().map(|p| p.label()).collect()),
+    );
+    let flat: Vec<String> = corr
+        .groups
+        .iter()
+        .flat_map(|g| {
+            ["along", "across"]
+                .into_iter()
+                .zip(g.flat)
+                .filter(|(_, f)| *f)
+                .map(move |(c, _)| format!("{}/{c}", g.label()))
+        })
+        .collect();
+    md.insert("sweep_anchor_flat", labels(flat));
+    for (axis, x_axis) in [("x", true), ("y", false)] {
+        let (scan, held) = corr.max_abs_um(x_axis);
+        md.insert(format!("sweep_anchor_max_along_{axis}_um"), um(scan));
+        md.insert(format!("sweep_anchor_max_across_{axis}_um"), um(held));
+        md.insert(
+            format!("sweep_anchor_typical_spread_{axis}_um"),
+            um(corr.typical_spread_um[usize::from(!x_axis)]),
+        );
+    }
+    md.insert("sweep_anchor_duration_s", format!("{duration_s:.3}"));
+}
+
+/// The anchors' summary in the job's result.
+fn anchor_json(
+    plan: &SweepPlan,
+    corr: &AnchorCorrection,
+    measured: usize,
+    duration_s: f64,
+) -> Value {
+    let axis = |x_axis: bool| {
+        let (scan, held) = corr.max_abs_um(x_axis);
+        json!({"max_along_um": scan, "max_across_um": held,
+               "typical_spread_um": corr.typical_spread_um[usize::from(!x_axis)]})
+    };
+    json!({
+        "spacing_um": plan.anchor_spacing_used_um(),
+        "measured": measured,
+        "positions": corr.points.len(),
+        "rejected": corr.rejected().map(|p| p.label()).collect::<Vec<_>>(),
+        "unmatched": corr.unmatched().map(|p| p.label()).collect::<Vec<_>>(),
+        "duration_s": duration_s,
+        "x": axis(true),
+        "y": axis(false),
+        "groups": corr.groups.iter().map(|g| json!({
+            "group": g.label(),
+            "chi2_per_dof": g.chi2_per_dof.map(|c| c.is_finite().then_some(c)),
+            "flat": g.flat,
+        })).collect::<Vec<_>>(),
+    })
 }
 
 /// Measures the drift reference as the step job does (approached forward
@@ -392,6 +706,8 @@ async fn drift_reference(
         "0".to_owned(),
         format!("{:.6}", m.frame_t_s - origin),
         a.frames_per_point.to_string(),
+        String::new(),
+        String::new(),
     ]);
     Ok(rec)
 }

@@ -116,6 +116,13 @@ pub struct CharacterizeParams {
     /// Sweep: also write the log resampled without the delay correction
     /// (file name in the data directory), to show what the delay costs.
     pub uncorrected_log: Option<String>,
+    /// Sweep: also write the log without the anchor correction (file name
+    /// in the data directory), to show what the anchors change.
+    pub unanchored_log: Option<String>,
+    /// Sweep: spacing of the static anchors, µm (rounded to a multiple of
+    /// the step; 0 = none; default
+    /// `daemon::jobs::sweep_anchor::DEFAULT_ANCHOR_SPACING_UM`).
+    pub anchor_spacing_um: Option<f64>,
     /// Step mode: moves of varied length per cycle after the scans
     /// (`daemon::jobs::plan::ScanPlan::moves_per_cycle`); default 0.
     pub moves_per_cycle: Option<u32>,

@@ -85,6 +85,8 @@ fn parse_command(obj: &Map<String, Value>) -> Result<Command, ProtoError> {
             "mode",
             "velocity_um_per_s",
             "uncorrected_log",
+            "unanchored_log",
+            "anchor_spacing_um",
             "moves_per_cycle",
         ],
         "validate" => &[
@@ -273,6 +275,20 @@ fn parse_characterize(obj: &Map<String, Value>) -> Result<CharacterizeAction, Pr
                     }
                     None => None,
                 },
+                unanchored_log: match opt_str(obj, "unanchored_log")? {
+                    Some(l) => {
+                        check_file_name("unanchored_log", l)?;
+                        Some(l.to_owned())
+                    }
+                    None => None,
+                },
+                anchor_spacing_um: opt_f64_within(
+                    obj,
+                    "anchor_spacing_um",
+                    0.0,
+                    1e6,
+                    "0..1000000 (0 = no anchors)",
+                )?,
                 moves_per_cycle: opt_count(obj, "moves_per_cycle", 0, 100_000)?,
             }))
         }

@@ -163,6 +163,16 @@ fn parses_every_command() {
         })) if v == 120.0 && u == "u.csv"
     ));
     assert!(matches!(
+        parse(r#"{"cmd":"characterize","action":"start","mode":"sweep","anchor_spacing_um":500,"unanchored_log":"n.csv"}"#)
+            .unwrap()
+            .command,
+        Command::Characterize(CharacterizeAction::Start(CharacterizeParams {
+            anchor_spacing_um: Some(h),
+            unanchored_log: Some(n),
+            ..
+        })) if h == 500.0 && n == "n.csv"
+    ));
+    assert!(matches!(
         parse(r#"{"cmd":"characterize","action":"start","moves_per_cycle":40}"#)
             .unwrap()
             .command,
@@ -176,6 +186,8 @@ fn parses_every_command() {
         r#"{"cmd":"characterize","action":"start","mode":"fly"}"#,
         r#"{"cmd":"characterize","action":"start","velocity_um_per_s":0}"#,
         r#"{"cmd":"characterize","action":"start","uncorrected_log":"../x.csv"}"#,
+        r#"{"cmd":"characterize","action":"start","unanchored_log":"a/x.csv"}"#,
+        r#"{"cmd":"characterize","action":"start","anchor_spacing_um":-5}"#,
         r#"{"cmd":"characterize","action":"start","drift_every_s":-1}"#,
         r#"{"cmd":"characterize","action":"start","drift_reference_um":[1]}"#,
         r#"{"cmd":"characterize","action":"start","drift_reference_um":[1,"a"]}"#,

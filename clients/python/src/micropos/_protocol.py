@@ -171,6 +171,8 @@ def characterize_start(
     velocity_um_per_s: Optional[float] = None,
     uncorrected_log: Optional[str] = None,
     moves_per_cycle: Optional[int] = None,
+    anchor_spacing_um: Optional[float] = None,
+    unanchored_log: Optional[str] = None,
 ) -> Json:
     """``characterize`` ``start``."""
     return request(
@@ -190,6 +192,8 @@ def characterize_start(
         velocity_um_per_s=velocity_um_per_s,
         uncorrected_log=uncorrected_log,
         moves_per_cycle=moves_per_cycle,
+        anchor_spacing_um=anchor_spacing_um,
+        unanchored_log=unanchored_log,
     )
 
 

@@ -324,6 +324,8 @@ class AsyncRig:
         velocity_um_per_s: Optional[float] = None,
         uncorrected_log: Optional[str] = None,
         moves_per_cycle: Optional[int] = None,
+        anchor_spacing_um: Optional[float] = None,
+        unanchored_log: Optional[str] = None,
     ) -> "AsyncJob":
         """``characterize start``; see :meth:`Rig.characterize`."""
         reply = await self._call(
@@ -342,6 +344,8 @@ class AsyncRig:
                 velocity_um_per_s=velocity_um_per_s,
                 uncorrected_log=uncorrected_log,
                 moves_per_cycle=moves_per_cycle,
+                anchor_spacing_um=anchor_spacing_um,
+                unanchored_log=unanchored_log,
             )
         )
         return AsyncJob._from_reply(self, "characterize", reply)

@@ -303,6 +303,8 @@ class Rig:
         velocity_um_per_s: Optional[float] = None,
         uncorrected_log: Optional[str] = None,
         moves_per_cycle: Optional[int] = None,
+        anchor_spacing_um: Optional[float] = None,
+        unanchored_log: Optional[str] = None,
     ) -> "Job":
         """``characterize start``: a characterization job, logged point by
         point into ``log`` (a file name in the daemon's data directory).
@@ -313,6 +315,10 @@ class Rig:
         estimated from the data (``wait()["job"]["result"]["camera_delay_s"]``)
         and the log is written resampled onto the step grid when the sweep
         ends; ``uncorrected_log`` also writes it without the delay
+        correction. The sweep stops at static anchors every
+        ``anchor_spacing_um`` (default 250; 0 = none), measured as the step
+        plan measures, and corrects its records to the step plan's motion
+        state with them; ``unanchored_log`` also writes the log without that
         correction. ``moves_per_cycle`` (step mode) adds that many moves of
         varied length per cycle after the scans, so a model table can learn
         a lost motion that grows with the move length. Returns the job's
@@ -333,6 +339,8 @@ class Rig:
                 velocity_um_per_s=velocity_um_per_s,
                 uncorrected_log=uncorrected_log,
                 moves_per_cycle=moves_per_cycle,
+                anchor_spacing_um=anchor_spacing_um,
+                unanchored_log=unanchored_log,
             )
         )
         return Job._from_reply(self, "characterize", reply)
