@@ -365,6 +365,10 @@ impl Client {
     }
 }
 
+/// How often the start-up asks whether the daemon's controllers are
+/// connected (rig time).
+const CONNECT_POLL: Duration = Duration::from_millis(50);
+
 /// How often a followed job's status is read.
 const STATUS_POLL: Duration = Duration::from_secs(1);
 
@@ -614,6 +618,13 @@ async fn pipeline(
     let mut c = Client::connect(&st.socket).await?;
     let t0 = Instant::now();
     loop {
+        // Wait first, then ask. Why: the daemon connects its controllers
+        // at the rig's first instant, and whether a status call at that
+        // same instant already sees them depends only on how many task
+        // polls the daemon's start-up takes; asking one poll period later
+        // puts the rig's time origin for the run (every later instant, so
+        // every result) out of reach of that.
+        tokio::time::sleep(CONNECT_POLL).await;
         let s = c.call(json!({"cmd": "status"})).await?;
         if s["rig"]["connected"]["x"] == true && s["rig"]["connected"]["y"] == true {
             break;
@@ -623,7 +634,6 @@ async fn pipeline(
                 "controllers not connected after 30 s: {s}"
             )));
         }
-        tokio::time::sleep(Duration::from_millis(50)).await;
     }
     progress("referencing both axes");
     // Simulated seconds per phase, in order (the `phases_s` block).

@@ -1,31 +1,40 @@
 //! In-process serial lines: the simulated controllers served over in-memory
-//! byte streams, as tasks on the caller's tokio runtime.
+//! byte streams on the caller's tokio runtime.
 //!
 //! Why next to the pty lines: a pty is served by its own thread and its
 //! bytes cross the kernel's line discipline asynchronously, so a virtual
 //! clock that advances "when every task waits" cannot know a reply is on
-//! its way and jumps past it. Here a request is read, answered and written
-//! by tasks of the same runtime as the driver that sent it, so the runtime
-//! is never idle while bytes are in flight and the paused clock stands
-//! still until the exchange is over (`hil-sim run`, the in-process rig).
+//! its way and jumps past it. Here the host's end of the line
+//! ([`HostEnd`]) hands what the host writes to the controllers at once, at
+//! the current rig time, and queues their replies for the host to read, so
+//! no byte is ever in flight while the runtime is idle and the paused clock
+//! stands still until the exchange is over (`hil-sim run`, the in-process
+//! rig).
+//!
+//! Why inside the write rather than in tasks of their own: the controllers
+//! answer at the instant the request arrives either way (the clock cannot
+//! move while a task is runnable), and a reply then waits in the host's
+//! queue before the host looks for it, so an exchange costs no task hop
+//! and no answer timer. Replies the reply faults delay (rig time) go
+//! through one task per connection, in order, and every later reply
+//! queues behind them, as on a wire.
 //!
 //! The controllers, the bus and the reply faults are the same as on a pty
 //! ([`crate::fault::ReplyFaults`]); a dropped line refuses to open until it
-//! is restored, as an unplugged cable; reply delays are rig time.
+//! is restored, as an unplugged cable.
 
 use crate::bus::Bus;
 use crate::clock::Clock;
 use crate::fault::{AxisName, LineCmd, ReplyFaults, SimError};
 use micropos::driver::{DriverError, LinkIo, LinkOpener, OpenFuture};
 use std::path::{Path, PathBuf};
+use std::pin::Pin;
 use std::sync::{Arc, Mutex, MutexGuard};
+use std::task::{Context, Poll, Waker};
 use std::time::Duration;
-use tokio::io::{AsyncReadExt, AsyncWriteExt};
+use tokio::io::{AsyncRead, AsyncWrite, ReadBuf};
 use tokio::sync::mpsc;
 use tokio::task::JoinHandle;
-
-/// Bytes buffered in each direction of an in-process line.
-const LINE_BUFFER: usize = 64 * 1024;
 
 /// One in-process line (one bus: one controller, or two on a daisy chain).
 pub(crate) struct InProcessLine {
@@ -51,18 +60,73 @@ struct LineState {
     conn: Option<Conn>,
 }
 
-/// The current host connection: the queue of replies to write and the two
-/// tasks serving it.
+/// The current host connection: the bytes on their way to the host and
+/// the task that delivers delayed replies.
 struct Conn {
-    replies: mpsc::UnboundedSender<(Duration, Vec<u8>)>,
-    tasks: [JoinHandle<()>; 2],
+    wire: Arc<Mutex<Wire>>,
+    delayed: mpsc::UnboundedSender<(Duration, Vec<u8>)>,
+    task: JoinHandle<()>,
 }
 
 impl Conn {
+    /// Cuts the connection: the host reads what was delivered, then the end
+    /// of the stream; its writes fail.
     fn close(self) {
-        for t in self.tasks {
-            t.abort();
+        self.task.abort();
+        let mut w = lock(&self.wire);
+        w.closed = true;
+        w.wake();
+    }
+
+    /// Queues `bytes` for the host after `delay` (rig time), behind every
+    /// reply queued before them.
+    fn deliver(&self, delay: Duration, bytes: Vec<u8>) {
+        deliver(&self.wire, &self.delayed, delay, bytes);
+    }
+}
+
+/// The simulator-to-host direction of one connection.
+#[derive(Default)]
+struct Wire {
+    /// Delivered bytes the host has not read yet, from `start`.
+    bytes: Vec<u8>,
+    start: usize,
+    /// Replies handed to the delay task and not delivered yet.
+    queued: usize,
+    /// The host waiting for bytes.
+    reader: Option<Waker>,
+    /// The connection was cut (line dropped, reopened, closed) or the host
+    /// shut its side down.
+    closed: bool,
+}
+
+impl Wire {
+    fn push(&mut self, bytes: &[u8]) {
+        self.bytes.extend_from_slice(bytes);
+        self.wake();
+    }
+
+    fn wake(&mut self) {
+        if let Some(w) = self.reader.take() {
+            w.wake();
         }
+    }
+}
+
+fn deliver(
+    wire: &Mutex<Wire>,
+    delayed: &mpsc::UnboundedSender<(Duration, Vec<u8>)>,
+    delay: Duration,
+    bytes: Vec<u8>,
+) {
+    let mut w = lock(wire);
+    if w.closed {
+        return;
+    }
+    if delay.is_zero() && w.queued == 0 {
+        w.push(&bytes);
+    } else if delayed.send((delay, bytes)).is_ok() {
+        w.queued += 1;
     }
 }
 
@@ -115,7 +179,7 @@ impl InProcessLine {
             LineCmd::Garbage(bytes) => match &st.conn {
                 _ if st.down => Err(SimError::LineDown(self.axis)),
                 Some(c) => {
-                    let _ = c.replies.send((Duration::ZERO, bytes));
+                    c.deliver(Duration::ZERO, bytes);
                     Ok(())
                 }
                 // Nobody listens: the bytes are lost, as on a real line.
@@ -150,58 +214,133 @@ impl InProcessLine {
             c.close();
         }
         lock(&self.bus).reset_line();
-        let (host, sim) = tokio::io::duplex(LINE_BUFFER);
-        let (rd, wr) = tokio::io::split(sim);
+        let wire = Arc::new(Mutex::new(Wire::default()));
         let (tx, rx) = mpsc::unbounded_channel();
-        let reader = tokio::spawn(read_loop(self.clone(), rd, tx.clone()));
-        let writer = tokio::spawn(write_loop(wr, rx));
+        let task = tokio::spawn(delay_loop(wire.clone(), rx));
         st.conn = Some(Conn {
-            replies: tx,
-            tasks: [reader, writer],
+            wire: wire.clone(),
+            delayed: tx.clone(),
+            task,
         });
-        Ok(Box::new(host))
+        Ok(Box::new(HostEnd {
+            line: self.clone(),
+            wire,
+            delayed: tx,
+        }))
     }
-}
 
-/// Feeds what the host sends to the controllers at the current rig time and
-/// queues what reaches the host of their replies.
-async fn read_loop(
-    line: Arc<InProcessLine>,
-    mut rd: tokio::io::ReadHalf<tokio::io::DuplexStream>,
-    tx: mpsc::UnboundedSender<(Duration, Vec<u8>)>,
-) {
-    let mut buf = vec![0u8; 4096];
-    loop {
-        let n = match rd.read(&mut buf).await {
-            Ok(0) | Err(_) => break,
-            Ok(n) => n,
-        };
-        let now = line.clock.now();
-        let replies = lock(&line.bus).receive(now, &buf[..n]);
-        let out = lock(&line.state).faults.apply(replies);
-        for o in out {
-            if tx.send(o).is_err() {
-                return;
-            }
+    /// What the host wrote reaches the controllers at the current rig
+    /// time; what reaches the host of their replies is queued for it.
+    fn receive(
+        &self,
+        bytes: &[u8],
+        wire: &Mutex<Wire>,
+        delayed: &mpsc::UnboundedSender<(Duration, Vec<u8>)>,
+    ) {
+        let now = self.clock.now();
+        let replies = lock(&self.bus).receive(now, bytes);
+        if replies.is_empty() {
+            return;
+        }
+        let out = lock(&self.state).faults.apply(replies);
+        for (delay, bytes) in out {
+            deliver(wire, delayed, delay, bytes);
         }
     }
-    // The host closed the port: what it sent still reached the controllers;
-    // their line state is cleared for the next client.
-    lock(&line.bus).reset_line();
 }
 
-/// Writes replies in order, each after its delay (rig time).
-async fn write_loop(
-    mut wr: tokio::io::WriteHalf<tokio::io::DuplexStream>,
-    mut rx: mpsc::UnboundedReceiver<(Duration, Vec<u8>)>,
-) {
+/// Delivers delayed replies in order, each after its delay (rig time).
+async fn delay_loop(wire: Arc<Mutex<Wire>>, mut rx: mpsc::UnboundedReceiver<(Duration, Vec<u8>)>) {
     while let Some((delay, bytes)) = rx.recv().await {
         if !delay.is_zero() {
             tokio::time::sleep(delay).await;
         }
-        if wr.write_all(&bytes).await.is_err() {
+        let mut w = lock(&wire);
+        if w.closed {
             return;
         }
+        w.queued = w.queued.saturating_sub(1);
+        w.push(&bytes);
+    }
+}
+
+/// The host's end of an in-process line: what the driver reads and writes.
+struct HostEnd {
+    line: Arc<InProcessLine>,
+    wire: Arc<Mutex<Wire>>,
+    delayed: mpsc::UnboundedSender<(Duration, Vec<u8>)>,
+}
+
+impl HostEnd {
+    /// The host closed its side: what it sent still reached the controllers;
+    /// their line state is cleared for the next client, unless the
+    /// connection was cut already (a reopen cleared it then).
+    fn hang_up(&self) {
+        let was_open = {
+            let mut w = lock(&self.wire);
+            !std::mem::replace(&mut w.closed, true)
+        };
+        if was_open {
+            lock(&self.line.bus).reset_line();
+        }
+    }
+}
+
+impl AsyncRead for HostEnd {
+    fn poll_read(
+        self: Pin<&mut Self>,
+        cx: &mut Context<'_>,
+        buf: &mut ReadBuf<'_>,
+    ) -> Poll<std::io::Result<()>> {
+        let mut w = lock(&self.wire);
+        let pending = &w.bytes[w.start..];
+        if !pending.is_empty() {
+            let n = pending.len().min(buf.remaining());
+            buf.put_slice(&pending[..n]);
+            w.start += n;
+            if w.start == w.bytes.len() {
+                w.bytes.clear();
+                w.start = 0;
+            }
+            return Poll::Ready(Ok(()));
+        }
+        if w.closed {
+            // End of stream.
+            return Poll::Ready(Ok(()));
+        }
+        if !w.reader.as_ref().is_some_and(|r| r.will_wake(cx.waker())) {
+            w.reader = Some(cx.waker().clone());
+        }
+        Poll::Pending
+    }
+}
+
+impl AsyncWrite for HostEnd {
+    fn poll_write(
+        self: Pin<&mut Self>,
+        _cx: &mut Context<'_>,
+        buf: &[u8],
+    ) -> Poll<std::io::Result<usize>> {
+        if lock(&self.wire).closed {
+            return Poll::Ready(Err(std::io::ErrorKind::BrokenPipe.into()));
+        }
+        self.line.receive(buf, &self.wire, &self.delayed);
+        Poll::Ready(Ok(buf.len()))
+    }
+
+    fn poll_flush(self: Pin<&mut Self>, _cx: &mut Context<'_>) -> Poll<std::io::Result<()>> {
+        Poll::Ready(Ok(()))
+    }
+
+    fn poll_shutdown(self: Pin<&mut Self>, _cx: &mut Context<'_>) -> Poll<std::io::Result<()>> {
+        self.hang_up();
+        Poll::Ready(Ok(()))
+    }
+}
+
+impl Drop for HostEnd {
+    fn drop(&mut self) {
+        self.hang_up();
     }
 }
 

@@ -33,6 +33,10 @@ use rand_chacha::ChaCha8Rng;
 const Q: usize = 32;
 /// Length of the Gaussian noise table (power of two).
 const NOISE_LEN: usize = 1 << 20;
+/// Image rows rendered at once by one thread (see
+/// [`FastRenderer::render_pixels`]): 64 rows of a 1024-px frame are a
+/// 256 KB accumulator, which stays in a core's L2 cache.
+const BAND_ROWS: usize = 64;
 
 /// Standard normal CDF via erfc (W. J. Cody-style rational approximation by
 /// Numerical Recipes' erfc, |error| < 1.2e-7).
@@ -75,10 +79,11 @@ pub struct FastRenderer {
     stamps: Vec<f32>,
     shade: Vec<f32>,
     noise: Vec<f32>,
+    /// The two threads' band accumulators, [`BAND_ROWS`] rows each.
     acc: Vec<f32>,
     /// Whether `acc` is +0.0 everywhere: the sensor pass clears each row
-    /// once it has read it (the row is in cache then), so a render needs no
-    /// separate pass to zero 3 MB; false while a render is under way (a
+    /// once it has read it (the row is in cache then), so a band needs no
+    /// separate pass to zero it; false while a render is under way (a
     /// render that panicked leaves it false, and the next one zeroes).
     acc_zero: bool,
     /// The CPU's vector extensions, found once: the pixel loops run
@@ -161,7 +166,7 @@ impl FastRenderer {
             stamps,
             shade: Vec::new(),
             noise,
-            acc: vec![0.0; cfg.width * cfg.height],
+            acc: vec![0.0; 2 * BAND_ROWS * cfg.width],
             acc_zero: true,
             arch: pulp::Arch::new(),
         };
@@ -196,27 +201,28 @@ impl FastRenderer {
     /// the pattern point at the image centre at one instant of the
     /// exposure, weighted equally: the exposure's integral of the moving
     /// pattern): the top and bottom halves of the image on two threads,
-    /// each summing into its half of the (zeroed) accumulator the part of
-    /// every dot's stamp that falls on its rows (in the same dot order, so
-    /// every pixel gets the same additions in the same order as on one
-    /// thread: same bits), and turning its rows into pixels while they are
-    /// still in cache, zeroing each row once read. One point has weight
-    /// exactly 1: a still frame is bit for bit what it was before motion
-    /// blur existed. Why one pass per half rather than
-    /// accumulate-then-finish over the whole frame: one thread start per
-    /// frame instead of two, and the 3 MB accumulator is read back and
-    /// cleared on both cores while its half is hot.
+    /// each in bands of [`BAND_ROWS`] rows: sum into the (zeroed) band
+    /// accumulator the part of every dot's stamp that falls on the band's
+    /// rows, instant by instant and in the same dot order (so every pixel
+    /// gets the same additions in the same order as on one thread over the
+    /// whole frame: same bits), then turn the band into pixels and zero it.
+    /// One point has weight exactly 1, so a still frame is the sharp render
+    /// bit for bit. Why bands: a band's accumulator
+    /// (256 KB) stays in the core's cache from the first stamp to the
+    /// sensor pass, where a whole-frame accumulator (3 MB) goes to memory
+    /// and back three times (stamps, sensor pass, clearing); the cost is
+    /// that a dot whose stamp straddles two bands is placed twice.
     fn render_pixels(&mut self, path_um: &[[f64; 2]], p: &FinishParams) -> Vec<u16> {
         let mut acc = std::mem::take(&mut self.acc);
         let zeroed = std::mem::replace(&mut self.acc_zero, false);
         let (w, h) = (self.cfg.width, self.cfg.height);
         let weight = 1.0 / path_um.len().max(1) as f32;
         let mut out16 = vec![0u16; w * h];
-        let (acc_top, acc_bottom) = acc.split_at_mut(h / 2 * w);
+        let (acc_top, acc_bottom) = acc.split_at_mut(BAND_ROWS * w);
         let (out_top, out_bottom) = out16.split_at_mut(h / 2 * w);
         let this = &*self;
-        let band = |acc: &mut [f32], out: &mut [u16], row0: usize| {
-            this.arch.dispatch(Band {
+        let half = |acc: &mut [f32], out: &mut [u16], row0: usize| {
+            this.arch.dispatch(Half {
                 r: this,
                 zeroed,
                 path_um,
@@ -228,29 +234,37 @@ impl FastRenderer {
             });
         };
         std::thread::scope(|s| {
-            s.spawn(|| band(acc_bottom, out_bottom, h / 2));
-            band(acc_top, out_top, 0);
+            s.spawn(|| half(acc_bottom, out_bottom, h / 2));
+            half(acc_top, out_top, 0);
         });
         self.acc = acc;
         self.acc_zero = true;
         out16
     }
 
-    /// The accumulator as the reference two-pass render computes it (all
-    /// stamps into the whole frame, then [`FastRenderer::finish`]): what
-    /// [`FastRenderer::render_pixels`] must reproduce bit for bit.
+    /// The frame as the reference two-pass render computes it: all stamps
+    /// into a whole-frame accumulator (each image half summed on its own,
+    /// instant by instant), then the sensor model over the whole frame.
+    /// What [`FastRenderer::render_pixels`] must reproduce bit for bit.
     #[cfg(test)]
-    fn accumulate(&mut self, path_um: &[[f64; 2]]) {
-        let mut acc = std::mem::take(&mut self.acc);
-        self.acc_zero = false;
-        acc.fill(0.0);
-        let h = self.cfg.height;
+    fn two_pass(
+        &self,
+        path_um: &[[f64; 2]],
+        light: f64,
+        analog_gain: f64,
+        noise_seed: u64,
+    ) -> Vec<u16> {
+        let (w, h) = (self.cfg.width, self.cfg.height);
+        let mut acc = vec![0f32; w * h];
         let weight = 1.0 / path_um.len().max(1) as f32;
         for &[x, y] in path_um {
-            self.stamp_rows(&mut acc[..h / 2 * self.cfg.width], 0, x, y, weight);
-            self.stamp_rows(&mut acc[h / 2 * self.cfg.width..], h / 2, x, y, weight);
+            self.stamp_rows(&mut acc[..h / 2 * w], 0, x, y, weight);
+            self.stamp_rows(&mut acc[h / 2 * w..], h / 2, x, y, weight);
         }
-        self.acc = acc;
+        let p = self.finish_params(light, analog_gain, noise_seed);
+        let mut out16 = vec![0u16; w * h];
+        self.finish_rows(&p, &mut acc, &mut out16, 0);
+        out16
     }
 
     /// Adds the stamps of the dots seen with `(x_um, y_um)` at the image
@@ -266,17 +280,19 @@ impl FastRenderer {
         let (sn, cs) = self.theta_rad.sin_cos();
         let (e1, e2) = ((cs, sn), (-sn, cs));
         let (cxi, cyi) = (w as f64 / 2.0, h as f64 / 2.0);
-        // Pattern bounding box of the frame plus the stamp margin.
+        // Pattern bounding box of the band's rows plus the stamp margin:
+        // every dot whose stamp reaches the band, in the frame's dot order.
         let m = self.k as f64 + 1.0;
+        let (v_lo, v_hi) = (band_lo as f64 - m, band_hi as f64 + m);
         let mut cmin = f64::MAX;
         let mut cmax = f64::MIN;
         let mut rmin = f64::MAX;
         let mut rmax = f64::MIN;
         for (u, v) in [
-            (-m, -m),
-            (w as f64 + m, -m),
-            (-m, h as f64 + m),
-            (w as f64 + m, h as f64 + m),
+            (-m, v_lo),
+            (w as f64 + m, v_lo),
+            (-m, v_hi),
+            (w as f64 + m, v_hi),
         ] {
             let du = u - cxi;
             let dv = v - cyi;
@@ -320,7 +336,8 @@ impl FastRenderer {
                     i0 += 1.0;
                 }
                 let (j0, i0) = (j0 as i64 - k, i0 as i64 - k);
-                if j0 >= w || i0 >= h || j0 + side as i64 <= 0 || i0 + side as i64 <= 0 {
+                if j0 >= w || i0 >= band_hi || j0 + side as i64 <= 0 || i0 + side as i64 <= band_lo
+                {
                     continue;
                 }
                 let ph = (b * Q + a) * side * stride;
@@ -463,8 +480,9 @@ impl FastRenderer {
             )
             .map_err(|e| e.to_string());
         }
-        self.acc.iter_mut().for_each(|v| *v = 0.0);
-        self.finish(1.0, 1.0, noise_seed, timestamp_s, sequence)
+        let p = self.finish_params(1.0, 1.0, noise_seed);
+        let out16 = self.render_pixels(&[], &p);
+        self.to_frame(out16, timestamp_s, sequence)
     }
 
     /// The sensor model's constants for one frame and its noise offsets:
@@ -535,33 +553,6 @@ impl FastRenderer {
         }
     }
 
-    /// The sensor model applied to the whole accumulator (the blank frames
-    /// of [`FastRenderer::garbage`]): two halves on two threads, the pixels
-    /// being independent.
-    fn finish(
-        &mut self,
-        gain: f64,
-        analog_gain: f64,
-        noise_seed: u64,
-        timestamp_s: f64,
-        sequence: u64,
-    ) -> Result<Frame, String> {
-        let (w, h) = (self.cfg.width, self.cfg.height);
-        let p = self.finish_params(gain, analog_gain, noise_seed);
-        let mut out16 = vec![0u16; w * h];
-        let (top, bottom) = out16.split_at_mut(h / 2 * w);
-        let mut acc = std::mem::take(&mut self.acc);
-        let (acc_top, acc_bottom) = acc.split_at_mut(h / 2 * w);
-        let this = &*self;
-        std::thread::scope(|s| {
-            s.spawn(|| this.finish_rows(&p, acc_bottom, bottom, h / 2));
-            this.finish_rows(&p, acc_top, top, 0);
-        });
-        self.acc = acc;
-        self.acc_zero = true;
-        self.to_frame(out16, timestamp_s, sequence)
-    }
-
     /// The frame of quantised pixels `out16` (narrowed to bytes for depths
     /// up to 8 bits).
     fn to_frame(&self, out16: Vec<u16>, timestamp_s: f64, sequence: u64) -> Result<Frame, String> {
@@ -576,22 +567,25 @@ impl FastRenderer {
     }
 }
 
-/// One image half of [`FastRenderer::render_pixels`], as a `pulp` operation:
-/// its body (and the inlined stamp and sensor loops) is compiled once per
-/// instruction set and run with the widest the CPU has.
-struct Band<'a> {
+/// One image half of [`FastRenderer::render_pixels`], band by band, as a
+/// `pulp` operation: its body (and the inlined stamp and sensor loops) is
+/// compiled once per instruction set and run with the widest the CPU has.
+struct Half<'a> {
     r: &'a FastRenderer,
-    /// The accumulator is +0.0 already (see `FastRenderer::acc_zero`).
+    /// The band accumulator is +0.0 already (see `FastRenderer::acc_zero`).
     zeroed: bool,
     path_um: &'a [[f64; 2]],
     weight: f32,
     p: &'a FinishParams,
+    /// The band accumulator ([`BAND_ROWS`] rows).
     acc: &'a mut [f32],
+    /// The half's pixels (whole rows).
     out: &'a mut [u16],
+    /// The half's first image row.
     row0: usize,
 }
 
-impl pulp::WithSimd for Band<'_> {
+impl pulp::WithSimd for Half<'_> {
     type Output = ();
 
     #[inline(always)]
@@ -599,10 +593,15 @@ impl pulp::WithSimd for Band<'_> {
         if !self.zeroed {
             self.acc.fill(0.0);
         }
-        for &[x, y] in self.path_um {
-            self.r.stamp_rows(self.acc, self.row0, x, y, self.weight);
+        let w = self.r.cfg.width;
+        for (b, out) in self.out.chunks_mut(BAND_ROWS * w).enumerate() {
+            let acc = &mut self.acc[..out.len()];
+            let band0 = self.row0 + b * BAND_ROWS;
+            for &[x, y] in self.path_um {
+                self.r.stamp_rows(acc, band0, x, y, self.weight);
+            }
+            self.r.finish_rows(self.p, acc, out, band0);
         }
-        self.r.finish_rows(self.p, self.acc, self.out, self.row0);
     }
 }
 
@@ -750,32 +749,41 @@ mod tests {
     }
 
     #[test]
-    fn one_pass_per_half_renders_the_two_pass_frame_bit_for_bit() {
-        // Odd height: the halves differ in size. A still frame and a blurred
-        // one (three instants), rendered both ways on the same renderer.
-        let cfg = CameraConfig {
-            width: 96,
-            height: 71,
-            ..CameraConfig::default()
-        };
-        let mut r = FastRenderer::new(&cfg, 0.3f64.to_radians()).unwrap();
-        let paths: [&[[f64; 2]]; 2] = [
-            &[[1234.5, 987.25]],
-            &[[2000.0, 1500.0], [2000.3, 1500.1], [2000.6, 1500.2]],
-        ];
-        for (k, path) in paths.into_iter().enumerate() {
-            let seed = 17 + k as u64;
-            let fused = r.render_path(path, 0.9, 1.3, seed, 1.0, 5).unwrap();
-            r.accumulate(path);
-            let two_pass = r.finish(0.9, 1.3, seed, 1.0, 5).unwrap();
-            assert_eq!(fused.pixels(), two_pass.pixels(), "path {k}");
-            assert_ne!(
-                r.render_path(path, 0.9, 1.3, seed + 1, 1.0, 5)
-                    .unwrap()
-                    .pixels(),
-                fused.pixels(),
-                "another noise seed gives another frame"
-            );
+    fn banded_render_gives_the_two_pass_frame_bit_for_bit() {
+        // Odd heights: the halves differ in size and end in partial bands
+        // (71 rows: one band and a bit per half; 171: several). A still
+        // frame, a blurred one (three instants) and a blank one, rendered
+        // both ways on the same renderer.
+        for height in [71, 171] {
+            let cfg = CameraConfig {
+                width: 96,
+                height,
+                ..CameraConfig::default()
+            };
+            let mut r = FastRenderer::new(&cfg, 0.3f64.to_radians()).unwrap();
+            let paths: [&[[f64; 2]]; 2] = [
+                &[[1234.5, 987.25]],
+                &[[2000.0, 1500.0], [2000.3, 1500.1], [2000.6, 1500.2]],
+            ];
+            for (k, path) in paths.into_iter().enumerate() {
+                let seed = 17 + k as u64;
+                let banded = r.render_path(path, 0.9, 1.3, seed, 1.0, 5).unwrap();
+                let two_pass = r.two_pass(path, 0.9, 1.3, seed);
+                assert_eq!(
+                    banded.pixels(),
+                    &Pixels::U16(two_pass),
+                    "height {height}, path {k}"
+                );
+                assert_ne!(
+                    r.render_path(path, 0.9, 1.3, seed + 1, 1.0, 5)
+                        .unwrap()
+                        .pixels(),
+                    banded.pixels(),
+                    "another noise seed gives another frame"
+                );
+            }
+            let blank = r.garbage(false, 3, 0.0, 1).unwrap();
+            assert_eq!(blank.pixels(), &Pixels::U16(r.two_pass(&[], 1.0, 1.0, 3)));
         }
     }
 
