@@ -172,13 +172,13 @@ fn main() -> anyhow::Result<()> {
             plots,
             out,
             short,
-            (
+            PlanFlags {
                 square_step_um,
                 short_moves,
                 settle_s,
                 paper_settle_s,
-                sweep_anchor_spacing_um,
-            ),
+                anchor_spacing_um: sweep_anchor_spacing_um,
+            },
             time_scale,
         ),
         Cmd::Demo { seed, rig } => {
@@ -338,6 +338,15 @@ async fn serve(cmd: Cmd) -> anyhow::Result<()> {
     }
 }
 
+/// `hil-sim run`'s flags that change its plan (absent: the plan's own).
+struct PlanFlags {
+    square_step_um: Option<f64>,
+    short_moves: Option<u32>,
+    settle_s: Option<f64>,
+    paper_settle_s: Option<f64>,
+    anchor_spacing_um: Option<f64>,
+}
+
 /// `hil-sim run`; see `hil_sim::run`.
 #[allow(clippy::too_many_arguments)]
 fn main_job(
@@ -348,13 +357,13 @@ fn main_job(
     plots: Option<PathBuf>,
     out: Option<PathBuf>,
     short: bool,
-    (square_step_um, short_moves, settle_s, paper_settle_s, anchor_spacing_um): (
-        Option<f64>,
-        Option<u32>,
-        Option<f64>,
-        Option<f64>,
-        Option<f64>,
-    ),
+    PlanFlags {
+        square_step_um,
+        short_moves,
+        settle_s,
+        paper_settle_s,
+        anchor_spacing_um,
+    }: PlanFlags,
     time_scale: Option<f64>,
 ) -> anyhow::Result<()> {
     use hil_sim::run::{format_table, run, RunOptions, RunPlan};

@@ -57,7 +57,7 @@ impl Daemon {
                 .map(|c| json!({"config": c}))
                 .map_err(|e| ProtoError::new(ErrorCode::Internal, e.to_string())),
             Command::Characterize(a) => match a {
-                CharacterizeAction::Start(p) => self.jobs.start(rig, p).await,
+                CharacterizeAction::Start(p) => self.jobs.start(rig, *p).await,
                 CharacterizeAction::Resume { log } => self.jobs.resume(rig, &log).await,
                 CharacterizeAction::Status => Ok(json!({"job": self.jobs.status()})),
                 CharacterizeAction::Cancel => self.cancel_job().await,

@@ -507,14 +507,13 @@ pub fn anchor_correction(
                 chi2_per_dof: [f64::NAN; 2],
                 flat: [false; 2],
             };
-            for c in 0..2 {
+            for (c, &var) in cycle_var[usize::from(!x_axis)].iter().enumerate() {
                 let values: Vec<(f64, usize)> = points
                     .iter()
                     .filter(|p| p.used && in_group(p))
                     .map(|p| (if c == 0 { p.scan_um } else { p.held_um }, p.diffs.len()))
                     .collect();
-                let Some((chi, flat, mean)) = flatness(&values, cycle_var[usize::from(!x_axis)][c])
-                else {
+                let Some((chi, flat, mean)) = flatness(&values, var) else {
                     continue;
                 };
                 g.chi2_per_dof[c] = chi;

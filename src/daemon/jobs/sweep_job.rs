@@ -8,8 +8,8 @@
 //! delay and writes the log resampled onto the step grid
 //! (`jobs::sweep` has the method).
 //!
-//! After the two passes of each cycle on an axis (with `anchor_spacing_um`
-//! > 0), the job stops at that axis's static anchors, forward then backward,
+//! After the two passes of each cycle on an axis (when `anchor_spacing_um`
+//! is positive), the job stops at that axis's static anchors, forward then backward,
 //! each reached as the step plan reaches its points (`jobs::sweep_anchor`):
 //! the records are corrected by the anchors' offset curves, so that they
 //! describe the stage in the step plan's motion state.

@@ -153,7 +153,7 @@ impl CharacterizeMode {
 #[derive(Debug, Clone, PartialEq)]
 pub enum CharacterizeAction {
     /// Start a new job.
-    Start(CharacterizeParams),
+    Start(Box<CharacterizeParams>),
     /// Progress of the current or last job.
     Status,
     /// Cancel the running job (the log stays resumable).

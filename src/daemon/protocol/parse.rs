@@ -242,7 +242,7 @@ fn parse_characterize(obj: &Map<String, Value>) -> Result<CharacterizeAction, Pr
             let settle_s = opt_f64_within(obj, "settle_s", 0.0, 3600.0, "0..3600")?;
             let drift_every_s =
                 opt_f64_within(obj, "drift_every_s", 0.0, 86_400.0, "0..86400 (0 = off)")?;
-            Ok(CharacterizeAction::Start(CharacterizeParams {
+            Ok(CharacterizeAction::Start(Box::new(CharacterizeParams {
                 log,
                 axes: opt_axes(obj, "axes")?,
                 step_um: positive("step_um")?,
@@ -290,7 +290,7 @@ fn parse_characterize(obj: &Map<String, Value>) -> Result<CharacterizeAction, Pr
                     "0..1000000 (0 = no anchors)",
                 )?,
                 moves_per_cycle: opt_count(obj, "moves_per_cycle", 0, 100_000)?,
-            }))
+            })))
         }
         "status" => Ok(CharacterizeAction::Status),
         "cancel" => Ok(CharacterizeAction::Cancel),

@@ -132,54 +132,48 @@ fn parses_every_command() {
         Command::Subscribe(vec![Topic::Fault])
     );
     assert!(matches!(
-        parse(r#"{"cmd":"characterize","action":"start","step_um":5,"cycles":2,"log":"run1.csv"}"#)
-            .unwrap()
-            .command,
-        Command::Characterize(CharacterizeAction::Start(CharacterizeParams {
+        start_params(parse(r#"{"cmd":"characterize","action":"start","step_um":5,"cycles":2,"log":"run1.csv"}"#).unwrap().command),
+        CharacterizeParams {
             step_um: Some(s),
             cycles: Some(2),
             ..
-        })) if s == 5.0
+        } if s == 5.0
     ));
     assert!(matches!(
-        parse(r#"{"cmd":"characterize","action":"start","drift_every_s":600,"drift_reference_um":[100,200.5]}"#)
-            .unwrap()
-            .command,
-        Command::Characterize(CharacterizeAction::Start(CharacterizeParams {
+        start_params(parse(r#"{"cmd":"characterize","action":"start","drift_every_s":600,"drift_reference_um":[100,200.5]}"#).unwrap().command),
+        CharacterizeParams {
             drift_every_s: Some(e),
             drift_reference_um: Some([x, y]),
             ..
-        })) if e == 600.0 && x == 100.0 && y == 200.5
+        } if e == 600.0 && x == 100.0 && y == 200.5
     ));
     assert!(matches!(
-        parse(r#"{"cmd":"characterize","action":"start","mode":"sweep","velocity_um_per_s":120,"uncorrected_log":"u.csv"}"#)
-            .unwrap()
-            .command,
-        Command::Characterize(CharacterizeAction::Start(CharacterizeParams {
+        start_params(parse(r#"{"cmd":"characterize","action":"start","mode":"sweep","velocity_um_per_s":120,"uncorrected_log":"u.csv"}"#).unwrap().command),
+        CharacterizeParams {
             mode: Some(CharacterizeMode::Sweep),
             velocity_um_per_s: Some(v),
             uncorrected_log: Some(u),
             ..
-        })) if v == 120.0 && u == "u.csv"
+        } if v == 120.0 && u == "u.csv"
     ));
     assert!(matches!(
-        parse(r#"{"cmd":"characterize","action":"start","mode":"sweep","anchor_spacing_um":500,"unanchored_log":"n.csv"}"#)
-            .unwrap()
-            .command,
-        Command::Characterize(CharacterizeAction::Start(CharacterizeParams {
+        start_params(parse(r#"{"cmd":"characterize","action":"start","mode":"sweep","anchor_spacing_um":500,"unanchored_log":"n.csv"}"#).unwrap().command),
+        CharacterizeParams {
             anchor_spacing_um: Some(h),
             unanchored_log: Some(n),
             ..
-        })) if h == 500.0 && n == "n.csv"
+        } if h == 500.0 && n == "n.csv"
     ));
     assert!(matches!(
-        parse(r#"{"cmd":"characterize","action":"start","moves_per_cycle":40}"#)
-            .unwrap()
-            .command,
-        Command::Characterize(CharacterizeAction::Start(CharacterizeParams {
+        start_params(
+            parse(r#"{"cmd":"characterize","action":"start","moves_per_cycle":40}"#)
+                .unwrap()
+                .command
+        ),
+        CharacterizeParams {
             moves_per_cycle: Some(40),
             ..
-        }))
+        }
     ));
     for bad in [
         r#"{"cmd":"characterize","action":"start","moves_per_cycle":-1}"#,
@@ -298,5 +292,13 @@ proptest! {
             }
             other => prop_assert!(false, "{other:?}"),
         }
+    }
+}
+
+/// The parameters of a `characterize start` command (boxed in the command).
+fn start_params(c: Command) -> CharacterizeParams {
+    match c {
+        Command::Characterize(CharacterizeAction::Start(p)) => *p,
+        other => panic!("not a characterize start: {other:?}"),
     }
 }
