@@ -631,3 +631,48 @@ fn a_manual_clock_gives_one_transcript_per_seed() {
         .unwrap();
     assert!(!o.status.success());
 }
+
+/// Long answers (six readouts of 1024 data-recorder records, ≈ 90 KB) reach
+/// a host that reads them slowly in small pieces, whole: the simulator
+/// writes at once what a real controller's baud rate paces, so the pty
+/// buffer fills, and the rest must wait for the host rather than be
+/// dropped.
+#[test]
+fn a_long_answer_reaches_a_slow_reader_whole() {
+    let dir = tempfile::tempdir().unwrap();
+    let (sim, clock) = manual(dir.path(), false, false);
+    let mut x = open(&sim.link(AxisName::X));
+    reference(&mut x, &clock, "");
+    tell(&mut x, "DRC 1 1 2\nRTR 20\nVEL 1 0.5\nDRT 1 1 0\nMOV 1 8\n");
+    assert_eq!(ask(&mut x, "MOV? 1\n"), "1=8.0000000\n");
+    clock.advance(Duration::from_secs(5));
+    assert!(ask(&mut x, "DRL? 1\n").ends_with("=1024\n"));
+    tell(&mut x, &"DRR? 1 1024 1\n".repeat(6));
+    // A slow host: it starts late and reads 256 bytes every 2 ms.
+    std::thread::sleep(Duration::from_millis(200));
+    let mut got = Vec::new();
+    let mut buf = [0u8; 256];
+    let deadline = Instant::now() + Duration::from_secs(20);
+    let answers = |got: &[u8]| {
+        got.windows(2)
+            .filter(|w| w[1] == b'\n' && w[0] != b' ')
+            .count()
+    };
+    while answers(&got) < 6 {
+        assert!(Instant::now() < deadline, "{} bytes", got.len());
+        let mut fds = [PollFd::new(x.as_fd(), PollFlags::POLLIN)];
+        if poll(&mut fds, PollTimeout::from(100u16)).unwrap() == 0 {
+            continue;
+        }
+        let n = x.read(&mut buf).unwrap();
+        got.extend_from_slice(&buf[..n]);
+        std::thread::sleep(Duration::from_millis(2));
+    }
+    let text = String::from_utf8_lossy(&got);
+    let data_lines = text
+        .lines()
+        .filter(|l| !l.starts_with('#') && !l.trim().is_empty())
+        .count();
+    assert!(got.len() > 65536, "{} bytes", got.len());
+    assert_eq!(data_lines, 6 * 1024, "{} bytes", got.len());
+}

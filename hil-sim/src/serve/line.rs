@@ -19,6 +19,9 @@ use super::pty::{io_err, Pty};
 /// Longest a serving thread sleeps before looking at its command channel and
 /// the stop flag: bounds fault-injection and shutdown latency.
 const POLL_INTERVAL: Duration = Duration::from_millis(5);
+/// How long a full pty may refuse reply bytes before they are dropped: a
+/// host that reads nothing for this long is not reading at all.
+const OUTBOX_PATIENCE: Duration = Duration::from_secs(2);
 
 pub(super) type Ack = mpsc::Sender<Result<(), SimError>>;
 
@@ -32,6 +35,14 @@ pub(super) struct Line {
     pub(super) faults: ReplyFaults,
     /// Delayed replies: (due, bytes), sorted by due time.
     pub(super) pending: Vec<(Instant, Vec<u8>)>,
+    /// Reply bytes the pty has not taken yet, in order. Why: the simulator
+    /// writes a reply at once where a real controller's baud rate paces it,
+    /// so a long one (a 1024-record `DRR?` answer, ≈ 15 KB) overfills the
+    /// pty buffer of a host that reads as it parses; the rest goes out as
+    /// the host reads.
+    pub(super) outbox: Vec<u8>,
+    /// Since when the pty has taken none of `outbox`.
+    pub(super) outbox_since: Option<Instant>,
     /// Arrival times for latency measurements.
     pub(super) probe: Arc<RxProbe>,
 }
@@ -48,6 +59,7 @@ impl Line {
             LineCmd::Drop => {
                 self.pty = None;
                 self.pending.clear();
+                self.outbox.clear();
                 lock(&self.bus).reset_line();
                 match std::fs::remove_file(&self.link) {
                     Ok(()) => Ok(()),
@@ -75,8 +87,8 @@ impl Line {
         }
     }
 
-    /// Writes to the host. A host that does not read fills the pty buffer;
-    /// the bytes that do not fit are lost, as on a real line.
+    /// Writes to the host after what is still queued for it. Bytes the pty
+    /// does not take wait in the outbox ([`Line::send_outbox`]).
     fn write(&mut self, bytes: &[u8]) {
         let Some(pty) = self.pty.as_mut() else {
             return;
@@ -85,17 +97,43 @@ impl Line {
         if !connected {
             return;
         }
-        let mut rest = bytes;
-        while !rest.is_empty() {
-            match pty.master.write(rest) {
+        self.outbox.extend_from_slice(bytes);
+        self.send_outbox();
+    }
+
+    /// Hands the pty as much of the outbox as it takes. A host that takes
+    /// nothing for [`OUTBOX_PATIENCE`] loses the rest, as on a real line
+    /// whose host does not read.
+    fn send_outbox(&mut self) {
+        let Some(pty) = self.pty.as_mut() else {
+            self.outbox.clear();
+            return;
+        };
+        let mut sent = 0;
+        while sent < self.outbox.len() {
+            match pty.master.write(&self.outbox[sent..]) {
                 Ok(0) => break,
-                Ok(n) => rest = &rest[n..],
+                Ok(n) => sent += n,
                 Err(e) if e.kind() == io::ErrorKind::Interrupted => {}
+                Err(e) if e.kind() == io::ErrorKind::WouldBlock => break,
                 Err(e) => {
-                    tracing::warn!(axis = %self.axis, "dropping {} reply bytes: {e}", rest.len());
-                    break;
+                    tracing::warn!(axis = %self.axis, "dropping {} reply bytes: {e}", self.outbox.len() - sent);
+                    sent = self.outbox.len();
                 }
             }
+        }
+        self.outbox.drain(..sent);
+        let now = Instant::now();
+        if self.outbox.is_empty() || sent > 0 {
+            self.outbox_since = (!self.outbox.is_empty()).then_some(now);
+        } else if let Some(since) = self.outbox_since {
+            if now.duration_since(since) >= OUTBOX_PATIENCE {
+                tracing::warn!(axis = %self.axis, "the host reads nothing: dropping {} reply bytes", self.outbox.len());
+                self.outbox.clear();
+                self.outbox_since = None;
+            }
+        } else {
+            self.outbox_since = Some(now);
         }
     }
 
@@ -160,13 +198,20 @@ impl Line {
             if stop.load(Ordering::SeqCst) {
                 break;
             }
+            if !self.outbox.is_empty() {
+                self.send_outbox();
+            }
             self.flush_due();
-            let wait = self
+            let mut wait = self
                 .pending
                 .first()
                 .map(|(due, _)| due.saturating_duration_since(Instant::now()))
                 .unwrap_or(POLL_INTERVAL)
                 .min(POLL_INTERVAL);
+            if !self.outbox.is_empty() {
+                // The host is reading a long reply: offer the rest soon.
+                wait = wait.min(Duration::from_millis(1));
+            }
             let Some(pty) = self.pty.as_mut() else {
                 std::thread::sleep(wait);
                 continue;
@@ -183,6 +228,7 @@ impl Line {
                         pty.connected = false;
                         pty.flush();
                         self.pending.clear();
+                        self.outbox.clear();
                         lock(&self.bus).reset_line();
                     }
                 }

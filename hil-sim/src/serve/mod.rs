@@ -436,6 +436,8 @@ impl SimHandle {
                 clock: clock.clone(),
                 faults: ReplyFaults::new(n),
                 pending: Vec::new(),
+                outbox: Vec::new(),
+                outbox_since: None,
                 probe: probe.clone(),
             };
             let (tx, rx) = mpsc::channel();
