@@ -918,3 +918,107 @@ fn sigterm_halts_before_exit_and_the_stop_hook_halts_after_sigkill() {
     assert!(h.sim_s < PROCESS_HALT_BOUND_S, "{h:?}");
     at_rest_short_of(&sim, [1_500.0, 13_500.0]);
 }
+
+/// The sweep characterization as a person runs it: `micropos characterize
+/// start --mode sweep … --follow` against microposd and `hil-sim serve` in
+/// real time. The CLI follows the job to its end, exits 0 and prints the
+/// camera delay it measured and the static anchors; the log is a sweep log
+/// on the step grid.
+///
+/// Ignored by default: in real time the sweep gets the frames the daemon
+/// decodes while the axis passes, and a debug build decodes too few to
+/// cover the grid at two velocities (the job then fails with
+/// `low_quality`, as it should). Run it on release binaries:
+/// `cargo build --release --bins -p micropos -p hil-sim && MICROPOS_BIN=target/release/micropos
+/// MICROPOSD_BIN=target/release/microposd HIL_SIM_BIN=target/release/hil-sim
+/// cargo test --test daemon_process cli_sweep -- --ignored`.
+#[test]
+#[ignore = "needs release binaries (see its doc comment)"]
+fn cli_sweep_characterization_follows_to_its_delay_and_anchors() {
+    let dir = tempfile::tempdir().unwrap();
+    let _sim = Sim::start(dir.path(), 1.0);
+    let d = Daemon::start(dir.path(), 0);
+    d.client().ok(json!({"cmd": "reference"}));
+    let cli = std::env::var_os("MICROPOS_BIN")
+        .map_or_else(|| env!("CARGO_BIN_EXE_micropos").into(), PathBuf::from);
+    let out = Command::new(cli)
+        .arg("--socket")
+        .arg(&d.socket)
+        .args([
+            "characterize",
+            "start",
+            "--mode",
+            "sweep",
+            "--log",
+            "cli-sweep.csv",
+            "--step-um",
+            "20",
+            "--x-range-um",
+            "100",
+            "--y-range-um",
+            "60",
+            "--cycles",
+            "2",
+            "--velocity-um-per-s",
+            "20",
+            "--anchor-spacing-um",
+            "40",
+            "--follow",
+        ])
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        out.status.success(),
+        "{:?}\n{stdout}\n{stderr}\n{}",
+        out.status,
+        std::fs::read_to_string(dir.path().join("microposd-0.log")).unwrap_or_default()
+    );
+    let delay_line = stdout
+        .lines()
+        .find(|l| l.starts_with("sweep: camera delay "))
+        .unwrap_or_else(|| panic!("no delay line in {stdout}"));
+    let delay_ms: f64 = delay_line["sweep: camera delay ".len()..]
+        .split_whitespace()
+        .next()
+        .unwrap()
+        .parse()
+        .unwrap();
+    assert!(delay_ms.is_finite(), "{delay_line}");
+    assert!(
+        stdout.lines().any(|l| l.starts_with("anchors: ")),
+        "no anchors line in {stdout}"
+    );
+    // What the CLI printed is what the daemon reports.
+    let s = d
+        .client()
+        .ok(json!({"cmd": "characterize", "action": "status"}));
+    assert_eq!(s["job"]["state"], "done", "{s}");
+    let r = &s["job"]["result"];
+    assert_eq!(
+        format!("{:.3}", r["camera_delay_s"].as_f64().unwrap() * 1e3),
+        format!("{delay_ms:.3}")
+    );
+    assert!(r["anchors"]["measured"].as_u64().unwrap() > 0, "{r}");
+    let l = log::read_file(dir.path().join("data/cli-sweep.csv")).unwrap();
+    assert!(l.is_complete() && l.warnings.is_empty(), "{:?}", l.warnings);
+    assert_eq!(l.metadata.get("mode"), Some("sweep"));
+    for (segment, x_axis) in [("scan_x", true), ("scan_y", false)] {
+        let targets: Vec<f64> = l
+            .records
+            .iter()
+            .filter(|r| r.segment.starts_with(segment))
+            .map(|r| if x_axis { r.x_target_um } else { r.y_target_um })
+            .collect();
+        assert!(targets.len() >= 6, "{segment}: {} records", targets.len());
+        let first = targets.iter().copied().fold(f64::INFINITY, f64::min);
+        for t in &targets {
+            let k = (t - first) / 20.0;
+            assert!(
+                (k - k.round()).abs() < 1e-9,
+                "{segment}: {t} off the 20 µm grid"
+            );
+        }
+    }
+}

@@ -78,6 +78,13 @@ pub enum ClientCommand {
         /// Step, µm.
         #[arg(long)]
         step_um: Option<f64>,
+        /// Length of the X scan from the start corner, µm (default: the
+        /// daemon's `[characterize]` range).
+        #[arg(long)]
+        x_range_um: Option<f64>,
+        /// Length of the Y scan from the start corner, µm.
+        #[arg(long)]
+        y_range_um: Option<f64>,
         /// Cycles.
         #[arg(long)]
         cycles: Option<u32>,
@@ -249,6 +256,8 @@ fn build(cmd: &ClientCommand) -> Value {
             action,
             log,
             step_um,
+            x_range_um,
+            y_range_um,
             cycles,
             mode,
             velocity_um_per_s,
@@ -278,6 +287,12 @@ fn build(cmd: &ClientCommand) -> Value {
             }
             if let Some(s) = step_um {
                 v["step_um"] = json!(s);
+            }
+            if let Some(r) = x_range_um {
+                v["x_range_um"] = json!(r);
+            }
+            if let Some(r) = y_range_um {
+                v["y_range_um"] = json!(r);
             }
             if let Some(c) = cycles {
                 v["cycles"] = json!(c);
@@ -479,6 +494,15 @@ async fn follow(conn: &mut Conn, started: &Value) -> Result<ExitCode, Unreachabl
     bar.set_position(started["job"]["done"].as_u64().unwrap_or(0));
     conn.request(json!({"cmd": "subscribe", "topics": ["job", "fault"]}))
         .await?;
+    // A job that ended before the subscription took effect sends no more
+    // events: its status (asked after subscribing) says so.
+    let kind = started["job"]["kind"].as_str().unwrap_or("characterize");
+    let status = conn
+        .request(json!({"cmd": kind, "action": "status"}))
+        .await?;
+    if let Some(code) = job_end(&bar, &status["job"]) {
+        return Ok(code);
+    }
     loop {
         let ev = conn.line().await?;
         match ev["event"].as_str() {
@@ -487,29 +511,8 @@ async fn follow(conn: &mut Conn, started: &Value) -> Result<ExitCode, Unreachabl
                 if let Some(eta) = ev["eta_s"].as_f64() {
                     bar.set_message(format!("{:.0} s", eta));
                 }
-                match ev["state"].as_str() {
-                    Some("running") | None => {}
-                    Some("done") => {
-                        bar.finish_with_message("done");
-                        // A sweep's findings: the camera delay it measured.
-                        let r = &ev["result"];
-                        if let Some(d) = r["camera_delay_s"].as_f64() {
-                            println!(
-                                "sweep: camera delay {:.3} ms (residual {:.4} µm), {} frames, {} records, {:.0} s",
-                                d * 1e3,
-                                r["camera_delay_residual_um"].as_f64().unwrap_or(f64::NAN),
-                                r["frames"],
-                                r["records"],
-                                r["duration_s"].as_f64().unwrap_or(f64::NAN)
-                            );
-                        }
-                        return Ok(ExitCode::SUCCESS);
-                    }
-                    Some(other) => {
-                        bar.abandon_with_message(other.to_owned());
-                        eprintln!("job {other}: {}", ev["error"].as_str().unwrap_or(""));
-                        return Ok(ExitCode::from(1));
-                    }
+                if let Some(code) = job_end(&bar, &ev) {
+                    return Ok(code);
                 }
             }
             Some("fault") => {
@@ -518,4 +521,66 @@ async fn follow(conn: &mut Conn, started: &Value) -> Result<ExitCode, Unreachabl
             _ => {}
         }
     }
+}
+
+/// The exit code of a job that has ended (a job event or a status's
+/// `job`), after closing the bar and printing what a sweep measured; `None`
+/// while it runs.
+fn job_end(bar: &indicatif::ProgressBar, job: &Value) -> Option<ExitCode> {
+    match job["state"].as_str() {
+        Some("running") | None => None,
+        Some("done") => {
+            bar.set_position(job["done"].as_u64().unwrap_or(bar.position()));
+            bar.finish_with_message("done");
+            if let Some(s) = sweep_summary(&job["result"]) {
+                println!("{s}");
+            }
+            Some(ExitCode::SUCCESS)
+        }
+        Some(other) => {
+            bar.abandon_with_message(other.to_owned());
+            eprintln!("job {other}: {}", job["error"].as_str().unwrap_or(""));
+            Some(ExitCode::from(1))
+        }
+    }
+}
+
+/// What a finished sweep measured (its camera delay, frames, records and
+/// static anchors), for a person; `None` for a step job's result.
+fn sweep_summary(r: &Value) -> Option<String> {
+    let d = r["camera_delay_s"].as_f64()?;
+    let mut s = format!(
+        "sweep: camera delay {:.3} ms (residual {:.4} µm), {} frames, {} records, {:.0} s",
+        d * 1e3,
+        r["camera_delay_residual_um"].as_f64().unwrap_or(f64::NAN),
+        r["frames"],
+        r["records"],
+        r["duration_s"].as_f64().unwrap_or(f64::NAN)
+    );
+    let a = &r["anchors"];
+    if let Some(n) = a["measured"].as_u64() {
+        let list = |v: &Value| {
+            v.as_array().filter(|l| !l.is_empty()).map(|l| {
+                l.iter()
+                    .filter_map(Value::as_str)
+                    .collect::<Vec<_>>()
+                    .join(" ")
+            })
+        };
+        s.push_str(&format!(
+            "\nanchors: {n} visits at {} positions every {} µm ({:.0} s); correction up to x {:.3} µm, y {:.3} µm",
+            a["positions"],
+            a["spacing_um"],
+            a["duration_s"].as_f64().unwrap_or(f64::NAN),
+            a["x"]["max_along_um"].as_f64().unwrap_or(f64::NAN),
+            a["y"]["max_along_um"].as_f64().unwrap_or(f64::NAN),
+        ));
+        if let Some(l) = list(&a["rejected"]) {
+            s.push_str(&format!("; left out for their scatter: {l}"));
+        }
+        if let Some(l) = list(&a["unmatched"]) {
+            s.push_str(&format!("; without a sweep value: {l}"));
+        }
+    }
+    Some(s)
 }
