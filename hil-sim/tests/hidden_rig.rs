@@ -21,18 +21,19 @@
 //!
 //! Default (also under `MICROPOS_FULL`): one seed (a scale error) and one
 //! negative, ≈ 30–90 s depending on the machine's load. `MICROPOS_RIG_SWEEP=1`
-//! runs one seed per kind and two negatives (≈ 6 min on a loaded 2-core
-//! machine): position_periodic, scale, time_drift, reversal and cross_axis
-//! are named and recovered; a 2.3 σ localized bump goes unfound (allowed
-//! below 3 σ). A time_periodic effect of y (0.93 µm, 419 s) moves y during
-//! the daemon's tie pre-scan; left in, the y-vs-x trend of its X line would
-//! be taken for a camera rotation and the whole log would carry a 300 µrad
-//! x-vs-y slope that the analysis names first. The tie re-measures its
-//! anchor before, between and after its lines and removes the drift
-//! (`micropos::daemon::jobs::tie`): that seed alone
-//! (`MICROPOS_RIG_KIND=time_periodic`) gives a tie 0.7 µrad from the
-//! mounting (−216 µrad without the correction, same samples) and names
-//! time_periodic (0.934 µm, 418 s, gain 94 %). Each run prints its tie's
+//! runs one seed per kind and two negatives (≈ 2.5 min): position_periodic
+//! is named and recovered; scale, time_drift, reversal and cross_axis come
+//! back as parameter corrections (or the tie's rotation); a 2.3 σ localized
+//! bump goes unfound (allowed below 3 σ). A time_periodic effect of y
+//! (0.93 µm, 301 s) moves y during the daemon's tie pre-scan; left in, the
+//! y-vs-x trend of its X line would be taken for a camera rotation. The tie
+//! re-measures its anchor before, between and after its lines and removes
+//! the drift (`micropos::daemon::jobs::tie`): that seed alone
+//! (`MICROPOS_RIG_KIND=time_periodic`) gives a tie 1.3 µrad from the
+//! mounting (−169.4 µrad without the correction, same samples). The effect
+//! itself is not found: it inflates y's replicate scatter, against which
+//! the residual reads as noise (docs/design/analysis.md, the rig's
+//! discrepancies, item 6); the sweep fails on it. Each run prints its tie's
 //! rotation error with and without the correction.
 //!
 //! The rig runs in process on the paused test runtime's virtual clock
