@@ -29,11 +29,11 @@ use serde_json::{json, Value};
 use std::collections::BTreeMap;
 use std::time::{Duration, Instant};
 
-/// The grid: 1000 × 500 µm at 5 µm from (2000, 2000), 3 cycles (v, 2v,
+/// The grid: 600 × 300 µm at 5 µm from (2000, 2000), 3 cycles (v, 2v,
 /// v at 120 µm/s), anchors every 250 µm (the default).
 const START: f64 = 2000.0;
-const X_RANGE: f64 = 1000.0;
-const Y_RANGE: f64 = 500.0;
+const X_RANGE: f64 = 600.0;
+const Y_RANGE: f64 = 300.0;
 const STEP: f64 = 5.0;
 const CYCLES: u32 = 3;
 
@@ -270,19 +270,32 @@ fn noise(logs: &Logs, step_var: [f64; 2], sweep_var: [f64; 2]) -> f64 {
     var.sqrt()
 }
 
-/// Seeds drawn here (kept apart from those the method was developed on).
-const SEEDS: [u64; 3] = [9301, 9302, 9303];
-
-/// On random stages (see the module docs; the third seed's stage has no
-/// path dependence), the anchored sweep log matches the step log within
-/// three times the noise they carry; the unanchored one does not where the
-/// stage has lost motion, and on the stage without it the anchors change
-/// the records by noise only.
+/// Seeds drawn here (kept apart from those the method was developed on);
+/// the first two stages have lost motion, the third none. One test per
+/// draw, so that they run side by side.
 #[tokio::test(start_paused = true)]
-async fn the_anchored_sweep_matches_the_step_log_on_random_stages() {
-    for (k, seed) in SEEDS.into_iter().enumerate() {
+async fn the_anchored_sweep_matches_the_step_log_on_random_stage_9301() {
+    check(9301, true).await;
+}
+
+#[tokio::test(start_paused = true)]
+async fn the_anchored_sweep_matches_the_step_log_on_random_stage_9302() {
+    check(9302, true).await;
+}
+
+#[tokio::test(start_paused = true)]
+async fn the_anchored_sweep_matches_the_step_log_on_a_stage_without_lost_motion_9303() {
+    check(9303, false).await;
+}
+
+/// On a random stage (see the module docs; `path_dependent` false: no
+/// lost motion), the anchored sweep log matches the step log within three
+/// times the noise they carry; the unanchored one does not where the stage
+/// has lost motion, and on the stage without it the anchors change the
+/// records by noise only.
+async fn check(seed: u64, path_dependent: bool) {
+    {
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
-        let path_dependent = k < 2;
         let signed = |rng: &mut ChaCha8Rng| {
             let m: f64 = rng.gen_range(2.0..6.0);
             if rng.gen_bool(0.5) {
@@ -320,9 +333,11 @@ async fn the_anchored_sweep_matches_the_step_log_on_random_stages() {
             logs.result["camera_delay_s"].as_f64().unwrap_or(f64::NAN) * 1e3,
             wall.elapsed().as_secs_f64()
         );
+        // Points per axis, direction and position on the grid, 90 % of them.
+        let grid = 2.0 * ((X_RANGE / STEP + 1.0) + (Y_RANGE / STEP + 1.0));
         assert!(
-            step.len() > 550 && sweep.len() > 550,
-            "{} {}",
+            step.len() as f64 > 0.9 * grid && sweep.len() as f64 > 0.9 * grid,
+            "{} {} of {grid}",
             step.len(),
             sweep.len()
         );
