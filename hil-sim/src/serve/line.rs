@@ -226,10 +226,17 @@ impl Line {
                 if let Some(pty) = self.pty.as_mut() {
                     if pty.connected {
                         pty.connected = false;
-                        pty.flush();
-                        self.pending.clear();
-                        self.outbox.clear();
-                        lock(&self.bus).reset_line();
+                        // A client that opened the port after the hang-up
+                        // was seen may have had its first request answered
+                        // by the drain above: that answer is its own, and a
+                        // flush now would leave it waiting for nothing.
+                        let (_, reopened) = pty.wait(Duration::ZERO);
+                        if !reopened {
+                            pty.flush();
+                            self.pending.clear();
+                            self.outbox.clear();
+                            lock(&self.bus).reset_line();
+                        }
                     }
                 }
                 // Hang-up is reported at once; do not spin on it.
