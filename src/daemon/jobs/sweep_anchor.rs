@@ -715,6 +715,21 @@ mod tests {
         StandardNormal.sample(rng)
     }
 
+    /// A measurement from its swept-axis and held-axis components.
+    fn scan_held_xy(x_axis: bool, scan: f64, held: f64) -> XyUm {
+        if x_axis {
+            XyUm {
+                x_um: scan,
+                y_um: held,
+            }
+        } else {
+            XyUm {
+                x_um: held,
+                y_um: scan,
+            }
+        }
+    }
+
     /// One pass as the job records it: a trapezoidal move across the range
     /// and run-ups (2000 µm/s²), `POS?` every 5 ms, frames at 30 /s
     /// stamped `LATENCY_S` late; the pass starts with a reversal (the job
@@ -764,17 +779,7 @@ mod tests {
                 });
                 let scan = c - es + FRAME_SIGMA_UM * gauss(rng);
                 let held = spec.hold_um - eh + FRAME_SIGMA_UM * gauss(rng);
-                let meas = if spec.x_axis {
-                    XyUm {
-                        x_um: scan,
-                        y_um: held,
-                    }
-                } else {
-                    XyUm {
-                        x_um: held,
-                        y_um: scan,
-                    }
-                };
+                let meas = scan_held_xy(spec.x_axis, scan, held);
                 SweepFrame {
                     t_s: t + LATENCY_S,
                     meas,
@@ -818,17 +823,7 @@ mod tests {
                     + scatter_um(stop.pos_um) * gauss(rng)
                     + FRAME_SIGMA_UM * gauss(rng);
                 let held = bwd.hold_um - eh + FRAME_SIGMA_UM * gauss(rng);
-                let meas = if bwd.x_axis {
-                    XyUm {
-                        x_um: scan,
-                        y_um: held,
-                    }
-                } else {
-                    XyUm {
-                        x_um: held,
-                        y_um: scan,
-                    }
-                };
+                let meas = scan_held_xy(bwd.x_axis, scan, held);
                 out.push(AnchorMeas {
                     x_axis: bwd.x_axis,
                     forward,
