@@ -47,7 +47,16 @@ const START: f64 = 3000.0;
 /// Starts the in-process rig `rig_cfg` with `seed` and microposd on it,
 /// references, runs the reduced sweep plan and builds tables from both
 /// logs.
-async fn sweep_on(rig_cfg: RigConfig, seed: u64, cycles: u32, drift_every_s: f64) -> Swept {
+/// `anchor_spacing_um`: `None` for the daemon's default, `Some(0.0)` for
+/// none (the delay estimate does not use them; the random-rig test leaves
+/// them out to halve its frames).
+async fn sweep_on(
+    rig_cfg: RigConfig,
+    seed: u64,
+    cycles: u32,
+    drift_every_s: f64,
+    anchor_spacing_um: Option<f64>,
+) -> Swept {
     let wall = Instant::now();
     let dir = tempfile::tempdir().unwrap();
     let rig_dir = dir.path().join("rig");
@@ -80,7 +89,8 @@ async fn sweep_on(rig_cfg: RigConfig, seed: u64, cycles: u32, drift_every_s: f64
             json!({"cmd": "characterize", "action": "start", "log": "sweep.csv",
             "mode": "sweep", "velocity_um_per_s": V, "step_um": STEP,
             "x_range_um": X_RANGE, "y_range_um": Y_RANGE, "cycles": cycles,
-            "uncorrected_log": "sweep-nodelay.csv", "drift_every_s": drift_every_s}),
+            "uncorrected_log": "sweep-nodelay.csv", "drift_every_s": drift_every_s,
+            "anchor_spacing_um": anchor_spacing_um}),
         )
         .await;
     assert_eq!(r["job"]["state"], "running", "{r}");
@@ -130,7 +140,7 @@ async fn sweep_estimates_the_hidden_delay_and_logs_the_step_grid() {
     let (x_range, y_range, step, v) = (X_RANGE, Y_RANGE, STEP, V);
     // Drift references every 15 s: before the first pass and between
     // passes.
-    let sw = sweep_on(rig_cfg, SEED, 2, 15.0).await;
+    let sw = sweep_on(rig_cfg, SEED, 2, 15.0, None).await;
     let res = &sw.result;
     let est_s = res["camera_delay_s"].as_f64().unwrap();
     let err_ms = (est_s - latency_us * 1e-6) * 1e3;
@@ -294,7 +304,7 @@ async fn the_delay_goal_holds_on_random_rigs() {
             },
             ..RigConfig::default()
         };
-        let sw = sweep_on(rig_cfg, seed, 3, 0.0).await;
+        let sw = sweep_on(rig_cfg, seed, 3, 0.0, Some(0.0)).await;
         let est_s = sw.result["camera_delay_s"].as_f64().unwrap();
         let err_ms = (est_s - latency_us * 1e-6) * 1e3;
         println!(

@@ -59,13 +59,42 @@ pub(super) struct Data {
     /// when the approach moves were not logged), else the replayed one.
     pub(super) approach: Vec<[f64; 2]>,
     /// Whether the folds are whole cycles (else contiguous chunks of the
-    /// log's one cycle).
+    /// log's one cycle, or blocks interleaved in time).
     pub(super) whole_cycle_folds: bool,
     /// The axis whose commanded position moves with time over the whole
     /// log (|r| ≥ [`TIME_POSITION_R`] over the rows where it moves: a
     /// one-way scan at a steady rate), and that correlation.
     pub(super) time_with: Option<(Axis, f64)>,
 }
+
+/// How rows are assigned to held-out folds.
+///
+/// Why two schemes: a fold that holds out a whole cycle (or a contiguous
+/// chunk) asks every term to extrapolate in time into a stretch of the log
+/// it was not trained on. That is the right test of position structure
+/// (the held-out cycle revisits the same positions) and the wrong one of a
+/// time effect that is really there: a 301 s oscillation fitted on one
+/// 600 s cycle does not predict the next (its phase is lost over the gap),
+/// so it is judged worse than nothing and the log is called noise. Short
+/// blocks of consecutive rows dealt round the folds hold out stretches
+/// that lie between trained ones, in time and along every pass: what is
+/// judged is interpolation. The diagnosis uses them only when the
+/// replicates show that the error changes between visits of a target
+/// (`noise::ComponentNoise::changes_between_visits`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(super) enum FoldScheme {
+    /// Whole cycles, else contiguous chunks of a one-cycle log.
+    Cycles,
+    /// Blocks of [`INTERLEAVE_ROWS`] consecutive rows (in time) dealt
+    /// round the folds.
+    InterleavedInTime,
+}
+
+/// Rows per block of [`FoldScheme::InterleavedInTime`]: short against the
+/// shortest period the time search looks for (20 row intervals, see
+/// `search::search`), so a held-out block lies within a fraction of a
+/// period of trained rows on both sides.
+pub(super) const INTERLEAVE_ROWS: usize = 4;
 
 /// Correlation of time with an axis's position from which a log cannot
 /// tell a drift from an error that depends on that position.
@@ -179,6 +208,7 @@ pub(super) fn prepare(
     log: &MeasurementLog,
     model: &StageModel,
     max_folds: usize,
+    scheme: FoldScheme,
 ) -> Result<Data, AnalysisError> {
     let recs = &log.records;
     if recs.len() < 20 {
@@ -224,7 +254,20 @@ pub(super) fn prepare(
     cycles.sort_unstable();
     cycles.dedup();
     let max_folds = max_folds.max(2);
-    let (fold, nfolds) = if cycles.len() >= 2 {
+    let (fold, nfolds) = if scheme == FoldScheme::InterleavedInTime {
+        let k = if cycles.len() >= 2 {
+            cycles.len().min(max_folds)
+        } else {
+            max_folds.min(5)
+        };
+        let mut order: Vec<usize> = (0..n).collect();
+        order.sort_by(|&a, &b| states[a].time_s.total_cmp(&states[b].time_s));
+        let mut fold = vec![0usize; n];
+        for (rank, &i) in order.iter().enumerate() {
+            fold[i] = (rank / INTERLEAVE_ROWS) % k;
+        }
+        (fold, k)
+    } else if cycles.len() >= 2 {
         let k = cycles.len().min(max_folds);
         let rank: HashMap<u32, usize> = cycles.iter().enumerate().map(|(i, c)| (*c, i)).collect();
         (
@@ -239,7 +282,14 @@ pub(super) fn prepare(
     let mut block_of: HashMap<(&str, u32, usize), usize> = HashMap::new();
     let mut block = vec![0usize; n];
     for i in 0..n {
-        let key = (recs[i].segment.as_str(), recs[i].cycle, fold[i]);
+        // Interleaved folds share their blocks: a pass's static axis has
+        // one constant, not one per fold.
+        let f = if scheme == FoldScheme::InterleavedInTime {
+            0
+        } else {
+            fold[i]
+        };
+        let key = (recs[i].segment.as_str(), recs[i].cycle, f);
         let next = block_of.len();
         block[i] = *block_of.entry(key).or_insert(next);
     }
@@ -276,7 +326,7 @@ pub(super) fn prepare(
     let extra = numeric_extra_columns(log, &states);
     let (measured, measured_source) = measured_axes(log)?;
     let approach = approach_signs(log, &states);
-    let judged = if cycles.len() >= 2 {
+    let judged = if cycles.len() >= 2 || scheme == FoldScheme::InterleavedInTime {
         judged_rows(&states, &approach, &moving, &fold, nfolds)
     } else {
         // Time-chunk folds partition the range by construction: masking
@@ -301,7 +351,7 @@ pub(super) fn prepare(
         judged,
         excluded: vec![false; n],
         approach,
-        whole_cycle_folds: cycles.len() >= 2,
+        whole_cycle_folds: cycles.len() >= 2 && scheme == FoldScheme::Cycles,
         time_with: None,
     };
     let mut d = d;

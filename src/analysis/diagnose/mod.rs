@@ -138,8 +138,8 @@ use crate::model::{
 
 use super::AnalysisError;
 pub use corrections::{ParamCorrection, SIGNIFICANT_SIGMAS};
-use data::MeasuredSource;
 pub use data::{parse_approach, APPROACH_COLUMN, MEASURED_AXES_KEY};
+use data::{FoldScheme, MeasuredSource};
 use describe::describe;
 use extend::{extended, extended_with_se};
 use family::Family;
@@ -365,8 +365,13 @@ pub struct Diagnosis {
     /// searched as a function of time.
     pub time_with: Option<(Axis, f64)>,
     /// Whether the held-out folds are whole cycles (else contiguous
-    /// chunks of the log's one cycle).
+    /// chunks of the log's one cycle, or interleaved in time).
     pub whole_cycle_folds: bool,
+    /// Why the folds are blocks interleaved in time
+    /// (`data::FoldScheme::InterleavedInTime`), when they are: a component
+    /// whose replicates changed between visits under whole-cycle folds.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub folds_interleaved: Option<String>,
     /// RMS over the log's rows of what the aliased base parameters (held
     /// at the model's value because the sampling cannot resolve their
     /// period) contribute to the model's prediction, µm: the part of the
@@ -419,7 +424,45 @@ pub fn diagnose(
     } else {
         log
     };
-    let d = prepare(log, model, opts.max_folds)?;
+    let first = diagnose_with(log, model, opts, FoldScheme::Cycles)?;
+    // An error that changes between visits of a target is a time (or
+    // path) effect that whole-cycle folds judge by extrapolation in time
+    // (see `data::FoldScheme`): the log is judged again on interleaved
+    // folds. Not when time follows a position (no time family is searched
+    // then).
+    let changing: Vec<String> = first
+        .noise
+        .components
+        .iter()
+        .filter(|c| c.changes_between_visits)
+        .filter_map(|c| {
+            let (s, nb) = (c.residual_replicate_scatter_um?, c.replicate_neighbour_noise_um?);
+            Some(format!(
+                "{}'s visits of one target scatter {s:.4} µm in the residual of whole-cycle folds, {:.1}× its neighbour noise ({nb:.4} µm)",
+                c.component,
+                s / nb
+            ))
+        })
+        .collect();
+    if changing.is_empty() || first.time_with.is_some() {
+        return Ok(first);
+    }
+    let mut second = diagnose_with(log, model, opts, FoldScheme::InterleavedInTime)?;
+    second.folds_interleaved = Some(format!(
+        "{}: the error changes between visits, and a fold that holds out a whole cycle would judge a time effect by extrapolating it into that cycle",
+        changing.join("; ")
+    ));
+    Ok(second)
+}
+
+/// [`diagnose`] with the rows assigned to folds by `scheme`.
+fn diagnose_with(
+    log: &MeasurementLog,
+    model: &StageModel,
+    opts: &DiagnoseOptions,
+    scheme: FoldScheme,
+) -> Result<Diagnosis, AnalysisError> {
+    let d = prepare_with(log, model, opts.max_folds, scheme)?;
     let (all_names, all_base) = base_columns(&d, model, &opts.base_free_kinds);
     // A periodic base term whose period the log's sampling cannot resolve
     // is aliased: fitting it would turn it into an arbitrary per-target
@@ -539,6 +582,16 @@ pub fn diagnose(
         final_heldout = before.clone();
         if judged_fams.is_empty() {
             break;
+        }
+        for v in &all_verdicts {
+            tracing::debug!(
+                family = ?v.family,
+                gain_pct = v.gain_pct,
+                z = v.z,
+                rms_before_um = v.rms_before,
+                rms_after_um = v.rms_after,
+                "diagnose: held-out verdict"
+            );
         }
         let taken: Vec<Family> = acc.iter().map(|a| a.family).collect();
         tables::record(&mut table_tests, &all_verdicts, &taken);
@@ -861,6 +914,7 @@ pub fn diagnose(
         synthetic_time,
         time_with: d.time_with,
         whole_cycle_folds: d.whole_cycle_folds,
+        folds_interleaved: None,
         aliased_contribution_rms_um: RmsXy::from(aliased_rms),
         judged_points: d.judged.iter().filter(|&&j| j).count(),
         noise,
@@ -996,12 +1050,23 @@ const MAX_PASSES_PER_FINDING: usize = 3;
 /// the replicates' outliers ([`noise::outlier_rows`]) left out of the fit
 /// and of the judging, and the residual centred. Why here: the outliers are
 /// read from the replicates, on the rows `data` builds.
+#[cfg(test)]
 fn prepare(
     log: &MeasurementLog,
     model: &StageModel,
     max_folds: usize,
 ) -> Result<data::Data, AnalysisError> {
-    let mut d = data::prepare(log, model, max_folds)?;
+    prepare_with(log, model, max_folds, FoldScheme::Cycles)
+}
+
+/// [`prepare`] with the rows assigned to folds by `scheme`.
+fn prepare_with(
+    log: &MeasurementLog,
+    model: &StageModel,
+    max_folds: usize,
+    scheme: FoldScheme,
+) -> Result<data::Data, AnalysisError> {
+    let mut d = data::prepare(log, model, max_folds, scheme)?;
     let measured = d.measured;
     for c in Axis::ALL.into_iter().filter(|c| measured[c.index()]) {
         for i in noise::outlier_rows(log, &d, c) {

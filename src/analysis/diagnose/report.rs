@@ -19,7 +19,9 @@ impl Diagnosis {
             self.points,
             self.judged_points,
             self.folds,
-            if self.whole_cycle_folds {
+            if self.folds_interleaved.is_some() {
+                "blocks of 4 consecutive points dealt round, interleaved in time"
+            } else if self.whole_cycle_folds {
                 "whole cycles"
             } else {
                 "contiguous chunks of the log's one cycle"
@@ -104,6 +106,9 @@ impl Diagnosis {
             "after base fit, held out: rms {}",
             rms(&self.baseline_rms_um)
         );
+        if let Some(why) = &self.folds_interleaved {
+            let _ = writeln!(out, "folds interleaved in time: {why}");
+        }
         let unexplained: Vec<&ComponentNoise> = self
             .noise
             .components
@@ -331,6 +336,24 @@ impl Diagnosis {
                     c.heldout_rms_um
                 );
             }
+            if let (Some(sc), Some(nb)) = (
+                c.residual_replicate_scatter_um,
+                c.replicate_neighbour_noise_um,
+            ) {
+                if c.changes_between_visits {
+                    let _ = writeln!(
+                        out,
+                        "  {a}: UNEXPLAINED: visits of one target scatter {sc:.4} µm in the residual (robust), {:.1}× the noise between neighbouring positions of the same kind of pass ({nb:.4} µm): the error changes between visits (with time, or with the path to the target), which no function of position explains; the repeatability above is not the measurement's noise",
+                        sc / nb
+                    );
+                } else {
+                    let _ = writeln!(
+                        out,
+                        "  {a}: visits of one target scatter {sc:.4} µm in the residual (robust), {:.1}× the noise between neighbouring positions of the same kind of pass ({nb:.4} µm)",
+                        sc / nb
+                    );
+                }
+            }
             if let (Some(sys), Some(floor), Some(ratio)) = (
                 c.systematic_rms_um,
                 c.systematic_noise_floor_um,
@@ -455,6 +478,7 @@ impl Diagnosis {
             "synthetic_time": self.synthetic_time,
             "time_with": self.time_with.map(|(a, r)| serde_json::json!({"axis": a, "r": r})),
             "whole_cycle_folds": self.whole_cycle_folds,
+            "folds_interleaved": self.folds_interleaved,
             "judged_points": self.judged_points,
             "aliased_contribution_rms_um": self.aliased_contribution_rms_um,
             "noise": self.noise,

@@ -646,3 +646,84 @@ fn sweep_anchor_rows_are_left_out() {
     let b = diagnose(&with, &base, &opts).unwrap();
     assert_eq!(a.to_text(), b.to_text());
 }
+
+/// A time-periodic error in a two-cycle log shaped like the rig's
+/// (`hil-sim/tests/hidden_rig.rs`: 2400 × 2000 µm at 50 µm, ≈ 1200 s),
+/// with a period of a fifth to a third of the log. Whole-cycle folds name
+/// it here or, when they do not, the replicates' scatter (visits a cycle
+/// apart disagree, neighbours a step apart do not) flags it; folds
+/// interleaved in time name it with its parameters in every case. The
+/// same plan without the effect keeps whole-cycle folds and finds nothing.
+/// (The rig's own case, which whole-cycle folds miss, is
+/// `tests/diagnose_rig_logs.rs`.)
+#[test]
+fn an_error_that_changes_between_visits_is_judged_on_interleaved_folds() {
+    use crate::analysis::generate::draw_effect_sized;
+    let model = StageModel::paper_default().unwrap();
+    let plan = SimPlan {
+        x_range_um: [500.0, 2900.0],
+        x_scan_y_um: 1500.0,
+        y_range_um: [500.0, 2500.0],
+        y_scan_x_um: 1700.0,
+        cycles: 2,
+        dwell_s: 3.3,
+        ..SimPlan::default()
+    };
+    let span = plan.duration_s();
+    let opts = DiagnoseOptions::default();
+    for comp in Axis::ALL {
+        let effect = (100u64..)
+            .map(|s| draw_effect_sized(s, FindingKind::TimePeriodic, 0.8, &plan).unwrap())
+            .find(|e| {
+                let p = e.params["period_s"];
+                e.component == comp && (0.2 * span..0.34 * span).contains(&p)
+            })
+            .unwrap();
+        let truth = truth_model(&model, Some(&effect), &plan, 21).unwrap();
+        let log =
+            parse_bytes(&simulate_log(&truth, &plan, 21).unwrap().to_bytes().unwrap()).unwrap();
+        let named = |d: &Diagnosis| {
+            d.findings
+                .iter()
+                .find(|f| f.kind == FindingKind::TimePeriodic && f.component == comp)
+                .cloned()
+        };
+        let first = diagnose_with(&log, &model, &opts, FoldScheme::Cycles).unwrap();
+        let c = first
+            .noise
+            .components
+            .iter()
+            .find(|c| c.component == comp)
+            .unwrap();
+        assert!(
+            named(&first).is_some() || c.changes_between_visits,
+            "{comp}: neither named nor flagged: {}",
+            first.to_text()
+        );
+        let (p, a) = (effect.params["period_s"], effect.params["amplitude_um"]);
+        for d in [
+            diagnose(&log, &model, &opts).unwrap(),
+            diagnose_with(&log, &model, &opts, FoldScheme::InterleavedInTime).unwrap(),
+        ] {
+            let f = named(&d).unwrap_or_else(|| panic!("{comp}: {}", d.to_text()));
+            assert!(
+                (f.params["period_s"] - p).abs() <= 0.05 * p,
+                "{comp}: {f:?} vs {p}"
+            );
+            assert!(
+                (f.params["amplitude_um"] - a).abs() <= 0.25 * a,
+                "{comp}: {f:?} vs {a}"
+            );
+        }
+    }
+    let truth = truth_model(&model, None, &plan, 22).unwrap();
+    let log = parse_bytes(&simulate_log(&truth, &plan, 22).unwrap().to_bytes().unwrap()).unwrap();
+    let d = diagnose(&log, &model, &opts).unwrap();
+    assert!(d.folds_interleaved.is_none(), "{}", d.to_text());
+    assert!(
+        d.noise.components.iter().all(|c| !c.changes_between_visits),
+        "{}",
+        d.to_text()
+    );
+    assert!(d.findings.is_empty(), "{}", d.to_text());
+}
