@@ -25,6 +25,11 @@ fi
 echo "== cargo test ${features[*]:-}"
 cargo test --workspace "${features[@]}"
 
+# The Python suites run hil-sim and microposd built as the tests were
+# (the test profile, the same features): no second build of the crates,
+# and the real-time rig runs at the tests' optimisation.
+export MICROPOS_BUILD_FLAGS="--profile test ${features[*]:-}"
+
 echo "== PIPython against hil-sim"
 PIPYTHON_VENV="${PIPYTHON_VENV:-$target/venv-pipython}" ./scripts/pipython.sh
 
