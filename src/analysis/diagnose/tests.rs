@@ -647,9 +647,10 @@ fn sweep_anchor_rows_are_left_out() {
     assert_eq!(a.to_text(), b.to_text());
 }
 
-/// A time-periodic error in a two-cycle log shaped like the rig's
-/// (`hil-sim/tests/hidden_rig.rs`: 2400 × 2000 µm at 50 µm, ≈ 1200 s),
-/// with a period of a fifth to a third of the log. Whole-cycle folds name
+/// A time-periodic error in a two-cycle log over the rig's ranges
+/// (`hil-sim/tests/hidden_rig.rs`: 2400 × 2000 µm; here the generator's
+/// 20 µm steps and 40 random points per cycle), with a period of a fifth to
+/// a third of the log. Whole-cycle folds name
 /// it here or, when they do not, the replicates' scatter (visits a cycle
 /// apart disagree, neighbours a step apart do not) flags it; folds
 /// interleaved in time name it with its parameters in every case. The
