@@ -676,6 +676,23 @@ fn drift_references_are_logged_and_resume_keeps_the_plan() {
             "record {i}"
         );
     }
+    // After each detour the job re-approached the next point from the
+    // side of its pass, unlogged; the `approach` column says so (empty on
+    // the references, which scan no axis).
+    let col = l
+        .columns
+        .extra
+        .iter()
+        .position(|c| c == "approach")
+        .unwrap();
+    for r in &l.records {
+        let want = match r.segment.as_str() {
+            "drift_ref" => "",
+            s if s.ends_with("_bwd") => "bwd",
+            _ => "fwd",
+        };
+        assert_eq!(r.extra[col], want, "{r:?}");
+    }
     assert!(refs.len() >= points.len(), "{} references", refs.len());
     for r in &refs {
         assert_eq!([r.x_target_um, r.y_target_um], corner);
@@ -1021,4 +1038,58 @@ fn cli_sweep_characterization_follows_to_its_delay_and_anchors() {
             );
         }
     }
+}
+
+/// A log begun before the step log had its `approach` column resumes
+/// without it: the job goes on in the log's own columns, losing nothing.
+#[test]
+fn a_log_without_the_approach_column_resumes_in_its_own_columns() {
+    let dir = tempfile::tempdir().unwrap();
+    let _sim = Sim::start(dir.path(), 20.0);
+    let d = Daemon::start(dir.path(), 0);
+    let mut c = d.client();
+    c.ok(json!({"cmd": "reference"}));
+    let mut sub = d.client();
+    sub.ok(json!({"cmd": "subscribe", "topics": ["job"]}));
+    c.ok(
+        json!({"cmd": "characterize", "action": "start", "log": "old.csv",
+                        "step_um": 500.0, "x_range_um": 1000.0, "y_range_um": 1000.0,
+                        "cycles": 1, "frames_per_point": 1, "settle_s": 0.1}),
+    );
+    wait_done(&mut sub, 3);
+    c.ok(json!({"cmd": "characterize", "action": "cancel"}));
+    sub.event(|e| e["event"] == "job" && e["state"] == "cancelled");
+    sub.forget_events();
+    // Rewrite it as the daemon wrote step logs before: no `approach`.
+    let path = dir.path().join("data/old.csv");
+    let text = std::fs::read_to_string(&path).unwrap();
+    let old: String = text
+        .lines()
+        .map(|line| {
+            if line.starts_with('#') {
+                line.to_owned()
+            } else {
+                let (keep, last) = line.rsplit_once(',').unwrap();
+                assert!(matches!(last, "approach" | "fwd" | "bwd" | ""), "{line}");
+                keep.to_owned()
+            }
+        })
+        .map(|l| l + "\n")
+        .collect();
+    std::fs::write(&path, old).unwrap();
+    let before = log::read_file(&path).unwrap().records.len();
+    assert!(before >= 3, "{before}");
+    let r = c.ok(json!({"cmd": "characterize", "action": "resume", "log": "old.csv"}));
+    assert_eq!(r["job"]["done"].as_u64(), Some(before as u64));
+    let ev = sub.event(|e| e["event"] == "job" && e["state"] != "running");
+    assert_eq!(ev["state"], "done", "{ev}");
+    let l = log::read_file(&path).unwrap();
+    assert!(l.is_complete() && l.warnings.is_empty(), "{:?}", l.warnings);
+    assert!(!l.columns.extra.iter().any(|c| c == "approach"));
+    let plan = ScanPlan::from_metadata(&l.metadata).unwrap();
+    assert_eq!(
+        l.records.len(),
+        plan.points().len(),
+        "points lost or duplicated"
+    );
 }

@@ -13,7 +13,16 @@
 //!   disagree ≈ 20× more than neighbouring points, so the diagnosis judges
 //!   it again on folds interleaved in time.
 //! - `plain-seed3001.csv`: the nominal model alone: no finding, whole-cycle
-//!   folds kept.
+//!   folds kept. Written before the daemon logged each point's approach
+//!   direction: the first point of the first y pass, reached from below by
+//!   an approach move the log does not hold, is replayed as reached from
+//!   above (where the x scans held y), on the other side of y's 1.8 µm
+//!   play. With the second cycle's first point it forms a target visited
+//!   twice whose visits disagree by 1.7 µm: a discordant pair, left out.
+//! - `plain-seed3001-approach.csv`: the same run by the daemon that logs
+//!   each point's `approach` (how its scanned axis was last moved,
+//!   unlogged approach moves included): replayed with it, the first y
+//!   point is on the right side of the play and no pair disagrees.
 //!
 //! The errors are made by the rig's physics and camera, not by evaluating
 //! the analysis's columns; the truth model is read only to compare.
@@ -98,4 +107,82 @@ fn the_plain_rig_keeps_whole_cycle_folds_and_finds_nothing() {
         d.noise.components.iter().all(|c| !c.changes_between_visits),
         "{text}"
     );
+}
+
+/// One pair of visits 1.7 µm apart must not set y's repeatability (it made
+/// it 0.14 µm against x's 0.036) nor stay in the fit (its row left 0.09 µm
+/// of y held-out rms against 0.022 µm of neighbour noise).
+#[test]
+fn a_pair_of_visits_that_disagree_is_left_out_and_named() {
+    let log = read_file(data("plain-seed3001.csv")).unwrap();
+    let d = diagnose(&log, &nominal(), &DiagnoseOptions::default()).unwrap();
+    let text = d.to_text();
+    let comp = |a: Axis| {
+        d.noise
+            .components
+            .iter()
+            .find(|c| c.component == a)
+            .unwrap()
+    };
+    let (x, y) = (comp(Axis::X), comp(Axis::Y));
+    assert!(x.discordant_pairs.is_empty(), "{text}");
+    assert_eq!(y.discordant_pairs.len(), 1, "{text}");
+    assert!(!y.discordant_pairs_kept, "{text}");
+    let p = &y.discordant_pairs[0];
+    assert!((p.target_um - 500.0).abs() < 1e-6, "{text}");
+    assert!(
+        (p.difference_um.abs() - 1.7).abs() < 0.2 && p.sigmas > 10.0,
+        "{text}"
+    );
+    assert!(p.first_of_pass.iter().any(|&f| f), "{text}");
+    assert!(text.contains("discordant pair"), "{text}");
+    let (rx, ry) = (x.repeatability_um.unwrap(), y.repeatability_um.unwrap());
+    assert!(ry < 1.5 * rx && ry > rx / 1.5, "{text}");
+    let nb = y.neighbour_noise_um.unwrap();
+    assert!(y.heldout_rms_um < 1.5 * nb, "{text}");
+    assert!(!y.unexplained, "{text}");
+}
+
+/// With the `approach` column the replay puts every point on the side of
+/// the play it was reached from: the pair above agrees, y repeats like x,
+/// and y's held-out residual is its neighbour noise.
+#[test]
+fn a_log_that_says_how_each_point_was_approached_is_replayed_right() {
+    let log = read_file(data("plain-seed3001-approach.csv")).unwrap();
+    // The daemon's cells: a pass's first point after an approach move, and
+    // the next cycle's first point read again where the last pass ended
+    // (no move: it keeps the direction it was reached by).
+    let col = log
+        .columns
+        .extra
+        .iter()
+        .position(|c| c == diagnose::APPROACH_COLUMN)
+        .unwrap();
+    let first = |seg: &str, cycle: u32| {
+        let r = log
+            .records
+            .iter()
+            .find(|r| r.segment == seg && r.cycle == cycle)
+            .unwrap();
+        r.extra[col].clone()
+    };
+    assert_eq!(first("scan_y_fwd", 1), "fwd");
+    assert_eq!(first("scan_y_bwd", 1), "fwd");
+    assert_eq!(first("scan_y_fwd", 2), "bwd");
+    let d = diagnose(&log, &nominal(), &DiagnoseOptions::default()).unwrap();
+    let text = d.to_text();
+    assert!(d.findings.is_empty(), "{text}");
+    for c in &d.noise.components {
+        assert!(c.discordant_pairs.is_empty(), "{text}");
+        assert!(!c.unexplained, "{text}");
+        let nb = c.neighbour_noise_um.unwrap();
+        assert!(c.heldout_rms_um < 1.2 * nb, "{text}");
+    }
+    let r: Vec<f64> = d
+        .noise
+        .components
+        .iter()
+        .map(|c| c.repeatability_um.unwrap())
+        .collect();
+    assert!(r[1] < 1.5 * r[0] && r[1] > r[0] / 1.5, "{text}");
 }

@@ -415,8 +415,8 @@ pub const APPROACH_COLUMN: &str = "approach";
 /// backward, `None` for anything else (`rest`, empty).
 pub fn parse_approach(s: &str) -> Option<f64> {
     match s.trim().to_ascii_lowercase().as_str() {
-        "fwd" | "forward" | "+" | "up" | "pos" | "positive" | "↑" => Some(1.0),
-        "bwd" | "backward" | "-" | "down" | "neg" | "negative" | "↓" => Some(-1.0),
+        "fwd" | "forward" | "+" | "+1" | "1" | "up" | "pos" | "positive" | "↑" => Some(1.0),
+        "bwd" | "backward" | "-" | "-1" | "down" | "neg" | "negative" | "↓" => Some(-1.0),
         _ => None,
     }
 }
@@ -607,7 +607,7 @@ fn correlation(a: &[f64], b: &[f64]) -> f64 {
 
 /// The log's extra columns worth searching (see the module docs): numeric
 /// in ≥ [`EXTRA_MIN_NUMERIC`] of the rows, not constant, not a repeat of a
-/// variable the other families already cover.
+/// variable the other families already cover, not [`APPROACH_COLUMN`].
 fn numeric_extra_columns(log: &MeasurementLog, states: &[MotionState]) -> Vec<ExtraVar> {
     let n = log.records.len();
     let known: [Vec<f64>; 4] = [
@@ -618,6 +618,11 @@ fn numeric_extra_columns(log: &MeasurementLog, states: &[MotionState]) -> Vec<Ex
     ];
     let mut out = Vec::new();
     for (j, name) in log.columns.extra.iter().enumerate() {
+        // The approach direction is the replay's input (the play's side),
+        // not a variable of its own.
+        if name == APPROACH_COLUMN {
+            continue;
+        }
         let parsed: Vec<Option<f64>> = log
             .records
             .iter()

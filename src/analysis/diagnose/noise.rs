@@ -85,6 +85,47 @@ pub struct Outlier {
     pub first_visit: bool,
 }
 
+/// A target visited twice whose two visits disagree by far more than the
+/// log's visits do elsewhere (left out of the repeatability, the
+/// per-target means and the fit).
+///
+/// Why apart from [`Outlier`]: with two visits, which one is wild cannot
+/// be told, and their disagreement is not noise either. Pooled, one such
+/// pair set a rig log's y repeatability to 0.14 µm where every other
+/// target repeats to 0.035 µm, and every systematic error below it was
+/// then "explained to the noise".
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct DiscordantPair {
+    /// Target along the moving axis, µm.
+    pub target_um: f64,
+    /// Approach direction (`+1`, `−1`, `0`).
+    pub approach: f64,
+    /// Cycles of the two visits, in log order.
+    pub cycles: [u32; 2],
+    /// Second visit's deviation minus the first's (`meas − target`), µm.
+    pub difference_um: f64,
+    /// Their scatter `s` in robust σ of the log's two-visit groups (see
+    /// [`DISCORDANT_SIGMAS`]).
+    pub sigmas: f64,
+    /// Whether each visit is the first row of its pass (segment and
+    /// cycle): such a row is where a move the log does not hold (an
+    /// approach from the pass's side) can leave the axis on the other side
+    /// of its play than the logged path says.
+    pub first_of_pass: [bool; 2],
+}
+
+/// Scatter `s` of a two-visit group, in robust σ, beyond which the pair is
+/// discordant. The robust σ is the median over the log's replicate groups
+/// of `s_i²`, corrected by the χ² median (Wilson–Hilferty), so that the
+/// pairs themselves do not set it: noise makes `s/σ ≥ 5` once in 1.7 million
+/// pairs (`χ²₁ ≥ 25`).
+pub const DISCORDANT_SIGMAS: f64 = 5.0;
+
+/// Largest share of a class's two-visit groups that may be discordant and
+/// left out: more than that is not a few wild pairs but heavy-tailed
+/// scatter, which the repeatability must keep.
+pub const MAX_DISCORDANT_SHARE: f64 = 0.05;
+
 /// ISO 230-2 figures of a complete bidirectional test in the log.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct IsoFigures {
@@ -152,6 +193,16 @@ pub struct ComponentNoise {
     /// (not from the ISO 230-2 figures, which the standard defines on all).
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub outliers: Vec<Outlier>,
+    /// Two-visit targets whose visits disagree by more than
+    /// [`DISCORDANT_SIGMAS`] robust σ: left out of the repeatability, the
+    /// per-target means and the fit unless `discordant_pairs_kept`.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub discordant_pairs: Vec<DiscordantPair>,
+    /// Whether the discordant pairs are too many to be wild visits (more
+    /// than [`MAX_DISCORDANT_SHARE`] of the two-visit groups) and were
+    /// kept: the scatter is heavy-tailed, and the repeatability says so.
+    #[serde(skip_serializing_if = "std::ops::Not::not")]
+    pub discordant_pairs_kept: bool,
     /// Largest `s_i`, µm.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub max_s_um: Option<f64>,
@@ -303,6 +354,12 @@ struct Replicates<'a> {
     /// Per group: whether its visits reposition the component's axis.
     positioning: Vec<bool>,
     robust: Option<f64>,
+    /// Per group: its scatter in robust σ when it is a discordant pair
+    /// ([`DiscordantPair`]) of the class that sets the repeatability.
+    discordant: Vec<Option<f64>>,
+    /// Whether those pairs are too many to leave out
+    /// ([`MAX_DISCORDANT_SHARE`]).
+    discordant_kept: bool,
 }
 
 /// Whether row `i` arrives by moving axis `a`: its command differs from
@@ -417,11 +474,78 @@ fn replicates<'a>(log: &'a MeasurementLog, d: &Data, c: Axis) -> Replicates<'a> 
             .collect(),
     )
     .map(f64::sqrt);
+    let (discordant, discordant_kept) = discordant_pairs(&reps, &positioning, dev);
     Replicates {
         reps,
         medians,
         positioning,
         robust,
+        discordant,
+        discordant_kept,
+    }
+}
+
+/// The discordant pairs among `reps` (see [`DiscordantPair`]): per group,
+/// its `s` in robust σ when it has two visits, belongs to the class that
+/// sets the repeatability (visits that reposition the axis when any group
+/// does) and exceeds [`DISCORDANT_SIGMAS`]; and whether they are too many
+/// to leave out. Needs [`MIN_SCATTER_GROUPS`] groups in the class.
+fn discordant_pairs(
+    reps: &[(Key, Vec<usize>)],
+    positioning: &[bool],
+    dev: impl Fn(usize) -> f64,
+) -> (Vec<Option<f64>>, bool) {
+    let none = (vec![None; reps.len()], false);
+    let any_positioning = positioning.iter().any(|&p| p);
+    let in_class = |g: usize| positioning[g] || !any_positioning;
+    let var = |rows: &[usize]| {
+        let n = rows.len() as f64;
+        let m = rows.iter().map(|&i| dev(i)).sum::<f64>() / n;
+        rows.iter().map(|&i| (dev(i) - m).powi(2)).sum::<f64>() / (n - 1.0)
+    };
+    let (mut s2, mut dof) = (Vec::new(), Vec::new());
+    for (g, (_, rows)) in reps.iter().enumerate() {
+        if !in_class(g) {
+            continue;
+        }
+        s2.push(var(rows));
+        dof.push((rows.len() - 1) as f64);
+    }
+    if s2.len() < MIN_SCATTER_GROUPS {
+        return none;
+    }
+    let (Some(k), Some(med)) = (super::data::median(dof), super::data::median(s2)) else {
+        return none;
+    };
+    let factor = (1.0 - 2.0 / (9.0 * k)).powi(3);
+    if factor <= 0.0 || med <= 0.0 {
+        return none;
+    }
+    let sigma = (med / factor).sqrt();
+    let mut pairs = 0usize;
+    let out: Vec<Option<f64>> = reps
+        .iter()
+        .enumerate()
+        .map(|(g, (_, rows))| {
+            if !in_class(g) || rows.len() != 2 {
+                return None;
+            }
+            pairs += 1;
+            let z = var(rows).sqrt() / sigma;
+            (z > DISCORDANT_SIGMAS).then_some(z)
+        })
+        .collect();
+    let found = out.iter().flatten().count();
+    let kept = found as f64 > MAX_DISCORDANT_SHARE * pairs as f64;
+    (out, kept)
+}
+
+/// Whether row `i` is the first of its pass (its segment or cycle differs
+/// from the previous row's).
+fn first_of_pass(log: &MeasurementLog, i: usize) -> bool {
+    i == 0 || {
+        let (r, q) = (&log.records[i], &log.records[i - 1]);
+        r.segment != q.segment || r.cycle != q.cycle
     }
 }
 
@@ -435,7 +559,16 @@ fn is_outlier(visits: usize, robust: Option<f64>, excess_um: f64) -> bool {
 /// Rows of component `c` that are outliers among the visits of their
 /// target (see [`Data::excluded`]).
 pub(super) fn outlier_rows(log: &MeasurementLog, d: &Data, c: Axis) -> Vec<usize> {
-    outliers_in(&replicates(log, d, c), log, c.index())
+    let rep = replicates(log, d, c);
+    let mut rows = outliers_in(&rep, log, c.index());
+    if !rep.discordant_kept {
+        for ((_, g), z) in rep.reps.iter().zip(&rep.discordant) {
+            if z.is_some() {
+                rows.extend(g);
+            }
+        }
+    }
+    rows
 }
 
 fn component(log: &MeasurementLog, d: &Data, heldout: &[f64], c: Axis) -> ComponentNoise {
@@ -451,7 +584,13 @@ fn component(log: &MeasurementLog, d: &Data, heldout: &[f64], c: Axis) -> Compon
     // the axis (`[1]`) and of those read while it was held (`[0]`).
     let mut visits: [Vec<Visit>; 2] = [Vec::new(), Vec::new()];
     let (mut ss, mut dof) = ([0.0; 2], [0usize; 2]);
-    for (((k, rows), med), &moved) in reps.iter().zip(medians).zip(&rep.positioning) {
+    let mut discordant = Vec::new();
+    for ((((k, rows), med), &moved), z) in reps
+        .iter()
+        .zip(medians)
+        .zip(&rep.positioning)
+        .zip(&rep.discordant)
+    {
         let p = usize::from(moved);
         // The moving axis names the target (x when both or neither move).
         let first = rows[0];
@@ -462,6 +601,20 @@ fn component(log: &MeasurementLog, d: &Data, heldout: &[f64], c: Axis) -> Compon
         };
         let target_um = if along == 0 { k.1 } else { k.2 } as f64 / 1e3;
         let approach = if along == 0 { k.3 } else { k.4 } as f64;
+        if let (Some(z), [i0, i1]) = (*z, rows.as_slice()) {
+            discordant.push(DiscordantPair {
+                target_um,
+                approach,
+                cycles: [log.records[*i0].cycle, log.records[*i1].cycle],
+                difference_um: dev(*i1) - dev(*i0),
+                sigmas: z,
+                first_of_pass: [first_of_pass(log, *i0), first_of_pass(log, *i1)],
+            });
+            if !rep.discordant_kept {
+                outlying.extend([*i0, *i1]);
+                continue;
+            }
+        }
         let mut kept = Vec::with_capacity(rows.len());
         for &i in rows.iter() {
             let excess = dev(i) - med;
@@ -606,6 +759,8 @@ fn component(log: &MeasurementLog, d: &Data, heldout: &[f64], c: Axis) -> Compon
         replicated_targets: targets.len(),
         repeatability_um: repeatability,
         outliers,
+        discordant_pairs: discordant,
+        discordant_pairs_kept: rep.discordant_kept,
         max_s_um: max_s,
         iso230_2: iso_figures(log, d, c, false),
         iso230_2_without_outliers: without_outliers,

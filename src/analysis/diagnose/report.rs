@@ -300,6 +300,9 @@ impl Diagnosis {
                     }
                 );
             }
+            if !c.discordant_pairs.is_empty() {
+                out.push_str(&discordant_text(c));
+            }
             if let Some(iso) = &c.iso230_2 {
                 let fig = |f: &super::noise::IsoFigures| {
                     format!(
@@ -511,4 +514,67 @@ fn abbreviate(names: &[String]) -> String {
         let _ = write!(s, ", … ({} more)", names.len() - SHOWN);
     }
     s
+}
+
+/// Discordant pairs shown in the text report (the rest are in the JSON).
+const DISCORDANT_SHOWN: usize = 6;
+
+/// The text report's line on a component's discordant pairs
+/// ([`super::noise::DiscordantPair`]).
+fn discordant_text(c: &super::noise::ComponentNoise) -> String {
+    let a = c.component;
+    let pairs = &c.discordant_pairs;
+    let list = pairs
+        .iter()
+        .take(DISCORDANT_SHOWN)
+        .map(|p| {
+            format!(
+                "{} at {:.1} µm, cycles {} and {}: {:+.3} µm apart ({:.0} σ)",
+                match p.approach {
+                    v if v > 0.0 => "fwd",
+                    v if v < 0.0 => "bwd",
+                    _ => "?",
+                },
+                p.target_um,
+                p.cycles[0],
+                p.cycles[1],
+                p.difference_um,
+                p.sigmas
+            )
+        })
+        .collect::<Vec<_>>()
+        .join("; ");
+    let more = if pairs.len() > DISCORDANT_SHOWN {
+        format!(
+            " … {} more in the JSON report",
+            pairs.len() - DISCORDANT_SHOWN
+        )
+    } else {
+        String::new()
+    };
+    // A pair with a visit that opens a pass: where an approach move the
+    // log does not hold would put the axis on the other side of its play.
+    let opens = pairs
+        .iter()
+        .filter(|p| p.first_of_pass.iter().any(|&f| f))
+        .count();
+    let cause = if opens == pairs.len() {
+        " — each has a visit that is the first of its pass: an approach move the log does not hold can leave the axis on the other side of its play than the logged path says (a log with an `approach` column is replayed with it)"
+    } else {
+        ""
+    };
+    if c.discordant_pairs_kept {
+        format!(
+            "  {a}: {} target(s) visited twice disagree by > {} robust σ: {list}{more}; too many (> {:.0} % of the two-visit targets) to be wild visits: the scatter is heavy-tailed and they stay in the repeatability{cause}\n",
+            pairs.len(),
+            super::noise::DISCORDANT_SIGMAS,
+            100.0 * super::noise::MAX_DISCORDANT_SHARE
+        )
+    } else {
+        format!(
+            "  {a}: {} discordant pair(s) left out of the repeatability, the per-target means and the fit (targets visited twice whose visits disagree by > {} robust σ; which visit is wild cannot be told from two): {list}{more}{cause}\n",
+            pairs.len(),
+            super::noise::DISCORDANT_SIGMAS
+        )
+    }
 }

@@ -6,6 +6,7 @@
 //! generation of the rig moved), or an error. Its log stays resumable in
 //! every case: each point is appended and flushed before the next move.
 
+pub mod approach;
 pub mod plan;
 pub mod record;
 pub mod sweep;
@@ -16,6 +17,7 @@ pub mod tables;
 pub mod tie;
 pub mod validate;
 
+pub use approach::step_columns;
 /// The record helpers the job files share.
 pub(crate) use record::{append_record, drift_ref_record, lock};
 pub use record::{columns, Progress};
@@ -31,6 +33,7 @@ use crate::analysis::drift::DRIFT_REF_SEGMENT;
 use crate::charact::log::{self, LogWriter, Metadata, Record};
 use crate::comp::VisionFrame;
 use crate::model::XyUm;
+use approach::ApproachTracker;
 use plan::{DriftPlan, ScanPlan};
 use serde_json::{json, Value};
 use std::fs::File;
@@ -249,15 +252,19 @@ impl Jobs {
             ));
         }
         let path = Self::log_path(rig, name);
-        let cols = columns();
         let sync = rig.cfg.log_sync();
-        let (writer, resume) =
-            tokio::task::spawn_blocking(move || log::open_append(&path, &cols, sync))
-                .await
-                .map_err(|e| ProtoError::new(ErrorCode::Internal, e.to_string()))?
-                .map_err(|e| {
-                    ProtoError::new(ErrorCode::LogError, format!("cannot resume {name}: {e}"))
-                })?;
+        // A log begun before the `approach` column existed goes on without.
+        let (writer, resume) = tokio::task::spawn_blocking(move || {
+            match log::open_append(&path, &step_columns(), sync) {
+                Err(e @ log::LogError::ColumnsMismatch { .. }) => {
+                    log::open_append(&path, &columns(), sync).map_err(|_| e)
+                }
+                r => r,
+            }
+        })
+        .await
+        .map_err(|e| ProtoError::new(ErrorCode::Internal, e.to_string()))?
+        .map_err(|e| ProtoError::new(ErrorCode::LogError, format!("cannot resume {name}: {e}")))?;
         if resume.metadata.get("mode") == Some("sweep") {
             return Err(ProtoError::new(
                 ErrorCode::JobState,
@@ -486,15 +493,19 @@ async fn run(
         md.insert("daemon_version", env!("CARGO_PKG_VERSION"));
         let path = rig.cfg.daemon.data_dir.join(name);
         let sync = rig.cfg.log_sync();
-        let w = tokio::task::spawn_blocking(move || log::create_file(&path, &md, columns(), sync))
-            .await
-            .map_err(|e| ProtoError::new(ErrorCode::Internal, e.to_string()))?
-            .map_err(|e| {
-                ProtoError::new(ErrorCode::LogError, format!("cannot create {name}: {e}"))
-            })?;
+        let w =
+            tokio::task::spawn_blocking(move || log::create_file(&path, &md, step_columns(), sync))
+                .await
+                .map_err(|e| ProtoError::new(ErrorCode::Internal, e.to_string()))?
+                .map_err(|e| {
+                    ProtoError::new(ErrorCode::LogError, format!("cannot create {name}: {e}"))
+                })?;
         writer = Arc::new(Mutex::new(w));
         origin = clock.now_s();
     }
+    // How each axis was last reached, for the log's `approach` column.
+    let with_approach = approach::has_approach(lock(&writer).columns());
+    let mut approach = ApproachTracker::default();
     // Park the held axis by a forward approach (what the tables and the
     // model fit assume; measured without it: the X scan's y held after a
     // backward arrival put the Y backlash, 1.7 µm, into every table value).
@@ -503,6 +514,7 @@ async fn run(
         if move_raw(rig, x, y, &mut cancel).await?.is_none() {
             return Ok("cancelled");
         }
+        approach.moved_to(x, y);
     }
     let began = clock.now_s();
     // Rig time of the last reference re-measurement (none yet: one is taken
@@ -525,8 +537,9 @@ async fn run(
                     origin,
                     writer: &writer,
                     name,
+                    with_approach,
                 };
-                if !measure_reference(rig, &ctx, d, p, &mut cancel).await? {
+                if !measure_reference(rig, &ctx, d, p, &mut approach, &mut cancel).await? {
                     return Ok("cancelled");
                 }
                 last_ref_s = Some(clock.now_s());
@@ -552,10 +565,12 @@ async fn run(
             if move_raw(rig, x, y, &mut cancel).await?.is_none() {
                 return Ok("cancelled");
             }
+            approach.moved_to(x, y);
         }
         let Some(moved) = move_raw(rig, p.x_um, p.y_um, &mut cancel).await? else {
             return Ok("cancelled");
         };
+        approach.moved_to(p.x_um, p.y_um);
         clock.sleep(settle).await;
         let (m, quality) = measure_retrying(rig, plan.frames_per_point).await?;
         let meas = frame.to_stage(XyUm {
@@ -563,7 +578,7 @@ async fn run(
             y_um: m.y_um,
         });
         let rep = |axis: &str| moved["reported"][axis].as_f64();
-        let rec = Record {
+        let mut rec = Record {
             t_s: clock.now_s() - origin,
             segment: p.segment.to_owned(),
             cycle: p.cycle,
@@ -580,6 +595,9 @@ async fn run(
                 format!("{quality:.3}"),
             ],
         };
+        if with_approach {
+            rec.extra.push(approach.cell(p.segment));
+        }
         append_record(&writer, rec, name).await?;
         let done = i + 1;
         let per_point = (clock.now_s() - began) / (done - start) as f64;
@@ -606,6 +624,8 @@ struct RefContext<'a> {
     origin: f64,
     writer: &'a Arc<Mutex<LogWriter<File>>>,
     name: &'a str,
+    /// Whether the log has the `approach` column (empty on reference rows).
+    with_approach: bool,
 }
 
 /// Moves to `x`, `y` (µm, raw) and waits; `Ok(None)` if cancelled meanwhile.
@@ -635,6 +655,7 @@ async fn measure_reference(
     ctx: &RefContext<'_>,
     d: &DriftPlan,
     next: &plan::Point,
+    approach: &mut ApproachTracker,
     cancel: &mut watch::Receiver<bool>,
 ) -> Result<bool, ProtoError> {
     let clock = rig.clock.clone();
@@ -643,9 +664,11 @@ async fn measure_reference(
     if move_raw(rig, ax, ay, cancel).await?.is_none() {
         return Ok(false);
     }
+    approach.moved_to(ax, ay);
     let Some(moved) = move_raw(rig, rx, ry, cancel).await? else {
         return Ok(false);
     };
+    approach.moved_to(rx, ry);
     clock
         .sleep(Duration::try_from_secs_f64(ctx.plan.settle_s).unwrap_or_default())
         .await;
@@ -654,7 +677,7 @@ async fn measure_reference(
         x_um: m.x_um,
         y_um: m.y_um,
     });
-    let rec = drift_ref_record(
+    let mut rec = drift_ref_record(
         d.reference_um,
         &moved,
         meas,
@@ -662,9 +685,16 @@ async fn measure_reference(
         next.cycle,
         clock.now_s() - ctx.origin,
     );
+    if ctx.with_approach {
+        rec.extra.push(String::new());
+    }
     append_record(ctx.writer, rec, ctx.name).await?;
     let (x, y) = scan_approach(rig, next);
-    Ok(move_raw(rig, x, y, cancel).await?.is_some())
+    let moved = move_raw(rig, x, y, cancel).await?.is_some();
+    if moved {
+        approach.moved_to(x, y);
+    }
+    Ok(moved)
 }
 
 /// The scan line a segment belongs to (`Some('x')` for `scan_x_fwd` and
