@@ -767,10 +767,15 @@ pub(super) struct Targets {
 
 impl Targets {
     /// Index of the target `x` belongs to (within 1 nm of its bounds).
+    /// The bounds are in increasing order (built from sorted positions), so
+    /// this is a binary search: the readings ask it for every pair of
+    /// groups of a dense log.
     pub fn index_of(&self, x: f64) -> Option<usize> {
-        self.bounds
-            .iter()
-            .position(|&(lo, hi)| x >= lo - 1e-3 && x <= hi + 1e-3)
+        // The first target whose upper bound reaches x, as a linear scan
+        // for the first match would find it.
+        let k = self.bounds.partition_point(|&(_, hi)| hi + 1e-3 < x);
+        let &(lo, hi) = self.bounds.get(k)?;
+        (x >= lo - 1e-3 && x <= hi + 1e-3).then_some(k)
     }
 
     /// Centre of target `k`, µm.
@@ -826,5 +831,38 @@ pub(super) fn targets_of(pos: &[f64]) -> Targets {
         single
     } else {
         Targets { bounds }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::targets_of;
+    use proptest::prelude::*;
+
+    proptest! {
+        /// The binary search finds the target a scan for the first match
+        /// finds, on clustered and plain positions, at and between them.
+        #[test]
+        fn index_of_finds_what_a_linear_scan_finds(
+            steps in proptest::collection::vec(
+                prop_oneof![0.0005f64..0.003, 0.1f64..2.0, 5.0f64..50.0], 1..40),
+            probes in proptest::collection::vec(-10.0f64..500.0, 1..30),
+        ) {
+            let mut pos = vec![0.0];
+            for s in steps {
+                let p = pos[pos.len() - 1] + s;
+                pos.push(p);
+            }
+            pos.dedup_by(|p, q| (*p - *q).abs() < 1e-3);
+            let t = targets_of(&pos);
+            let linear = |x: f64| {
+                t.bounds
+                    .iter()
+                    .position(|&(lo, hi)| x >= lo - 1e-3 && x <= hi + 1e-3)
+            };
+            for x in pos.iter().copied().chain(probes) {
+                prop_assert_eq!(t.index_of(x), linear(x), "x = {}", x);
+            }
+        }
     }
 }

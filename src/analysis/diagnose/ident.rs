@@ -161,10 +161,15 @@ pub(super) fn identifiable_given(
             kept.push(j);
         }
     }
+    // The kept columns and their normal equations, once for every dropped
+    // parameter (each is a least-squares fit on the same columns).
+    let span = (!dropped.is_empty()).then(|| Span::new(kept.iter().map(|&k| rows(&cols[k]))));
     let unident = dropped
         .iter()
         .map(|&j| {
-            let combination = combination_of(&rows(&cols[j]), &kept, |k| rows(&cols[k]), names);
+            let combination = span
+                .as_ref()
+                .map_or_else(Vec::new, |sp| combination_of(&rows(&cols[j]), &kept, sp, names));
             let sentence = if combination.is_empty() {
                 format!(
                     "{} does not change what this log measured (its effect is constant within every block the analysis centres)",
@@ -196,22 +201,39 @@ fn dot(a: &[f64], b: &[f64]) -> f64 {
     a.iter().zip(b).map(|(x, y)| x * y).sum()
 }
 
-/// Least-squares coefficients of `target` on the kept columns, the
-/// non-negligible ones with their names.
+/// The kept columns (rows of the measured components) and the Cholesky
+/// factor of their normal equations (`None` when singular or empty).
+struct Span {
+    cols: Vec<Vec<f64>>,
+    chol: Option<nalgebra::Cholesky<f64, nalgebra::Dyn>>,
+}
+
+impl Span {
+    fn new(cols: impl Iterator<Item = Vec<f64>>) -> Self {
+        let cols: Vec<Vec<f64>> = cols.collect();
+        let p = cols.len();
+        let chol = (p > 0)
+            .then(|| DMatrix::from_fn(p, p, |a, b| dot(&cols[a], &cols[b])).cholesky())
+            .flatten();
+        Self { cols, chol }
+    }
+}
+
+/// Least-squares coefficients of `target` on the kept columns (`span`,
+/// one per index of `kept`), the non-negligible ones with their names.
 fn combination_of(
     target: &[f64],
     kept: &[usize],
-    col: impl Fn(usize) -> Vec<f64>,
+    span: &Span,
     names: &[String],
 ) -> Vec<(String, f64)> {
     if kept.is_empty() || target.iter().all(|v| *v == 0.0) {
         return Vec::new();
     }
-    let cols: Vec<Vec<f64>> = kept.iter().map(|&k| col(k)).collect();
+    let cols = &span.cols;
     let p = cols.len();
-    let g = DMatrix::from_fn(p, p, |a, b| dot(&cols[a], &cols[b]));
     let r = DVector::from_fn(p, |a, _| dot(&cols[a], target));
-    let Some(beta) = g.clone().cholesky().map(|c| c.solve(&r)) else {
+    let Some(beta) = span.chol.as_ref().map(|c| c.solve(&r)) else {
         return Vec::new();
     };
     // Weigh by each column's size so the threshold compares contributions.

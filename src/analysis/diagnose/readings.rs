@@ -282,17 +282,33 @@ pub(super) fn read(
     tpos.sort_by(f64::total_cmp);
     tpos.dedup_by(|p, q| (*p - *q).abs() < 1e-3);
     let targets = super::data::targets_of(&tpos);
-    let same = |a: f64, b: f64| match (targets.index_of(a), targets.index_of(b)) {
-        (Some(i), Some(j)) => i == j,
-        _ => (a - b).abs() < 1e-3,
-    };
+    // Each group's target (every group position is one of `tpos`, so it
+    // has one; a group that had none would stand alone), and the groups of
+    // each target in order of first appearance: one pass, not one search
+    // per pair of groups (a dense log has a thousand groups).
+    let gid: Vec<usize> = gs
+        .iter()
+        .enumerate()
+        .map(|(k, g)| {
+            targets
+                .index_of(g.target_um)
+                .unwrap_or(targets.bounds.len() + k)
+        })
+        .collect();
+    let mut members: Vec<Vec<usize>> = Vec::new();
+    let mut slot: std::collections::HashMap<usize, usize> = std::collections::HashMap::new();
+    for (k, &t) in gid.iter().enumerate() {
+        let j = *slot.entry(t).or_insert_with(|| {
+            members.push(Vec::new());
+            members.len() - 1
+        });
+        members[j].push(k);
+    }
     // Reversal per target: B_i = x̄↑ − x̄↓ (ISO 230-2 sign).
     let mut rev: Vec<(f64, f64, f64, f64)> = Vec::new(); // (target, B, var, B of residual)
-    for g in gs.iter().filter(|g| g.approach > 0.0) {
-        if let Some(h) = gs
-            .iter()
-            .find(|h| h.approach < 0.0 && same(h.target_um, g.target_um))
-        {
+    for (k, g) in gs.iter().enumerate().filter(|(_, g)| g.approach > 0.0) {
+        let here = slot.get(&gid[k]).map_or(&[][..], |&j| &members[j][..]);
+        if let Some(h) = here.iter().map(|&i| &gs[i]).find(|h| h.approach < 0.0) {
             rev.push((
                 g.target_um,
                 g.dev - h.dev,
@@ -378,15 +394,11 @@ pub(super) fn read(
     // Scale and non-linearity of the bidirectional mean deviation per
     // target (ISO 230-2's x̄_i: the mean over the approaches of each
     // approach's mean, so a reversal, constant or varying, cancels).
-    let mut tg: Vec<(f64, f64, f64, f64)> = Vec::new(); // (target, x̄, var, residual x̄)
-    for g in &gs {
-        if tg.iter().any(|t| same(t.0, g.target_um)) {
-            continue;
-        }
-        let here: Vec<&Group> = gs
-            .iter()
-            .filter(|h| same(h.target_um, g.target_um))
-            .collect();
+    // (target, x̄, var, residual x̄) and the approaches it was seen from.
+    let mut tg: Vec<(f64, f64, f64, f64)> = Vec::new();
+    let mut napp: Vec<usize> = Vec::new();
+    for here in members.iter().map(|m| m.iter().map(|&i| &gs[i])) {
+        let here: Vec<&Group> = here.collect();
         let k = here.len() as f64;
         tg.push((
             here.iter().map(|h| h.target_um).sum::<f64>() / k,
@@ -394,15 +406,20 @@ pub(super) fn read(
             s2 * here.iter().map(|h| 1.0 / h.n).sum::<f64>() / (k * k),
             here.iter().map(|h| h.resid).sum::<f64>() / k,
         ));
+        napp.push(here.len());
     }
     // Only targets seen from the same approaches have comparable means:
     // those seen from the most (both ways, when any is). The turning
     // points of a step test (its first and last target, reached one way
     // only) are left out rather than the whole reading.
-    let napp = |t: f64| gs.iter().filter(|h| same(h.target_um, t)).count();
-    let most = tg.iter().map(|t| napp(t.0)).max().unwrap_or(0);
+    let most = napp.iter().copied().max().unwrap_or(0);
     let all = tg.len();
-    tg.retain(|t| napp(t.0) == most);
+    let tg: Vec<(f64, f64, f64, f64)> = tg
+        .into_iter()
+        .zip(&napp)
+        .filter(|(_, &n)| n == most)
+        .map(|(t, _)| t)
+        .collect();
     if tg.len() >= 3 && all - tg.len() <= 2 {
         let x: Vec<f64> = tg.iter().map(|t| t.0).collect();
         let y: Vec<f64> = tg.iter().map(|t| t.1).collect();
