@@ -462,19 +462,24 @@ fn replicates<'a>(log: &'a MeasurementLog, d: &Data, c: Axis) -> Replicates<'a> 
     // The robust σ from the groups that reposition the axis, when there
     // are any (a held axis's reading is not a positioning repeat).
     let any_positioning = positioning.iter().any(|&p| p);
-    let robust = super::data::median(
-        reps.iter()
-            .zip(&positioning)
-            .filter(|(_, &p)| p || !any_positioning)
-            .map(|((_, rows), _)| {
-                let n = rows.len() as f64;
-                let m = rows.iter().map(|&i| dev(i)).sum::<f64>() / n;
-                rows.iter().map(|&i| (dev(i) - m).powi(2)).sum::<f64>() / (n - 1.0)
-            })
-            .collect(),
-    )
-    .map(f64::sqrt);
-    let (discordant, discordant_kept) = discordant_pairs(&reps, &positioning, dev);
+    let in_class: Vec<bool> = positioning.iter().map(|&p| p || !any_positioning).collect();
+    let vars: Vec<f64> = reps
+        .iter()
+        .map(|(_, rows)| {
+            let n = rows.len() as f64;
+            let m = rows.iter().map(|&i| dev(i)).sum::<f64>() / n;
+            rows.iter().map(|&i| (dev(i) - m).powi(2)).sum::<f64>() / (n - 1.0)
+        })
+        .collect();
+    let class_vars = || {
+        vars.iter()
+            .zip(&in_class)
+            .filter(|(_, &c)| c)
+            .map(|(v, _)| *v)
+    };
+    let median_var = super::data::median(class_vars().collect());
+    let robust = median_var.map(f64::sqrt);
+    let (discordant, discordant_kept) = discordant_pairs(&reps, &in_class, &vars, median_var);
     Replicates {
         reps,
         medians,
@@ -487,34 +492,28 @@ fn replicates<'a>(log: &'a MeasurementLog, d: &Data, c: Axis) -> Replicates<'a> 
 
 /// The discordant pairs among `reps` (see [`DiscordantPair`]): per group,
 /// its `s` in robust σ when it has two visits, belongs to the class that
-/// sets the repeatability (visits that reposition the axis when any group
-/// does) and exceeds [`DISCORDANT_SIGMAS`]; and whether they are too many
-/// to leave out. Needs [`MIN_SCATTER_GROUPS`] groups in the class.
+/// sets the repeatability (`in_class`) and exceeds [`DISCORDANT_SIGMAS`];
+/// and whether they are too many to leave out. `vars` are the groups'
+/// `s_i²`, `median_var` their median over the class (χ²-median corrected
+/// here). Needs [`MIN_SCATTER_GROUPS`] groups in the
+/// class.
 fn discordant_pairs(
     reps: &[(Key, Vec<usize>)],
-    positioning: &[bool],
-    dev: impl Fn(usize) -> f64,
+    in_class: &[bool],
+    vars: &[f64],
+    median_var: Option<f64>,
 ) -> (Vec<Option<f64>>, bool) {
     let none = (vec![None; reps.len()], false);
-    let any_positioning = positioning.iter().any(|&p| p);
-    let in_class = |g: usize| positioning[g] || !any_positioning;
-    let var = |rows: &[usize]| {
-        let n = rows.len() as f64;
-        let m = rows.iter().map(|&i| dev(i)).sum::<f64>() / n;
-        rows.iter().map(|&i| (dev(i) - m).powi(2)).sum::<f64>() / (n - 1.0)
-    };
-    let (mut s2, mut dof) = (Vec::new(), Vec::new());
-    for (g, (_, rows)) in reps.iter().enumerate() {
-        if !in_class(g) {
-            continue;
-        }
-        s2.push(var(rows));
-        dof.push((rows.len() - 1) as f64);
-    }
-    if s2.len() < MIN_SCATTER_GROUPS {
+    let dof: Vec<f64> = reps
+        .iter()
+        .zip(in_class)
+        .filter(|(_, &c)| c)
+        .map(|((_, rows), _)| (rows.len() - 1) as f64)
+        .collect();
+    if dof.len() < MIN_SCATTER_GROUPS {
         return none;
     }
-    let (Some(k), Some(med)) = (super::data::median(dof), super::data::median(s2)) else {
+    let (Some(k), Some(med)) = (super::data::median(dof), median_var) else {
         return none;
     };
     let factor = (1.0 - 2.0 / (9.0 * k)).powi(3);
@@ -525,13 +524,13 @@ fn discordant_pairs(
     let mut pairs = 0usize;
     let out: Vec<Option<f64>> = reps
         .iter()
-        .enumerate()
-        .map(|(g, (_, rows))| {
-            if !in_class(g) || rows.len() != 2 {
+        .zip(in_class.iter().zip(vars))
+        .map(|((_, rows), (&c, &v))| {
+            if !c || rows.len() != 2 {
                 return None;
             }
             pairs += 1;
-            let z = var(rows).sqrt() / sigma;
+            let z = v.sqrt() / sigma;
             (z > DISCORDANT_SIGMAS).then_some(z)
         })
         .collect();

@@ -53,12 +53,10 @@ impl ApproachTracker {
     /// scanned axis last moved in (`fwd`, `bwd`), empty for a segment that
     /// scans no axis or before any known move.
     pub(crate) fn cell(&self, segment: &str) -> String {
-        let axis = if segment.starts_with("scan_x") {
-            0
-        } else if segment.starts_with("scan_y") {
-            1
-        } else {
-            return String::new();
+        let axis = match super::scan_line(segment) {
+            Some('x') => 0,
+            Some(_) => 1,
+            None => return String::new(),
         };
         match self.sign(axis) {
             Some(s) if s > 0.0 => "fwd".to_owned(),
