@@ -116,6 +116,7 @@ mod family;
 mod finding;
 mod fit;
 mod ident;
+mod iso_figures;
 mod judge;
 mod noise;
 mod options;
