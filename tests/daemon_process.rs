@@ -89,6 +89,22 @@ fn hil_sim_bin() -> PathBuf {
     bin
 }
 
+/// The test's directory (sockets, logs, the daemon's stderr): removed
+/// afterwards unless `MICROPOS_KEEP_TMP` is set, to read a failure's
+/// daemon log (`microposd-N.log`) afterwards; its path is printed.
+fn test_dir() -> tempfile::TempDir {
+    let keep = std::env::var_os("MICROPOS_KEEP_TMP").is_some();
+    let dir = tempfile::Builder::new()
+        .prefix("daemon_process")
+        .disable_cleanup(keep)
+        .tempdir()
+        .unwrap();
+    if keep {
+        eprintln!("test directory kept: {}", dir.path().display());
+    }
+    dir
+}
+
 /// A child process killed (SIGKILL) and reaped on drop.
 struct Proc(Child);
 
@@ -182,12 +198,14 @@ fn daemon_config(dir: &Path) -> PathBuf {
 struct Daemon {
     p: Proc,
     socket: PathBuf,
+    log: PathBuf,
 }
 
 impl Daemon {
     fn start(dir: &Path, n: u32) -> Daemon {
         let cfg = daemon_config(dir);
-        let err = std::fs::File::create(dir.join(format!("microposd-{n}.log"))).unwrap();
+        let log = dir.join(format!("microposd-{n}.log"));
+        let err = std::fs::File::create(&log).unwrap();
         let child = Command::new(microposd_bin())
             .arg("-c")
             .arg(&cfg)
@@ -198,6 +216,7 @@ impl Daemon {
         let d = Daemon {
             p: Proc(child),
             socket: dir.join("micropos.sock"),
+            log,
         };
         let t = Instant::now();
         let mut c = loop {
@@ -211,8 +230,15 @@ impl Daemon {
         d
     }
 
+    /// What the daemon wrote to stderr so far (its tracing log).
+    fn log_text(&self) -> String {
+        std::fs::read_to_string(&self.log).unwrap_or_default()
+    }
+
     fn client(&self) -> Client {
-        Client::from(UnixStream::connect(&self.socket).unwrap())
+        let mut c = Client::from(UnixStream::connect(&self.socket).unwrap());
+        c.log = Some(self.log.clone());
+        c
     }
 
     fn sigkill(mut self) {
@@ -223,6 +249,8 @@ impl Daemon {
 }
 
 struct Client {
+    /// The daemon's log, shown when an answer does not come.
+    log: Option<PathBuf>,
     r: BufReader<UnixStream>,
     w: UnixStream,
     next: u64,
@@ -234,6 +262,7 @@ impl From<UnixStream> for Client {
     fn from(s: UnixStream) -> Client {
         s.set_read_timeout(Some(DEADLINE)).unwrap();
         Client {
+            log: None,
             w: s.try_clone().unwrap(),
             r: BufReader::new(s),
             next: 0,
@@ -245,10 +274,23 @@ impl From<UnixStream> for Client {
 impl Client {
     fn line(&mut self) -> Value {
         let mut l = String::new();
-        let n = self
-            .r
-            .read_line(&mut l)
-            .expect("no line within the deadline");
+        let n = match self.r.read_line(&mut l) {
+            Ok(n) => n,
+            Err(e) => {
+                let log = self
+                    .log
+                    .as_ref()
+                    .and_then(|p| std::fs::read_to_string(p).ok())
+                    .unwrap_or_default();
+                let tail: Vec<&str> = log.lines().rev().take(40).collect();
+                let tail: Vec<&str> = tail.into_iter().rev().collect();
+                panic!(
+                    "no line within the deadline ({e}); events read but not asked for: {:?}\nthe daemon's log ends:\n{}",
+                    self.events,
+                    tail.join("\n")
+                );
+            }
+        };
         assert!(n > 0, "connection closed");
         serde_json::from_str(&l).unwrap()
     }
@@ -359,7 +401,7 @@ fn wait_done(sub: &mut Client, n: u64) -> Value {
 
 #[test]
 fn sigkill_mid_characterization_resumes_every_point_once() {
-    let dir = tempfile::tempdir().unwrap();
+    let dir = test_dir();
     // Slow enough simulated time that a move lasts a few wall milliseconds
     // (the kill during a move must find one), fast enough to reference.
     let sim = Sim::start(dir.path(), 5.0);
@@ -441,7 +483,7 @@ fn closed_loop(c: &mut Client, x: f64, y: f64) -> Value {
 
 #[test]
 fn camera_faults_fail_clearly_and_never_use_stale_data() {
-    let dir = tempfile::tempdir().unwrap();
+    let dir = test_dir();
     let sim = Sim::start(dir.path(), 20.0);
     let d = Daemon::start(dir.path(), 0);
     let mut c = d.client();
@@ -570,7 +612,7 @@ fn camera_faults_fail_clearly_and_never_use_stale_data() {
 
 #[test]
 fn line_drop_mid_move_halts_the_other_axis_reconnects_and_power_cycle_needs_reference() {
-    let dir = tempfile::tempdir().unwrap();
+    let dir = test_dir();
     // Slow simulated time: the moves last wall seconds.
     let sim = Sim::start(dir.path(), 2.0);
     let d = Daemon::start(dir.path(), 0);
@@ -630,7 +672,7 @@ fn line_drop_mid_move_halts_the_other_axis_reconnects_and_power_cycle_needs_refe
 /// drift plan read back from the log.
 #[test]
 fn drift_references_are_logged_and_resume_keeps_the_plan() {
-    let dir = tempfile::tempdir().unwrap();
+    let dir = test_dir();
     let sim = Sim::start(dir.path(), 20.0);
     let d = Daemon::start(dir.path(), 0);
     let mut c = d.client();
@@ -782,6 +824,10 @@ fn drift_references_are_logged_and_resume_keeps_the_plan() {
     assert_eq!(r["drift"]["failures"], 0, "{r}");
     let r = c.ok(json!({"cmd": "drift", "action": "reset"}));
     assert_eq!(r["drift"]["references"], 0, "{r}");
+    // No line dropped in this test: the lines' first opens at start-up are
+    // not reconnections (each was halted, racing the first `reference`).
+    let log = d.log_text();
+    assert!(!log.contains("reconnected"), "{log}");
 }
 
 /// Truth positions (µm) and whether anything moves.
@@ -878,7 +924,7 @@ const PROCESS_HALT_BOUND_S: f64 = 2.0;
 /// the figures of the fault table (`--nocapture | grep HALT`).
 #[test]
 fn sigterm_halts_before_exit_and_the_stop_hook_halts_after_sigkill() {
-    let dir = tempfile::tempdir().unwrap();
+    let dir = test_dir();
     let sim = Sim::start(dir.path(), 2.0);
     let mut d = Daemon::start(dir.path(), 0);
     let mut c = d.client();
@@ -952,7 +998,7 @@ fn sigterm_halts_before_exit_and_the_stop_hook_halts_after_sigkill() {
 #[test]
 #[ignore = "needs release binaries (see its doc comment)"]
 fn cli_sweep_characterization_follows_to_its_delay_and_anchors() {
-    let dir = tempfile::tempdir().unwrap();
+    let dir = test_dir();
     let _sim = Sim::start(dir.path(), 1.0);
     let d = Daemon::start(dir.path(), 0);
     d.client().ok(json!({"cmd": "reference"}));
@@ -1044,7 +1090,7 @@ fn cli_sweep_characterization_follows_to_its_delay_and_anchors() {
 /// without it: the job goes on in the log's own columns, losing nothing.
 #[test]
 fn a_log_without_the_approach_column_resumes_in_its_own_columns() {
-    let dir = tempfile::tempdir().unwrap();
+    let dir = test_dir();
     let _sim = Sim::start(dir.path(), 20.0);
     let d = Daemon::start(dir.path(), 0);
     let mut c = d.client();

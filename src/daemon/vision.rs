@@ -686,12 +686,39 @@ impl Health {
     }
 }
 
+/// The pipeline's counters [`HealthWatch`] judges (from [`VisionStats`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct HealthCounts {
+    /// Frames that arrived from the camera.
+    pub frames: u64,
+    /// Frames decoded.
+    pub decoded: u64,
+    /// Decodes that ended in an error.
+    pub failed: u64,
+}
+
+impl HealthCounts {
+    /// The counters now.
+    pub fn of(stats: &VisionStats) -> Self {
+        HealthCounts {
+            frames: stats.frames.load(Ordering::Relaxed),
+            decoded: stats.decoded.load(Ordering::Relaxed),
+            failed: stats.failed.load(Ordering::Relaxed),
+        }
+    }
+}
+
 /// Turns the pipeline's counters into [`Health`] transitions. Pure: the
 /// caller passes the counters and the time.
+///
+/// A frame is judged by its decode's outcome, not by its arrival: a frame
+/// that arrived just before a window ends is still being decoded (on a
+/// loaded machine, for a good part of a second), and counting it as
+/// undecodable reported a camera that had just come back from a stall as
+/// `undecodable` before `ok`.
 #[derive(Debug, Clone)]
 pub struct HealthWatch {
-    frames: u64,
-    decoded: u64,
+    at: HealthCounts,
     since: tokio::time::Instant,
     state: Health,
 }
@@ -701,8 +728,7 @@ impl HealthWatch {
     /// until a window passes without a decoded frame).
     pub fn new(v: &Vision, now: tokio::time::Instant) -> Self {
         HealthWatch {
-            frames: v.stats.frames.load(Ordering::Relaxed),
-            decoded: v.stats.decoded.load(Ordering::Relaxed),
+            at: HealthCounts::of(&v.stats),
             since: now,
             state: Health::Ok,
         }
@@ -711,34 +737,37 @@ impl HealthWatch {
     /// Starts a new window at `now` without judging the one that ends: an
     /// on-demand pipeline nobody asked for frames delivers none, which says
     /// nothing about the camera.
-    pub fn rest(&mut self, frames: u64, decoded: u64, now: tokio::time::Instant) {
-        self.frames = frames;
-        self.decoded = decoded;
+    pub fn rest(&mut self, c: HealthCounts, now: tokio::time::Instant) {
+        self.at = c;
         self.since = now;
     }
 
     /// The new state if it changed: `Ok` as soon as a frame decodes;
-    /// `Stalled` / `Undecodable` once `window` passed without one.
+    /// `Stalled` once `window` passed without a frame; `Undecodable` once
+    /// it passed with decodes that all failed, or (a decoder that finishes
+    /// nothing) two windows passed with frames arriving and no decode
+    /// ending either way.
     pub fn update(
         &mut self,
-        frames: u64,
-        decoded: u64,
+        c: HealthCounts,
         window: std::time::Duration,
         now: tokio::time::Instant,
     ) -> Option<Health> {
-        let new = if decoded != self.decoded {
+        let waited = now.duration_since(self.since);
+        let new = if c.decoded != self.at.decoded {
             Health::Ok
-        } else if now.duration_since(self.since) >= window {
-            if frames != self.frames {
-                Health::Undecodable
-            } else {
-                Health::Stalled
-            }
+        } else if waited < window {
+            return None;
+        } else if c.frames == self.at.frames {
+            Health::Stalled
+        } else if c.failed != self.at.failed || waited >= 2 * window {
+            Health::Undecodable
         } else {
+            // Frames arrived, none decoded yet: their decodes are under way.
             return None;
         };
         // Each window is judged on its own counters.
-        self.rest(frames, decoded, now);
+        self.rest(c, now);
         if new == self.state {
             return None;
         }
@@ -763,29 +792,56 @@ mod tests {
     fn health_transitions() {
         let t0 = Instant::now();
         let w = Duration::from_secs(2);
+        let at = |ms: u64| t0 + Duration::from_millis(ms);
+        let c = |frames, decoded, failed| HealthCounts {
+            frames,
+            decoded,
+            failed,
+        };
         let mut h = HealthWatch {
-            frames: 0,
-            decoded: 0,
+            at: c(0, 0, 0),
             since: t0,
             state: Health::Ok,
         };
-        assert_eq!(h.update(3, 3, w, t0 + Duration::from_secs(1)), None);
+        assert_eq!(h.update(c(3, 3, 0), w, at(1000)), None);
         // Frames keep coming, none decode: undecodable after the window.
-        assert_eq!(h.update(6, 3, w, t0 + Duration::from_secs(2)), None);
-        assert_eq!(
-            h.update(9, 3, w, t0 + Duration::from_secs(4)),
-            Some(Health::Undecodable)
-        );
+        assert_eq!(h.update(c(6, 3, 3), w, at(2000)), None);
+        assert_eq!(h.update(c(9, 3, 6), w, at(4000)), Some(Health::Undecodable));
         // Then nothing arrives at all: stalled.
-        assert_eq!(
-            h.update(9, 3, w, t0 + Duration::from_secs(6)),
-            Some(Health::Stalled)
-        );
-        assert_eq!(h.update(9, 3, w, t0 + Duration::from_secs(9)), None);
+        assert_eq!(h.update(c(9, 3, 6), w, at(6000)), Some(Health::Stalled));
+        assert_eq!(h.update(c(9, 3, 6), w, at(9000)), None);
         // One decoded frame: ok at once.
+        assert_eq!(h.update(c(10, 4, 6), w, at(9100)), Some(Health::Ok));
+    }
+
+    /// A camera back from a stall whose first frame is still being decoded
+    /// when the window ends is not undecodable: it is ok once the decode
+    /// ends. A decoder that never finishes is undecodable after two windows.
+    #[test]
+    fn a_frame_still_being_decoded_is_not_undecodable() {
+        let t0 = Instant::now();
+        let w = Duration::from_secs(2);
+        let at = |ms: u64| t0 + Duration::from_millis(ms);
+        let c = |frames, decoded, failed| HealthCounts {
+            frames,
+            decoded,
+            failed,
+        };
+        let mut h = HealthWatch {
+            at: c(5, 5, 0),
+            since: t0,
+            state: Health::Ok,
+        };
+        assert_eq!(h.update(c(5, 5, 0), w, at(2000)), Some(Health::Stalled));
+        // Back: a frame arrived just before the window's end, in decode.
+        assert_eq!(h.update(c(6, 5, 0), w, at(4000)), None);
+        assert_eq!(h.update(c(7, 6, 0), w, at(4300)), Some(Health::Ok));
+        // Frames arrive, no decode ever ends (a stuck decoder).
+        assert_eq!(h.update(c(9, 6, 0), w, at(6300)), None);
+        assert_eq!(h.update(c(20, 6, 0), w, at(8299)), None);
         assert_eq!(
-            h.update(10, 4, w, t0 + Duration::from_millis(9100)),
-            Some(Health::Ok)
+            h.update(c(21, 6, 0), w, at(8300)),
+            Some(Health::Undecodable)
         );
     }
 

@@ -642,6 +642,16 @@ impl Axis {
             }
         }
         if !self.is_referenced().await? {
+            // A halt ends the reference move "ready" and unreferenced, and
+            // consumes its error 10: say it was halted, not that the controller
+            // gave up.
+            if self.inner.halts.load(Ordering::SeqCst)
+                != self.inner.halts_at_move.load(Ordering::SeqCst)
+            {
+                return Err(DriverError::Halted {
+                    axis: self.name().to_owned(),
+                });
+            }
             // Ready but not referenced: the controller gave up; ERR? says why.
             let code = self.on_error(self.ctl().error().await)?;
             if !code.is_ok() {

@@ -237,6 +237,28 @@ async fn halt_stops_the_move_and_the_waiter() {
     ));
 }
 
+/// A halt during the reference move leaves the controller ready and
+/// unreferenced with its error 10 consumed by the halt: the reference
+/// says it was halted, not that the controller gave up.
+#[tokio::test(start_paused = true)]
+async fn a_halt_during_referencing_reads_as_halted() {
+    let rig = Rig::new(&[1]).await;
+    let ax = rig.axis("x", None).await.unwrap();
+    let referencing = {
+        let ax = ax.clone();
+        tokio::spawn(async move { ax.reference().await })
+    };
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    ax.halt().await.unwrap();
+    match referencing.await.unwrap() {
+        Err(DriverError::Halted { axis }) => assert_eq!(axis, "x"),
+        other => panic!("{other:?}"),
+    }
+    assert!(!ax.is_referenced().await.unwrap());
+    // A reference after it is not disturbed by the old halt.
+    assert_eq!(ax.reference().await.unwrap(), 7500.0);
+}
+
 #[tokio::test(start_paused = true)]
 async fn pulled_cable_gives_clear_errors_then_recovers() {
     let mut rig = Rig::new(&[1]).await;

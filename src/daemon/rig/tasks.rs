@@ -48,11 +48,24 @@ impl Rig {
             stage.x.travel_um(),
             stage.y.travel_um()
         );
-        *lock(&self.stage) = Some(stage);
-        lock(&self.deviation).retie();
+        // The events of the connect itself (each line's first open is a
+        // `Connected`) are no reconnection: nothing was commanded yet, so
+        // there is nothing to halt. Handled as one, they spawned a halt
+        // that raced the first client command: a `reference` sent at once
+        // was aborted by it (FRF stopped: "not referenced"), seen on a
+        // loaded machine.
+        let mut during_connect = Vec::new();
+        while let Ok(ev) = rx.try_recv() {
+            during_connect.push(ev);
+        }
         self.apply(Input::StageUp {
             referenced: [rx_x, rx_y],
         });
+        for ev in during_connect {
+            self.on_driver_event(ev, false);
+        }
+        *lock(&self.stage) = Some(stage);
+        lock(&self.deviation).retie();
         self.push(
             Topic::Fault,
             "state",
@@ -71,7 +84,7 @@ impl Rig {
                 }
                 Err(broadcast::error::RecvError::Closed) => return,
             };
-            self.on_driver_event(ev);
+            self.on_driver_event(ev, true);
         }
     }
 
@@ -86,13 +99,16 @@ impl Rig {
         v
     }
 
-    pub(super) fn on_driver_event(self: &Arc<Self>, ev: AxisEvent) {
+    /// Applies a driver event to the fault state. `recover`: a line that
+    /// comes back is halted and read back (false for the connect's own
+    /// first opens).
+    pub(super) fn on_driver_event(self: &Arc<Self>, ev: AxisEvent, recover: bool) {
         tracing::debug!("driver event {ev:?}");
         match ev {
             AxisEvent::Connected { line } => {
                 for a in self.axis_of_line(&line) {
                     self.apply(Input::LinkUp(a));
-                    if lock(&self.stage).is_some() {
+                    if recover && lock(&self.stage).is_some() {
                         tokio::spawn(self.clone().recover_axis(a));
                     }
                 }
@@ -185,15 +201,11 @@ impl Rig {
             }
             let t = self.clock.now_s();
             if let (Some(v), Some(h)) = (&self.vision, health.as_mut()) {
-                let s = &v.stats;
-                let (frames, decoded) = (
-                    s.frames.load(Ordering::Relaxed),
-                    s.decoded.load(Ordering::Relaxed),
-                );
+                let counts = crate::daemon::vision::HealthCounts::of(&v.stats);
                 let now = tokio::time::Instant::now();
                 if v.is_idle() {
-                    h.rest(frames, decoded, now);
-                } else if let Some(state) = h.update(frames, decoded, window, now) {
+                    h.rest(counts, now);
+                } else if let Some(state) = h.update(counts, window, now) {
                     let reason = match state {
                         crate::daemon::vision::Health::Ok => "frames decode again".to_owned(),
                         _ => lock(&v.last_error)
