@@ -24,3 +24,57 @@ pub mod metrology;
 pub mod model;
 pub mod pattern;
 pub mod plot;
+
+/// An error and its causes on one line, each cause's text once.
+///
+/// Why not `anyhow`'s `{:#}`: many of the library's errors already put
+/// their cause's text in their own message (so that a plain `{e}`, as the
+/// daemon's replies use, says everything) and still name it as `source()`;
+/// walking the chain then printed it twice ("I/O error: No such file or
+/// directory (os error 2): No such file or directory (os error 2)"). A
+/// cause whose text the line already holds is skipped.
+pub fn error_text(e: &(dyn std::error::Error + 'static)) -> String {
+    let mut out = e.to_string();
+    let mut cause = e.source();
+    while let Some(c) = cause {
+        let text = c.to_string();
+        if !out.contains(&text) {
+            out.push_str(": ");
+            out.push_str(&text);
+        }
+        cause = c.source();
+    }
+    out
+}
+
+#[cfg(test)]
+mod error_text_tests {
+    use super::error_text;
+
+    #[derive(Debug, thiserror::Error)]
+    enum Inner {
+        #[error("I/O error: {0}")]
+        Io(#[from] std::io::Error),
+    }
+
+    #[derive(Debug, thiserror::Error)]
+    #[error("log {path}")]
+    struct Outer {
+        path: String,
+        #[source]
+        source: Inner,
+    }
+
+    #[test]
+    fn each_cause_is_said_once() {
+        let io = std::io::Error::new(std::io::ErrorKind::NotFound, "no such file");
+        let e = Outer {
+            path: "/x.csv".into(),
+            source: Inner::from(io),
+        };
+        assert_eq!(error_text(&e), "log /x.csv: I/O error: no such file");
+        // A cause the message does not hold is added.
+        let io = std::io::Error::new(std::io::ErrorKind::NotFound, "gone");
+        assert_eq!(error_text(&Inner::from(io)), "I/O error: gone");
+    }
+}

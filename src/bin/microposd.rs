@@ -326,8 +326,9 @@ fn main() -> ExitCode {
     match rt.block_on(run(cfg, source)) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
-            tracing::error!("{e:#}");
-            eprintln!("microposd: {e:#}");
+            let text = micropos::error_text(e.as_ref());
+            tracing::error!("{text}");
+            eprintln!("microposd: {text}");
             ExitCode::from(1)
         }
     }

@@ -396,7 +396,7 @@ pub async fn run(opts: GlobalOpts, cmd: ClientCommand) -> anyhow::Result<ExitCod
     match run_inner(&opts, &cmd).await {
         Ok(code) => Ok(code),
         Err(Unreachable(e)) => {
-            eprintln!("error: {e:#}");
+            eprintln!("error: {}", micropos::error_text(e.as_ref()));
             Ok(ExitCode::from(3))
         }
     }

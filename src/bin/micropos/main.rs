@@ -130,7 +130,7 @@ fn main() -> ExitCode {
     match result {
         Ok(code) => code,
         Err(e) => {
-            eprintln!("error: {e:#}");
+            eprintln!("error: {}", micropos::error_text(e.as_ref()));
             ExitCode::from(failure)
         }
     }
