@@ -788,21 +788,31 @@ mod tests {
     use std::time::Duration;
     use tokio::time::Instant;
 
-    #[test]
-    fn health_transitions() {
-        let t0 = Instant::now();
-        let w = Duration::from_secs(2);
-        let at = |ms: u64| t0 + Duration::from_millis(ms);
-        let c = |frames, decoded, failed| HealthCounts {
+    fn c(frames: u64, decoded: u64, failed: u64) -> HealthCounts {
+        HealthCounts {
             frames,
             decoded,
             failed,
-        };
-        let mut h = HealthWatch {
-            at: c(0, 0, 0),
+        }
+    }
+
+    /// A watch healthy at `t0` with counters `start`, a 2 s window, and
+    /// the time `ms` milliseconds after `t0`.
+    fn watch(start: HealthCounts) -> (HealthWatch, Duration, impl Fn(u64) -> Instant) {
+        let t0 = Instant::now();
+        let h = HealthWatch {
+            at: start,
             since: t0,
             state: Health::Ok,
         };
+        (h, Duration::from_secs(2), move |ms| {
+            t0 + Duration::from_millis(ms)
+        })
+    }
+
+    #[test]
+    fn health_transitions() {
+        let (mut h, w, at) = watch(c(0, 0, 0));
         assert_eq!(h.update(c(3, 3, 0), w, at(1000)), None);
         // Frames keep coming, none decode: undecodable after the window.
         assert_eq!(h.update(c(6, 3, 3), w, at(2000)), None);
@@ -819,19 +829,7 @@ mod tests {
     /// ends. A decoder that never finishes is undecodable after two windows.
     #[test]
     fn a_frame_still_being_decoded_is_not_undecodable() {
-        let t0 = Instant::now();
-        let w = Duration::from_secs(2);
-        let at = |ms: u64| t0 + Duration::from_millis(ms);
-        let c = |frames, decoded, failed| HealthCounts {
-            frames,
-            decoded,
-            failed,
-        };
-        let mut h = HealthWatch {
-            at: c(5, 5, 0),
-            since: t0,
-            state: Health::Ok,
-        };
+        let (mut h, w, at) = watch(c(5, 5, 0));
         assert_eq!(h.update(c(5, 5, 0), w, at(2000)), Some(Health::Stalled));
         // Back: a frame arrived just before the window's end, in decode.
         assert_eq!(h.update(c(6, 5, 0), w, at(4000)), None);
