@@ -1,5 +1,10 @@
 //! A warm decoder allocates nothing per frame: a counting global allocator
 //! watches `decode` and `track` on frames of a size the decoder has seen.
+//!
+//! A test binary of its own, not a module of `tests/it/` (the other
+//! integration tests' one binary): a `#[global_allocator]` is the whole
+//! process's, and its counter must see this file's decoding only, not the
+//! allocations of other tests running in parallel threads.
 
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::sync::atomic::{AtomicUsize, Ordering};

@@ -3,7 +3,7 @@
 //! rate against the camera frame rate, CPU use of the idle daemon.
 //!
 //! The daemon runs in process against the in-process simulated rig (as
-//! `tests/daemon_sim.rs`), on its own tokio runtime whose threads are named
+//! `tests/it/daemon_sim.rs`), on its own tokio runtime whose threads are named
 //! `microposd-*` so its CPU time can be told apart from the simulator's and
 //! the bench's (per-thread `/proc/self/task/*/stat`). Every figure is given
 //! with a baseline measured in the same run, so the ratio says what the
@@ -121,7 +121,7 @@ fn runtime(name: &'static str) -> tokio::runtime::Runtime {
 /// parked at (5000, 5000) µm, on the pattern. With the camera the clock
 /// runs at real time (so its 30 frames per simulated second are 30 per wall
 /// second) and referencing is fast-forwarded with `SimHandle::advance`;
-/// without, the clock runs 20× (as `tests/daemon_sim.rs`).
+/// without, the clock runs 20× (as `tests/it/daemon_sim.rs`).
 fn start_rig(rt: &tokio::runtime::Runtime, camera: bool) -> Rig {
     let dir = tempfile::tempdir().unwrap();
     let cfg = ServeConfig {

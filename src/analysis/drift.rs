@@ -170,7 +170,7 @@ pub const DRIFT_REF_SEGMENT: &str = "drift_ref";
 
 /// The method `tables build` uses on logs with reference re-measurements:
 /// adaptive, τ = 20 min (the best of the static/adaptive comparison in
-/// `tests/diagnose_drift.rs` on the default thermal drift).
+/// `tests/it/diagnose_drift.rs` on the default thermal drift).
 pub const LOG_DRIFT_METHOD: DriftMethod = DriftMethod::Adaptive {
     time_constant_s: 1200.0,
 };

@@ -2,7 +2,7 @@
 //! helpers of the serving code.
 
 use crate::fault::SimError;
-use nix::fcntl::{fcntl, FcntlArg, OFlag};
+use nix::fcntl::{fcntl, FcntlArg, FdFlag, OFlag};
 use nix::poll::{poll, PollFd, PollFlags, PollTimeout};
 use nix::sys::termios::{cfmakeraw, tcflush, tcgetattr, tcsetattr, FlushArg, SetArg};
 use std::fs::File;
@@ -36,8 +36,18 @@ pub(super) struct Pty {
 impl Pty {
     /// Opens a raw, non-blocking pty and points `link` at its slave. The
     /// slave is configured and closed again: the settings stay with the pty.
+    ///
+    /// Both ends are close-on-exec (`openpty` does not set it): a process
+    /// spawned by the program that serves in process (another test of the
+    /// same test binary, say) must not inherit the master, or dropping the
+    /// line would no longer hang up its client, nor the slave, which would
+    /// keep the line looking connected.
     pub(super) fn open(link: &Path) -> Result<Pty, SimError> {
         let pair = nix::pty::openpty(None, None).map_err(nix_err("openpty"))?;
+        for fd in [pair.master.as_raw_fd(), pair.slave.as_raw_fd()] {
+            fcntl(fd, FcntlArg::F_SETFD(FdFlag::FD_CLOEXEC))
+                .map_err(nix_err("set pty close-on-exec"))?;
+        }
         let mut t = tcgetattr(pair.slave.as_fd()).map_err(nix_err("tcgetattr on pty slave"))?;
         cfmakeraw(&mut t);
         tcsetattr(pair.slave.as_fd(), SetArg::TCSANOW, &t)

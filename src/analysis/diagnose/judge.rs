@@ -130,7 +130,7 @@ pub(super) fn judge(
 /// it. A later finding can carry the same error: a y time-periodic term
 /// of 31.6 min (0.58 of the log's span, a smooth curve over it) accepted
 /// first, then a quadratic y drift, and in the joint fit the periodic
-/// term's amplitude is 0.0017 ± 0.0038 µm (`tests/diagnose_random.rs`,
+/// term's amplitude is 0.0017 ± 0.0038 µm (`tests/it/diagnose_random.rs`,
 /// model drift seed 8391). Held out it still "predicts better" (z 17.7),
 /// because per fold it offsets the quadratic's extrapolation into the
 /// held-out cycle, not because the log holds a periodic error. A finding

@@ -763,7 +763,7 @@ fn component(log: &MeasurementLog, d: &Data, heldout: &[f64], c: Axis) -> Compon
 /// neighbour noise is an upper bound (smooth structure left in the
 /// residual adds to it), so a ratio of 3 is conservative: a 0.93 µm
 /// oscillation of 301 s in the rig's 1212 s log makes it 19.8× (held y;
-/// `tests/diagnose_rig_logs.rs`), while the plain rig's held readings
+/// `tests/it/diagnose_rig_logs.rs`), while the plain rig's held readings
 /// reach 3.0× only at the nanometre scale the size condition rules out.
 pub const CHANGES_BETWEEN_VISITS: f64 = 3.0;
 

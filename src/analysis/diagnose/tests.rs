@@ -1,5 +1,5 @@
 //! Tests of the log handling and the search's preconditions on simulated
-//! logs (the whole analysis is exercised by `tests/diagnose_*`).
+//! logs (the whole analysis is exercised by `tests/it/diagnose_*`).
 
 use super::search::step_length_range;
 use super::*;
@@ -648,7 +648,7 @@ fn sweep_anchor_rows_are_left_out() {
 }
 
 /// A time-periodic error in a two-cycle log over the rig's ranges
-/// (`hil-sim/tests/hidden_rig.rs`: 2400 × 2000 µm; here the generator's
+/// (`hil-sim/tests/it/hidden_rig.rs`: 2400 × 2000 µm; here the generator's
 /// 20 µm steps and 40 random points per cycle), with a period of a fifth to
 /// a third of the log. Whole-cycle folds name
 /// it here or, when they do not, the replicates' scatter (visits a cycle
@@ -656,7 +656,7 @@ fn sweep_anchor_rows_are_left_out() {
 /// interleaved in time name it with its parameters in every case. The
 /// same plan without the effect keeps whole-cycle folds and finds nothing.
 /// (The rig's own case, which whole-cycle folds miss, is
-/// `tests/diagnose_rig_logs.rs`.)
+/// `tests/it/diagnose_rig_logs.rs`.)
 #[test]
 fn an_error_that_changes_between_visits_is_judged_on_interleaved_folds() {
     use crate::analysis::generate::draw_effect_sized;

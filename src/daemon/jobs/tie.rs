@@ -31,7 +31,7 @@
 //! proportional to x, and a plain fit takes it for a camera rotation that
 //! then tilts the whole log: on the simulated rig a 0.93 µm, 419 s periodic
 //! y disturbance gives a 300 µrad spurious y-vs-x slope that the analysis
-//! names `cross_axis` instead of the time effect (`hil-sim/tests/hidden_rig.rs`,
+//! names `cross_axis` instead of the time effect (`hil-sim/tests/it/hidden_rig.rs`,
 //! `MICROPOS_RIG_KIND=time_periodic`, prints the uncorrected rotation).
 //!
 //! The tie therefore measures a fixed *anchor* (the X line's first point,

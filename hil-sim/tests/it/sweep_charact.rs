@@ -8,11 +8,10 @@
 //! rig's timing (camera delay of both signs, jitter, exposure, the servo's
 //! following lag).
 //!
-//! `cargo test -p hil-sim --test sweep_charact -- --nocapture` prints the
+//! `cargo test -p hil-sim --test it sweep_charact:: -- --nocapture` prints the
 //! figures.
 
-mod common;
-use common::Client;
+use crate::common::{self, Client};
 use hil_sim::camera::CameraConfig;
 use hil_sim::rig::{RigConfig, ServoConfig};
 use hil_sim::run::{daemon_config, RunPlan};
@@ -333,7 +332,7 @@ async fn the_delay_goal_holds_on_random_rigs() {
 /// same rig and seed, live drift off (goal: within 10 %, plus
 /// [`STEP_AP_SPREAD_UM`], the validation's own spread at these figures),
 /// and the AP with the delay ignored. Slow (the whole main job, 20 000+
-/// frames): `cargo test -p hil-sim --test sweep_charact -- --ignored
+/// frames): `cargo test -p hil-sim --test it sweep_charact:: -- --ignored
 /// --nocapture`.
 #[test]
 #[ignore = "the whole main job on the paper's ranges: minutes of wall time"]

@@ -2,8 +2,7 @@
 //! ptys, daemon in-process on a Unix socket): commands, safe states, faults,
 //! malformed input floods and many concurrent clients.
 
-mod common;
-use common::Client;
+use crate::common::Client;
 use hil_sim::{AxisName, Fault, ServeConfig, SimHandle};
 use micropos::clock::WallClock;
 use micropos::daemon::config::DaemonConfig;

@@ -14,12 +14,11 @@
 //! (`microposd --halt`'s `driver::halt::halt_all`).
 //!
 //! Each test prints one `HALT` line (time to rest after the fault, distance
-//! travelled after it, per axis): `cargo test -p hil-sim --test
-//! motion_safety -- --nocapture | grep HALT` gives the table of
+//! travelled after it, per axis): `cargo test -p hil-sim --test it
+//! motion_safety:: -- --nocapture | grep HALT` gives the table of
 //! `docs/design/daemon.md`.
 
-mod common;
-use common::Client;
+use crate::common::{self, Client};
 use hil_sim::run::{daemon_config, RunPlan};
 use hil_sim::{AxisName, Corruption, Fault, SimHandle};
 use micropos::daemon::config::{DaemonConfig, DeviationFrame};

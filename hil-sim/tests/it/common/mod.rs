@@ -1,7 +1,5 @@
-//! Helpers shared by the hil-sim integration tests that talk to a daemon
-//! over its Unix socket. Each test file is its own crate and uses a part of
-//! this, hence `dead_code` is allowed.
-#![allow(dead_code)]
+//! Helpers shared by the hil-sim integration tests (the modules of
+//! `main.rs`) that talk to a daemon over its Unix socket.
 
 use hil_sim::{ServeConfig, SimHandle};
 use micropos::camera::{open_source, OpenOptions};

@@ -4,7 +4,7 @@
 //! model-compensated (from a 10× shorter characterization) and closed-loop,
 //! and compute ISO 9283 AP (max over poses) and RP.
 //!
-//! `cargo test --test comp_paper -- --nocapture` prints the table.
+//! `cargo test --test it comp_paper:: -- --nocapture` prints the table.
 
 use micropos::charact::log::Record;
 use micropos::charact::scan::{random_targets, square_poses, CharacterizationPlan};

@@ -14,7 +14,7 @@
 
 use micropos::metrology::iso230_2::{evaluate, Approach, Observation};
 
-const CSV: &str = include_str!("data/iso230-2/encoder-vs-setpoint.csv");
+const CSV: &str = include_str!("../data/iso230-2/encoder-vs-setpoint.csv");
 
 fn observations() -> Vec<Observation> {
     CSV.lines()

@@ -17,8 +17,7 @@
 //! ≈ 1.2 s of wall time alone (one tie of 14 measurements), longer on a
 //! loaded machine.
 
-mod common;
-use common::Client;
+use crate::common::{self, Client};
 use hil_sim::rig::RigConfig;
 use hil_sim::run::{daemon_config, RunPlan};
 use hil_sim::ServeConfig;

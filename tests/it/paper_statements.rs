@@ -16,7 +16,7 @@ use micropos::analysis::{diagnose, DiagnoseOptions, FindingKind};
 use micropos::charact::log::parse_bytes;
 use micropos::model::{Axis, StageModel, PAPER_DEFAULT_TOML as PAPER_DEFAULT};
 
-const FAITHFUL: &str = include_str!("../config/stage-model-paper.toml");
+const FAITHFUL: &str = include_str!("../../config/stage-model-paper.toml");
 
 fn runs(model: &StageModel, seeds: u64) -> Vec<PaperFigures> {
     let opts = PaperOptions::default();

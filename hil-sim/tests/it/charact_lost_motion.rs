@@ -14,8 +14,7 @@
 //! the anchor of a tie at the travel's corner sees no drift on a stage that
 //! has none.
 
-mod common;
-use common::Client;
+use crate::common::{self, Client};
 use hil_sim::rig::RigConfig;
 use hil_sim::run::{daemon_config, RunPlan};
 use hil_sim::ServeConfig;

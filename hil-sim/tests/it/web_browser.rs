@@ -14,8 +14,7 @@
 //! Without Chromium the test is skipped with a printed reason, except
 //! under `CI=true`, where it fails (`.ci/run` installs it).
 
-mod common;
-use common::Client;
+use crate::common::{self, Client};
 use hil_sim::run::{daemon_config, RunPlan};
 use micropos::daemon::config::WebSection;
 use serde_json::{json, Value};

@@ -1,7 +1,7 @@
 //! `diagnose` on logs the simulated rig wrote (`tests/data/rig/`): microposd
 //! characterizing the in-process hil-sim rig (servo dynamics, rendered and
 //! decoded frames, the daemon's tie), kept with
-//! `MICROPOS_RIG_KEEP=DIR cargo test -p hil-sim --test hidden_rig` so the
+//! `MICROPOS_RIG_KEEP=DIR cargo test -p hil-sim --test it hidden_rig::` so the
 //! cases the rig showed run in CI without the rig (2 × 15 s there).
 //!
 //! - `time-periodic-y-seed2004.csv`: the rig's nominal model

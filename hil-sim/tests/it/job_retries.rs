@@ -9,8 +9,7 @@
 //! its retry of the measurement. Permanent: a controller power cycle in the
 //! middle of the job (reference lost, servo off).
 
-mod common;
-use common::Client;
+use crate::common::{self, Client};
 use hil_sim::camera::CameraMode;
 use hil_sim::run::{daemon_config, RunPlan};
 use hil_sim::{AxisName, Corruption, Fault, SimHandle};
@@ -57,7 +56,7 @@ async fn rig() -> Rig {
     // No controller poll during the test: every value answer the rig sends
     // belongs to the job, so a corrupted one lands on the job.
     c.daemon.poll_interval_ms = 60_000;
-    // Nor a motion supervisor's sample (`tests/motion_safety.rs` covers it).
+    // Nor a motion supervisor's sample (`tests/it/motion_safety.rs` covers it).
     c.safety.supervise_interval_ms = 60_000;
     for a in [&mut c.driver.x, &mut c.driver.y] {
         // A lost answer costs this much (rig) time.

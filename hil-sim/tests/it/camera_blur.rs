@@ -4,7 +4,7 @@
 //!
 //! The figures printed by `decoder_on_blurred_frames` are the ones in
 //! `docs/design/vision.md` ("Motion blur"):
-//! `cargo test -p hil-sim --test camera_blur -- --nocapture`.
+//! `cargo test -p hil-sim --test it camera_blur:: -- --nocapture`.
 
 use hil_sim::camera::fast::FastRenderer;
 use hil_sim::camera::{CameraConfig, SimCamera};

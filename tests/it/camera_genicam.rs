@@ -2,9 +2,10 @@
 //! opens the in-process "Fake" device (`genicam:Fake_1`), streams frames
 //! through its stream thread and buffer pool, and the source converts them.
 //! No process or network is needed. Everything runs in one test function
-//! because aravis keeps global interface state.
-
-#![cfg(feature = "genicam")]
+//! because aravis keeps global interface state, and that function holds
+//! [`crate::ARAVIS`] against the other test of this binary that reaches
+//! aravis (`camera_v4l2`'s listing of every backend's cameras). Feature
+//! `genicam` (on this module's line in `main.rs`).
 
 use std::time::Duration;
 
@@ -13,6 +14,7 @@ use micropos::frame::Pixels;
 
 #[test]
 fn fake_camera_streams_and_takes_settings() {
+    let _aravis = crate::ARAVIS.lock().unwrap_or_else(|e| e.into_inner());
     let spec: SourceSpec = "genicam:Fake_1".parse().unwrap();
     let options = OpenOptions {
         timeout: Duration::from_secs(5),

@@ -9,8 +9,7 @@
 //! `micropos_vision_residual_um`, and the listener's connection cap and
 //! idle timeout.
 
-mod common;
-use common::{http, Client};
+use crate::common::{self, http, Client};
 use hil_sim::run::{daemon_config, RunPlan};
 use hil_sim::{AxisName, Fault};
 use micropos::daemon::config::WebSection;

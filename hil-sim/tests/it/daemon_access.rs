@@ -11,8 +11,7 @@
 //!   `move`; after the roles change (what SIGHUP does) it moves, and the
 //!   audit file names its uid and pid.
 
-mod common;
-use common::Client;
+use crate::common::{self, Client};
 use hil_sim::{AxisName, ServeConfig, SimHandle};
 use micropos::clock::WallClock;
 use micropos::daemon::config::{AccessSection, DaemonConfig};

@@ -16,7 +16,7 @@
 //! `systemd` package, see `.ci/run`). The binaries: `microposd` from cargo
 //! (`CARGO_BIN_EXE_microposd`), `hil-sim` from the same target directory
 //! (`cargo test --workspace` builds it; `HIL_SIM_BIN` overrides), as in
-//! `tests/daemon_process.rs`.
+//! `tests/it/daemon_process.rs`.
 
 use serde_json::{json, Value};
 use std::io::{BufRead, BufReader, Write};

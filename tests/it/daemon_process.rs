@@ -19,7 +19,7 @@
 //! target directory as `microposd` — `cargo test --workspace` (the project's
 //! test command, `scripts/test.sh`) builds every package's binaries before
 //! running any test. Running this file alone (`cargo test -p micropos
-//! --test daemon_process`) needs `cargo build -p hil-sim` first; the test
+//! --test it daemon_process::`) needs `cargo build -p hil-sim` first; the test
 //! refuses a missing or older-than-its-sources hil-sim binary with that
 //! advice rather than testing a stale simulator. `HIL_SIM_BIN` and
 //! `MICROPOSD_BIN` override the paths.
@@ -994,7 +994,7 @@ fn sigterm_halts_before_exit_and_the_stop_hook_halts_after_sigkill() {
 /// `low_quality`, as it should). Run it on release binaries:
 /// `cargo build --release --bins -p micropos -p hil-sim && MICROPOS_BIN=target/release/micropos
 /// MICROPOSD_BIN=target/release/microposd HIL_SIM_BIN=target/release/hil-sim
-/// cargo test --test daemon_process cli_sweep -- --ignored`.
+/// cargo test --test it daemon_process::cli_sweep -- --ignored`.
 #[test]
 #[ignore = "needs release binaries (see its doc comment)"]
 fn cli_sweep_characterization_follows_to_its_delay_and_anchors() {

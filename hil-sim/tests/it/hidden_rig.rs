@@ -45,8 +45,7 @@
 //! same log byte for byte (`the_same_seed_writes_the_same_log`) and the
 //! time kinds are sampled the same way on any machine.
 
-mod common;
-use common::Client;
+use crate::common::{self, Client};
 use hil_sim::rig::RigConfig;
 use hil_sim::run::{daemon_config, RunPlan};
 use hil_sim::ServeConfig;
@@ -263,7 +262,7 @@ fn observable(e: &InjectedEffect) -> (FindingKind, Axis, Axis, BTreeMap<String, 
 }
 
 /// Tolerances (relative, absolute in the parameter's unit), about twice the
-/// model-only test's (`tests/diagnose_hidden.rs`): the run has a quarter of
+/// model-only test's (`tests/it/diagnose_hidden.rs`): the run has a quarter of
 /// its points (360), and the rig adds what the generator lacks: the tie
 /// pre-scan absorbs the part of an effect that looks like a rigid
 /// rotation/shift of its X line, settling ends where the servo stopped (not

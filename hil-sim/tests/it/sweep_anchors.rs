@@ -13,11 +13,10 @@
 //! derived from the logs' own noise, and on the path-dependent draws the
 //! log without the correction does not.
 //!
-//! `cargo test -p hil-sim --test sweep_anchors -- --nocapture` prints the
+//! `cargo test -p hil-sim --test it sweep_anchors:: -- --nocapture` prints the
 //! figures of each draw.
 
-mod common;
-use common::Client;
+use crate::common::{self, Client};
 use hil_sim::rig::RigConfig;
 use hil_sim::run::{daemon_config, RunPlan};
 use hil_sim::ServeConfig;
