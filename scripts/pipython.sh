@@ -14,8 +14,9 @@ fi
 "$venv/bin/pip" install --quiet --disable-pip-version-check \
     "PIPython==2.11.0.6" "pyserial==3.5" "pytest>=7"
 
-# MICROPOS_BUILD_FLAGS: see scripts/pyclient.sh.
-# shellcheck disable=SC2086
-cargo build --quiet ${MICROPOS_BUILD_FLAGS:-} -p hil-sim --bin hil-sim
+# MICROPOS_BINS_BUILT: see scripts/pyclient.sh.
+if [ "${MICROPOS_BINS_BUILT:-0}" != 1 ]; then
+    cargo build --quiet -p hil-sim --bin hil-sim
+fi
 export HIL_SIM_BIN="${CARGO_TARGET_DIR:-target}/debug/hil-sim"
 "$venv/bin/python" -m pytest -q tests/pipython

@@ -19,10 +19,11 @@ fi
 "$venv/bin/pip" install --quiet --disable-pip-version-check --force-reinstall --no-deps ./clients/python
 "$venv/bin/pip" install --quiet --disable-pip-version-check "pytest>=7"
 
-# MICROPOS_BUILD_FLAGS (scripts/test.sh): the test run's profile and
-# features, so the binaries reuse its compiled crates.
-# shellcheck disable=SC2086
-cargo build --quiet ${MICROPOS_BUILD_FLAGS:-} -p micropos -p hil-sim --bins
+# MICROPOS_BINS_BUILT=1 (scripts/test.sh): the binaries in $target/debug
+# are the ones `cargo test --workspace` built; run alone, this builds them.
+if [ "${MICROPOS_BINS_BUILT:-0}" != 1 ]; then
+    cargo build --quiet -p micropos -p hil-sim --bins
+fi
 export MICROPOSD_BIN="$target/debug/microposd"
 export HIL_SIM_BIN="$target/debug/hil-sim"
 # From clients/python so its pytest settings apply; the installed package,

@@ -25,10 +25,11 @@ fi
 echo "== cargo test ${features[*]:-}"
 cargo test --workspace "${features[@]}"
 
-# The Python suites run hil-sim and microposd built as the tests were
-# (the test profile, the same features): no second build of the crates,
-# and the real-time rig runs at the tests' optimisation.
-export MICROPOS_BUILD_FLAGS="--profile test ${features[*]:-}"
+# The Python suites run the hil-sim and microposd that `cargo test` just
+# built (the integration tests run them too): the test profile, the
+# workspace's features. Their own `cargo build -p …` would resolve features
+# without the dev-dependencies and compile the library once more (12 min).
+export MICROPOS_BINS_BUILT=1
 
 echo "== PIPython against hil-sim"
 PIPYTHON_VENV="${PIPYTHON_VENV:-$target/venv-pipython}" ./scripts/pipython.sh
