@@ -27,6 +27,7 @@
 //! Timing: the machine may be loaded (2 cores, parallel builds), so every
 //! wait is on a condition with a generous deadline, never a bare sleep.
 
+use crate::bins::{hil_sim_bin, microposd_bin};
 use micropos::charact::log;
 use micropos::daemon::jobs::plan::ScanPlan;
 use serde_json::{json, Value};
@@ -34,60 +35,10 @@ use std::io::{BufRead, BufReader, Write};
 use std::os::unix::net::UnixStream;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
-use std::time::{Duration, Instant, SystemTime};
+use std::time::{Duration, Instant};
 
 /// Generous: builds may run in parallel on 2 cores.
 const DEADLINE: Duration = Duration::from_secs(90);
-
-fn newest_mtime(dir: &Path) -> SystemTime {
-    let mut newest = SystemTime::UNIX_EPOCH;
-    let Ok(rd) = std::fs::read_dir(dir) else {
-        return newest;
-    };
-    for e in rd.flatten() {
-        let p = e.path();
-        let t = if p.is_dir() {
-            newest_mtime(&p)
-        } else {
-            e.metadata()
-                .and_then(|m| m.modified())
-                .unwrap_or(SystemTime::UNIX_EPOCH)
-        };
-        newest = newest.max(t);
-    }
-    newest
-}
-
-/// `MICROPOSD_BIN` overrides the path (a target directory shared by
-/// several checkouts may hold another checkout's build).
-fn microposd_bin() -> PathBuf {
-    std::env::var_os("MICROPOSD_BIN")
-        .map_or_else(|| env!("CARGO_BIN_EXE_microposd").into(), PathBuf::from)
-}
-
-fn hil_sim_bin() -> PathBuf {
-    if let Some(p) = std::env::var_os("HIL_SIM_BIN") {
-        return p.into();
-    }
-    let bin = Path::new(env!("CARGO_BIN_EXE_microposd"))
-        .parent()
-        .unwrap()
-        .join("hil-sim");
-    let advice = "run `cargo test --workspace`, or `cargo build -p hil-sim` before this test alone (or set HIL_SIM_BIN)";
-    let built = std::fs::metadata(&bin)
-        .and_then(|m| m.modified())
-        .unwrap_or_else(|e| panic!("no hil-sim binary at {}: {e}; {advice}", bin.display()));
-    let sources = newest_mtime(Path::new(concat!(
-        env!("CARGO_MANIFEST_DIR"),
-        "/hil-sim/src"
-    )));
-    assert!(
-        built >= sources,
-        "{} is older than hil-sim's sources; {advice}",
-        bin.display()
-    );
-    bin
-}
 
 /// The test's directory (sockets, logs, the daemon's stderr): removed
 /// afterwards unless `MICROPOS_KEEP_TMP` is set, to read a failure's

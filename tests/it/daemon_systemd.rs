@@ -18,6 +18,7 @@
 //! (`cargo test --workspace` builds it; `HIL_SIM_BIN` overrides), as in
 //! `tests/it/daemon_process.rs`.
 
+use crate::bins::{hil_sim_bin, microposd_bin};
 use serde_json::{json, Value};
 use std::io::{BufRead, BufReader, Write};
 use std::os::unix::net::UnixStream;
@@ -27,27 +28,6 @@ use std::time::{Duration, Instant};
 
 /// Generous: builds may run in parallel on 2 cores.
 const DEADLINE: Duration = Duration::from_secs(90);
-
-fn microposd_bin() -> PathBuf {
-    std::env::var_os("MICROPOSD_BIN")
-        .map_or_else(|| env!("CARGO_BIN_EXE_microposd").into(), PathBuf::from)
-}
-
-fn hil_sim_bin() -> PathBuf {
-    if let Some(p) = std::env::var_os("HIL_SIM_BIN") {
-        return p.into();
-    }
-    let bin = Path::new(env!("CARGO_BIN_EXE_microposd"))
-        .parent()
-        .unwrap()
-        .join("hil-sim");
-    assert!(
-        bin.exists(),
-        "no hil-sim binary at {}: run `cargo test --workspace`, or `cargo build -p hil-sim` first (or set HIL_SIM_BIN)",
-        bin.display()
-    );
-    bin
-}
 
 /// `Some(path)` of a tool on PATH, else prints why the test is skipped.
 fn tool(name: &str) -> Option<PathBuf> {

@@ -22,6 +22,7 @@
 #[cfg(feature = "genicam")]
 pub static ARAVIS: std::sync::Mutex<()> = std::sync::Mutex::new(());
 
+mod bins;
 mod camera_files;
 #[cfg(feature = "genicam")]
 mod camera_genicam;
