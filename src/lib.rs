@@ -73,7 +73,7 @@ mod error_text_tests {
             source: Inner::from(io),
         };
         assert_eq!(error_text(&e), "log /x.csv: I/O error: no such file");
-        // A cause the message does not hold is added.
+        // The inner error alone: its message already holds its cause.
         let io = std::io::Error::new(std::io::ErrorKind::NotFound, "gone");
         assert_eq!(error_text(&Inner::from(io)), "I/O error: gone");
     }

@@ -461,6 +461,17 @@ impl Axis {
         self.inner.halts_at_move.store(h, Ordering::SeqCst);
     }
 
+    /// Whether a halt was sent since the last move or reference began.
+    fn halted_since_move(&self) -> bool {
+        self.inner.halts.load(Ordering::SeqCst) != self.inner.halts_at_move.load(Ordering::SeqCst)
+    }
+
+    fn halted(&self) -> DriverError {
+        DriverError::Halted {
+            axis: self.name().to_owned(),
+        }
+    }
+
     /// Whether the axis is on target (`ONT?`).
     pub async fn on_target(&self) -> Result<bool, DriverError> {
         self.verify().await?;
@@ -500,12 +511,8 @@ impl Axis {
         let timeout = timeout.unwrap_or(self.inner.p.motion_timeout);
         let start = Instant::now();
         loop {
-            if self.inner.halts.load(Ordering::SeqCst)
-                != self.inner.halts_at_move.load(Ordering::SeqCst)
-            {
-                return Err(DriverError::Halted {
-                    axis: self.name().to_owned(),
-                });
+            if self.halted_since_move() {
+                return Err(self.halted());
             }
             if self.on_target().await? {
                 return self.position_um().await;
@@ -626,12 +633,8 @@ impl Axis {
             if ready {
                 break;
             }
-            if self.inner.halts.load(Ordering::SeqCst)
-                != self.inner.halts_at_move.load(Ordering::SeqCst)
-            {
-                return Err(DriverError::Halted {
-                    axis: self.name().to_owned(),
-                });
+            if self.halted_since_move() {
+                return Err(self.halted());
             }
             if start.elapsed() >= timeout {
                 let _ = self.halt().await;
@@ -645,12 +648,8 @@ impl Axis {
             // A halt ends the reference move "ready" and unreferenced, and
             // consumes its error 10: say it was halted, not that the controller
             // gave up.
-            if self.inner.halts.load(Ordering::SeqCst)
-                != self.inner.halts_at_move.load(Ordering::SeqCst)
-            {
-                return Err(DriverError::Halted {
-                    axis: self.name().to_owned(),
-                });
+            if self.halted_since_move() {
+                return Err(self.halted());
             }
             // Ready but not referenced: the controller gave up; ERR? says why.
             let code = self.on_error(self.ctl().error().await)?;

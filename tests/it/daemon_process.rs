@@ -233,8 +233,8 @@ impl Client {
                     .as_ref()
                     .and_then(|p| std::fs::read_to_string(p).ok())
                     .unwrap_or_default();
-                let tail: Vec<&str> = log.lines().rev().take(40).collect();
-                let tail: Vec<&str> = tail.into_iter().rev().collect();
+                let lines: Vec<&str> = log.lines().collect();
+                let tail = &lines[lines.len().saturating_sub(40)..];
                 panic!(
                     "no line within the deadline ({e}); events read but not asked for: {:?}\nthe daemon's log ends:\n{}",
                     self.events,

@@ -4,7 +4,7 @@
 
 use super::Rig;
 use crate::daemon::protocol::{ErrorCode, MoveRequest, ProtoError};
-use crate::daemon::vision::Measurement;
+use crate::daemon::vision::{HealthCounts, Measurement};
 use serde_json::Value;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
@@ -39,14 +39,7 @@ pub(crate) async fn measure(
     let _want = v.want();
     let mut rx = v.latest.clone();
     let timeout = Duration::from_millis(rig.cfg.camera.timeout_ms);
-    let counters = || {
-        use std::sync::atomic::Ordering::Relaxed;
-        (
-            v.stats.frames.load(Relaxed),
-            v.stats.failed.load(Relaxed),
-            v.stats.decoded.load(Relaxed),
-        )
-    };
+    let counters = || HealthCounts::of(&v.stats);
     let mut got: Vec<Measurement> = Vec::new();
     let mut last_seq = None;
     let mut below_quality = false;
@@ -81,13 +74,13 @@ pub(crate) async fn measure(
                 // arrive (and be refused as too old): only frames that fail
                 // to decode, or fresh ones below the quality, mean that the
                 // camera delivers but the data is unusable.
-                let (_, failed, _) = counters();
-                let (code, what) = if failed > at_start.1 {
+                let failed = counters().failed;
+                let (code, what) = if failed > at_start.failed {
                     (
                         ErrorCode::LowQuality,
                         format!(
                             "frames arrive but do not decode ({} failed)",
-                            failed - at_start.1
+                            failed - at_start.failed
                         ),
                     )
                 } else if below_quality {

@@ -50,10 +50,11 @@ impl Rig {
         );
         // The events of the connect itself (each line's first open is a
         // `Connected`) are no reconnection: nothing was commanded yet, so
-        // there is nothing to halt. Handled as one, they spawned a halt
-        // that raced the first client command: a `reference` sent at once
-        // was aborted by it (FRF stopped: "not referenced"), seen on a
-        // loaded machine.
+        // there is nothing to halt. They are applied before the stage is
+        // handed out, which is what keeps them from recovering (handled
+        // as reconnections, they spawned a halt that raced the first
+        // client command: a `reference` sent at once was aborted, "not
+        // referenced", seen on a loaded machine).
         let mut during_connect = Vec::new();
         while let Ok(ev) = rx.try_recv() {
             during_connect.push(ev);
@@ -62,7 +63,7 @@ impl Rig {
             referenced: [rx_x, rx_y],
         });
         for ev in during_connect {
-            self.on_driver_event(ev, false);
+            self.on_driver_event(ev);
         }
         *lock(&self.stage) = Some(stage);
         lock(&self.deviation).retie();
@@ -84,7 +85,7 @@ impl Rig {
                 }
                 Err(broadcast::error::RecvError::Closed) => return,
             };
-            self.on_driver_event(ev, true);
+            self.on_driver_event(ev);
         }
     }
 
@@ -99,16 +100,15 @@ impl Rig {
         v
     }
 
-    /// Applies a driver event to the fault state. `recover`: a line that
-    /// comes back is halted and read back (false for the connect's own
-    /// first opens).
-    pub(super) fn on_driver_event(self: &Arc<Self>, ev: AxisEvent, recover: bool) {
+    /// Applies a driver event to the fault state. A line that comes back
+    /// once the stage is up is halted and read back.
+    pub(super) fn on_driver_event(self: &Arc<Self>, ev: AxisEvent) {
         tracing::debug!("driver event {ev:?}");
         match ev {
             AxisEvent::Connected { line } => {
                 for a in self.axis_of_line(&line) {
                     self.apply(Input::LinkUp(a));
-                    if recover && lock(&self.stage).is_some() {
+                    if lock(&self.stage).is_some() {
                         tokio::spawn(self.clone().recover_axis(a));
                     }
                 }
