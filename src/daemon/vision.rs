@@ -4,7 +4,9 @@
 //! frame, so a slow decoder drops frames instead of building a backlog).
 //! On demand (the simulator's in-process rig on a virtual clock): one task
 //! grabs and decodes on the blocking pool only while a consumer waits
-//! ([`Vision::want`]). Both publish [`Measurement`]s on a `watch` channel.
+//! ([`Vision::want`]); for a consumer that takes every frame
+//! ([`Vision::want_stream`]) it grabs the next frame alongside the current
+//! decode. Both publish [`Measurement`]s on a `watch` channel.
 //!
 //! Each measurement carries the rig time at which its grab was requested,
 //! so a consumer can refuse stale data, and the decoder's quality, so it can
@@ -240,6 +242,8 @@ pub enum Capture {
 #[derive(Debug, Default)]
 struct Demand {
     waiters: std::sync::atomic::AtomicUsize,
+    /// Those of `waiters` that take every frame ([`Vision::want_stream`]).
+    streams: std::sync::atomic::AtomicUsize,
     notify: tokio::sync::Notify,
 }
 
@@ -247,11 +251,15 @@ struct Demand {
 #[derive(Debug)]
 pub struct Want {
     demand: Option<Arc<Demand>>,
+    stream: bool,
 }
 
 impl Drop for Want {
     fn drop(&mut self) {
         if let Some(d) = &self.demand {
+            if self.stream {
+                d.streams.fetch_sub(1, Ordering::SeqCst);
+            }
             d.waiters.fetch_sub(1, Ordering::SeqCst);
         }
     }
@@ -263,12 +271,31 @@ impl Vision {
     /// grabs only while some guard lives. Every consumer that waits for a
     /// frame exposed after some time holds one.
     pub fn want(&self) -> Want {
+        self.want_inner(false)
+    }
+
+    /// [`Vision::want`] for a consumer that takes every frame while the
+    /// guard lives (a sweep films its whole pass). Why it is told apart:
+    /// an on-demand pipeline then grabs (renders) the next frame while it
+    /// decodes the current one, on the two cores at once, since that frame
+    /// is wanted anyway. For a consumer that wants one fresh frame (a
+    /// measurement at a settled point) that grab would be a frame nobody
+    /// asked for, so [`Vision::want`] never starts it.
+    pub fn want_stream(&self) -> Want {
+        self.want_inner(true)
+    }
+
+    fn want_inner(&self, stream: bool) -> Want {
         if let Some(d) = &self.demand {
+            if stream {
+                d.streams.fetch_add(1, Ordering::SeqCst);
+            }
             d.waiters.fetch_add(1, Ordering::SeqCst);
             d.notify.notify_one();
         }
         Want {
             demand: self.demand.clone(),
+            stream,
         }
     }
 
@@ -511,86 +538,62 @@ struct OnDemandLoop {
 const RETRY_AFTER_FAILED_GRAB: std::time::Duration = std::time::Duration::from_millis(50);
 
 /// [`Capture::OnDemand`]: grab while someone waits, wait out the exposure on
-/// the rig clock, decode on the blocking pool, publish.
+/// the rig clock, decode on the blocking pool, publish. While a consumer
+/// takes every frame ([`Vision::want_stream`]) the next frame is grabbed
+/// (rendered) on the blocking pool alongside the current frame's decode:
+/// the clock stands still while either runs, the grab is requested at the
+/// rig time it would be requested after the publication (neither the
+/// decode nor the publication takes rig time), and its exposure is waited
+/// out after the publication, so the consumer sees each frame at the rig
+/// time it would see it with one task after the other.
 async fn on_demand_loop(mut l: OnDemandLoop) {
+    // A frame whose exposure has ended, not decoded yet.
+    let mut exposed: Option<(Frame, Stamp)> = None;
     loop {
         if l.stop.load(Ordering::Relaxed) {
             return;
         }
-        if l.demand.waiters.load(Ordering::SeqCst) == 0 {
-            let notified = l.demand.notify.notified();
-            tokio::pin!(notified);
-            notified.as_mut().enable();
+        let Some((frame, stamp)) = exposed.take() else {
             if l.demand.waiters.load(Ordering::SeqCst) == 0 {
-                tokio::select! {
-                    () = notified => {}
-                    () = l.tx.closed() => return,
+                let notified = l.demand.notify.notified();
+                tokio::pin!(notified);
+                notified.as_mut().enable();
+                if l.demand.waiters.load(Ordering::SeqCst) == 0 {
+                    tokio::select! {
+                        () = notified => {}
+                        () = l.tx.closed() => return,
+                    }
                 }
-            }
-            continue;
-        }
-        // Before the grab: see the module docs.
-        let t = l.clock.now_s();
-        let mut source = l.source;
-        let Ok((source, grabbed)) = tokio::task::spawn_blocking(move || {
-            let r = source.next_frame();
-            let ready = source.frame_ready_after();
-            (source, r.map(|f| (f, ready)))
-        })
-        .await
-        else {
-            set(&l.last_error, "camera: the grab task failed".to_owned());
-            return;
-        };
-        l.source = source;
-        let (frame, ready) = match grabbed {
-            Ok(g) => g,
-            Err(e) => {
-                l.stats.camera_errors.fetch_add(1, Ordering::Relaxed);
-                set(&l.last_error, format!("camera: {e}"));
-                if matches!(e, crate::camera::CameraError::EndOfStream { .. }) {
-                    tracing::warn!("camera source ended: {e}");
-                    return;
-                }
-                l.clock.sleep(RETRY_AFTER_FAILED_GRAB).await;
                 continue;
             }
+            // Before the grab: see the module docs.
+            let t = l.clock.now_s();
+            let Some((source, grabbed)) = grab_blocking(l.source).await else {
+                set(&l.last_error, "camera: the grab task failed".to_owned());
+                return;
+            };
+            l.source = source;
+            match l.expose(grabbed, t).await {
+                Exposure::Frame(f, s) => exposed = Some((f, s)),
+                Exposure::Retry => {}
+                Exposure::End => return,
+            }
+            continue;
         };
-        // A source on a virtual clock renders at once; the frame exists
-        // only when its exposure has ended.
-        if let Some(d) = ready {
-            l.clock.sleep(d).await;
-        }
-        l.stats.frames.fetch_add(1, Ordering::Relaxed);
-        let mut decoder = l.decoder;
-        let frame_t_s = frame_time(
-            l.source.frame_clock(),
-            &frame,
-            t,
-            l.clock.now_s(),
-            &mut l.timebase,
-            &l.stats,
-        );
-        let stamp = Stamp {
-            request_t_s: t,
-            frame_t_s,
-            sequence: frame.sequence,
+        let decode = decode_blocking(l.decoder, frame, l.stats.clone(), l.tap.clone());
+        let t = l.clock.now_s();
+        let (decoded, ahead) = if l.demand.streams.load(Ordering::SeqCst) > 0 {
+            let (decoded, grabbed) = tokio::join!(decode, grab_blocking(l.source));
+            let Some((source, grabbed)) = grabbed else {
+                set(&l.last_error, "camera: the grab task failed".to_owned());
+                return;
+            };
+            l.source = source;
+            (decoded, Some(grabbed))
+        } else {
+            (decode.await, None)
         };
-        let stats = l.stats.clone();
-        let tap = l.tap.clone();
-        let Ok((decoder, decoded)) = tokio::task::spawn_blocking(move || {
-            let t0 = std::time::Instant::now();
-            // On two threads (the decoder's helper reads the frame through
-            // the `Arc`; it is unshared again when the decode returns).
-            let frame = Arc::new(frame);
-            let r = decoder.decode_shared(&frame);
-            stats.decode_seconds.observe(t0.elapsed().as_secs_f64());
-            let frame = Arc::try_unwrap(frame).unwrap_or_else(|f| (*f).clone());
-            tap.offer(frame, &r);
-            (decoder, r)
-        })
-        .await
-        else {
+        let Some((decoder, decoded)) = decoded else {
             set(&l.last_error, "decode: the decode task failed".to_owned());
             return;
         };
@@ -604,6 +607,106 @@ async fn on_demand_loop(mut l: OnDemandLoop) {
             Published::Sent => tokio::task::yield_now().await,
             Published::Failed => {}
         }
+        if let Some(grabbed) = ahead {
+            match l.expose(grabbed, t).await {
+                Exposure::Frame(f, s) => exposed = Some((f, s)),
+                Exposure::Retry => {}
+                Exposure::End => return,
+            }
+        }
+    }
+}
+
+/// What a grab gives the on-demand loop: a frame and how long until its
+/// exposure ends on the rig clock (`None`: it has ended).
+type Grabbed = Result<(Frame, Option<std::time::Duration>), crate::camera::CameraError>;
+
+/// One grab on the blocking pool; the source comes back with it. `None`
+/// when the task failed (a panic in the source).
+async fn grab_blocking(
+    mut source: Box<dyn FrameSource>,
+) -> Option<(Box<dyn FrameSource>, Grabbed)> {
+    tokio::task::spawn_blocking(move || {
+        let r = source.next_frame();
+        let ready = source.frame_ready_after();
+        (source, r.map(|f| (f, ready)))
+    })
+    .await
+    .ok()
+}
+
+/// One decode on the blocking pool, on two threads (the decoder's helper
+/// reads the frame through the `Arc`; it is unshared again when the decode
+/// returns); the decoder comes back with it. `None` when the task failed.
+async fn decode_blocking(
+    mut decoder: Decoder,
+    frame: Frame,
+    stats: Arc<VisionStats>,
+    tap: Arc<FrameTap>,
+) -> Option<(
+    Decoder,
+    Result<crate::pattern::decode::Decoded, crate::pattern::decode::DecodeError>,
+)> {
+    tokio::task::spawn_blocking(move || {
+        let t0 = std::time::Instant::now();
+        let frame = Arc::new(frame);
+        let r = decoder.decode_shared(&frame);
+        stats.decode_seconds.observe(t0.elapsed().as_secs_f64());
+        let frame = Arc::try_unwrap(frame).unwrap_or_else(|f| (*f).clone());
+        tap.offer(frame, &r);
+        (decoder, r)
+    })
+    .await
+    .ok()
+}
+
+/// What became of one grab.
+enum Exposure {
+    /// The frame, its exposure over, stamped.
+    Frame(Frame, Stamp),
+    /// The grab failed (counted, the error kept, the retry pause waited).
+    Retry,
+    /// The source ended.
+    End,
+}
+
+impl OnDemandLoop {
+    /// Waits out the exposure of the frame grabbed at rig time
+    /// `request_s` (a source on a virtual clock renders at once; the frame
+    /// exists only when its exposure has ended) and stamps it; a failed
+    /// grab is counted and paused after.
+    async fn expose(&mut self, grabbed: Grabbed, request_s: f64) -> Exposure {
+        let (frame, ready) = match grabbed {
+            Ok(g) => g,
+            Err(e) => {
+                self.stats.camera_errors.fetch_add(1, Ordering::Relaxed);
+                set(&self.last_error, format!("camera: {e}"));
+                if matches!(e, crate::camera::CameraError::EndOfStream { .. }) {
+                    tracing::warn!("camera source ended: {e}");
+                    return Exposure::End;
+                }
+                self.clock.sleep(RETRY_AFTER_FAILED_GRAB).await;
+                return Exposure::Retry;
+            }
+        };
+        if let Some(d) = ready {
+            self.clock.sleep(d).await;
+        }
+        self.stats.frames.fetch_add(1, Ordering::Relaxed);
+        let frame_t_s = frame_time(
+            self.source.frame_clock(),
+            &frame,
+            request_s,
+            self.clock.now_s(),
+            &mut self.timebase,
+            &self.stats,
+        );
+        let stamp = Stamp {
+            request_t_s: request_s,
+            frame_t_s,
+            sequence: frame.sequence,
+        };
+        Exposure::Frame(frame, stamp)
     }
 }
 

@@ -800,7 +800,7 @@ async fn sweep(
     // `Axis::position_sample_um`).
     let start_um = axis.position_um().await.map_err(driver_error)?;
     let epoch = axis.epoch();
-    let _want = vision.want();
+    let _want = vision.want_stream();
     let mut rx = vision.latest.clone();
     rx.borrow_and_update();
     let mut req = MoveRequest::raw_to(target_um, target_um);
