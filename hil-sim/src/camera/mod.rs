@@ -11,10 +11,22 @@
 //! it exists.
 //!
 //! Motion blur (contract): a grab integrates the pattern over its exposure
-//! window: the frame is the mean of renders at `n` equally spaced instants
-//! of the exposure, `n` odd and chosen so that consecutive instants are at
-//! most a quarter pixel apart on the pattern (`n` = 1, the mid-point alone,
-//! for a still platform: a still frame is unchanged by the blur model).
+//! window: the frame's optical image is the mean of the pattern's images at
+//! `n` equally spaced instants of the exposure, `n` odd and chosen so that
+//! consecutive instants are at most a quarter pixel apart on the pattern
+//! (`n` = 1, the mid-point alone, for a still platform: a still frame is
+//! the sharp render, bit for bit), and the sensor (shading, noise,
+//! quantisation) sees that mean once. Each dot is placed once, at its
+//! position at the mid-point, with the frame's blurred stamp for its
+//! sub-pixel phase: the mean of the dot's sharp stamps at every instant,
+//! each instant's displacement from the mid-point rounded to 1/32 px, the
+//! stamps' grid ([`fast::FastRenderer::render_path`]). Up to that rounding
+//! and the order of float sums, this is the mean of the instants'
+//! renders: a pixel differs from placing every instant's dots on their own
+//! ([`fast::FastRenderer::render_path_per_instant`]) by a few codes at
+//! most and by nothing on average. Why: a sweep frame then costs about
+//! what a still frame does, not `n` dot passes. Motion of more than 16 px
+//! from the mid-point within one exposure is placed instant by instant.
 //! The truth reported with the frame is the one at the mid-point.
 //!
 //! Timestamps (contract): a grabbed frame is stamped with the exposure
@@ -225,7 +237,7 @@ impl SimCamera {
     }
 
     /// Renders the truth over an exposure of `exposure_s` centred on
-    /// simulated time `mid` (mode: normal or garbage), averaged over
+    /// simulated time `mid` (mode: normal or garbage), blurred over
     /// `samples` instants and stamped with latency and jitter (module docs).
     fn render_locked(
         &self,
@@ -286,7 +298,7 @@ impl SimCamera {
     }
 }
 
-/// Renders of one exposure averaged for motion blur, at most.
+/// Instants of one exposure averaged for motion blur, at most.
 pub const MAX_BLUR_SAMPLES: usize = 63;
 
 /// Exposure and gain as a client set them on the camera (GenICam
