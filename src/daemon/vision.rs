@@ -573,11 +573,10 @@ async fn on_demand_loop(mut l: OnDemandLoop) {
                 return;
             };
             l.source = source;
-            match l.expose(grabbed, t).await {
-                Exposure::Frame(f, s) => exposed = Some((f, s)),
-                Exposure::Retry => {}
-                Exposure::End => return,
-            }
+            let Some(e) = l.expose(grabbed, t).await else {
+                return;
+            };
+            exposed = e;
             continue;
         };
         let decode = decode_blocking(l.decoder, frame, l.stats.clone(), l.tap.clone());
@@ -608,11 +607,10 @@ async fn on_demand_loop(mut l: OnDemandLoop) {
             Published::Failed => {}
         }
         if let Some(grabbed) = ahead {
-            match l.expose(grabbed, t).await {
-                Exposure::Frame(f, s) => exposed = Some((f, s)),
-                Exposure::Retry => {}
-                Exposure::End => return,
-            }
+            let Some(e) = l.expose(grabbed, t).await else {
+                return;
+            };
+            exposed = e;
         }
     }
 }
@@ -660,22 +658,13 @@ async fn decode_blocking(
     .ok()
 }
 
-/// What became of one grab.
-enum Exposure {
-    /// The frame, its exposure over, stamped.
-    Frame(Frame, Stamp),
-    /// The grab failed (counted, the error kept, the retry pause waited).
-    Retry,
-    /// The source ended.
-    End,
-}
-
 impl OnDemandLoop {
     /// Waits out the exposure of the frame grabbed at rig time
     /// `request_s` (a source on a virtual clock renders at once; the frame
-    /// exists only when its exposure has ended) and stamps it; a failed
-    /// grab is counted and paused after.
-    async fn expose(&mut self, grabbed: Grabbed, request_s: f64) -> Exposure {
+    /// exists only when its exposure has ended) and stamps it: `Some(None)`
+    /// after a failed grab (counted, the error kept, the retry pause
+    /// waited), `None` when the source ended.
+    async fn expose(&mut self, grabbed: Grabbed, request_s: f64) -> Option<Option<(Frame, Stamp)>> {
         let (frame, ready) = match grabbed {
             Ok(g) => g,
             Err(e) => {
@@ -683,10 +672,10 @@ impl OnDemandLoop {
                 set(&self.last_error, format!("camera: {e}"));
                 if matches!(e, crate::camera::CameraError::EndOfStream { .. }) {
                     tracing::warn!("camera source ended: {e}");
-                    return Exposure::End;
+                    return None;
                 }
                 self.clock.sleep(RETRY_AFTER_FAILED_GRAB).await;
-                return Exposure::Retry;
+                return Some(None);
             }
         };
         if let Some(d) = ready {
@@ -706,7 +695,7 @@ impl OnDemandLoop {
             frame_t_s,
             sequence: frame.sequence,
         };
-        Exposure::Frame(frame, stamp)
+        Some(Some((frame, stamp)))
     }
 }
 

@@ -101,7 +101,7 @@ pub struct FastRenderer {
     /// their shape, and the displacements they were built for (empty: no
     /// table).
     blur: Vec<f32>,
-    blur_geom: BlurGeom,
+    blur_geom: StampGeom,
     blur_key: Vec<(i64, i64)>,
     /// Whether `acc` is +0.0 everywhere: the sensor pass clears each row
     /// once it has read it (the row is in cache then), so a band needs no
@@ -190,7 +190,7 @@ impl FastRenderer {
             noise,
             acc: vec![0.0; 2 * BAND_ROWS * cfg.width],
             blur: Vec::new(),
-            blur_geom: BlurGeom::default(),
+            blur_geom: StampGeom::default(),
             blur_key: Vec::new(),
             acc_zero: true,
             arch: pulp::Arch::new(),
@@ -287,25 +287,22 @@ impl FastRenderer {
         let k = self.k as i64;
         StampTable {
             stamps: &self.stamps,
-            rows: self.side,
-            cols: self.side,
-            stride: self.stride,
-            row_off: -k,
-            col_off: -k,
+            geom: StampGeom {
+                rows: self.side,
+                cols: self.side,
+                stride: self.stride,
+                row_off: -k,
+                col_off: -k,
+            },
             weight,
         }
     }
 
     /// The blurred stamps [`FastRenderer::build_blur`] built last.
     fn blur_table(&self) -> StampTable<'_> {
-        let g = &self.blur_geom;
         StampTable {
             stamps: &self.blur,
-            rows: g.rows,
-            cols: g.cols,
-            stride: g.stride,
-            row_off: g.row_off,
-            col_off: g.col_off,
+            geom: self.blur_geom,
             weight: 1.0,
         }
     }
@@ -354,7 +351,7 @@ impl FastRenderer {
         let rows = self.side + (row_hi - row_lo) as usize;
         let stride = cols.div_ceil(8) * 8;
         let k = self.k as i64;
-        self.blur_geom = BlurGeom {
+        self.blur_geom = StampGeom {
             rows,
             cols,
             stride,
@@ -453,7 +450,7 @@ impl FastRenderer {
         let (cxi, cyi) = (w as f64 / 2.0, h as f64 / 2.0);
         // Pattern bounding box of the band's rows plus the stamp margin:
         // every dot whose stamp reaches the band, in the frame's dot order.
-        let m = table.reach_px() as f64 + 1.0;
+        let m = table.geom.reach_px() as f64 + 1.0;
         let (v_lo, v_hi) = (band_lo as f64 - m, band_hi as f64 + m);
         let mut cmin = f64::MAX;
         let mut cmax = f64::MIN;
@@ -481,11 +478,14 @@ impl FastRenderer {
         let r1 = (rmax + 1.0).ceil().min(len) as i64;
         let StampTable {
             stamps,
-            rows,
-            cols,
-            stride,
-            row_off,
-            col_off,
+            geom:
+                StampGeom {
+                    rows,
+                    cols,
+                    stride,
+                    row_off,
+                    col_off,
+                },
             weight,
         } = *table;
         let wu = w as usize;
@@ -846,19 +846,26 @@ impl pulp::WithSimd for Half<'_> {
 #[derive(Debug, Clone, Copy)]
 struct StampTable<'a> {
     stamps: &'a [f32],
-    /// Rows and columns of a stamp, and the length of its rows in `stamps`
-    /// (whole vectors of 8, padded with +0.0).
+    geom: StampGeom,
+    /// Factor on every stamp value.
+    weight: f32,
+}
+
+/// The shape of the stamps of a [`StampTable`] (the sharp ones, or the
+/// blurred ones of `FastRenderer::blur`).
+#[derive(Debug, Clone, Copy, Default)]
+struct StampGeom {
+    /// Rows and columns of a stamp, and the length of its rows in the
+    /// table (whole vectors of 8, padded with +0.0).
     rows: usize,
     cols: usize,
     stride: usize,
     /// The stamp's first row and column relative to the dot's pixel.
     row_off: i64,
     col_off: i64,
-    /// Factor on every stamp value.
-    weight: f32,
 }
 
-impl StampTable<'_> {
+impl StampGeom {
     /// How far from a dot's pixel its stamp's farthest pixel lies, px: `k`
     /// for the sharp stamps, so a still frame visits the dots it always
     /// did.
@@ -877,17 +884,6 @@ enum Placement {
     Blurred,
     /// Once per instant, with the sharp stamps.
     PerInstant,
-}
-
-/// The shape of the blurred stamps in `FastRenderer::blur` (see
-/// [`StampTable`]).
-#[derive(Debug, Clone, Default)]
-struct BlurGeom {
-    rows: usize,
-    cols: usize,
-    stride: usize,
-    row_off: i64,
-    col_off: i64,
 }
 
 /// Fills the blurred stamps of the phases with rows `b0..` (whole phase

@@ -155,7 +155,7 @@ fn a_blurred_stamp_is_the_mean_of_the_sharp_stamps_at_the_rounded_shifts() {
     // values ≤ 1: ≲ 3e-7), and nothing beyond the blurred stamp.
     let (n, o) = (64usize, 32i64);
     let (k, side, sstride) = (r.k as i64, r.side, r.stride);
-    let g = r.blur_geom.clone();
+    let g = r.blur_geom;
     assert!(g.cols <= g.stride && g.stride % 8 == 0);
     let mut worst = 0f64;
     for b in 0..q {
