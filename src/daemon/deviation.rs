@@ -25,8 +25,15 @@
 //! frame is judged once a read after it exists, against the span of the
 //! reads just before and just after it (at rest a point, while moving the
 //! distance covered between two reads: the check is looser while moving by
-//! about v × `safety.supervise_interval_ms`). `|deviation|` beyond that span
-//! by more than the bound is the fault. A static stage error (tens of µm
+//! about v × `safety.supervise_interval_ms`). Every move target sent between
+//! those two reads widens the span, with the target in force when the
+//! first of them was sent: a stage can leave and come back between two
+//! reads (a drift re-measurement's detour to its reference is one move
+//! there and one back, both shorter than a poll period on a fast rig), and
+//! two reads that agree then say nothing about where it was in between.
+//! Judged on the reads alone, such a frame was a false fault, and one taken
+//! "at rest" for the tie offset it by the detour. `|deviation|` beyond the
+//! span by more than the bound is the fault. A static stage error (tens of µm
 //! over the travel, what compensation tables describe) and slow thermal
 //! drift stay within it; the default bound (100 µm) is above both.
 //!
@@ -58,6 +65,15 @@ struct Read {
     um: f64,
 }
 
+/// One move command of an axis: its target was sent between `t0_s` and
+/// `t1_s` (the controller took it somewhere in between).
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Sent {
+    t0_s: f64,
+    t1_s: f64,
+    target_um: f64,
+}
+
 /// A decoded frame in the stage's orientation (rotated, not yet tied).
 #[derive(Debug, Clone, Copy, PartialEq)]
 struct Seen {
@@ -85,6 +101,7 @@ pub struct DeviationJudge {
     bound_um: f64,
     frame: Option<VisionFrame>,
     reads: [VecDeque<Read>; 2],
+    sent: [VecDeque<Sent>; 2],
     pending: VecDeque<Seen>,
     tie_um: Option<[f64; 2]>,
     /// False after a breach until [`DeviationJudge::retie`]: one fault per
@@ -100,6 +117,7 @@ impl DeviationJudge {
             bound_um,
             frame: None,
             reads: [VecDeque::new(), VecDeque::new()],
+            sent: [VecDeque::new(), VecDeque::new()],
             pending: VecDeque::new(),
             tie_um: None,
             armed: true,
@@ -125,6 +143,7 @@ impl DeviationJudge {
     pub fn retie(&mut self) {
         self.tie_um = None;
         self.reads = [VecDeque::new(), VecDeque::new()];
+        self.sent = [VecDeque::new(), VecDeque::new()];
         self.pending.clear();
         self.armed = true;
         self.last_um = None;
@@ -153,6 +172,24 @@ impl DeviationJudge {
         }
         let q = &mut self.reads[idx(axis)];
         q.push_back(Read { t0_s, t1_s, um });
+        while q.len() > MAX_SAMPLES {
+            q.pop_front();
+        }
+    }
+
+    /// A move of `axis` to `target_um` (controller µm) sent between `t0_s`
+    /// and `t1_s`: frames between the reads around it are judged against
+    /// a span that holds the target (see the module docs).
+    pub fn commanded(&mut self, axis: AxisId, t0_s: f64, t1_s: f64, target_um: f64) {
+        if !(t0_s.is_finite() && t1_s.is_finite() && target_um.is_finite()) || t1_s < t0_s {
+            return;
+        }
+        let q = &mut self.sent[idx(axis)];
+        q.push_back(Sent {
+            t0_s,
+            t1_s,
+            target_um,
+        });
         while q.len() > MAX_SAMPLES {
             q.pop_front();
         }
@@ -239,19 +276,35 @@ impl DeviationJudge {
         out
     }
 
-    /// The controller positions of axis `i` around the frame `seen`: the
-    /// last read that ended before the grab and the first that began after
-    /// the stamp, as (low, high).
+    /// The controller positions of axis `i` around the frame `seen`, as
+    /// (low, high): the last read that ended before the grab and the first
+    /// that began after the stamp, widened by every target sent between
+    /// them and, if there is one, by the target in force when the first of
+    /// those was sent (the stage may still have been on its way there).
     fn span(&self, i: usize, seen: &Seen) -> Span {
         let q = &self.reads[i];
         let before = q.iter().rev().find(|r| r.t1_s <= seen.t0_s);
         let after = q.iter().find(|r| r.t0_s >= seen.t1_s);
-        match (before, after) {
-            (_, None) => Span::Later,
-            (None, Some(_)) => Span::Never,
-            (Some(b), Some(a)) if a.t0_s - b.t1_s > MAX_GAP_S => Span::Never,
-            (Some(b), Some(a)) => Span::Known(b.um.min(a.um), b.um.max(a.um)),
+        let (b, a) = match (before, after) {
+            (_, None) => return Span::Later,
+            (None, Some(_)) => return Span::Never,
+            (Some(b), Some(a)) if a.t0_s - b.t1_s > MAX_GAP_S => return Span::Never,
+            (Some(b), Some(a)) => (b, a),
+        };
+        let (mut lo, mut hi) = (b.um.min(a.um), b.um.max(a.um));
+        let sent = &self.sent[i];
+        // Sent while the window [b.t0, a.t1] was open (the command's own
+        // interval overlapping it: it may have reached the controller on
+        // either side of a read's edge).
+        let within = |c: &&Sent| c.t1_s >= b.t0_s && c.t0_s <= a.t1_s;
+        if sent.iter().any(|c| within(&c)) {
+            let in_force = sent.iter().rev().find(|c| c.t1_s < b.t0_s);
+            for c in sent.iter().filter(within).chain(in_force) {
+                lo = lo.min(c.target_um);
+                hi = hi.max(c.target_um);
+            }
         }
+        Span::Known(lo, hi)
     }
 }
 
@@ -371,6 +424,178 @@ mod tests {
                 assert!((d[axis] - beyond).abs() < 1e-3, "{d:?} vs {beyond}");
             }
         }
+    }
+
+    /// A stage driven by random moves (some sent before the last one
+    /// arrived, many out and back within one read period, as a drift
+    /// re-measurement's detour to its reference is), read now and then and
+    /// seen often, with no slip: never a fault, and every tie the true one.
+    /// Judged on the reads alone, the detours gave both false faults and
+    /// ties offset by the detour.
+    #[test]
+    fn moves_between_two_reads_neither_fault_nor_offset_the_tie() {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(0x5e47);
+        let (mut detours, mut ties) = (0, 0);
+        for case in 0..200 {
+            let f = frame(
+                rng.gen_range(-std::f64::consts::PI..std::f64::consts::PI),
+                rng.gen_bool(0.5),
+            )
+            .unwrap();
+            let t_off = [rng.gen_range(-2e4..2e4), rng.gen_range(-2e4..2e4)];
+            let mut j = DeviationJudge::new(rng.gen_range(20.0..200.0));
+            j.set_frame(Some(f));
+            let v_um_s = rng.gen_range(200.0..20000.0);
+            let read_period_s = rng.gen_range(0.02..1.0);
+            let mut pos = [rng.gen_range(0.0..15000.0), rng.gen_range(0.0..15000.0)];
+            let mut target = pos;
+            let dt = 1e-3;
+            let (mut next_read, mut next_frame) = (0.0, 0.0);
+            let mut next_cmd = rng.gen_range(0.0..0.5);
+            // Where a detour returns to.
+            let mut back: Option<[f64; 2]> = None;
+            let mut t = 0.0;
+            while t < 4.0 {
+                if t >= next_cmd {
+                    let home = target;
+                    target = if let Some(b) = back.take() {
+                        b
+                    } else if rng.gen_bool(0.4) {
+                        detours += 1;
+                        back = Some(home);
+                        [
+                            home[0] + rng.gen_range(-600.0..600.0),
+                            home[1] + rng.gen_range(-600.0..600.0),
+                        ]
+                    } else {
+                        [rng.gen_range(0.0..15000.0), rng.gen_range(0.0..15000.0)]
+                    };
+                    for a in [AxisId::X, AxisId::Y] {
+                        j.commanded(a, t, t + 2e-4, target[idx(a)]);
+                    }
+                    next_cmd = t + if back.is_some() {
+                        rng.gen_range(0.005..0.15)
+                    } else {
+                        rng.gen_range(0.005..0.6)
+                    };
+                }
+                for i in 0..2 {
+                    pos[i] += (target[i] - pos[i]).clamp(-v_um_s * dt, v_um_s * dt);
+                }
+                if t >= next_frame {
+                    let (vx, vy) = pattern(&f, t_off, pos);
+                    j.vision(t, t + 5e-4, vx, vy);
+                    next_frame = t + 0.004;
+                }
+                if t >= next_read {
+                    read_both(&mut j, t, pos);
+                    next_read = t + read_period_s * rng.gen_range(0.5..1.5);
+                }
+                let r = j.judge(pos == target);
+                assert!(r.fault.is_none(), "case {case} t {t}: false fault: {r:?}");
+                if let Some(tie) = r.tied_um {
+                    ties += 1;
+                    // R·vision + tie is the controller's count, anywhere.
+                    let (vx, vy) = pattern(&f, t_off, pos);
+                    let rot = VisionFrame {
+                        translation_um: [0.0, 0.0],
+                        ..f
+                    }
+                    .to_stage(crate::model::XyUm { x_um: vx, y_um: vy });
+                    let seen = [rot.x_um + tie[0], rot.y_um + tie[1]];
+                    assert!(
+                        (seen[0] - pos[0]).abs() < REST_UM && (seen[1] - pos[1]).abs() < REST_UM,
+                        "case {case}: tie off: {seen:?} vs {pos:?}"
+                    );
+                    // As after a `reset`: the next tie is checked too.
+                    j.retie();
+                }
+                t += dt;
+            }
+        }
+        assert!(
+            detours > 300 && ties > 100,
+            "{detours} detours, {ties} ties"
+        );
+    }
+
+    /// Tied at rest; between two reads at the same place the stage goes to
+    /// a reference 500 µm away and back. A frame there is on the count; the
+    /// same frame off it by more than the bound beyond the detour is still a
+    /// fault.
+    #[test]
+    fn a_detour_between_two_reads_is_on_the_count_and_a_slip_in_it_is_not() {
+        // Where the frame sees the platform on x, and whether that is a fault
+        // (bound 50 µm; the detour spans 7000..7500 µm).
+        for (seen_x, fault) in [
+            (7000.0, false),
+            (7250.0, false),
+            (6920.0, true),
+            (7580.0, true),
+        ] {
+            let f = frame(0.3, false).unwrap();
+            let t_off = [1000.0, -2000.0];
+            let mut j = DeviationJudge::new(50.0);
+            j.set_frame(Some(f));
+            let home = [7500.0, 7500.0];
+            let corner = [7000.0, 7000.0];
+            read_both(&mut j, 0.0, home);
+            let (vx, vy) = pattern(&f, t_off, home);
+            j.vision(0.01, 0.02, vx, vy);
+            read_both(&mut j, 0.1, home);
+            assert!(j.judge(true).tied_um.is_some());
+            for (a, i) in [(AxisId::X, 0), (AxisId::Y, 1)] {
+                j.commanded(a, 0.11, 0.111, corner[i]);
+            }
+            let (vx, vy) = pattern(&f, t_off, [seen_x, corner[1]]);
+            j.vision(0.15, 0.151, vx, vy);
+            for (a, i) in [(AxisId::X, 0), (AxisId::Y, 1)] {
+                j.commanded(a, 0.16, 0.161, home[i]);
+            }
+            read_both(&mut j, 0.2, home);
+            let r = j.judge(true);
+            assert!(r.tied_um.is_none(), "{r:?}");
+            if fault {
+                let e = r
+                    .fault
+                    .clone()
+                    .unwrap_or_else(|| panic!("a fault at {seen_x}: {r:?}"));
+                assert!(e.contains("axis x") && !e.contains("axis y"), "{e}");
+            } else {
+                assert!(r.fault.is_none(), "{r:?}");
+                assert_eq!(
+                    r.last_um
+                        .map(|d| d.map(f64::abs).iter().sum::<f64>() < 1e-6),
+                    Some(true)
+                );
+            }
+        }
+    }
+
+    /// Read on its way out to a target (7200 µm, bound for 7000), the stage
+    /// goes on to 7050 µm before the command back to 7500 µm comes: a frame
+    /// at 7050 µm is on the count (the target in force then widens the span
+    /// of the reads at 7200 and 7500 µm).
+    #[test]
+    fn the_target_in_force_when_a_move_overtakes_it_counts_too() {
+        let f = frame(-1.2, true).unwrap();
+        let t_off = [300.0, 400.0];
+        let mut j = DeviationJudge::new(50.0);
+        j.set_frame(Some(f));
+        read_both(&mut j, 0.0, [7500.0, 7500.0]);
+        let (vx, vy) = pattern(&f, t_off, [7500.0, 7500.0]);
+        j.vision(0.01, 0.02, vx, vy);
+        read_both(&mut j, 0.1, [7500.0, 7500.0]);
+        assert!(j.judge(true).tied_um.is_some());
+        j.commanded(AxisId::X, 0.11, 0.111, 7000.0);
+        read_both(&mut j, 0.2, [7200.0, 7500.0]);
+        let (vx, vy) = pattern(&f, t_off, [7050.0, 7500.0]);
+        j.vision(0.25, 0.251, vx, vy);
+        j.commanded(AxisId::X, 0.26, 0.261, 7500.0);
+        read_both(&mut j, 0.4, [7500.0, 7500.0]);
+        let r = j.judge(false);
+        assert!(r.fault.is_none(), "{r:?}");
+        assert_eq!(r.last_um.map(|d| d[0].abs() < 1e-6), Some(true), "{r:?}");
     }
 
     #[test]

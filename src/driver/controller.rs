@@ -222,6 +222,18 @@ impl Controller {
         out: Outgoing,
         text: &str,
     ) -> Result<(GcsErrorCode, u64), DriverError> {
+        if self.line.error_unread(self.addr) {
+            // Someone else's code may wait in the register (`Line`'s error
+            // ledger): read it first, so the `ERR?` below is this command's.
+            let (code, _) = self.read_error().await?;
+            if !(code.is_ok() || code == GcsErrorCode::STOPPED) {
+                return Err(DriverError::PendingError {
+                    target: self.label.to_string(),
+                    code,
+                    command: text.to_owned(),
+                });
+            }
+        }
         let r = self.line.exchange(self.addr, out, self.timeout).await?;
         if r.outcome != Outcome::Sent {
             return Err(DriverError::Invalid(format!("`{text}` is a query")));

@@ -184,6 +184,20 @@ pub enum DriverError {
         /// The command whose outcome is unknown.
         command: String,
     },
+    /// Before a command, the controller's error register held a code that
+    /// no caller had read (a command whose caller went away before its
+    /// `ERR?`): other than 0 and 10 (a halt's own), it is reported here and
+    /// the command is not sent, so that it is neither lost nor taken for
+    /// the new command's refusal.
+    #[error("{target}: the controller held error {code} from an earlier command whose caller went away; `{command}` was not sent")]
+    PendingError {
+        /// Line and address.
+        target: String,
+        /// The code that was waiting.
+        code: GcsErrorCode,
+        /// The command that was not sent.
+        command: String,
+    },
     /// The driver task has ended (all handles to the line were closed).
     #[error("the driver for {line} has shut down")]
     Closed {

@@ -19,6 +19,16 @@
 //!   before any queued exchange, and also while an exchange waits for its
 //!   answer or for the line to fall quiet (its request is on the wire by
 //!   then, so the urgent bytes cannot split it). It expects no answer.
+//! - The task keeps a ledger per controller address of the writes that may
+//!   have set its error register (commands without an answer, queries that
+//!   stayed silent, urgent stops) and of the answered `ERR?` that read them
+//!   ([`Line::error_unread`]). Why: a transaction's `ERR?` is sent by its
+//!   caller, and a caller that goes away between its command and its
+//!   `ERR?` (a job cancelled mid-move; a halt's confirmation dropped with
+//!   its future) leaves the code in the register, where the next command's
+//!   own `ERR?` would read it as that command's refusal (seen: a cancelled
+//!   job's halt left error 10, and the resumed job's first `MOV` was
+//!   reported refused although it ran).
 
 use super::error::DriverError;
 use super::transport::Connector;
@@ -75,8 +85,47 @@ pub struct Reply {
 
 /// An urgent control byte to write at once.
 struct Urgent {
+    addr: Option<Address>,
     bytes: Vec<u8>,
     done: oneshot::Sender<Result<(), DriverError>>,
+}
+
+/// Per controller address (none: slot 0): writes that may have set the
+/// error register, and how many of them an answered `ERR?` has read.
+#[derive(Debug, Default)]
+struct Ledger {
+    slots: [(u64, u64); 17],
+}
+
+impl Ledger {
+    fn slot(addr: Option<Address>) -> usize {
+        addr.map_or(0, |a| usize::from(a.get()).min(16))
+    }
+
+    /// A write that may set the register; returns nothing.
+    fn wrote(&mut self, addr: Option<Address>) {
+        self.slots[Self::slot(addr)].0 += 1;
+    }
+
+    /// The writes so far (what an `ERR?` written now will read).
+    fn written(&self, addr: Option<Address>) -> u64 {
+        self.slots[Self::slot(addr)].0
+    }
+
+    /// An `ERR?` written after `n` writes was answered.
+    fn read(&mut self, addr: Option<Address>, n: u64) {
+        let s = &mut self.slots[Self::slot(addr)];
+        s.1 = s.1.max(n);
+    }
+
+    fn unread(&self, addr: Option<Address>) -> bool {
+        let s = self.slots[Self::slot(addr)];
+        s.0 > s.1
+    }
+}
+
+fn lock_ledger(l: &std::sync::Mutex<Ledger>) -> std::sync::MutexGuard<'_, Ledger> {
+    l.lock().unwrap_or_else(|p| p.into_inner())
 }
 
 enum Request {
@@ -101,6 +150,7 @@ pub struct Line {
     name: Arc<str>,
     epoch: Arc<AtomicU64>,
     noise: Arc<AtomicU64>,
+    ledger: Arc<std::sync::Mutex<Ledger>>,
 }
 
 impl Line {
@@ -118,7 +168,9 @@ impl Line {
         let noise = Arc::new(AtomicU64::new(0));
         let (tx, rx) = mpsc::channel(32);
         let (urgent, urgent_rx) = mpsc::channel(8);
+        let ledger = Arc::new(std::sync::Mutex::new(Ledger::default()));
         let task = Task {
+            ledger: ledger.clone(),
             urgent: urgent_rx,
             connector,
             options,
@@ -141,6 +193,7 @@ impl Line {
             name,
             epoch,
             noise,
+            ledger,
         })
     }
 
@@ -161,6 +214,13 @@ impl Line {
     /// moves this counter.
     pub fn noise_count(&self) -> u64 {
         self.noise.load(Ordering::SeqCst)
+    }
+
+    /// Whether the controller at `addr` may hold an error code that no
+    /// answered `ERR?` has read since it was written (see the module docs):
+    /// a transaction reads it first, so that its own `ERR?` is its own.
+    pub fn error_unread(&self, addr: Option<Address>) -> bool {
+        lock_ledger(&self.ledger).unread(addr)
     }
 
     /// Runs one exchange: writes the request and, if it expects an answer,
@@ -195,7 +255,7 @@ impl Line {
                 c.byte()
             )));
         }
-        self.write_urgent(crate::gcs::frame::encode_control(addr, c))
+        self.write_urgent(addr, crate::gcs::frame::encode_control(addr, c))
             .await
     }
 
@@ -220,13 +280,13 @@ impl Line {
         }
         let bytes = crate::gcs::frame::encode_line(addr, &cmd.to_text())
             .map_err(|e| DriverError::Invalid(e.to_string()))?;
-        self.write_urgent(bytes).await
+        self.write_urgent(addr, bytes).await
     }
 
-    async fn write_urgent(&self, bytes: Vec<u8>) -> Result<(), DriverError> {
+    async fn write_urgent(&self, addr: Option<Address>, bytes: Vec<u8>) -> Result<(), DriverError> {
         let (done, rx) = oneshot::channel();
         self.urgent
-            .send(Urgent { bytes, done })
+            .send(Urgent { addr, bytes, done })
             .await
             .map_err(|_| self.closed())?;
         rx.await.map_err(|_| self.closed())?
@@ -247,6 +307,7 @@ impl Line {
 }
 
 struct Task<C: Connector> {
+    ledger: Arc<std::sync::Mutex<Ledger>>,
     urgent: mpsc::Receiver<Urgent>,
     connector: C,
     options: LineOptions,
@@ -383,6 +444,9 @@ impl<C: Connector> Task<C> {
             io.write_all(&u.bytes).await?;
             io.flush().await
         };
+        // Counted before the write: part of it may reach the controller
+        // even if the write fails.
+        lock_ledger(&self.ledger).wrote(u.addr);
         match tokio::time::timeout(Duration::from_millis(100), write).await {
             Ok(Ok(())) => {
                 let _ = u.done.send(Ok(()));
@@ -520,6 +584,31 @@ impl<C: Connector> Task<C> {
             Ok(b) => b,
             Err(e) => return (Step::Continue, Err(DriverError::Invalid(e.to_string()))),
         };
+        let written_before = lock_ledger(&self.ledger).written(addr);
+        let (step, result) = self.write_and_wait(io, bytes, timeout).await;
+        // The error ledger (module docs): an answered `ERR?` read every
+        // write before it; anything else without an answer may have set
+        // the register.
+        let mut ledger = lock_ledger(&self.ledger);
+        match (&result, out) {
+            (Ok(Outcome::Answer(_)), Outgoing::Command(crate::gcs::Command::Err)) => {
+                ledger.read(addr, written_before);
+            }
+            (Ok(Outcome::Answer(_)), _) => {}
+            _ => ledger.wrote(addr),
+        }
+        drop(ledger);
+        (step, result)
+    }
+
+    /// Step 3 and 4 of [`Task::exchange`]: writes `bytes`, then waits for
+    /// the answer if one is due.
+    async fn write_and_wait(
+        &mut self,
+        io: &mut C::Io,
+        bytes: Vec<u8>,
+        timeout: Duration,
+    ) -> (Step, Result<Outcome, DriverError>) {
         let write = async {
             io.write_all(&bytes).await?;
             io.flush().await

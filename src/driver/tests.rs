@@ -237,6 +237,55 @@ async fn halt_stops_the_move_and_the_waiter() {
     ));
 }
 
+/// A halt whose `ERR?` never came (its caller went away after the urgent
+/// `HLT`, as a cancelled job's does) leaves error 10 in the register; the
+/// next command reads it first, so it is not reported refused by it.
+#[tokio::test(start_paused = true)]
+async fn an_abandoned_halt_does_not_refuse_the_next_move() {
+    let rig = Rig::new(&[1]).await;
+    let ax = referenced_axis(&rig).await;
+    ax.move_abs_um(9_000.0).await.unwrap();
+    assert!(!rig.line.error_unread(None));
+    rig.line
+        .urgent_command(None, &Command::Hlt(vec![AxisId::new("1").unwrap()]))
+        .await
+        .unwrap();
+    assert!(rig.line.error_unread(None));
+    ax.move_abs_um(8_000.0).await.unwrap();
+    assert!(!rig.line.error_unread(None));
+    assert_eq!(ax.wait_on_target(None).await.unwrap(), 8_000.0);
+    assert_eq!(
+        ax.controller().error().await.unwrap(),
+        GcsErrorCode::NO_ERROR
+    );
+}
+
+/// A command sent without its `ERR?` (a caller that went away) whose
+/// controller refused it leaves a code other than 10: the next command is
+/// not sent and says which code was waiting; nothing is lost.
+#[tokio::test(start_paused = true)]
+async fn a_waiting_refusal_is_reported_and_the_next_command_not_sent() {
+    let rig = Rig::new(&[1]).await;
+    let ax = referenced_axis(&rig).await;
+    let ctl = ax.controller().clone();
+    let vel = |v: f64| Command::Vel(vec![(AxisId::new("1").unwrap(), v)]);
+    rig.line
+        .exchange(None, crate::gcs::Outgoing::Command(vel(99.0)), T)
+        .await
+        .unwrap();
+    match ctl.set(&vel(0.5)).await {
+        Err(DriverError::PendingError { code, command, .. }) => {
+            assert_eq!(code, GcsErrorCode::VEL_OUT_OF_LIMITS);
+            assert_eq!(command, "VEL 1 0.5");
+        }
+        other => panic!("{other:?}"),
+    }
+    // Not sent: the velocity is the one before.
+    assert_ne!(ax.velocity_um_per_s().await.unwrap(), 500.0);
+    ctl.set(&vel(0.5)).await.unwrap();
+    assert_eq!(ax.velocity_um_per_s().await.unwrap(), 500.0);
+}
+
 /// A halt during the reference move leaves the controller ready and
 /// unreferenced with its error 10 consumed by the halt: the reference
 /// says it was halted, not that the controller gave up.

@@ -228,17 +228,10 @@ impl Client {
         let n = match self.r.read_line(&mut l) {
             Ok(n) => n,
             Err(e) => {
-                let log = self
-                    .log
-                    .as_ref()
-                    .and_then(|p| std::fs::read_to_string(p).ok())
-                    .unwrap_or_default();
-                let lines: Vec<&str> = log.lines().collect();
-                let tail = &lines[lines.len().saturating_sub(40)..];
                 panic!(
                     "no line within the deadline ({e}); events read but not asked for: {:?}\nthe daemon's log ends:\n{}",
                     self.events,
-                    tail.join("\n")
+                    self.log_tail()
                 );
             }
         };
@@ -261,10 +254,25 @@ impl Client {
         }
     }
 
+    /// A request that must succeed; a refusal shows the daemon's log tail
+    /// (a fault's reason is there, not in the reply).
     fn ok(&mut self, req: Value) -> Value {
         let v = self.call(req.clone());
-        assert_eq!(v["ok"], true, "{req} -> {v}");
+        if v["ok"] != true {
+            panic!("{req} -> {v}\nthe daemon's log ends:\n{}", self.log_tail());
+        }
         v
+    }
+
+    /// The last 40 lines of the daemon's log (empty without one).
+    fn log_tail(&self) -> String {
+        let log = self
+            .log
+            .as_ref()
+            .and_then(|p| std::fs::read_to_string(p).ok())
+            .unwrap_or_default();
+        let lines: Vec<&str> = log.lines().collect();
+        lines[lines.len().saturating_sub(40)..].join("\n")
     }
 
     /// Polls `status` until `f` holds.

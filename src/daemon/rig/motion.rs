@@ -262,7 +262,19 @@ impl Rig {
                 }
             }
         };
+        let sent_t0 = self.clock.now_s();
         let (rx, ry) = tokio::join!(send(&stage.x, targets[0]), send(&stage.y, targets[1]));
+        {
+            // Sent or not (a failed send may have reached the controller):
+            // the deviation check widens its span by the target.
+            let sent_t1 = self.clock.now_s();
+            let mut d = lock(&self.deviation);
+            for (a, tg) in [(AxisId::X, targets[0]), (AxisId::Y, targets[1])] {
+                if let Some(tg) = tg {
+                    d.commanded(a, sent_t0, sent_t1, tg);
+                }
+            }
+        }
         {
             let mut c = lock(&self.commanded);
             if rx.is_ok() && targets[0].is_some() {
@@ -275,6 +287,11 @@ impl Rig {
         if let Err(e) = rx.and(ry) {
             // One axis may have started: a half-accepted move is halted.
             self.halt_all().await;
+            if matches!(e, DriverError::PendingError { .. }) {
+                // A controller error nobody had read (a servo fault, say)
+                // is a fault as it would be met by the supervisor.
+                self.apply(Input::Fault(format!("before a move: {e}")));
+            }
             return Err(driver_error(e));
         }
         if self.stop_gen.load(Ordering::SeqCst) != gen {
