@@ -102,7 +102,7 @@ impl Ledger {
         addr.map_or(0, |a| usize::from(a.get()).min(16))
     }
 
-    /// A write that may set the register; returns nothing.
+    /// A write that may have set the register.
     fn wrote(&mut self, addr: Option<Address>) {
         self.slots[Self::slot(addr)].0 += 1;
     }
