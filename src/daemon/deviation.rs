@@ -296,10 +296,10 @@ impl DeviationJudge {
         // Sent while the window [b.t0, a.t1] was open (the command's own
         // interval overlapping it: it may have reached the controller on
         // either side of a read's edge).
-        let within = |c: &&Sent| c.t1_s >= b.t0_s && c.t0_s <= a.t1_s;
-        if sent.iter().any(|c| within(&c)) {
+        let within = |c: &Sent| c.t1_s >= b.t0_s && c.t0_s <= a.t1_s;
+        if sent.iter().any(within) {
             let in_force = sent.iter().rev().find(|c| c.t1_s < b.t0_s);
-            for c in sent.iter().filter(within).chain(in_force) {
+            for c in sent.iter().filter(|c| within(c)).chain(in_force) {
                 lo = lo.min(c.target_um);
                 hi = hi.max(c.target_um);
             }
@@ -358,6 +358,17 @@ mod tests {
         j.controller(AxisId::Y, t, t + 0.001, p[1]);
     }
 
+    /// The stage at rest at `p` (stage µm) from t 0 to 0.1 s, read on both
+    /// sides of a frame seen through `f` with translation `t_off`: what
+    /// the judge makes of it at rest (the tie).
+    fn rest_at(j: &mut DeviationJudge, f: &VisionFrame, t_off: [f64; 2], p: [f64; 2]) -> Judged {
+        read_both(j, 0.0, p);
+        let (vx, vy) = pattern(f, t_off, p);
+        j.vision(0.01, 0.02, vx, vy);
+        read_both(j, 0.1, p);
+        j.judge(true)
+    }
+
     #[test]
     fn a_slip_at_rest_or_moving_beyond_the_bound_is_a_fault_within_it_is_not() {
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(0xde71);
@@ -373,11 +384,7 @@ mod tests {
             j.set_frame(Some(f));
             let p0 = [rng.gen_range(0.0..15000.0), rng.gen_range(0.0..15000.0)];
             // At rest: the tie.
-            read_both(&mut j, 0.0, p0);
-            let (vx, vy) = pattern(&f, t_off, p0);
-            j.vision(0.01, 0.02, vx, vy);
-            read_both(&mut j, 0.1, p0);
-            let r = j.judge(true);
+            let r = rest_at(&mut j, &f, t_off, p0);
             assert!(r.tied_um.is_some() && r.fault.is_none(), "{r:?}");
             // Moving at v along a random direction, the platform off the
             // count by `slip` on one axis (random sign and size).
@@ -539,11 +546,7 @@ mod tests {
             j.set_frame(Some(f));
             let home = [7500.0, 7500.0];
             let corner = [7000.0, 7000.0];
-            read_both(&mut j, 0.0, home);
-            let (vx, vy) = pattern(&f, t_off, home);
-            j.vision(0.01, 0.02, vx, vy);
-            read_both(&mut j, 0.1, home);
-            assert!(j.judge(true).tied_um.is_some());
+            assert!(rest_at(&mut j, &f, t_off, home).tied_um.is_some());
             for (a, i) in [(AxisId::X, 0), (AxisId::Y, 1)] {
                 j.commanded(a, 0.11, 0.111, corner[i]);
             }
@@ -582,11 +585,9 @@ mod tests {
         let t_off = [300.0, 400.0];
         let mut j = DeviationJudge::new(50.0);
         j.set_frame(Some(f));
-        read_both(&mut j, 0.0, [7500.0, 7500.0]);
-        let (vx, vy) = pattern(&f, t_off, [7500.0, 7500.0]);
-        j.vision(0.01, 0.02, vx, vy);
-        read_both(&mut j, 0.1, [7500.0, 7500.0]);
-        assert!(j.judge(true).tied_um.is_some());
+        assert!(rest_at(&mut j, &f, t_off, [7500.0, 7500.0])
+            .tied_um
+            .is_some());
         j.commanded(AxisId::X, 0.11, 0.111, 7000.0);
         read_both(&mut j, 0.2, [7200.0, 7500.0]);
         let (vx, vy) = pattern(&f, t_off, [7050.0, 7500.0]);

@@ -264,10 +264,13 @@ impl Rig {
         };
         let sent_t0 = self.clock.now_s();
         let (rx, ry) = tokio::join!(send(&stage.x, targets[0]), send(&stage.y, targets[1]));
+        // When the move was sent (the supervisor's watch and the motion
+        // history take it too: one clock read, which on a served simulator
+        // is an exchange with it).
+        let sent_t1 = self.clock.now_s();
         {
             // Sent or not (a failed send may have reached the controller):
             // the deviation check widens its span by the target.
-            let sent_t1 = self.clock.now_s();
             let mut d = lock(&self.deviation);
             for (a, tg) in [(AxisId::X, targets[0]), (AxisId::Y, targets[1])] {
                 if let Some(tg) = tg {
@@ -305,16 +308,15 @@ impl Rig {
             ));
         }
         {
-            let t = self.clock.now_s();
             let mut sup = self.supervisor();
             for (a, tg) in [(AxisId::X, targets[0]), (AxisId::Y, targets[1])] {
                 if let Some(tg) = tg {
-                    sup.watch(a, tg, t);
+                    sup.watch(a, tg, sent_t1);
                 }
             }
         }
         if commit {
-            self.comp.commit_raw(targets, self.clock.now_s());
+            self.comp.commit_raw(targets, sent_t1);
         }
         let mut out = json!({"commanded": {"x_um": targets[0], "y_um": targets[1]}});
         if req.wait {
