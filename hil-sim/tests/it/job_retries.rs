@@ -241,3 +241,75 @@ async fn a_permanent_fault_is_not_retried() {
     }
     r.shutdown().await;
 }
+
+/// A characterization on the in-process rig goes on to the next point
+/// while a point's frame decodes (`Vision::defer`), so a frame that does
+/// not decode is found after the stage left its point. The point is then
+/// measured again (event `job_remeasure`): the job goes back to it, logs
+/// it, approaches the point it had gone on to again, and every plan point
+/// ends in the log exactly once, in plan order, measured on the pattern.
+#[tokio::test(start_paused = true)]
+async fn an_undecodable_frame_is_measured_again_after_the_stage_left_it() {
+    let r = rig().await;
+    let mut events = Client::connect(&r.socket).await;
+    events
+        .call_ok(json!({"cmd":"subscribe","topics":["job"]}))
+        .await;
+    let mut cl = Client::connect(&r.socket).await;
+    let st = cl.call(characterize("g.csv")).await;
+    assert_eq!(st["ok"], true, "{st}");
+    let camera = r.sim().camera().clone();
+    let mut garbled = false;
+    let mut remeasures = Vec::new();
+    let (end, retries) = follow(&mut events, |v| {
+        if !garbled && v["event"] == "job" && v["done"].as_u64() == Some(2) {
+            camera.set_mode(CameraMode::Garbage);
+            garbled = true;
+        }
+        if v["event"] == "job_remeasure" {
+            camera.set_mode(CameraMode::Normal);
+            remeasures.push(v.clone());
+        }
+    })
+    .await;
+    assert!(garbled, "no second point was logged: {end}");
+    assert_eq!(end["state"], "done", "{end}; retries {retries:?}");
+    assert_eq!(remeasures.len(), 1, "{remeasures:?}");
+    let point = remeasures[0]["point"].as_u64().unwrap() as usize;
+    assert!(point >= 2, "{remeasures:?}");
+    assert!(
+        remeasures[0]["reason"].as_str().unwrap().contains("decode"),
+        "{remeasures:?}"
+    );
+    let log = micropos::charact::log::read_file(r.data.join("g.csv")).unwrap();
+    let total = end["total"].as_u64().unwrap() as usize;
+    // The stage had gone on unless it was the last point.
+    assert_eq!(remeasures[0]["detour"], point + 1 < total, "{remeasures:?}");
+    assert_eq!(log.records.len(), total, "every point once");
+    // Plan order: forward then backward over 0, 200, 400 µm (relative).
+    let x0 = log.records[0].x_target_um;
+    let xs: Vec<f64> = log.records.iter().map(|r| r.x_target_um - x0).collect();
+    assert_eq!(xs, [0.0, 200.0, 400.0, 400.0, 200.0, 0.0], "{xs:?}");
+    // Each point measured where the stage stood: the measured minus the
+    // target agrees with the rest of the scan to well under a period, the
+    // re-measured point included.
+    let err: Vec<f64> = log
+        .records
+        .iter()
+        .map(|r| r.x_meas_um - r.x_target_um)
+        .collect();
+    let others: Vec<f64> = err
+        .iter()
+        .enumerate()
+        .filter(|&(i, _)| i != point)
+        .map(|(_, e)| *e)
+        .collect();
+    let lo = others.iter().copied().fold(f64::INFINITY, f64::min);
+    let hi = others.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+    assert!(
+        err[point] > lo - 2.0 && err[point] < hi + 2.0,
+        "re-measured point {point}: error {} µm, others {lo}..{hi} µm",
+        err[point]
+    );
+    r.shutdown().await;
+}

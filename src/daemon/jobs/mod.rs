@@ -9,6 +9,7 @@
 pub mod approach;
 pub mod plan;
 pub mod record;
+mod scan;
 pub mod sweep;
 pub mod sweep_anchor;
 pub mod sweep_job;
@@ -30,7 +31,7 @@ pub(crate) use super::rig::measure::{
 use super::protocol::{Axes, CharacterizeMode, CharacterizeParams, ErrorCode, ProtoError, Topic};
 use super::rig::Rig;
 use crate::analysis::drift::DRIFT_REF_SEGMENT;
-use crate::charact::log::{self, LogWriter, Metadata, Record};
+use crate::charact::log::{self, LogWriter, Metadata};
 use crate::comp::VisionFrame;
 use crate::model::XyUm;
 use approach::ApproachTracker;
@@ -453,7 +454,6 @@ async fn run(
     let points = plan.points();
     let gen = rig.stop_generation();
     let clock = rig.clock.clone();
-    let settle = Duration::try_from_secs_f64(plan.settle_s).unwrap_or_default();
     let writer: Arc<Mutex<LogWriter<File>>>;
     let frame: VisionFrame;
     let origin;
@@ -516,105 +516,22 @@ async fn run(
         }
         approach.moved_to(x, y);
     }
-    let began = clock.now_s();
-    // Rig time of the last reference re-measurement (none yet: one is taken
-    // before the first point, also after a resume, to re-anchor).
-    let mut last_ref_s: Option<f64> = None;
-    for (i, p) in points.iter().enumerate().skip(start) {
-        if *cancel.borrow_and_update() {
-            return Ok("cancelled");
-        }
-        if rig.stop_generation() != gen {
-            return Ok("stopped");
-        }
-        // Re-approached already (the start's park or a reference detour).
-        let mut approached = i == start;
-        if let Some(d) = &drift {
-            if last_ref_s.is_none_or(|t| clock.now_s() - t >= d.every_s) {
-                let ctx = RefContext {
-                    plan,
-                    frame: &frame,
-                    origin,
-                    writer: &writer,
-                    name,
-                    with_approach,
-                };
-                if !measure_reference(rig, &ctx, d, p, &mut approach, &mut cancel).await? {
-                    return Ok("cancelled");
-                }
-                last_ref_s = Some(clock.now_s());
-                approached = true;
-            }
-        }
-        // A new scan line (X scan → Y scan): the held axis got there by a
-        // long move. Park it again as at the start, so that every pass is
-        // measured with the held axis after the same short forward approach
-        // (what the model fit replays). Measured without it on the
-        // paper-faithful stage, whose lost motion grows with the length of
-        // the last move: x was 5 µm off through the first Y pass, until the
-        // first reference detour re-approached it (the model table's fit
-        // left 0.88 µm rms on x, 1.6 µm in the Y scan alone).
-        let line = |q: &plan::Point| scan_line(q.segment);
-        if !approached
-            && line(p).is_some()
-            && i.checked_sub(1)
-                .and_then(|k| points.get(k))
-                .is_some_and(|q| line(q) != line(p))
-        {
-            let (x, y) = scan_approach(rig, p);
-            if move_raw(rig, x, y, &mut cancel).await?.is_none() {
-                return Ok("cancelled");
-            }
-            approach.moved_to(x, y);
-        }
-        let Some(moved) = move_raw(rig, p.x_um, p.y_um, &mut cancel).await? else {
-            return Ok("cancelled");
-        };
-        approach.moved_to(p.x_um, p.y_um);
-        clock.sleep(settle).await;
-        let (m, quality) = measure_retrying(rig, plan.frames_per_point).await?;
-        let meas = frame.to_stage(XyUm {
-            x_um: m.x_um,
-            y_um: m.y_um,
-        });
-        let rep = |axis: &str| moved["reported"][axis].as_f64();
-        let mut rec = Record {
-            t_s: clock.now_s() - origin,
-            segment: p.segment.to_owned(),
-            cycle: p.cycle,
-            x_target_um: p.x_um,
-            y_target_um: p.y_um,
-            x_cmd_um: p.x_um,
-            y_cmd_um: p.y_um,
-            x_meas_um: meas.x_um,
-            y_meas_um: meas.y_um,
-            temp_c: None,
-            extra: vec![
-                rep("x_um").map_or(String::new(), |v| format!("{v:.4}")),
-                rep("y_um").map_or(String::new(), |v| format!("{v:.4}")),
-                format!("{quality:.3}"),
-            ],
-        };
-        if with_approach {
-            rec.extra.push(approach.cell(p.segment));
-        }
-        append_record(&writer, rec, name).await?;
-        let done = i + 1;
-        let per_point = (clock.now_s() - began) / (done - start) as f64;
-        let eta = per_point * (points.len() - done) as f64;
-        let snapshot = {
-            let mut g = lock(progress);
-            g.as_mut().map(|pr| {
-                pr.done = done;
-                pr.eta_s = Some(eta);
-                pr.to_json()
-            })
-        };
-        if let Some(s) = snapshot {
-            rig.push(Topic::Job, "job", s);
-        }
-    }
-    Ok("done")
+    let scan = scan::Scan {
+        rig,
+        plan,
+        points: &points,
+        drift: drift.as_ref(),
+        frame: &frame,
+        origin,
+        writer: &writer,
+        name,
+        with_approach,
+        progress,
+        start,
+        gen,
+        began: clock.now_s(),
+    };
+    scan::run(&scan, &mut approach, &mut cancel).await
 }
 
 /// What a reference re-measurement needs from the running job.

@@ -93,7 +93,6 @@ pub(crate) fn drift_ref_record(
     t_s: f64,
 ) -> Record {
     let [rx, ry] = reference_um;
-    let rep = |axis: &str| moved["reported"][axis].as_f64();
     Record {
         t_s,
         segment: DRIFT_REF_SEGMENT.to_owned(),
@@ -105,10 +104,18 @@ pub(crate) fn drift_ref_record(
         x_meas_um: meas.x_um,
         y_meas_um: meas.y_um,
         temp_c: None,
-        extra: vec![
-            rep("x_um").map_or(String::new(), |v| format!("{v:.4}")),
-            rep("y_um").map_or(String::new(), |v| format!("{v:.4}")),
-            format!("{quality:.3}"),
-        ],
+        extra: measured_columns(moved, quality),
     }
+}
+
+/// The extra columns of [`columns`] for a point reached by the move that
+/// answered `moved` (its `reported` position, empty when unknown) and
+/// measured at `quality`.
+pub(crate) fn measured_columns(moved: &Value, quality: f64) -> Vec<String> {
+    let rep = |axis: &str| moved["reported"][axis].as_f64();
+    vec![
+        rep("x_um").map_or(String::new(), |v| format!("{v:.4}")),
+        rep("y_um").map_or(String::new(), |v| format!("{v:.4}")),
+        format!("{quality:.3}"),
+    ]
 }

@@ -4,7 +4,7 @@
 
 use super::Rig;
 use crate::daemon::protocol::{ErrorCode, MoveRequest, ProtoError};
-use crate::daemon::vision::{HealthCounts, Measurement};
+use crate::daemon::vision::{Deferred, HealthCounts, Measurement};
 use serde_json::Value;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
@@ -111,9 +111,15 @@ pub(crate) async fn measure(
             }
         }
     }
-    let k = got.len() as f64;
+    let m = average(&got);
+    Ok((m, m.quality))
+}
+
+/// The mean of `got` (at least one), the newest frame's sequence number.
+fn average(got: &[Measurement]) -> Measurement {
+    let k = got.len().max(1) as f64;
     let mean = |f: fn(&Measurement) -> f64| got.iter().map(f).sum::<f64>() / k;
-    let m = Measurement {
+    Measurement {
         t_s: mean(|m| m.t_s),
         frame_t_s: mean(|m| m.frame_t_s),
         sequence: got.last().map_or(0, |m| m.sequence),
@@ -121,8 +127,116 @@ pub(crate) async fn measure(
         y_um: mean(|m| m.y_um),
         theta_rad: mean(|m| m.theta_rad),
         quality: mean(|m| m.quality),
+    }
+}
+
+/// A point's frames, exposed, their decodes running on the decode worker
+/// ([`Vision::defer`](crate::daemon::vision::Vision::defer)).
+#[derive(Debug)]
+pub(crate) struct Exposed {
+    frames: Vec<Deferred>,
+}
+
+/// Exposes `n` fresh frames (grab requested at or after `after_s`, as in
+/// [`measure`]) and returns as soon as the last exposure has ended, their
+/// decodes still running; [`finish`] waits for them. `Ok(None)` when the
+/// pipeline decodes as it goes (free-running: use [`measure`]). Each frame
+/// must come within `camera.timeout_ms` of the previous one, or of the
+/// call; otherwise the point fails with `camera_stalled` (transient).
+pub(crate) async fn expose(rig: &Rig, n: u32, after_s: f64) -> Result<Option<Exposed>, ProtoError> {
+    let Some(v) = &rig.vision else {
+        return Err(ProtoError::new(ErrorCode::CameraUnavailable, "no camera"));
     };
-    Ok((m, m.quality))
+    let timeout = Duration::from_millis(rig.cfg.camera.timeout_ms);
+    let mut frames: Vec<Deferred> = Vec::new();
+    while frames.len() < n as usize {
+        let Some((want, rx)) = v.defer() else {
+            return Ok(None);
+        };
+        let got = tokio::time::timeout(timeout, rx).await;
+        drop(want);
+        let d = match got {
+            Ok(Ok(d)) => d,
+            Ok(Err(_)) => {
+                finish_all(v, frames).await;
+                return Err(ProtoError::new(
+                    ErrorCode::CameraUnavailable,
+                    "the camera pipeline ended",
+                ));
+            }
+            Err(_) => {
+                let why = lock(&v.last_error)
+                    .clone()
+                    .unwrap_or_else(|| "no error reported".to_owned());
+                let measured = frames.len();
+                finish_all(v, frames).await;
+                return Err(ProtoError::new(
+                    ErrorCode::CameraStalled,
+                    format!(
+                        "no frame exposed after the settle arrived from the camera within {} ms (last error: {why}); {measured} of {n} frames exposed, the point was not logged",
+                        timeout.as_millis()
+                    ),
+                )
+                .into_transient());
+            }
+        };
+        if d.request_t_s() >= after_s {
+            frames.push(d);
+        } else {
+            // Exposed before the settle (a grab that was under way): it is
+            // published as any frame, and does not count.
+            let _ = v.finish(d).await;
+        }
+    }
+    Ok(Some(Exposed { frames }))
+}
+
+/// Publishes deferred frames nobody will use (their counts stay whole).
+async fn finish_all(v: &crate::daemon::vision::Vision, frames: Vec<Deferred>) {
+    for d in frames {
+        let _ = v.finish(d).await;
+    }
+}
+
+/// Waits for the decodes of an exposed point (the rig clock stands still
+/// meanwhile), publishes each, and averages them as [`measure`] does.
+/// `Err` says why the point has no measurement: a frame did not decode or
+/// decoded below `camera.min_quality`; the caller measures it again.
+pub(crate) async fn finish(rig: &Rig, e: Exposed) -> Result<(Measurement, f64), String> {
+    let Some(v) = &rig.vision else {
+        return Err("no camera".to_owned());
+    };
+    let mut got = Vec::with_capacity(e.frames.len());
+    let mut why = None;
+    for d in e.frames {
+        match v.finish(d).await {
+            Ok(m) if m.quality >= rig.cfg.camera.min_quality => got.push(m),
+            Ok(m) => {
+                why.get_or_insert(format!(
+                    "a frame decoded at quality {:.2}, below camera.min_quality = {}",
+                    m.quality, rig.cfg.camera.min_quality
+                ));
+            }
+            Err(w) => {
+                why.get_or_insert(w);
+            }
+        }
+    }
+    match why {
+        Some(w) => Err(w),
+        None if got.is_empty() => Err("no frame".to_owned()),
+        None => {
+            let m = average(&got);
+            Ok((m, m.quality))
+        }
+    }
+}
+
+/// [`expose`] of `n` frames exposed from now on, retried after transient
+/// camera faults as [`measure_retrying`].
+pub(crate) async fn expose_retrying(rig: &Rig, n: u32) -> Result<Option<Exposed>, ProtoError> {
+    rig.retry_transient("measure", || expose(rig, n, rig.clock.now_s()))
+        .await
 }
 
 /// An absolute raw move and wait, retried after transient faults.

@@ -31,6 +31,10 @@ use std::sync::{mpsc, Arc};
 use std::thread;
 use tokio::sync::watch;
 
+mod on_demand;
+pub use on_demand::{Deferred, Want};
+use on_demand::{Demand, OnDemandLoop, Worker};
+
 /// One vision measurement of the pattern point under the image centre.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Measurement {
@@ -212,6 +216,9 @@ pub struct Vision {
     stop: Arc<AtomicBool>,
     /// Present when frames are grabbed on demand ([`Capture::OnDemand`]).
     demand: Option<Arc<Demand>>,
+    /// Where [`Vision::finish`] publishes a deferred frame's decode
+    /// (on-demand capture only).
+    publisher: Option<watch::Sender<Option<Measurement>>>,
 }
 
 /// How frames are captured.
@@ -236,33 +243,6 @@ pub enum Capture {
     /// only when someone measures (a 9.5-hour run does not render 30 frames
     /// a simulated second).
     OnDemand,
-}
-
-/// Consumers waiting for a frame ([`Capture::OnDemand`]).
-#[derive(Debug, Default)]
-struct Demand {
-    waiters: std::sync::atomic::AtomicUsize,
-    /// Those of `waiters` that take every frame ([`Vision::want_stream`]).
-    streams: std::sync::atomic::AtomicUsize,
-    notify: tokio::sync::Notify,
-}
-
-/// Keeps on-demand capture grabbing while alive (see [`Vision::want`]).
-#[derive(Debug)]
-pub struct Want {
-    demand: Option<Arc<Demand>>,
-    stream: bool,
-}
-
-impl Drop for Want {
-    fn drop(&mut self) {
-        if let Some(d) = &self.demand {
-            if self.stream {
-                d.streams.fetch_sub(1, Ordering::SeqCst);
-            }
-            d.waiters.fetch_sub(1, Ordering::SeqCst);
-        }
-    }
 }
 
 impl Vision {
@@ -296,6 +276,55 @@ impl Vision {
         Want {
             demand: self.demand.clone(),
             stream,
+        }
+    }
+
+    /// Asks for the next frame exposed from now on, handed over as soon as
+    /// its exposure has ended with its decode still running on the decode
+    /// worker; [`Vision::finish`] waits for it and publishes it. `None` for
+    /// a free-running pipeline, which decodes the newest frame anyway.
+    ///
+    /// Why: a step characterization needs the decode of one point only for
+    /// its log record, not to move on. On the simulator's virtual clock the
+    /// move to the next point (the controllers' poll, the settle) and the
+    /// next frame's render then run beside the decode on the machine's
+    /// cores, while the rig's history (every time, every noise draw) stays
+    /// what it is with one after the other (see `on_demand`). The consumer
+    /// holds the returned [`Want`] until the frame arrives.
+    pub fn defer(&self) -> Option<(Want, tokio::sync::oneshot::Receiver<Deferred>)> {
+        let d = self.demand.as_ref()?;
+        let (tx, rx) = tokio::sync::oneshot::channel();
+        d.deferred
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .push_back(tx);
+        Some((self.want(), rx))
+    }
+
+    /// Waits for a deferred frame's decode (the rig clock stands still
+    /// meanwhile) and publishes it as the on-demand loop publishes its own
+    /// frames: counted, streamed, judged. `Err` says why there is no
+    /// measurement (the decode failed, the worker ended); a frame below
+    /// `camera.min_quality` is the caller's to judge.
+    pub async fn finish(&self, d: Deferred) -> Result<Measurement, String> {
+        let stamp = d.stamp;
+        let Some(decoded) = d.decoded().await else {
+            let why = "decode: the decode worker ended".to_owned();
+            set(&self.last_error, why.clone());
+            return Err(why);
+        };
+        let Some(tx) = &self.publisher else {
+            return Err("a free-running pipeline defers nothing".to_owned());
+        };
+        match publish(decoded, stamp, &self.stats, &self.last_error, tx) {
+            Published::Sent(m) => Ok(m),
+            Published::Failed => Err(self
+                .last_error
+                .lock()
+                .ok()
+                .and_then(|g| g.clone())
+                .unwrap_or_else(|| "decode failed".to_owned())),
+            Published::Closed => Err("the camera pipeline ended".to_owned()),
         }
     }
 
@@ -333,12 +362,16 @@ impl Vision {
         let stop = Arc::new(AtomicBool::new(false));
         let demand = Arc::new(Demand::default());
         let tap = Arc::new(FrameTap::default());
-        tokio::spawn(on_demand_loop(OnDemandLoop {
+        let worker = Worker::start(decoder, stats.clone(), tap.clone()).map_err(|e| {
+            crate::pattern::decode::DecodeError::Options(format!(
+                "cannot start the decode thread: {e}"
+            ))
+        })?;
+        tokio::spawn(on_demand::on_demand_loop(OnDemandLoop {
             source,
-            decoder,
+            worker,
             clock,
-            tx,
-            tap: tap.clone(),
+            tx: tx.clone(),
             stats: stats.clone(),
             last_error: last_error.clone(),
             stop: stop.clone(),
@@ -352,6 +385,7 @@ impl Vision {
             last_error,
             stop,
             demand: Some(demand),
+            publisher: Some(tx),
         })
     }
 
@@ -461,6 +495,7 @@ impl Vision {
             last_error,
             stop,
             demand: None,
+            publisher: None,
         })
     }
 
@@ -519,191 +554,11 @@ impl Drop for Vision {
     }
 }
 
-/// The state of the on-demand capture task.
-struct OnDemandLoop {
-    source: Box<dyn FrameSource>,
-    decoder: Decoder,
-    clock: Arc<dyn RigClock>,
-    tx: watch::Sender<Option<Measurement>>,
-    tap: Arc<FrameTap>,
-    stats: Arc<VisionStats>,
-    last_error: Arc<std::sync::Mutex<Option<String>>>,
-    stop: Arc<AtomicBool>,
-    demand: Arc<Demand>,
-    timebase: CameraTimebase,
-}
-
-/// Pause after a failed grab before the next one, rig time: a camera that
-/// fails at once must not spin, and a consumer's frame deadline must come.
-const RETRY_AFTER_FAILED_GRAB: std::time::Duration = std::time::Duration::from_millis(50);
-
-/// [`Capture::OnDemand`]: grab while someone waits, wait out the exposure on
-/// the rig clock, decode on the blocking pool, publish. While a consumer
-/// takes every frame ([`Vision::want_stream`]) the next frame is grabbed
-/// (rendered) on the blocking pool alongside the current frame's decode:
-/// the clock stands still while either runs, the grab is requested at the
-/// rig time it would be requested after the publication (neither the
-/// decode nor the publication takes rig time), and its exposure is waited
-/// out after the publication, so the consumer sees each frame at the rig
-/// time it would see it with one task after the other.
-async fn on_demand_loop(mut l: OnDemandLoop) {
-    // A frame whose exposure has ended, not decoded yet.
-    let mut exposed: Option<(Frame, Stamp)> = None;
-    loop {
-        if l.stop.load(Ordering::Relaxed) {
-            return;
-        }
-        let Some((frame, stamp)) = exposed.take() else {
-            if l.demand.waiters.load(Ordering::SeqCst) == 0 {
-                let notified = l.demand.notify.notified();
-                tokio::pin!(notified);
-                notified.as_mut().enable();
-                if l.demand.waiters.load(Ordering::SeqCst) == 0 {
-                    tokio::select! {
-                        () = notified => {}
-                        () = l.tx.closed() => return,
-                    }
-                }
-                continue;
-            }
-            // Before the grab: see the module docs.
-            let t = l.clock.now_s();
-            let Some((source, grabbed)) = grab_blocking(l.source).await else {
-                set(&l.last_error, "camera: the grab task failed".to_owned());
-                return;
-            };
-            l.source = source;
-            let Some(e) = l.expose(grabbed, t).await else {
-                return;
-            };
-            exposed = e;
-            continue;
-        };
-        let decode = decode_blocking(l.decoder, frame, l.stats.clone(), l.tap.clone());
-        let t = l.clock.now_s();
-        let (decoded, ahead) = if l.demand.streams.load(Ordering::SeqCst) > 0 {
-            let (decoded, grabbed) = tokio::join!(decode, grab_blocking(l.source));
-            let Some((source, grabbed)) = grabbed else {
-                set(&l.last_error, "camera: the grab task failed".to_owned());
-                return;
-            };
-            l.source = source;
-            (decoded, Some(grabbed))
-        } else {
-            (decode.await, None)
-        };
-        let Some((decoder, decoded)) = decoded else {
-            set(&l.last_error, "decode: the decode task failed".to_owned());
-            return;
-        };
-        l.decoder = decoder;
-        match publish(decoded, stamp, &l.stats, &l.last_error, &l.tx) {
-            Published::Closed => return,
-            // Let the consumers the frame woke run first: one that had all
-            // it needs drops its `Want` before the next round looks at the
-            // demand (without this every measurement rendered and decoded a
-            // second frame nobody asked for).
-            Published::Sent => tokio::task::yield_now().await,
-            Published::Failed => {}
-        }
-        if let Some(grabbed) = ahead {
-            let Some(e) = l.expose(grabbed, t).await else {
-                return;
-            };
-            exposed = e;
-        }
-    }
-}
-
-/// What a grab gives the on-demand loop: a frame and how long until its
-/// exposure ends on the rig clock (`None`: it has ended).
-type Grabbed = Result<(Frame, Option<std::time::Duration>), crate::camera::CameraError>;
-
-/// One grab on the blocking pool; the source comes back with it. `None`
-/// when the task failed (a panic in the source).
-async fn grab_blocking(
-    mut source: Box<dyn FrameSource>,
-) -> Option<(Box<dyn FrameSource>, Grabbed)> {
-    tokio::task::spawn_blocking(move || {
-        let r = source.next_frame();
-        let ready = source.frame_ready_after();
-        (source, r.map(|f| (f, ready)))
-    })
-    .await
-    .ok()
-}
-
-/// One decode on the blocking pool, on two threads (the decoder's helper
-/// reads the frame through the `Arc`; it is unshared again when the decode
-/// returns); the decoder comes back with it. `None` when the task failed.
-async fn decode_blocking(
-    mut decoder: Decoder,
-    frame: Frame,
-    stats: Arc<VisionStats>,
-    tap: Arc<FrameTap>,
-) -> Option<(
-    Decoder,
-    Result<crate::pattern::decode::Decoded, crate::pattern::decode::DecodeError>,
-)> {
-    tokio::task::spawn_blocking(move || {
-        let t0 = std::time::Instant::now();
-        let frame = Arc::new(frame);
-        let r = decoder.decode_shared(&frame);
-        stats.decode_seconds.observe(t0.elapsed().as_secs_f64());
-        let frame = Arc::try_unwrap(frame).unwrap_or_else(|f| (*f).clone());
-        tap.offer(frame, &r);
-        (decoder, r)
-    })
-    .await
-    .ok()
-}
-
-impl OnDemandLoop {
-    /// Waits out the exposure of the frame grabbed at rig time
-    /// `request_s` (a source on a virtual clock renders at once; the frame
-    /// exists only when its exposure has ended) and stamps it: `Some(None)`
-    /// after a failed grab (counted, the error kept, the retry pause
-    /// waited), `None` when the source ended.
-    async fn expose(&mut self, grabbed: Grabbed, request_s: f64) -> Option<Option<(Frame, Stamp)>> {
-        let (frame, ready) = match grabbed {
-            Ok(g) => g,
-            Err(e) => {
-                self.stats.camera_errors.fetch_add(1, Ordering::Relaxed);
-                set(&self.last_error, format!("camera: {e}"));
-                if matches!(e, crate::camera::CameraError::EndOfStream { .. }) {
-                    tracing::warn!("camera source ended: {e}");
-                    return None;
-                }
-                self.clock.sleep(RETRY_AFTER_FAILED_GRAB).await;
-                return Some(None);
-            }
-        };
-        if let Some(d) = ready {
-            self.clock.sleep(d).await;
-        }
-        self.stats.frames.fetch_add(1, Ordering::Relaxed);
-        let frame_t_s = frame_time(
-            self.source.frame_clock(),
-            &frame,
-            request_s,
-            self.clock.now_s(),
-            &mut self.timebase,
-            &self.stats,
-        );
-        let stamp = Stamp {
-            request_t_s: request_s,
-            frame_t_s,
-            sequence: frame.sequence,
-        };
-        Some(Some((frame, stamp)))
-    }
-}
-
 /// What became of one decoded frame.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq)]
 enum Published {
     /// A measurement went out.
-    Sent,
+    Sent(Measurement),
     /// The decode failed (counted, the error kept).
     Failed,
     /// Nobody listens any more: the pipeline ends.
@@ -743,7 +598,7 @@ fn publish(
             if tx.send(Some(m)).is_err() {
                 Published::Closed
             } else {
-                Published::Sent
+                Published::Sent(m)
             }
         }
         Err(e) => {
