@@ -313,3 +313,60 @@ async fn an_undecodable_frame_is_measured_again_after_the_stage_left_it() {
     );
     r.shutdown().await;
 }
+
+/// Cancelled while a point's frame decodes beside the move to the next
+/// point: the point is logged (it was measured), the job's count says so,
+/// and a resume measures the rest: every plan point once, in plan order.
+#[tokio::test(start_paused = true)]
+async fn a_cancel_while_a_point_decodes_logs_it_and_a_resume_completes_the_plan() {
+    let r = rig().await;
+    let mut events = Client::connect(&r.socket).await;
+    events
+        .call_ok(json!({"cmd":"subscribe","topics":["job"]}))
+        .await;
+    let mut cl = Client::connect(&r.socket).await;
+    let st = cl.call(characterize("k.csv")).await;
+    assert_eq!(st["ok"], true, "{st}");
+    let t = Instant::now();
+    loop {
+        assert!(t.elapsed() < Duration::from_secs(60), "no third point");
+        let v = events.line().await;
+        assert_ne!(v["state"], "failed", "{v}");
+        if v["event"] == "job" && v["done"].as_u64() == Some(3) {
+            break;
+        }
+    }
+    let reply = cl
+        .call_ok(json!({"cmd":"characterize","action":"cancel"}))
+        .await;
+    let cancelled = &reply["job"];
+    assert_eq!(cancelled["state"], "cancelled", "{cancelled}");
+    let path = r.data.join("k.csv");
+    let log = micropos::charact::log::read_file(&path).unwrap();
+    let done = cancelled["done"].as_u64().unwrap() as usize;
+    assert_eq!(log.records.len(), done, "{cancelled}");
+    // Point 3 was exposed when point 2 was logged: it is in the log too
+    // (it decoded), unless the cancel came after a further point.
+    assert!(done >= 4, "{cancelled}");
+    let plan = [0.0, 200.0, 400.0, 400.0, 200.0, 0.0];
+    let x0 = log.records[0].x_target_um;
+    for (k, rec) in log.records.iter().enumerate() {
+        assert_eq!(rec.x_target_um - x0, plan[k], "record {k}");
+    }
+    let resumed = cl
+        .call(json!({"cmd":"characterize","action":"resume","log":"k.csv"}))
+        .await;
+    assert_eq!(resumed["ok"], true, "{resumed}");
+    // The cancelled job's last event may still be on its way.
+    let end = loop {
+        let (end, _) = follow(&mut events, |_| {}).await;
+        if end["state"] != "cancelled" {
+            break end;
+        }
+    };
+    assert_eq!(end["state"], "done", "{end}");
+    let log = micropos::charact::log::read_file(&path).unwrap();
+    let xs: Vec<f64> = log.records.iter().map(|r| r.x_target_um - x0).collect();
+    assert_eq!(xs, plan, "every point once, in plan order");
+    r.shutdown().await;
+}
