@@ -43,6 +43,11 @@ impl Rig {
 }
 
 async fn rig() -> Rig {
+    rig_with(|_| {}).await
+}
+
+/// [`rig`] with `tune` applied to the daemon's configuration last.
+async fn rig_with(tune: impl FnOnce(&mut micropos::daemon::config::DaemonConfig)) -> Rig {
     let dir = tempfile::tempdir().unwrap();
     let rig_dir = dir.path().join("rig");
     let data = dir.path().join("data");
@@ -70,6 +75,7 @@ async fn rig() -> Rig {
     c.camera.timeout_ms = 1000;
     c.daemon.job_retries = 3;
     c.daemon.job_retry_backoff_s = 0.5;
+    tune(&mut c);
     c.validate().unwrap();
     let daemon = common::start_daemon_in_process(c, &sim, &socket);
     let r = Rig {
@@ -369,4 +375,53 @@ async fn a_cancel_while_a_point_decodes_logs_it_and_a_resume_completes_the_plan(
     let xs: Vec<f64> = log.records.iter().map(|r| r.x_target_um - x0).collect();
     assert_eq!(xs, plan, "every point once, in plan order");
     r.shutdown().await;
+}
+
+/// The overlap of a point's decode with the move to the next changes the
+/// wall time only: the same rig (seed 7) and plan with
+/// `characterize.overlap_decode` on and off write byte-identical logs,
+/// with two frames per point and drift reference detours in the scan.
+#[tokio::test(start_paused = true)]
+async fn overlapping_the_decode_with_the_next_move_changes_no_record() {
+    let mut logs = Vec::new();
+    for overlap in [true, false] {
+        let r = rig_with(|c| c.characterize.overlap_decode = overlap).await;
+        let mut events = Client::connect(&r.socket).await;
+        events
+            .call_ok(json!({"cmd":"subscribe","topics":["job"]}))
+            .await;
+        let mut cl = Client::connect(&r.socket).await;
+        let st = cl
+            .call(
+                json!({"cmd": "characterize", "action": "start", "log": "o.csv", "axes": "xy",
+                         "step_um": 100.0, "x_range_um": 400.0, "y_range_um": 300.0, "cycles": 1,
+                         "frames_per_point": 2, "settle_s": 0.05, "drift_every_s": 1.0}),
+            )
+            .await;
+        assert_eq!(st["ok"], true, "{st}");
+        let (end, retries) = follow(&mut events, |_| {}).await;
+        assert_eq!(end["state"], "done", "overlap {overlap}: {end}");
+        assert!(retries.is_empty(), "{retries:?}");
+        let text = std::fs::read_to_string(r.data.join("o.csv")).unwrap();
+        let log = micropos::charact::log::read_file(r.data.join("o.csv")).unwrap();
+        let refs = log
+            .records
+            .iter()
+            .filter(|r| r.segment == "drift_ref")
+            .count();
+        assert!(refs >= 2, "overlap {overlap}: {refs} reference rows");
+        logs.push(text);
+        r.shutdown().await;
+    }
+    // The metadata's creation stamps are the wall clock's; the rest, every
+    // record included, is the rig's.
+    let body = |t: &str| -> Vec<String> {
+        t.lines()
+            .filter(|l| !l.starts_with('#') || !l.contains("created"))
+            .map(str::to_owned)
+            .collect()
+    };
+    let (a, b) = (body(&logs[0]), body(&logs[1]));
+    assert!(a.len() > 20, "{}", logs[0]);
+    assert_eq!(a, b);
 }

@@ -27,6 +27,13 @@ pub struct CharacterizeDefaults {
     pub drift_every_s: f64,
     /// Drift reference point `[x, y]`, µm; unset = the scan's start corner.
     pub drift_reference_um: Option<[f64; 2]>,
+    /// On a camera grabbed on demand (the simulator's in-process rig), go
+    /// on to the next point while a point's frames decode (`Vision::defer`):
+    /// the same records in less wall time. `false`: each point is decoded
+    /// before the stage moves on (to rule the overlap out when looking for
+    /// a cause). No effect on a free-running camera, which decodes as it
+    /// grabs.
+    pub overlap_decode: bool,
 }
 
 impl Default for CharacterizeDefaults {
@@ -42,6 +49,7 @@ impl Default for CharacterizeDefaults {
             settle_s: 0.5,
             drift_every_s: 0.0,
             drift_reference_um: None,
+            overlap_decode: true,
         }
     }
 }

@@ -528,6 +528,7 @@ async fn run(
         with_approach,
         progress,
         start,
+        overlap: rig.cfg.characterize.overlap_decode,
         gen,
         began: clock.now_s(),
     };

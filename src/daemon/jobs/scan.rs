@@ -53,6 +53,9 @@ pub(super) struct Scan<'a> {
     pub progress: &'a Arc<Mutex<Option<Progress>>>,
     /// The first plan point of this run (after a resume, the first missing).
     pub start: usize,
+    /// Whether a point's decode may run beside the move to the next
+    /// (`characterize.overlap_decode`; only where the pipeline can defer).
+    pub overlap: bool,
     /// The rig's stop generation when the job began: a `stop` since ends it.
     pub gen: u64,
     /// Rig time the scan began, s (for the progress's estimate).
@@ -167,8 +170,14 @@ async fn points(
         };
         approach.moved_to(p.x_um, p.y_um);
         clock.sleep(settle_for).await;
-        let Some(exposed) = measure::expose_retrying(rig, s.plan.frames_per_point).await? else {
-            // A pipeline that decodes as it goes: measure here and now.
+        let exposed = if s.overlap {
+            measure::expose_retrying(rig, s.plan.frames_per_point).await?
+        } else {
+            None
+        };
+        let Some(exposed) = exposed else {
+            // No overlap, or a pipeline that decodes as it goes: measure
+            // here and now.
             let (m, quality) = measure::measure_retrying(rig, s.plan.frames_per_point).await?;
             let head = Head {
                 index: i,
