@@ -446,5 +446,31 @@ mod tests {
             }
             prop_assert!((prev.0 - target).abs() < 1e-6);
         }
+
+        /// The driver's earliest on-target instant (`micropos::driver::
+        /// profile`, from VEL?, ACC?, DEC? and the distance from rest) is
+        /// never after this simulator's command end, over its whole range
+        /// of limits, both directions, short triangles and long cruises:
+        /// the polls the driver skips cannot see the axis on target.
+        #[test]
+        fn the_drivers_earliest_on_target_is_never_late(
+            p0 in -20.0f64..20.0, target in -20.0f64..20.0, vel in 0.001f64..20.0,
+            acc in 0.1f64..500.0, dec in 0.1f64..500.0,
+        ) {
+            let lim = Limits { velocity: vel, acceleration: acc, deceleration: dec };
+            let p = Profile::plan(s(3.0), p0, 0.0, target, lim);
+            let driver = micropos::driver::profile::MotionLimits {
+                velocity_mm_s: vel,
+                acceleration_mm_s2: acc,
+                deceleration_mm_s2: dec,
+            };
+            let t = driver.min_move_s(target - p0).unwrap();
+            let lead = micropos::driver::profile::lead_s(t);
+            let command = (p.command_end_time() - s(3.0)).as_secs_f64();
+            prop_assert!(lead <= command, "lead {} s after the command end {} s", lead, command);
+            // And it is close: the skip is worth it.
+            prop_assert!(t <= command * (1.0 + 1e-9) + 1e-9, "{} vs {}", t, command);
+            prop_assert!(t >= command * (1.0 - 1e-6) - 1e-9, "{} vs {}", t, command);
+        }
     }
 }

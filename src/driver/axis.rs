@@ -20,6 +20,7 @@ pub use recorder::Records;
 
 use super::controller::Controller;
 use super::error::DriverError;
+use super::profile::{self, MotionLimits};
 use super::units::{mm_to_um, um_to_mm};
 use super::AxisEvent;
 use crate::gcs::answer::{self, Identification};
@@ -30,6 +31,11 @@ use std::sync::{Arc, Mutex};
 use std::time::Duration;
 use tokio::sync::broadcast;
 use tokio::time::Instant;
+
+/// Longest time between two `ONT?` polls while a move cannot have ended
+/// yet (see [`super::profile`]): a halt, a timeout or a lost line is still
+/// seen within it.
+const SPARSE_POLL: Duration = Duration::from_millis(50);
 
 /// How an axis finds its reference.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
@@ -96,6 +102,23 @@ struct Inner {
     /// Bumped by every halt/stop, so a waiter knows its move was cut short.
     halts: AtomicU64,
     halts_at_move: AtomicU64,
+    /// What the wait for a move knows of it (see [`super::profile`]).
+    motion: Mutex<Motion>,
+}
+
+/// The driver's knowledge of the axis's motion, each part with the
+/// connection epoch it is from (a reconnect, possibly a power cycle, makes
+/// it unknown).
+#[derive(Debug, Default)]
+struct Motion {
+    /// `VEL?`, `ACC?`, `DEC?` as read.
+    limits: Option<(u64, MotionLimits)>,
+    /// The target of the last move command, µm.
+    target_um: Option<(u64, f64)>,
+    /// Where the axis rests: the target of a move seen on target since, µm.
+    rest_um: Option<(u64, f64)>,
+    /// The earliest the move under way can be on target.
+    earliest: Option<Instant>,
 }
 
 /// One C-863 axis. Cheap to clone; all clones drive the same axis.
@@ -189,6 +212,7 @@ impl Axis {
                 velocity_mm_s: Mutex::new(None),
                 halts: AtomicU64::new(0),
                 halts_at_move: AtomicU64::new(0),
+                motion: Mutex::new(Motion::default()),
                 p,
             }),
         })
@@ -428,10 +452,15 @@ impl Axis {
     pub async fn move_abs_um(&self, target_um: f64) -> Result<(), DriverError> {
         self.check_travel(target_um)?;
         self.verify().await?;
+        let from = self.rest_um();
         self.mark_move();
+        let sent = Instant::now();
         let cmd = Command::Mov(vec![(self.inner.p.axis.clone(), um_to_mm(target_um))]);
         match self.set(cmd).await {
-            Ok(_) => Ok(()),
+            Ok(_) => {
+                self.moving_to(target_um, from, sent).await;
+                Ok(())
+            }
             Err(e) => Err(self.explain_move_error(e).await),
         }
     }
@@ -448,10 +477,15 @@ impl Axis {
         }
         let target = self.target_um().await?;
         self.check_travel(target + distance_um)?;
+        let from = self.rest_um();
         self.mark_move();
+        let sent = Instant::now();
         let cmd = Command::Mvr(vec![(self.inner.p.axis.clone(), um_to_mm(distance_um))]);
         match self.set(cmd).await {
-            Ok(_) => Ok(()),
+            Ok(_) => {
+                self.moving_to(target + distance_um, from, sent).await;
+                Ok(())
+            }
             Err(e) => Err(self.explain_move_error(e).await),
         }
     }
@@ -459,6 +493,93 @@ impl Axis {
     fn mark_move(&self) {
         let h = self.inner.halts.load(Ordering::SeqCst);
         self.inner.halts_at_move.store(h, Ordering::SeqCst);
+        self.forget_rest();
+    }
+
+    fn motion(&self) -> std::sync::MutexGuard<'_, Motion> {
+        self.inner.motion.lock().unwrap_or_else(|p| p.into_inner())
+    }
+
+    /// Where the axis rests (the target of a move seen on target, on this
+    /// connection), µm.
+    fn rest_um(&self) -> Option<f64> {
+        let epoch = self.epoch();
+        self.motion()
+            .rest_um
+            .and_then(|(e, um)| (e == epoch).then_some(um))
+    }
+
+    /// The axis left its rest or stopped short: where it is, and when a move
+    /// can end, are unknown until a move is seen on target.
+    fn forget_rest(&self) {
+        let mut m = self.motion();
+        m.rest_um = None;
+        m.earliest = None;
+    }
+
+    /// A move to `target_um` from rest at `from_um` was accepted; the
+    /// command was sent no earlier than `sent`. Learns the earliest the
+    /// axis can be on target, reading the controller's limits once per
+    /// connection (a failed read leaves it unknown: every poll is made).
+    async fn moving_to(&self, target_um: f64, from_um: Option<f64>, sent: Instant) {
+        let epoch = self.epoch();
+        self.motion().target_um = Some((epoch, target_um));
+        let Some(from_um) = from_um else { return };
+        let Some(limits) = self.motion_limits(epoch).await else {
+            return;
+        };
+        let Some(t) = limits.min_move_s(um_to_mm(target_um - from_um)) else {
+            return;
+        };
+        let lead = Duration::try_from_secs_f64(profile::lead_s(t)).unwrap_or_default();
+        // Not if a halt or another move came meanwhile.
+        if !self.halted_since_move() && self.motion().target_um == Some((epoch, target_um)) {
+            self.motion().earliest = Some(sent + lead);
+        }
+    }
+
+    /// `VEL?`, `ACC?`, `DEC?` of this connection, read once and kept.
+    async fn motion_limits(&self, epoch: u64) -> Option<MotionLimits> {
+        if let Some((e, l)) = self.motion().limits {
+            if e == epoch {
+                return Some(l);
+            }
+        }
+        let id = self.id();
+        let v = self
+            .read(Command::VelQuery(id.clone()), answer::number)
+            .await;
+        let a = self
+            .read(Command::AccQuery(id.clone()), answer::number)
+            .await;
+        let d = self.read(Command::DecQuery(id), answer::number).await;
+        let (Ok((v, _)), Ok((a, _)), Ok((d, _))) = (v, a, d) else {
+            return None;
+        };
+        let l = MotionLimits {
+            velocity_mm_s: v,
+            acceleration_mm_s2: a,
+            deceleration_mm_s2: d,
+        };
+        l.min_move_s(0.0)?;
+        self.motion().limits = Some((epoch, l));
+        Some(l)
+    }
+
+    /// How many poll periods to sleep after a poll at `now`: one, or up to
+    /// the first poll of the grid that can see the axis on target when the
+    /// move cannot end before `earliest`, but never more than
+    /// [`SPARSE_POLL`] between polls (a halt, a timeout and a lost line are
+    /// still seen on time).
+    fn polls_to_skip(&self, now: Instant) -> u32 {
+        let poll = self.inner.p.poll_interval.as_nanos().max(1);
+        let Some(earliest) = self.motion().earliest else {
+            return 1;
+        };
+        let ahead = earliest.saturating_duration_since(now).as_nanos();
+        let to_first = ahead.div_ceil(poll).max(1);
+        let most = (SPARSE_POLL.as_nanos() / poll).max(1);
+        u32::try_from(to_first.min(most)).unwrap_or(1)
     }
 
     /// Whether a halt was sent since the last move or reference began.
@@ -515,7 +636,13 @@ impl Axis {
                 return Err(self.halted());
             }
             if self.on_target().await? {
-                return self.position_um().await;
+                let pos = self.position_um().await;
+                if pos.is_ok() && !self.halted_since_move() {
+                    let mut m = self.motion();
+                    m.rest_um = m.target_um;
+                    m.earliest = None;
+                }
+                return pos;
             }
             if start.elapsed() >= timeout {
                 return Err(DriverError::MotionTimeout {
@@ -523,7 +650,8 @@ impl Axis {
                     timeout,
                 });
             }
-            tokio::time::sleep(self.inner.p.poll_interval).await;
+            let skip = self.polls_to_skip(Instant::now());
+            tokio::time::sleep(self.inner.p.poll_interval * skip).await;
         }
     }
 
@@ -538,6 +666,8 @@ impl Axis {
         }
         self.verify().await?;
         let v_mm = um_to_mm(v_um_per_s);
+        // Re-read with the next move (the controller may round it).
+        self.motion().limits = None;
         self.set(Command::Vel(vec![(self.inner.p.axis.clone(), v_mm)]))
             .await?;
         *self
@@ -563,6 +693,7 @@ impl Axis {
     /// caller waiting in [`Axis::wait_on_target`] gets [`DriverError::Halted`].
     pub async fn halt(&self) -> Result<(), DriverError> {
         self.inner.halts.fetch_add(1, Ordering::SeqCst);
+        self.forget_rest();
         let cmd = Command::Hlt(self.id());
         let r = self.ctl().set_with_code(&cmd).await;
         let (code, _) = self.on_error(r)?;
@@ -579,6 +710,7 @@ impl Axis {
     /// stage running for the queue's length in answer timeouts.
     pub async fn halt_now(&self) -> Result<(), DriverError> {
         self.inner.halts.fetch_add(1, Ordering::SeqCst);
+        self.forget_rest();
         let ctl = self.ctl();
         let cmd = Command::Hlt(self.id());
         let r = ctl.line().urgent_command(ctl.address(), &cmd).await;
@@ -594,6 +726,7 @@ impl Axis {
     /// in turn) as the confirmation.
     pub async fn stop(&self) -> Result<(), DriverError> {
         self.inner.halts.fetch_add(1, Ordering::SeqCst);
+        self.forget_rest();
         let ctl = self.ctl();
         let r = ctl.line().urgent(ctl.address(), ControlChar::StopAll).await;
         self.on_error(r)?;
@@ -667,6 +800,7 @@ impl Axis {
             .lock()
             .unwrap_or_else(|p| p.into_inner());
         if let Some(v) = v {
+            self.motion().limits = None;
             self.set(Command::Vel(vec![(id, v)])).await?;
         }
         self.position_um().await

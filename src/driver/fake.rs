@@ -30,6 +30,8 @@ pub struct FakeAxis {
     ref_done_at: Option<Instant>,
     pub min_mm: f64,
     pub max_mm: f64,
+    /// `ONT?` queries answered.
+    pub ont_queries: u64,
 }
 
 impl FakeAxis {
@@ -46,6 +48,7 @@ impl FakeAxis {
             ref_done_at: None,
             min_mm: 0.0,
             max_mm: 15.0,
+            ont_queries: 0,
         }
     }
 
@@ -129,11 +132,14 @@ impl FakeAxis {
             Command::PosQuery(_) => num(self.pos_mm(now)),
             Command::MovQuery(_) => num(self.target_mm),
             Command::OntQuery(_) => {
+                self.ont_queries += 1;
                 b(self.pos_mm(now) == self.target_mm && self.ref_done_at.is_none())
             }
             Command::FrfQuery(_) => b(self.referenced),
             Command::SvoQuery(_) => b(self.servo),
             Command::VelQuery(_) => num(self.vel_mm_s),
+            // It moves at its velocity from the first instant.
+            Command::AccQuery(_) | Command::DecQuery(_) => num(1e6),
             Command::Svo(p) => {
                 self.servo = p.first().is_some_and(|x| x.1);
                 None

@@ -28,6 +28,7 @@ pub mod controller;
 pub mod error;
 pub mod halt;
 pub mod line;
+pub mod profile;
 pub mod stage;
 pub mod transport;
 pub mod units;

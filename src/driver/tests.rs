@@ -643,3 +643,62 @@ async fn a_controller_without_a_data_recorder_reads_as_none() {
     assert_eq!(e.gcs_code(), Some(GcsErrorCode::UNKNOWN_COMMAND), "{e}");
     assert_eq!(ax.position_um().await.unwrap(), 7500.0);
 }
+
+/// A move from a known rest waits out the shortest profile the
+/// controller's own `VEL?`/`ACC?`/`DEC?` allow, polling `ONT?` only every
+/// 50 ms meanwhile (a halt is still seen), then every poll interval: it
+/// is seen on target at the same instant as a move polled throughout (the
+/// first move, whose start is not known), with far fewer polls.
+#[tokio::test(start_paused = true)]
+async fn a_move_from_rest_is_polled_sparsely_until_it_can_have_ended() {
+    let rig = Rig::new(&[1]).await;
+    let ax = referenced_axis(&rig).await;
+    ax.set_velocity_um_per_s(500.0).await.unwrap();
+    let polls = || rig.fake.axis(1, |a| a.ont_queries);
+    // From the reference position: where the axis rests is not known yet.
+    let n0 = polls();
+    ax.move_abs_um(10_000.0).await.unwrap();
+    let t0 = tokio::time::Instant::now();
+    assert_eq!(ax.wait_on_target(None).await.unwrap(), 10_000.0);
+    let (dense_s, dense) = (t0.elapsed(), polls() - n0);
+    // 2.5 mm at 0.5 mm/s: 5 s, seen by a poll every 20 ms.
+    assert!((dense_s.as_secs_f64() - 5.0).abs() <= 0.021, "{dense_s:?}");
+    assert!(dense >= 250, "{dense} polls");
+    // Back by the same distance from rest.
+    let n1 = polls();
+    ax.move_abs_um(7_500.0).await.unwrap();
+    let t1 = tokio::time::Instant::now();
+    assert_eq!(ax.wait_on_target(None).await.unwrap(), 7_500.0);
+    let (sparse_s, sparse) = (t1.elapsed(), polls() - n1);
+    assert_eq!(sparse_s, dense_s, "seen on target at another instant");
+    assert!(sparse * 10 < dense * 6, "{sparse} polls against {dense}");
+    // A halt during the sparse stretch is seen within 50 ms.
+    ax.move_abs_um(10_000.0).await.unwrap();
+    let ax2 = ax.clone();
+    let wait = tokio::spawn(async move { ax2.wait_on_target(None).await });
+    tokio::time::sleep(Duration::from_secs(1)).await;
+    ax.halt().await.unwrap();
+    let t2 = tokio::time::Instant::now();
+    assert!(matches!(
+        wait.await.unwrap(),
+        Err(DriverError::Halted { .. })
+    ));
+    assert!(
+        t2.elapsed() <= Duration::from_millis(50),
+        "{:?}",
+        t2.elapsed()
+    );
+    // Stopped short: the next move's start is unknown, every poll is made.
+    let n3 = polls();
+    ax.move_abs_um(7_500.0).await.unwrap();
+    let t3 = tokio::time::Instant::now();
+    ax.wait_on_target(None).await.unwrap();
+    let every = t3.elapsed().as_millis() / 20;
+    assert!(every >= 40, "{:?}", t3.elapsed());
+    assert!(
+        u128::from(polls() - n3) > every,
+        "{} polls in {:?}",
+        polls() - n3,
+        t3.elapsed()
+    );
+}
