@@ -90,6 +90,19 @@ async fn rig_with(tune: impl FnOnce(&mut micropos::daemon::config::DaemonConfig)
     r
 }
 
+/// Subscribes to `job` events, then starts `request` (which must be
+/// accepted): the event stream and the client that started it.
+async fn start(r: &Rig, request: Value) -> (Client, Client) {
+    let mut events = Client::connect(&r.socket).await;
+    events
+        .call_ok(json!({"cmd":"subscribe","topics":["job"]}))
+        .await;
+    let mut cl = Client::connect(&r.socket).await;
+    let st = cl.call(request).await;
+    assert_eq!(st["ok"], true, "{st}");
+    (events, cl)
+}
+
 /// A small X characterization: tie lines, park, 2 × 3 scan points.
 fn characterize(log: &str) -> Value {
     json!({"cmd": "characterize", "action": "start", "log": log, "axes": "x",
@@ -200,13 +213,7 @@ async fn transient_faults_are_retried_and_counted() {
 #[tokio::test(start_paused = true)]
 async fn a_permanent_fault_is_not_retried() {
     let r = rig().await;
-    let mut events = Client::connect(&r.socket).await;
-    events
-        .call_ok(json!({"cmd":"subscribe","topics":["job"]}))
-        .await;
-    let mut cl = Client::connect(&r.socket).await;
-    let st = cl.call(characterize("p.csv")).await;
-    assert_eq!(st["ok"], true, "{st}");
+    let (mut events, _cl) = start(&r, characterize("p.csv")).await;
     let sim = r.sim();
     let mut cycled = false;
     let (end, retries) = follow(&mut events, |v| {
@@ -257,13 +264,7 @@ async fn a_permanent_fault_is_not_retried() {
 #[tokio::test(start_paused = true)]
 async fn an_undecodable_frame_is_measured_again_after_the_stage_left_it() {
     let r = rig().await;
-    let mut events = Client::connect(&r.socket).await;
-    events
-        .call_ok(json!({"cmd":"subscribe","topics":["job"]}))
-        .await;
-    let mut cl = Client::connect(&r.socket).await;
-    let st = cl.call(characterize("g.csv")).await;
-    assert_eq!(st["ok"], true, "{st}");
+    let (mut events, _cl) = start(&r, characterize("g.csv")).await;
     let camera = r.sim().camera().clone();
     let mut garbled = false;
     let mut remeasures = Vec::new();
@@ -326,13 +327,7 @@ async fn an_undecodable_frame_is_measured_again_after_the_stage_left_it() {
 #[tokio::test(start_paused = true)]
 async fn a_cancel_while_a_point_decodes_logs_it_and_a_resume_completes_the_plan() {
     let r = rig().await;
-    let mut events = Client::connect(&r.socket).await;
-    events
-        .call_ok(json!({"cmd":"subscribe","topics":["job"]}))
-        .await;
-    let mut cl = Client::connect(&r.socket).await;
-    let st = cl.call(characterize("k.csv")).await;
-    assert_eq!(st["ok"], true, "{st}");
+    let (mut events, mut cl) = start(&r, characterize("k.csv")).await;
     let t = Instant::now();
     loop {
         assert!(t.elapsed() < Duration::from_secs(60), "no third point");
@@ -386,19 +381,10 @@ async fn overlapping_the_decode_with_the_next_move_changes_no_record() {
     let mut logs = Vec::new();
     for overlap in [true, false] {
         let r = rig_with(|c| c.characterize.overlap_decode = overlap).await;
-        let mut events = Client::connect(&r.socket).await;
-        events
-            .call_ok(json!({"cmd":"subscribe","topics":["job"]}))
-            .await;
-        let mut cl = Client::connect(&r.socket).await;
-        let st = cl
-            .call(
-                json!({"cmd": "characterize", "action": "start", "log": "o.csv", "axes": "xy",
-                         "step_um": 100.0, "x_range_um": 400.0, "y_range_um": 300.0, "cycles": 1,
-                         "frames_per_point": 2, "settle_s": 0.05, "drift_every_s": 1.0}),
-            )
-            .await;
-        assert_eq!(st["ok"], true, "{st}");
+        let request = json!({"cmd": "characterize", "action": "start", "log": "o.csv", "axes": "xy",
+                             "step_um": 100.0, "x_range_um": 400.0, "y_range_um": 300.0, "cycles": 1,
+                             "frames_per_point": 2, "settle_s": 0.05, "drift_every_s": 1.0});
+        let (mut events, _cl) = start(&r, request).await;
         let (end, retries) = follow(&mut events, |_| {}).await;
         assert_eq!(end["state"], "done", "overlap {overlap}: {end}");
         assert!(retries.is_empty(), "{retries:?}");
