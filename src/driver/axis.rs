@@ -490,6 +490,13 @@ impl Axis {
         }
     }
 
+    /// A halt or stop is sent: a waiter sees its move cut short, and where
+    /// the axis will rest is unknown.
+    fn mark_halt(&self) {
+        self.inner.halts.fetch_add(1, Ordering::SeqCst);
+        self.forget_rest();
+    }
+
     fn mark_move(&self) {
         let h = self.inner.halts.load(Ordering::SeqCst);
         self.inner.halts_at_move.store(h, Ordering::SeqCst);
@@ -692,8 +699,7 @@ impl Axis {
     /// (PI_CNTR_STOP), which this call consumes and treats as success; a
     /// caller waiting in [`Axis::wait_on_target`] gets [`DriverError::Halted`].
     pub async fn halt(&self) -> Result<(), DriverError> {
-        self.inner.halts.fetch_add(1, Ordering::SeqCst);
-        self.forget_rest();
+        self.mark_halt();
         let cmd = Command::Hlt(self.id());
         let r = self.ctl().set_with_code(&cmd).await;
         let (code, _) = self.on_error(r)?;
@@ -709,8 +715,7 @@ impl Axis {
     /// the ones that fill the line's queue; a halt behind them leaves the
     /// stage running for the queue's length in answer timeouts.
     pub async fn halt_now(&self) -> Result<(), DriverError> {
-        self.inner.halts.fetch_add(1, Ordering::SeqCst);
-        self.forget_rest();
+        self.mark_halt();
         let ctl = self.ctl();
         let cmd = Command::Hlt(self.id());
         let r = ctl.line().urgent_command(ctl.address(), &cmd).await;
@@ -725,8 +730,7 @@ impl Axis {
     /// the byte is written. Error 10 that follows is then consumed (`ERR?`,
     /// in turn) as the confirmation.
     pub async fn stop(&self) -> Result<(), DriverError> {
-        self.inner.halts.fetch_add(1, Ordering::SeqCst);
-        self.forget_rest();
+        self.mark_halt();
         let ctl = self.ctl();
         let r = ctl.line().urgent(ctl.address(), ControlChar::StopAll).await;
         self.on_error(r)?;

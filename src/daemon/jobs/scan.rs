@@ -26,7 +26,7 @@ use super::record::{append_record, lock, measured_columns, Progress};
 use super::{measure_reference, move_raw, scan_approach, scan_line, RefContext};
 use crate::charact::log::{LogWriter, Record};
 use crate::comp::VisionFrame;
-use crate::daemon::protocol::{ProtoError, Topic};
+use crate::daemon::protocol::{ErrorCode, ProtoError, Topic};
 use crate::daemon::rig::measure::{self, Exposed};
 use crate::daemon::rig::Rig;
 use crate::daemon::vision::Measurement;
@@ -179,29 +179,23 @@ async fn points(
             // No overlap, or a pipeline that decodes as it goes: measure
             // here and now.
             let (m, quality) = measure::measure_retrying(rig, s.plan.frames_per_point).await?;
-            let head = Head {
-                index: i,
-                t_s: clock.now_s() - s.origin,
-                moved,
-                approach: s.with_approach.then(|| approach.cell(p.segment)),
-            };
-            log_point(s, &head, &m, quality).await?;
+            log_point(s, &head(s, i, p, moved, approach), &m, quality).await?;
             continue;
         };
         let mut cur = Pending {
             exposed,
-            head: Head {
-                index: i,
-                t_s: clock.now_s() - s.origin,
-                moved,
-                approach: s.with_approach.then(|| approach.cell(p.segment)),
-            },
+            head: head(s, i, p, moved, approach),
         };
-        if let Some(Pending { exposed, head }) = pending.take() {
+        if let Some(Pending {
+            exposed,
+            head: prev,
+        }) = pending.take()
+        {
             match measure::finish(rig, exposed).await {
-                Ok((m, quality)) => log_point(s, &head, &m, quality).await?,
+                Ok((m, quality)) => log_point(s, &prev, &m, quality).await?,
                 Err(why) => {
-                    let Some(again) = measure_again(s, head, &why, cur, approach, cancel).await?
+                    let Some(again) =
+                        measure_again(s, prev.index, &why, cur, approach, cancel).await?
                     else {
                         return Ok("cancelled");
                     };
@@ -245,75 +239,94 @@ async fn settle(s: &Scan<'_>, p: Pending, again: bool) -> Result<(), ProtoError>
     }
 }
 
-/// The point of `head` did not measure (`why`) and the stage has gone on to
-/// the point of `cur` and exposed it: back to `head`'s point, approached as
-/// its scan approaches it, measured there and logged, then `cur`'s point
-/// approached and exposed again (its first frame is published and
-/// dropped). `Ok(None)` if cancelled on the way.
+/// Plan point `index` did not measure (`why`) and the stage has gone on to
+/// the point of `cur` and exposed it: back to point `index`, measured there
+/// and logged, then `cur`'s point reached and exposed again (its first
+/// frame is published and dropped). Each is reached as its scan reaches it
+/// ([`reach`]). `Ok(None)` if cancelled on the way.
 async fn measure_again(
     s: &Scan<'_>,
-    head: Head,
+    index: usize,
     why: &str,
     cur: Pending,
     approach: &mut ApproachTracker,
     cancel: &mut watch::Receiver<bool>,
 ) -> Result<Option<Pending>, ProtoError> {
     let rig = s.rig;
-    let clock = rig.clock.clone();
-    let settle_for = Duration::try_from_secs_f64(s.plan.settle_s).unwrap_or_default();
-    remeasuring(s, head.index, why, true);
+    remeasuring(s, index, why, true);
     let _ = measure::finish(rig, cur.exposed).await;
-    let mut again = Vec::with_capacity(2);
-    for index in [head.index, cur.head.index] {
-        let Some(p) = s.points.get(index) else {
-            return Err(ProtoError::new(
-                crate::daemon::protocol::ErrorCode::Internal,
-                format!("plan point {index} does not exist"),
-            ));
-        };
-        let (x, y) = scan_approach(rig, p);
-        if move_raw(rig, x, y, cancel).await?.is_none() {
-            return Ok(None);
-        }
-        approach.moved_to(x, y);
-        let Some(moved) = move_raw(rig, p.x_um, p.y_um, cancel).await? else {
-            return Ok(None);
-        };
-        approach.moved_to(p.x_um, p.y_um);
-        clock.sleep(settle_for).await;
-        again.push(Head {
-            index,
-            t_s: 0.0,
-            moved,
-            approach: s.with_approach.then(|| approach.cell(p.segment)),
-        });
-        if index == head.index {
-            let (m, quality) = measure::measure_retrying(rig, s.plan.frames_per_point).await?;
-            let h = again.pop().map(|h| Head {
-                t_s: clock.now_s() - s.origin,
-                ..h
-            });
-            if let Some(h) = h {
-                log_point(s, &h, &m, quality).await?;
-            }
-        }
-    }
-    let Some(head) = again.pop() else {
+    let p = point(s, index)?;
+    let Some(moved) = reach(s, p, approach, cancel).await? else {
+        return Ok(None);
+    };
+    let (m, quality) = measure::measure_retrying(rig, s.plan.frames_per_point).await?;
+    log_point(s, &head(s, index, p, moved, approach), &m, quality).await?;
+    let index = cur.head.index;
+    let p = point(s, index)?;
+    let Some(moved) = reach(s, p, approach, cancel).await? else {
         return Ok(None);
     };
     let Some(exposed) = measure::expose_retrying(rig, s.plan.frames_per_point).await? else {
         return Err(ProtoError::new(
-            crate::daemon::protocol::ErrorCode::Internal,
+            ErrorCode::Internal,
             "the camera pipeline stopped deferring decodes",
         ));
     };
     Ok(Some(Pending {
         exposed,
-        head: Head {
-            t_s: clock.now_s() - s.origin,
-            ..head
-        },
+        head: head(s, index, p, moved, approach),
     }))
+}
+
+/// Goes to `p` as its scan reaches it (from [`scan_approach`]), and waits
+/// out the settle: the move's answer, `None` if cancelled.
+async fn reach(
+    s: &Scan<'_>,
+    p: &plan::Point,
+    approach: &mut ApproachTracker,
+    cancel: &mut watch::Receiver<bool>,
+) -> Result<Option<Value>, ProtoError> {
+    let rig = s.rig;
+    let (x, y) = scan_approach(rig, p);
+    if move_raw(rig, x, y, cancel).await?.is_none() {
+        return Ok(None);
+    }
+    approach.moved_to(x, y);
+    let Some(moved) = move_raw(rig, p.x_um, p.y_um, cancel).await? else {
+        return Ok(None);
+    };
+    approach.moved_to(p.x_um, p.y_um);
+    rig.clock
+        .sleep(Duration::try_from_secs_f64(s.plan.settle_s).unwrap_or_default())
+        .await;
+    Ok(Some(moved))
+}
+
+/// The record of plan point `index` (`p`), reached by the move that
+/// answered `moved`, measured now.
+fn head(
+    s: &Scan<'_>,
+    index: usize,
+    p: &plan::Point,
+    moved: Value,
+    approach: &ApproachTracker,
+) -> Head {
+    Head {
+        index,
+        t_s: s.rig.clock.now_s() - s.origin,
+        moved,
+        approach: s.with_approach.then(|| approach.cell(p.segment)),
+    }
+}
+
+/// Plan point `index`.
+fn point<'a>(s: &Scan<'a>, index: usize) -> Result<&'a plan::Point, ProtoError> {
+    s.points.get(index).ok_or_else(|| {
+        ProtoError::new(
+            ErrorCode::Internal,
+            format!("plan point {index} does not exist"),
+        )
+    })
 }
 
 /// Says that plan point `index` is measured again (`job_remeasure`, topic
@@ -370,12 +383,7 @@ async fn log_point(
     m: &Measurement,
     quality: f64,
 ) -> Result<(), ProtoError> {
-    let Some(p) = s.points.get(head.index) else {
-        return Err(ProtoError::new(
-            crate::daemon::protocol::ErrorCode::Internal,
-            format!("plan point {} does not exist", head.index),
-        ));
-    };
+    let p = point(s, head.index)?;
     append_record(s.writer, record(s, p, head, m, quality), s.name).await?;
     report(s, head.index + 1);
     Ok(())

@@ -6,12 +6,8 @@ use super::Rig;
 use crate::daemon::protocol::{ErrorCode, MoveRequest, ProtoError};
 use crate::daemon::vision::{Deferred, HealthCounts, Measurement};
 use serde_json::Value;
-use std::sync::{Arc, Mutex};
+use std::sync::Arc;
 use std::time::Duration;
-
-fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
-    m.lock().unwrap_or_else(|p| p.into_inner())
-}
 
 /// Distance below the first point from which the held axis is parked, µm
 /// (10× the M-111's 2 µm backlash, as `charact::scan`'s approach).
@@ -67,8 +63,8 @@ pub(crate) async fn measure(
                 ))
             }
             Err(_) => {
-                let why = lock(&v.last_error)
-                    .clone()
+                let why = v
+                    .last_error_text()
                     .unwrap_or_else(|| "no error reported".to_owned());
                 // A frame in flight when the camera stalled may still
                 // arrive (and be refused as too old): only frames that fail
@@ -165,8 +161,8 @@ pub(crate) async fn expose(rig: &Rig, n: u32, after_s: f64) -> Result<Option<Exp
                 ));
             }
             Err(_) => {
-                let why = lock(&v.last_error)
-                    .clone()
+                let why = v
+                    .last_error_text()
                     .unwrap_or_else(|| "no error reported".to_owned());
                 let measured = frames.len();
                 finish_all(v, frames).await;

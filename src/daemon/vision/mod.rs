@@ -319,13 +319,18 @@ impl Vision {
         match publish(decoded, stamp, &self.stats, &self.last_error, tx) {
             Published::Sent(m) => Ok(m),
             Published::Failed => Err(self
-                .last_error
-                .lock()
-                .ok()
-                .and_then(|g| g.clone())
+                .last_error_text()
                 .unwrap_or_else(|| "decode failed".to_owned())),
             Published::Closed => Err("the camera pipeline ended".to_owned()),
         }
+    }
+
+    /// The last camera or decode error, if any.
+    pub fn last_error_text(&self) -> Option<String> {
+        self.last_error
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .clone()
     }
 
     /// True when frames are grabbed on demand and nobody waits for one: no

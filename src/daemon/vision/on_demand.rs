@@ -112,7 +112,7 @@ struct Job {
 }
 
 /// The decode worker's queue; the worker ends when this is dropped.
-#[derive(Debug, Clone)]
+#[derive(Debug)]
 pub(super) struct Worker {
     jobs: mpsc::Sender<Job>,
 }
