@@ -169,7 +169,6 @@ pub(crate) fn check_code(
     seq: &LineSequence,
     slots: &[i8],
 ) -> Result<CodeCheck, DecodeError> {
-    use crate::pattern::sequence::{MAX_BITS, MIN_BITS};
     let mism = [0, 1].map(|a| mismatches_at(read[a], slots, q0[a]));
     let lines = [0, 1].map(|a| read[a].iter().filter(|&&r| r != 0).count());
     let ln_given = ln_joint(read, mism, slots.len());
@@ -182,6 +181,24 @@ pub(crate) fn check_code(
     if check.confirmed {
         return Ok(check);
     }
+    match better_depth(read, seq, ln_given, mism, lines) {
+        Some(e) => Err(e),
+        None => Ok(check),
+    }
+}
+
+/// The supported depth other than `seq`'s whose sequence the readings fit
+/// beyond chance and better than `ln_given` (ln of the configured depth's
+/// joint chance), as the error that names it; `None` when no other depth
+/// does. `mism` and `lines` describe the configured depth's fit.
+fn better_depth(
+    read: [&[i8]; 2],
+    seq: &LineSequence,
+    ln_given: f64,
+    mism: [usize; 2],
+    lines: [usize; 2],
+) -> Option<DecodeError> {
+    use crate::pattern::sequence::{MAX_BITS, MIN_BITS};
     let mut best: Option<(f64, u32, [usize; 2])> = None;
     for bits in MIN_BITS..=MAX_BITS {
         if bits == seq.bits() {
@@ -199,7 +216,7 @@ pub(crate) fn check_code(
     }
     match best {
         Some((ln, bits, m)) if ln <= CODE_CHANCE_MAX.ln() && ln < ln_given => {
-            Err(DecodeError::CodeDepthMismatch {
+            Some(DecodeError::CodeDepthMismatch {
                 bits: seq.bits(),
                 fits_bits: bits,
                 lines,
@@ -207,8 +224,24 @@ pub(crate) fn check_code(
                 fits_mismatches: m,
             })
         }
-        _ => Ok(check),
+        _ => None,
     }
+}
+
+/// When the code margin fails (`ambiguous`), whether the readings fit
+/// another depth: then the configured depth is wrong, and the error says
+/// which one fits instead of only "ambiguous". Both axes' readings must be
+/// in `read` (an axis not read is empty).
+pub(crate) fn ambiguous_or_other_depth(
+    ambiguous: DecodeError,
+    read: [&[i8]; 2],
+    seq: &LineSequence,
+) -> DecodeError {
+    let slots = slot_values(seq);
+    let mism = [0, 1].map(|a| best_mismatches(read[a], &slots));
+    let lines = [0, 1].map(|a| read[a].iter().filter(|&&r| r != 0).count());
+    let ln_given = ln_joint(read, mism, slots.len());
+    better_depth(read, seq, ln_given, mism, lines).unwrap_or(ambiguous)
 }
 
 /// Code slots (3 lines each) either side of a tracked prediction that the
@@ -580,6 +613,9 @@ impl CoarseStage {
         let mut nbits = [0usize; 2];
         let mut errs = [0.0; 2];
         let mut slot0 = [0i64; 2];
+        let mut ambiguous: Option<DecodeError> = None;
+        self.read[0].clear();
+        self.read[1].clear();
         for axis in 0..2 {
             let (n_this, n_other, l0) = if axis == 0 {
                 (sna, snb, sa0)
@@ -587,7 +623,7 @@ impl CoarseStage {
                 (snb, sna, sb0)
             };
             if n_this < need {
-                return Err(DecodeError::TooFewPeriods { got: n_this, need });
+                return Err(ambiguous.unwrap_or(DecodeError::TooFewPeriods { got: n_this, need }));
             }
             let s_this = sigma[axis];
             let s_other = sigma[1 - axis];
@@ -615,17 +651,17 @@ impl CoarseStage {
                 self.lines.push(t);
             }
             let Some(first) = first_code else {
-                return Err(DecodeError::TooFewPeriods { got: n_this, need });
+                return Err(ambiguous.unwrap_or(DecodeError::TooFewPeriods { got: n_this, need }));
             };
             let kk = self.lines.len();
             nbits[axis] = self.lines.iter().filter(|t| t.abs() > 0.2).count();
             if nbits[axis] < seq.bits() as usize + 1 {
-                return Err(DecodeError::CodeAmbiguous {
+                return Err(ambiguous.unwrap_or(DecodeError::CodeAmbiguous {
                     axis,
                     readable_bits: nbits[axis],
                     code_bits: seq.bits(),
                     reason: format!("need at least {} readable code lines", seq.bits() + 1),
-                });
+                }));
             }
             if s_this < 0 {
                 self.lines.reverse();
@@ -670,8 +706,13 @@ impl CoarseStage {
                 .sum();
             let total: f32 = self.lines.iter().map(|t| t.abs()).sum();
             errs[axis] = f64::from(total - agree) / 2.0;
+            self.read[axis].clear();
+            self.read[axis].extend(self.lines.iter().map(|&t| hard(t)));
+            slot0[axis] = b1.1;
             if !(margin >= th.min_code_margin_bits) {
-                return Err(DecodeError::CodeAmbiguous {
+                // Read the other axis too before refusing: a reading that
+                // fits another code depth says what is wrong.
+                ambiguous.get_or_insert(DecodeError::CodeAmbiguous {
                     axis,
                     readable_bits: nbits[axis],
                     code_bits: seq.bits(),
@@ -680,10 +721,8 @@ impl CoarseStage {
                         th.min_code_margin_bits
                     ),
                 });
+                continue;
             }
-            self.read[axis].clear();
-            self.read[axis].extend(self.lines.iter().map(|&t| hard(t)));
-            slot0[axis] = b1.1;
             // Global line of the visible code line with the lowest slot.
             let q0 = b1.1;
             let last_code = first + 3 * (kk as i64 - 1);
@@ -693,6 +732,13 @@ impl CoarseStage {
                 (last_code, 3 * q0 + 1)
             };
             origin[axis] = g_low - s_this * l_low;
+        }
+        if let Some(e) = ambiguous {
+            return Err(ambiguous_or_other_depth(
+                e,
+                [&self.read[0], &self.read[1]],
+                seq,
+            ));
         }
         if self.slots.len() != seq.len() / 3 {
             self.slots = slot_values(seq);
