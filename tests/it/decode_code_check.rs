@@ -147,7 +147,14 @@ fn view(bits: u32, fx: f64, fy: f64, theta_rad: f64) -> (usize, Pose) {
 }
 
 proptest! {
-    #![proptest_config(ProptestConfig::with_cases(24))]
+    // Seeded (the suite's rule): the same 24 views every run.
+    #![proptest_config(ProptestConfig {
+        cases: 24,
+        failure_persistence: None,
+        rng_algorithm: proptest::test_runner::RngAlgorithm::ChaCha,
+        rng_seed: proptest::test_runner::RngSeed::Fixed(0x6465_7074_6863_6b31),
+        ..ProptestConfig::default()
+    })]
     /// The right code depth decodes, confirmed, at the pose; every wrong one
     /// is an error or an unconfirmed result, never a silent confident
     /// answer.

@@ -117,7 +117,7 @@ fn mismatches_at(read: &[i8], slots: &[i8], q0: i64) -> usize {
                 && usize::try_from(q0 + *t as i64)
                     .ok()
                     .and_then(|q| slots.get(q))
-                    .map_or(true, |&c| c != r)
+                    .is_none_or(|&c| c != r)
         })
         .count()
 }
@@ -210,7 +210,7 @@ fn better_depth(
         let s = slot_values(&other);
         let m = [0, 1].map(|a| best_mismatches(read[a], &s));
         let ln = ln_joint(read, m, s.len());
-        if best.map_or(true, |(b, ..)| ln < b) {
+        if best.is_none_or(|(b, ..)| ln < b) {
             best = Some((ln, bits, m));
         }
     }
