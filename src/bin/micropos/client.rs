@@ -114,6 +114,10 @@ pub enum ClientCommand {
         follow: bool,
     },
     /// Validation job (the paper's square and Table II): start, status, cancel.
+    /// A start whose table or model poses leave their table's characterized
+    /// area is refused before anything moves (error outside_table; move the
+    /// poses with --origin-x-um/--origin-y-um), or warned, per the daemon's
+    /// `[compensation] outside_table`.
     Validate {
         /// start | status | cancel
         #[arg(default_value = "status")]
