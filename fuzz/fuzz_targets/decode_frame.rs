@@ -43,6 +43,10 @@ fuzz_target!(|data: &[u8]| {
         1 => Polarity::BrightDots,
         _ => Polarity::DarkDots,
     };
+    // The period check against a known pixel size (any value, also absurd).
+    if flags & 64 != 0 {
+        opts.pixel_um = Some(f64::from(data[5]) / 32.0);
+    }
     let Ok(mut d) = Decoder::new(opts) else {
         return;
     };

@@ -76,6 +76,11 @@ pub struct CompFile {
     /// The vision→stage transform the scans were mapped with.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub frame: Option<VisionFrame>,
+    /// The area the scans covered (`tables build` writes it). A model
+    /// file needs it to know its range; a lookup table's own positions are
+    /// its area (for a lookup file this key is only informative).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub area: Option<super::Area>,
     /// Tables (kind = "lookup").
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub lookup: Option<CompTable>,
@@ -94,6 +99,7 @@ impl CompFile {
             description: String::new(),
             source,
             frame: None,
+            area: None,
             lookup: Some(table),
             model: None,
         }
@@ -115,6 +121,7 @@ impl CompFile {
             description: String::new(),
             source,
             frame: None,
+            area: None,
             lookup: None,
             model: Some(table),
         })
@@ -178,6 +185,9 @@ impl CompFile {
         if let Some(fr) = &self.frame {
             fr.validate()?;
         }
+        if let Some(a) = &self.area {
+            a.validate("area")?;
+        }
         Ok(())
     }
 
@@ -199,7 +209,9 @@ impl CompFile {
                 Some(t) => Ok(Box::new(LookupCompensator::new(t.clone())?)),
                 None => Err(invalid("lookup", "section missing")),
             },
-            CompKind::Model => Ok(Box::new(ModelCompensator::new(self.stage_model()?))),
+            CompKind::Model => Ok(Box::new(
+                ModelCompensator::new(self.stage_model()?).with_area(self.area),
+            )),
         }
     }
 

@@ -113,6 +113,85 @@ pub(crate) fn invalid(key: impl Into<String>, reason: impl Into<String>) -> Comp
     }
 }
 
+/// The area a compensation was characterized over: per axis, the span of
+/// the commanded positions its scans measured (stage frame, µm).
+///
+/// Why it is kept: outside it a lookup table only holds its end values and
+/// a model extrapolates its terms; neither was measured there, so the
+/// daemon refuses or warns before compensating a target outside it
+/// (`[compensation] outside_table`).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Area {
+    /// Lowest and highest x measured, µm.
+    pub x_um: [f64; 2],
+    /// Lowest and highest y measured, µm.
+    pub y_um: [f64; 2],
+}
+
+impl Area {
+    /// Checks that both spans are finite and ordered; `what` names the key.
+    pub fn validate(&self, what: &str) -> Result<(), CompError> {
+        for (k, v) in [("x_um", self.x_um), ("y_um", self.y_um)] {
+            if !(v.iter().all(|x| x.is_finite() && x.abs() <= 1e9) && v[0] <= v[1]) {
+                return Err(invalid(
+                    format!("{what}.{k}"),
+                    "must be [low, high], finite, low ≤ high",
+                ));
+            }
+        }
+        Ok(())
+    }
+
+    /// How far `p` lies outside the area grown by `margin_um` on every
+    /// side, per axis (µm, 0 inside; NaN counts as outside).
+    pub fn outside_by_um(&self, p: XyUm, margin_um: f64) -> [f64; 2] {
+        let by = |v: f64, r: [f64; 2]| {
+            if v.is_nan() {
+                f64::INFINITY
+            } else {
+                (r[0] - margin_um - v).max(v - r[1] - margin_um).max(0.0)
+            }
+        };
+        [by(p.x_um, self.x_um), by(p.y_um, self.y_um)]
+    }
+
+    /// Whether `p` lies within the area grown by `margin_um`.
+    pub fn contains(&self, p: XyUm, margin_um: f64) -> bool {
+        self.outside_by_um(p, margin_um) == [0.0, 0.0]
+    }
+
+    /// The span of the positions of the x scan and the y scan records
+    /// (segments `scan_x`, `scan_y`; commanded targets), if both exist.
+    pub fn of_scans(records: &[crate::charact::log::Record]) -> Option<Area> {
+        use crate::charact::scan::{SEGMENT_SCAN_X, SEGMENT_SCAN_Y};
+        let span = |seg: &str, f: fn(&crate::charact::log::Record) -> f64| {
+            records
+                .iter()
+                .filter(|r| r.segment == seg)
+                .map(f)
+                .filter(|v| v.is_finite())
+                .fold(None, |acc: Option<[f64; 2]>, v| {
+                    Some(acc.map_or([v, v], |a| [a[0].min(v), a[1].max(v)]))
+                })
+        };
+        Some(Area {
+            x_um: span(SEGMENT_SCAN_X, |r| r.x_target_um)?,
+            y_um: span(SEGMENT_SCAN_Y, |r| r.y_target_um)?,
+        })
+    }
+}
+
+impl std::fmt::Display for Area {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "x {:.1} … {:.1} µm, y {:.1} … {:.1} µm",
+            self.x_um[0], self.x_um[1], self.y_um[0], self.y_um[1]
+        )
+    }
+}
+
 /// How moves are planned around backlash.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
 #[serde(rename_all = "snake_case")]
@@ -313,6 +392,21 @@ pub trait Compensator: std::fmt::Debug + Send + Sync {
     /// Predicted `observed − commanded` (µm, `[x, y]`) when the stage is in
     /// `state` (commanded position, arrival direction, play, temperature).
     fn predicted_offset_um(&self, state: &MotionState) -> Result<[f64; 2], CompError>;
+
+    /// The area the compensation was characterized over, if known (see
+    /// [`Area`]). Outside it the prediction was never measured.
+    fn characterized_area(&self) -> Option<Area> {
+        None
+    }
+
+    /// Whether the prediction outside [`Compensator::characterized_area`]
+    /// follows from physics (a model's periodic and linear terms) rather
+    /// than from holding the last measured value (a table). The daemon
+    /// refuses a table outside its area by default but only warns for a
+    /// model.
+    fn extrapolates_by_model(&self) -> bool {
+        false
+    }
 
     /// The moves that put the stage at `target`, from `history`: arrival
     /// directions from `options.policy`, command from the inverse (see the

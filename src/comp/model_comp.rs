@@ -33,12 +33,20 @@ use crate::model::{
 #[derive(Debug, Clone)]
 pub struct ModelCompensator {
     model: StageModel,
+    area: Option<super::Area>,
 }
 
 impl ModelCompensator {
     /// Wraps a model (e.g. loaded from a compensation file).
     pub fn new(model: StageModel) -> Self {
-        ModelCompensator { model }
+        ModelCompensator { model, area: None }
+    }
+
+    /// The same, knowing the area its scans covered (a compensation file's
+    /// `[area]`).
+    pub fn with_area(mut self, area: Option<super::Area>) -> Self {
+        self.area = area;
+        self
     }
 
     /// The model.
@@ -76,7 +84,7 @@ impl ModelCompensator {
             ..FitOptions::default()
         };
         let report = model.fit(&samples, &fit)?;
-        Ok((ModelCompensator { model }, report))
+        Ok((ModelCompensator::new(model), report))
     }
 }
 
@@ -93,6 +101,14 @@ impl Compensator for ModelCompensator {
         } else {
             Err(invalid("model", "predicted a non-finite error"))
         }
+    }
+
+    fn characterized_area(&self) -> Option<super::Area> {
+        self.area
+    }
+
+    fn extrapolates_by_model(&self) -> bool {
+        true
     }
 }
 

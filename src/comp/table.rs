@@ -214,6 +214,23 @@ impl CompTable {
         Ok(())
     }
 
+    /// The area the tables were measured over: the x scan's positions
+    /// (both directions) by the y scan's (see [`super::Area`]).
+    pub fn area(&self) -> super::Area {
+        let span = |t: &AxisTables| {
+            let (f, b) = (&t.forward.positions_um, &t.backward.positions_um);
+            let lo = f.first().copied().unwrap_or(f64::NAN);
+            let hi = f.last().copied().unwrap_or(f64::NAN);
+            let blo = b.first().copied().unwrap_or(lo);
+            let bhi = b.last().copied().unwrap_or(hi);
+            [lo.min(blo), hi.max(bhi)]
+        };
+        super::Area {
+            x_um: span(&self.x_scan),
+            y_um: span(&self.y_scan),
+        }
+    }
+
     /// `δx(y)`, µm.
     pub fn delta_x_um(&self, y_um: f64) -> f64 {
         self.delta_x_slope * (y_um - self.x_scan.hold_um)
@@ -545,6 +562,10 @@ impl Compensator for LookupCompensator {
             .error_um(c[0], c[1], [state.axes[0].dir, state.axes[1].dir]);
         Ok([-e[0], -e[1]])
     }
+
+    fn characterized_area(&self) -> Option<super::Area> {
+        Some(self.table.area())
+    }
 }
 
 #[cfg(test)]
@@ -587,5 +608,85 @@ mod tests {
             ]
         );
         assert_eq!(infer_directions(&[1.0, 1.0], 1e-3), vec![None, None]);
+    }
+}
+
+#[cfg(test)]
+mod area_tests {
+    use super::*;
+    use crate::comp::{Area, CompFile, Compensator, SourceInfo};
+    use crate::model::XyUm;
+
+    fn dir(positions: &[f64]) -> DirTable {
+        DirTable {
+            positions_um: positions.to_vec(),
+            ex_um: vec![-22.65; positions.len()],
+            ey_um: vec![0.0; positions.len()],
+            visits: vec![1; positions.len()],
+        }
+    }
+
+    /// A 1000 × 500 µm table whose backward x pass reaches further than the
+    /// forward one.
+    fn table() -> CompTable {
+        CompTable {
+            interpolation: Interpolation::Linear,
+            x_scan: AxisTables {
+                hold_um: 0.0,
+                forward: dir(&[0.0, 500.0, 900.0]),
+                backward: dir(&[100.0, 500.0, 1000.0]),
+            },
+            y_scan: AxisTables {
+                hold_um: 0.0,
+                forward: dir(&[0.0, 500.0]),
+                backward: dir(&[0.0, 500.0]),
+            },
+            delta_x_slope: 0.0,
+        }
+    }
+
+    #[test]
+    fn lookup_area_is_the_scans_extent_and_the_check_measures_outside() {
+        let c = LookupCompensator::new(table()).unwrap();
+        let a = c.characterized_area().unwrap();
+        assert_eq!(
+            a,
+            Area {
+                x_um: [0.0, 1000.0],
+                y_um: [0.0, 500.0]
+            }
+        );
+        assert!(!c.extrapolates_by_model());
+        let at = |x_um, y_um| XyUm { x_um, y_um };
+        // The move: far outside, by 1500 and 1800 µm.
+        assert_eq!(a.outside_by_um(at(2500.0, 2300.0), 0.0), [1500.0, 1800.0]);
+        assert!(!a.contains(at(2500.0, 2300.0), 0.0));
+        assert!(a.contains(at(1000.0, 0.0), 0.0));
+        assert!(!a.contains(at(1005.0, 0.0), 0.0));
+        assert!(a.contains(at(1005.0, -5.0), 10.0));
+        assert_eq!(a.outside_by_um(at(-30.0, 250.0), 10.0), [20.0, 0.0]);
+        assert!(!a.contains(at(f64::NAN, 0.0), 10.0));
+        assert_eq!(a.to_string(), "x 0.0 … 1000.0 µm, y 0.0 … 500.0 µm");
+    }
+
+    #[test]
+    fn a_model_file_carries_its_area() {
+        let m = crate::model::StageModel::paper_default().unwrap();
+        let mut f = CompFile::model(&m, "t", SourceInfo::default()).unwrap();
+        assert_eq!(f.compensator().unwrap().characterized_area(), None);
+        let a = Area {
+            x_um: [10.0, 20.0],
+            y_um: [30.0, 40.0],
+        };
+        f.area = Some(a);
+        let back = CompFile::from_toml(&f.to_toml().unwrap()).unwrap();
+        let c = back.compensator().unwrap();
+        assert_eq!(c.characterized_area(), Some(a));
+        assert!(c.extrapolates_by_model());
+        f.area = Some(Area {
+            x_um: [20.0, 10.0],
+            y_um: [30.0, 40.0],
+        });
+        assert!(f.validate().is_err(), "low > high is refused");
     }
 }

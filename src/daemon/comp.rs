@@ -60,6 +60,77 @@ pub struct CompState {
     target_offset: Mutex<[f64; 2]>,
 }
 
+/// The check of a compensated target against the characterized area of
+/// the compensator `comp` (table file `name`), under `[compensation]
+/// outside_table` (`cfg`). `what` names the target in messages ("target",
+/// "validation pose 3").
+///
+/// `Ok(None)`: inside (or the compensator knows no area). `Ok(Some(info))`:
+/// outside, allowed; `info` is what the reply carries (`area`,
+/// `outside_by_um`, `policy`, and under `warn` a `warning` sentence).
+/// `Err(outside_table)`: refused, the message naming the area and the
+/// target. A model table extrapolates by physics, so `refuse` only warns
+/// for it.
+pub fn check_area(
+    comp: &dyn Compensator,
+    name: &str,
+    target: XyUm,
+    cfg: &crate::daemon::config::CompensationSection,
+    what: &str,
+) -> Result<Option<Value>, ProtoError> {
+    use crate::daemon::config::OutsideTable;
+    let Some(area) = comp.characterized_area() else {
+        return Ok(None);
+    };
+    let margin = cfg.outside_margin_um;
+    let by = area.outside_by_um(target, margin);
+    if by == [0.0, 0.0] {
+        return Ok(None);
+    }
+    let policy = match cfg.outside_table {
+        OutsideTable::Refuse if comp.extrapolates_by_model() => OutsideTable::Warn,
+        p => p,
+    };
+    let axes: Vec<String> = [("x", by[0]), ("y", by[1])]
+        .iter()
+        .filter(|(_, d)| *d > 0.0)
+        .map(|(a, d)| format!("{d:.1} µm in {a}"))
+        .collect();
+    let sentence = format!(
+        "{what} ({:.1}, {:.1}) µm is outside the area {} table {name} was characterized over ({area}, margin {margin} µm) by {}",
+        target.x_um,
+        target.y_um,
+        comp.kind(),
+        axes.join(" and ")
+    );
+    let info = |p: &str| {
+        json!({"policy": p, "area": {"x_um": area.x_um, "y_um": area.y_um},
+               "margin_um": margin, "outside_by_um": by})
+    };
+    match policy {
+        OutsideTable::Refuse => Err(ProtoError::new(
+            ErrorCode::OutsideTable,
+            format!(
+                "{sentence}: its correction there was never measured. Move raw, characterize that area, \
+                 or set [compensation] outside_table = \"warn\""
+            ),
+        )),
+        OutsideTable::Warn => {
+            let extra = if comp.extrapolates_by_model() {
+                "the model extrapolates its terms there, unmeasured"
+            } else {
+                "the table holds its end values there, unmeasured"
+            };
+            let w = format!("{sentence}: {extra}");
+            tracing::warn!("{w}");
+            let mut v = info("warn");
+            v["warning"] = json!(w);
+            Ok(Some(v))
+        }
+        OutsideTable::Extrapolate => Ok(Some(info("extrapolate"))),
+    }
+}
+
 fn comp_err(code: ErrorCode, what: &str, e: impl std::fmt::Display) -> ProtoError {
     ProtoError::new(code, format!("{what}: {e}"))
 }
@@ -268,5 +339,117 @@ impl CompState {
             x_um: t.x_um + o[0],
             y_um: t.y_um + o[1],
         })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::comp::{Area, CompError};
+    use crate::daemon::config::{CompensationSection, OutsideTable};
+
+    #[derive(Debug)]
+    struct Fixed(bool);
+    impl Compensator for Fixed {
+        fn kind(&self) -> &'static str {
+            if self.0 {
+                "model"
+            } else {
+                "lookup"
+            }
+        }
+        fn predicted_offset_um(&self, _: &MotionState) -> Result<[f64; 2], CompError> {
+            Ok([22.65, 0.0])
+        }
+        fn characterized_area(&self) -> Option<Area> {
+            Some(Area {
+                x_um: [0.0, 1000.0],
+                y_um: [0.0, 500.0],
+            })
+        }
+        fn extrapolates_by_model(&self) -> bool {
+            self.0
+        }
+    }
+
+    fn cfg(p: OutsideTable) -> CompensationSection {
+        CompensationSection {
+            outside_table: p,
+            ..CompensationSection::default()
+        }
+    }
+
+    const OUT: XyUm = XyUm {
+        x_um: 2500.0,
+        y_um: 2300.0,
+    };
+
+    #[test]
+    fn policies_refuse_warn_extrapolate() {
+        let e = check_area(
+            &Fixed(false),
+            "t.toml",
+            OUT,
+            &cfg(OutsideTable::Refuse),
+            "target",
+        )
+        .unwrap_err();
+        assert_eq!(e.code, ErrorCode::OutsideTable);
+        assert!(
+            e.message.contains("target (2500.0, 2300.0) µm is outside the area lookup table t.toml was characterized over (x 0.0 … 1000.0 µm, y 0.0 … 500.0 µm, margin 10 µm) by 1490.0 µm in x and 1790.0 µm in y"),
+            "{}",
+            e.message
+        );
+        let w = check_area(
+            &Fixed(false),
+            "t.toml",
+            OUT,
+            &cfg(OutsideTable::Warn),
+            "target",
+        )
+        .unwrap()
+        .unwrap();
+        assert_eq!(w["policy"], "warn");
+        assert!(w["warning"]
+            .as_str()
+            .unwrap()
+            .contains("holds its end values"));
+        let x = check_area(
+            &Fixed(false),
+            "t.toml",
+            OUT,
+            &cfg(OutsideTable::Extrapolate),
+            "target",
+        )
+        .unwrap()
+        .unwrap();
+        assert_eq!(x["policy"], "extrapolate");
+        assert!(x.get("warning").is_none());
+        let inside = XyUm {
+            x_um: 1005.0,
+            y_um: 250.0,
+        };
+        assert_eq!(
+            check_area(&Fixed(false), "t", inside, &cfg(OutsideTable::Refuse), "t").unwrap(),
+            None
+        );
+    }
+
+    #[test]
+    fn a_model_is_warned_about_not_refused() {
+        let w = check_area(
+            &Fixed(true),
+            "m.toml",
+            OUT,
+            &cfg(OutsideTable::Refuse),
+            "target",
+        )
+        .unwrap()
+        .unwrap();
+        assert_eq!(w["policy"], "warn");
+        assert!(w["warning"]
+            .as_str()
+            .unwrap()
+            .contains("model extrapolates"));
     }
 }

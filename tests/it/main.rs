@@ -36,6 +36,7 @@ mod comp_paper;
 mod daemon_process;
 mod daemon_systemd;
 mod daemon_web_config;
+mod decode_code_check;
 mod decode_real;
 mod decode_render;
 mod decode_robust;

@@ -17,6 +17,7 @@ mod common;
 
 mod camera_blur;
 mod charact_lost_motion;
+mod comp_range;
 mod daemon_access;
 mod daemon_sim;
 mod determinism;

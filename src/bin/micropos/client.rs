@@ -33,7 +33,10 @@ pub enum ClientCommand {
     Status,
     /// Positions: commanded, controller-reported, vision-measured.
     Position,
-    /// Move the stage (µm).
+    /// Move the stage (µm). A compensated target outside the active
+    /// table's characterized area is refused (error outside_table) or
+    /// warned about, per `[compensation] outside_table` in the daemon's
+    /// config.
     Move {
         /// X target (or offset with --relative), µm.
         #[arg(long, allow_hyphen_values = true)]
@@ -111,6 +114,10 @@ pub enum ClientCommand {
         follow: bool,
     },
     /// Validation job (the paper's square and Table II): start, status, cancel.
+    /// A start whose table or model poses leave their table's characterized
+    /// area is refused before anything moves (error outside_table; move the
+    /// poses with --origin-x-um/--origin-y-um), or warned, per the daemon's
+    /// `[compensation] outside_table`.
     Validate {
         /// start | status | cancel
         #[arg(default_value = "status")]
@@ -420,7 +427,13 @@ async fn run_inner(opts: &GlobalOpts, cmd: &ClientCommand) -> Result<ExitCode, U
         return Ok(ExitCode::from(1));
     }
     if !opts.json {
+        if let ClientCommand::Move { .. } = cmd {
+            let _ = write!(out.lock(), "{}", move_summary(&reply));
+        }
         let _ = write!(out.lock(), "{}", human(&reply));
+        for w in reply_warnings(&reply) {
+            eprintln!("warning: {w}");
+        }
     }
     match cmd {
         ClientCommand::Subscribe { .. } => loop {
@@ -460,6 +473,34 @@ async fn run_inner(opts: &GlobalOpts, cmd: &ClientCommand) -> Result<ExitCode, U
         }
         _ => Ok(ExitCode::SUCCESS),
     }
+}
+
+/// The first line of a move's reply: the target the user asked for, then
+/// the command the daemon sent to reach it (they differ by the
+/// compensation).
+fn move_summary(v: &Value) -> String {
+    let xy = |p: &Value| match (p["x_um"].as_f64(), p["y_um"].as_f64()) {
+        (Some(x), Some(y)) => Some(format!("({x:.3}, {y:.3}) µm")),
+        _ => None,
+    };
+    match (xy(&v["target"]), xy(&v["commanded"])) {
+        (Some(t), Some(c)) => format!("target {t}, commanded {c}\n"),
+        (Some(t), None) => format!("target {t}\n"),
+        _ => String::new(),
+    }
+}
+
+/// Warnings a reply carries (`outside_table.warning`, `warnings`).
+fn reply_warnings(v: &Value) -> Vec<String> {
+    let mut w: Vec<String> = v["outside_table"]["warning"]
+        .as_str()
+        .map(str::to_owned)
+        .into_iter()
+        .collect();
+    if let Some(a) = v["warnings"].as_array() {
+        w.extend(a.iter().filter_map(|s| s.as_str().map(str::to_owned)));
+    }
+    w
 }
 
 /// AP and RP per trajectory and mode from `validate status`'s results.

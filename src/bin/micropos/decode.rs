@@ -4,13 +4,20 @@
 //! sorted) or a glob pattern with `*`/`?` in the file name. One output line
 //! per image; with several images each line carries the file name. The exit
 //! code is 0 when every image decoded, 1 when any failed.
+//!
+//! What the numbers can be trusted for: the code read is checked against
+//! `--bits` (a frame of another code depth is an error naming the depth that
+//! fits; a view too short to tell says so in a warning), and with
+//! `--pixel-um` the measured dot pitch against `--period` (a wrong period is
+//! an error naming the period that fits). Without `--pixel-um` the period
+//! cannot be checked, and the output says that too.
 
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
 use anyhow::{bail, Context, Result};
 use micropos::imageio::load_frame;
-use micropos::pattern::decode::{DecodeOptions, Decoder, Polarity};
+use micropos::pattern::decode::{DecodeError, DecodeOptions, Decoder, Polarity};
 
 /// Arguments of `micropos decode`.
 #[derive(Debug, clap::Args)]
@@ -18,12 +25,20 @@ pub struct Args {
     /// Image files, directories or globs (PNG 8/16-bit, TIFF, JPEG).
     #[arg(required = true)]
     pub images: Vec<String>,
-    /// Pattern period, µm.
+    /// Pattern period, µm. Every position scales with it; give --pixel-um
+    /// so that a wrong period is caught.
     #[arg(long)]
     pub period: f64,
-    /// Code depth n of the pattern (4..=12).
+    /// Code depth n of the pattern (4..=12). Checked against the code read:
+    /// a frame of another depth is refused with the depth that fits.
     #[arg(long)]
     pub bits: u32,
+    /// The camera's pixel size on the pattern, µm (sensor pixel ÷
+    /// magnification). Checks --period against the measured dot pitch
+    /// (within 5 %); a frame where they disagree is refused with the period
+    /// that fits.
+    #[arg(long, value_name = "UM")]
+    pub pixel_um: Option<f64>,
     /// The optical path mirrors the image.
     #[arg(long)]
     pub mirrored: bool,
@@ -96,6 +111,7 @@ fn expand(arg: &str) -> Result<Vec<PathBuf>> {
 pub fn run(args: &Args) -> Result<ExitCode> {
     let mut opts = DecodeOptions::new(args.period, args.bits);
     opts.mirrored = args.mirrored;
+    opts.pixel_um = args.pixel_um;
     opts.polarity = match args.polarity.as_str() {
         "auto" => Polarity::Auto,
         "bright" => Polarity::BrightDots,
@@ -116,12 +132,19 @@ pub fn run(args: &Args) -> Result<ExitCode> {
         let name = f.display().to_string();
         let res = load_frame(f)
             .map_err(|e| e.to_string())
-            .and_then(|frame| decoder.decode(&frame).map_err(|e| e.to_string()));
+            .and_then(|frame| decoder.decode(&frame).map_err(|e| error_text(&e, args)));
         match (res, args.json) {
             (Ok(d), true) => {
+                let c = &d.details.code_check;
                 let mut v = serde_json::json!({
                     "x_um": d.x_um, "y_um": d.y_um, "theta_rad": d.theta_rad,
                     "pixel_um": d.pixel_um, "quality": d.quality,
+                    "code_margin_bits": d.details.code_margin_bits,
+                    "code_lines": c.lines,
+                    "code_mismatches": c.mismatches,
+                    "code_confirmed": c.confirmed,
+                    "period_checked": args.pixel_um.is_some(),
+                    "warnings": warnings(&d, args),
                 });
                 if many {
                     v["file"] = serde_json::Value::String(name);
@@ -135,14 +158,17 @@ pub fn run(args: &Args) -> Result<ExitCode> {
                     String::new()
                 };
                 println!(
-                    "{prefix}x = {:.4} µm, y = {:.4} µm, θ = {:.6} rad ({:.4}°), pixel = {:.6} µm, code margin {:.1} bits",
+                    "{prefix}x = {:.4} µm, y = {:.4} µm, θ = {:.6} rad ({:.4}°), pixel = {:.6} µm, {}",
                     d.x_um,
                     d.y_um,
                     d.theta_rad,
                     d.theta_rad.to_degrees(),
                     d.pixel_um,
-                    d.quality
+                    margin_words(d.quality)
                 );
+                for w in warnings(&d, args) {
+                    println!("{prefix}warning: {w}");
+                }
             }
             (Err(e), true) => {
                 failed = true;
@@ -168,6 +194,64 @@ pub fn run(args: &Args) -> Result<ExitCode> {
     } else {
         ExitCode::SUCCESS
     })
+}
+
+/// Margin (bits of evidence) below which a decode is refused
+/// (`CoarseThresholds::min_code_margin_bits`' default).
+const MARGIN_REFUSED_BITS: f64 = 16.0;
+/// Margin above which a misread code position is practically excluded
+/// (a likelihood ratio of 2⁴⁰ ≈ 10¹², where clean views score hundreds).
+const MARGIN_SAFE_BITS: f64 = 40.0;
+
+/// The code margin in words: what it is and whether it is comfortable.
+fn margin_words(bits: f64) -> String {
+    let verdict = if bits >= MARGIN_SAFE_BITS {
+        "safe"
+    } else {
+        "thin: check focus, lighting and dust"
+    };
+    format!(
+        "code margin {bits:.0} bits (the best code position is 2^{bits:.0} times likelier than the next best; \
+         refused below {MARGIN_REFUSED_BITS:.0}, safe from {MARGIN_SAFE_BITS:.0}: {verdict})"
+    )
+}
+
+/// What the result cannot vouch for.
+fn warnings(d: &micropos::pattern::decode::Decoded, args: &Args) -> Vec<String> {
+    let mut w = Vec::new();
+    let c = &d.details.code_check;
+    if !c.confirmed {
+        w.push(format!(
+            "only {} and {} code lines read ({} and {} disagreeing): too few to confirm the \
+             {}-bit code depth (a random reading matches that well ~{:.2} times), so a wrong --bits \
+             would go unnoticed; a larger view confirms it",
+            c.lines[0], c.lines[1], c.mismatches[0], c.mismatches[1], args.bits, c.chance
+        ));
+    }
+    if args.pixel_um.is_none() {
+        w.push(format!(
+            "--period {} not checked (the dots are {:.2} px apart; give --pixel-um to check it)",
+            args.period,
+            args.period / d.pixel_um
+        ));
+    }
+    w
+}
+
+/// The error with the flag that would fix it.
+fn error_text(e: &DecodeError, args: &Args) -> String {
+    match e {
+        DecodeError::CodeDepthMismatch { fits_bits, .. } => {
+            format!("{e}: try --bits {fits_bits}")
+        }
+        DecodeError::ScaleMismatch { fits_period_um, .. } => {
+            format!(
+                "{e}: try --period {fits_period_um:.3}, or check --pixel-um {}",
+                args.pixel_um.unwrap_or(f64::NAN)
+            )
+        }
+        e => e.to_string(),
+    }
 }
 
 #[cfg(test)]

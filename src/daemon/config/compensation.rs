@@ -52,6 +52,34 @@ pub struct CompensationSection {
     /// Distance below the target from which a wrong-side arrival is
     /// re-approached, µm (≥ 10, well beyond the ≈ 2 µm backlash).
     pub overshoot_um: f64,
+    /// What a compensated target outside the table's characterized area
+    /// (beyond `outside_margin_um`) gets: `"refuse"` (the default: error
+    /// `outside_table`, nothing moves), `"warn"` (moves, the reply and the
+    /// log say so) or `"extrapolate"` (moves; the reply still reports it).
+    /// A model table, whose terms extrapolate by physics, is warned about
+    /// under `"refuse"` too.
+    pub outside_table: OutsideTable,
+    /// How far beyond its characterized area a target still counts as
+    /// inside, µm. Why not 0: tables of separate characterizations differ by
+    /// their tie's drift (≈ 0.5 µm), so a pose on the scan's last point can
+    /// land a fraction of a µm outside; 10 µm is 2.5 % of a 400 µm screw
+    /// pitch, over which the held end value stays close.
+    pub outside_margin_um: f64,
+}
+
+/// `[compensation] outside_table`: a compensated target outside the
+/// table's characterized area.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum OutsideTable {
+    /// Refuse the move or the validation (error `outside_table`); a model
+    /// table is only warned about.
+    #[default]
+    Refuse,
+    /// Move, with a warning in the reply and the daemon's log.
+    Warn,
+    /// Move; the reply carries the distance outside as information.
+    Extrapolate,
 }
 
 /// The backlash strategy (`[compensation] approach`).
@@ -70,6 +98,8 @@ impl Default for CompensationSection {
         Self {
             approach: Approach::DirectionAware,
             overshoot_um: 20.0,
+            outside_table: OutsideTable::Refuse,
+            outside_margin_um: 10.0,
         }
     }
 }

@@ -15,7 +15,7 @@ mod web;
 pub use access::AccessSection;
 pub use camera::CameraSection;
 pub use characterize::CharacterizeDefaults;
-pub use compensation::{Approach, ClosedLoop, CompensationSection};
+pub use compensation::{Approach, ClosedLoop, CompensationSection, OutsideTable};
 pub use daemon::{ClockSpec, DaemonSection, RigSection};
 pub use drift::{DriftMethodName, DriftSection};
 pub use error::ConfigError;
@@ -340,6 +340,13 @@ impl DaemonConfig {
             return Err(bad(
                 "compensation.overshoot_um",
                 format!("must be within 10..=1000 µm (beyond the backlash), got {o}"),
+            ));
+        }
+        let m = self.compensation.outside_margin_um;
+        if !(m.is_finite() && m >= 0.0) {
+            return Err(bad(
+                "compensation.outside_margin_um",
+                format!("must be a finite number of µm ≥ 0, got {m}"),
             ));
         }
         Ok(())

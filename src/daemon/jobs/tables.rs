@@ -200,6 +200,7 @@ pub fn build_blocking(
             f
         };
         file.frame = frame;
+        file.area = crate::comp::Area::of_scans(&records);
         let p = data_dir.join(&name);
         file.write_path(&p)
             .map_err(|e| ProtoError::new(ErrorCode::LogError, format!("writing {name}: {e}")))?;

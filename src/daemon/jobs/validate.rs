@@ -23,7 +23,7 @@
 //! the compensation came from; without tables the job ties the camera
 //! itself first ([`super::tie`]).
 
-use super::super::comp::Active;
+use super::super::comp::{check_area, Active};
 use super::super::drift::is_measurement_error;
 use super::super::protocol::{
     ErrorCode, MoveMode, MoveRequest, ProtoError, Topic, ValidateMode, ValidateParams,
@@ -339,6 +339,39 @@ impl Jobs {
                 }
             }
         }
+        // Compensated modes outside their table's characterized area:
+        // refused (or warned) before anything moves. The targets are in the
+        // measuring frame; a table's frame differs from it by a tie's drift
+        // (≈ 0.5 µm), which `outside_margin_um` absorbs.
+        let cfg = rig.live.compensation();
+        let mut warnings = Vec::new();
+        for mode in &plan.modes {
+            if !matches!(mode, ValidateMode::Table | ValidateMode::Model) {
+                continue;
+            }
+            let Some(a) = plan.comps.for_mode(*mode) else {
+                continue;
+            };
+            for (_, poses) in &plan.tests {
+                if let Some(w) = poses.iter().find_map(|pose| {
+                    let what = format!("mode {} pose {}", mode.as_str(), pose.label);
+                    check_area(&*a.comp, &a.name, plan.target(pose), &cfg, &what).transpose()
+                }) {
+                    let w = w.map_err(|e| {
+                        ProtoError::new(
+                            e.code,
+                            format!(
+                                "{}; the validation origin is ({:.1}, {:.1}) µm (validate start --origin-x-um/--origin-y-um move it)",
+                                e.message, origin.x_um, origin.y_um
+                            ),
+                        )
+                    })?;
+                    if let Some(t) = w.get("warning") {
+                        warnings.push(t.clone());
+                    }
+                }
+            }
+        }
         let name = p
             .log
             .clone()
@@ -394,10 +427,12 @@ impl Jobs {
             }
         });
         *lock(&self.running) = Some(Running { cancel, task });
-        Ok(
-            json!({"job": lock(&self.progress).as_ref().map(Progress::to_json),
-                  "origin": {"x_um": origin.x_um, "y_um": origin.y_um}}),
-        )
+        let mut out = json!({"job": lock(&self.progress).as_ref().map(Progress::to_json),
+                             "origin": {"x_um": origin.x_um, "y_um": origin.y_um}});
+        if !warnings.is_empty() {
+            out["warnings"] = json!(warnings);
+        }
+        Ok(out)
     }
 }
 

@@ -47,6 +47,10 @@ pub enum ErrorCode {
     NotConverged,
     /// `compensated` move without an active compensation table.
     NoActiveTable,
+    /// A compensated target (a move or a validation pose) lies outside the
+    /// area the table was characterized over, and `[compensation]
+    /// outside_table = "refuse"`.
+    OutsideTable,
     /// Closed loop: no fresh frame arrived after the move settled.
     CameraStalled,
     /// Closed loop: frames arrive but do not decode, or decode below
@@ -95,6 +99,7 @@ impl ErrorCode {
             ErrorCode::StaleMeasurement => "stale_measurement",
             ErrorCode::NotConverged => "not_converged",
             ErrorCode::NoActiveTable => "no_active_table",
+            ErrorCode::OutsideTable => "outside_table",
             ErrorCode::CameraStalled => "camera_stalled",
             ErrorCode::LowQuality => "low_quality",
             ErrorCode::RetryLimit => "retry_limit",

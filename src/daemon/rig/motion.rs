@@ -126,6 +126,19 @@ impl Rig {
             x_um: pick(req.x_um, base[0]),
             y_um: pick(req.y_um, base[1]),
         };
+        // Outside the table's characterized area: refused or warned before
+        // anything moves (`[compensation] outside_table`). A closed loop
+        // measures its arrival, so only compensated moves are checked.
+        let outside = match &active {
+            Some(a) if req.mode == MoveMode::Compensated => crate::daemon::comp::check_area(
+                &*a.comp,
+                &a.name,
+                target,
+                &self.live.compensation(),
+                "target",
+            )?,
+            _ => None,
+        };
         // Live drift: the table's command for `target − drift` lands on
         // `target` in today's state of the rig (see `daemon::drift`).
         let drift = if req.mode == MoveMode::Compensated {
@@ -168,6 +181,9 @@ impl Rig {
         });
         if self.drift.enabled() && req.mode == MoveMode::Compensated {
             out["drift"] = drift.info;
+        }
+        if let Some(info) = outside {
+            out["outside_table"] = info;
         }
         if let Some(frame) = frame {
             let cl = crate::comp::closed_loop::ClosedLoop::new(

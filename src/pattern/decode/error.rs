@@ -53,4 +53,35 @@ pub enum DecodeError {
         /// What went wrong.
         reason: String,
     },
+    /// The code read fits another code depth than the configured one: the
+    /// frame comes from another pattern, and any position would be wrong.
+    #[error("the code read ({} and {} lines along the two lattice axes) does not fit a {bits}-bit sequence (best positions disagree on {} and {} lines, as a random reading would) but fits a {fits_bits}-bit one ({} and {} disagreeing): the pattern's code depth is {fits_bits}, not {bits}", lines[0], lines[1], mismatches[0], mismatches[1], fits_mismatches[0], fits_mismatches[1])]
+    CodeDepthMismatch {
+        /// The configured code depth.
+        bits: u32,
+        /// The supported depth the reading fits.
+        fits_bits: u32,
+        /// Hard-read code lines per lattice axis.
+        lines: [usize; 2],
+        /// Disagreements at the chosen positions of the configured sequence.
+        mismatches: [usize; 2],
+        /// Fewest disagreements in the sequence of `fits_bits`.
+        fits_mismatches: [usize; 2],
+    },
+    /// The measured dot pitch, the configured period and the camera's known
+    /// pixel size disagree: the period (or the pixel size) is wrong, and every
+    /// position would be scaled by their ratio.
+    #[error("the dots are {period_px:.2} px apart: with a period of {period_um} µm that is {measured_pixel_um:.4} µm per pixel, but the camera's pixel is {expected_pixel_um:.4} µm on the pattern ({ratio:.3}×): the pattern's period is about {fits_period_um:.3} µm (or the pixel size is wrong)", ratio = measured_pixel_um / expected_pixel_um)]
+    ScaleMismatch {
+        /// The configured period, µm.
+        period_um: f64,
+        /// The measured dot pitch, px.
+        period_px: f64,
+        /// Pixel size the configured period implies, µm.
+        measured_pixel_um: f64,
+        /// The camera's pixel size on the pattern, µm (configured).
+        expected_pixel_um: f64,
+        /// The period that fits the pitch and the pixel size, µm.
+        fits_period_um: f64,
+    },
 }

@@ -47,7 +47,7 @@ mod simd;
 
 use realfft::num_complex::Complex;
 
-pub use coarse::CoarseThresholds;
+pub use coarse::{CoarseThresholds, CodeCheck, CODE_CHANCE_MAX};
 pub use fine::Grid;
 
 use std::sync::Arc;
@@ -98,6 +98,18 @@ pub struct DecodeOptions {
     /// correction — derived for the global window — does not remove). Use it
     /// only where lens distortion dominates (real optics, several 0.1 px).
     pub distortion: bool,
+    /// The camera's pixel size on the pattern, µm (sensor pixel ÷
+    /// magnification), when known. Why: the period only scales every
+    /// position, so a wrong period decodes to confident, wrongly scaled
+    /// positions; with the pixel size known the measured dot pitch
+    /// (px) × pixel size must give the period, and a frame where it does not
+    /// is refused ([`DecodeError::ScaleMismatch`]).
+    pub pixel_um: Option<f64>,
+    /// Largest relative disagreement between the pixel size the period
+    /// implies and [`DecodeOptions::pixel_um`] (default 0.05: a nominal
+    /// magnification is rarely better than a few %, while the nearest wrong
+    /// periods a lab uses differ by 10 % or more).
+    pub pixel_tolerance: f64,
 }
 
 impl DecodeOptions {
@@ -113,6 +125,8 @@ impl DecodeOptions {
             min_coherence: 0.5,
             thresholds: CoarseThresholds::default(),
             distortion: false,
+            pixel_um: None,
+            pixel_tolerance: 0.05,
         }
     }
 }
@@ -248,6 +262,10 @@ pub struct Quality {
     pub amplitude: f64,
     /// True when the dots were found dark on a bright background.
     pub dark_dots: bool,
+    /// Whether the code read confirms the configured code depth beyond
+    /// chance (see [`CodeCheck`]); an unconfirmed result is a position the
+    /// frame cannot vouch for (too few code lines to tell the depth).
+    pub code_check: CodeCheck,
 }
 
 /// An absolute pose of the image centre on the pattern.
@@ -306,6 +324,19 @@ impl Decoder {
             return Err(DecodeError::Options(format!(
                 "min_period_px must be >= 2 (Nyquist), got {}",
                 opts.min_period_px
+            )));
+        }
+        if let Some(px) = opts.pixel_um {
+            if !(px.is_finite() && px > 0.0) {
+                return Err(DecodeError::Options(format!(
+                    "pixel_um must be a finite number > 0, got {px}"
+                )));
+            }
+        }
+        if !(opts.pixel_tolerance.is_finite() && opts.pixel_tolerance > 0.0) {
+            return Err(DecodeError::Options(format!(
+                "pixel_tolerance must be a finite number > 0, got {}",
+                opts.pixel_tolerance
             )));
         }
         let mut fine = fine::FineStage::new();
@@ -481,6 +512,18 @@ impl Decoder {
         };
         let theta = f64::atan2(t1.sin() + t2.sin(), t1.cos() + t2.cos());
         let pixel_um = p * (kx[0].hypot(kx[1]) + ky[0].hypot(ky[1])) / (2.0 * tau);
+        if let Some(known) = self.opts.pixel_um {
+            if !((pixel_um / known - 1.0).abs() <= self.opts.pixel_tolerance) {
+                let period_px = p / pixel_um;
+                return Err(DecodeError::ScaleMismatch {
+                    period_um: p,
+                    period_px,
+                    measured_pixel_um: pixel_um,
+                    expected_pixel_um: known,
+                    fits_period_um: period_px * known,
+                });
+            }
+        }
         let m = [fix.code_margin_bits[xa], fix.code_margin_bits[ya]];
         let out = Decoded {
             x_um: p * line_c[xa],
@@ -498,6 +541,7 @@ impl Decoder {
                 phase_rms_rad: grid.phase_rms_rad,
                 amplitude: 0.5 * (grid.amplitude[0] + grid.amplitude[1]),
                 dark_dots: fix.dark_dots,
+                code_check: fix.code_check,
             },
             grid: *grid,
             tracked: false,

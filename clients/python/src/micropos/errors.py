@@ -37,6 +37,7 @@ __all__ = [
     "StaleMeasurement",
     "NotConverged",
     "NoActiveTable",
+    "OutsideTable",
     "CameraStalled",
     "LowQuality",
     "RetryLimit",
@@ -217,6 +218,16 @@ class NoActiveTable(MicroposError):
     """A ``compensated`` move (or drift measurement) without an active table."""
 
     code = "no_active_table"
+
+
+class OutsideTable(MicroposError):
+    """A compensated target (a move or a validation pose) lies outside the area
+    the table was characterized over, and the daemon's ``[compensation]
+    outside_table = "refuse"``: nothing moved. The message names the area and
+    the target. Move raw, characterize that area, or configure ``"warn"``.
+    """
+
+    code = "outside_table"
 
 
 class CameraStalled(MicroposError):
@@ -402,6 +413,7 @@ ERROR_CLASSES: Dict[str, Type[MicroposError]] = {
         StaleMeasurement,
         NotConverged,
         NoActiveTable,
+        OutsideTable,
         CameraStalled,
         LowQuality,
         RetryLimit,
