@@ -55,6 +55,48 @@ pub struct NonSeparable {
     pub gain_pct: f64,
     /// Paired z of the held-out squared errors.
     pub z: f64,
+    /// Least-squares slope of the component along x on each row, lowest
+    /// and highest over the rows, µm/m (µrad): how far the slope along x
+    /// changes with y (a twist, or a guide bent differently along y).
+    pub slope_along_x_urad: [f64; 2],
+    /// The slope along y on each column, lowest and highest, µm/m.
+    pub slope_along_y_urad: [f64; 2],
+}
+
+/// Lowest and highest least-squares slope (µm/m) of `r` along x per row
+/// (`along_x`) or along y per column, over lines with ≥ 3 cells.
+fn slope_range(map: &GridMap, r: &[Option<f64>], along_x: bool) -> [f64; 2] {
+    let (nx, ny) = (map.nx(), map.ny());
+    let (lines, along) = if along_x { (ny, nx) } else { (nx, ny) };
+    let mut lo_hi = [f64::INFINITY, f64::NEG_INFINITY];
+    for l in 0..lines {
+        let pts: Vec<(f64, f64)> = (0..along)
+            .filter_map(|i| {
+                let (ix, iy) = if along_x { (i, l) } else { (l, i) };
+                let p = if along_x {
+                    map.xs_um[ix]
+                } else {
+                    map.ys_um[iy]
+                };
+                r[iy * nx + ix].map(|v| (p, v))
+            })
+            .collect();
+        if pts.len() < 3 {
+            continue;
+        }
+        let n = pts.len() as f64;
+        let (mx, my) = (
+            pts.iter().map(|p| p.0).sum::<f64>() / n,
+            pts.iter().map(|p| p.1).sum::<f64>() / n,
+        );
+        let sxx: f64 = pts.iter().map(|p| (p.0 - mx).powi(2)).sum();
+        let sxy: f64 = pts.iter().map(|p| (p.0 - mx) * (p.1 - my)).sum();
+        if sxx > 0.0 {
+            let b = 1e6 * sxy / sxx;
+            lo_hi = [lo_hi[0].min(b), lo_hi[1].max(b)];
+        }
+    }
+    lo_hi
 }
 
 /// Held-out error well above what the noise floor allows.
@@ -381,6 +423,7 @@ pub(super) fn judge(
 ) -> ComponentMaps {
     let (nx, ny) = (map.nx(), map.ny());
     let r = residual(map, c, plane);
+    let full = map.field(c);
     let all = vec![true; nx * ny];
     let (f, g) = separable(map, &r, &all);
     let interaction: Vec<Option<f64>> = r
@@ -456,6 +499,8 @@ pub(super) fn judge(
             heldout_map_um: map_ho,
             gain_pct,
             z,
+            slope_along_x_urad: slope_range(map, &full, true),
+            slope_along_y_urad: slope_range(map, &full, false),
         }
     });
     let best = if non_separable.is_some() {

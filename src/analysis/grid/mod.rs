@@ -253,6 +253,10 @@ pub struct GridReport {
     pub noise: [NoiseFloor; 2],
     /// Separable and 2-D maps per component, with their held-out scores.
     pub components: [ComponentMaps; 2],
+    /// The lattice's x positions (columns), µm.
+    pub xs_um: Vec<f64>,
+    /// The lattice's y positions (rows), µm.
+    pub ys_um: Vec<f64>,
 }
 
 /// Pitch of sorted positions: their median spacing.
@@ -285,6 +289,8 @@ pub fn analyse(map: &GridMap, z_threshold: f64, min_gain_pct: f64) -> GridReport
         geometry,
         noise,
         components,
+        xs_um: map.xs_um.clone(),
+        ys_um: map.ys_um.clone(),
     }
 }
 

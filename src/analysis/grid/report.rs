@@ -128,6 +128,12 @@ pub fn write_text(out: &mut String, r: &GridReport) {
                     ns.gain_pct,
                     ns.z
                 );
+                let (ax, ay) = (ns.slope_along_x_urad, ns.slope_along_y_urad);
+                let _ = writeln!(
+                    out,
+                    "      its shape (as measured): the slope of e{c} along x runs over {:+.1}…{:+.1} µrad from row to row, along y over {:+.1}…{:+.1} µrad from column to column (a slope that changes across the other axis is a twist, or a guide bent differently along it)",
+                    ax[0], ax[1], ay[0], ay[1]
+                );
             }
             None => {
                 let _ = writeln!(
