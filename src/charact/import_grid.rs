@@ -31,8 +31,8 @@
 //! nothing from them). Parsing is sans-IO, never panics, and names the
 //! line and column of anything it refuses.
 
-use super::import::{ImportError, Unit};
-use super::log::{Columns, LogWriter, Metadata, Record, SyncPolicy, MAX_ABS_VALUE};
+use super::import::{number, to_um, ImportError, Unit};
+use super::log::{Columns, LogWriter, Metadata, Record, SyncPolicy};
 
 /// Which sign an error column has.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -111,35 +111,6 @@ pub fn import_grid_bytes(data: &[u8], opts: &GridImportOptions) -> Result<Vec<u8
         parse_csv(text, opts)?
     };
     write(&grid, opts)
-}
-
-/// Converts a value in `unit` to µm, refusing what no log can hold.
-fn to_um(v: f64, unit: Unit, line: usize, column: &str) -> Result<f64, ImportError> {
-    let um = v * unit.um();
-    if !um.is_finite() || um.abs() > MAX_ABS_VALUE {
-        return Err(ImportError::Line {
-            line,
-            column: Some(column.into()),
-            message: format!("{v} is out of range"),
-        });
-    }
-    Ok(um)
-}
-
-fn number(s: &str, line: usize, column: &str) -> Result<f64, ImportError> {
-    let v: f64 = s.trim().parse().map_err(|_| ImportError::Line {
-        line,
-        column: Some(column.into()),
-        message: format!("{:?} is not a number", s.trim()),
-    })?;
-    if !v.is_finite() {
-        return Err(ImportError::Line {
-            line,
-            column: Some(column.into()),
-            message: format!("{:?} is not a finite number", s.trim()),
-        });
-    }
-    Ok(v)
 }
 
 /// The header-plus-rows export (module docs).
