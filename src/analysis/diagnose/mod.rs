@@ -978,7 +978,6 @@ fn diagnose_with(
         .zip(&term_names)
         .map(|((spec, v), name)| describe(spec, v, name, &fitted, model, &std_err, &value, &d))
         .collect::<Result<Vec<_>, _>>()?;
-    let mut parameters = parameters;
     corrections::note_tables(&mut parameters, &findings, model);
     note_short_periods(&mut parameters, &d, model);
     let mut r0 = vec![0.0; 2 * d.n];

@@ -15,6 +15,11 @@
 //! by `min_gain_pct`; pure noise predicted from noisy neighbours does worse
 //! than the separable part, so it fails.
 
+// Lattice loops index several row-major arrays (`r`, `train`, `f`, `g`)
+// by the same column and row: index loops say that more plainly here
+// than zipped iterators would.
+#![allow(clippy::needless_range_loop)]
+
 use serde::Serialize;
 
 use super::geometry::Plane;
@@ -412,6 +417,9 @@ fn paired_z(s: &Scored, a: usize, b: usize) -> f64 {
     }
 }
 
+/// Whether cell `(ix, iy)` is held out in fold `f` of a scheme.
+type FoldTest = dyn Fn(usize, usize, usize) -> bool;
+
 /// Judges component `c` of `map` (see the module docs).
 pub(super) fn judge(
     map: &GridMap,
@@ -442,7 +450,7 @@ pub(super) fn judge(
     let plane_rms_um = rms(&mut r.iter().flatten().copied());
     let separable_rms_um = rms(&mut interaction.iter().flatten().copied());
     let sigma = noise.cell_sigma_um;
-    let schemes: [(&str, &dyn Fn(usize, usize, usize) -> bool); 3] = [
+    let schemes: [(&str, &FoldTest); 3] = [
         ("checkerboard", &|f, ix, iy| (ix + iy) % 2 == f),
         ("alternate rows", &|f, _, iy| iy % 2 == f),
         ("alternate columns", &|f, ix, _| ix % 2 == f),
