@@ -31,6 +31,7 @@ pub mod comp_gain;
 pub mod diagnose;
 pub mod drift;
 pub mod generate;
+pub mod grid;
 pub mod paper;
 pub mod periodogram;
 pub mod physical;

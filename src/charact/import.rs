@@ -308,7 +308,8 @@ pub fn parse_export(data: &[u8], opts: &ImportOptions) -> Result<Parsed, ImportE
     Ok(out)
 }
 
-fn number(s: &str, line: usize, column: &str) -> Result<f64, ImportError> {
+/// Parses a finite number, naming line and column when it is not one.
+pub(super) fn number(s: &str, line: usize, column: &str) -> Result<f64, ImportError> {
     let t = s.trim();
     let v: f64 = t.parse().map_err(|_| ImportError::Line {
         line,
@@ -326,7 +327,7 @@ fn number(s: &str, line: usize, column: &str) -> Result<f64, ImportError> {
 }
 
 /// Converts `v` in `unit` to µm, refusing what a log cannot hold.
-fn to_um(v: f64, unit: Unit, line: usize, column: &str) -> Result<f64, ImportError> {
+pub(super) fn to_um(v: f64, unit: Unit, line: usize, column: &str) -> Result<f64, ImportError> {
     let um = v * unit.um();
     if !um.is_finite() || um.abs() > MAX_ABS_VALUE {
         return Err(ImportError::Line {

@@ -8,5 +8,6 @@
 //! exports of other instruments into that format (`micropos import`).
 
 pub mod import;
+pub mod import_grid;
 pub mod log;
 pub mod scan;

@@ -222,7 +222,81 @@ pub fn write_all(d: &Diagnosis, dir: &Path) -> Result<Vec<PathBuf>, PlotError> {
             .collect(),
     };
     files.extend(render(&chart, &dir.join("before_after"))?);
+    if let Some(g) = &d.grid {
+        for (c, m) in g.components.iter().enumerate() {
+            let comp = &m.component;
+            files.extend(render(
+                &separable_chart(g, c),
+                &dir.join(format!("grid_separable_{comp}")),
+            )?);
+            files.extend(render(
+                &joint_chart(g, c),
+                &dir.join(format!("grid_joint_{comp}")),
+            )?);
+        }
+    }
     Ok(files)
+}
+
+/// A map's separable part of component `c`: `f(x)` and `g(y)` after the
+/// plane (e = measured − target).
+fn separable_chart(g: &crate::analysis::grid::GridReport, c: usize) -> Chart {
+    let m = &g.components[c];
+    let comp = &m.component;
+    Chart {
+        title: format!("grid map: separable part of e{comp} after the plane (f(x) and g(y))"),
+        x_label: "position along the axis (µm)".into(),
+        y_label: format!("e{comp} = measured − target (µm)"),
+        series: vec![
+            Series {
+                label: format!("f(x): e{comp} along x"),
+                points: pairs(&g.xs_um, &m.f_um),
+                mark: Mark::Line,
+            },
+            Series {
+                label: format!("g(y): e{comp} along y"),
+                points: pairs(&g.ys_um, &m.g_um),
+                mark: Mark::Line,
+            },
+        ],
+    }
+}
+
+/// A map's joint x–y part of component `c` (what no `f(x) + g(y)`
+/// holds) along x, for up to six rows spread over y: the map as profiles.
+fn joint_chart(g: &crate::analysis::grid::GridReport, c: usize) -> Chart {
+    let m = &g.components[c];
+    let comp = &m.component;
+    let (xs, ys) = (&g.xs_um, &g.ys_um);
+    let rows = ys.len();
+    let picks: Vec<usize> = if rows <= 6 {
+        (0..rows).collect()
+    } else {
+        (0..6).map(|k| k * (rows - 1) / 5).collect()
+    };
+    Chart {
+        title: format!(
+            "grid map: joint x–y part of e{comp} ({:.3} µm rms; {})",
+            m.separable_rms_um,
+            if m.non_separable.is_some() {
+                "a finding"
+            } else {
+                "not a finding"
+            }
+        ),
+        x_label: "commanded x (µm)".into(),
+        y_label: format!("e{comp} − plane − f(x) − g(y) (µm)"),
+        series: picks
+            .into_iter()
+            .map(|iy| Series {
+                label: format!("y = {:.0} µm", ys[iy]),
+                points: (0..xs.len())
+                    .filter_map(|ix| m.interaction_um[iy * xs.len() + ix].map(|v| (xs[ix], v)))
+                    .collect(),
+                mark: Mark::Line,
+            })
+            .collect(),
+    }
 }
 
 /// The parameter corrections: `(fitted − model)/σ` per identified

@@ -46,6 +46,7 @@ mod diagnose_loop;
 mod diagnose_random;
 mod diagnose_real;
 mod diagnose_real_extra;
+mod diagnose_real_grid;
 mod diagnose_rig_logs;
 mod diagnose_robust_logs;
 mod diagnose_tables;

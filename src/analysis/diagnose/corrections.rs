@@ -62,7 +62,7 @@ fn what(kind: &str, term: &str, parameter: &str) -> String {
 
 /// Value and unit for people: µrad beyond ±1000 as mrad.
 fn shown(v: f64, unit: &str) -> (f64, String) {
-    if unit == "µrad" {
+    if unit == "µrad" && v.abs() >= 1000.0 {
         (v / 1000.0, "mrad".to_string())
     } else {
         (v, unit.to_string())
@@ -190,5 +190,56 @@ pub(super) fn note_tables(
             knots.iter().map(|k| k.1).fold(f64::NEG_INFINITY, f64::max),
             knots.len()
         ));
+    }
+}
+
+/// Restates a correction that the log measures only together with
+/// parameters it cannot separate from it (held at the model's values):
+/// the fitted value is then the model's split, not the stage's, and what
+/// the log measures is the total `fitted + Σ coef·value` of the held
+/// ones, in the kept parameter's unit.
+///
+/// Why: on an XY map the slope of a carriage's pitch or yaw through its
+/// Abbe arm moves the points as the scale does; with the angles held at
+/// the model's values the scale absorbs the rest, and "this stage's scale
+/// is +215 ppm ± 0.04" would be the model's default restated, where the
+/// data measure +1.6 ppm in all.
+pub(super) fn with_joint_totals(
+    params: &mut [ParamCorrection],
+    model: &StageModel,
+    unidentifiable: &[super::Unidentifiable],
+) {
+    let values: HashMap<String, f64> = model
+        .params()
+        .into_iter()
+        .map(|p| (p.full_name, p.info.value))
+        .collect();
+    for p in params.iter_mut() {
+        let full = format!("{}.{}", p.term, p.parameter);
+        let mut held = Vec::new();
+        let mut total = p.fitted_value;
+        for u in unidentifiable {
+            if let Some((_, coef)) = u.combination.iter().find(|(n, _)| *n == full) {
+                if let Some(v) = values.get(&u.name) {
+                    // δ of the held one moves the points as coef·δ of
+                    // this one: its model value is coef·value of this.
+                    total += coef * v;
+                    if v.abs() > 0.0 {
+                        held.push(u.name.clone());
+                    }
+                }
+            }
+        }
+        if held.is_empty() {
+            continue;
+        }
+        let (t, unit) = shown(total, &p.unit);
+        let (f, _) = shown(p.fitted_value, &p.unit);
+        let (se, _) = shown(p.std_error, &p.unit);
+        p.sentence = format!(
+            "{} together with {} (held at the model's values; this log cannot tell them apart) measures {t:+.4} ± {se:.4} {unit} in all; the fitted {f:+.4} {unit} is only the model's split of it",
+            what(&p.kind, &p.term, &p.parameter),
+            held.join(", ")
+        );
     }
 }

@@ -9,6 +9,7 @@
 
 use std::collections::HashMap;
 
+use crate::analysis::grid::GridMap;
 use crate::charact::log::MeasurementLog;
 use crate::model::{Axis, MotionState, MotionTracker, StageModel, Waypoint};
 
@@ -65,6 +66,15 @@ pub(super) struct Data {
     /// log (|r| ≥ [`TIME_POSITION_R`] over the rows where it moves: a
     /// one-way scan at a steady rate), and that correlation.
     pub(super) time_with: Option<(Axis, f64)>,
+    /// Why the log's time explains nothing, when it cannot (a 2-D grid
+    /// visited once per cell, or with synthetic times: time only follows
+    /// the plan, so a drift cannot be told from an error over the grid).
+    pub(super) time_unusable: Option<String>,
+    /// Whether the log is a 2-D grid map (`analysis::grid`): then a
+    /// segment is not a pass with a held axis (a raster's lines and one
+    /// segment read the same), and a one-cycle map's folds are interleaved
+    /// over the lattice, not chunks of the record order.
+    pub(super) grid: bool,
 }
 
 /// How rows are assigned to held-out folds.
@@ -249,7 +259,10 @@ pub(super) fn prepare(
         r0[2 * i] = meas[i][0] - o.x_um;
         r0[2 * i + 1] = meas[i][1] - o.y_um;
     }
-    // Folds: whole cycles, else contiguous chunks.
+    let (measured, measured_source) = measured_axes(log)?;
+    let grid = GridMap::from_log(log, measured);
+    // Folds: whole cycles, else contiguous chunks (a grid: interleaved
+    // over its lattice).
     let mut cycles: Vec<u32> = recs.iter().map(|r| r.cycle).collect();
     cycles.sort_unstable();
     cycles.dedup();
@@ -274,6 +287,18 @@ pub(super) fn prepare(
             recs.iter().map(|r| rank[&r.cycle] % k).collect::<Vec<_>>(),
             k,
         )
+    } else if let Some(g) = &grid {
+        // A diagonal pattern: every held-out cell has trained neighbours
+        // on its row and its column, whatever order the log has.
+        let k = max_folds.min(5);
+        let fold = recs
+            .iter()
+            .map(|r| {
+                let (ix, iy) = g.index_of(r.x_target_um, r.y_target_um);
+                (ix + 2 * iy) % k
+            })
+            .collect();
+        (fold, k)
     } else {
         let k = max_folds.min(5);
         ((0..n).map(|i| i * k / n).collect(), k)
@@ -289,7 +314,12 @@ pub(super) fn prepare(
         } else {
             fold[i]
         };
-        let key = (recs[i].segment.as_str(), recs[i].cycle, f);
+        let seg = if grid.is_some() {
+            ""
+        } else {
+            recs[i].segment.as_str()
+        };
+        let key = (seg, recs[i].cycle, f);
         let next = block_of.len();
         block[i] = *block_of.entry(key).or_insert(next);
     }
@@ -324,7 +354,19 @@ pub(super) fn prepare(
     let tmean = temps.iter().sum::<f64>() / n as f64;
     let tsd = (temps.iter().map(|t| (t - tmean).powi(2)).sum::<f64>() / n as f64).sqrt();
     let extra = numeric_extra_columns(log, &states);
-    let (measured, measured_source) = measured_axes(log)?;
+    let synthetic = log
+        .metadata
+        .get(super::TIME_SOURCE_KEY)
+        .is_some_and(|v| v.trim_start().starts_with("synthetic"));
+    let time_unusable = grid.as_ref().and_then(|g| {
+        if synthetic {
+            Some("the log's times are synthetic (they only number the records of a grid): nothing is fitted or searched as a function of time".to_string())
+        } else if g.cells.iter().flatten().all(|c| c.visits == 1) {
+            Some("each point of the grid is visited once, so time only follows the plan: a drift cannot be told from an error over the grid, and nothing is fitted or searched as a function of time".to_string())
+        } else {
+            None
+        }
+    });
     let approach = approach_signs(log, &states);
     let judged = if cycles.len() >= 2 || scheme == FoldScheme::InterleavedInTime {
         judged_rows(&states, &approach, &moving, &fold, nfolds)
@@ -353,6 +395,8 @@ pub(super) fn prepare(
         approach,
         whole_cycle_folds: cycles.len() >= 2 && scheme == FoldScheme::Cycles,
         time_with: None,
+        time_unusable,
+        grid: grid.is_some(),
     };
     let mut d = d;
     d.time_with = time_position(&d.states, &d.moving);
@@ -368,7 +412,9 @@ pub const MEASURED_AXES_KEY: &str = "measured_axes";
 const PLACEHOLDER_SPREAD_UM: f64 = 1e-9;
 
 /// Which error components the log measured (see [`Data::measured`]).
-fn measured_axes(log: &MeasurementLog) -> Result<([bool; 2], MeasuredSource), AnalysisError> {
+pub(super) fn measured_axes(
+    log: &MeasurementLog,
+) -> Result<([bool; 2], MeasuredSource), AnalysisError> {
     if let Some(v) = log.metadata.get(MEASURED_AXES_KEY) {
         let mut m = [false; 2];
         for part in v.split([',', ' ', ';']).filter(|p| !p.trim().is_empty()) {

@@ -137,6 +137,7 @@ use crate::model::{
     Axis, Environment, FitOptions, Interpolation, Sample, StageModel, TemperaturePoint,
 };
 
+use super::grid::{self, GridMap, GridReport};
 use super::AnalysisError;
 pub use corrections::{ParamCorrection, SIGNIFICANT_SIGMAS};
 pub use data::{parse_approach, APPROACH_COLUMN, MEASURED_AXES_KEY};
@@ -260,7 +261,14 @@ fn unresolved(d: &data::Data, model: &StageModel, name: &str) -> Option<String> 
                 .into(),
         );
     }
-    if let Some((axis, r)) = d.time_with {
+    let time_reason = match (d.time_with, &d.time_unusable) {
+        (Some((axis, r)), _) => Some(format!(
+            "time and {axis} position move together over this log (r = {r:+.3}): a drift cannot be told from an error along {axis}"
+        )),
+        (None, Some(why)) => Some(why.clone()),
+        (None, None) => None,
+    };
+    if let Some(reason) = time_reason {
         let per_time = unit.contains("/h") || unit.contains("/s");
         let timed = model
             .terms()
@@ -269,9 +277,7 @@ fn unresolved(d: &data::Data, model: &StageModel, name: &str) -> Option<String> 
             .and_then(|t| t.to_config().ok())
             .is_some_and(|c| c.get("period_s").is_some());
         if per_time || timed {
-            return Some(format!(
-                "time and {axis} position move together over this log (r = {r:+.3}): a drift cannot be told from an error along {axis}"
-            ));
+            return Some(reason);
         }
     }
     if !(param.contains("sin") || param.contains("cos")) {
@@ -365,6 +371,15 @@ pub struct Diagnosis {
     /// correlation (a one-way scan at a steady rate): nothing is fitted or
     /// searched as a function of time.
     pub time_with: Option<(Axis, f64)>,
+    /// Why the log's time explains nothing (a grid visited once per
+    /// cell, or with synthetic times), when it cannot.
+    pub time_unusable: Option<String>,
+    /// The 2-D grid map's own reading (stage-frame geometry, noise,
+    /// separable or not), when the log is one (`analysis::grid`).
+    pub grid: Option<GridReport>,
+    /// The angle a grid map's readings were turned by before the model
+    /// fit (the measuring frame's rotation, µrad), when they were.
+    pub frame_turn_urad: Option<f64>,
     /// Whether the held-out folds are whole cycles (else contiguous
     /// chunks of the log's one cycle, or interleaved in time).
     pub whole_cycle_folds: bool,
@@ -425,6 +440,85 @@ pub fn diagnose(
     } else {
         log
     };
+    let (measured, _) = data::measured_axes(log)?;
+    let grid = GridMap::from_log(log, measured)
+        .map(|m| grid::analyse(&m, opts.z_threshold, opts.min_gain_pct));
+    let turned;
+    let log = match &grid {
+        Some(g) if !camera_tied(log) && g.geometry.frame_rotation_urad.value.is_finite() => {
+            turned = turn_frame(log, g);
+            &turned
+        }
+        _ => log,
+    };
+    let mut out = diagnose_cross_folds(log, model, opts)?;
+    out.frame_turn_urad = log
+        .metadata
+        .get(FRAME_TURN_KEY)
+        .and_then(|v| v.parse().ok());
+    out.grid = grid;
+    Ok(out)
+}
+
+/// Metadata key [`diagnose`] writes into the log it fits when it turned
+/// the measuring frame of a grid map (µrad).
+const FRAME_TURN_KEY: &str = "micropos_frame_turn_urad";
+
+/// Whether the log's frame is a microposd camera tie (its
+/// `vision_frame_*` metadata): the tie already fixes the frame by the
+/// stage's x axis, the same convention [`turn_frame`] applies.
+fn camera_tied(log: &MeasurementLog) -> bool {
+    log.metadata
+        .iter()
+        .any(|(k, _)| k.starts_with("vision_frame_"))
+}
+
+/// Whether [`turn_frame`] turned this log.
+fn frame_turned(log: &MeasurementLog) -> bool {
+    log.metadata.get(FRAME_TURN_KEY).is_some()
+}
+
+/// The log with its readings turned so that the stage's x axis is the
+/// frame's x (the map's `d(ey)/dx` becomes zero, `d(ex)/dy` the
+/// out-of-squareness): the model's squareness is then the stage's, not
+/// the instrument's alignment. Small-angle, about the map's centre.
+fn turn_frame(log: &MeasurementLog, g: &grid::GridReport) -> MeasurementLog {
+    let th = 1e-6 * g.geometry.frame_rotation_urad.value;
+    let p = g.geometry.planes[0];
+    let mut l = log.clone();
+    for r in &mut l.records {
+        let (x, y) = (r.x_meas_um - p.xc_um, r.y_meas_um - p.yc_um);
+        r.x_meas_um += th * y;
+        r.y_meas_um -= th * x;
+    }
+    l.metadata.insert(
+        FRAME_TURN_KEY,
+        format!("{:.6}", g.geometry.frame_rotation_urad.value),
+    );
+    l
+}
+
+/// The measuring frame's rotation as a base column (µrad; `e_x = −θ·y`,
+/// `e_y = +θ·x` about the log's mean command).
+fn rotation_column(d: &data::Data) -> Vec<f64> {
+    let n = d.n as f64;
+    let xc = d.states.iter().map(|s| s.cmd_um(Axis::X)).sum::<f64>() / n;
+    let yc = d.states.iter().map(|s| s.cmd_um(Axis::Y)).sum::<f64>() / n;
+    let mut col = vec![0.0; 2 * d.n];
+    for (i, s) in d.states.iter().enumerate() {
+        col[2 * i] = -1e-6 * (s.cmd_um(Axis::Y) - yc);
+        col[2 * i + 1] = 1e-6 * (s.cmd_um(Axis::X) - xc);
+    }
+    col
+}
+
+/// [`diagnose`] on whole-cycle folds, and again on folds interleaved in
+/// time when the replicates show the error changing between visits.
+fn diagnose_cross_folds(
+    log: &MeasurementLog,
+    model: &StageModel,
+    opts: &DiagnoseOptions,
+) -> Result<Diagnosis, AnalysisError> {
     let first = diagnose_with(log, model, opts, FoldScheme::Cycles)?;
     // An error that changes between visits of a target is a time (or
     // path) effect that whole-cycle folds judge by extrapolation in time
@@ -445,7 +539,7 @@ pub fn diagnose(
             ))
         })
         .collect();
-    if changing.is_empty() || first.time_with.is_some() {
+    if changing.is_empty() || first.time_with.is_some() || first.time_unusable.is_some() {
         return Ok(first);
     }
     let mut second = diagnose_with(log, model, opts, FoldScheme::InterleavedInTime)?;
@@ -494,7 +588,28 @@ fn diagnose_with(
     let res_names: Vec<String> = resolvable.iter().map(|&j| all_names[j].clone()).collect();
     let res_cols: Vec<Vec<f64>> = resolvable.iter().map(|&j| all_base[j].clone()).collect();
     drop(all_base);
-    let (separable, unidentifiable) = ident::identifiable(&d, model, &res_names, &res_cols);
+    let (mut separable, unidentifiable) = ident::identifiable(&d, model, &res_names, &res_cols);
+    // On a map from an outside instrument, a slope of the y error along x
+    // is the measuring frame's rotation as much as the stage's (the frame
+    // was turned to make it zero, see `diagnose`): a parameter whose
+    // column the rotation and the parameters before it span is not
+    // measured by the log.
+    if d.grid && frame_turned(log) {
+        let rot = rotation_column(&d);
+        let (with_rot, _) =
+            ident::identifiable_given(&d, model, &res_names, &res_cols, std::slice::from_ref(&rot));
+        separable.retain(|j| {
+            let kept = with_rot.contains(j);
+            if !kept {
+                base_fixed.push(FixedParam {
+                    name: res_names[*j].clone(),
+                    reason: "not determined by this log: in-plane readings cannot tell it from a rotation of the measuring frame (the frame is fixed by taking the stage's x axis as the reference)".into(),
+                    aliased: false,
+                });
+            }
+            kept
+        });
+    }
     for u in &unidentifiable {
         base_fixed.push(FixedParam {
             name: u.name.clone(),
@@ -507,6 +622,33 @@ fn diagnose_with(
     // lies in the held-out cycle or chunk alone, e.g. the forward screw
     // harmonics of a log with four forward points in its first chunk)
     // is fitted from a handful of points no held-out row ever tests.
+    // Likewise a parameter whose effect lies on a handful of points (the
+    // play of an axis that only ever moves forward, seen at the log's
+    // first point alone): a fit to those points, not a measurement.
+    separable.retain(|&j| {
+        if let Some(axis) = one_way_play(&d, model, &res_names[j]) {
+            base_fixed.push(FixedParam {
+                name: res_names[j].clone(),
+                reason: format!(
+                    "not determined by this log: the {axis} axis reaches its points from one side only (fewer than {MIN_EFFECTIVE_POINTS:.0} approaches from the other), so its play is never taken up and let go"
+                ),
+                aliased: false,
+            });
+            return false;
+        }
+        let pts = effective_points(&d, &res_cols[j]);
+        let enough = pts >= MIN_EFFECTIVE_POINTS;
+        if !enough {
+            base_fixed.push(FixedParam {
+                name: res_names[j].clone(),
+                reason: format!(
+                    "not determined by this log: its effect lies on about {pts:.0} of the log's points (fewer than {MIN_EFFECTIVE_POINTS:.0})"
+                ),
+                aliased: false,
+            });
+        }
+        enough
+    });
     let (testable, untestable): (Vec<usize>, Vec<usize>) = separable
         .iter()
         .partition(|&&j| testable_in_every_fold(&d, &res_cols[j]));
@@ -789,8 +931,9 @@ fn diagnose_with(
         .metadata
         .get(TIME_SOURCE_KEY)
         .is_some_and(|v| v.trim_start().starts_with("synthetic"));
-    let parameters =
+    let mut parameters =
         corrections::corrections(model, &fitted, &base_names, &std_errs, synthetic_time);
+    corrections::with_joint_totals(&mut parameters, model, &unidentifiable);
     let std_err = |name: &str| -> Option<f64> { std_errs.get(name).copied() };
     let accepted: Vec<(Spec, Verdict)> = specs
         .into_iter()
@@ -835,7 +978,6 @@ fn diagnose_with(
         .zip(&term_names)
         .map(|((spec, v), name)| describe(spec, v, name, &fitted, model, &std_err, &value, &d))
         .collect::<Result<Vec<_>, _>>()?;
-    let mut parameters = parameters;
     corrections::note_tables(&mut parameters, &findings, model);
     note_short_periods(&mut parameters, &d, model);
     let mut r0 = vec![0.0; 2 * d.n];
@@ -914,6 +1056,9 @@ fn diagnose_with(
         },
         synthetic_time,
         time_with: d.time_with,
+        time_unusable: d.time_unusable.clone(),
+        grid: None,
+        frame_turn_urad: None,
         whole_cycle_folds: d.whole_cycle_folds,
         folds_interleaved: None,
         aliased_contribution_rms_um: RmsXy::from(aliased_rms),
@@ -935,6 +1080,58 @@ const TRAINING_SPREAD: f64 = 1e-3;
 /// (measured components, rows not excluded): a parameter that does not is
 /// fitted on the full data from the held-out part alone, where no
 /// held-out test can judge it.
+/// The axis of a play (`backlash`) parameter whose axis the log
+/// approaches from one side only, or `None`.
+fn one_way_play(d: &data::Data, model: &StageModel, name: &str) -> Option<Axis> {
+    let term = name.split('.').next()?;
+    let t = model.terms().iter().find(|t| t.name() == term)?;
+    if t.kind() != "backlash" {
+        return None;
+    }
+    let axis = match t.to_config().ok()?.get("axis")?.as_str()? {
+        "x" => Axis::X,
+        "y" => Axis::Y,
+        _ => return None,
+    };
+    let count = |sign: f64| {
+        (0..d.n)
+            .filter(|&i| !d.excluded[i] && d.approach[i][axis.index()] == sign)
+            .count() as f64
+    };
+    (count(1.0).min(count(-1.0)) < MIN_EFFECTIVE_POINTS).then_some(axis)
+}
+
+/// Points a parameter's effect must spread over to be measured by a log.
+const MIN_EFFECTIVE_POINTS: f64 = 8.0;
+
+/// How many of the log's points a base column's effect lies on: the
+/// participation ratio `(Σ v²)² / Σ v⁴` of the column centred over the
+/// measured components (1 for a single point, the number of points for
+/// an even spread).
+fn effective_points(d: &data::Data, col: &[f64]) -> f64 {
+    let vals: Vec<f64> = (0..d.n)
+        .filter(|&i| !d.excluded[i])
+        .flat_map(|i| {
+            (0..2)
+                .filter(|&c| d.measured[c])
+                .map(move |c| col[2 * i + c])
+        })
+        .collect();
+    if vals.is_empty() {
+        return 0.0;
+    }
+    let m = vals.iter().sum::<f64>() / vals.len() as f64;
+    let (s2, s4) = vals.iter().fold((0.0, 0.0), |(a, b), v| {
+        let q = (v - m) * (v - m);
+        (a + q, b + q * q)
+    });
+    if s4 > 0.0 {
+        s2 * s2 / s4
+    } else {
+        0.0
+    }
+}
+
 fn testable_in_every_fold(d: &data::Data, col: &[f64]) -> bool {
     let spread = |use_row: &dyn Fn(usize) -> bool| -> f64 {
         let vals: Vec<f64> = (0..d.n)

@@ -12,6 +12,19 @@ impl Diagnosis {
     /// The human-readable report.
     pub fn to_text(&self) -> String {
         let mut out = String::new();
+        // A map's own reading first: what the grid measures, in the
+        // stage's frame, before anything read through the stage model.
+        if let Some(g) = &self.grid {
+            crate::analysis::grid::write_text(&mut out, g);
+            let _ = writeln!(
+                out,
+                "\nthe stage model's reading of the same log{}:",
+                match self.frame_turn_urad {
+                    Some(t) => format!(" (its readings turned by {t:+.2} µrad first, so that the stage's x axis is the frame's x: the model's squareness is then the stage's)"),
+                    None => String::new(),
+                }
+            );
+        }
         let measured = |a: Axis| self.measured_axes.contains(&a);
         let _ = writeln!(
             out,
@@ -46,6 +59,9 @@ impl Diagnosis {
                 out,
                 "time and {a} position move together over this log (r = {r:+.3}; a one-way scan at a steady rate): a drift cannot be told from an error along {a}, so nothing is fitted or searched as a function of time"
             );
+        }
+        if let Some(why) = &self.time_unusable {
+            let _ = writeln!(out, "time: {why}");
         }
         if self.synthetic_time {
             let _ = writeln!(
@@ -115,7 +131,21 @@ impl Diagnosis {
             .iter()
             .filter(|c| c.unexplained)
             .collect();
-        if self.findings.is_empty() && unexplained.is_empty() {
+        // A map whose separable reading leaves a joint or unexplained
+        // error is not explained to its noise, whatever the 1-D search
+        // found.
+        let map_left = self.grid.as_ref().is_some_and(|g| {
+            g.components
+                .iter()
+                .any(|c| c.non_separable.is_some() || c.unexplained.is_some())
+        });
+        if self.findings.is_empty() && unexplained.is_empty() && map_left {
+            let _ = writeln!(
+                out,
+                "no finding of the stage model passes the held-out test (z ≥ {}, gain ≥ {} %), but the map is NOT explained to its noise: see the grid map's FINDING / UNEXPLAINED lines above",
+                self.options.z_threshold, self.options.min_gain_pct
+            );
+        } else if self.findings.is_empty() && unexplained.is_empty() {
             let _ = writeln!(
                 out,
                 "no significant structure in the residuals (held-out z ≥ {}, gain ≥ {} %): the model explains the log to its noise",
@@ -480,6 +510,9 @@ impl Diagnosis {
             "measured_from": self.measured_from,
             "synthetic_time": self.synthetic_time,
             "time_with": self.time_with.map(|(a, r)| serde_json::json!({"axis": a, "r": r})),
+            "time_unusable": self.time_unusable,
+            "grid": self.grid,
+            "frame_turn_urad": self.frame_turn_urad,
             "whole_cycle_folds": self.whole_cycle_folds,
             "folds_interleaved": self.folds_interleaved,
             "judged_points": self.judged_points,

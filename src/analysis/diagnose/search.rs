@@ -105,7 +105,7 @@ pub(super) fn families(d: &Data) -> Vec<Family> {
         }
         // Time families only when time is a variable of its own (see
         // `data::Data::time_with`).
-        if d.time_with.is_none() {
+        if d.time_with.is_none() && d.time_unusable.is_none() {
             out.push(Family::Drift {
                 comp,
                 quadratic: false,
@@ -401,7 +401,10 @@ pub(super) fn search(f: Family, d: &Data, resid: &[f64], train: &[bool]) -> Opti
                     (p, w * (1.0 + dw)),
                     (p, w / (1.0 + dw)),
                 ] {
-                    if nw < spacing {
+                    // A feature is located inside the measured travel, and
+                    // no wider than an eighth of it (wider is a slope or
+                    // a bow, which other families carry).
+                    if nw < spacing || nw > span / 8.0 || np < x[0] || np > x[x.len() - 1] {
                         continue;
                     }
                     let ns = score(np, nw);
@@ -929,7 +932,10 @@ pub(super) fn refine_localized(
             (p, w * (1.0 + dw)),
             (p, w / (1.0 + dw)),
         ] {
-            if nw < spacing || nw > w_max || np < lo - w_max || np > hi + w_max {
+            // Inside the measured travel: a place outside it is not
+            // measured (its tail alone is seen, and its amplitude grows
+            // without bound as it leaves).
+            if nw < spacing || nw > w_max || np < lo || np > hi {
                 continue;
             }
             let v = sse(np, nw);

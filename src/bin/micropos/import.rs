@@ -10,6 +10,9 @@ use std::process::ExitCode;
 
 use anyhow::{bail, Context, Result};
 use micropos::charact::import::{import_bytes, DirectionLabels, ImportFormat, ImportOptions, Unit};
+use micropos::charact::import_grid::{
+    import_grid_bytes, is_grid_export, ErrorSign, GridImportOptions,
+};
 use micropos::model::Axis;
 
 /// Arguments of `micropos import`.
@@ -29,11 +32,16 @@ pub struct Args {
     /// CSV header's suffixes (`target_mm`), or the `.dat`'s UNIT (mm).
     #[arg(long, value_parser = parse_unit)]
     pub units: Option<Unit>,
-    /// Input format: auto (a `.dat` when it has TGT_DATA/REF_DATA keys, a
-    /// markdown report when it has pipe tables, else CSV), csv, dat or
-    /// report.
+    /// Input format: auto (a 2-D grid when it is a header-plus-rows export
+    /// with `:START` or a CSV naming x and y targets, a `.dat` when it has
+    /// TGT_DATA/REF_DATA keys, a markdown report when it has pipe tables,
+    /// else CSV), grid, csv, dat or report.
     #[arg(long, default_value = "auto", value_parser = parse_format)]
-    pub format: ImportFormat,
+    pub format: Format,
+    /// Sign of a 2-D grid CSV's error columns: meas-minus-target (ISO
+    /// 230-2's deviation) or target-minus-meas.
+    #[arg(long, default_value = "meas-minus-target", value_parser = parse_sign)]
+    pub error_sign: ErrorSign,
     /// How a markdown report's forward/backward headings are read: auto
     /// (as labelled, except ecmc's per-cycle-column tables, which print
     /// them swapped), as-labelled or swapped.
@@ -64,13 +72,35 @@ fn parse_unit(s: &str) -> Result<Unit, String> {
     Unit::parse(s).ok_or_else(|| format!("{s:?} is not a unit (m, mm, um, nm)"))
 }
 
-fn parse_format(s: &str) -> Result<ImportFormat, String> {
+/// A 1-D ISO 230-2 format, or a 2-D grid.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Format {
+    /// One of the 1-D formats (or auto).
+    OneAxis(ImportFormat),
+    /// A 2-D grid export (`charact::import_grid`).
+    Grid,
+}
+
+fn parse_format(s: &str) -> Result<Format, String> {
     match s {
-        "auto" => Ok(ImportFormat::Auto),
-        "csv" => Ok(ImportFormat::Csv),
-        "dat" => Ok(ImportFormat::Dat),
-        "report" | "md" => Ok(ImportFormat::Report),
-        _ => Err(format!("{s:?} is not a format (auto, csv, dat, report)")),
+        "auto" => Ok(Format::OneAxis(ImportFormat::Auto)),
+        "csv" => Ok(Format::OneAxis(ImportFormat::Csv)),
+        "dat" => Ok(Format::OneAxis(ImportFormat::Dat)),
+        "report" | "md" => Ok(Format::OneAxis(ImportFormat::Report)),
+        "grid" => Ok(Format::Grid),
+        _ => Err(format!(
+            "{s:?} is not a format (auto, grid, csv, dat, report)"
+        )),
+    }
+}
+
+fn parse_sign(s: &str) -> Result<ErrorSign, String> {
+    match s {
+        "meas-minus-target" => Ok(ErrorSign::MeasuredMinusTarget),
+        "target-minus-meas" => Ok(ErrorSign::TargetMinusMeasured),
+        _ => Err(format!(
+            "{s:?} is not an error sign (meas-minus-target, target-minus-meas)"
+        )),
     }
 }
 
@@ -78,30 +108,60 @@ fn parse_format(s: &str) -> Result<ImportFormat, String> {
 pub fn run(args: &Args) -> Result<ExitCode> {
     let data =
         std::fs::read(&args.input).with_context(|| format!("read {}", args.input.display()))?;
+    let source = args
+        .input
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned());
+    let grid = match args.format {
+        Format::Grid => true,
+        Format::OneAxis(ImportFormat::Auto) => is_grid_export(&data),
+        Format::OneAxis(_) => false,
+    };
+    if grid {
+        let opts = GridImportOptions {
+            units: args.units,
+            error_sign: args.error_sign,
+            source,
+        };
+        let bytes =
+            import_grid_bytes(&data, &opts).with_context(|| args.input.display().to_string())?;
+        let records = write_new(&args.out, &bytes)?;
+        println!(
+            "{records} points of a 2-D grid written to {} (both axes measured)",
+            args.out.display()
+        );
+        return Ok(ExitCode::SUCCESS);
+    }
+    let format = match args.format {
+        Format::OneAxis(f) => f,
+        Format::Grid => ImportFormat::Auto,
+    };
     let opts = ImportOptions {
-        format: args.format,
+        format,
         axis: args.axis,
         units: args.units,
-        source: args
-            .input
-            .file_name()
-            .map(|n| n.to_string_lossy().into_owned()),
+        source,
         directions: args.directions,
     };
     let bytes = import_bytes(&data, &opts).with_context(|| args.input.display().to_string())?;
-    if args.out.exists() {
-        bail!("{} exists; not overwritten", args.out.display());
-    }
-    std::fs::write(&args.out, &bytes).with_context(|| format!("write {}", args.out.display()))?;
-    let records = bytes
-        .split(|&b| b == b'\n')
-        .filter(|l| !l.is_empty() && l[0] != b'#')
-        .count()
-        .saturating_sub(1);
+    let records = write_new(&args.out, &bytes)?;
     println!(
         "{records} points written to {} (axis {}, other axis unmeasured)",
         args.out.display(),
         args.axis
     );
     Ok(ExitCode::SUCCESS)
+}
+
+/// Writes `bytes` to `out`, which must not exist; returns the records.
+fn write_new(out: &std::path::Path, bytes: &[u8]) -> Result<usize> {
+    if out.exists() {
+        bail!("{} exists; not overwritten", out.display());
+    }
+    std::fs::write(out, bytes).with_context(|| format!("write {}", out.display()))?;
+    Ok(bytes
+        .split(|&b| b == b'\n')
+        .filter(|l| !l.is_empty() && l[0] != b'#')
+        .count()
+        .saturating_sub(1))
 }

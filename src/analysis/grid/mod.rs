@@ -1,0 +1,297 @@
+//! 2-D grid maps: a log whose targets fill a lattice over x and y (a
+//! laser or camera map of an XY stage, point by point) read as a map of
+//! the stage's error, in the stage's own frame.
+//!
+//! Why a module of its own: the model-based diagnosis reads a log as the
+//! replay of commanded moves through one stage model, and its 1-D
+//! reasoning (a held axis settles once per line, folds in time) does not
+//! describe what a grid measures. A grid measures the error over the plane
+//! directly, so what a metrologist reads from it is computed from the grid
+//! alone, whatever the record order or the segments it was logged in:
+//!
+//! 1. **Cells** ([`GridMap::from_log`]): records grouped by target into the
+//!    lattice of distinct x and y targets; a cell's error is the mean of
+//!    its visits. Sign: `e = measured − target` (ISO 230-2 and the stage
+//!    model's `true = cmd + Σ`), µm.
+//! 2. **Geometry in the stage's frame** ([`geometry`]): a plane per
+//!    component. The instrument's frame (a laser's mirror pair, a camera's
+//!    tie) is rotated by an arbitrary angle, which puts equal and opposite
+//!    slopes on `d(ex)/dy` and `d(ey)/dx`; only their sum, the
+//!    out-of-squareness, belongs to the stage. The rotation is a nuisance,
+//!    reported apart (fixed by taking the x axis as the reference, the
+//!    stage model's convention for squareness).
+//! 3. **Noise on one-pass grids** ([`noise`]): from the visits of a cell
+//!    when there are several, else from the neighbours along each line
+//!    (second differences).
+//! 4. **Separable or not** ([`maps`]): the paper's compensation is
+//!    `f(x) + g(y)` per component plus a squareness. What that leaves is
+//!    measured, and a 2-D term (the separable part plus the interaction
+//!    interpolated from the neighbouring cells) is judged on held-out
+//!    cells (checkerboard and alternate lines): a finding only when it
+//!    predicts held-out cells better by a paired test.
+
+mod geometry;
+mod maps;
+mod noise;
+mod report;
+#[cfg(test)]
+mod tests;
+
+use serde::Serialize;
+
+use crate::charact::log::MeasurementLog;
+use crate::charact::scan::is_sweep_anchor;
+
+pub use geometry::{Geometry, Slope};
+pub use maps::{ComponentMaps, FoldScore, NonSeparable};
+pub use noise::NoiseFloor;
+
+/// Segments that are not points of a map: drift references and the
+/// varied-length moves of a characterization.
+fn off_grid(segment: &str) -> bool {
+    segment == "drift_ref" || segment == "moves" || is_sweep_anchor(segment)
+}
+
+/// Fewest distinct positions per axis, and cells in all, that make a map.
+const MIN_LINES: usize = 3;
+const MIN_CELLS: usize = 9;
+/// Fraction of the lattice's cells a log must fill to be read as a map
+/// (a cross of two scan lines fills `(nx + ny − 1) / (nx·ny)`).
+const MIN_FILL: f64 = 0.5;
+
+/// One lattice cell: the visits of one (x, y) target.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct Cell {
+    /// Mean `measured − target` per component over the visits, µm.
+    pub e_um: [f64; 2],
+    /// Visits.
+    pub visits: usize,
+    /// Sum of squared deviations of the visits from their mean, µm², per
+    /// component (for the replicate noise).
+    #[serde(skip)]
+    ss_um2: [f64; 2],
+}
+
+/// A log's targets as a lattice of cells.
+#[derive(Debug, Clone, PartialEq)]
+pub struct GridMap {
+    /// Distinct x targets, ascending, µm.
+    pub xs_um: Vec<f64>,
+    /// Distinct y targets, ascending, µm.
+    pub ys_um: Vec<f64>,
+    /// Cells, row-major: `cells[iy * nx + ix]`, `None` where not visited.
+    pub cells: Vec<Option<Cell>>,
+}
+
+/// Clusters sorted values that lie within `tol` of the previous one;
+/// returns the cluster means.
+fn distinct(mut v: Vec<f64>, tol: f64) -> Vec<f64> {
+    v.sort_by(f64::total_cmp);
+    let mut out: Vec<(f64, usize)> = Vec::new();
+    let mut last = f64::NEG_INFINITY;
+    for x in v {
+        match out.last_mut() {
+            Some((s, n)) if x - last <= tol => {
+                *s += x;
+                *n += 1;
+            }
+            _ => out.push((x, 1)),
+        }
+        last = x;
+    }
+    out.into_iter().map(|(s, n)| s / n as f64).collect()
+}
+
+/// Index of the value in `sorted` nearest to `x`.
+fn nearest(sorted: &[f64], x: f64) -> usize {
+    let i = sorted.partition_point(|&v| v < x);
+    if i == 0 {
+        0
+    } else if i == sorted.len() || x - sorted[i - 1] <= sorted[i] - x {
+        i - 1
+    } else {
+        i
+    }
+}
+
+impl GridMap {
+    /// The log's map, or `None` when its targets do not fill a lattice of
+    /// at least 3 × 3 positions (half of the cells or more) or either
+    /// component is unmeasured (`measured`, `[x, y]`). Non-finite readings
+    /// are left out.
+    pub fn from_log(log: &MeasurementLog, measured: [bool; 2]) -> Option<GridMap> {
+        if measured != [true, true] {
+            return None;
+        }
+        let recs: Vec<_> = log
+            .records
+            .iter()
+            .filter(|r| !off_grid(&r.segment))
+            .filter(|r| {
+                [r.x_target_um, r.y_target_um, r.x_meas_um, r.y_meas_um]
+                    .iter()
+                    .all(|v| v.is_finite())
+            })
+            .collect();
+        let span = |f: &dyn Fn(&&crate::charact::log::Record) -> f64| {
+            let (lo, hi) = recs
+                .iter()
+                .map(f)
+                .fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), v| {
+                    (l.min(v), h.max(v))
+                });
+            hi - lo
+        };
+        let tol = |s: f64| (1e-6 * s).max(1e-3);
+        let xs = distinct(
+            recs.iter().map(|r| r.x_target_um).collect(),
+            tol(span(&|r| r.x_target_um)),
+        );
+        let ys = distinct(
+            recs.iter().map(|r| r.y_target_um).collect(),
+            tol(span(&|r| r.y_target_um)),
+        );
+        if xs.len() < MIN_LINES || ys.len() < MIN_LINES {
+            return None;
+        }
+        let nx = xs.len();
+        // At most `records` cells are visited: a lattice that many records
+        // cannot fill to MIN_FILL is no map (and is never allocated).
+        if (nx as f64) * (ys.len() as f64) * MIN_FILL > recs.len() as f64 {
+            return None;
+        }
+        let mut sum = vec![[0.0f64; 2]; nx * ys.len()];
+        let mut sum2 = vec![[0.0f64; 2]; nx * ys.len()];
+        let mut count = vec![0usize; nx * ys.len()];
+        for r in &recs {
+            let k = nearest(&ys, r.y_target_um) * nx + nearest(&xs, r.x_target_um);
+            let e = [r.x_meas_um - r.x_target_um, r.y_meas_um - r.y_target_um];
+            for c in 0..2 {
+                sum[k][c] += e[c];
+                sum2[k][c] += e[c] * e[c];
+            }
+            count[k] += 1;
+        }
+        let filled = count.iter().filter(|&&n| n > 0).count();
+        if filled < MIN_CELLS || (filled as f64) < MIN_FILL * count.len() as f64 {
+            return None;
+        }
+        let cells = (0..count.len())
+            .map(|k| {
+                let n = count[k];
+                (n > 0).then(|| {
+                    let m = [sum[k][0] / n as f64, sum[k][1] / n as f64];
+                    Cell {
+                        e_um: m,
+                        visits: n,
+                        ss_um2: [
+                            (sum2[k][0] - n as f64 * m[0] * m[0]).max(0.0),
+                            (sum2[k][1] - n as f64 * m[1] * m[1]).max(0.0),
+                        ],
+                    }
+                })
+            })
+            .collect();
+        Some(GridMap {
+            xs_um: xs,
+            ys_um: ys,
+            cells,
+        })
+    }
+
+    /// Column and row of the cell nearest to `(x, y)`.
+    pub fn index_of(&self, x_um: f64, y_um: f64) -> (usize, usize) {
+        (nearest(&self.xs_um, x_um), nearest(&self.ys_um, y_um))
+    }
+
+    /// Columns (distinct x).
+    pub fn nx(&self) -> usize {
+        self.xs_um.len()
+    }
+
+    /// Rows (distinct y).
+    pub fn ny(&self) -> usize {
+        self.ys_um.len()
+    }
+
+    /// The cell at column `ix`, row `iy`.
+    pub fn cell(&self, ix: usize, iy: usize) -> Option<&Cell> {
+        self.cells.get(iy * self.nx() + ix).and_then(Option::as_ref)
+    }
+
+    /// Component `c` of every cell as a row-major field (`None` = empty).
+    fn field(&self, c: usize) -> Vec<Option<f64>> {
+        self.cells.iter().map(|k| k.map(|k| k.e_um[c])).collect()
+    }
+
+    /// Visited cells.
+    pub fn filled(&self) -> usize {
+        self.cells.iter().filter(|c| c.is_some()).count()
+    }
+}
+
+/// What a grid map shows: see the module docs.
+#[derive(Debug, Clone, Serialize)]
+pub struct GridReport {
+    /// Distinct x targets (columns) and y targets (rows).
+    pub columns: usize,
+    /// Rows of the lattice.
+    pub rows: usize,
+    /// Visited cells.
+    pub cells: usize,
+    /// Median visits per visited cell.
+    pub visits_per_cell: usize,
+    /// Pitch of the lattice per axis (median spacing), µm.
+    pub pitch_um: [f64; 2],
+    /// Extent of the lattice per axis, `[min, max]`, µm.
+    pub x_range_um: [f64; 2],
+    /// Extent along y, µm.
+    pub y_range_um: [f64; 2],
+    /// Scales, squareness and the measuring frame's rotation.
+    pub geometry: Geometry,
+    /// Noise floor per component.
+    pub noise: [NoiseFloor; 2],
+    /// Separable and 2-D maps per component, with their held-out scores.
+    pub components: [ComponentMaps; 2],
+    /// The lattice's x positions (columns), µm.
+    pub xs_um: Vec<f64>,
+    /// The lattice's y positions (rows), µm.
+    pub ys_um: Vec<f64>,
+}
+
+/// Pitch of sorted positions: their median spacing.
+fn pitch(v: &[f64]) -> f64 {
+    let mut d: Vec<f64> = v.windows(2).map(|w| w[1] - w[0]).collect();
+    d.sort_by(f64::total_cmp);
+    d.get(d.len() / 2).copied().unwrap_or(0.0)
+}
+
+/// Analyses a map; `z_threshold` and `min_gain_pct` are the diagnosis's
+/// significance rule (a paired z of the held-out squared errors, and a
+/// minimum drop of the held-out RMS).
+pub fn analyse(map: &GridMap, z_threshold: f64, min_gain_pct: f64) -> GridReport {
+    let geometry = geometry::fit(map);
+    let noise = [noise::floor(map, 0), noise::floor(map, 1)];
+    let components = [0, 1].map(|c| {
+        let plane = geometry.plane(c);
+        maps::judge(map, c, &plane, &noise[c], z_threshold, min_gain_pct)
+    });
+    let mut visits: Vec<usize> = map.cells.iter().flatten().map(|c| c.visits).collect();
+    visits.sort_unstable();
+    GridReport {
+        columns: map.nx(),
+        rows: map.ny(),
+        cells: map.filled(),
+        visits_per_cell: visits.get(visits.len() / 2).copied().unwrap_or(0),
+        pitch_um: [pitch(&map.xs_um), pitch(&map.ys_um)],
+        x_range_um: [map.xs_um[0], map.xs_um[map.nx() - 1]],
+        y_range_um: [map.ys_um[0], map.ys_um[map.ny() - 1]],
+        geometry,
+        noise,
+        components,
+        xs_um: map.xs_um.clone(),
+        ys_um: map.ys_um.clone(),
+    }
+}
+
+pub use report::write_text;
