@@ -202,10 +202,10 @@ fn the_shared_map_in_any_encoding_gives_the_same_conclusions() {
                 "{how}"
             );
         }
-        // The model's reading: the same squareness within 2σ (a
-        // serpentine relabelling has the replay reverse x on every other
-        // line, so the model's fit of play and its findings change a
-        // little), no time finding.
+        // The model's reading: the same squareness within 3σ of the
+        // map's (the model replays the record order as the stage's path,
+        // so a serpentine or shuffled order changes its fit of play and
+        // its findings a little), no time finding.
         let sq = |d: &Diagnosis| {
             d.parameters
                 .iter()
@@ -214,7 +214,7 @@ fn the_shared_map_in_any_encoding_gives_the_same_conclusions() {
                 .unwrap()
         };
         assert!(
-            (sq(&d) - sq(&base)).abs() < 2.0 * b.sigma,
+            (sq(&d) - sq(&base)).abs() < 3.0 * b.sigma,
             "{how}: {} vs {}",
             sq(&d),
             sq(&base)

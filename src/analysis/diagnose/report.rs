@@ -9,6 +9,51 @@ use super::{ComponentNoise, Diagnosis, RmsXy, MEASURED_AXES_KEY};
 use crate::model::Axis;
 
 impl Diagnosis {
+    /// The log's ISO 230-2 figures per measured component, the first thing
+    /// a metrologist reads: what the log measures before any model.
+    fn iso_text(&self) -> String {
+        let mut out = String::new();
+        for c in &self.noise.components {
+            let a = c.component;
+            if let Some(iso) = &c.iso230_2 {
+                let fig = |f: &super::noise::IsoFigures| {
+                    format!(
+                        "R {:.4} µm (R↑ {:.4}, R↓ {:.4}), B {:.4} µm (B̄ {:+.4} µm), E {:.4} µm, M {:.4} µm, A {:.4} µm",
+                        f.r_um, f.r_up_um, f.r_down_um, f.b_um, f.mean_b_um, f.e_um, f.m_um, f.a_um
+                    )
+                };
+                let _ = writeln!(
+                    out,
+                    "  {a}: ISO 230-2 ({} cycles, all {} visits{}, as the standard defines the figures and a test report computes them{}): {}",
+                    iso.cycles,
+                    iso.visits,
+                    if c.outliers.is_empty() { "" } else { " including the excluded ones" },
+                    match iso.paired_within_um {
+                        Some(w) => format!("; a target's forward and backward arrivals stopped up to {w:.1} µm apart and are paired, as the test's own report pairs them: not a test of the standard's form"),
+                        None => String::new(),
+                    },
+                    fig(iso)
+                );
+                if let Some(w) = &c.iso230_2_without_outliers {
+                    let _ = writeln!(
+                        out,
+                        "  {a}: ISO 230-2 figures without the {} excluded visit(s) ({} visits; each target's x̄ and s from the visits it keeps; not the standard's figures): {}",
+                        iso.visits.saturating_sub(w.visits),
+                        w.visits,
+                        fig(w)
+                    );
+                }
+            }
+        }
+        if !out.is_empty() {
+            out.insert_str(
+                0,
+                "what the log measures (ISO 230-2, per direction; the standard's deviation = measured − target):\n",
+            );
+        }
+        out
+    }
+
     /// The human-readable report.
     pub fn to_text(&self) -> String {
         let mut out = String::new();
@@ -25,6 +70,7 @@ impl Diagnosis {
                 }
             );
         }
+        out.push_str(&self.iso_text());
         let measured = |a: Axis| self.measured_axes.contains(&a);
         let _ = writeln!(
             out,
@@ -332,35 +378,6 @@ impl Diagnosis {
             }
             if !c.discordant_pairs.is_empty() {
                 out.push_str(&discordant_text(c));
-            }
-            if let Some(iso) = &c.iso230_2 {
-                let fig = |f: &super::noise::IsoFigures| {
-                    format!(
-                        "R {:.4} µm (R↑ {:.4}, R↓ {:.4}), B {:.4} µm (B̄ {:+.4} µm), E {:.4} µm, M {:.4} µm, A {:.4} µm",
-                        f.r_um, f.r_up_um, f.r_down_um, f.b_um, f.mean_b_um, f.e_um, f.m_um, f.a_um
-                    )
-                };
-                let _ = writeln!(
-                    out,
-                    "  {a}: ISO 230-2 ({} cycles, all {} visits{}, as the standard defines the figures and a test report computes them{}): {}",
-                    iso.cycles,
-                    iso.visits,
-                    if c.outliers.is_empty() { "" } else { " including the excluded ones" },
-                    match iso.paired_within_um {
-                        Some(w) => format!("; a target's forward and backward arrivals stopped up to {w:.1} µm apart and are paired, as the test's own report pairs them: not a test of the standard's form"),
-                        None => String::new(),
-                    },
-                    fig(iso)
-                );
-                if let Some(w) = &c.iso230_2_without_outliers {
-                    let _ = writeln!(
-                        out,
-                        "  {a}: ISO 230-2 figures without the {} excluded visit(s) ({} visits; each target's x̄ and s from the visits it keeps; not the standard's figures): {}",
-                        iso.visits.saturating_sub(w.visits),
-                        w.visits,
-                        fig(w)
-                    );
-                }
             }
             if let Some(nb) = c.neighbour_noise_um {
                 let _ = writeln!(
