@@ -105,7 +105,7 @@ pub fn newest_log(dir: &Path, job: FiguresJob) -> Result<Option<String>, ProtoEr
     files.sort_by(|a, b| b.cmp(a));
     for (_, name) in files {
         let path: PathBuf = dir.join(&name);
-        let Ok(f) = std::fs::File::open(&path) else {
+        let Ok(f) = crate::nofollow::open(&path) else {
             continue;
         };
         let Ok(r) = LogReader::new(BufReader::new(f)) else {
