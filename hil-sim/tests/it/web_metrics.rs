@@ -815,3 +815,60 @@ async fn every_route_refuses_a_foreign_host() {
     daemon.shutdown().await;
     sim.shutdown();
 }
+
+/// A client that announces a body and stalls is answered 408 and closed
+/// within `BODY_TIMEOUT` (before: held open for good), and does not keep
+/// the listener from serving the next request.
+#[tokio::test(start_paused = true)]
+async fn a_stalled_body_is_closed_within_the_timeout() {
+    use micropos::daemon::web::command::BODY_TIMEOUT;
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    use tokio::net::TcpStream;
+
+    let dir = tempfile::tempdir().unwrap();
+    let rig_dir = dir.path().join("rig");
+    let data = dir.path().join("data");
+    std::fs::create_dir_all(&rig_dir).unwrap();
+    std::fs::create_dir_all(&data).unwrap();
+    let cfg = common::serve_config(&rig_dir, 50.0, 5);
+    let rig_cfg = cfg.rig.clone();
+    let sim = common::serve_in_process(cfg);
+    let socket = dir.path().join("d.sock");
+    let mut c = daemon_config(&rig_dir, &data, &socket, &rig_cfg, &RunPlan::reduced()).unwrap();
+    c.web = Some(WebSection {
+        listen: "127.0.0.1:0".to_owned(),
+        ..WebSection::default()
+    });
+    c.validate().unwrap();
+    let daemon = common::start_daemon_in_process(c, &sim, &socket);
+    let addr = daemon.web_addr.expect("the web listener is bound");
+
+    let mut stalled = Vec::new();
+    for _ in 0..8 {
+        let mut s = TcpStream::connect(addr).await.unwrap();
+        let req = format!(
+            "POST /api/command HTTP/1.1\r\nHost: {addr}\r\nContent-Type: application/json\r\nContent-Length: 100\r\n\r\n{{\"cmd\":"
+        );
+        s.write_all(req.as_bytes()).await.unwrap();
+        stalled.push(s);
+    }
+    for s in &mut stalled {
+        let mut out = Vec::new();
+        let r = tokio::time::timeout(BODY_TIMEOUT * 2, s.read_to_end(&mut out)).await;
+        assert!(r.is_ok(), "a stalled body held its connection open");
+        assert!(
+            out.starts_with(b"HTTP/1.1 408"),
+            "{}",
+            String::from_utf8_lossy(&out)
+        );
+    }
+    let mut s = TcpStream::connect(addr).await.unwrap();
+    let req = format!("GET /metrics HTTP/1.1\r\nHost: {addr}\r\nConnection: close\r\n\r\n");
+    s.write_all(req.as_bytes()).await.unwrap();
+    let mut head = [0u8; 12];
+    s.read_exact(&mut head).await.unwrap();
+    assert_eq!(&head, b"HTTP/1.1 200");
+
+    daemon.shutdown().await;
+    sim.shutdown();
+}
