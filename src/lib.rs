@@ -22,6 +22,7 @@ pub mod gcs;
 pub mod imageio;
 pub mod metrology;
 pub mod model;
+pub mod nofollow;
 pub mod pattern;
 pub mod plot;
 

@@ -246,14 +246,14 @@ impl CompFile {
         Self::from_toml(text)
     }
 
-    /// Reads a file.
+    /// Reads a file (a symbolic link is refused).
     pub fn read_path(path: impl AsRef<Path>) -> Result<Self, CompError> {
         let p = path.as_ref();
         let io = |e: std::io::Error| CompError::Io {
             path: p.display().to_string(),
             message: e.to_string(),
         };
-        let f = std::fs::File::open(p).map_err(io)?;
+        let f = crate::nofollow::open(p).map_err(io)?;
         Self::read_from(f).map_err(|e| match e {
             CompError::Io { message, .. } => CompError::Io {
                 path: p.display().to_string(),
@@ -272,8 +272,10 @@ impl CompFile {
         })
     }
 
-    /// Writes a file atomically (temporary file in the same directory, then
-    /// rename): a daemon watching the path never sees half a file.
+    /// Writes a file atomically (a new temporary file with a random name in
+    /// the same directory, then rename; links never followed,
+    /// [`crate::nofollow`]): a daemon watching the path never sees half a
+    /// file.
     pub fn write_path(&self, path: impl AsRef<Path>) -> Result<(), CompError> {
         let p = path.as_ref();
         let io = |e: std::io::Error| CompError::Io {
@@ -281,15 +283,7 @@ impl CompFile {
             message: e.to_string(),
         };
         let text = self.to_toml()?;
-        let mut tmp = p.as_os_str().to_owned();
-        tmp.push(".tmp");
-        let tmp = std::path::PathBuf::from(tmp);
-        {
-            let mut f = std::fs::File::create(&tmp).map_err(io)?;
-            f.write_all(text.as_bytes()).map_err(io)?;
-            f.sync_all().map_err(io)?;
-        }
-        std::fs::rename(&tmp, p).map_err(io)
+        crate::nofollow::write_atomic(p, text.as_bytes()).map_err(io)
     }
 }
 
@@ -328,5 +322,19 @@ mod tests {
         let e = CompFile::from_toml("format_version = 1\nkind = \"magic\"\ncreated = \"x\"\n")
             .unwrap_err();
         assert!(e.to_string().contains("kind"), "{e}");
+    }
+
+    /// `tables load` reads through `read_path`: a planted link is refused,
+    /// and the error never quotes the target's first line.
+    #[test]
+    fn read_path_refuses_a_link_without_quoting_the_target() {
+        let d = tempfile::tempdir().unwrap();
+        let secret = d.path().join("secret");
+        std::fs::write(&secret, "root:secret-hash:0:0\n").unwrap();
+        let link = d.path().join("t-paper.toml");
+        std::os::unix::fs::symlink(&secret, &link).unwrap();
+        let e = CompFile::read_path(&link).unwrap_err().to_string();
+        assert!(e.contains("symbolic link"), "{e}");
+        assert!(!e.contains("secret-hash"), "{e}");
     }
 }

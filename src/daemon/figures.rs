@@ -105,7 +105,7 @@ pub fn newest_log(dir: &Path, job: FiguresJob) -> Result<Option<String>, ProtoEr
     files.sort_by(|a, b| b.cmp(a));
     for (_, name) in files {
         let path: PathBuf = dir.join(&name);
-        let Ok(f) = std::fs::File::open(&path) else {
+        let Ok(f) = crate::nofollow::open(&path) else {
             continue;
         };
         let Ok(r) = LogReader::new(BufReader::new(f)) else {
@@ -561,6 +561,23 @@ mod tests {
                     assert_eq!(e.code, ErrorCode::LogError, "{e}");
                 }
             }
+        }
+    }
+
+    /// A link planted in the data directory (anonymous HTTP `figures`
+    /// names it) is refused without quoting the target's first line.
+    #[test]
+    fn a_planted_link_is_refused_without_quoting_its_target() {
+        let dir = tempfile::tempdir().unwrap();
+        let d = dir.path();
+        let secret = d.join("outside");
+        std::fs::write(&secret, "root:secret-hash:0:0\n").unwrap();
+        std::os::unix::fs::symlink(&secret, d.join("x.csv")).unwrap();
+        for job in [FiguresJob::Characterize, FiguresJob::Validate] {
+            let e = figures_in(d, &params(job, Some("x.csv"))).unwrap_err();
+            assert_eq!(e.code, ErrorCode::LogError, "{e}");
+            assert!(!e.to_string().contains("secret-hash"), "{e}");
+            assert!(e.to_string().contains("symbolic link"), "{e}");
         }
     }
 }

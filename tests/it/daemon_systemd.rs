@@ -276,3 +276,74 @@ fn sighup_reloads_limits_and_names_what_it_cannot_change() {
         "SIGHUP ended the daemon"
     );
 }
+
+/// The overall exposure level `systemd-analyze security --offline=true`
+/// prints for `unit` (its last line: "→ Overall exposure level for …: 1.0 OK").
+fn exposure(analyze: &Path, unit: &Path) -> f64 {
+    let out = Command::new(analyze)
+        .args(["security", "--offline=true", "--no-pager"])
+        .arg(unit)
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    let line = stdout
+        .lines()
+        .find(|l| l.contains("Overall exposure level"))
+        .unwrap_or_else(|| panic!("no exposure level in: {stdout}"));
+    let after = line.rsplit(':').next().unwrap_or_default();
+    after
+        .split_whitespace()
+        .next()
+        .and_then(|n| n.parse().ok())
+        .unwrap_or_else(|| panic!("no number in {line:?}"))
+}
+
+/// The unit alone and with each drop-in keeps systemd's exposure score at
+/// most 2.5. Drop-ins are appended to a copy of the unit (a repeated
+/// `[Service]` section merges as a drop-in does): `--offline` in systemd
+/// 252 reads no `.d` directories for a unit given as a path.
+#[test]
+fn shipped_unit_and_dropins_keep_exposure_at_most_2_5() {
+    let Some(analyze) = tool("systemd-analyze") else {
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let units = Path::new(env!("CARGO_MANIFEST_DIR")).join("systemd");
+    let service = std::fs::read_to_string(units.join("microposd.service")).unwrap();
+    for conf in [None, Some("web-view.conf"), Some("gige-camera.conf")] {
+        let mut text = service.clone();
+        if let Some(conf) = conf {
+            text.push('\n');
+            text.push_str(&std::fs::read_to_string(units.join(conf)).unwrap());
+        }
+        let unit = dir.path().join("microposd.service");
+        std::fs::write(&unit, text).unwrap();
+        let score = exposure(&analyze, &unit);
+        assert!(score <= 2.5, "exposure {score} with {conf:?}");
+    }
+}
+
+/// An empty `IPAddressDeny=` in a drop-in resets the unit's
+/// `IPAddressDeny=any` and with it the whole IP filter: drop-ins may only
+/// add `IPAddressAllow=` entries.
+#[test]
+fn dropins_never_reset_ip_address_deny() {
+    let units = Path::new(env!("CARGO_MANIFEST_DIR")).join("systemd");
+    for conf in ["web-view.conf", "gige-camera.conf"] {
+        let text = std::fs::read_to_string(units.join(conf)).unwrap();
+        for line in text.lines().map(str::trim) {
+            if line.starts_with('#') || line.starts_with(';') {
+                continue;
+            }
+            if let Some((key, value)) = line.split_once('=') {
+                assert!(
+                    !(key.trim() == "IPAddressDeny" && value.trim().is_empty()),
+                    "{conf}: empty IPAddressDeny= removes the unit's IP filter"
+                );
+            }
+        }
+        assert!(text.contains("IPAddressAllow="), "{conf}");
+    }
+    let unit = std::fs::read_to_string(units.join("microposd.service")).unwrap();
+    assert!(unit.lines().any(|l| l.trim() == "IPAddressDeny=any"));
+}

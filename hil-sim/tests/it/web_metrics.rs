@@ -18,7 +18,7 @@ use serde_json::{json, Value};
 use std::collections::HashMap;
 use std::net::SocketAddr;
 
-const TOKEN: &str = "test-token-0123456789abcdef";
+const TOKEN: &str = "test-token-0123456789abcdef-uvwxy";
 
 /// Parses a scrape; samples by name with their labels joined
 /// (`name{k=v,…}`), histograms by name with their count.
@@ -184,7 +184,7 @@ async fn metrics_and_commands_follow_the_rig() {
     );
     let (s, _) = command(addr, json!({"cmd": "stop"}), None).await;
     assert_eq!(s, 401);
-    let (s, _) = command(addr, mv.clone(), Some("test-token-0123456789abcdeX")).await;
+    let (s, _) = command(addr, mv.clone(), Some("test-token-0123456789abcdef-uvwxY")).await;
     assert_eq!(s, 401);
     let (s, v) = command(addr, mv.clone(), Some(TOKEN)).await;
     assert_eq!((s, &v["ok"]), (200, &json!(true)), "{v}");
@@ -723,6 +723,151 @@ async fn the_listener_caps_connections_and_closes_idle_ones() {
     }
     assert!(served, "no client served after a connection closed");
     drop(held);
+
+    daemon.shutdown().await;
+    sim.shutdown();
+}
+
+/// DNS rebinding: a request naming another host (`Host: evil.example`) is
+/// refused with 421 on every route, the camera image, positions (through
+/// `POST /api/command`), figures and metrics included; the same request
+/// with `Host: localhost:PORT` is served.
+#[tokio::test(start_paused = true)]
+async fn every_route_refuses_a_foreign_host() {
+    use std::time::Duration;
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    use tokio::net::TcpStream;
+
+    let dir = tempfile::tempdir().unwrap();
+    let rig_dir = dir.path().join("rig");
+    let data = dir.path().join("data");
+    std::fs::create_dir_all(&rig_dir).unwrap();
+    std::fs::create_dir_all(&data).unwrap();
+    let cfg = common::serve_config(&rig_dir, 50.0, 5);
+    let rig_cfg = cfg.rig.clone();
+    let sim = common::serve_in_process(cfg);
+    let socket = dir.path().join("d.sock");
+    let mut c = daemon_config(&rig_dir, &data, &socket, &rig_cfg, &RunPlan::reduced()).unwrap();
+    c.web = Some(WebSection {
+        listen: "127.0.0.1:0".to_owned(),
+        ..WebSection::default()
+    });
+    c.validate().unwrap();
+    let daemon = common::start_daemon_in_process(c, &sim, &socket);
+    let addr = daemon.web_addr.expect("the web listener is bound");
+
+    /// The status line's code of one request with `Host: host`.
+    async fn status(addr: std::net::SocketAddr, host: &str, method: &str, path: &str) -> String {
+        let mut s = TcpStream::connect(addr).await.unwrap();
+        let body = if method == "POST" {
+            r#"{"cmd":"figures"}"#
+        } else {
+            ""
+        };
+        let req = format!(
+            "{method} {path} HTTP/1.1\r\nHost: {host}\r\nConnection: close\r\nContent-Type: application/json\r\nContent-Length: {}\r\n\r\n{body}",
+            body.len()
+        );
+        s.write_all(req.as_bytes()).await.unwrap();
+        let mut head = [0u8; 12];
+        tokio::time::timeout(Duration::from_secs(10), s.read_exact(&mut head))
+            .await
+            .expect("an answer")
+            .unwrap();
+        String::from_utf8_lossy(&head[9..12]).into_owned()
+    }
+
+    let routes = [
+        ("GET", "/"),
+        ("GET", "/app.js"),
+        ("GET", "/api/camera"),
+        ("GET", "/api/camera.png"),
+        ("GET", "/metrics"),
+        ("POST", "/api/command"),
+    ];
+    for (method, path) in routes {
+        for host in [
+            "evil.example",
+            "evil.example:8080",
+            "localhost.evil.example",
+        ] {
+            assert_eq!(
+                status(addr, host, method, path).await,
+                "421",
+                "{method} {path} {host}"
+            );
+        }
+    }
+    let local = format!("localhost:{}", addr.port());
+    for (method, path) in [("GET", "/"), ("GET", "/metrics")] {
+        assert_eq!(
+            status(addr, &local, method, path).await,
+            "200",
+            "{method} {path}"
+        );
+    }
+    // The event stream too (its answer never ends: read the status only).
+    assert_eq!(
+        status(addr, "evil.example", "GET", "/api/events").await,
+        "421"
+    );
+
+    daemon.shutdown().await;
+    sim.shutdown();
+}
+
+/// A client that announces a body and stalls is answered 408 and closed
+/// within `BODY_TIMEOUT` (before: held open for good), and does not keep
+/// the listener from serving the next request.
+#[tokio::test(start_paused = true)]
+async fn a_stalled_body_is_closed_within_the_timeout() {
+    use micropos::daemon::web::command::BODY_TIMEOUT;
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    use tokio::net::TcpStream;
+
+    let dir = tempfile::tempdir().unwrap();
+    let rig_dir = dir.path().join("rig");
+    let data = dir.path().join("data");
+    std::fs::create_dir_all(&rig_dir).unwrap();
+    std::fs::create_dir_all(&data).unwrap();
+    let cfg = common::serve_config(&rig_dir, 50.0, 5);
+    let rig_cfg = cfg.rig.clone();
+    let sim = common::serve_in_process(cfg);
+    let socket = dir.path().join("d.sock");
+    let mut c = daemon_config(&rig_dir, &data, &socket, &rig_cfg, &RunPlan::reduced()).unwrap();
+    c.web = Some(WebSection {
+        listen: "127.0.0.1:0".to_owned(),
+        ..WebSection::default()
+    });
+    c.validate().unwrap();
+    let daemon = common::start_daemon_in_process(c, &sim, &socket);
+    let addr = daemon.web_addr.expect("the web listener is bound");
+
+    let mut stalled = Vec::new();
+    for _ in 0..8 {
+        let mut s = TcpStream::connect(addr).await.unwrap();
+        let req = format!(
+            "POST /api/command HTTP/1.1\r\nHost: {addr}\r\nContent-Type: application/json\r\nContent-Length: 100\r\n\r\n{{\"cmd\":"
+        );
+        s.write_all(req.as_bytes()).await.unwrap();
+        stalled.push(s);
+    }
+    for s in &mut stalled {
+        let mut out = Vec::new();
+        let r = tokio::time::timeout(BODY_TIMEOUT * 2, s.read_to_end(&mut out)).await;
+        assert!(r.is_ok(), "a stalled body held its connection open");
+        assert!(
+            out.starts_with(b"HTTP/1.1 408"),
+            "{}",
+            String::from_utf8_lossy(&out)
+        );
+    }
+    let mut s = TcpStream::connect(addr).await.unwrap();
+    let req = format!("GET /metrics HTTP/1.1\r\nHost: {addr}\r\nConnection: close\r\n\r\n");
+    s.write_all(req.as_bytes()).await.unwrap();
+    let mut head = [0u8; 12];
+    s.read_exact(&mut head).await.unwrap();
+    assert_eq!(&head, b"HTTP/1.1 200");
 
     daemon.shutdown().await;
     sim.shutdown();

@@ -390,5 +390,5 @@ pub fn read_from(reader: impl Read) -> Result<MeasurementLog, LogError> {
 
 /// Reads a whole log file.
 pub fn read_file(path: impl AsRef<Path>) -> Result<MeasurementLog, LogError> {
-    read_from(File::open(path)?)
+    read_from(crate::nofollow::open(path.as_ref())?)
 }

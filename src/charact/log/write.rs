@@ -3,6 +3,7 @@
 
 use super::fields::push_field;
 use super::*;
+use std::os::unix::fs::OpenOptionsExt;
 
 /// Where a [`LogWriter`] writes: a `Write` that can also be forced to stable
 /// storage.
@@ -275,6 +276,7 @@ pub fn create_file(
     policy: SyncPolicy,
 ) -> Result<LogWriter<File>, LogError> {
     let path = path.as_ref();
+    // create_new (O_EXCL) fails on any existing entry, a link included.
     let file = OpenOptions::new().write(true).create_new(true).open(path)?;
     let writer = LogWriter::create(file, metadata, columns, policy)?;
     sync_parent_dir(path)?;
@@ -346,9 +348,11 @@ pub fn open_append(
     expected: &Columns,
     policy: SyncPolicy,
 ) -> Result<(LogWriter<File>, Resume), LogError> {
+    // A link planted where the log was is refused, never appended through.
     let mut file = OpenOptions::new()
         .read(true)
         .write(true)
+        .custom_flags(libc::O_NOFOLLOW)
         .open(path.as_ref())?;
     let file_len = file.metadata()?.len();
     let mut reader = LogReader::new(BufReader::new(&file))?;

@@ -104,6 +104,13 @@ fn web_section_is_checked() {
         ("role = \"root\"", "web.role"),
         ("control = true", "web.control"),
         ("control = true\ntoken = \"short\"", "web.token"),
+        // 16 characters: too short.
+        ("control = true\ntoken = \"0123456789abcdef\"", "web.token"),
+        // Long enough, but 2 distinct characters: low-entropy.
+        (
+            "control = true\ntoken = \"abababababababababababababababab\"",
+            "web.token",
+        ),
         (
             "token = \"0123456789abcdef\"\ntoken_file = \"/x\"",
             "web.token",
@@ -115,13 +122,13 @@ fn web_section_is_checked() {
         assert_eq!(e.key, key, "{extra}: {e}");
     }
     let c = DaemonConfig::from_toml(&format!(
-        "{MIN}[web]\ncontrol = true\ntoken = \"0123456789abcdef\"\nrole = \"read\"\n"
+        "{MIN}[web]\ncontrol = true\ntoken = \"0123456789abcdef0123456789abcdef\"\nrole = \"read\"\n"
     ))
     .unwrap();
     let w = c.web.clone().unwrap();
     assert_eq!(
         w.resolve_token().unwrap().as_deref(),
-        Some("0123456789abcdef")
+        Some("0123456789abcdef0123456789abcdef")
     );
     assert_eq!(w.role().unwrap(), crate::daemon::protocol::Role::Read);
     // The token never leaves through `config`.
@@ -134,7 +141,7 @@ fn web_token_file_must_be_private() {
     use std::os::unix::fs::PermissionsExt;
     let dir = tempfile::tempdir().unwrap();
     let f = dir.path().join("token");
-    std::fs::write(&f, "0123456789abcdef0123\n").unwrap();
+    std::fs::write(&f, "0123456789abcdef0123456789abcdef\n").unwrap();
     let w = WebSection {
         control: true,
         token_file: Some(f.clone()),
@@ -147,7 +154,7 @@ fn web_token_file_must_be_private() {
     std::fs::set_permissions(&f, std::fs::Permissions::from_mode(0o600)).unwrap();
     assert_eq!(
         w.resolve_token().unwrap().as_deref(),
-        Some("0123456789abcdef0123")
+        Some("0123456789abcdef0123456789abcdef")
     );
     let missing = WebSection {
         token_file: Some(dir.path().join("none")),

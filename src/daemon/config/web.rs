@@ -34,6 +34,11 @@ pub struct WebSection {
     /// Camera view: the longer side of the downscaled image, pixels
     /// (16..=2048).
     pub camera_max_px: u32,
+    /// Names (without port) the `Host` header may carry besides the
+    /// loopback names `localhost`, `127.0.0.1` and `[::1]`, e.g. this
+    /// host's lab name or address when `listen` is not loopback. Any
+    /// other `Host` is refused (421): DNS rebinding.
+    pub hosts: Vec<String>,
 }
 
 impl Default for WebSection {
@@ -46,13 +51,20 @@ impl Default for WebSection {
             token_file: None,
             camera_max_hz: 2.0,
             camera_max_px: 480,
+            hosts: Vec::new(),
         }
     }
 }
 
 /// The shortest token accepted: a guessable token on a network port is
-/// no gate.
-pub const MIN_WEB_TOKEN_CHARS: usize = 16;
+/// no gate (32 characters: `openssl rand -hex 16` and longer).
+pub const MIN_WEB_TOKEN_CHARS: usize = 32;
+
+/// The fewest distinct characters a token may have: a long token made of
+/// few characters (`aaaa…`, `abab…`, a word repeated) is low-entropy and
+/// guessable. A random hex token of 32 characters has ≈ 15 distinct ones;
+/// below 10 happens for a random one with odds under 1 in 10^9.
+pub const MIN_WEB_TOKEN_DISTINCT_CHARS: usize = 10;
 
 impl WebSection {
     /// The parsed `listen` address.
@@ -152,6 +164,13 @@ fn check_token(key: &str, t: &str) -> Result<String, ConfigError> {
     }
     if !t.bytes().all(|b| b.is_ascii_graphic()) {
         return Err(bad(key, "the token must be printable ASCII without spaces"));
+    }
+    let distinct = t.bytes().collect::<std::collections::BTreeSet<u8>>().len();
+    if distinct < MIN_WEB_TOKEN_DISTINCT_CHARS {
+        return Err(bad(
+            key,
+            format!("the token has {distinct} distinct characters, at least {MIN_WEB_TOKEN_DISTINCT_CHARS} needed: it is guessable (e.g. `openssl rand -hex 32`)"),
+        ));
     }
     Ok(t.to_owned())
 }

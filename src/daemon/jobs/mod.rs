@@ -303,7 +303,7 @@ impl Jobs {
             // Reference re-measurements are not plan points: count the rest.
             let path = Self::log_path(rig, name);
             let refs = tokio::task::spawn_blocking(move || {
-                let bytes = std::fs::read(&path)?;
+                let bytes = crate::nofollow::read(&path)?;
                 let parsed = log::parse_bytes(&bytes).map_err(std::io::Error::other)?;
                 Ok::<_, std::io::Error>(
                     parsed

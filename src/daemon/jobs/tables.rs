@@ -122,7 +122,7 @@ pub fn build_blocking(
     params: &TablesBuildParams,
 ) -> Result<(Value, Vec<String>), ProtoError> {
     let path = data_dir.join(&params.log);
-    let bytes = std::fs::read(&path).map_err(|e| {
+    let bytes = crate::nofollow::read(&path).map_err(|e| {
         ProtoError::new(
             ErrorCode::LogError,
             format!("cannot read log {}: {e}", params.log),

@@ -84,14 +84,49 @@ fn reply(status: StatusCode, line: String) -> Response {
         .into_response()
 }
 
+/// How long a request body may take to arrive once its header is in: a
+/// client that announces a body and stalls gets 408 and its connection
+/// closed, instead of holding one of the listener's connections forever.
+pub const BODY_TIMEOUT: std::time::Duration = std::time::Duration::from_secs(10);
+
+/// The most body bytes read (axum's default limit; anything over
+/// [`protocol::MAX_REQUEST_BYTES`] is refused below with 413).
+const BODY_READ_LIMIT: usize = 2 * 1024 * 1024;
+
 /// `POST /api/command`.
 pub async fn command(
     State(web): State<Arc<Web>>,
     ConnectInfo(remote): ConnectInfo<SocketAddr>,
     headers: HeaderMap,
-    body: Bytes,
+    body: axum::body::Body,
 ) -> Response {
     let null = serde_json::Value::Null;
+    let body: Bytes =
+        match tokio::time::timeout(BODY_TIMEOUT, axum::body::to_bytes(body, BODY_READ_LIMIT)).await
+        {
+            Ok(Ok(b)) => b,
+            Ok(Err(_)) => {
+                return reply(
+                    StatusCode::PAYLOAD_TOO_LARGE,
+                    protocol::error_reply(&null, &protocol::too_large(BODY_READ_LIMIT)),
+                )
+            }
+            Err(_) => {
+                return reply(
+                    StatusCode::REQUEST_TIMEOUT,
+                    protocol::error_reply(
+                        &null,
+                        &ProtoError::new(
+                            ErrorCode::BadValue,
+                            format!(
+                                "request body not received within {} s",
+                                BODY_TIMEOUT.as_secs()
+                            ),
+                        ),
+                    ),
+                )
+            }
+        };
     if body.len() > protocol::MAX_REQUEST_BYTES {
         return reply(
             StatusCode::PAYLOAD_TOO_LARGE,

@@ -13,6 +13,7 @@
 //!
 //! Files, one job each:
 //! - [`router`]: the routes and the listener's lifetime;
+//! - [`host`]: the `Host` allow-list (DNS rebinding);
 //! - [`command`]: `POST /api/command` (token, role, audit, dispatch);
 //! - [`live`]: `GET /api/events`, the event bus as server-sent events;
 //! - [`camera`]: the downscaled camera frame and its overlay;
@@ -22,6 +23,7 @@
 
 pub mod camera;
 pub mod command;
+pub mod host;
 pub mod live;
 pub mod metrics;
 pub mod page;

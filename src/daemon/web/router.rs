@@ -8,7 +8,7 @@
 //! request header ([`IDLE_TIMEOUT`]); `axum::serve` does neither.
 
 use super::shared::{Web, MAX_STREAMS};
-use super::{camera, command, live, page};
+use super::{camera, command, host, live, page};
 use crate::daemon::config::WebSection;
 use crate::daemon::protocol::{ErrorCode, ProtoError, Role};
 use crate::daemon::Daemon;
@@ -36,6 +36,8 @@ pub struct WebListener {
     role: Role,
     camera_max_hz: f64,
     camera_max_px: u32,
+    /// `[web] hosts`: `Host` names allowed besides the loopback ones.
+    hosts: Vec<String>,
 }
 
 /// Binds `[web] listen` and reads the token (`token_file`); must be called
@@ -74,11 +76,14 @@ pub fn bind(cfg: &WebSection) -> Result<WebListener, ProtoError> {
         role,
         camera_max_hz: cfg.camera_max_hz,
         camera_max_px: cfg.camera_max_px,
+        hosts: cfg.hosts.clone(),
     })
 }
 
-/// The routes.
-pub fn router(web: Arc<Web>) -> Router {
+/// The routes, every one behind the `Host` allow-list
+/// ([`host::check`]).
+pub fn router(web: Arc<Web>, hosts: Vec<String>) -> Router {
+    let hosts = Arc::new(hosts);
     Router::new()
         .route("/", get(page::index))
         .route("/app.js", get(page::app_js))
@@ -90,6 +95,9 @@ pub fn router(web: Arc<Web>) -> Router {
         .route("/api/camera.png", get(camera_png))
         .route("/metrics", get(metrics_text))
         .with_state(web)
+        .layer(axum::middleware::from_fn(move |req, next| {
+            host::check(hosts.clone(), req, next)
+        }))
 }
 
 /// HTTP connections open at once at most (event streams included, which
@@ -127,7 +135,7 @@ pub async fn serve(daemon: Arc<Daemon>, l: WebListener) {
         streams: Arc::new(Semaphore::new(MAX_STREAMS)),
         shutdown: daemon.shutdown.clone(),
     });
-    let app = router(web);
+    let app = router(web, l.hosts);
     let open = Arc::new(Semaphore::new(MAX_CONNECTIONS));
     loop {
         // Subscribed before the accept: a shutdown sent after it reaches
