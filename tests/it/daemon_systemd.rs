@@ -276,3 +276,76 @@ fn sighup_reloads_limits_and_names_what_it_cannot_change() {
         "SIGHUP ended the daemon"
     );
 }
+
+/// The exposure score `systemd-analyze security --offline=true` gives the
+/// unit in `dir` (with the drop-ins in its `.d` directory).
+fn exposure(analyze: &Path, unit: &Path) -> f64 {
+    let out = Command::new(analyze)
+        .args(["security", "--offline=true", "--no-pager"])
+        .arg(unit)
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&out.stdout);
+    let line = text
+        .lines()
+        .find(|l| l.contains("Overall exposure level"))
+        .unwrap_or_else(|| {
+            panic!(
+                "no score in: {text}{}",
+                String::from_utf8_lossy(&out.stderr)
+            )
+        });
+    line.split(':')
+        .nth(1)
+        .and_then(|v| v.split_whitespace().next())
+        .and_then(|v| v.parse().ok())
+        .unwrap_or_else(|| panic!("score unreadable: {line}"))
+}
+
+#[test]
+fn the_unit_scores_at_most_2_5_with_and_without_each_drop_in() {
+    let Some(analyze) = tool("systemd-analyze") else {
+        return;
+    };
+    let units = Path::new(env!("CARGO_MANIFEST_DIR")).join("systemd");
+    let service = std::fs::read_to_string(units.join("microposd.service"))
+        .unwrap()
+        .replace("/usr/bin/microposd", microposd_bin().to_str().unwrap());
+    for dropin in [None, Some("web-view.conf"), Some("gige-camera.conf")] {
+        let dir = tempfile::tempdir().unwrap();
+        let unit = dir.path().join("microposd.service");
+        std::fs::write(&unit, &service).unwrap();
+        if let Some(conf) = dropin {
+            let d = dir.path().join("microposd.service.d");
+            std::fs::create_dir(&d).unwrap();
+            std::fs::copy(units.join(conf), d.join(conf)).unwrap();
+        }
+        let score = exposure(&analyze, &unit);
+        eprintln!("exposure with {dropin:?}: {score}");
+        // 3.7 (4.1 with the web drop-in) before the capability bounding
+        // set, /proc, hostname, IPC and @privileged/@resources limits.
+        assert!(score <= 2.5, "exposure {score} with {dropin:?}");
+    }
+}
+
+#[test]
+fn no_drop_in_lifts_the_ip_deny_list() {
+    // An empty IPAddressDeny= resets the unit's `any`: with no deny entry
+    // systemd lets every address through, whatever IPAddressAllow= says.
+    let units = Path::new(env!("CARGO_MANIFEST_DIR")).join("systemd");
+    let service = std::fs::read_to_string(units.join("microposd.service")).unwrap();
+    assert!(service.lines().any(|l| l.trim() == "IPAddressDeny=any"));
+    for conf in ["web-view.conf", "gige-camera.conf"] {
+        let text = std::fs::read_to_string(units.join(conf)).unwrap();
+        for l in text.lines().map(str::trim).filter(|l| !l.starts_with('#')) {
+            if let Some(v) = l.strip_prefix("IPAddressDeny=") {
+                assert!(!v.trim().is_empty(), "{conf} resets IPAddressDeny: {l}");
+            }
+        }
+        assert!(
+            text.lines()
+                .any(|l| l.trim_start().starts_with("IPAddressAllow=")),
+            "{conf} allows nothing"
+        );
+    }
+}

@@ -79,7 +79,16 @@ impl DaemonConfig {
     pub fn load(path: &Path) -> Result<Self, ConfigError> {
         let text = std::fs::read_to_string(path)
             .map_err(|e| bad("(file)", format!("cannot read {}: {e}", path.display())))?;
-        Self::from_toml(&text)
+        let cfg = Self::from_toml(&text)?;
+        if let Some(web) = &cfg.web {
+            use std::os::unix::fs::PermissionsExt;
+            let mode = std::fs::metadata(path)
+                .map_err(|e| bad("(file)", format!("cannot read {}: {e}", path.display())))?
+                .permissions()
+                .mode();
+            web::check_inline_token_file_mode(web, path, mode)?;
+        }
+        Ok(cfg)
     }
 
     /// How the daemon's jobs sync their logs (`daemon.log_sync_every`).
