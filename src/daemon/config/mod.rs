@@ -190,6 +190,16 @@ impl DaemonConfig {
             ));
         }
         let d = &self.daemon;
+        if d.max_clients_per_uid == 0 || d.stop_slots_per_uid == 0 {
+            return Err(bad(
+                if d.max_clients_per_uid == 0 {
+                    "daemon.max_clients_per_uid"
+                } else {
+                    "daemon.stop_slots_per_uid"
+                },
+                "must be at least 1 (values above max_clients or stop_slots mean no cap per user)",
+            ));
+        }
         if !(d.idle_timeout_s.is_finite() && (0.0..=864_000.0).contains(&d.idle_timeout_s)) {
             return Err(bad(
                 "daemon.idle_timeout_s",
