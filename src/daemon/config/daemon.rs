@@ -108,7 +108,7 @@ impl Default for DaemonSection {
             poll_interval_ms: 200,
             max_clients: 256,
             stop_slots: 4,
-            max_clients_per_uid: 64,
+            max_clients_per_uid: 128,
             stop_slots_per_uid: 1,
             idle_timeout_s: 3600.0,
             read_timeout_s: 10.0,
