@@ -33,6 +33,7 @@
 //! resumable).
 
 pub mod access;
+pub(crate) mod admission;
 pub mod audit;
 pub mod comp;
 pub mod config;

@@ -5,7 +5,10 @@
 //!
 //! `stop` always gets through: up to `daemon.max_clients` full clients,
 //! then up to `daemon.stop_slots` connections that accept only `stop`
-//! (everything else is `busy`), then a `busy` line and close. Clients are
+//! (everything else is `busy`), then a `busy` line and close; one uid
+//! holds at most `max_clients_per_uid` and `stop_slots_per_uid` of them,
+//! and a peer without a role is refused at connect
+//! ([`admission`](super::admission)). Clients are
 //! disconnected when idle (`idle_timeout_s`: nothing sent, no request
 //! running, no subscription), when a started line stalls
 //! (`read_timeout_s`), or when they stop reading (`write_timeout_s`), so
@@ -16,93 +19,40 @@
 //! refused commands go to the audit trail before they run.
 
 use super::access::Peer;
+use super::admission::{Admission, Admit, Limits, Slot};
 use super::audit::Outcome;
 use super::connection::{write_line, Incoming, LineReader};
 use super::protocol::{self, Command, ErrorCode, ProtoError, Role, Topic};
 use super::Daemon;
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
-use std::sync::Arc;
+use std::sync::{Arc, Mutex};
 use std::time::Duration;
 use tokio::net::{UnixListener, UnixStream};
-use tokio::sync::{broadcast, mpsc, OwnedSemaphorePermit, Semaphore};
+use tokio::sync::{broadcast, mpsc};
 
-/// What a connection may do: everything, or only `stop`.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-enum Slot {
-    Full,
-    StopOnly,
+/// A slot held by a connection, given back when dropped.
+struct Held {
+    admission: Arc<Mutex<Admission>>,
+    uid: u32,
+    slot: Slot,
 }
 
-/// Accepts until shutdown.
-pub async fn serve(
-    daemon: Arc<Daemon>,
-    listener: UnixListener,
-    mut shutdown: broadcast::Receiver<()>,
-) {
-    let full = Arc::new(Semaphore::new(daemon.rig.cfg.daemon.max_clients));
-    let stop_only = Arc::new(Semaphore::new(daemon.rig.cfg.daemon.stop_slots));
-    loop {
-        let stream = tokio::select! {
-            r = listener.accept() => match r {
-                Ok((s, _)) => s,
-                Err(e) => {
-                    tracing::warn!("accept failed: {e}");
-                    tokio::time::sleep(Duration::from_millis(50)).await;
-                    continue;
-                }
-            },
-            _ = shutdown.recv() => return,
-        };
-        let (slot, permit): (Slot, OwnedSemaphorePermit) = match full.clone().try_acquire_owned() {
-            Ok(p) => (Slot::Full, p),
-            Err(_) => match stop_only.clone().try_acquire_owned() {
-                Ok(p) => (Slot::StopOnly, p),
-                Err(_) => {
-                    // Best effort, never waits: the client learns why.
-                    let line = protocol::error_reply(
-                        &serde_json::Value::Null,
-                        &ProtoError::new(
-                            ErrorCode::Busy,
-                            "every client slot and stop slot is taken; try again",
-                        ),
-                    );
-                    let _ = stream.try_write(line.as_bytes());
-                    continue;
-                }
-            },
-        };
-        let d = daemon.clone();
-        let sd = d.shutdown.subscribe();
-        tokio::spawn(async move {
-            if let Err(e) = client(d, stream, slot, sd).await {
-                tracing::debug!("client ended: {e}");
-            }
-            drop(permit);
-        });
+impl Drop for Held {
+    fn drop(&mut self) {
+        // A poisoned lock still holds the counts (no panic leaves them
+        // half-updated: admit and release are plain arithmetic).
+        let mut a = self
+            .admission
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        a.release(self.uid, self.slot);
     }
 }
 
-fn secs(s: f64) -> Duration {
-    Duration::try_from_secs_f64(s).unwrap_or(Duration::MAX)
-}
-
-async fn client(
-    daemon: Arc<Daemon>,
-    stream: UnixStream,
-    slot: Slot,
-    mut shutdown: broadcast::Receiver<()>,
-) -> std::io::Result<()> {
-    let cfg = &daemon.rig.cfg.daemon;
-    let read_timeout = secs(cfg.read_timeout_s);
-    let write_timeout = secs(cfg.write_timeout_s);
-    let idle_timeout = match slot {
-        Slot::StopOnly => Some(read_timeout),
-        Slot::Full if cfg.idle_timeout_s > 0.0 => Some(secs(cfg.idle_timeout_s)),
-        Slot::Full => None,
-    };
-    // The kernel's word on who connected; a socket without credentials
-    // (never on Linux) is nobody.
-    let peer = match stream.peer_cred() {
+/// The kernel's word on who connected; a socket without credentials
+/// (never on Linux) is nobody.
+fn peer_of(stream: &UnixStream) -> Peer {
+    match stream.peer_cred() {
         Ok(c) => Peer {
             uid: c.uid(),
             gid: c.gid(),
@@ -116,8 +66,108 @@ async fn client(
                 pid: None,
             }
         }
+    }
+}
+
+/// Refuses a connection with one error line, best effort, never waiting.
+fn refuse(stream: &UnixStream, code: ErrorCode, message: String) {
+    let line = protocol::error_reply(&serde_json::Value::Null, &ProtoError::new(code, message));
+    let _ = stream.try_write(line.as_bytes());
+}
+
+/// Accepts until shutdown.
+pub async fn serve(
+    daemon: Arc<Daemon>,
+    listener: UnixListener,
+    mut shutdown: broadcast::Receiver<()>,
+) {
+    let d = &daemon.rig.cfg.daemon;
+    let admission = Arc::new(Mutex::new(Admission::new(Limits {
+        max_clients: d.max_clients,
+        max_clients_per_uid: d.max_clients_per_uid,
+        stop_slots: d.stop_slots,
+        stop_slots_per_uid: d.stop_slots_per_uid,
+    })));
+    loop {
+        let stream = tokio::select! {
+            r = listener.accept() => match r {
+                Ok((s, _)) => s,
+                Err(e) => {
+                    tracing::warn!("accept failed: {e}");
+                    tokio::time::sleep(Duration::from_millis(50)).await;
+                    continue;
+                }
+            },
+            _ = shutdown.recv() => return,
+        };
+        let d = daemon.clone();
+        let admission = admission.clone();
+        tokio::spawn(async move {
+            let peer = peer_of(&stream);
+            let role = d.access.role_of(peer).await;
+            let admitted = admission
+                .lock()
+                .unwrap_or_else(std::sync::PoisonError::into_inner)
+                .admit(peer.uid, role.is_some());
+            let held = match admitted {
+                Admit::Slot(slot) => Held {
+                    admission,
+                    uid: peer.uid,
+                    slot,
+                },
+                Admit::NoRole => {
+                    tracing::info!(uid = peer.uid, "client without a role refused at connect");
+                    refuse(
+                        &stream,
+                        ErrorCode::PermissionDenied,
+                        format!(
+                            "uid {} has no role on this daemon ([access]): not even stop",
+                            peer.uid
+                        ),
+                    );
+                    return;
+                }
+                Admit::Busy => {
+                    refuse(
+                        &stream,
+                        ErrorCode::Busy,
+                        format!(
+                            "every client slot and stop slot this user (uid {}) may hold, or every slot, is taken; try again",
+                            peer.uid
+                        ),
+                    );
+                    return;
+                }
+            };
+            let sd = d.shutdown.subscribe();
+            if let Err(e) = client(d, stream, peer, role, held.slot, sd).await {
+                tracing::debug!("client ended: {e}");
+            }
+            drop(held);
+        });
+    }
+}
+
+fn secs(s: f64) -> Duration {
+    Duration::try_from_secs_f64(s).unwrap_or(Duration::MAX)
+}
+
+async fn client(
+    daemon: Arc<Daemon>,
+    stream: UnixStream,
+    peer: Peer,
+    role: Option<Role>,
+    slot: Slot,
+    mut shutdown: broadcast::Receiver<()>,
+) -> std::io::Result<()> {
+    let cfg = &daemon.rig.cfg.daemon;
+    let read_timeout = secs(cfg.read_timeout_s);
+    let write_timeout = secs(cfg.write_timeout_s);
+    let idle_timeout = match slot {
+        Slot::StopOnly => Some(read_timeout),
+        Slot::Full if cfg.idle_timeout_s > 0.0 => Some(secs(cfg.idle_timeout_s)),
+        Slot::Full => None,
     };
-    let role = daemon.access.role_of(peer).await;
     tracing::debug!(
         uid = peer.uid,
         gid = peer.gid,

@@ -26,7 +26,7 @@ fn check(config: &std::path::Path) -> (i32, String) {
 fn the_token_file_is_checked_with_the_configuration() {
     let dir = tempfile::tempdir().unwrap();
     let token = dir.path().join("web-token");
-    std::fs::write(&token, "0123456789abcdef0123456789abcdef\n").unwrap();
+    std::fs::write(&token, "c4ca4238a0b923820dcc509a6f75849b\n").unwrap();
     let config = dir.path().join("microposd.toml");
     std::fs::write(
         &config,

@@ -115,7 +115,14 @@ async fn at_rest_x(r: &Rig) -> f64 {
 /// Fills every client slot (`holders` already connected count), then a
 /// new client's `stop` halts a move of 7 mm started by the first holder.
 async fn stop_through_a_full_daemon(max_clients: usize) {
-    let r = rig(|c| c.daemon.max_clients = max_clients).await;
+    // One uid (the test's) plays every client: the per-uid caps are lifted
+    // so it can fill the slots (the caps have a test of their own).
+    let r = rig(|c| {
+        c.daemon.max_clients = max_clients;
+        c.daemon.max_clients_per_uid = max_clients;
+        c.daemon.stop_slots_per_uid = c.daemon.stop_slots;
+    })
+    .await;
     let mut mover = Client::connect(&r.socket).await;
     connected_and_referenced(&mut mover).await;
     // Every other slot taken by a client that sends one request, then
@@ -358,4 +365,102 @@ async fn read_role_is_denied_moves_and_the_audit_names_who_moved() {
     assert_eq!(mv["gid"], my_gid);
     assert_eq!(mv["pid"], std::process::id());
     assert_eq!(mv["request"]["x_um"], 3000.0);
+}
+
+/// A `stop` sent by a process of uid `uid` (python3's socket module: a
+/// client this project did not write), or `None` when the test cannot run
+/// a process as another user here (not root, or no python3).
+async fn stop_as_uid(socket: &std::path::Path, uid: u32) -> Option<Value> {
+    if !running_as_root() {
+        eprintln!("SKIPPED: running a client as another uid needs root");
+        return None;
+    }
+    let script = "import socket,sys\ns=socket.socket(socket.AF_UNIX)\ns.settimeout(20)\ns.connect(sys.argv[1])\ns.sendall(b'{\"id\":1,\"cmd\":\"stop\"}\\n')\nprint(s.makefile().readline().strip())\n";
+    let out = match tokio::process::Command::new("python3")
+        .arg("-c")
+        .arg(script)
+        .arg(socket)
+        .uid(uid)
+        .gid(uid)
+        .output()
+        .await
+    {
+        Ok(o) => o,
+        Err(e) => {
+            eprintln!("SKIPPED: python3 not runnable: {e}");
+            return None;
+        }
+    };
+    let text = String::from_utf8_lossy(&out.stdout);
+    Some(serde_json::from_str(text.trim()).unwrap_or_else(|_| {
+        panic!(
+            "no reply line from the other user's stop: {text}{}",
+            String::from_utf8_lossy(&out.stderr)
+        )
+    }))
+}
+
+/// Whether the test runs as root (the owner of `/proc/self`).
+fn running_as_root() -> bool {
+    std::fs::metadata("/proc/self")
+        .map(|m| m.uid() == 0)
+        .unwrap_or(false)
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_user_holding_every_slot_it_may_cannot_deny_another_users_stop() {
+    use std::os::unix::fs::PermissionsExt;
+    let r = rig(|c| {
+        c.daemon.max_clients = 4;
+        c.daemon.max_clients_per_uid = 3;
+        c.daemon.stop_slots = 2;
+        c.daemon.stop_slots_per_uid = 1;
+    })
+    .await;
+    // The other user must reach the socket (no [access]: any client that
+    // can open it is admin).
+    std::fs::set_permissions(r._dir.path(), std::fs::Permissions::from_mode(0o755)).unwrap();
+    std::fs::set_permissions(&r.socket, std::fs::Permissions::from_mode(0o666)).unwrap();
+    let mut mover = Client::connect(&r.socket).await;
+    connected_and_referenced(&mut mover).await;
+    // The hostile user (this test's uid) takes every slot it may, and
+    // keeps trying for more: each further connection is turned away.
+    let mut held = Vec::new();
+    for _ in 0..2 {
+        let mut c = Client::connect(&r.socket).await;
+        c.call_ok(json!({"cmd":"version"})).await;
+        held.push(c);
+    }
+    let mut stop_slot = Client::connect(&r.socket).await;
+    assert_eq!(
+        code(&stop_slot.call(json!({"cmd":"version"})).await),
+        "busy"
+    );
+    for _ in 0..5 {
+        let mut c = Client::connect(&r.socket).await;
+        let v = c.line().await;
+        assert_eq!(code(&v), "busy", "{v}");
+    }
+    let start_x = r.truth_um(AxisName::X);
+    mover
+        .call_ok(json!({"cmd":"move","x_um": start_x + 7000.0}))
+        .await;
+    let t = Instant::now();
+    while r.truth_um(AxisName::X) < start_x + 50.0 {
+        assert!(
+            t.elapsed() < Duration::from_secs(20),
+            "the move never started"
+        );
+        tokio::time::sleep(Duration::from_millis(2)).await;
+    }
+    let Some(v) = stop_as_uid(&r.socket, 65534).await else {
+        return;
+    };
+    assert_eq!(v["ok"], true, "the other user's stop was refused: {v}");
+    let rest = at_rest_x(&r).await;
+    assert!(
+        rest < start_x + 6900.0,
+        "stop did not halt the move: {start_x} → {rest}"
+    );
+    drop(stop_slot);
 }

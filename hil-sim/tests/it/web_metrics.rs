@@ -18,7 +18,7 @@ use serde_json::{json, Value};
 use std::collections::HashMap;
 use std::net::SocketAddr;
 
-const TOKEN: &str = "test-token-0123456789abcdef-uvwxy";
+const TOKEN: &str = "test-token-5d41402abc4b2a76b9719d911017c592";
 
 /// Parses a scrape; samples by name with their labels joined
 /// (`name{k=v,…}`), histograms by name with their count.
@@ -184,7 +184,12 @@ async fn metrics_and_commands_follow_the_rig() {
     );
     let (s, _) = command(addr, json!({"cmd": "stop"}), None).await;
     assert_eq!(s, 401);
-    let (s, _) = command(addr, mv.clone(), Some("test-token-0123456789abcdef-uvwxY")).await;
+    let (s, _) = command(
+        addr,
+        mv.clone(),
+        Some("test-token-5d41402abc4b2a76b9719d911017c59X"),
+    )
+    .await;
     assert_eq!(s, 401);
     let (s, v) = command(addr, mv.clone(), Some(TOKEN)).await;
     assert_eq!((s, &v["ok"]), (200, &json!(true)), "{v}");

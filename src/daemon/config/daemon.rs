@@ -55,6 +55,14 @@ pub struct DaemonSection {
     /// still let someone halt the stage, on the same socket path (no second
     /// socket to configure, activate and protect).
     pub stop_slots: usize,
+    /// Full slots one uid may hold (values above `max_clients` mean no
+    /// cap). Why: so that no single local user (a runaway script, a
+    /// hostile client) can hold every slot; the other users' `stop` still
+    /// gets through (`daemon::admission`).
+    pub max_clients_per_uid: usize,
+    /// Stop-only slots one uid may hold (default 1): below `stop_slots`,
+    /// no single uid can take them all.
+    pub stop_slots_per_uid: usize,
     /// A client that sends nothing for this long while it has no request
     /// running and no subscription is disconnected, s (0 = never). A
     /// subscriber is never idle: it is receiving events, and a subscriber
@@ -100,6 +108,8 @@ impl Default for DaemonSection {
             poll_interval_ms: 200,
             max_clients: 256,
             stop_slots: 4,
+            max_clients_per_uid: 128,
+            stop_slots_per_uid: 1,
             idle_timeout_s: 3600.0,
             read_timeout_s: 10.0,
             write_timeout_s: 10.0,

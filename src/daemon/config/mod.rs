@@ -79,7 +79,16 @@ impl DaemonConfig {
     pub fn load(path: &Path) -> Result<Self, ConfigError> {
         let text = std::fs::read_to_string(path)
             .map_err(|e| bad("(file)", format!("cannot read {}: {e}", path.display())))?;
-        Self::from_toml(&text)
+        let cfg = Self::from_toml(&text)?;
+        if let Some(web) = &cfg.web {
+            use std::os::unix::fs::PermissionsExt;
+            let mode = std::fs::metadata(path)
+                .map_err(|e| bad("(file)", format!("cannot read {}: {e}", path.display())))?
+                .permissions()
+                .mode();
+            web::check_inline_token_file_mode(web, path, mode)?;
+        }
+        Ok(cfg)
     }
 
     /// How the daemon's jobs sync their logs (`daemon.log_sync_every`).
@@ -181,6 +190,16 @@ impl DaemonConfig {
             ));
         }
         let d = &self.daemon;
+        if d.max_clients_per_uid == 0 || d.stop_slots_per_uid == 0 {
+            return Err(bad(
+                if d.max_clients_per_uid == 0 {
+                    "daemon.max_clients_per_uid"
+                } else {
+                    "daemon.stop_slots_per_uid"
+                },
+                "must be at least 1 (values above max_clients or stop_slots mean no cap per user)",
+            ));
+        }
         if !(d.idle_timeout_s.is_finite() && (0.0..=864_000.0).contains(&d.idle_timeout_s)) {
             return Err(bad(
                 "daemon.idle_timeout_s",

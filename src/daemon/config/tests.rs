@@ -112,7 +112,7 @@ fn web_section_is_checked() {
             "web.token",
         ),
         (
-            "token = \"0123456789abcdef\"\ntoken_file = \"/x\"",
+            "token = \"9f86d081884c7d659a2feaa0c55ad015a3bf4f1b2b0b822cd15d6c15b0f00a08\"\ntoken_file = \"/x\"",
             "web.token",
         ),
         ("camera_max_hz = 0", "web.camera_max_hz"),
@@ -122,18 +122,60 @@ fn web_section_is_checked() {
         assert_eq!(e.key, key, "{extra}: {e}");
     }
     let c = DaemonConfig::from_toml(&format!(
-        "{MIN}[web]\ncontrol = true\ntoken = \"0123456789abcdef0123456789abcdef\"\nrole = \"read\"\n"
+        "{MIN}[web]\ncontrol = true\ntoken = \"{STRONG}\"\nrole = \"read\"\n"
     ))
     .unwrap();
     let w = c.web.clone().unwrap();
-    assert_eq!(
-        w.resolve_token().unwrap().as_deref(),
-        Some("0123456789abcdef0123456789abcdef")
-    );
+    assert_eq!(w.resolve_token().unwrap().as_deref(), Some(STRONG));
     assert_eq!(w.role().unwrap(), crate::daemon::protocol::Role::Read);
     // The token never leaves through `config`.
     let shown = serde_json::to_string(&c).unwrap();
-    assert!(!shown.contains("0123456789abcdef"), "{shown}");
+    assert!(!shown.contains(STRONG), "{shown}");
+}
+
+/// A token as `openssl rand -hex 32` writes one.
+const STRONG: &str = "9f86d081884c7d659a2feaa0c55ad015a3bf4f1b2b0b822cd15d6c15b0f00a08";
+
+#[test]
+fn a_weak_web_token_is_refused_with_the_reason() {
+    for (token, why) in [
+        ("aaaaaaaaaaaaaaaa", "at least 32"),
+        ("aaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaa", "distinct"),
+        ("0123456789abcdef0123456789abcdef", "repeats a 16-character"),
+        ("passwordpasswordpasswordpassword", "distinct"),
+        ("abcdefghijklmnopaaaaaaaaaaaaaaaaaaaaaaaa", "one character"),
+    ] {
+        let e = DaemonConfig::from_toml(&format!(
+            "{MIN}[web]\ncontrol = true\ntoken = \"{token}\"\n"
+        ))
+        .unwrap_err();
+        assert_eq!(e.key, "web.token", "{token}: {e}");
+        assert!(e.to_string().contains(why), "{token}: {e}");
+    }
+    assert!(DaemonConfig::from_toml(&format!(
+        "{MIN}[web]\ncontrol = true\ntoken = \"{STRONG}\"\n"
+    ))
+    .is_ok());
+}
+
+#[test]
+fn an_inline_token_in_a_readable_configuration_is_refused() {
+    use std::os::unix::fs::PermissionsExt;
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("microposd.toml");
+    std::fs::write(
+        &path,
+        format!("{MIN}[web]\ncontrol = true\ntoken = \"{STRONG}\"\n"),
+    )
+    .unwrap();
+    for mode in [0o644, 0o640, 0o604] {
+        std::fs::set_permissions(&path, std::fs::Permissions::from_mode(mode)).unwrap();
+        let e = DaemonConfig::load(&path).unwrap_err();
+        assert_eq!(e.key, "web.token", "{mode:o}: {e}");
+        assert!(e.to_string().contains("token_file"), "{e}");
+    }
+    std::fs::set_permissions(&path, std::fs::Permissions::from_mode(0o600)).unwrap();
+    assert!(DaemonConfig::load(&path).is_ok());
 }
 
 #[test]
@@ -141,7 +183,7 @@ fn web_token_file_must_be_private() {
     use std::os::unix::fs::PermissionsExt;
     let dir = tempfile::tempdir().unwrap();
     let f = dir.path().join("token");
-    std::fs::write(&f, "0123456789abcdef0123456789abcdef\n").unwrap();
+    std::fs::write(&f, format!("{STRONG}\n")).unwrap();
     let w = WebSection {
         control: true,
         token_file: Some(f.clone()),
@@ -152,10 +194,7 @@ fn web_token_file_must_be_private() {
     assert_eq!(e.key, "web.token_file");
     assert!(e.problem.contains("chmod 600"), "{e}");
     std::fs::set_permissions(&f, std::fs::Permissions::from_mode(0o600)).unwrap();
-    assert_eq!(
-        w.resolve_token().unwrap().as_deref(),
-        Some("0123456789abcdef0123456789abcdef")
-    );
+    assert_eq!(w.resolve_token().unwrap().as_deref(), Some(STRONG));
     let missing = WebSection {
         token_file: Some(dir.path().join("none")),
         ..w

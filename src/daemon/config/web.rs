@@ -165,12 +165,60 @@ fn check_token(key: &str, t: &str) -> Result<String, ConfigError> {
     if !t.bytes().all(|b| b.is_ascii_graphic()) {
         return Err(bad(key, "the token must be printable ASCII without spaces"));
     }
-    let distinct = t.bytes().collect::<std::collections::BTreeSet<u8>>().len();
-    if distinct < MIN_WEB_TOKEN_DISTINCT_CHARS {
+    if let Some(why) = weak_token(t.as_bytes()) {
         return Err(bad(
             key,
-            format!("the token has {distinct} distinct characters, at least {MIN_WEB_TOKEN_DISTINCT_CHARS} needed: it is guessable (e.g. `openssl rand -hex 32`)"),
+            format!(
+                "the token is guessable: {why}; use a random one (e.g. `openssl rand -hex 32`)"
+            ),
         ));
     }
     Ok(t.to_owned())
+}
+
+/// Why a printable token of sufficient length is still guessable, or
+/// `None`. The rule (documented in docs/design/web.md): at least
+/// [`MIN_WEB_TOKEN_DISTINCT_CHARS`] distinct characters, no character making up
+/// more than half of it, and not a shorter string repeated.
+fn weak_token(t: &[u8]) -> Option<String> {
+    let mut count = [0usize; 256];
+    for &b in t {
+        count[usize::from(b)] += 1;
+    }
+    let distinct = count.iter().filter(|&&n| n > 0).count();
+    if distinct < MIN_WEB_TOKEN_DISTINCT_CHARS {
+        return Some(format!(
+            "it uses {distinct} distinct characters (at least {MIN_WEB_TOKEN_DISTINCT_CHARS} needed)"
+        ));
+    }
+    let most = count.iter().copied().max().unwrap_or(0);
+    if 2 * most > t.len() {
+        return Some(format!(
+            "one character makes up {most} of its {} characters",
+            t.len()
+        ));
+    }
+    let period = (1..=t.len() / 2).find(|&p| (p..t.len()).all(|i| t[i] == t[i - p]));
+    period.map(|p| format!("it repeats a {p}-character string"))
+}
+
+/// Refuses an inline `token` in a configuration file that its group or
+/// others can read (`mode`): anyone who reads the file holds the web's
+/// role, past the socket's group and `[access]`.
+pub(super) fn check_inline_token_file_mode(
+    web: &WebSection,
+    path: &std::path::Path,
+    mode: u32,
+) -> Result<(), ConfigError> {
+    if web.token.is_some() && mode & 0o077 != 0 {
+        return Err(bad(
+            "web.token",
+            format!(
+                "the token is inline in {} (mode {:04o}), which group or others can read: move it to token_file (chmod 600) or chmod 600 the configuration",
+                path.display(),
+                mode & 0o7777
+            ),
+        ));
+    }
+    Ok(())
 }

@@ -17,6 +17,8 @@
 //! * `fields`: the field readers `parse` is built from (type, range and
 //!   file-name checks with their error messages).
 //! * `reply`: replies and events serialized to one line each.
+//! * `unique`: JSON whose objects name each key once (a repeated key is
+//!   refused, not resolved: see the module).
 //! * `role`: the role each command needs ([`Role`], [`Command::role`]) and
 //!   which commands are audited.
 
@@ -28,6 +30,7 @@ mod reply;
 mod role;
 #[cfg(test)]
 mod tests;
+mod unique;
 
 pub use command::{
     Axes, CharacterizeAction, CharacterizeMode, CharacterizeParams, Command, DriftAction,

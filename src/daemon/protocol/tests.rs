@@ -302,3 +302,23 @@ fn start_params(c: Command) -> CharacterizeParams {
         other => panic!("not a characterize start: {other:?}"),
     }
 }
+
+#[test]
+fn a_request_that_names_a_key_twice_is_refused() {
+    // serde_json alone would run this as a move (the last key wins).
+    let r = parse(r#"{"id":1,"cmd":"status","cmd":"move","x_um":1,"y_um":2}"#).unwrap_err();
+    assert_eq!(r.error.code, ErrorCode::BadJson);
+    assert!(r.error.message.contains("\"cmd\""), "{}", r.error.message);
+    assert_eq!(
+        code(r#"{"cmd":"move","x_um":1,"x_um":2,"y_um":0}"#),
+        ErrorCode::BadJson
+    );
+    assert_eq!(
+        code(
+            r#"{"cmd":"characterize","action":"start","log":"a.csv","x_range_um":[0,1],"x_range_um":[0,2]}"#
+        ),
+        ErrorCode::BadJson
+    );
+    // Once each, the same request is read.
+    assert!(parse(r#"{"id":1,"cmd":"status"}"#).is_ok());
+}
