@@ -14,6 +14,8 @@
 //!   command's parameters): what the rest of the daemon consumes.
 //! * `parse`: one request line into a [`Request`] or a [`Refusal`], command
 //!   by command; the only code that reads client JSON.
+//! * `strict`: JSON into a `serde_json::Value` refusing a key repeated in
+//!   one object (serde_json would keep the last silently).
 //! * `fields`: the field readers `parse` is built from (type, range and
 //!   file-name checks with their error messages).
 //! * `reply`: replies and events serialized to one line each.
@@ -26,6 +28,7 @@ mod fields;
 mod parse;
 mod reply;
 mod role;
+mod strict;
 #[cfg(test)]
 mod tests;
 

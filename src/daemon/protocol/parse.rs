@@ -15,6 +15,7 @@ use super::fields::{
     check_file_name, opt_axes, opt_bool, opt_count, opt_f64, opt_f64_within, opt_str, opt_xy,
     req_str, truncate, type_name, unknown_word, wrong_type,
 };
+use super::strict::{parse_strict, StrictError};
 use super::{ErrorCode, ProtoError, MAX_REQUEST_BYTES};
 
 /// Parses one request line (without its newline).
@@ -32,10 +33,21 @@ pub fn parse_request(line: &[u8]) -> Result<Request, Refusal> {
             ),
         )
     })?;
-    let value: Value = serde_json::from_str(text).map_err(|e| {
+    let value = parse_strict(text).map_err(|e| {
         refuse(
             Value::Null,
-            ProtoError::new(ErrorCode::BadJson, format!("request is not JSON: {e}")),
+            match e {
+                StrictError::Json(e) => {
+                    ProtoError::new(ErrorCode::BadJson, format!("request is not JSON: {e}"))
+                }
+                StrictError::DuplicateKey(key) => ProtoError::new(
+                    ErrorCode::BadRequest,
+                    format!(
+                        "key {:?} appears twice in one object; a request has each key once",
+                        truncate(&key, 64)
+                    ),
+                ),
+            },
         )
     })?;
     let Value::Object(obj) = value else {

@@ -302,3 +302,26 @@ fn start_params(c: Command) -> CharacterizeParams {
         other => panic!("not a characterize start: {other:?}"),
     }
 }
+
+#[test]
+fn repeated_keys_are_refused_naming_the_key() {
+    for (line, key) in [
+        (r#"{"cmd":"status","cmd":"move","x_um":1}"#, "cmd"),
+        (r#"{"id":1,"cmd":"move","x_um":1,"x_um":2}"#, "x_um"),
+        (r#"{"id":1,"id":2,"cmd":"status"}"#, "id"),
+        (
+            r#"{"cmd":"subscribe","topics":["drift"],"x":{"a":1,"a":1}}"#,
+            "a",
+        ),
+    ] {
+        let e = parse(line).unwrap_err().error;
+        assert_eq!(e.code, ErrorCode::BadRequest, "{line}");
+        assert!(
+            e.message.contains(&format!("{key:?}")),
+            "{line}: {}",
+            e.message
+        );
+        let reply: Value = serde_json::from_str(&error_reply(&Value::Null, &e)).unwrap();
+        assert_eq!(reply["error"]["code"], "bad_request");
+    }
+}
