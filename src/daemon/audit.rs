@@ -758,13 +758,16 @@ mod tests {
         let data = dir.path().join("data");
         std::fs::create_dir(&data).unwrap();
         std::os::unix::fs::symlink(&target, data.join(AUDIT_FILE)).unwrap();
-        let a = Audit::start(&data);
-        let req = br#"{"cmd":"stop"}"#;
-        let cmd = crate::daemon::protocol::parse_request(req).unwrap().command;
-        a.record(&peer(), None, &cmd, Outcome::Denied, req);
-        // A second record behind it: once it is through the queue, so is the first.
-        drop(a);
-        std::thread::sleep(Duration::from_millis(300));
+        // The writer run on this thread: when it returns, the record was
+        // either written or refused.
+        let (tx, rx) = sync_channel(1);
+        tx.send(Record {
+            line: "{}\n".to_owned(),
+            journal: Vec::new(),
+        })
+        .unwrap();
+        drop(tx);
+        writer(&data.join(AUDIT_FILE), None, rx, &AuditLimits::default());
         assert_eq!(std::fs::read_to_string(&target).unwrap(), "precious\n");
         let err = open_audit(&data.join(AUDIT_FILE), true);
         assert!(err.is_none());
