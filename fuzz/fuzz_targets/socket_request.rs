@@ -1,12 +1,12 @@
 //! Fuzzes the daemon's request parser: any bytes give a request or a
 //! refusal, never a panic, and a refusal always serializes to one JSON line.
-//! Also: the fuzz bytes' request with one of its keys repeated (the line
-//! re-encoded with the key's value written again) is always refused, so no
-//! request runs with a meaning a first-key reader would not see.
+//! The same bytes also build a request with a key repeated in one object
+//! (at a nesting depth and with a key taken from the bytes): it must be
+//! refused with `bad_request`.
 #![no_main]
 
 use libfuzzer_sys::fuzz_target;
-use micropos::daemon::protocol::{error_reply, parse_request};
+use micropos::daemon::protocol::{error_reply, parse_request, ErrorCode, MAX_REQUEST_BYTES};
 
 fuzz_target!(|data: &[u8]| {
     if let Err(r) = parse_request(data) {
@@ -15,25 +15,33 @@ fuzz_target!(|data: &[u8]| {
         assert_eq!(line.matches('\n').count(), 1);
         let v: serde_json::Value = serde_json::from_str(&line).expect("reply is JSON");
         assert_eq!(v["ok"], false);
+    }
+    repeated_key_is_refused(data);
+});
+
+/// `{"cmd":"status","n":{"n":{… {K:1,"o":[V],K:2}}}}`: key `K` from the
+/// bytes, depth and the value `V` between the repeats from the bytes.
+fn repeated_key_is_refused(data: &[u8]) {
+    let Some((&first, rest)) = data.split_first() else {
+        return;
+    };
+    let depth = usize::from(first % 8);
+    let split = rest.len() / 2;
+    let key = serde_json::to_string(&String::from_utf8_lossy(&rest[..split])).expect("a string");
+    let between = serde_json::to_string(&String::from_utf8_lossy(&rest[split..])).expect("a string");
+    let mut obj = format!("{{{key}:1,\"o\":[{between}],{key}:2}}");
+    for _ in 0..depth {
+        obj = format!("{{\"n\":{obj}}}");
+    }
+    let line = if first & 0x80 == 0 {
+        format!("{{\"cmd\":\"status\",\"n\":{obj}}}")
+    } else {
+        // The repeat at the top level, next to `cmd`.
+        format!("{{\"cmd\":\"status\",{key}:1,\"o\":[{between}],{key}:2}}")
+    };
+    if line.len() > MAX_REQUEST_BYTES {
         return;
     }
-    // An accepted request is an object: write one of its keys twice.
-    let Ok(serde_json::Value::Object(obj)) = serde_json::from_slice::<serde_json::Value>(data)
-    else {
-        return;
-    };
-    let Some((k, v)) = obj.iter().nth(data.len() % obj.len().max(1)) else {
-        return;
-    };
-    let body = serde_json::to_string(&obj).expect("an object serializes");
-    let repeat = format!(
-        "{{{}:{},{}",
-        serde_json::to_string(k).expect("a key serializes"),
-        v,
-        &body[1..]
-    );
-    assert!(
-        parse_request(repeat.as_bytes()).is_err(),
-        "a repeated key was accepted: {repeat}"
-    );
-});
+    let refusal = parse_request(line.as_bytes()).expect_err("a repeated key is refused");
+    assert_eq!(refusal.error.code, ErrorCode::BadRequest, "{line}");
+}

@@ -168,7 +168,11 @@ impl Daemon {
         };
         let (shutdown, _) = broadcast::channel(4);
         let access = access::Access::new(cfg.access.clone());
-        let audit = audit::Audit::start(&cfg.daemon.data_dir);
+        let audit = audit::Audit::start_limited(
+            &cfg.daemon.data_dir,
+            audit::journal_socket(),
+            cfg.audit.clone(),
+        );
         let rig = Arc::new(rig::Rig::new(cfg, clock, vision, links));
         let daemon = Arc::new(Daemon {
             rig: rig.clone(),

@@ -59,6 +59,9 @@ pub struct DaemonConfig {
     /// The web view and `/metrics` (`docs/design/web.md`); `None` (no
     /// `[web]` section): no network listener at all.
     pub web: Option<WebSection>,
+    /// `[audit]`: the audit file's per-source rate and rotation
+    /// (`src/daemon/audit.rs`), so refused requests cannot fill the disk.
+    pub audit: crate::daemon::audit::AuditLimits,
 }
 
 impl DaemonConfig {
@@ -219,6 +222,22 @@ impl DaemonConfig {
         }
         if let Some(a) = &self.access {
             a.validate()?;
+        }
+        let au = &self.audit;
+        if !(au.rate_per_s.is_finite() && au.rate_per_s > 0.0) {
+            return Err(bad(
+                "audit.rate_per_s",
+                "must be a positive number of records per second",
+            ));
+        }
+        if !(au.burst.is_finite() && au.burst >= 1.0) {
+            return Err(bad("audit.burst", "must be at least 1 record"));
+        }
+        if au.max_bytes < 4096 {
+            return Err(bad("audit.max_bytes", "must be at least 4096 bytes"));
+        }
+        if au.files > 100 {
+            return Err(bad("audit.files", "must be within 0..=100"));
         }
         if self.daemon.job_retries > 100 {
             return Err(bad(

@@ -14,6 +14,9 @@ pub enum ErrorCode {
     BadJson,
     /// The line exceeds [`MAX_REQUEST_BYTES`](super::MAX_REQUEST_BYTES).
     RequestTooLarge,
+    /// The request is JSON but ambiguous: a key appears twice in one object
+    /// (the message names it).
+    BadRequest,
     /// The JSON is not an object.
     NotAnObject,
     /// A required field is missing.
@@ -83,6 +86,7 @@ impl ErrorCode {
         match self {
             ErrorCode::BadJson => "bad_json",
             ErrorCode::RequestTooLarge => "request_too_large",
+            ErrorCode::BadRequest => "bad_request",
             ErrorCode::NotAnObject => "not_an_object",
             ErrorCode::MissingField => "missing_field",
             ErrorCode::WrongType => "wrong_type",

@@ -14,11 +14,11 @@
 //!   command's parameters): what the rest of the daemon consumes.
 //! * `parse`: one request line into a [`Request`] or a [`Refusal`], command
 //!   by command; the only code that reads client JSON.
+//! * `strict`: JSON into a `serde_json::Value` refusing a key repeated in
+//!   one object (serde_json would keep the last silently).
 //! * `fields`: the field readers `parse` is built from (type, range and
 //!   file-name checks with their error messages).
 //! * `reply`: replies and events serialized to one line each.
-//! * `unique`: JSON whose objects name each key once (a repeated key is
-//!   refused, not resolved: see the module).
 //! * `role`: the role each command needs ([`Role`], [`Command::role`]) and
 //!   which commands are audited.
 
@@ -28,9 +28,9 @@ mod fields;
 mod parse;
 mod reply;
 mod role;
+mod strict;
 #[cfg(test)]
 mod tests;
-mod unique;
 
 pub use command::{
     Axes, CharacterizeAction, CharacterizeMode, CharacterizeParams, Command, DriftAction,

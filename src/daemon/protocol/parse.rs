@@ -15,7 +15,7 @@ use super::fields::{
     check_file_name, opt_axes, opt_bool, opt_count, opt_f64, opt_f64_within, opt_str, opt_xy,
     req_str, truncate, type_name, unknown_word, wrong_type,
 };
-use super::unique::{UniqueValue, DUPLICATE};
+use super::strict::{parse_strict, StrictError};
 use super::{ErrorCode, ProtoError, MAX_REQUEST_BYTES};
 
 /// Parses one request line (without its newline).
@@ -33,26 +33,23 @@ pub fn parse_request(line: &[u8]) -> Result<Request, Refusal> {
             ),
         )
     })?;
-    let value: Value = match serde_json::from_str::<UniqueValue>(text) {
-        Ok(UniqueValue(v)) => v,
-        Err(e) if e.is_data() && e.to_string().starts_with(DUPLICATE) => {
-            return Err(refuse(
-                Value::Null,
-                ProtoError::new(
-                    ErrorCode::BadJson,
+    let value = parse_strict(text).map_err(|e| {
+        refuse(
+            Value::Null,
+            match e {
+                StrictError::Json(e) => {
+                    ProtoError::new(ErrorCode::BadJson, format!("request is not JSON: {e}"))
+                }
+                StrictError::DuplicateKey(key) => ProtoError::new(
+                    ErrorCode::BadRequest,
                     format!(
-                        "request names a key twice ({e}): a request names each field once, so that every reader reads it the same way"
+                        "key {:?} appears twice in one object; a request has each key once",
+                        truncate(&key, 64)
                     ),
                 ),
-            ))
-        }
-        Err(e) => {
-            return Err(refuse(
-                Value::Null,
-                ProtoError::new(ErrorCode::BadJson, format!("request is not JSON: {e}")),
-            ))
-        }
-    };
+            },
+        )
+    })?;
     let Value::Object(obj) = value else {
         return Err(refuse(
             Value::Null,

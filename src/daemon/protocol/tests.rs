@@ -304,21 +304,24 @@ fn start_params(c: Command) -> CharacterizeParams {
 }
 
 #[test]
-fn a_request_that_names_a_key_twice_is_refused() {
-    // serde_json alone would run this as a move (the last key wins).
-    let r = parse(r#"{"id":1,"cmd":"status","cmd":"move","x_um":1,"y_um":2}"#).unwrap_err();
-    assert_eq!(r.error.code, ErrorCode::BadJson);
-    assert!(r.error.message.contains("\"cmd\""), "{}", r.error.message);
-    assert_eq!(
-        code(r#"{"cmd":"move","x_um":1,"x_um":2,"y_um":0}"#),
-        ErrorCode::BadJson
-    );
-    assert_eq!(
-        code(
-            r#"{"cmd":"characterize","action":"start","log":"a.csv","x_range_um":[0,1],"x_range_um":[0,2]}"#
+fn repeated_keys_are_refused_naming_the_key() {
+    for (line, key) in [
+        (r#"{"cmd":"status","cmd":"move","x_um":1}"#, "cmd"),
+        (r#"{"id":1,"cmd":"move","x_um":1,"x_um":2}"#, "x_um"),
+        (r#"{"id":1,"id":2,"cmd":"status"}"#, "id"),
+        (
+            r#"{"cmd":"subscribe","topics":["drift"],"x":{"a":1,"a":1}}"#,
+            "a",
         ),
-        ErrorCode::BadJson
-    );
-    // Once each, the same request is read.
-    assert!(parse(r#"{"id":1,"cmd":"status"}"#).is_ok());
+    ] {
+        let e = parse(line).unwrap_err().error;
+        assert_eq!(e.code, ErrorCode::BadRequest, "{line}");
+        assert!(
+            e.message.contains(&format!("{key:?}")),
+            "{line}: {}",
+            e.message
+        );
+        let reply: Value = serde_json::from_str(&error_reply(&Value::Null, &e)).unwrap();
+        assert_eq!(reply["error"]["code"], "bad_request");
+    }
 }

@@ -20,6 +20,7 @@ __all__ = [
     "MicroposError",
     # protocol codes
     "BadJson",
+    "BadRequest",
     "RequestTooLarge",
     "NotAnObject",
     "MissingField",
@@ -111,6 +112,13 @@ class BadJson(MicroposError):
     """The request line was not valid JSON (or not UTF-8)."""
 
     code = "bad_json"
+
+
+class BadRequest(MicroposError):
+    """The request named a key twice in one object (each key once, so that
+    every reader of the line reads the same request)."""
+
+    code = "bad_request"
 
 
 class RequestTooLarge(MicroposError):
@@ -396,6 +404,7 @@ ERROR_CLASSES: Dict[str, Type[MicroposError]] = {
     cls.code: cls
     for cls in (
         BadJson,
+        BadRequest,
         RequestTooLarge,
         NotAnObject,
         MissingField,
