@@ -112,6 +112,19 @@ async fn at_rest_x(r: &Rig) -> f64 {
     }
 }
 
+/// Waits until the stage's true x is 50 µm past `start_x` (the move
+/// really runs), at most 20 s.
+async fn until_moving(r: &Rig, start_x: f64) {
+    let t = Instant::now();
+    while r.truth_um(AxisName::X) < start_x + 50.0 {
+        assert!(
+            t.elapsed() < Duration::from_secs(20),
+            "the move never started"
+        );
+        tokio::time::sleep(Duration::from_millis(2)).await;
+    }
+}
+
 /// Fills every client slot (`holders` already connected count), then a
 /// new client's `stop` halts a move of 7 mm started by the first holder.
 async fn stop_through_a_full_daemon(max_clients: usize) {
@@ -142,14 +155,7 @@ async fn stop_through_a_full_daemon(max_clients: usize) {
     let s = late.call(json!({"cmd":"status"})).await;
     assert_eq!(code(&s), "busy", "{s}");
     // Stop only once the stage really moves.
-    let t = Instant::now();
-    while r.truth_um(AxisName::X) < start_x + 50.0 {
-        assert!(
-            t.elapsed() < Duration::from_secs(20),
-            "the move never started"
-        );
-        tokio::time::sleep(Duration::from_millis(2)).await;
-    }
+    until_moving(&r, start_x).await;
     let moving = r.truth_um(AxisName::X);
     let asked = Instant::now();
     let s = late.call(json!({"cmd":"stop"})).await;
@@ -445,14 +451,7 @@ async fn a_user_holding_every_slot_it_may_cannot_deny_another_users_stop() {
     mover
         .call_ok(json!({"cmd":"move","x_um": start_x + 7000.0}))
         .await;
-    let t = Instant::now();
-    while r.truth_um(AxisName::X) < start_x + 50.0 {
-        assert!(
-            t.elapsed() < Duration::from_secs(20),
-            "the move never started"
-        );
-        tokio::time::sleep(Duration::from_millis(2)).await;
-    }
+    until_moving(&r, start_x).await;
     let Some(v) = stop_as_uid(&r.socket, 65534).await else {
         return;
     };

@@ -20,6 +20,46 @@ use std::net::SocketAddr;
 
 const TOKEN: &str = "test-token-5d41402abc4b2a76b9719d911017c592";
 
+/// A served rig (seed `seed`, time scale 50) and an in-process daemon on the
+/// reduced plan whose web listener (`web`, on an ephemeral loopback port)
+/// is bound. `_dir` holds the rig's and the data's directory.
+struct WebRig {
+    _dir: tempfile::TempDir,
+    data: std::path::PathBuf,
+    socket: std::path::PathBuf,
+    sim: hil_sim::SimHandle,
+    daemon: micropos::daemon::Running,
+    addr: SocketAddr,
+}
+
+fn web_rig(seed: u64, web: WebSection) -> WebRig {
+    let dir = tempfile::tempdir().unwrap();
+    let rig_dir = dir.path().join("rig");
+    let data = dir.path().join("data");
+    std::fs::create_dir_all(&rig_dir).unwrap();
+    std::fs::create_dir_all(&data).unwrap();
+    let cfg = common::serve_config(&rig_dir, 50.0, seed);
+    let rig_cfg = cfg.rig.clone();
+    let sim = common::serve_in_process(cfg);
+    let socket = dir.path().join("d.sock");
+    let mut c = daemon_config(&rig_dir, &data, &socket, &rig_cfg, &RunPlan::reduced()).unwrap();
+    c.web = Some(WebSection {
+        listen: "127.0.0.1:0".to_owned(),
+        ..web
+    });
+    c.validate().unwrap();
+    let daemon = common::start_daemon_in_process(c, &sim, &socket);
+    let addr = daemon.web_addr.expect("the web listener is bound");
+    WebRig {
+        _dir: dir,
+        data,
+        socket,
+        sim,
+        daemon,
+        addr,
+    }
+}
+
 /// Parses a scrape; samples by name with their labels joined
 /// (`name{k=v,…}`), histograms by name with their count.
 fn scrape(text: &str) -> HashMap<String, f64> {
@@ -104,26 +144,22 @@ async fn sse_until(addr: SocketAddr, wanted: &[&str]) -> String {
 
 #[tokio::test(start_paused = true)]
 async fn metrics_and_commands_follow_the_rig() {
-    let dir = tempfile::tempdir().unwrap();
-    let rig_dir = dir.path().join("rig");
-    let data = dir.path().join("data");
-    std::fs::create_dir_all(&rig_dir).unwrap();
-    std::fs::create_dir_all(&data).unwrap();
-    let cfg = common::serve_config(&rig_dir, 50.0, 3);
-    let rig_cfg = cfg.rig.clone();
-    let sim = common::serve_in_process(cfg);
-    let socket = dir.path().join("d.sock");
-    let mut c = daemon_config(&rig_dir, &data, &socket, &rig_cfg, &RunPlan::reduced()).unwrap();
-    c.web = Some(WebSection {
-        listen: "127.0.0.1:0".to_owned(),
-        control: true,
-        role: "operate".to_owned(),
-        token: Some(TOKEN.to_owned()),
-        ..WebSection::default()
-    });
-    c.validate().unwrap();
-    let daemon = common::start_daemon_in_process(c, &sim, &socket);
-    let addr = daemon.web_addr.expect("the web listener is bound");
+    let WebRig {
+        _dir,
+        data,
+        socket,
+        sim,
+        daemon,
+        addr,
+    } = web_rig(
+        3,
+        WebSection {
+            control: true,
+            role: "operate".to_owned(),
+            token: Some(TOKEN.to_owned()),
+            ..WebSection::default()
+        },
+    );
     let mut cl = Client::connect(&socket).await;
     common::connect_and_reference(&mut cl).await;
 
@@ -358,23 +394,14 @@ async fn figures_of_the_latest_logs_over_socket_and_http() {
     use micropos::plot::charact::{backlash_um, mean_errors, repeatability, scans};
     use micropos::plot::validation::gather;
 
-    let dir = tempfile::tempdir().unwrap();
-    let rig_dir = dir.path().join("rig");
-    let data = dir.path().join("data");
-    std::fs::create_dir_all(&rig_dir).unwrap();
-    std::fs::create_dir_all(&data).unwrap();
-    let cfg = common::serve_config(&rig_dir, 50.0, 17);
-    let rig_cfg = cfg.rig.clone();
-    let sim = common::serve_in_process(cfg);
-    let socket = dir.path().join("d.sock");
-    let mut c = daemon_config(&rig_dir, &data, &socket, &rig_cfg, &RunPlan::reduced()).unwrap();
-    c.web = Some(WebSection {
-        listen: "127.0.0.1:0".to_owned(),
-        ..WebSection::default()
-    });
-    c.validate().unwrap();
-    let daemon = common::start_daemon_in_process(c, &sim, &socket);
-    let addr = daemon.web_addr.expect("the web listener is bound");
+    let WebRig {
+        _dir,
+        data,
+        socket,
+        sim,
+        daemon,
+        addr,
+    } = web_rig(17, WebSection::default());
     let mut cl = Client::connect(&socket).await;
     common::connect_and_reference(&mut cl).await;
 
@@ -643,23 +670,13 @@ async fn the_listener_caps_connections_and_closes_idle_ones() {
     use tokio::io::{AsyncReadExt, AsyncWriteExt};
     use tokio::net::TcpStream;
 
-    let dir = tempfile::tempdir().unwrap();
-    let rig_dir = dir.path().join("rig");
-    let data = dir.path().join("data");
-    std::fs::create_dir_all(&rig_dir).unwrap();
-    std::fs::create_dir_all(&data).unwrap();
-    let cfg = common::serve_config(&rig_dir, 50.0, 5);
-    let rig_cfg = cfg.rig.clone();
-    let sim = common::serve_in_process(cfg);
-    let socket = dir.path().join("d.sock");
-    let mut c = daemon_config(&rig_dir, &data, &socket, &rig_cfg, &RunPlan::reduced()).unwrap();
-    c.web = Some(WebSection {
-        listen: "127.0.0.1:0".to_owned(),
-        ..WebSection::default()
-    });
-    c.validate().unwrap();
-    let daemon = common::start_daemon_in_process(c, &sim, &socket);
-    let addr = daemon.web_addr.expect("the web listener is bound");
+    let WebRig {
+        _dir,
+        sim,
+        daemon,
+        addr,
+        ..
+    } = web_rig(5, WebSection::default());
 
     /// Reads until the peer closes; what it sent (or `None` if it did not
     /// close within `within`).
@@ -743,23 +760,13 @@ async fn every_route_refuses_a_foreign_host() {
     use tokio::io::{AsyncReadExt, AsyncWriteExt};
     use tokio::net::TcpStream;
 
-    let dir = tempfile::tempdir().unwrap();
-    let rig_dir = dir.path().join("rig");
-    let data = dir.path().join("data");
-    std::fs::create_dir_all(&rig_dir).unwrap();
-    std::fs::create_dir_all(&data).unwrap();
-    let cfg = common::serve_config(&rig_dir, 50.0, 5);
-    let rig_cfg = cfg.rig.clone();
-    let sim = common::serve_in_process(cfg);
-    let socket = dir.path().join("d.sock");
-    let mut c = daemon_config(&rig_dir, &data, &socket, &rig_cfg, &RunPlan::reduced()).unwrap();
-    c.web = Some(WebSection {
-        listen: "127.0.0.1:0".to_owned(),
-        ..WebSection::default()
-    });
-    c.validate().unwrap();
-    let daemon = common::start_daemon_in_process(c, &sim, &socket);
-    let addr = daemon.web_addr.expect("the web listener is bound");
+    let WebRig {
+        _dir,
+        sim,
+        daemon,
+        addr,
+        ..
+    } = web_rig(5, WebSection::default());
 
     /// The status line's code of one request with `Host: host`.
     async fn status(addr: std::net::SocketAddr, host: &str, method: &str, path: &str) -> String {
@@ -830,23 +837,13 @@ async fn a_stalled_body_is_closed_within_the_timeout() {
     use tokio::io::{AsyncReadExt, AsyncWriteExt};
     use tokio::net::TcpStream;
 
-    let dir = tempfile::tempdir().unwrap();
-    let rig_dir = dir.path().join("rig");
-    let data = dir.path().join("data");
-    std::fs::create_dir_all(&rig_dir).unwrap();
-    std::fs::create_dir_all(&data).unwrap();
-    let cfg = common::serve_config(&rig_dir, 50.0, 5);
-    let rig_cfg = cfg.rig.clone();
-    let sim = common::serve_in_process(cfg);
-    let socket = dir.path().join("d.sock");
-    let mut c = daemon_config(&rig_dir, &data, &socket, &rig_cfg, &RunPlan::reduced()).unwrap();
-    c.web = Some(WebSection {
-        listen: "127.0.0.1:0".to_owned(),
-        ..WebSection::default()
-    });
-    c.validate().unwrap();
-    let daemon = common::start_daemon_in_process(c, &sim, &socket);
-    let addr = daemon.web_addr.expect("the web listener is bound");
+    let WebRig {
+        _dir,
+        sim,
+        daemon,
+        addr,
+        ..
+    } = web_rig(5, WebSection::default());
 
     let mut stalled = Vec::new();
     for _ in 0..8 {
