@@ -22,8 +22,20 @@ if [ "${MICROPOS_ALL_FEATURES:-0}" = 1 ]; then
   features=(--all-features)
 fi
 
-echo "== cargo test ${features[*]:-}"
-cargo test --workspace "${features[@]}"
+# cargo-nextest, when installed, runs every test of both packages in one pool
+# (each in a process of its own; .config/nextest.toml), so the run does not
+# wait on one binary's slowest test before the next binary starts; the doc
+# tests, which nextest does not run, follow. Without it, `cargo test`.
+# MICROPOS_NEXTEST=0 forces `cargo test`.
+if [ "${MICROPOS_NEXTEST:-1}" = 1 ] && cargo nextest --version >/dev/null 2>&1; then
+  echo "== cargo nextest run ${features[*]:-}"
+  cargo nextest run --workspace "${features[@]}"
+  echo "== cargo test --doc ${features[*]:-}"
+  cargo test --workspace --doc "${features[@]}"
+else
+  echo "== cargo test ${features[*]:-}"
+  cargo test --workspace "${features[@]}"
+fi
 
 # The Python suites run the hil-sim and microposd that `cargo test` just
 # built (the integration tests run them too): the test profile, the

@@ -161,13 +161,26 @@ def test_characterize_job_tables_build_and_compensated_move(rig, shared_rig):
     try:
         with pytest.raises(micropos.CameraStalled):
             rig.move(3200, 3200, mode="closed_loop")
+        frames = rig.status()["camera"]["frames"]
         shared_rig.control(camera="garbage")
+        # A grab sent while the camera stalled holds the daemon's camera
+        # until its own timeout (as a hung camera would): the move below is
+        # only about undecodable frames once the daemon has seen one.
+        _wait_until(lambda: rig.status()["camera"]["frames"] > frames, 30.0)
         with pytest.raises(micropos.LowQuality):
             rig.move(3300, 3300, mode="closed_loop")
     finally:
         shared_rig.control(camera="normal")
     r = rig.move(3400, 3400, mode="closed_loop", tolerance_um=0.5)
     assert r["ok"] is True
+
+
+def _wait_until(cond, timeout_s: float) -> None:
+    """Polls ``cond`` every 0.1 s until it holds; fails after ``timeout_s``."""
+    deadline = time.monotonic() + timeout_s
+    while not cond():
+        assert time.monotonic() < deadline, "condition not met in time"
+        time.sleep(0.1)
 
 
 @pytest.fixture
