@@ -125,6 +125,11 @@ fn sd_notify_listen_fds() -> anyhow::Result<Vec<i32>> {
 /// Binds the socket: refuses to steal it from a running daemon, removes a
 /// stale one, sets the configured mode (group access for the `micropos`
 /// group: the socket's group is the daemon's primary group).
+///
+/// The socket is bound in a fresh private (0700) directory next to `path`,
+/// given its mode there, and renamed into place: no client can reach it
+/// before it has its final mode, whatever the umask (binding at `path` and
+/// then chmod'ing leaves a window as wide as the umask allows).
 fn bind(path: &Path, mode: u32) -> anyhow::Result<std::os::unix::net::UnixListener> {
     if path.exists() {
         if std::os::unix::net::UnixStream::connect(path).is_ok() {
@@ -133,16 +138,36 @@ fn bind(path: &Path, mode: u32) -> anyhow::Result<std::os::unix::net::UnixListen
         std::fs::remove_file(path)
             .with_context(|| format!("removing stale socket {}", path.display()))?;
     }
-    if let Some(dir) = path.parent() {
-        if !dir.as_os_str().is_empty() {
-            std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
-        }
-    }
-    let l = std::os::unix::net::UnixListener::bind(path)
-        .with_context(|| format!("binding {}", path.display()))?;
-    std::fs::set_permissions(path, std::fs::Permissions::from_mode(mode))
-        .with_context(|| format!("setting mode {mode:o} on {}", path.display()))?;
+    let dir = match path.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d,
+        _ => Path::new("."),
+    };
+    std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    let private = tempfile::Builder::new()
+        .prefix(".microposd-bind-")
+        .tempdir_in(dir)
+        .with_context(|| format!("creating a private directory in {}", dir.display()))?;
+    let staged = private.path().join("socket");
+    let l = std::os::unix::net::UnixListener::bind(&staged)
+        .with_context(|| format!("binding {}", staged.display()))?;
+    std::fs::set_permissions(&staged, std::fs::Permissions::from_mode(mode))
+        .with_context(|| format!("setting mode {mode:o} on {}", staged.display()))?;
+    std::fs::rename(&staged, path)
+        .with_context(|| format!("moving the socket into place at {}", path.display()))?;
     Ok(l)
+}
+
+/// A socket every local user may connect to, with no `[access]` section to
+/// give roles, makes every local user an admin: legal (a single-user lab
+/// machine), but said at start.
+fn warn_open_socket(cfg: &DaemonConfig, mode: u32) {
+    if mode & 0o002 != 0 && cfg.access.is_none() {
+        tracing::warn!(
+            "daemon.socket_mode {mode:04o} lets every local user connect, and with no \
+             [access] section every client is admin (it can move the stage); \
+             use 0660 and the socket's group, or add [access]"
+        );
+    }
 }
 
 /// Where the configuration comes from, for the start and every reload.
@@ -208,7 +233,10 @@ async fn run(cfg: DaemonConfig, source: ConfigSource) -> anyhow::Result<()> {
             (l, None)
         }
         None => (
-            bind(&cfg.daemon.socket, mode)?,
+            {
+                warn_open_socket(&cfg, mode);
+                bind(&cfg.daemon.socket, mode)?
+            },
             Some(cfg.daemon.socket.clone()),
         ),
     };

@@ -98,6 +98,17 @@ pub enum DriverError {
         /// Why it went down, or why reopening fails.
         reason: String,
     },
+    /// One axis refused its part of a two-axis move after the other had
+    /// started; that one was halted (a two-axis move is all or nothing).
+    #[error(
+        "{refused}; axis {halted} had started and was halted (a two-axis move is all or nothing)"
+    )]
+    OtherAxisHalted {
+        /// Why the refusing axis refused.
+        refused: Box<DriverError>,
+        /// The axis that was halted.
+        halted: String,
+    },
     /// The axis has no valid reference, so its position is not known.
     #[error("axis {axis} is not referenced (power cycle or never referenced): its position is unknown; reference it first (`micropos axes reference`)")]
     NotReferenced {

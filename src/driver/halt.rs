@@ -22,6 +22,7 @@ use crate::gcs::{answer, ControlChar, GcsErrorCode};
 use std::sync::Arc;
 use std::time::Duration;
 use tokio::sync::broadcast;
+use tokio::time::Instant;
 
 /// What the halt found on one axis.
 #[derive(Debug, Clone, PartialEq)]
@@ -72,7 +73,47 @@ async fn open_line(
     }
 }
 
-async fn halt_one(ctl: Controller, name: &'static str, wait: Duration, poll: Duration) -> AxisHalt {
+/// How long an axis may still report motion after a `#24` before the stop
+/// is written again (a stop lost in a garbled or reopened line).
+const RESTOP_AFTER: Duration = Duration::from_millis(200);
+
+/// How often a line that cannot be opened is tried again.
+const REOPEN_EVERY: Duration = Duration::from_millis(50);
+
+/// Opens the line, trying again until `deadline`: a port can be briefly
+/// unavailable (the dead daemon's descriptor not yet released, a USB
+/// adapter re-enumerating), and the stop tool must not give up on the
+/// first refusal.
+async fn open_line_until(
+    a: &AxisConfig,
+    cfg: &DriverConfig,
+    opener: Option<&Arc<dyn LinkOpener>>,
+    events: &broadcast::Sender<AxisEvent>,
+    deadline: Instant,
+) -> Result<Line, DriverError> {
+    loop {
+        match open_line(a, cfg, opener, events).await {
+            Ok(l) => return Ok(l),
+            Err(e) if Instant::now() + REOPEN_EVERY >= deadline => return Err(e),
+            Err(e) => {
+                tracing::warn!(port = %a.port.display(), "halt: opening the line: {e}; trying again");
+                tokio::time::sleep(REOPEN_EVERY).await;
+            }
+        }
+    }
+}
+
+/// `#24`, then `#5` until the axis reports rest, until `deadline`. A `#24`
+/// that could not be written is written again at the next poll; one after
+/// which the axis still moves [`RESTOP_AFTER`] later is written again too.
+/// Why retries: this is the last line of defence, run when the daemon died,
+/// possibly on a loaded machine where one answer can time out.
+async fn halt_one(
+    ctl: Controller,
+    name: &'static str,
+    deadline: Instant,
+    poll: Duration,
+) -> AxisHalt {
     let mut out = AxisHalt {
         axis: name,
         sent: false,
@@ -80,29 +121,39 @@ async fn halt_one(ctl: Controller, name: &'static str, wait: Duration, poll: Dur
         error: None,
         problem: None,
     };
-    if let Err(e) = ctl.control(ControlChar::StopAll).await {
-        out.problem = Some(format!("#24: {e}"));
-        return out;
-    }
-    out.sent = true;
-    out.error = ctl.error().await.ok();
-    let t0 = tokio::time::Instant::now();
+    let mut last_stop: Option<Instant> = None;
     loop {
-        match ctl.control(ControlChar::MotionStatus).await {
-            Ok((Some(a), _)) => match answer::hex_word(&a) {
-                Ok(w) if w & 1 == 0 => {
-                    out.at_rest = true;
-                    return out;
+        let now = Instant::now();
+        if last_stop.is_none_or(|t| now.duration_since(t) >= RESTOP_AFTER) {
+            match ctl.control(ControlChar::StopAll).await {
+                Ok(_) => {
+                    if !out.sent {
+                        out.sent = true;
+                        out.error = ctl.error().await.ok();
+                    }
+                    last_stop = Some(Instant::now());
                 }
-                Ok(_) => {}
-                Err(e) => out.problem = Some(format!("#5: {e}")),
-            },
-            Ok((None, _)) => out.problem = Some("#5 returned no answer".to_owned()),
-            Err(e) => out.problem = Some(format!("#5: {e}")),
+                Err(e) => out.problem = Some(format!("#24: {e}")),
+            }
         }
-        if t0.elapsed() >= wait {
+        if out.sent {
+            match ctl.control(ControlChar::MotionStatus).await {
+                Ok((Some(a), _)) => match answer::hex_word(&a) {
+                    Ok(w) if w & 1 == 0 => {
+                        out.at_rest = true;
+                        out.problem = None;
+                        return out;
+                    }
+                    Ok(_) => {}
+                    Err(e) => out.problem = Some(format!("#5: {e}")),
+                },
+                Ok((None, _)) => out.problem = Some("#5 returned no answer".to_owned()),
+                Err(e) => out.problem = Some(format!("#5: {e}")),
+            }
+        }
+        if Instant::now() >= deadline {
             out.problem
-                .get_or_insert_with(|| format!("still moving after {wait:?}"));
+                .get_or_insert_with(|| "still moving at the deadline".to_owned());
             return out;
         }
         tokio::time::sleep(poll).await;
@@ -112,26 +163,19 @@ async fn halt_one(ctl: Controller, name: &'static str, wait: Duration, poll: Dur
 /// Stops both axes of `cfg` with `#24` and waits up to `wait` for them to
 /// report rest (`#5`). `opener` opens the ports instead of serial devices
 /// (the simulator's in-process rig). Both axes are handled at once; a line
-/// that cannot be opened is reported, the other axis is still stopped.
+/// that cannot be opened is tried again until `wait` has passed, and the
+/// other axis is stopped meanwhile. `wait` bounds the whole run.
 pub async fn halt_all(
     cfg: &DriverConfig,
     opener: Option<&Arc<dyn LinkOpener>>,
     wait: Duration,
 ) -> Vec<AxisHalt> {
     let (events, _) = broadcast::channel(64);
-    let poll = Duration::from_millis(cfg.x.poll_interval_ms.max(5));
-    let x_line = open_line(&cfg.x, cfg, opener, &events).await;
-    let y_line = if cfg.y.port == cfg.x.port {
-        match &x_line {
-            Ok(l) => Ok(l.clone()),
-            Err(e) => Err(DriverError::Invalid(e.to_string())),
-        }
-    } else {
-        open_line(&cfg.y, cfg, opener, &events).await
-    };
-    let one = |line: Result<Line, DriverError>, a: &AxisConfig, name: &'static str| {
-        let addr = a.address();
-        let timeout = Duration::from_millis(a.timeout_ms);
+    let deadline = Instant::now() + wait;
+    let poll = Duration::from_millis(cfg.x.poll_interval_ms.clamp(5, 100));
+    let shared = cfg.y.port == cfg.x.port;
+    let one = |a: &AxisConfig, name: &'static str, line: Option<Line>| {
+        let a = a.clone();
         let events = events.clone();
         async move {
             let fail = |p: String| AxisHalt {
@@ -141,23 +185,44 @@ pub async fn halt_all(
                 error: None,
                 problem: Some(p),
             };
-            let line = match line {
-                Ok(l) => l,
-                Err(e) => return fail(format!("opening the line: {e}")),
-            };
-            let addr = match addr {
-                Ok(a) => a,
+            let addr = match a.address() {
+                Ok(addr) => addr,
                 Err(e) => return fail(e.to_string()),
             };
-            halt_one(
-                Controller::new(line, addr, timeout, events),
-                name,
-                wait,
-                poll,
-            )
-            .await
+            let line = match line {
+                Some(l) => l,
+                None => match open_line_until(&a, cfg, opener, &events, deadline).await {
+                    Ok(l) => l,
+                    Err(e) => return fail(format!("opening the line: {e}")),
+                },
+            };
+            let timeout = Duration::from_millis(a.timeout_ms);
+            let ctl = Controller::new(line, addr, timeout, events);
+            halt_one(ctl, name, deadline, poll).await
         }
     };
-    let (x, y) = tokio::join!(one(x_line, &cfg.x, "x"), one(y_line, &cfg.y, "y"));
+    if shared {
+        // One line for both controllers: opened once, both stops at once.
+        let line = match open_line_until(&cfg.x, cfg, opener, &events, deadline).await {
+            Ok(l) => l,
+            Err(e) => {
+                return ["x", "y"]
+                    .map(|axis| AxisHalt {
+                        axis,
+                        sent: false,
+                        at_rest: false,
+                        error: None,
+                        problem: Some(format!("opening the line: {e}")),
+                    })
+                    .to_vec()
+            }
+        };
+        let (x, y) = tokio::join!(
+            one(&cfg.x, "x", Some(line.clone())),
+            one(&cfg.y, "y", Some(line))
+        );
+        return vec![x, y];
+    }
+    let (x, y) = tokio::join!(one(&cfg.x, "x", None), one(&cfg.y, "y", None));
     vec![x, y]
 }

@@ -48,14 +48,25 @@ pub struct LineOptions {
     /// First delay between reopen attempts.
     pub reconnect_min: Duration,
     /// Largest delay between reopen attempts (the delay doubles up to it).
+    /// It bounds how long a controller that came back runs on unwatched
+    /// before [`LineOptions::stop_on_reopen`] stops it.
     pub reconnect_max: Duration,
+    /// Write `#24` (stop all) to every controller the line has spoken to,
+    /// as the first bytes on each re-opened connection. Why: a controller
+    /// keeps running the move it had when its line dropped, and nobody
+    /// watched it while the line was down; whatever the caller does next
+    /// (a halt, a fault latch, a reconnect check) comes after at least one
+    /// exchange, while the carriage runs on. Its error register then reads
+    /// 10 (stopped by the command), which the ledger accounts for.
+    pub stop_on_reopen: bool,
 }
 
 impl Default for LineOptions {
     fn default() -> Self {
         Self {
             reconnect_min: Duration::from_millis(50),
-            reconnect_max: Duration::from_secs(1),
+            reconnect_max: Duration::from_millis(100),
+            stop_on_reopen: true,
         }
     }
 }
@@ -182,6 +193,7 @@ impl Line {
             noise: noise.clone(),
             quiet_needed: None,
             down_reason: String::new(),
+            known: Vec::new(),
         };
         let _ = task.events.send(AxisEvent::Connected {
             line: name.to_string(),
@@ -320,6 +332,9 @@ struct Task<C: Connector> {
     /// Set after a silence: how long the line must be quiet before the next write.
     quiet_needed: Option<Duration>,
     down_reason: String,
+    /// The controller addresses written to on this line, in first-use
+    /// order (what [`LineOptions::stop_on_reopen`] stops).
+    known: Vec<Option<Address>>,
 }
 
 enum Step {
@@ -397,16 +412,25 @@ impl<C: Connector> Task<C> {
                         },
                         () = tokio::time::sleep_until(next_try) => {
                             match self.connector.connect().await {
-                                Ok(io) => {
-                                    conn = Some(io);
+                                Ok(mut io) => {
                                     self.session.reset();
                                     self.quiet_needed = None;
                                     backoff = self.options.reconnect_min;
-                                    let e = self.epoch.fetch_add(1, Ordering::SeqCst) + 1;
-                                    tracing::info!(line = %self.name, epoch = e, "line reconnected");
-                                    let _ = self.events.send(AxisEvent::Connected {
-                                        line: self.name.to_string(),
-                                    });
+                                    match self.stop_after_reopen(&mut io).await {
+                                        Ok(()) => {
+                                            conn = Some(io);
+                                            let e = self.epoch.fetch_add(1, Ordering::SeqCst) + 1;
+                                            tracing::info!(line = %self.name, epoch = e, "line reconnected");
+                                            let _ = self.events.send(AxisEvent::Connected {
+                                                line: self.name.to_string(),
+                                            });
+                                        }
+                                        Err(reason) => {
+                                            tracing::warn!(line = %self.name, "reopened line fails at once: {reason}");
+                                            self.down_reason = reason;
+                                            next_try = Instant::now() + backoff;
+                                        }
+                                    }
                                 }
                                 Err(e) => {
                                     self.down_reason = format!("reopening fails: {e}");
@@ -438,6 +462,47 @@ impl<C: Connector> Task<C> {
         }
     }
 
+    /// [`LineOptions::stop_on_reopen`]: `#24` to every known controller,
+    /// before anything else is written on the new connection.
+    async fn stop_after_reopen(&mut self, io: &mut C::Io) -> Result<(), String> {
+        if !self.options.stop_on_reopen || self.known.is_empty() {
+            return Ok(());
+        }
+        let mut bytes = Vec::new();
+        for &addr in &self.known {
+            bytes.extend(crate::gcs::frame::encode_control(
+                addr,
+                ControlChar::StopAll,
+            ));
+            // Counted before the write: part of it may reach the controller
+            // even if the write fails.
+            lock_ledger(&self.ledger).wrote(addr);
+        }
+        let write = async {
+            io.write_all(&bytes).await?;
+            io.flush().await
+        };
+        match tokio::time::timeout(Duration::from_millis(100), write).await {
+            Ok(Ok(())) => {
+                tracing::warn!(
+                    line = %self.name,
+                    controllers = self.known.len(),
+                    "line re-opened: stop all (#24) sent first"
+                );
+                Ok(())
+            }
+            Ok(Err(e)) => Err(format!("write error on the re-opened line: {e}")),
+            Err(_) => Err("write stalled on the re-opened line".to_owned()),
+        }
+    }
+
+    /// A controller address this line writes to.
+    fn note_address(&mut self, addr: Option<Address>) {
+        if !self.known.contains(&addr) {
+            self.known.push(addr);
+        }
+    }
+
     /// Writes an urgent byte; a failed or stalled write takes the line down.
     async fn write_urgent(&mut self, io: &mut C::Io, u: Urgent) -> Step {
         let write = async {
@@ -447,6 +512,7 @@ impl<C: Connector> Task<C> {
         // Counted before the write: part of it may reach the controller
         // even if the write fails.
         lock_ledger(&self.ledger).wrote(u.addr);
+        self.note_address(u.addr);
         match tokio::time::timeout(Duration::from_millis(100), write).await {
             Ok(Ok(())) => {
                 let _ = u.done.send(Ok(()));
@@ -483,6 +549,7 @@ impl<C: Connector> Task<C> {
                     // The caller gave up before anything was sent.
                     return Step::Continue;
                 }
+                self.note_address(addr);
                 let (step, result) = self.exchange(io, addr, &out, timeout).await;
                 let result = result.map(|outcome| Reply {
                     outcome,

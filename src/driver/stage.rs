@@ -109,7 +109,9 @@ pub struct DriverConfig {
     pub y: AxisConfig,
     /// First delay between reopen attempts after a fault, ms.
     pub reconnect_min_ms: u64,
-    /// Largest delay between reopen attempts, ms.
+    /// Largest delay between reopen attempts, ms: also the longest a
+    /// controller whose line came back runs on before the `#24` that every
+    /// re-opened line starts with (a reopen attempt is one `open(2)`).
     pub reconnect_max_ms: u64,
 }
 
@@ -119,7 +121,7 @@ impl Default for DriverConfig {
             x: AxisConfig::default(),
             y: AxisConfig::default(),
             reconnect_min_ms: 50,
-            reconnect_max_ms: 1000,
+            reconnect_max_ms: 100,
         }
     }
 }
@@ -161,6 +163,7 @@ impl DriverConfig {
         LineOptions {
             reconnect_min: Duration::from_millis(self.reconnect_min_ms.max(1)),
             reconnect_max: Duration::from_millis(self.reconnect_max_ms.max(self.reconnect_min_ms)),
+            stop_on_reopen: true,
         }
     }
 }
@@ -218,9 +221,52 @@ impl Stage {
         Ok(Stage { x, y, events })
     }
 
+    /// Two brought-up axes as a stage (tests build them on one line).
+    #[cfg(test)]
+    pub(crate) fn from_axes(x: Axis, y: Axis, events: broadcast::Sender<AxisEvent>) -> Stage {
+        Stage { x, y, events }
+    }
+
     /// A new receiver of the stage's events.
     pub fn subscribe(&self) -> broadcast::Receiver<AxisEvent> {
         self.events.subscribe()
+    }
+
+    /// Starts an absolute move of both axes (µm, controller coordinates),
+    /// all or nothing: both targets inside the travel and both axes
+    /// referenced (asked of the controllers) before anything is sent; if
+    /// one controller still refuses its `MOV`, the other axis, which may
+    /// have started, is halted, and the refusal is returned. Why: an XY
+    /// target reached in one axis only is a different point, and a tool
+    /// sent there can hit what the full move would have avoided.
+    pub async fn move_abs_both_um(&self, x_um: f64, y_um: f64) -> Result<(), DriverError> {
+        self.x.check_target_um(x_um)?;
+        self.y.check_target_um(y_um)?;
+        let (rx, ry) = tokio::join!(self.x.is_referenced(), self.y.is_referenced());
+        for (axis, referenced) in [(&self.x, rx), (&self.y, ry)] {
+            if !referenced? {
+                return Err(DriverError::NotReferenced {
+                    axis: axis.name().to_owned(),
+                });
+            }
+        }
+        let (mx, my) = tokio::join!(self.x.move_abs_um(x_um), self.y.move_abs_um(y_um));
+        let (refused, other) = match (mx, my) {
+            (Ok(()), Ok(())) => return Ok(()),
+            (Err(e), Ok(())) => (e, &self.y),
+            (Ok(()), Err(e)) => (e, &self.x),
+            (Err(e), Err(_)) => return Err(e),
+        };
+        if let Err(h) = other.halt().await {
+            tracing::error!(
+                axis = other.name(),
+                "halting after the other axis refused its move: {h}"
+            );
+        }
+        Err(DriverError::OtherAxisHalted {
+            refused: Box::new(refused),
+            halted: other.name().to_owned(),
+        })
     }
 }
 

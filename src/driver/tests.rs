@@ -479,6 +479,79 @@ async fn a_different_controller_after_reconnect_is_refused() {
     ));
 }
 
+/// A two-axis move is all or nothing: an unreferenced axis refuses it
+/// before anything is sent; a controller that still refuses its `MOV`
+/// (servo off) has the other axis, which had started, halted.
+#[tokio::test(start_paused = true)]
+async fn a_two_axis_move_is_all_or_nothing() {
+    let rig = Rig::new(&[1, 2]).await;
+    let x = rig.axis("x", Some(1)).await.unwrap();
+    let y = rig.axis("y", Some(2)).await.unwrap();
+    assert_eq!(x.reference().await.unwrap(), 7500.0);
+    let stage = Stage::from_axes(x.clone(), y.clone(), rig.events.clone());
+    let e = stage.move_abs_both_um(12_000.0, 9_000.0).await.unwrap_err();
+    assert!(
+        matches!(&e, DriverError::NotReferenced { axis } if axis == "y"),
+        "{e}"
+    );
+    assert_eq!(rig.fake.axis(1, |a| a.target_mm), 7.5, "x was sent a move");
+
+    assert_eq!(y.reference().await.unwrap(), 7500.0);
+    rig.fake.axis(2, |a| a.servo = false);
+    let e = stage.move_abs_both_um(12_000.0, 9_000.0).await.unwrap_err();
+    assert!(
+        matches!(&e, DriverError::OtherAxisHalted { refused, halted }
+            if halted == "x" && matches!(**refused, DriverError::ServoOff { .. })),
+        "{e}"
+    );
+    tokio::time::sleep(Duration::from_secs(1)).await;
+    let now = tokio::time::Instant::now();
+    let (pos, target) = rig.fake.axis(1, |a| (a.pos_mm(now), a.target_mm));
+    assert_eq!(pos, target, "x still moving");
+    assert!(pos < 8.0, "x ran to {pos} mm");
+
+    rig.fake.axis(2, |a| a.servo = true);
+    stage.move_abs_both_um(8_000.0, 9_000.0).await.unwrap();
+    let (a, b) = tokio::join!(x.wait_on_target(None), y.wait_on_target(None));
+    assert_eq!((a.unwrap(), b.unwrap()), (8_000.0, 9_000.0));
+}
+
+/// A controller keeps the move it had when its line dropped; the first
+/// bytes on the re-opened line stop it (`#24`), within one reopen delay of
+/// the line's return, before anyone asks anything. Its error 10 is then
+/// not taken for the refusal of the next command.
+#[tokio::test(start_paused = true)]
+async fn a_reopened_line_stops_the_controller_first() {
+    let mut rig = Rig::new(&[1]).await;
+    let ax = referenced_axis(&rig).await;
+    ax.move_abs_um(14_000.0).await.unwrap(); // 6.5 mm at 1 mm/s
+    tokio::time::sleep(Duration::from_secs(1)).await;
+    rig.pull();
+    // Down for 1 s: the move runs on, unwatched.
+    tokio::time::sleep(Duration::from_secs(1)).await;
+    rig.plug();
+    let bound = LineOptions::default().reconnect_max + Duration::from_millis(20);
+    tokio::time::sleep(bound).await;
+    let (pos_mm, target_mm, error) = rig.fake.axis(1, |a| {
+        (a.pos_mm(tokio::time::Instant::now()), a.target_mm, a.error)
+    });
+    assert_eq!(
+        pos_mm, target_mm,
+        "still moving {bound:?} after the line came back"
+    );
+    // At 1 mm/s from 7.5 mm, 2 s (and a few exchanges) before the line came
+    // back: it ran on at most `bound` after that.
+    let ran_on_mm = pos_mm - 9.5;
+    assert!(
+        ran_on_mm <= bound.as_secs_f64() + 0.05,
+        "ran on {ran_on_mm} mm after the line came back"
+    );
+    assert_eq!(error, 10, "the stop is what set the register");
+    // The next move is not refused by the stop's error 10.
+    ax.move_abs_um(9_000.0).await.unwrap();
+    assert_eq!(ax.wait_on_target(None).await.unwrap(), 9_000.0);
+}
+
 #[tokio::test(start_paused = true)]
 async fn dropping_handles_ends_the_line_task_without_sending() {
     let rig = Rig::new(&[1]).await;

@@ -32,8 +32,8 @@ pub enum AnswerError {
     /// The answer lacks an axis that was asked for.
     #[error("answer has no value for axis {0}")]
     MissingAxis(String),
-    /// `*IDN?` does not have the vendor, model, serial, firmware fields.
-    #[error("identification {0:?} does not have 4 comma-separated fields")]
+    /// `*IDN?` does not have at least the vendor and model fields.
+    #[error("identification {0:?} does not have 2 to 4 comma-separated fields (vendor, model, serial, firmware)")]
     BadIdn(String),
 }
 
@@ -143,17 +143,34 @@ impl Identification {
     }
 }
 
-/// Reads `*IDN?`: `vendor, model, serial, firmware`.
+/// Reads `*IDN?`: `vendor, model, serial, firmware`, or the older two-
+/// or three-field form (`vendor, model Version x.y`, e.g. E-861 firmware),
+/// whose model is the second field's first word (what PI's own client
+/// reads) and the rest of it the firmware. Why accept it: identifying a PI
+/// controller is the console's business for any model; whether micropos
+/// may drive it is decided apart ([`Identification::is_c863`]).
 pub fn identification(a: &Answer) -> Result<Identification, AnswerError> {
     let s = single_line(a)?;
     let parts: Vec<&str> = s.split(',').map(str::trim).collect();
+    let own = |v: &str| v.to_owned();
     match parts.as_slice() {
         [vendor, model, serial, firmware] if !model.is_empty() => Ok(Identification {
-            vendor: (*vendor).to_owned(),
-            model: (*model).to_owned(),
-            serial: (*serial).to_owned(),
-            firmware: (*firmware).to_owned(),
+            vendor: own(vendor),
+            model: own(model),
+            serial: own(serial),
+            firmware: own(firmware),
         }),
+        [vendor, second, rest @ ..] if rest.len() <= 1 && !second.is_empty() => {
+            let (model, firmware) = second
+                .split_once(char::is_whitespace)
+                .map_or((*second, ""), |(m, f)| (m, f.trim()));
+            Ok(Identification {
+                vendor: own(vendor),
+                model: own(model),
+                serial: rest.first().map_or_else(String::new, |v| own(v)),
+                firmware: own(firmware),
+            })
+        }
         _ => Err(AnswerError::BadIdn(s)),
     }
 }
@@ -193,6 +210,34 @@ mod tests {
 
     fn ans(lines: &[&str]) -> Answer {
         Answer::from_lines(lines.iter().map(|l| l.as_bytes().to_vec()).collect())
+    }
+
+    #[test]
+    fn identification_in_four_and_in_two_fields() {
+        let four = identification(&ans(&[
+            "(c)2015 Physik Instrumente (PI) GmbH & Co. KG, C-863.11, 0123456789, 01.110",
+        ]))
+        .unwrap();
+        assert_eq!(
+            (four.model.as_str(), four.serial.as_str(), four.is_c863()),
+            ("C-863.11", "0123456789", true)
+        );
+        let two = identification(&ans(&[
+            "(c)2013 Physik Instrumente(PI) Karlsruhe, E-861 Version 7.2.0",
+        ]))
+        .unwrap();
+        assert_eq!(
+            (
+                two.model.as_str(),
+                two.firmware.as_str(),
+                two.serial.as_str()
+            ),
+            ("E-861", "Version 7.2.0", "")
+        );
+        assert!(!two.is_c863());
+        for bad in ["just one field", "vendor,", "a, b, c, d, e"] {
+            assert!(identification(&ans(&[bad])).is_err(), "{bad}");
+        }
     }
 
     #[test]

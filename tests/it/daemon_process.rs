@@ -621,8 +621,52 @@ fn line_drop_mid_move_halts_the_other_axis_reconnects_and_power_cycle_needs_refe
     c.ok(json!({"cmd": "reset"}));
     let m = c.call(json!({"cmd": "move", "y_um": 7000.0}));
     assert_eq!(code(&m), "not_referenced", "{m}");
+    // A two-axis move with one axis unreferenced is refused as a whole:
+    // the referenced axis does not move either.
+    let (before, _) = truth(&sim);
+    let m = c.call(json!({"cmd": "move", "x_um": 12_000.0, "y_um": 7000.0}));
+    assert_eq!(code(&m), "not_referenced", "{m}");
+    std::thread::sleep(Duration::from_millis(300));
+    let (after, moving) = truth(&sim);
+    assert!(
+        !moving && (after[0] - before[0]).abs() < 5.0,
+        "x moved: {before:?} → {after:?}"
+    );
     c.ok(json!({"cmd": "reference", "axes": "y"}));
     c.ok(json!({"cmd": "move", "y_um": 7000.0, "wait": true}));
+}
+
+/// A line that comes back mid-move: its controller ran on, unwatched,
+/// while the line was down; the re-opened line's first bytes stop it
+/// (`#24`), before the daemon's own checks. Measured from the line's
+/// return to rest through the simulator's truth (`--nocapture | grep
+/// HALT`); it ran on 1.0 mm when the daemon's halt came after the bring-up
+/// exchanges.
+#[test]
+fn a_line_back_mid_move_stops_its_axis_first() {
+    let dir = test_dir();
+    let sim = Sim::start(dir.path(), 2.0);
+    let d = Daemon::start(dir.path(), 0);
+    let mut c = d.client();
+    c.ok(json!({"cmd": "reference"}));
+    long_move(&mut c, &sim, 14_500.0, 12_500.0);
+    sim.control(json!({"axis": "x", "fault": "drop_line"}));
+    // Down for a while: x runs on (nobody can stop it), y is halted.
+    std::thread::sleep(Duration::from_millis(400));
+    let (p, moving) = truth(&sim);
+    assert!(moving && p[0] < 13_000.0, "x is not running on: {p:?}");
+    let h = halt_figures(&sim, || {
+        sim.control(json!({"axis": "x", "fault": "restore_line"}));
+    });
+    println!(
+        "HALT | x's line back mid-move (microposd process, hil-sim serve ×2) | at rest {:.3} s simulated ({:.3} s wall) after the line's return | x ran on {:.1} µm |",
+        h.sim_s, h.wall_s, h.travel_um[0]
+    );
+    assert!(h.travel_um[0] < 500.0, "{h:?}");
+    c.wait_for(|s| s["rig"]["connected"]["x"] == true);
+    at_rest_short_of(&sim, [14_500.0, 12_500.0]);
+    let log = d.log_text();
+    assert!(log.contains("stop all (#24) sent first"), "{log}");
 }
 
 /// `drift_every_s`: reference re-measurements are logged as `drift_ref`
@@ -939,6 +983,70 @@ fn sigterm_halts_before_exit_and_the_stop_hook_halts_after_sigkill() {
     );
     assert!(h.sim_s < PROCESS_HALT_BOUND_S, "{h:?}");
     at_rest_short_of(&sim, [1_500.0, 13_500.0]);
+}
+
+/// `microposd --halt`, the stop hook, on a loaded machine (four spinning
+/// threads per core beside the simulator and the daemon): SIGKILL
+/// mid-move, then the hook, three times; each time it exits 0 within its
+/// bound with both axes at rest. It runs alone (`.config/nextest.toml`):
+/// the load it makes must not slow other tests.
+#[test]
+fn the_stop_hook_halts_under_cpu_load() {
+    let dir = test_dir();
+    let sim = Sim::start(dir.path(), 2.0);
+    let cfg = daemon_config(dir.path());
+    let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let cores = std::thread::available_parallelism().map_or(2, |n| n.get());
+    let hogs: Vec<_> = (0..4 * cores)
+        .map(|_| {
+            let stop = stop.clone();
+            std::thread::spawn(move || {
+                let mut x = 0u64;
+                while !stop.load(std::sync::atomic::Ordering::Relaxed) {
+                    x = std::hint::black_box(x.wrapping_mul(6364136223846793005).wrapping_add(1));
+                }
+            })
+        })
+        .collect();
+    let mut figures = Vec::new();
+    for round in 0..3u32 {
+        let d = Daemon::start(dir.path(), round);
+        let mut c = d.client();
+        if round == 0 {
+            c.ok(json!({"cmd": "reference"}));
+        }
+        let target = if round % 2 == 0 {
+            [13_500.0, 1_500.0]
+        } else {
+            [1_500.0, 13_500.0]
+        };
+        long_move(&mut c, &sim, target[0], target[1]);
+        d.sigkill();
+        let h = halt_figures(&sim, || {
+            let out = Command::new(microposd_bin())
+                .arg("-c")
+                .arg(&cfg)
+                .arg("--halt")
+                .output()
+                .unwrap();
+            assert!(
+                out.status.success(),
+                "round {round}: {}",
+                String::from_utf8_lossy(&out.stderr)
+            );
+        });
+        assert!(h.sim_s < PROCESS_HALT_BOUND_S, "round {round}: {h:?}");
+        at_rest_short_of(&sim, target);
+        figures.push(h);
+    }
+    stop.store(true, std::sync::atomic::Ordering::Relaxed);
+    for h in hogs {
+        h.join().unwrap();
+    }
+    println!(
+        "HALT | stop hook under CPU load ({} spinning threads), 3 rounds | {figures:?} |",
+        4 * cores
+    );
 }
 
 /// The sweep characterization as a person runs it: `micropos characterize

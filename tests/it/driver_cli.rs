@@ -18,6 +18,12 @@ async fn micropos(args: &[&str]) -> Output {
 
 /// A pty whose master answers every line with `reply` (None: never answers).
 fn device(reply: Option<&'static [u8]>) -> PathBuf {
+    device_with(reply, None)
+}
+
+/// Like [`device`], but `ERR?` gets `err` when given (a controller with no
+/// error to report answers `0`).
+fn device_with(reply: Option<&'static [u8]>, err: Option<&'static [u8]>) -> PathBuf {
     let (mut master, slave) = tokio_serial::SerialStream::pair().unwrap();
     let path = PathBuf::from(slave.name().unwrap());
     drop(slave);
@@ -27,8 +33,14 @@ fn device(reply: Option<&'static [u8]>) -> PathBuf {
             match master.read(&mut buf).await {
                 Ok(0) => return,
                 Ok(n) => {
-                    if let Some(r) = reply {
-                        if buf[..n].contains(&b'\n') {
+                    let line = &buf[..n];
+                    let asks_err = line.windows(4).any(|w| w == b"ERR?");
+                    let answer = match err {
+                        Some(e) if asks_err => Some(e),
+                        _ => reply,
+                    };
+                    if let Some(r) = answer {
+                        if line.contains(&b'\n') {
                             let _ = master.write_all(r).await;
                         }
                     }
@@ -115,4 +127,48 @@ async fn non_pi_device_is_refused() {
         e.contains("not a PI controller") && e.contains("Arduino"),
         "{e}"
     );
+}
+
+/// An older PI controller answers `*IDN?` in two fields (E-861 firmware):
+/// the console identifies it and talks to it; `axes` refuses to drive it,
+/// saying it is not a C-863.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn any_pi_model_is_identified_and_only_axes_refuses_it() {
+    const E861: &[u8] = b"(c)2013 Physik Instrumente(PI) Karlsruhe, E-861 Version 7.2.0\n";
+    let dev = device_with(Some(E861), Some(b"0\n"));
+    let o = micropos(&[
+        "gcs",
+        "--port",
+        dev.to_str().unwrap(),
+        "--timeout-ms",
+        "300",
+        "*IDN?",
+    ])
+    .await;
+    let e = stderr(&o);
+    assert_eq!(o.status.code(), Some(0), "{e}\n{}", String::from_utf8_lossy(&o.stdout));
+    assert!(e.contains("E-861") && e.contains("not a C-863"), "{e}");
+    assert!(
+        String::from_utf8_lossy(&o.stdout).contains("E-861 Version 7.2.0"),
+        "{o:?}"
+    );
+
+    let (x, y) = (
+        device_with(Some(E861), Some(b"0\n")),
+        device_with(Some(E861), Some(b"0\n")),
+    );
+    let o = micropos(&[
+        "axes",
+        "--port-x",
+        x.to_str().unwrap(),
+        "--port-y",
+        y.to_str().unwrap(),
+        "--timeout-ms",
+        "300",
+        "status",
+    ])
+    .await;
+    let e = stderr(&o);
+    assert_eq!(o.status.code(), Some(1), "{e}");
+    assert!(e.contains("E-861") && e.contains("not a C-863"), "{e}");
 }

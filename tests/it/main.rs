@@ -34,6 +34,7 @@ mod comp_file;
 mod comp_frame;
 mod comp_paper;
 mod daemon_process;
+mod daemon_socket;
 mod daemon_systemd;
 mod daemon_web_config;
 mod decode_code_check;

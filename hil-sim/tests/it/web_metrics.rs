@@ -659,13 +659,14 @@ async fn the_vision_residual_is_vision_minus_controller() {
     sim.shutdown();
 }
 
-/// The listener holds at most `MAX_CONNECTIONS` connections (one more is
-/// closed unanswered, and served again once one closes) and closes a
+/// The listener holds at most `MAX_CONNECTIONS` connections (and one stop
+/// slot per source address; one more is closed unanswered, and served
+/// again once one closes) and closes a
 /// connection that sends no request header within `IDLE_TIMEOUT`, also
 /// after a keep-alive response; before that it stays open.
 #[tokio::test(start_paused = true)]
 async fn the_listener_caps_connections_and_closes_idle_ones() {
-    use micropos::daemon::web::router::{IDLE_TIMEOUT, MAX_CONNECTIONS};
+    use micropos::daemon::web::router::{IDLE_TIMEOUT, MAX_CONNECTIONS, MAX_PER_SOURCE};
     use std::time::Duration;
     use tokio::io::{AsyncReadExt, AsyncWriteExt};
     use tokio::net::TcpStream;
@@ -709,15 +710,20 @@ async fn the_listener_caps_connections_and_closes_idle_ones() {
     let rest = until_closed(&mut ka, IDLE_TIMEOUT * 2).await;
     assert!(rest.is_some(), "a keep-alive connection idles forever");
 
-    // The cap: MAX_CONNECTIONS silent connections held, one more is closed
-    // without an answer.
+    // The cap: MAX_CONNECTIONS silent connections held (from four source
+    // addresses, each at its own cap), and one stop slot per address
+    // besides: one more from a held address is closed without an answer.
     let mut held = Vec::new();
-    for _ in 0..MAX_CONNECTIONS {
-        held.push(TcpStream::connect(addr).await.unwrap());
+    for i in 0..MAX_CONNECTIONS {
+        held.push(connect_from(source(i / MAX_PER_SOURCE), addr).await);
     }
-    // Let the listener accept them all before the extra one.
+    // Let the listener accept them all before the extra ones.
     tokio::time::sleep(Duration::from_millis(100)).await;
-    let mut extra = TcpStream::connect(addr).await.unwrap();
+    for i in 0..MAX_CONNECTIONS / MAX_PER_SOURCE {
+        held.push(connect_from(source(i), addr).await);
+    }
+    tokio::time::sleep(Duration::from_millis(100)).await;
+    let mut extra = connect_from(source(0), addr).await;
     let _ = extra
         .write_all(format!("GET /metrics HTTP/1.1\r\nHost: {addr}\r\n\r\n").as_bytes())
         .await;
@@ -728,11 +734,11 @@ async fn the_listener_caps_connections_and_closes_idle_ones() {
         "over the cap: closed unanswered"
     );
     // One closes: a new client is served again.
-    drop(held.pop());
+    held.swap_remove(0);
     let mut served = false;
     for _ in 0..50 {
         tokio::time::sleep(Duration::from_millis(20)).await;
-        let mut s = TcpStream::connect(addr).await.unwrap();
+        let mut s = connect_from(source(0), addr).await;
         let req = format!("GET /metrics HTTP/1.1\r\nHost: {addr}\r\nConnection: close\r\n\r\n");
         let _ = s.write_all(req.as_bytes()).await;
         let got = until_closed(&mut s, IDLE_TIMEOUT / 2)
@@ -744,6 +750,125 @@ async fn the_listener_caps_connections_and_closes_idle_ones() {
         }
     }
     assert!(served, "no client served after a connection closed");
+    drop(held);
+
+    daemon.shutdown().await;
+    sim.shutdown();
+}
+
+/// Loopback source address number `i` (127.0.0.1 + i): one machine's
+/// clients from several addresses, as a local flood can make them.
+fn source(i: usize) -> std::net::IpAddr {
+    let i = u8::try_from(i + 1).unwrap();
+    std::net::IpAddr::V4(std::net::Ipv4Addr::new(127, 0, 0, i))
+}
+
+/// A TCP connection to `addr` from `from` (port chosen by the system).
+async fn connect_from(from: std::net::IpAddr, addr: SocketAddr) -> tokio::net::TcpStream {
+    let s = tokio::net::TcpSocket::new_v4().unwrap();
+    s.bind(SocketAddr::new(from, 0)).unwrap();
+    s.connect(addr).await.unwrap()
+}
+
+/// One request on a fresh connection from `from`: status and body.
+async fn request_from(
+    from: std::net::IpAddr,
+    addr: SocketAddr,
+    head: &str,
+    body: &str,
+) -> (u16, String) {
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    let mut s = connect_from(from, addr).await;
+    let req = format!(
+        "{head}\r\nHost: {addr}\r\nConnection: close\r\nContent-Type: application/json\r\nContent-Length: {}\r\n\r\n{body}",
+        body.len()
+    );
+    s.write_all(req.as_bytes()).await.unwrap();
+    let mut out = Vec::new();
+    let _ = tokio::time::timeout(std::time::Duration::from_secs(20), s.read_to_end(&mut out)).await;
+    let text = String::from_utf8_lossy(&out).into_owned();
+    let status = text.get(9..12).and_then(|c| c.parse().ok()).unwrap_or(0);
+    let body = text
+        .split_once("\r\n\r\n")
+        .map_or("", |(_, b)| b)
+        .to_owned();
+    (status, body)
+}
+
+/// A flood cannot starve the web STOP: one address cannot take more than
+/// `MAX_PER_SOURCE` connections; with every ordinary connection held (by
+/// four addresses), a client gets a stop slot, where `stop` (with the
+/// token) halts the moving stage and anything else is 503.
+#[tokio::test(start_paused = true)]
+async fn a_flood_cannot_starve_the_web_stop() {
+    use micropos::daemon::web::router::{MAX_CONNECTIONS, MAX_PER_SOURCE};
+    use std::time::Duration;
+    let WebRig {
+        _dir,
+        socket,
+        sim,
+        daemon,
+        addr,
+        ..
+    } = web_rig(
+        9,
+        WebSection {
+            control: true,
+            role: "operate".to_owned(),
+            token: Some(TOKEN.to_owned()),
+            ..WebSection::default()
+        },
+    );
+    let mut cl = Client::connect(&socket).await;
+    common::connect_and_reference(&mut cl).await;
+
+    // One address holds what it may; more of its connections are not
+    // served as ordinary ones (its stop slot answers 503).
+    let mut held = Vec::new();
+    for _ in 0..MAX_PER_SOURCE {
+        held.push(connect_from(source(0), addr).await);
+    }
+    tokio::time::sleep(Duration::from_millis(100)).await;
+    let (status, _) = request_from(source(0), addr, "GET /metrics HTTP/1.1", "").await;
+    assert_eq!(status, 503, "a 17th connection of one address was served");
+    // Another address is served as usual.
+    let (status, _) = request_from(source(9), addr, "GET /metrics HTTP/1.1", "").await;
+    assert_eq!(status, 200);
+
+    // Every ordinary connection held.
+    for i in MAX_PER_SOURCE..MAX_CONNECTIONS {
+        held.push(connect_from(source(i / MAX_PER_SOURCE), addr).await);
+    }
+    tokio::time::sleep(Duration::from_millis(100)).await;
+    let (status, body) = request_from(source(9), addr, "GET /metrics HTTP/1.1", "").await;
+    assert_eq!(status, 503, "{body}");
+    let (status, body) = request_from(
+        source(9),
+        addr,
+        "POST /api/command HTTP/1.1",
+        r#"{"cmd":"position"}"#,
+    )
+    .await;
+    assert_eq!(status, 503, "{body}");
+    assert!(
+        body.contains("busy") && body.contains("only stop"),
+        "{body}"
+    );
+
+    // The stage moves; the STOP through a stop slot halts it.
+    cl.call_ok(json!({"cmd":"move","x_um":14000.0,"y_um":1000.0}))
+        .await;
+    tokio::time::sleep(Duration::from_millis(200)).await;
+    let head = format!("POST /api/command HTTP/1.1\r\nAuthorization: Bearer {TOKEN}");
+    let (status, body) = request_from(source(9), addr, &head, r#"{"cmd":"stop"}"#).await;
+    assert_eq!(status, 200, "{body}");
+    assert!(body.contains("\"ok\":true"), "{body}");
+    let x_at = |p: &Value| p["controller"]["x_um"].as_f64().unwrap();
+    tokio::time::sleep(Duration::from_millis(500)).await;
+    let a = x_at(&cl.call_ok(json!({"cmd":"position"})).await);
+    tokio::time::sleep(Duration::from_millis(500)).await;
+    let b = x_at(&cl.call_ok(json!({"cmd":"position"})).await);
+    assert!((a - b).abs() < 1.0 && b < 13_000.0, "not halted: {a} → {b}");
     drop(held);
 
     daemon.shutdown().await;

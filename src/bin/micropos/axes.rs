@@ -6,7 +6,7 @@
 //! default), or by a TOML file with a `[driver]` table (`--config`).
 
 use anyhow::Context;
-use micropos::driver::{AxisEvent, AxisStatus, DriverConfig, Stage};
+use micropos::driver::{AxisEvent, AxisStatus, DriverConfig, DriverError, Stage};
 use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Duration;
@@ -195,16 +195,27 @@ async fn reference(stage: &Stage) -> anyhow::Result<()> {
 }
 
 async fn move_to(stage: &Stage, x_um: f64, y_um: f64, velocity: Option<f64>) -> anyhow::Result<()> {
-    // Refuse the move as a whole: neither axis moves if one target is bad.
+    // Refuse the move as a whole: neither axis moves if one target is bad
+    // or one axis is not referenced (checked again by `move_abs_both_um`,
+    // after the velocity, which must not change for a refused move).
     stage.x.check_target_um(x_um).context("axis x")?;
     stage.y.check_target_um(y_um).context("axis y")?;
+    for axis in [&stage.x, &stage.y] {
+        if !axis.is_referenced().await? {
+            return Err(DriverError::NotReferenced {
+                axis: axis.name().to_owned(),
+            })
+            .context("nothing was moved");
+        }
+    }
     if let Some(v) = velocity {
         stage.x.set_velocity_um_per_s(v).await?;
         stage.y.set_velocity_um_per_s(v).await?;
     }
-    let (x, y) = tokio::join!(stage.x.move_abs_um(x_um), stage.y.move_abs_um(y_um));
-    x.context("moving axis x")?;
-    y.context("moving axis y")?;
+    stage
+        .move_abs_both_um(x_um, y_um)
+        .await
+        .context("moving both axes")?;
     let start = std::time::Instant::now();
     loop {
         let (px, py) = tokio::join!(stage.x.position_um(), stage.y.position_um());

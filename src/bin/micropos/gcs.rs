@@ -67,13 +67,25 @@ pub async fn run(a: GcsArgs) -> anyhow::Result<ExitCode> {
         .context("bad address")?;
     let ctl = Controller::new(line, addr, Duration::from_millis(a.timeout_ms), events);
     let (idn, _) = ctl.identify().await.with_context(context)?;
+    let unknown = |v: &str| {
+        if v.is_empty() {
+            "not given".to_owned()
+        } else {
+            v.to_owned()
+        }
+    };
     eprintln!(
-        "connected to {} {} (serial {}, firmware {}) on {}",
+        "connected to {} {} (serial {}, firmware {}) on {}{}",
         idn.vendor,
         idn.model,
-        idn.serial,
-        idn.firmware,
-        ctl.label()
+        unknown(&idn.serial),
+        unknown(&idn.firmware),
+        ctl.label(),
+        if idn.is_c863() {
+            ""
+        } else {
+            "; not a C-863: this console talks to it, `micropos axes` and the daemon will not drive it"
+        }
     );
     if !a.command.is_empty() {
         let text = a.command.join(" ");

@@ -93,10 +93,17 @@ pub const BODY_TIMEOUT: std::time::Duration = std::time::Duration::from_secs(10)
 /// [`protocol::MAX_REQUEST_BYTES`] is refused below with 413).
 const BODY_READ_LIMIT: usize = 2 * 1024 * 1024;
 
+/// Marks a connection of the listener's stop slots
+/// ([`super::router::STOP_SLOTS`]): taken when the ordinary connections
+/// are full, it serves `stop` and nothing else.
+#[derive(Debug, Clone, Copy)]
+pub struct StopOnly;
+
 /// `POST /api/command`.
 pub async fn command(
     State(web): State<Arc<Web>>,
     ConnectInfo(remote): ConnectInfo<SocketAddr>,
+    stop_only: Option<axum::Extension<StopOnly>>,
     headers: HeaderMap,
     body: axum::body::Body,
 ) -> Response {
@@ -142,6 +149,18 @@ pub async fn command(
             )
         }
     };
+    if stop_only.is_some() && !matches!(req.command, Command::Stop) {
+        return reply(
+            StatusCode::SERVICE_UNAVAILABLE,
+            protocol::error_reply(
+                &req.id,
+                &ProtoError::new(
+                    ErrorCode::Busy,
+                    "the web listener's connections are all taken: this connection serves only stop",
+                ),
+            ),
+        );
+    }
     if matches!(req.command, Command::Subscribe(_)) {
         return reply(
             StatusCode::BAD_REQUEST,

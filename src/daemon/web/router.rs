@@ -106,6 +106,21 @@ pub fn router(web: Arc<Web>, hosts: Vec<String>) -> Router {
 /// nothing more.
 pub const MAX_CONNECTIONS: usize = 64;
 
+/// Ordinary connections one source address may hold at once: one
+/// address (a script gone wrong, a flood) cannot take all
+/// [`MAX_CONNECTIONS`].
+pub const MAX_PER_SOURCE: usize = 16;
+
+/// Connections beyond the ordinary ones that serve only the web STOP
+/// (`POST /api/command` with `stop`; everything else 503), one per source
+/// address, each closed after [`STOP_SLOT_TIMEOUT`]: when a flood holds
+/// every ordinary connection, an operator's STOP still gets through.
+pub const STOP_SLOTS: usize = 8;
+
+/// How long a stop slot's connection may take to send its request and
+/// receive the answer.
+pub const STOP_SLOT_TIMEOUT: Duration = Duration::from_secs(5);
+
 /// A connection that has not sent a complete request header this long
 /// after it opened, or after its last response, is closed (hyper's header
 /// read timeout, which also runs while a keep-alive connection idles).
@@ -135,12 +150,16 @@ pub async fn serve(daemon: Arc<Daemon>, l: WebListener) {
         streams: Arc::new(Semaphore::new(MAX_STREAMS)),
         shutdown: daemon.shutdown.clone(),
     });
+    let stop_app = stop_router(web.clone(), l.hosts.clone());
     let app = router(web, l.hosts);
     let open = Arc::new(Semaphore::new(MAX_CONNECTIONS));
+    let stop_slots = Arc::new(Semaphore::new(STOP_SLOTS));
+    let per_source = Sources::default();
+    let stop_sources = Sources::default();
     loop {
         // Subscribed before the accept: a shutdown sent after it reaches
         // the connection accepted now.
-        let mut stop = daemon.shutdown.subscribe();
+        let stop = daemon.shutdown.subscribe();
         let (stream, remote) = tokio::select! {
             _ = shutdown.recv() => break,
             r = l.listener.accept() => match r {
@@ -154,29 +173,36 @@ pub async fn serve(daemon: Arc<Daemon>, l: WebListener) {
                 }
             },
         };
-        let Ok(permit) = open.clone().try_acquire_owned() else {
-            tracing::debug!("web listener: {remote} refused, {MAX_CONNECTIONS} connections open");
+        let ip = remote.ip();
+        if let Some(slot) = per_source.take(ip, MAX_PER_SOURCE) {
+            if let Ok(permit) = open.clone().try_acquire_owned() {
+                let svc =
+                    TowerToHyperService::new(app.clone().layer(Extension(ConnectInfo(remote))));
+                tokio::spawn(async move {
+                    let _held = (permit, slot);
+                    serve_connection(stream, svc, remote, stop, None).await;
+                });
+                continue;
+            }
+        }
+        let (Some(slot), Ok(permit)) = (
+            stop_sources.take(ip, 1),
+            stop_slots.clone().try_acquire_owned(),
+        ) else {
+            tracing::debug!("web listener: {remote} refused, its connections or all are taken");
             drop(stream);
             continue;
         };
-        let svc = TowerToHyperService::new(app.clone().layer(Extension(ConnectInfo(remote))));
+        tracing::debug!("web listener: {remote} on a stop slot");
+        let svc = TowerToHyperService::new(
+            stop_app
+                .clone()
+                .layer(Extension(ConnectInfo(remote)))
+                .layer(Extension(command::StopOnly)),
+        );
         tokio::spawn(async move {
-            let _permit = permit;
-            let conn = hyper::server::conn::http1::Builder::new()
-                .timer(TokioTimer::new())
-                .header_read_timeout(IDLE_TIMEOUT)
-                .serve_connection(TokioIo::new(stream), svc);
-            tokio::pin!(conn);
-            let r = tokio::select! {
-                r = conn.as_mut() => r,
-                _ = stop.recv() => {
-                    conn.as_mut().graceful_shutdown();
-                    conn.await
-                }
-            };
-            if let Err(e) = r {
-                tracing::debug!("web connection {remote}: {e}");
-            }
+            let _held = (permit, slot);
+            serve_connection(stream, svc, remote, stop, Some(STOP_SLOT_TIMEOUT)).await;
         });
     }
     let _ = tokio::time::timeout(
@@ -184,6 +210,108 @@ pub async fn serve(daemon: Arc<Daemon>, l: WebListener) {
         open.acquire_many(u32::try_from(MAX_CONNECTIONS).unwrap_or(u32::MAX)),
     )
     .await;
+}
+
+/// One HTTP/1.1 connection until it ends, the daemon shuts down, or
+/// `limit` (stop slots) passes.
+async fn serve_connection<S>(
+    stream: tokio::net::TcpStream,
+    svc: S,
+    remote: SocketAddr,
+    mut stop: tokio::sync::broadcast::Receiver<()>,
+    limit: Option<Duration>,
+) where
+    S: hyper::service::Service<
+            hyper::Request<hyper::body::Incoming>,
+            Response = hyper::Response<axum::body::Body>,
+        > + 'static,
+    S::Error: Into<Box<dyn std::error::Error + Send + Sync>>,
+    S::Future: 'static,
+{
+    let conn = hyper::server::conn::http1::Builder::new()
+        .timer(TokioTimer::new())
+        .header_read_timeout(limit.unwrap_or(IDLE_TIMEOUT).min(IDLE_TIMEOUT))
+        .serve_connection(TokioIo::new(stream), svc);
+    tokio::pin!(conn);
+    let deadline = async {
+        match limit {
+            Some(l) => tokio::time::sleep(l).await,
+            None => std::future::pending().await,
+        }
+    };
+    let r = tokio::select! {
+        r = conn.as_mut() => r,
+        _ = stop.recv() => {
+            conn.as_mut().graceful_shutdown();
+            conn.await
+        }
+        () = deadline => {
+            tracing::debug!("web connection {remote}: stop slot closed after {limit:?}");
+            return;
+        }
+    };
+    if let Err(e) = r {
+        tracing::debug!("web connection {remote}: {e}");
+    }
+}
+
+/// Connections held per source address; a [`SourceSlot`] gives its one
+/// back when dropped.
+#[derive(Debug, Clone, Default)]
+struct Sources(Arc<std::sync::Mutex<std::collections::HashMap<std::net::IpAddr, usize>>>);
+
+impl Sources {
+    /// One more connection of `ip`, if it holds fewer than `max`.
+    fn take(&self, ip: std::net::IpAddr, max: usize) -> Option<SourceSlot> {
+        let mut m = self.0.lock().unwrap_or_else(|p| p.into_inner());
+        let n = m.entry(ip).or_insert(0);
+        if *n >= max {
+            return None;
+        }
+        *n += 1;
+        Some(SourceSlot {
+            sources: self.clone(),
+            ip,
+        })
+    }
+}
+
+/// One connection of a source address, counted in [`Sources`].
+#[derive(Debug)]
+struct SourceSlot {
+    sources: Sources,
+    ip: std::net::IpAddr,
+}
+
+impl Drop for SourceSlot {
+    fn drop(&mut self) {
+        let mut m = self.sources.0.lock().unwrap_or_else(|p| p.into_inner());
+        if let Some(n) = m.get_mut(&self.ip) {
+            *n = n.saturating_sub(1);
+            if *n == 0 {
+                m.remove(&self.ip);
+            }
+        }
+    }
+}
+
+/// The routes of a stop slot: `POST /api/command` (which serves only
+/// `stop` there), everything else 503; behind the same `Host` allow-list.
+fn stop_router(web: Arc<Web>, hosts: Vec<String>) -> Router {
+    let hosts = Arc::new(hosts);
+    Router::new()
+        .route("/api/command", post(command::command))
+        .fallback(|| async {
+            (
+                StatusCode::SERVICE_UNAVAILABLE,
+                [(header::RETRY_AFTER, "1")],
+                "the web listener's connections are all taken; this connection serves only POST /api/command {\"cmd\":\"stop\"}\n",
+            )
+        })
+        .with_state(web)
+        .layer(axum::middleware::from_fn(move |req, next| {
+            host::check(hosts.clone(), req, next)
+        }))
 }
 
 fn json_response(status: StatusCode, v: serde_json::Value) -> Response {

@@ -1,0 +1,112 @@
+//! The daemon's socket, as `microposd` creates it (no systemd): it is never
+//! reachable with a mode wider than `daemon.socket_mode`, whatever the
+//! umask (it is bound in a private directory and renamed into place), no
+//! staging directory is left behind, and a socket open to every local user
+//! without `[access]` is warned about at start.
+//!
+//! A process test: the window it closes is between two system calls of the
+//! real binary.
+
+use std::os::unix::fs::{FileTypeExt, PermissionsExt};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+fn config(dir: &Path, mode: &str, access: bool) -> (PathBuf, PathBuf) {
+    let sock_dir = dir.join("run");
+    let socket = sock_dir.join("micropos.sock");
+    let mut text = format!(
+        "[daemon]\nsocket = \"{}\"\nsocket_mode = \"{mode}\"\ndata_dir = \"{}\"\n\
+         [driver.x]\nport = \"{}\"\n[driver.y]\nport = \"{}\"\n",
+        socket.display(),
+        dir.join("data").display(),
+        dir.join("no-such-tty-x").display(),
+        dir.join("no-such-tty-y").display(),
+    );
+    if access {
+        text.push_str("[access]\nadmin = [\"root\"]\n");
+    }
+    let path = dir.join("microposd.toml");
+    std::fs::write(&path, text).unwrap();
+    (path, socket)
+}
+
+/// microposd under umask 000 (so a socket bound in place would be 0777
+/// until its chmod), stderr to a file.
+fn start(config: &Path, stderr: &Path) -> Child {
+    Command::new("sh")
+        .arg("-c")
+        .arg("umask 000; exec \"$0\" --config \"$1\"")
+        .arg(env!("CARGO_BIN_EXE_microposd"))
+        .arg(config)
+        .env("RUST_LOG", "info")
+        .stdin(Stdio::null())
+        .stdout(Stdio::null())
+        .stderr(std::fs::File::create(stderr).unwrap())
+        .spawn()
+        .unwrap()
+}
+
+/// Every mode the socket path shows from its first appearance on, polled
+/// as fast as `lstat` allows, until it has been seen `n` times.
+fn modes_seen(path: &Path, n: usize) -> Vec<u32> {
+    let deadline = Instant::now() + Duration::from_secs(60);
+    let mut seen = Vec::new();
+    while seen.len() < n {
+        assert!(
+            Instant::now() < deadline,
+            "{} never appeared",
+            path.display()
+        );
+        if let Ok(m) = std::fs::symlink_metadata(path) {
+            assert!(m.file_type().is_socket(), "{m:?}");
+            seen.push(m.permissions().mode() & 0o777);
+        }
+    }
+    seen
+}
+
+fn stop(mut child: Child) {
+    let _ = child.kill();
+    let _ = child.wait();
+}
+
+#[test]
+fn the_socket_appears_with_its_final_mode_and_nothing_is_left_behind() {
+    let dir = tempfile::tempdir().unwrap();
+    let (cfg, socket) = config(dir.path(), "0600", false);
+    let err = dir.path().join("stderr");
+    let child = start(&cfg, &err);
+    let seen = modes_seen(&socket, 200);
+    let mut clients = std::os::unix::net::UnixStream::connect(&socket);
+    stop(child);
+    let octal: Vec<String> = seen.iter().map(|m| format!("{m:o}")).collect();
+    assert!(seen.iter().all(|m| *m == 0o600), "modes seen: {octal:?}");
+    assert!(clients.as_mut().is_ok(), "{clients:?}");
+    let names: Vec<String> = std::fs::read_dir(socket.parent().unwrap())
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    assert_eq!(names, ["micropos.sock"], "left in the socket's directory");
+    let stderr = std::fs::read_to_string(&err).unwrap();
+    assert!(!stderr.contains("every local user"), "{stderr}");
+}
+
+#[test]
+fn a_socket_open_to_everyone_without_access_is_warned_about() {
+    for (access, warned) in [(false, true), (true, false)] {
+        let dir = tempfile::tempdir().unwrap();
+        let (cfg, socket) = config(dir.path(), "0666", access);
+        let err = dir.path().join("stderr");
+        let child = start(&cfg, &err);
+        let seen = modes_seen(&socket, 1);
+        stop(child);
+        assert_eq!(seen, [0o666]);
+        let stderr = std::fs::read_to_string(&err).unwrap();
+        assert_eq!(
+            stderr.contains("every local user connect"),
+            warned,
+            "access: {access}; stderr: {stderr}"
+        );
+    }
+}
