@@ -131,7 +131,7 @@ impl CompFile {
     pub fn from_toml(text: &str) -> Result<Self, CompError> {
         // Check the version first so that a newer file gets a clear message
         // rather than "unknown field".
-        let raw: toml::Table = toml::from_str(text).map_err(|e| CompError::File(e.to_string()))?;
+        let raw: toml::Table = toml::from_str(text).map_err(|e| syntax_error(text, &e))?;
         match raw.get("format_version") {
             Some(toml::Value::Integer(v)) if *v == i64::from(COMP_FORMAT_VERSION) => {}
             Some(toml::Value::Integer(v)) => {
@@ -298,6 +298,27 @@ pub fn fnv1a64_hex(bytes: &[u8]) -> String {
     format!("{h:016x}")
 }
 
+/// A TOML syntax error by line, without the line itself: toml's own
+/// message quotes the offending text, and the daemon sends this error to
+/// clients about files in its data directory, which may hold anything.
+fn syntax_error(text: &str, e: &toml::de::Error) -> CompError {
+    let newlines_before = |at: usize| {
+        let end = at.min(text.len());
+        text.as_bytes()[..end]
+            .iter()
+            .filter(|&&b| b == b'\n')
+            .count()
+    };
+    let line = e.span().map(|s| newlines_before(s.start) + 1);
+    CompError::File(match line {
+        Some(l) => format!(
+            "not a TOML table file: syntax error at line {l} ({})",
+            e.message()
+        ),
+        None => format!("not a TOML table file: {}", e.message()),
+    })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -326,6 +347,21 @@ mod tests {
 
     /// `tables load` reads through `read_path`: a planted link is refused,
     /// and the error never quotes the target's first line.
+    #[test]
+    fn a_file_that_is_not_toml_is_refused_without_quoting_it() {
+        let dir = tempfile::tempdir().unwrap();
+        for (text, line) in [
+            ("SECRET=hunter2-very-secret\n", 1),
+            ("# notes\n\nc4ca4238a0b923820dcc509a6f75849b hunter2\n", 3),
+        ] {
+            let p = dir.path().join("secret.toml");
+            std::fs::write(&p, text).unwrap();
+            let e = CompFile::read_path(&p).unwrap_err().to_string();
+            assert!(!e.contains("hunter2") && !e.contains("c4ca"), "{e}");
+            assert!(e.contains(&format!("line {line}")), "{e}");
+        }
+    }
+
     #[test]
     fn read_path_refuses_a_link_without_quoting_the_target() {
         let d = tempfile::tempdir().unwrap();

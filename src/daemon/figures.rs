@@ -65,7 +65,10 @@ pub fn figures_in(dir: &Path, p: &FiguresParams) -> Result<Value, ProtoError> {
             ErrorCode::LogError,
             format!("log {name} not found in the data directory"),
         ),
-        e => ProtoError::new(ErrorCode::LogError, format!("cannot read {name}: {e}")),
+        e => ProtoError::new(
+            ErrorCode::LogError,
+            format!("cannot read {name}: {}", e.without_content()),
+        ),
     })?;
     let mut reply = match p.job {
         FiguresJob::Characterize => characterization(&name, &log)?,
@@ -578,6 +581,21 @@ mod tests {
             assert_eq!(e.code, ErrorCode::LogError, "{e}");
             assert!(!e.to_string().contains("secret-hash"), "{e}");
             assert!(e.to_string().contains("symbolic link"), "{e}");
+        }
+    }
+
+    /// A real file in the data directory that is not a log (a misplaced
+    /// secret) is refused with its line, never its text.
+    #[test]
+    fn a_file_that_is_not_a_log_is_refused_without_quoting_it() {
+        let dir = tempfile::tempdir().unwrap();
+        let d = dir.path();
+        std::fs::write(d.join("x.csv"), "root:secret-hash:0:0\n").unwrap();
+        for job in [FiguresJob::Characterize, FiguresJob::Validate] {
+            let e = figures_in(d, &params(job, Some("x.csv"))).unwrap_err();
+            assert_eq!(e.code, ErrorCode::LogError, "{e}");
+            assert!(!e.to_string().contains("secret-hash"), "{e}");
+            assert!(e.to_string().contains("line 1"), "{e}");
         }
     }
 }

@@ -146,7 +146,12 @@ async fn any_pi_model_is_identified_and_only_axes_refuses_it() {
     ])
     .await;
     let e = stderr(&o);
-    assert_eq!(o.status.code(), Some(0), "{e}\n{}", String::from_utf8_lossy(&o.stdout));
+    assert_eq!(
+        o.status.code(),
+        Some(0),
+        "{e}\n{}",
+        String::from_utf8_lossy(&o.stdout)
+    );
     assert!(e.contains("E-861") && e.contains("not a C-863"), "{e}");
     assert!(
         String::from_utf8_lossy(&o.stdout).contains("E-861 Version 7.2.0"),

@@ -84,6 +84,33 @@ pub enum LineError {
     BadQuoting(&'static str),
 }
 
+impl LineError {
+    /// The error without the file's text (no found values, no extra column
+    /// names): what the daemon tells a client about a file in its data
+    /// directory, which may hold anything (a planted or misplaced secret's
+    /// first line must not come back in an error). Column names of the
+    /// mandatory part and positions stay: they are the format's, not the
+    /// file's.
+    pub fn without_content(&self) -> String {
+        match self {
+            Self::BadHeader {
+                position, expected, ..
+            } => format!(
+                "bad header: column {position} must be {expected:?} (the header must start with {})",
+                MANDATORY_COLUMNS.join(",")
+            ),
+            Self::BadExtraColumn { position, .. } => {
+                format!("bad header: column {position} is not a valid extra column")
+            }
+            Self::NotANumber { .. } => "a numeric field is not a number".to_owned(),
+            Self::NonFinite { .. } => "a numeric field is not finite".to_owned(),
+            Self::OutOfRange { .. } => "a numeric field is beyond ±1e9".to_owned(),
+            Self::BadCycle { .. } => "column cycle is not a non-negative integer".to_owned(),
+            other => other.to_string(),
+        }
+    }
+}
+
 /// Why a log could not be read or written.
 #[derive(Debug, Error)]
 pub enum LogError {
@@ -135,4 +162,41 @@ pub enum LogError {
     /// The operating system refused a read or write.
     #[error("I/O error: {0}")]
     Io(#[from] io::Error),
+}
+
+impl LogError {
+    /// The error without the file's text ([`LineError::without_content`]).
+    pub fn without_content(&self) -> String {
+        match self {
+            Self::Line { line, error } => format!("line {line}: {}", error.without_content()),
+            Self::ColumnsMismatch { .. } => {
+                "the existing log has other columns than the job writes".to_owned()
+            }
+            other => other.to_string(),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn errors_without_content_name_the_line_but_not_the_text() {
+        for (text, line) in [
+            ("SECRET=hunter2-very-secret\n", 1),
+            (
+                "t_s,segment,cycle,x_target_um,y_target_um,x_cmd_um,y_cmd_um,x_meas_um,y_meas_um\n\
+                 0,a,0,1,2,3,4,hunter2,6\n",
+                2,
+            ),
+        ] {
+            let e = super::super::parse_bytes(text.as_bytes()).unwrap_err();
+            assert!(
+                e.to_string().contains("hunter2"),
+                "the full error quotes: {e}"
+            );
+            let quiet = e.without_content();
+            assert!(!quiet.contains("hunter2"), "{quiet}");
+            assert!(quiet.starts_with(&format!("line {line}: ")), "{quiet}");
+        }
+    }
 }

@@ -265,7 +265,12 @@ impl Jobs {
         })
         .await
         .map_err(|e| ProtoError::new(ErrorCode::Internal, e.to_string()))?
-        .map_err(|e| ProtoError::new(ErrorCode::LogError, format!("cannot resume {name}: {e}")))?;
+        .map_err(|e| {
+            ProtoError::new(
+                ErrorCode::LogError,
+                format!("cannot resume {name}: {}", e.without_content()),
+            )
+        })?;
         if resume.metadata.get("mode") == Some("sweep") {
             return Err(ProtoError::new(
                 ErrorCode::JobState,
@@ -304,7 +309,8 @@ impl Jobs {
             let path = Self::log_path(rig, name);
             let refs = tokio::task::spawn_blocking(move || {
                 let bytes = crate::nofollow::read(&path)?;
-                let parsed = log::parse_bytes(&bytes).map_err(std::io::Error::other)?;
+                let parsed = log::parse_bytes(&bytes)
+                    .map_err(|e| std::io::Error::other(e.without_content()))?;
                 Ok::<_, std::io::Error>(
                     parsed
                         .records

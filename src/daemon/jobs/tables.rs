@@ -128,8 +128,12 @@ pub fn build_blocking(
             format!("cannot read log {}: {e}", params.log),
         )
     })?;
-    let parsed = log::parse_bytes(&bytes)
-        .map_err(|e| ProtoError::new(ErrorCode::LogError, format!("log {}: {e}", params.log)))?;
+    let parsed = log::parse_bytes(&bytes).map_err(|e| {
+        ProtoError::new(
+            ErrorCode::LogError,
+            format!("log {}: {}", params.log, e.without_content()),
+        )
+    })?;
     let frame = frame_from_metadata(&parsed.metadata)
         .map_err(|e| ProtoError::new(ErrorCode::LogError, format!("log {}: {e}", params.log)))?;
     // Reference re-measurements (`drift_every_s`): subtract the drift they

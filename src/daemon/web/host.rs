@@ -37,10 +37,32 @@ pub fn host_name(value: &str) -> Option<String> {
         }
     }
     let name = name.strip_suffix('.').unwrap_or(name);
-    if name.is_empty() || (name.contains(':') && !name.starts_with('[')) {
+    if !plausible_name(name) {
         return None;
     }
     Some(name.to_ascii_lowercase())
+}
+
+/// A DNS name (letters, digits, `-`, `_`, dots between non-empty labels)
+/// or a bracketed IPv6 literal (hex digits, `:`, `.`). Why this strict: a
+/// name compared with the allow-list must read back as itself, with no
+/// spaces, control characters or empty labels that two parsers could see
+/// differently.
+fn plausible_name(name: &str) -> bool {
+    if let Some(inner) = name.strip_prefix('[').and_then(|n| n.strip_suffix(']')) {
+        return !inner.is_empty()
+            && inner.contains(':')
+            && inner
+                .bytes()
+                .all(|b| b.is_ascii_hexdigit() || b == b':' || b == b'.');
+    }
+    !name.is_empty()
+        && name.split('.').all(|label| {
+            !label.is_empty()
+                && label
+                    .bytes()
+                    .all(|b| b.is_ascii_alphanumeric() || b == b'-' || b == b'_')
+        })
 }
 
 /// Whether a request with `Host: value` (`None`: no header) may be served.
@@ -103,6 +125,12 @@ mod tests {
             "::1",
             "",
             "192.168.1.5:8080",
+            "localhost..",
+            "local host",
+            "localhost\t:80",
+            ".localhost",
+            "[]",
+            "[zz::1]",
         ] {
             assert!(!allowed(Some(h), &[]), "{h}");
         }
@@ -122,6 +150,16 @@ mod tests {
         #[test]
         fn never_panics(s in ".{0,40}") {
             let _ = allowed(Some(&s), &["rig.lab".to_owned()]);
+        }
+
+        /// A name read from a header reads back as itself, and a value is
+        /// allowed when listed exactly when it is well formed.
+        #[test]
+        fn names_read_back_as_themselves(s in "[a-zA-Z0-9.:\\[\\] _-]{0,24}") {
+            if let Some(n) = host_name(&s) {
+                prop_assert_eq!(host_name(&n), Some(n.clone()));
+            }
+            prop_assert_eq!(allowed(Some(&s), std::slice::from_ref(&s)), host_name(&s).is_some());
         }
     }
 }
