@@ -16,6 +16,7 @@ use std::path::Path;
 use serde::{Deserialize, Serialize};
 
 use super::frame::VisionFrame;
+use super::grid::{GridCompensator, GridTable};
 use super::table::{CompTable, LookupCompensator};
 use super::{invalid, CompError, Compensator, ModelCompensator};
 use crate::model::StageModel;
@@ -34,6 +35,19 @@ pub enum CompKind {
     Lookup,
     /// `[model]`: a fitted stage model (the model file format, nested).
     Model,
+    /// `[grid]`: a 2-D error map ([`GridTable`]).
+    Grid,
+}
+
+impl CompKind {
+    /// The kind's name in files and replies.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            CompKind::Lookup => "lookup",
+            CompKind::Model => "model",
+            CompKind::Grid => "grid",
+        }
+    }
 }
 
 /// Where the compensation came from.
@@ -87,6 +101,9 @@ pub struct CompFile {
     /// Stage model in the model-file format (kind = "model").
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub model: Option<toml::Table>,
+    /// A 2-D error map (kind = "grid").
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub grid: Option<GridTable>,
 }
 
 impl CompFile {
@@ -102,6 +119,23 @@ impl CompFile {
             area: None,
             lookup: Some(table),
             model: None,
+            grid: None,
+        }
+    }
+
+    /// A 2-D map file; its area is the span of its nodes.
+    pub fn grid(table: GridTable, created: impl Into<String>, source: SourceInfo) -> Self {
+        CompFile {
+            format_version: COMP_FORMAT_VERSION,
+            kind: CompKind::Grid,
+            created: created.into(),
+            description: String::new(),
+            source,
+            frame: None,
+            area: Some(table.area()),
+            lookup: None,
+            model: None,
+            grid: Some(table),
         }
     }
 
@@ -124,6 +158,7 @@ impl CompFile {
             area: None,
             lookup: None,
             model: Some(table),
+            grid: None,
         })
     }
 
@@ -155,25 +190,16 @@ impl CompFile {
                 format!("must be {COMP_FORMAT_VERSION}"),
             ));
         }
-        match (self.kind, &self.lookup, &self.model) {
-            (CompKind::Lookup, Some(t), None) => t.validate()?,
-            (CompKind::Model, None, Some(_)) => {
+        match (self.kind, &self.lookup, &self.model, &self.grid) {
+            (CompKind::Lookup, Some(t), None, None) => t.validate()?,
+            (CompKind::Model, None, Some(_), None) => {
                 self.stage_model()?;
             }
-            (k, _, _) => {
+            (CompKind::Grid, None, None, Some(g)) => g.validate()?,
+            (k, _, _, _) => {
                 return Err(invalid(
                     "kind",
-                    format!(
-                        "kind = \"{}\" needs exactly the [{}] section",
-                        match k {
-                            CompKind::Lookup => "lookup",
-                            CompKind::Model => "model",
-                        },
-                        match k {
-                            CompKind::Lookup => "lookup",
-                            CompKind::Model => "model",
-                        }
-                    ),
+                    format!("kind = \"{0}\" needs exactly the [{0}] section", k.as_str()),
                 ))
             }
         }
@@ -212,6 +238,10 @@ impl CompFile {
             CompKind::Model => Ok(Box::new(
                 ModelCompensator::new(self.stage_model()?).with_area(self.area),
             )),
+            CompKind::Grid => match &self.grid {
+                Some(g) => Ok(Box::new(GridCompensator::new(g.clone())?)),
+                None => Err(invalid("grid", "section missing")),
+            },
         }
     }
 

@@ -8,6 +8,9 @@
 //!   and `scan_y` segments of a measurement log; [`LookupCompensator`].
 //! * [`model_comp`]: the stage model (`crate::model`) fitted to the scans;
 //!   [`ModelCompensator`]. Equal accuracy from ten times fewer points.
+//! * [`grid`]: a 2-D error map measured on a lattice of (x, y) targets,
+//!   bilinear between its nodes; [`GridCompensator`]. Holds error that
+//!   depends on both axes at once, which the tables cannot.
 //! * [`file`]: compensation files (TOML, `format_version = 1`) carrying the
 //!   characterization they came from; [`CompFile`].
 //! * [`frame`]: the vision→stage transform estimated from the scans.
@@ -45,6 +48,7 @@ use crate::model::{Direction, ModelError, MotionState, MotionTracker, Waypoint, 
 pub mod closed_loop;
 pub mod file;
 pub mod frame;
+pub mod grid;
 pub mod model_comp;
 pub mod table;
 
@@ -53,6 +57,7 @@ pub use closed_loop::{
 };
 pub use file::{fnv1a64_hex, CompFile, CompKind, SourceInfo, COMP_FORMAT_VERSION};
 pub use frame::{estimate_vision_frame, FrameReport, FrameSample, VisionFrame};
+pub use grid::{GridBuildReport, GridCompensator, GridTable};
 pub use model_comp::{
     compensation_template, compensation_template_for, ModelBuildOptions, ModelCompensator,
 };
@@ -382,11 +387,12 @@ pub struct MovePlan {
 /// A way of predicting the stage's error, and so of compensating it.
 ///
 /// Implemented by [`LookupCompensator`] (the paper's tables),
-/// [`ModelCompensator`] (fitted stage model) and [`Uncompensated`]. The
+/// [`ModelCompensator`] (fitted stage model), [`GridCompensator`] (a 2-D
+/// map) and [`Uncompensated`]. The
 /// daemon holds a `Box<dyn Compensator>` loaded from a [`CompFile`] and
 /// swaps it without restart.
 pub trait Compensator: std::fmt::Debug + Send + Sync {
-    /// `"lookup"`, `"model"`, `"none"`.
+    /// `"lookup"`, `"model"`, `"grid"`, `"none"`.
     fn kind(&self) -> &'static str;
 
     /// Predicted `observed − commanded` (µm, `[x, y]`) when the stage is in

@@ -32,6 +32,7 @@ mod cli_pipe;
 mod closed_loop_paper;
 mod comp_file;
 mod comp_frame;
+mod comp_grid;
 mod comp_paper;
 mod daemon_process;
 mod daemon_socket;

@@ -160,10 +160,11 @@ pub enum ClientCommand {
         action: String,
         /// Table name (load, activate) or characterization log (build).
         name: Option<String>,
-        /// build: output stem (writes STEM-paper.toml, STEM-model.toml).
+        /// build: output stem (writes STEM-paper.toml, STEM-model.toml, STEM-grid.toml).
         #[arg(long)]
         out: Option<String>,
-        /// build: which tables, comma-separated: paper,model (default both).
+        /// build: which tables, comma-separated: paper,model,grid (default:
+        /// grid for a grid log without scan segments, else paper,model).
         #[arg(long, value_delimiter = ',')]
         kinds: Vec<String>,
         /// build: activate the (first) table built.

@@ -1,6 +1,7 @@
 //! `tables build`: from a characterization log in the data directory, the
 //! paper's lookup tables (`f_xx … b_yy`, `δx(y)`) and a model table (the
-//! stage model fitted to the same scans), written as compensation files
+//! stage model fitted to the same scans), or from a grid log a 2-D map
+//! (`crate::comp::grid`), written as compensation files
 //! (`crate::comp::file`) next to the log and loaded, ready for `tables
 //! activate` or for the validation modes `table` and `model`.
 //!
@@ -25,11 +26,12 @@ use super::super::protocol::{ErrorCode, ProtoError, TablesBuildParams};
 use super::super::rig::Rig;
 use crate::analysis::diagnose::{diagnose, DiagnoseOptions};
 use crate::analysis::drift::{correct_log_drift, LOG_DRIFT_METHOD};
+use crate::analysis::grid::GridMap;
 use crate::charact::log::{self, Metadata, Record};
 use crate::charact::scan::{SEGMENT_MOVES, SEGMENT_SCAN_X, SEGMENT_SCAN_Y};
 use crate::comp::model_comp::{compensation_template_for, ModelBuildOptions};
 use crate::comp::table::{CompTable, TableBuildOptions};
-use crate::comp::{fnv1a64_hex, CompFile, ModelCompensator, SourceInfo, VisionFrame};
+use crate::comp::{fnv1a64_hex, CompFile, GridTable, ModelCompensator, SourceInfo, VisionFrame};
 use crate::model::StageModel;
 use serde_json::{json, Value};
 use std::path::Path;
@@ -168,9 +170,37 @@ pub fn build_blocking(
     }
     let mut written = Vec::new();
     let mut out = json!({"log": params.log, "frame": frame, "drift": drift});
-    for kind in &params.kinds {
+    let grid = grid_map(&parsed, &undrifted);
+    let kinds = if params.kinds.is_empty() {
+        default_kinds(grid.is_some(), &records)
+    } else {
+        params.kinds.clone()
+    };
+    for kind in &kinds {
         let name = format!("{stem}-{kind}.toml");
-        let mut file = if kind == "paper" {
+        let mut file = if kind == "grid" {
+            let map = grid.as_ref().ok_or_else(|| {
+                bad(format!(
+                    "{} is not a grid log (its targets do not fill a lattice of at least 3 × 3 \
+                     positions with both axes measured): build paper or model tables from it",
+                    params.log
+                ))
+            })?;
+            let offsets: Vec<Option<[f64; 2]>> =
+                map.cells.iter().map(|c| c.map(|c| c.e_um)).collect();
+            let (table, report) = GridTable::from_lattice(&map.xs_um, &map.ys_um, &offsets)
+                .map_err(|e| bad(format!("grid map from {}: {e}", params.log)))?;
+            out["grid"] = json!({"name": name, "report": report});
+            let mut f = CompFile::grid(table, rfc3339_utc(unix_s), source.clone());
+            f.description = "2-D error map of a grid log, bilinear between its nodes".into();
+            f.frame = frame;
+            let p = data_dir.join(&name);
+            f.write_path(&p).map_err(|e| {
+                ProtoError::new(ErrorCode::LogError, format!("writing {name}: {e}"))
+            })?;
+            written.push(name);
+            continue;
+        } else if kind == "paper" {
             let (table, report) = CompTable::from_records(&records, &TableBuildOptions::default())
                 .map_err(|e| bad(format!("paper tables from {}: {e}", params.log)))?;
             out["paper"] = json!({"name": name, "report": report});
@@ -212,6 +242,28 @@ pub fn build_blocking(
     }
     out["written"] = json!(written);
     Ok((out, written))
+}
+
+/// The log's targets as a lattice, if they are a grid (drift-corrected
+/// records).
+fn grid_map(parsed: &log::MeasurementLog, records: &[Record]) -> Option<GridMap> {
+    let mut log = parsed.clone();
+    log.records = records.to_vec();
+    GridMap::from_log(&log, [true, true])
+}
+
+/// What `tables build` makes when the request names no kind: a 2-D map
+/// of a grid log without scan segments, else the paper's tables and the
+/// model table.
+fn default_kinds(is_grid: bool, records: &[Record]) -> Vec<String> {
+    let scans = records
+        .iter()
+        .any(|r| r.segment == SEGMENT_SCAN_X || r.segment == SEGMENT_SCAN_Y);
+    if is_grid && !scans {
+        vec!["grid".to_owned()]
+    } else {
+        vec!["paper".to_owned(), "model".to_owned()]
+    }
 }
 
 /// The model structure a model table is fitted with: the paper default,
@@ -281,6 +333,84 @@ mod tests {
             temp_c: None,
             extra: vec![],
         }
+    }
+
+    /// A grid log (targets on a lattice, no scan segments) gets a 2-D map
+    /// by default, whose prediction at a node is the error measured there;
+    /// asking a scan log for a map is refused with the reason.
+    #[test]
+    fn a_grid_log_builds_a_map() {
+        let mut md = Metadata::default();
+        md.insert("source", "test lattice");
+        let mut records = Vec::new();
+        let e = |x: f64, y: f64| [1e-4 * x + 2e-8 * x * y, -3e-4 * y + 1e-8 * x * y];
+        for iy in 0..6 {
+            for ix in 0..7 {
+                let (x, y) = (
+                    2000.0 + 500.0 * f64::from(ix),
+                    1000.0 + 800.0 * f64::from(iy),
+                );
+                let mut r = rec("grid", x, y);
+                r.t_s = f64::from(iy * 7 + ix);
+                let o = e(x, y);
+                r.x_meas_um = x + o[0];
+                r.y_meas_um = y + o[1];
+                records.push(r);
+            }
+        }
+        let bytes = |records: &[Record]| {
+            let mut w = log::LogWriter::create(
+                Vec::new(),
+                &md,
+                log::Columns::default(),
+                log::SyncPolicy::FlushOnly,
+            )
+            .unwrap();
+            for r in records {
+                w.append(r).unwrap();
+            }
+            w.into_inner()
+        };
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::write(dir.path().join("g.csv"), bytes(&records)).unwrap();
+        let params = TablesBuildParams {
+            log: "g.csv".into(),
+            name: None,
+            kinds: Vec::new(),
+            activate: false,
+        };
+        let (out, written) = build_blocking(dir.path(), &params).unwrap();
+        assert_eq!(written, ["g-grid.toml"], "{out}");
+        assert_eq!(out["grid"]["report"]["measured"], 42, "{out}");
+        let file = CompFile::read_path(dir.path().join("g-grid.toml")).unwrap();
+        let comp = file.compensator().unwrap();
+        assert_eq!(comp.kind(), "grid");
+        let (x, y) = (3500.0, 2600.0);
+        let p = comp
+            .predicted_offset_um(&crate::model::MotionState::at_rest(x, y))
+            .unwrap();
+        let want = e(x, y);
+        assert!(
+            (p[0] - want[0]).abs() < 1e-9 && (p[1] - want[1]).abs() < 1e-9,
+            "{p:?}"
+        );
+        assert_eq!(
+            file.area.map(|a| (a.x_um, a.y_um)),
+            Some(([2000.0, 5000.0], [1000.0, 5000.0]))
+        );
+
+        // A scan (two lines) is no grid.
+        let scans: Vec<Record> = (0..10)
+            .map(|i| rec(SEGMENT_SCAN_X, 1000.0 * f64::from(i), 7500.0))
+            .collect();
+        std::fs::write(dir.path().join("s.csv"), bytes(&scans)).unwrap();
+        let params = TablesBuildParams {
+            log: "s.csv".into(),
+            kinds: vec!["grid".into()],
+            ..params
+        };
+        let e = build_blocking(dir.path(), &params).unwrap_err();
+        assert!(e.to_string().contains("not a grid log"), "{e}");
     }
 
     /// A stage with an effect the default model lacks (a periodic error

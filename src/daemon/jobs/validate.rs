@@ -202,6 +202,7 @@ async fn resolve(
                     match kind {
                         CompKind::Lookup => "lookup (paper)",
                         CompKind::Model => "model",
+                        CompKind::Grid => "grid",
                     }
                 ),
             )

@@ -213,7 +213,9 @@ pub struct TablesBuildParams {
     /// Output name stem: writes `STEM-paper.toml` and `STEM-model.toml`
     /// (default: the log's stem).
     pub name: Option<String>,
-    /// Which tables: `paper`, `model` (default both).
+    /// Which tables: `paper`, `model`, `grid`. Empty: the log's default,
+    /// `grid` for a grid log (targets filling a lattice, no scan
+    /// segments), `paper` and `model` otherwise.
     pub kinds: Vec<String>,
     /// Activate the paper table (or the model table if only that is built).
     pub activate: bool,

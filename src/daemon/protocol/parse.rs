@@ -467,18 +467,19 @@ fn parse_tables(obj: &Map<String, Value>) -> Result<TablesAction, ProtoError> {
                 check_file_name("name", n)?;
             }
             let kinds = match obj.get("kinds") {
-                None | Some(Value::Null) => vec!["paper".to_owned(), "model".to_owned()],
+                // Empty: the log's own default (see TablesBuildParams::kinds).
+                None | Some(Value::Null) => Vec::new(),
                 Some(Value::Array(items)) => {
                     let mut kinds: Vec<String> = Vec::new();
                     for item in items {
                         match item {
-                            Value::String(k) if k == "paper" || k == "model" => {
+                            Value::String(k) if k == "paper" || k == "model" || k == "grid" => {
                                 if !kinds.contains(k) {
                                     kinds.push(k.clone());
                                 }
                             }
                             Value::String(k) => {
-                                return Err(unknown_word("table kind", k, "paper, model"))
+                                return Err(unknown_word("table kind", k, "paper, model, grid"))
                             }
                             other => return Err(wrong_type("kinds[]", "a string", other)),
                         }

@@ -456,8 +456,8 @@ class Tables:
     ) -> Json:
         """``tables build``: the paper's lookup tables (``STEM-paper.toml``)
         and a fitted-model table (``STEM-model.toml``) from a characterization
-        log, written and loaded by the daemon; ``activate`` makes the first
-        one active."""
+        log, or a 2-D map (``STEM-grid.toml``) from a grid log, written and
+        loaded by the daemon; ``activate`` makes the first one active."""
         req = proto.tables_build(log, name, kinds, activate)
         return self._rig._call(req, self._rig._long(timeout))
 

@@ -37,7 +37,7 @@ ValidateTest = Literal["square", "random", "both"]
 #: Modes of ``validate``.
 ValidateMode = Literal["raw", "table", "model", "closed_loop"]
 #: Table kinds of ``tables build``.
-TableKind = Literal["paper", "model"]
+TableKind = Literal["paper", "model", "grid"]
 #: Live drift correction methods.
 DriftMethod = Literal["off", "static", "adaptive"]
 #: Job kinds.
