@@ -30,8 +30,10 @@
 
 use serde::{Deserialize, Serialize};
 
-use super::{invalid, Area, CompError, Compensator};
-use crate::model::MotionState;
+use super::{
+    invalid, ApproachPolicy, Area, CompError, Compensator, MotionHistory, MovePlan, PlanOptions,
+};
+use crate::model::{Direction, MotionState, XyUm};
 
 /// Most nodes a map may have (a 1 µm pitch over 1 mm², far beyond any grid
 /// a stage is measured on; it bounds the memory a file can ask for).
@@ -51,6 +53,25 @@ pub struct GridTable {
     pub ey_um: Vec<f64>,
     /// Whether each node was measured (`false`: filled from neighbours).
     pub measured: Vec<bool>,
+    /// How the nodes were reached (default: not known).
+    #[serde(default)]
+    pub arrival: GridArrival,
+}
+
+/// How a grid's nodes were reached, which decides how compensated moves
+/// must arrive for the map to hold.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum GridArrival {
+    /// Not known (an imported map): moves are planned with the caller's
+    /// approach policy.
+    #[default]
+    Unknown,
+    /// Every node from below on both axes (microposd's grid plan): every
+    /// compensated move arrives from below on both axes too (a
+    /// unidirectional approach, whatever the caller's policy), so it meets
+    /// the play as the map did.
+    FromBelow,
 }
 
 /// What a map build found.
@@ -106,6 +127,7 @@ impl GridTable {
             ex_um: fill_holes(&ex, &measured, nx, ny),
             ey_um: fill_holes(&ey, &measured, nx, ny),
             measured,
+            arrival: GridArrival::Unknown,
         };
         t.validate()?;
         let report = t.report();
@@ -302,6 +324,24 @@ impl Compensator for GridCompensator {
     fn characterized_area(&self) -> Option<Area> {
         Some(self.table.area())
     }
+
+    fn command_for(
+        &self,
+        target: XyUm,
+        history: &MotionHistory,
+        options: &PlanOptions,
+    ) -> Result<MovePlan, CompError> {
+        match self.table.arrival {
+            GridArrival::Unknown => super::solve(self, target, history, options),
+            GridArrival::FromBelow => {
+                let below = PlanOptions {
+                    policy: ApproachPolicy::Unidirectional([Direction::Forward; 2]),
+                    ..*options
+                };
+                super::solve(self, target, history, &below)
+            }
+        }
+    }
 }
 
 #[cfg(test)]
@@ -327,6 +367,7 @@ mod tests {
             ex_um: ex,
             ey_um: ey,
             measured: vec![true; nx * ny],
+            arrival: GridArrival::Unknown,
         }
     }
 

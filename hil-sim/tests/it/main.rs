@@ -25,6 +25,7 @@ mod driver_process;
 mod driver_sim;
 #[cfg(feature = "genicam")]
 mod genicam_gige;
+mod grid_charact;
 mod hidden_rig;
 mod job_retries;
 mod live_drift;

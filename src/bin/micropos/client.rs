@@ -109,6 +109,14 @@ pub enum ClientCommand {
         /// Sweep: also write the log without the anchor correction.
         #[arg(long)]
         unanchored_log: Option<String>,
+        /// lines (the paper's scan lines, default) or grid (every node of a
+        /// lattice over both ranges, reached from below on both axes: for
+        /// a 2-D map, `tables build` kind grid).
+        #[arg(long)]
+        plan: Option<String>,
+        /// Grid: node spacing along both axes, µm (default --step-um).
+        #[arg(long)]
+        pitch_um: Option<f64>,
         /// Follow progress with a progress bar until the job ends.
         #[arg(long)]
         follow: bool,
@@ -272,9 +280,17 @@ fn build(cmd: &ClientCommand) -> Value {
             uncorrected_log,
             anchor_spacing_um,
             unanchored_log,
+            plan,
+            pitch_um,
             ..
         } => {
             let mut v = json!({"cmd": "characterize", "action": action});
+            if let Some(p) = plan {
+                v["plan"] = json!(p);
+            }
+            if let Some(p) = pitch_um {
+                v["pitch_um"] = json!(p);
+            }
             if let Some(m) = mode {
                 v["mode"] = json!(m);
             }

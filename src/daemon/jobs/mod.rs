@@ -28,7 +28,9 @@ pub(crate) use super::rig::measure::{
     clamp_to_travel, measure_retrying, move_raw_retrying, PARK_APPROACH_UM,
 };
 
-use super::protocol::{Axes, CharacterizeMode, CharacterizeParams, ErrorCode, ProtoError, Topic};
+use super::protocol::{
+    Axes, CharacterizeMode, CharacterizeParams, CharacterizePlan, ErrorCode, ProtoError, Topic,
+};
 use super::rig::Rig;
 use crate::analysis::drift::DRIFT_REF_SEGMENT;
 use crate::charact::log::{self, LogWriter, Metadata};
@@ -47,6 +49,10 @@ use tokio::sync::watch;
 /// at the simulated camera's 30 frames/s the even cycles (twice it) still
 /// put a frame within every 5 µm cell (8 µm apart: neighbours interpolate).
 pub const DEFAULT_SWEEP_VELOCITY_UM_PER_S: f64 = 120.0;
+
+/// Most points a characterization plan may have (a log's resume refuses
+/// more, `plan::ScanPlan::from_metadata`).
+const MAX_PLAN_POINTS: f64 = 1e7;
 
 #[derive(Debug)]
 struct Running {
@@ -117,7 +123,24 @@ impl Jobs {
         }
         let d = &rig.cfg.characterize;
         let axes = p.axes.unwrap_or(Axes::Both);
-        let step_um = p.step_um.unwrap_or(d.step_um);
+        let grid = p.plan == Some(CharacterizePlan::Grid);
+        if p.pitch_um.is_some() && !grid {
+            return Err(ProtoError::new(
+                ErrorCode::BadValue,
+                "pitch_um is the grid plan's node spacing: give plan = \"grid\" (the scan lines take step_um)",
+            ));
+        }
+        if grid && p.mode == Some(CharacterizeMode::Sweep) {
+            return Err(ProtoError::new(
+                ErrorCode::BadValue,
+                "the grid plan is measured point by point: mode sweep scans lines only",
+            ));
+        }
+        let step_um = if grid {
+            p.pitch_um.or(p.step_um).unwrap_or(d.step_um)
+        } else {
+            p.step_um.unwrap_or(d.step_um)
+        };
         let x_range_um = p.x_range_um.unwrap_or(d.x_range_um);
         let y_range_um = p.y_range_um.unwrap_or(d.y_range_um);
         let status = rig.status();
@@ -143,6 +166,7 @@ impl Jobs {
             }
         };
         let plan = ScanPlan {
+            grid,
             scan_x: axes.x(),
             scan_y: axes.y(),
             step_um,
@@ -164,7 +188,20 @@ impl Jobs {
         if step_um > x_range_um.min(y_range_um) {
             return Err(ProtoError::new(
                 ErrorCode::BadValue,
-                "step_um exceeds a scan range",
+                if grid {
+                    "the grid's pitch exceeds a range"
+                } else {
+                    "step_um exceeds a scan range"
+                },
+            ));
+        }
+        if plan.points_upper_bound() > MAX_PLAN_POINTS {
+            return Err(ProtoError::new(
+                ErrorCode::BadValue,
+                format!(
+                    "the plan has about {:.0} points, more than {MAX_PLAN_POINTS:.0}: a larger step or pitch, or smaller ranges",
+                    plan.points_upper_bound()
+                ),
             ));
         }
         let name = p

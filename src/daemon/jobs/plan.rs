@@ -19,9 +19,17 @@ pub struct Point {
     pub y_um: f64,
 }
 
-/// Per-axis 1-DoF scans, the other axis held at the centre of its range.
+/// Segment of a grid plan's nodes.
+pub const SEGMENT_GRID: &str = "grid";
+
+/// Per-axis 1-DoF scans, the other axis held at the centre of its range;
+/// or, with `grid`, every node of a lattice over the area.
 #[derive(Debug, Clone, PartialEq)]
 pub struct ScanPlan {
+    /// A grid plan: nodes `x_start + i·step`, `y_start + j·step` over both
+    /// ranges, in rows of increasing x, rows in increasing y, per cycle
+    /// (segment [`SEGMENT_GRID`]; `scan_x`/`scan_y` play no part).
+    pub grid: bool,
     /// Scan X.
     pub scan_x: bool,
     /// Scan Y.
@@ -100,6 +108,26 @@ impl ScanPlan {
     /// Every point, in order.
     pub fn points(&self) -> Vec<Point> {
         let mut v = Vec::new();
+        if self.grid {
+            let (nx, ny) = (
+                Self::steps(self.x_range_um, self.step_um),
+                Self::steps(self.y_range_um, self.step_um),
+            );
+            for cycle in 1..=self.cycles {
+                for j in 0..=ny {
+                    for i in 0..=nx {
+                        v.push(Point {
+                            segment: SEGMENT_GRID,
+                            cycle,
+                            x_um: self.x_start_um + f64::from(i) * self.step_um,
+                            y_um: self.y_start_um + f64::from(j) * self.step_um,
+                        });
+                    }
+                }
+            }
+            self.push_moves(&mut v);
+            return v;
+        }
         let x_hold = self.x_start_um + self.x_range_um / 2.0;
         let y_hold = self.y_start_um + self.y_range_um / 2.0;
         let mut scan = |on: bool,
@@ -146,6 +174,13 @@ impl ScanPlan {
             self.y_range_um,
             false,
         );
+        self.push_moves(&mut v);
+        v
+    }
+
+    /// The plan's moves of varied length (`moves_per_cycle`), after its
+    /// scans or grid.
+    fn push_moves(&self, v: &mut Vec<Point>) {
         let mut k = 0;
         for cycle in 1..=self.cycles {
             for _ in 0..self.moves_per_cycle {
@@ -159,7 +194,18 @@ impl ScanPlan {
                 });
             }
         }
-        v
+    }
+
+    /// How many points the plan has, at most (a float, so that an absurd
+    /// plan is refused before its point list is built).
+    pub fn points_upper_bound(&self) -> f64 {
+        let n = |r: f64| (r / self.step_um).min(1e7) + 1.0;
+        let per_cycle = if self.grid {
+            n(self.x_range_um) * n(self.y_range_um)
+        } else {
+            2.0 * (n(self.x_range_um) + n(self.y_range_um))
+        };
+        (per_cycle + f64::from(self.moves_per_cycle)) * f64::from(self.cycles)
     }
 
     /// Writes the plan into log metadata.
@@ -183,6 +229,9 @@ impl ScanPlan {
         if self.moves_per_cycle > 0 {
             md.insert("moves_per_cycle", self.moves_per_cycle.to_string());
         }
+        if self.grid {
+            md.insert("plan", "grid");
+        }
     }
 
     /// Reads a plan back from log metadata.
@@ -197,7 +246,18 @@ impl ScanPlan {
                 problem: format!("{v:?} is not a valid value"),
             })
         }
+        let grid = match md.get("plan") {
+            None | Some("lines") => false,
+            Some("grid") => true,
+            Some(other) => {
+                return Err(PlanError {
+                    key: "plan".to_owned(),
+                    problem: format!("{other:?} is neither \"lines\" nor \"grid\""),
+                })
+            }
+        };
         let p = ScanPlan {
+            grid,
             scan_x: get(md, "scan_x")?,
             scan_y: get(md, "scan_y")?,
             step_um: get(md, "step_um")?,
@@ -239,10 +299,7 @@ impl ScanPlan {
             });
         }
         // Refuse plans so large the point list itself would be a problem.
-        let n = |r: f64| (r / p.step_um).min(1e7);
-        if (n(p.x_range_um) + n(p.y_range_um) + f64::from(p.moves_per_cycle)) * f64::from(p.cycles)
-            > 1e7
-        {
+        if p.points_upper_bound() > 1e7 {
             return Err(PlanError {
                 key: "step_um".to_owned(),
                 problem: "the plan has more than 10 million points".to_owned(),
@@ -322,6 +379,7 @@ mod tests {
 
     fn plan() -> ScanPlan {
         ScanPlan {
+            grid: false,
             scan_x: true,
             scan_y: true,
             step_um: 5.0,
@@ -334,6 +392,42 @@ mod tests {
             settle_s: 0.5,
             moves_per_cycle: 0,
         }
+    }
+
+    /// A grid plan: every node of the lattice once per cycle, rows of
+    /// increasing x, rows in increasing y; it round-trips through the
+    /// metadata, and a plain plan writes no `plan` key.
+    #[test]
+    fn a_grid_plan_visits_every_node_in_rows_and_round_trips() {
+        let p = ScanPlan {
+            grid: true,
+            step_um: 500.0,
+            x_range_um: 2000.0,
+            y_range_um: 1000.0,
+            cycles: 2,
+            ..plan()
+        };
+        let pts = p.points();
+        assert_eq!(pts.len(), 2 * 5 * 3);
+        assert!(pts.iter().all(|q| q.segment == SEGMENT_GRID));
+        assert_eq!((pts[0].x_um, pts[0].y_um), (2750.0, 5400.0));
+        assert_eq!((pts[4].x_um, pts[4].y_um), (4750.0, 5400.0));
+        assert_eq!((pts[5].x_um, pts[5].y_um), (2750.0, 5900.0));
+        assert_eq!(
+            (pts[14].x_um, pts[14].y_um, pts[14].cycle),
+            (4750.0, 6400.0, 1)
+        );
+        assert_eq!(pts[15].cycle, 2);
+        let mut md = Metadata::new();
+        p.to_metadata(&mut md);
+        assert_eq!(md.get("plan"), Some("grid"));
+        assert_eq!(ScanPlan::from_metadata(&md).unwrap(), p);
+        let mut md = Metadata::new();
+        plan().to_metadata(&mut md);
+        assert!(md.get("plan").is_none());
+        assert!(!ScanPlan::from_metadata(&md).unwrap().grid);
+        md.insert("plan", "spiral");
+        assert!(ScanPlan::from_metadata(&md).is_err());
     }
 
     #[test]

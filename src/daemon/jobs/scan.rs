@@ -153,12 +153,15 @@ async fn points(
         // first reference detour re-approached it (the model table's fit
         // left 0.88 µm rms on x, 1.6 µm in the Y scan alone).
         let line = |q: &plan::Point| scan_line(q.segment);
-        if !approached
-            && line(p).is_some()
-            && i.checked_sub(1)
-                .and_then(|k| s.points.get(k))
-                .is_some_and(|q| line(q) != line(p))
-        {
+        let before = i.checked_sub(1).and_then(|k| s.points.get(k));
+        let new_line = line(p).is_some() && before.is_some_and(|q| line(q) != line(p));
+        // A grid node is reached from below on both axes, as the nodes
+        // along a row are: where a row or a cycle starts again (x or y goes
+        // back), the node is approached from below first, so the map holds
+        // one arrival direction per axis.
+        let grid_back = p.segment == plan::SEGMENT_GRID
+            && before.is_some_and(|q| p.x_um < q.x_um || p.y_um < q.y_um);
+        if !approached && (new_line || grid_back) {
             let (x, y) = scan_approach(rig, p);
             if move_raw(rig, x, y, cancel).await?.is_none() {
                 return Ok("cancelled");

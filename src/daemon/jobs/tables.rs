@@ -31,7 +31,9 @@ use crate::charact::log::{self, Metadata, Record};
 use crate::charact::scan::{SEGMENT_MOVES, SEGMENT_SCAN_X, SEGMENT_SCAN_Y};
 use crate::comp::model_comp::{compensation_template_for, ModelBuildOptions};
 use crate::comp::table::{CompTable, TableBuildOptions};
-use crate::comp::{fnv1a64_hex, CompFile, GridTable, ModelCompensator, SourceInfo, VisionFrame};
+use crate::comp::{
+    fnv1a64_hex, CompFile, GridArrival, GridTable, ModelCompensator, SourceInfo, VisionFrame,
+};
 use crate::model::StageModel;
 use serde_json::{json, Value};
 use std::path::Path;
@@ -188,8 +190,12 @@ pub fn build_blocking(
             })?;
             let offsets: Vec<Option<[f64; 2]>> =
                 map.cells.iter().map(|c| c.map(|c| c.e_um)).collect();
-            let (table, report) = GridTable::from_lattice(&map.xs_um, &map.ys_um, &offsets)
+            let (mut table, report) = GridTable::from_lattice(&map.xs_um, &map.ys_um, &offsets)
                 .map_err(|e| bad(format!("grid map from {}: {e}", params.log)))?;
+            // microposd's grid plan reaches every node from below.
+            if parsed.metadata.get("plan") == Some("grid") {
+                table.arrival = GridArrival::FromBelow;
+            }
             out["grid"] = json!({"name": name, "report": report});
             let mut f = CompFile::grid(table, rfc3339_utc(unix_s), source.clone());
             f.description = "2-D error map of a grid log, bilinear between its nodes".into();

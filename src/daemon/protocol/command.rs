@@ -126,6 +126,24 @@ pub struct CharacterizeParams {
     /// Step mode: moves of varied length per cycle after the scans
     /// (`daemon::jobs::plan::ScanPlan::moves_per_cycle`); default 0.
     pub moves_per_cycle: Option<u32>,
+    /// What is measured: the paper's scan lines (default) or a grid over
+    /// the whole area.
+    pub plan: Option<CharacterizePlan>,
+    /// Grid plan: node spacing along both axes, µm (default `step_um`).
+    pub pitch_um: Option<f64>,
+}
+
+/// Which points a step characterization measures.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub enum CharacterizePlan {
+    /// One scan line per axis through the centre of the other's range,
+    /// forward and backward (the paper's; builds its lookup tables).
+    #[default]
+    Lines,
+    /// Every node of a lattice over the area, in rows of increasing x,
+    /// rows in increasing y, each node reached from below on both axes
+    /// (builds a 2-D map, `comp::grid`: error that depends on both axes).
+    Grid,
 }
 
 /// How a characterization measures.

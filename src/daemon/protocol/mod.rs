@@ -33,8 +33,8 @@ mod strict;
 mod tests;
 
 pub use command::{
-    Axes, CharacterizeAction, CharacterizeMode, CharacterizeParams, Command, DriftAction,
-    FiguresJob, FiguresParams, MoveMode, MoveRequest, Refusal, Request, TablesAction,
+    Axes, CharacterizeAction, CharacterizeMode, CharacterizeParams, CharacterizePlan, Command,
+    DriftAction, FiguresJob, FiguresParams, MoveMode, MoveRequest, Refusal, Request, TablesAction,
     TablesBuildParams, Topic, ValidateAction, ValidateMode, ValidateParams, COMMANDS,
 };
 pub use error::{ErrorCode, ProtoError};

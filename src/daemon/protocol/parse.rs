@@ -7,8 +7,8 @@
 use serde_json::{Map, Value};
 
 use super::command::{
-    Axes, CharacterizeAction, CharacterizeMode, CharacterizeParams, Command, DriftAction,
-    FiguresJob, FiguresParams, MoveMode, MoveRequest, Refusal, Request, TablesAction,
+    Axes, CharacterizeAction, CharacterizeMode, CharacterizeParams, CharacterizePlan, Command,
+    DriftAction, FiguresJob, FiguresParams, MoveMode, MoveRequest, Refusal, Request, TablesAction,
     TablesBuildParams, Topic, ValidateAction, ValidateMode, ValidateParams, COMMANDS,
 };
 use super::fields::{
@@ -100,6 +100,8 @@ fn parse_command(obj: &Map<String, Value>) -> Result<Command, ProtoError> {
             "unanchored_log",
             "anchor_spacing_um",
             "moves_per_cycle",
+            "plan",
+            "pitch_um",
         ],
         "validate" => &[
             "action",
@@ -302,6 +304,15 @@ fn parse_characterize(obj: &Map<String, Value>) -> Result<CharacterizeAction, Pr
                     "0..1000000 (0 = no anchors)",
                 )?,
                 moves_per_cycle: opt_count(obj, "moves_per_cycle", 0, 100_000)?,
+                plan: match opt_str(obj, "plan")? {
+                    None => None,
+                    Some("lines") => Some(CharacterizePlan::Lines),
+                    Some("grid") => Some(CharacterizePlan::Grid),
+                    Some(other) => {
+                        return Err(unknown_word("characterize plan", other, "lines, grid"))
+                    }
+                },
+                pitch_um: positive("pitch_um")?,
             })))
         }
         "status" => Ok(CharacterizeAction::Status),

@@ -175,7 +175,21 @@ fn parses_every_command() {
             ..
         }
     ));
+    assert!(matches!(
+        start_params(
+            parse(r#"{"cmd":"characterize","action":"start","plan":"grid","pitch_um":250}"#)
+                .unwrap()
+                .command
+        ),
+        CharacterizeParams {
+            plan: Some(CharacterizePlan::Grid),
+            pitch_um: Some(p),
+            ..
+        } if p == 250.0
+    ));
     for bad in [
+        r#"{"cmd":"characterize","action":"start","plan":"spiral"}"#,
+        r#"{"cmd":"characterize","action":"start","pitch_um":0}"#,
         r#"{"cmd":"characterize","action":"start","moves_per_cycle":-1}"#,
         r#"{"cmd":"characterize","action":"start","mode":"fly"}"#,
         r#"{"cmd":"characterize","action":"start","velocity_um_per_s":0}"#,

@@ -173,6 +173,8 @@ def characterize_start(
     moves_per_cycle: Optional[int] = None,
     anchor_spacing_um: Optional[float] = None,
     unanchored_log: Optional[str] = None,
+    plan: Optional[str] = None,
+    pitch_um: Optional[float] = None,
 ) -> Json:
     """``characterize`` ``start``."""
     return request(
@@ -194,6 +196,8 @@ def characterize_start(
         moves_per_cycle=moves_per_cycle,
         anchor_spacing_um=anchor_spacing_um,
         unanchored_log=unanchored_log,
+        plan=plan,
+        pitch_um=pitch_um,
     )
 
 

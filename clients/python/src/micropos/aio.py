@@ -20,6 +20,7 @@ from .errors import ConnectionLost, DaemonUnreachable, MicroposError, ProtocolEr
 from .types import (
     Axes,
     CharacterizeMode,
+    CharacterizePlan,
     DriftMethod,
     Json,
     JobKind,
@@ -326,6 +327,8 @@ class AsyncRig:
         moves_per_cycle: Optional[int] = None,
         anchor_spacing_um: Optional[float] = None,
         unanchored_log: Optional[str] = None,
+        plan: Optional[CharacterizePlan] = None,
+        pitch_um: Optional[float] = None,
     ) -> "AsyncJob":
         """``characterize start``; see :meth:`Rig.characterize`."""
         reply = await self._call(
@@ -346,6 +349,8 @@ class AsyncRig:
                 moves_per_cycle=moves_per_cycle,
                 anchor_spacing_um=anchor_spacing_um,
                 unanchored_log=unanchored_log,
+                plan=plan,
+                pitch_um=pitch_um,
             )
         )
         return AsyncJob._from_reply(self, "characterize", reply)

@@ -27,6 +27,7 @@ from .errors import MicroposError, ProtocolError, Timeout
 from .types import (
     Axes,
     CharacterizeMode,
+    CharacterizePlan,
     DriftMethod,
     Json,
     JobKind,
@@ -305,6 +306,8 @@ class Rig:
         moves_per_cycle: Optional[int] = None,
         anchor_spacing_um: Optional[float] = None,
         unanchored_log: Optional[str] = None,
+        plan: Optional[CharacterizePlan] = None,
+        pitch_um: Optional[float] = None,
     ) -> "Job":
         """``characterize start``: a characterization job, logged point by
         point into ``log`` (a file name in the daemon's data directory).
@@ -321,7 +324,10 @@ class Rig:
         state with them; ``unanchored_log`` also writes the log without that
         correction. ``moves_per_cycle`` (step mode) adds that many moves of
         varied length per cycle after the scans, so a model table can learn
-        a lost motion that grows with the move length. Returns the job's
+        a lost motion that grows with the move length. ``plan="grid"``
+        (step mode) measures every node of a lattice over both ranges,
+        ``pitch_um`` apart (default ``step_um``), each reached from below on
+        both axes; ``tables.build`` makes a 2-D map of it. Returns the job's
         handle."""
         reply = self._call(
             proto.characterize_start(
@@ -341,6 +347,8 @@ class Rig:
                 moves_per_cycle=moves_per_cycle,
                 anchor_spacing_um=anchor_spacing_um,
                 unanchored_log=unanchored_log,
+                plan=plan,
+                pitch_um=pitch_um,
             )
         )
         return Job._from_reply(self, "characterize", reply)

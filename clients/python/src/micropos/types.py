@@ -18,6 +18,7 @@ __all__ = [
     "ValidateTest",
     "ValidateMode",
     "TableKind",
+    "CharacterizePlan",
     "DriftMethod",
     "JobKind",
     "JobProgress",
@@ -46,6 +47,7 @@ JobKind = Literal["characterize", "validate"]
 #: How a characterization measures: stop and measure per point, or on the
 #: fly at constant velocity (the camera delay estimated from the data).
 CharacterizeMode = Literal["step", "sweep"]
+CharacterizePlan = Literal["lines", "grid"]
 
 
 class JobProgress(TypedDict, total=False):
