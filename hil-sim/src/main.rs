@@ -131,6 +131,10 @@ enum Cmd {
         /// none: the sweep's records then keep the pass's motion state).
         #[arg(long)]
         sweep_anchor_spacing_um: Option<f64>,
+        /// Node pitch of the grid row's characterization, µm (default 100,
+        /// 1000 with --short; 0 = no grid row).
+        #[arg(long)]
+        grid_pitch_um: Option<f64>,
         /// Serve the rig on ptys in real time, this many simulated seconds
         /// per wall second, instead of in process on the virtual clock
         /// (results then depend on the machine's load; default: virtual,
@@ -163,6 +167,7 @@ fn main() -> anyhow::Result<()> {
             settle_s,
             paper_settle_s,
             sweep_anchor_spacing_um,
+            grid_pitch_um,
             time_scale,
         } => main_job(
             seed,
@@ -178,6 +183,7 @@ fn main() -> anyhow::Result<()> {
                 settle_s,
                 paper_settle_s,
                 anchor_spacing_um: sweep_anchor_spacing_um,
+                grid_pitch_um,
             },
             time_scale,
         ),
@@ -345,6 +351,7 @@ struct PlanFlags {
     settle_s: Option<f64>,
     paper_settle_s: Option<f64>,
     anchor_spacing_um: Option<f64>,
+    grid_pitch_um: Option<f64>,
 }
 
 /// `hil-sim run`; see `hil_sim::run`.
@@ -363,6 +370,7 @@ fn main_job(
         settle_s,
         paper_settle_s,
         anchor_spacing_um,
+        grid_pitch_um,
     }: PlanFlags,
     time_scale: Option<f64>,
 ) -> anyhow::Result<()> {
@@ -412,6 +420,13 @@ fn main_job(
                     "--sweep-anchor-spacing-um must be a number ≥ 0"
                 );
                 p.sweep_anchor_spacing_um = h;
+            }
+            if let Some(g) = grid_pitch_um {
+                anyhow::ensure!(
+                    g.is_finite() && g >= 0.0,
+                    "--grid-pitch-um must be a number ≥ 0 (0: no grid row)"
+                );
+                p.grid_pitch_um = g;
             }
             for (flag, value, slot) in [
                 ("--settle-s", settle_s, &mut p.settle_s),

@@ -142,6 +142,12 @@ pub struct RunPlan {
     /// the step plan's motion state by them, and the row validates the
     /// tables without that correction too.
     pub sweep_anchor_spacing_um: f64,
+    /// The grid row (`grid` block): a grid characterization of the same
+    /// ranges at this node pitch (one cycle, every node from below), its
+    /// 2-D map (`tables build` kind grid) validated in `table` mode with
+    /// live drift off (compare with the drift comparison's `off` row of the
+    /// step tables). 0 = no grid row.
+    pub grid_pitch_um: f64,
 }
 
 impl RunPlan {
@@ -170,6 +176,7 @@ impl RunPlan {
             sweep_velocity_um_per_s: 120.0,
             sweep_anchor_spacing_um:
                 micropos::daemon::jobs::sweep_anchor::DEFAULT_ANCHOR_SPACING_UM,
+            grid_pitch_um: 100.0,
         }
     }
 
@@ -187,6 +194,7 @@ impl RunPlan {
             square_step_um: 1000.0,
             sweep_velocity_um_per_s: 0.0,
             paper_settle_s: 0.3,
+            grid_pitch_um: 1000.0,
             ..Self::paper()
         }
     }
@@ -803,6 +811,12 @@ async fn pipeline(
         summary["sweep"] = sw;
         lap(c.now_s().await?, "sweep", &mut phases);
     }
+    if p.grid_pitch_um > 0.0 {
+        let mut g = grid_phase(opts, &mut c, progress, &mut files).await?;
+        g["step_table_ap_um"] = summary["drift"]["compare"]["off"].clone();
+        summary["grid"] = g;
+        lap(c.now_s().await?, "grid", &mut phases);
+    }
     summary["phases_s"] = Value::Object(phases);
     // Frames the camera delivered and the decoder read: the work the run
     // cannot avoid (the main-job benchmark's baseline is their cost).
@@ -884,6 +898,69 @@ async fn sweep_phase(
         files.extend([log.to_owned(), format!("{stem}-paper.toml"), vlog]);
     }
     Ok(out)
+}
+
+/// The grid row: `characterize start plan=grid` over the plan's ranges at
+/// `grid_pitch_um` (one cycle, the plan's drift references), its 2-D map
+/// (`tables build` kind grid), validated in `table` mode with live drift
+/// off.
+async fn grid_phase(
+    opts: &RunOptions,
+    c: &mut Client,
+    progress: &mut dyn FnMut(&str),
+    files: &mut Vec<String>,
+) -> Result<Value, RunError> {
+    let p = &opts.plan;
+    progress(&format!(
+        "characterize charact-grid.csv: a grid at {} µm pitch over {} × {} µm",
+        p.grid_pitch_um, p.x_range_um, p.y_range_um
+    ));
+    let t0 = c.now_s().await?;
+    c.call(
+        json!({"cmd": "characterize", "action": "start", "log": "charact-grid.csv",
+                  "plan": "grid", "pitch_um": p.grid_pitch_um,
+                  "x_range_um": p.x_range_um, "y_range_um": p.y_range_um, "cycles": 1,
+                  "frames_per_point": p.frames_per_point, "settle_s": p.settle_s,
+                  "drift_every_s": p.drift_every_s,
+                  "drift_reference_um": p.drift_reference_um}),
+    )
+    .await?;
+    let s = c
+        .follow(
+            json!({"cmd": "characterize", "action": "status"}),
+            "grid",
+            progress,
+        )
+        .await?;
+    let simulated_s = c.now_s().await? - t0;
+    let built = c
+        .call(
+            json!({"cmd": "tables", "action": "build", "log": "charact-grid.csv",
+                     "name": "run-grid", "kinds": ["grid"]}),
+        )
+        .await?;
+    c.call(json!({"cmd": "drift", "action": "set", "method": "off"}))
+        .await?;
+    let mut req = validate_request(p, "validate-grid.csv");
+    req["modes"] = json!(["table"]);
+    req["table"] = json!("run-grid-grid.toml");
+    progress("validate: table mode with the grid map run-grid-grid.toml");
+    let v = c.validate(req, progress).await?;
+    let r = &v["validation"]["results"];
+    files.extend(
+        [
+            "charact-grid.csv",
+            "run-grid-grid.toml",
+            "validate-grid.csv",
+        ]
+        .map(str::to_owned),
+    );
+    Ok(
+        json!({"pitch_um": p.grid_pitch_um, "nodes": s["job"]["done"],
+              "simulated_s": simulated_s, "report": built["grid"]["report"],
+              "square": table_offset(&r["square"]["table"]),
+              "random": table_offset(&r["random"]["table"])}),
+    )
 }
 
 /// The live drift methods the comparison runs, in this order.
@@ -970,6 +1047,20 @@ pub fn format_table(summary: &Value) -> String {
             ap("run-sweep-nodelay", "random"),
             ap("run-sweep-noanchor", "square"),
             ap("run-sweep-noanchor", "random"),
+        ));
+    }
+    let g = &summary["grid"];
+    if g.is_object() {
+        let ap = |k: &str, t: &str| f(&g[k][t]["ap_um"]);
+        s.push_str(&format!(
+            "grid: {} nodes at {} µm pitch, {:.0} simulated s; 2-D map table AP max µm (square / random), live drift off: {} / {} (step tables {} / {})\n",
+            g["nodes"],
+            g["pitch_um"],
+            g["simulated_s"].as_f64().unwrap_or(f64::NAN),
+            f(&g["square"]["ap_um"]),
+            f(&g["random"]["ap_um"]),
+            ap("step_table_ap_um", "square"),
+            ap("step_table_ap_um", "random"),
         ));
     }
     let ch = &summary["characterization"];

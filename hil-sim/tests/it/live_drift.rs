@@ -61,8 +61,10 @@ fn live_drift_correction_removes_the_thermal_offset() {
         // rate to extrapolate (with one, it can only hold it, as static).
         live_drift_every_s: 15.0,
         drift_compare: true,
-        // The sweep row has its own test (sweep_charact.rs).
+        // The sweep row has its own test (sweep_charact.rs), the grid row
+        // run_pipeline.rs.
         sweep_velocity_um_per_s: 0.0,
+        grid_pitch_um: 0.0,
         // This project's timing for both characterizations (the paper's
         // 2.0 s settle only stretches the simulated hours here).
         paper_settle_s: 0.3,

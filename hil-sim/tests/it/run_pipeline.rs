@@ -4,8 +4,8 @@
 //! characterizations, tables build, validate in all four modes).
 //!
 //! Checks the JSON shape the README documents and that compensation
-//! improves on raw by a stated factor: the lookup tables and the model by
-//! ≥ 5× in AP (typical on this plan: raw ≈ 13 µm, table ≈ 0.2-0.5 µm,
+//! improves on raw by a stated factor: the grid row's 2-D map (1 mm pitch)
+//! by ≥ 3×, the lookup tables and the model by ≥ 5× in AP (typical on this plan: raw ≈ 13 µm, table ≈ 0.2-0.5 µm,
 //! model ≈ 1-1.5 µm from 500 µm steps), closed loop to ≤ 0.5 µm
 //! (typically ≈ 0.1 µm; its tolerance is 0.1 µm).
 
@@ -24,6 +24,8 @@ fn pipeline_through_the_daemon_improves_on_raw() {
         drift_compare: false,
         // The sweep row has its own test (sweep_charact.rs).
         sweep_velocity_um_per_s: 0.0,
+        // The grid row: 11 × 6 nodes over the ranges (the ends included).
+        grid_pitch_um: 1000.0,
         // This project's timing for both characterizations (the paper's
         // 2.0 s settle only stretches the simulated hours here).
         paper_settle_s: 0.3,
@@ -54,6 +56,17 @@ fn pipeline_through_the_daemon_improves_on_raw() {
         assert!(ap("model") * 5.0 < ap("raw"), "{test} model: {s}");
         assert!(ap("closed_loop") <= 0.5, "{test} closed_loop: {s}");
     }
+    // The grid row: every node once (the range's end a node too), its map
+    // validated in table mode.
+    let g = &s["grid"];
+    assert_eq!(g["nodes"], 11 * 6, "{g}");
+    assert_eq!(g["report"]["nodes"], serde_json::json!([11, 6]), "{g}");
+    for test in ["square", "random"] {
+        let raw = s[test]["raw"]["ap_um"].as_f64().unwrap();
+        let grid = g[test]["ap_um"].as_f64().unwrap();
+        assert!(grid * 3.0 < raw, "{test}: grid map {grid} µm, raw {raw} µm");
+    }
+    assert!(report.files.iter().any(|f| f == "run-grid-grid.toml"));
     let ch = &s["characterization"];
     // 96 + 43 points per pass (100 µm over 9500 and 4200 µm), 2 passes.
     assert_eq!(ch["points"], 2 * 96 + 2 * 43, "{s}");

@@ -344,6 +344,7 @@ fn main_job_sweep_row_on_the_paper_ranges() {
     let plan = hil_sim::run::RunPlan {
         step_um,
         short_step_um: 500.0,
+        grid_pitch_um: 0.0,
         ..hil_sim::run::RunPlan::paper()
     };
     let model = std::env::var_os("MICROPOS_SWEEP_MODEL").map(std::path::PathBuf::from);

@@ -109,18 +109,16 @@ impl ScanPlan {
     pub fn points(&self) -> Vec<Point> {
         let mut v = Vec::new();
         if self.grid {
-            let (nx, ny) = (
-                Self::steps(self.x_range_um, self.step_um),
-                Self::steps(self.y_range_um, self.step_um),
-            );
+            let xs = self.grid_nodes(self.x_start_um, self.x_range_um);
+            let ys = self.grid_nodes(self.y_start_um, self.y_range_um);
             for cycle in 1..=self.cycles {
-                for j in 0..=ny {
-                    for i in 0..=nx {
+                for &y_um in &ys {
+                    for &x_um in &xs {
                         v.push(Point {
                             segment: SEGMENT_GRID,
                             cycle,
-                            x_um: self.x_start_um + f64::from(i) * self.step_um,
-                            y_um: self.y_start_um + f64::from(j) * self.step_um,
+                            x_um,
+                            y_um,
                         });
                     }
                 }
@@ -178,6 +176,21 @@ impl ScanPlan {
         v
     }
 
+    /// A grid's node positions along one axis: every `step_um` from
+    /// `start`, and the range's end when the pitch does not divide the
+    /// range (so the map covers the whole characterized area; its last
+    /// cell is narrower).
+    fn grid_nodes(&self, start_um: f64, range_um: f64) -> Vec<f64> {
+        let n = Self::steps(range_um, self.step_um);
+        let mut v: Vec<f64> = (0..=n)
+            .map(|i| start_um + f64::from(i) * self.step_um)
+            .collect();
+        if range_um - f64::from(n) * self.step_um > 1e-6 {
+            v.push(start_um + range_um);
+        }
+        v
+    }
+
     /// The plan's moves of varied length (`moves_per_cycle`), after its
     /// scans or grid.
     fn push_moves(&self, v: &mut Vec<Point>) {
@@ -199,7 +212,7 @@ impl ScanPlan {
     /// How many points the plan has, at most (a float, so that an absurd
     /// plan is refused before its point list is built).
     pub fn points_upper_bound(&self) -> f64 {
-        let n = |r: f64| (r / self.step_um).min(1e7) + 1.0;
+        let n = |r: f64| (r / self.step_um).min(1e7) + 2.0;
         let per_cycle = if self.grid {
             n(self.x_range_um) * n(self.y_range_um)
         } else {
@@ -418,6 +431,14 @@ mod tests {
             (4750.0, 6400.0, 1)
         );
         assert_eq!(pts[15].cycle, 2);
+        // A pitch that does not divide a range: its end is a node too.
+        let q = ScanPlan {
+            y_range_um: 1200.0,
+            cycles: 1,
+            ..p.clone()
+        };
+        let ys: Vec<f64> = q.points().iter().step_by(5).map(|n| n.y_um).collect();
+        assert_eq!(ys, [5400.0, 5900.0, 6400.0, 6600.0]);
         let mut md = Metadata::new();
         p.to_metadata(&mut md);
         assert_eq!(md.get("plan"), Some("grid"));
