@@ -26,10 +26,22 @@ fn default_file_round_trips_through_to_toml() {
     let back = StageModel::from_toml(&text).unwrap();
     assert_eq!(back.params(), m.params());
     assert_eq!(back.to_toml().unwrap(), text);
-    // Every built-in kind appears in the documented default.
-    let kinds: Vec<&str> = m.terms().iter().map(|t| t.kind()).collect();
+    // Every built-in kind appears in a shipped, documented file: the
+    // default, or for the stacked stage's yaw, which the documented stage
+    // does not have, config/stage-model-stacked.toml.
+    let stacked =
+        StageModel::from_toml(include_str!("../../config/stage-model-stacked.toml")).unwrap();
+    let kinds: Vec<&str> = m
+        .terms()
+        .iter()
+        .chain(stacked.terms())
+        .map(|t| t.kind())
+        .collect();
     for (kind, _) in TermRegistry::builtin().kinds() {
-        assert!(kinds.contains(&kind), "default file lacks a `{kind}` term");
+        assert!(
+            kinds.contains(&kind),
+            "no shipped model file has a `{kind}` term"
+        );
     }
 }
 
@@ -139,4 +151,35 @@ fn describe_default() {
     let d = StageModel::paper_default().unwrap().describe();
     println!("{d}");
     assert!(d.lines().count() > 80);
+}
+
+/// The stacked stage is the documented one plus its `stacked_yaw` term,
+/// nothing else: the two files cannot drift apart.
+#[test]
+fn the_stacked_stage_is_the_default_plus_its_yaw() {
+    let dir = env!("CARGO_MANIFEST_DIR");
+    let read = |f: &str| {
+        let text = std::fs::read_to_string(format!("{dir}/config/{f}")).unwrap();
+        StageModel::from_toml(&text).unwrap()
+    };
+    let base = read("stage-model.toml");
+    let stacked = read("stage-model-stacked.toml");
+    let names = |m: &StageModel| {
+        m.terms()
+            .iter()
+            .map(|t| t.name().to_owned())
+            .collect::<Vec<_>>()
+    };
+    let mut want = names(&base);
+    want.push("x_carriage_yaw".to_owned());
+    assert_eq!(names(&stacked), want);
+    assert_eq!(stacked.terms().last().unwrap().kind(), "stacked_yaw");
+    let values = |m: &StageModel| {
+        m.params()
+            .into_iter()
+            .map(|p| (p.full_name, p.info.value))
+            .collect::<Vec<_>>()
+    };
+    let (b, s) = (values(&base), values(&stacked));
+    assert_eq!(b, s[..b.len()]);
 }

@@ -125,3 +125,125 @@ async fn a_grid_characterization_builds_a_map_that_compensates_the_square() {
     daemon.shutdown().await;
     let _ = tokio::task::spawn_blocking(move || sim.shutdown()).await;
 }
+
+/// A stage whose only position error besides scale and squareness is the
+/// lower carriage's yaw acting on the upper axis (`stacked_yaw`: not
+/// separable), with a little repeatability noise.
+const STACKED_MODEL: &str = r#"
+format_version = 1
+description = "scale, squareness and the X carriage's yaw on the Y axis"
+[stochastic]
+repeatability_sigma_um = [0.02, 0.02]
+min_incremental_motion_um = 0.05
+position_quantum_um = 0.0
+rough_spots = []
+[environment]
+temperature_interpolation = "smooth"
+temperature = [{ time_s = 0.0, temp_c = 20.0 }]
+[[term]]
+kind = "lead_error"
+name = "x_lead"
+axis = "x"
+ppm = 150.0
+[[term]]
+kind = "squareness"
+name = "sq"
+angle_urad = 400.0
+[[term]]
+kind = "stacked_yaw"
+name = "x_carriage_yaw"
+lower_axis = "x"
+slope_urad_per_mm = 200.0
+lower_center_um = 3010.0
+upper_center_um = 3010.0
+"#;
+
+/// Waits for the current job of `kind` (`characterize`, `validate`) to end.
+async fn wait_done(cl: &mut Client, kind: &str) -> serde_json::Value {
+    let t0 = Instant::now();
+    loop {
+        let s = cl.call_ok(json!({"cmd": kind, "action": "status"})).await;
+        match s["job"]["state"].as_str() {
+            Some("done") => return s,
+            Some("running") => {}
+            _ => panic!("{s}"),
+        }
+        assert!(t0.elapsed() < Duration::from_secs(600), "too slow: {s}");
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+}
+
+/// On a stage with non-separable error, the paper's tables (one scan line
+/// per axis through the middle, where the yaw's product vanishes) cannot
+/// hold it and a grid map can: square AP of the map well below the
+/// tables'.
+#[tokio::test(start_paused = true)]
+async fn on_a_stacked_stage_the_map_holds_what_the_tables_cannot() {
+    let dir = tempfile::tempdir().unwrap();
+    let rig_dir = dir.path().join("rig");
+    let data = dir.path().join("data");
+    std::fs::create_dir_all(&rig_dir).unwrap();
+    std::fs::create_dir_all(&data).unwrap();
+    let model = dir.path().join("stacked.toml");
+    std::fs::write(&model, STACKED_MODEL).unwrap();
+    let sim = common::serve_in_process(hil_sim::ServeConfig {
+        model: Some(model),
+        ..common::serve_config(&rig_dir, 50.0, 17)
+    });
+    let socket = dir.path().join("micropos.sock");
+    let mut c = daemon_config(
+        &rig_dir,
+        &data,
+        &socket,
+        &hil_sim::rig::RigConfig::default(),
+        &RunPlan::reduced(),
+    )
+    .unwrap();
+    c.characterize.x_start_um = Some(1000.0);
+    c.characterize.y_start_um = Some(1000.0);
+    c.validate().unwrap();
+    let daemon = common::start_daemon_in_process(c, &sim, &socket);
+    let mut cl = Client::connect(&socket).await;
+    common::connect_and_reference(&mut cl).await;
+    let range = 4.0 * PITCH_UM;
+    for (log, plan) in [("lines.csv", "lines"), ("grid.csv", "grid")] {
+        cl.call_ok(json!({"cmd": "characterize", "action": "start", "log": log,
+                          "plan": plan, "step_um": if plan == "grid" { PITCH_UM } else { 201.0 },
+                          "x_range_um": range, "y_range_um": range, "cycles": 1,
+                          "frames_per_point": 1, "settle_s": 0.5}))
+            .await;
+        wait_done(&mut cl, "characterize").await;
+    }
+    cl.call_ok(
+        json!({"cmd": "tables", "action": "build", "log": "lines.csv",
+                      "name": "lines", "kinds": ["paper"]}),
+    )
+    .await;
+    cl.call_ok(json!({"cmd": "tables", "action": "build", "log": "grid.csv", "name": "grid"}))
+        .await;
+    let mut ap = Vec::new();
+    for table in ["lines-paper.toml", "grid-grid.toml"] {
+        cl.call_ok(
+            json!({"cmd": "validate", "action": "start", "test": "square",
+                          "modes": ["table"], "table": table, "cycles": 1,
+                          "square_step_um": 1000.0, "frames_per_point": 1, "settle_s": 0.5,
+                          "log": format!("v-{table}.csv")}),
+        )
+        .await;
+        let s = wait_done(&mut cl, "validate").await;
+        ap.push(
+            s["validation"]["results"]["square"]["table"]["ap_um"]
+                .as_f64()
+                .unwrap(),
+        );
+    }
+    eprintln!(
+        "GRID | stacked stage, square AP: paper tables {:.3} µm, grid map {:.3} µm",
+        ap[0], ap[1]
+    );
+    assert!(ap[1] < 0.5 * ap[0], "tables {} µm, map {} µm", ap[0], ap[1]);
+
+    drop(cl);
+    daemon.shutdown().await;
+    let _ = tokio::task::spawn_blocking(move || sim.shutdown()).await;
+}

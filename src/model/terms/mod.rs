@@ -12,6 +12,7 @@ pub mod discovered;
 pub mod lead;
 pub mod offset;
 pub mod squareness;
+pub mod stacked_yaw;
 pub mod thermal;
 
 pub(crate) use basis::{direction_weights, harmonics};
@@ -26,6 +27,7 @@ pub use discovered::{
 pub use lead::{Lead, LeadConfig, LeadTerm};
 pub use offset::{OriginOffset, OriginOffsetConfig, OriginOffsetTerm};
 pub use squareness::{Squareness, SquarenessConfig, SquarenessTerm};
+pub use stacked_yaw::{StackedYaw, StackedYawConfig, StackedYawTerm};
 pub use thermal::{
     OpticsDrift, OpticsDriftConfig, OpticsDriftTerm, ThermalExpansion, ThermalExpansionConfig,
     ThermalExpansionTerm,
@@ -52,6 +54,11 @@ pub(crate) const BUILTIN: &[(&str, &str, TermBuilder)] = &[
         squareness::KIND,
         "out-of-squareness of the Y axis: x error proportional to y",
         squareness::SquarenessTerm::build,
+    ),
+    (
+        stacked_yaw::KIND,
+        "yaw of the lower carriage growing along its travel, times the upper axis's travel: error in both positions at once",
+        stacked_yaw::StackedYawTerm::build,
     ),
     (
         lead::KIND,
