@@ -916,6 +916,22 @@ fn halt_figures(sim: &Sim, action: impl FnOnce() + Send) -> HaltFigures {
     })
 }
 
+/// The unit's stop hook, `microposd -c CFG --halt`: must exit 0 (`what`
+/// names the case in the failure).
+fn stop_hook(cfg: &Path, what: &str) {
+    let out = Command::new(microposd_bin())
+        .arg("-c")
+        .arg(cfg)
+        .arg("--halt")
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{what}: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+}
+
 /// Longest a halt by SIGTERM or by the stop hook may take, simulated s
 /// (the deceleration from 1 mm/s takes 0.1 s; the rest is the daemon's or
 /// the hook's start-up on a loaded machine at time scale 2).
@@ -958,19 +974,7 @@ fn sigterm_halts_before_exit_and_the_stop_hook_halts_after_sigkill() {
     std::thread::sleep(Duration::from_millis(200));
     assert!(truth(&sim).1, "the stage stopped by itself");
     let cfg = daemon_config(dir.path());
-    let h = halt_figures(&sim, || {
-        let out = Command::new(microposd_bin())
-            .arg("-c")
-            .arg(&cfg)
-            .arg("--halt")
-            .output()
-            .unwrap();
-        assert!(
-            out.status.success(),
-            "{}",
-            String::from_utf8_lossy(&out.stderr)
-        );
-    });
+    let h = halt_figures(&sim, || stop_hook(&cfg, "after SIGKILL"));
     let (p_rest, _) = truth(&sim);
     println!(
         "HALT | SIGKILL mid-move, then microposd --halt 0.2 s (wall) later | at rest {:.3} s simulated ({:.3} s wall) after the hook started | x {:.1} µm, y {:.1} µm after the hook started; {:.1} µm, {:.1} µm after the kill |",
@@ -1022,19 +1026,7 @@ fn the_stop_hook_halts_under_cpu_load() {
         };
         long_move(&mut c, &sim, target[0], target[1]);
         d.sigkill();
-        let h = halt_figures(&sim, || {
-            let out = Command::new(microposd_bin())
-                .arg("-c")
-                .arg(&cfg)
-                .arg("--halt")
-                .output()
-                .unwrap();
-            assert!(
-                out.status.success(),
-                "round {round}: {}",
-                String::from_utf8_lossy(&out.stderr)
-            );
-        });
+        let h = halt_figures(&sim, || stop_hook(&cfg, &format!("round {round}")));
         assert!(h.sim_s < PROCESS_HALT_BOUND_S, "round {round}: {h:?}");
         at_rest_short_of(&sim, target);
         figures.push(h);

@@ -17,14 +17,31 @@ use std::time::{Duration, Instant};
 /// 4010 µm from the characterization's start corner).
 const PITCH_UM: f64 = 1005.0;
 
-#[tokio::test(start_paused = true)]
-async fn a_grid_characterization_builds_a_map_that_compensates_the_square() {
+/// The in-process served rig (seed `seed`; `model`: a stage model file's
+/// text instead of the default one) and microposd on it, axes referenced.
+struct Setup {
+    _dir: tempfile::TempDir,
+    data: std::path::PathBuf,
+    sim: hil_sim::SimHandle,
+    daemon: micropos::daemon::Running,
+    cl: Client,
+}
+
+async fn setup(seed: u64, model: Option<&str>) -> Setup {
     let dir = tempfile::tempdir().unwrap();
     let rig_dir = dir.path().join("rig");
     let data = dir.path().join("data");
     std::fs::create_dir_all(&rig_dir).unwrap();
     std::fs::create_dir_all(&data).unwrap();
-    let sim = common::serve_in_process(common::serve_config(&rig_dir, 50.0, 31));
+    let model = model.map(|text| {
+        let p = dir.path().join("model.toml");
+        std::fs::write(&p, text).unwrap();
+        p
+    });
+    let sim = common::serve_in_process(hil_sim::ServeConfig {
+        model,
+        ..common::serve_config(&rig_dir, 50.0, seed)
+    });
     let socket = dir.path().join("micropos.sock");
     let mut c = daemon_config(
         &rig_dir,
@@ -42,6 +59,28 @@ async fn a_grid_characterization_builds_a_map_that_compensates_the_square() {
     let daemon = common::start_daemon_in_process(c, &sim, &socket);
     let mut cl = Client::connect(&socket).await;
     common::connect_and_reference(&mut cl).await;
+    Setup {
+        _dir: dir,
+        data,
+        sim,
+        daemon,
+        cl,
+    }
+}
+
+impl Setup {
+    async fn shutdown(self) {
+        drop(self.cl);
+        self.daemon.shutdown().await;
+        let sim = self.sim;
+        let _ = tokio::task::spawn_blocking(move || sim.shutdown()).await;
+    }
+}
+
+#[tokio::test(start_paused = true)]
+async fn a_grid_characterization_builds_a_map_that_compensates_the_square() {
+    let mut s = setup(31, None).await;
+    let (cl, data) = (&mut s.cl, s.data.clone());
 
     // A pitch without the grid plan is refused with the reason.
     let r = cl
@@ -120,10 +159,7 @@ async fn a_grid_characterization_builds_a_map_that_compensates_the_square() {
     assert_eq!(results["table"]["table"], "g-grid.toml", "{results}");
     // Measured on seed 31: 25.3 µm raw, 0.89 µm by the map.
     assert!(table < 0.15 * raw, "raw {raw} µm, table {table} µm");
-
-    drop(cl);
-    daemon.shutdown().await;
-    let _ = tokio::task::spawn_blocking(move || sim.shutdown()).await;
+    s.shutdown().await;
 }
 
 /// A stage whose only position error besides scale and squareness is the
@@ -179,32 +215,8 @@ async fn wait_done(cl: &mut Client, kind: &str) -> serde_json::Value {
 /// tables'.
 #[tokio::test(start_paused = true)]
 async fn on_a_stacked_stage_the_map_holds_what_the_tables_cannot() {
-    let dir = tempfile::tempdir().unwrap();
-    let rig_dir = dir.path().join("rig");
-    let data = dir.path().join("data");
-    std::fs::create_dir_all(&rig_dir).unwrap();
-    std::fs::create_dir_all(&data).unwrap();
-    let model = dir.path().join("stacked.toml");
-    std::fs::write(&model, STACKED_MODEL).unwrap();
-    let sim = common::serve_in_process(hil_sim::ServeConfig {
-        model: Some(model),
-        ..common::serve_config(&rig_dir, 50.0, 17)
-    });
-    let socket = dir.path().join("micropos.sock");
-    let mut c = daemon_config(
-        &rig_dir,
-        &data,
-        &socket,
-        &hil_sim::rig::RigConfig::default(),
-        &RunPlan::reduced(),
-    )
-    .unwrap();
-    c.characterize.x_start_um = Some(1000.0);
-    c.characterize.y_start_um = Some(1000.0);
-    c.validate().unwrap();
-    let daemon = common::start_daemon_in_process(c, &sim, &socket);
-    let mut cl = Client::connect(&socket).await;
-    common::connect_and_reference(&mut cl).await;
+    let mut s = setup(17, Some(STACKED_MODEL)).await;
+    let cl = &mut s.cl;
     let range = 4.0 * PITCH_UM;
     for (log, plan) in [("lines.csv", "lines"), ("grid.csv", "grid")] {
         cl.call_ok(json!({"cmd": "characterize", "action": "start", "log": log,
@@ -212,7 +224,7 @@ async fn on_a_stacked_stage_the_map_holds_what_the_tables_cannot() {
                           "x_range_um": range, "y_range_um": range, "cycles": 1,
                           "frames_per_point": 1, "settle_s": 0.5}))
             .await;
-        wait_done(&mut cl, "characterize").await;
+        wait_done(cl, "characterize").await;
     }
     cl.call_ok(
         json!({"cmd": "tables", "action": "build", "log": "lines.csv",
@@ -230,9 +242,9 @@ async fn on_a_stacked_stage_the_map_holds_what_the_tables_cannot() {
                           "log": format!("v-{table}.csv")}),
         )
         .await;
-        let s = wait_done(&mut cl, "validate").await;
+        let v = wait_done(cl, "validate").await;
         ap.push(
-            s["validation"]["results"]["square"]["table"]["ap_um"]
+            v["validation"]["results"]["square"]["table"]["ap_um"]
                 .as_f64()
                 .unwrap(),
         );
@@ -242,8 +254,5 @@ async fn on_a_stacked_stage_the_map_holds_what_the_tables_cannot() {
         ap[0], ap[1]
     );
     assert!(ap[1] < 0.5 * ap[0], "tables {} µm, map {} µm", ap[0], ap[1]);
-
-    drop(cl);
-    daemon.shutdown().await;
-    let _ = tokio::task::spawn_blocking(move || sim.shutdown()).await;
+    s.shutdown().await;
 }

@@ -32,6 +32,16 @@ struct WebRig {
     addr: SocketAddr,
 }
 
+/// `[web]` with control on, role operate and the test token.
+fn operate_with_token() -> WebSection {
+    WebSection {
+        control: true,
+        role: "operate".to_owned(),
+        token: Some(TOKEN.to_owned()),
+        ..WebSection::default()
+    }
+}
+
 fn web_rig(seed: u64, web: WebSection) -> WebRig {
     let dir = tempfile::tempdir().unwrap();
     let rig_dir = dir.path().join("rig");
@@ -151,15 +161,7 @@ async fn metrics_and_commands_follow_the_rig() {
         sim,
         daemon,
         addr,
-    } = web_rig(
-        3,
-        WebSection {
-            control: true,
-            role: "operate".to_owned(),
-            token: Some(TOKEN.to_owned()),
-            ..WebSection::default()
-        },
-    );
+    } = web_rig(3, operate_with_token());
     let mut cl = Client::connect(&socket).await;
     common::connect_and_reference(&mut cl).await;
 
@@ -810,15 +812,7 @@ async fn a_flood_cannot_starve_the_web_stop() {
         daemon,
         addr,
         ..
-    } = web_rig(
-        9,
-        WebSection {
-            control: true,
-            role: "operate".to_owned(),
-            token: Some(TOKEN.to_owned()),
-            ..WebSection::default()
-        },
-    );
+    } = web_rig(9, operate_with_token());
     let mut cl = Client::connect(&socket).await;
     common::connect_and_reference(&mut cl).await;
 
