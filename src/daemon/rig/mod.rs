@@ -295,7 +295,18 @@ impl Rig {
 
     /// The state part of `status`.
     pub fn status(&self) -> Value {
+        // The state first, then the stage: the connect task records the
+        // stage up in the state just before it hands the stage out, and a
+        // client that reads "connected" must find the stage there for its
+        // next command (seen: `reference` refused `not_connected` right
+        // after `status` said connected). Until the hand-out, not connected.
+        let mut rig = lock(&self.state).to_json();
         let stage = lock(&self.stage).clone();
+        if stage.is_none() {
+            if let Some(c) = rig.get_mut("connected") {
+                *c = json!({"x": false, "y": false});
+            }
+        }
         let travel = stage.map(|s| {
             let (xl, xh) = self.limits_um(&s.x, AxisId::X);
             let (yl, yh) = self.limits_um(&s.y, AxisId::Y);
@@ -303,7 +314,7 @@ impl Rig {
         });
         json!({
             "t_s": self.clock.now_s(),
-            "rig": lock(&self.state).to_json(),
+            "rig": rig,
             "limits": travel,
             "camera": self.vision.as_ref().map(|v| v.to_json()),
             "drift": self.drift.to_json(self.clock.now_s()),
