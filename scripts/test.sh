@@ -27,13 +27,18 @@ fi
 # wait on one binary's slowest test before the next binary starts; the doc
 # tests, which nextest does not run, follow. Without it, `cargo test`.
 # MICROPOS_NEXTEST=0 forces `cargo test`.
+# Each step prints the seconds since the script started, so a slow one
+# shows (the build apart from the run).
+step() { echo "== [${SECONDS}s] $*"; }
 if [ "${MICROPOS_NEXTEST:-1}" = 1 ] && cargo nextest --version >/dev/null 2>&1; then
-  echo "== cargo nextest run ${features[*]:-}"
+  step "build the tests (cargo test --no-run ${features[*]:-})"
+  cargo test --workspace "${features[@]}" --no-run
+  step "cargo nextest run ${features[*]:-}"
   cargo nextest run --workspace "${features[@]}"
-  echo "== cargo test --doc ${features[*]:-}"
+  step "cargo test --doc ${features[*]:-}"
   cargo test --workspace --doc "${features[@]}"
 else
-  echo "== cargo test ${features[*]:-}"
+  step "cargo test ${features[*]:-}"
   cargo test --workspace "${features[@]}"
 fi
 
@@ -43,8 +48,8 @@ fi
 # without the dev-dependencies and compile the library once more (12 min).
 export MICROPOS_BINS_BUILT=1
 
-echo "== PIPython against hil-sim"
+step "PIPython against hil-sim"
 PIPYTHON_VENV="${PIPYTHON_VENV:-$target/venv-pipython}" ./scripts/pipython.sh
 
-echo "== Python client against microposd + hil-sim"
+step "Python client against microposd + hil-sim"
 PYCLIENT_VENV="${PYCLIENT_VENV:-$target/venv-pyclient}" ./scripts/pyclient.sh
