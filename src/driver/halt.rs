@@ -40,6 +40,25 @@ pub struct AxisHalt {
 }
 
 impl AxisHalt {
+    /// Nothing sent yet, nothing known.
+    fn new(axis: &'static str) -> Self {
+        AxisHalt {
+            axis,
+            sent: false,
+            at_rest: false,
+            error: None,
+            problem: None,
+        }
+    }
+
+    /// Nothing could be sent, for `problem`.
+    fn failed(axis: &'static str, problem: String) -> Self {
+        AxisHalt {
+            problem: Some(problem),
+            ..AxisHalt::new(axis)
+        }
+    }
+
     /// Sent and at rest.
     pub fn ok(&self) -> bool {
         self.sent && self.at_rest
@@ -114,13 +133,7 @@ async fn halt_one(
     deadline: Instant,
     poll: Duration,
 ) -> AxisHalt {
-    let mut out = AxisHalt {
-        axis: name,
-        sent: false,
-        at_rest: false,
-        error: None,
-        problem: None,
-    };
+    let mut out = AxisHalt::new(name);
     let mut last_stop: Option<Instant> = None;
     loop {
         let now = Instant::now();
@@ -178,22 +191,15 @@ pub async fn halt_all(
         let a = a.clone();
         let events = events.clone();
         async move {
-            let fail = |p: String| AxisHalt {
-                axis: name,
-                sent: false,
-                at_rest: false,
-                error: None,
-                problem: Some(p),
-            };
             let addr = match a.address() {
                 Ok(addr) => addr,
-                Err(e) => return fail(e.to_string()),
+                Err(e) => return AxisHalt::failed(name, e.to_string()),
             };
             let line = match line {
                 Some(l) => l,
                 None => match open_line_until(&a, cfg, opener, &events, deadline).await {
                     Ok(l) => l,
-                    Err(e) => return fail(format!("opening the line: {e}")),
+                    Err(e) => return AxisHalt::failed(name, format!("opening the line: {e}")),
                 },
             };
             let timeout = Duration::from_millis(a.timeout_ms);
@@ -207,13 +213,7 @@ pub async fn halt_all(
             Ok(l) => l,
             Err(e) => {
                 return ["x", "y"]
-                    .map(|axis| AxisHalt {
-                        axis,
-                        sent: false,
-                        at_rest: false,
-                        error: None,
-                        problem: Some(format!("opening the line: {e}")),
-                    })
+                    .map(|axis| AxisHalt::failed(axis, format!("opening the line: {e}")))
                     .to_vec()
             }
         };

@@ -478,22 +478,15 @@ impl<C: Connector> Task<C> {
             // even if the write fails.
             lock_ledger(&self.ledger).wrote(addr);
         }
-        let write = async {
-            io.write_all(&bytes).await?;
-            io.flush().await
-        };
-        match tokio::time::timeout(Duration::from_millis(100), write).await {
-            Ok(Ok(())) => {
-                tracing::warn!(
-                    line = %self.name,
-                    controllers = self.known.len(),
-                    "line re-opened: stop all (#24) sent first"
-                );
-                Ok(())
-            }
-            Ok(Err(e)) => Err(format!("write error on the re-opened line: {e}")),
-            Err(_) => Err("write stalled on the re-opened line".to_owned()),
-        }
+        write_now(io, &bytes)
+            .await
+            .map_err(|why| format!("{why}, on the re-opened line"))?;
+        tracing::warn!(
+            line = %self.name,
+            controllers = self.known.len(),
+            "line re-opened: stop all (#24) sent first"
+        );
+        Ok(())
     }
 
     /// A controller address this line writes to.
@@ -505,27 +498,16 @@ impl<C: Connector> Task<C> {
 
     /// Writes an urgent byte; a failed or stalled write takes the line down.
     async fn write_urgent(&mut self, io: &mut C::Io, u: Urgent) -> Step {
-        let write = async {
-            io.write_all(&u.bytes).await?;
-            io.flush().await
-        };
         // Counted before the write: part of it may reach the controller
         // even if the write fails.
         lock_ledger(&self.ledger).wrote(u.addr);
         self.note_address(u.addr);
-        match tokio::time::timeout(Duration::from_millis(100), write).await {
-            Ok(Ok(())) => {
+        match write_now(io, &u.bytes).await {
+            Ok(()) => {
                 let _ = u.done.send(Ok(()));
                 Step::Continue
             }
-            Ok(Err(e)) => {
-                let reason = format!("write error: {e}");
-                self.down_reason = reason.clone();
-                let _ = u.done.send(Err(self.disconnected()));
-                Step::Down(reason)
-            }
-            Err(_) => {
-                let reason = "write stalled (nobody reads the line)".to_owned();
+            Err(reason) => {
                 self.down_reason = reason.clone();
                 let _ = u.done.send(Err(self.disconnected()));
                 Step::Down(reason)
@@ -752,6 +734,27 @@ impl<C: Connector> Task<C> {
 }
 
 /// Polls `fut` once: its output if it is ready now, else `None`.
+/// How long a write that expects no answer (a stop) may take: a line
+/// nobody reads is down.
+const URGENT_WRITE_TIMEOUT: Duration = Duration::from_millis(100);
+
+/// Writes and flushes `bytes` within [`URGENT_WRITE_TIMEOUT`]; the reason
+/// the line is down otherwise.
+async fn write_now<W: tokio::io::AsyncWrite + Unpin>(
+    io: &mut W,
+    bytes: &[u8],
+) -> Result<(), String> {
+    let write = async {
+        io.write_all(bytes).await?;
+        io.flush().await
+    };
+    match tokio::time::timeout(URGENT_WRITE_TIMEOUT, write).await {
+        Ok(Ok(())) => Ok(()),
+        Ok(Err(e)) => Err(format!("write error: {e}")),
+        Err(_) => Err("write stalled (nobody reads the line)".to_owned()),
+    }
+}
+
 async fn poll_once<F: std::future::Future>(fut: F) -> Option<F::Output> {
     let mut fut = std::pin::pin!(fut);
     std::future::poll_fn(|cx| match fut.as_mut().poll(cx) {

@@ -772,29 +772,19 @@ async fn connect_from(from: std::net::IpAddr, addr: SocketAddr) -> tokio::net::T
     s.connect(addr).await.unwrap()
 }
 
-/// One request on a fresh connection from `from`: status and body.
+/// One request on a fresh connection from `from` (`common::http`):
+/// status and body.
 async fn request_from(
     from: std::net::IpAddr,
     addr: SocketAddr,
-    head: &str,
+    method: &str,
+    path: &str,
+    headers: &[(&str, &str)],
     body: &str,
 ) -> (u16, String) {
-    use tokio::io::{AsyncReadExt, AsyncWriteExt};
-    let mut s = connect_from(from, addr).await;
-    let req = format!(
-        "{head}\r\nHost: {addr}\r\nConnection: close\r\nContent-Type: application/json\r\nContent-Length: {}\r\n\r\n{body}",
-        body.len()
-    );
-    s.write_all(req.as_bytes()).await.unwrap();
-    let mut out = Vec::new();
-    let _ = tokio::time::timeout(std::time::Duration::from_secs(20), s.read_to_end(&mut out)).await;
-    let text = String::from_utf8_lossy(&out).into_owned();
-    let status = text.get(9..12).and_then(|c| c.parse().ok()).unwrap_or(0);
-    let body = text
-        .split_once("\r\n\r\n")
-        .map_or("", |(_, b)| b)
-        .to_owned();
-    (status, body)
+    let s = connect_from(from, addr).await;
+    let (status, _, body) = common::http_on(s, addr, method, path, headers, body.as_bytes()).await;
+    (status, String::from_utf8_lossy(&body).into_owned())
 }
 
 /// A flood cannot starve the web STOP: one address cannot take more than
@@ -823,10 +813,10 @@ async fn a_flood_cannot_starve_the_web_stop() {
         held.push(connect_from(source(0), addr).await);
     }
     tokio::time::sleep(Duration::from_millis(100)).await;
-    let (status, _) = request_from(source(0), addr, "GET /metrics HTTP/1.1", "").await;
+    let (status, _) = request_from(source(0), addr, "GET", "/metrics", &[], "").await;
     assert_eq!(status, 503, "a 17th connection of one address was served");
     // Another address is served as usual.
-    let (status, _) = request_from(source(9), addr, "GET /metrics HTTP/1.1", "").await;
+    let (status, _) = request_from(source(9), addr, "GET", "/metrics", &[], "").await;
     assert_eq!(status, 200);
 
     // Every ordinary connection held.
@@ -834,12 +824,15 @@ async fn a_flood_cannot_starve_the_web_stop() {
         held.push(connect_from(source(i / MAX_PER_SOURCE), addr).await);
     }
     tokio::time::sleep(Duration::from_millis(100)).await;
-    let (status, body) = request_from(source(9), addr, "GET /metrics HTTP/1.1", "").await;
+    let (status, body) = request_from(source(9), addr, "GET", "/metrics", &[], "").await;
     assert_eq!(status, 503, "{body}");
+    let json = [("Content-Type", "application/json")];
     let (status, body) = request_from(
         source(9),
         addr,
-        "POST /api/command HTTP/1.1",
+        "POST",
+        "/api/command",
+        &json,
         r#"{"cmd":"position"}"#,
     )
     .await;
@@ -853,8 +846,17 @@ async fn a_flood_cannot_starve_the_web_stop() {
     cl.call_ok(json!({"cmd":"move","x_um":14000.0,"y_um":1000.0}))
         .await;
     tokio::time::sleep(Duration::from_millis(200)).await;
-    let head = format!("POST /api/command HTTP/1.1\r\nAuthorization: Bearer {TOKEN}");
-    let (status, body) = request_from(source(9), addr, &head, r#"{"cmd":"stop"}"#).await;
+    let bearer = format!("Bearer {TOKEN}");
+    let headers = [json[0], ("Authorization", bearer.as_str())];
+    let (status, body) = request_from(
+        source(9),
+        addr,
+        "POST",
+        "/api/command",
+        &headers,
+        r#"{"cmd":"stop"}"#,
+    )
+    .await;
     assert_eq!(status, 200, "{body}");
     assert!(body.contains("\"ok\":true"), "{body}");
     let x_at = |p: &Value| p["controller"]["x_um"].as_f64().unwrap();

@@ -120,11 +120,19 @@ impl GridMap {
     /// component is unmeasured (`measured`, `[x, y]`). Non-finite readings
     /// are left out.
     pub fn from_log(log: &MeasurementLog, measured: [bool; 2]) -> Option<GridMap> {
+        Self::from_records(&log.records, measured)
+    }
+
+    /// [`GridMap::from_log`] of a log's records alone (a lattice needs
+    /// nothing else of the log).
+    pub fn from_records(
+        records: &[crate::charact::log::Record],
+        measured: [bool; 2],
+    ) -> Option<GridMap> {
         if measured != [true, true] {
             return None;
         }
-        let recs: Vec<_> = log
-            .records
+        let recs: Vec<_> = records
             .iter()
             .filter(|r| !off_grid(&r.segment))
             .filter(|r| {

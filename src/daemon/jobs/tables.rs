@@ -172,7 +172,10 @@ pub fn build_blocking(
     }
     let mut written = Vec::new();
     let mut out = json!({"log": params.log, "frame": frame, "drift": drift});
-    let grid = grid_map(&parsed, &undrifted);
+    // The lattice, when a map may be asked for (named, or the default).
+    let grid = (params.kinds.is_empty() || params.kinds.iter().any(|k| k == "grid"))
+        .then(|| GridMap::from_records(&undrifted, [true, true]))
+        .flatten();
     let kinds = if params.kinds.is_empty() {
         default_kinds(grid.is_some(), &records)
     } else {
@@ -199,13 +202,7 @@ pub fn build_blocking(
             out["grid"] = json!({"name": name, "report": report});
             let mut f = CompFile::grid(table, rfc3339_utc(unix_s), source.clone());
             f.description = "2-D error map of a grid log, bilinear between its nodes".into();
-            f.frame = frame;
-            let p = data_dir.join(&name);
-            f.write_path(&p).map_err(|e| {
-                ProtoError::new(ErrorCode::LogError, format!("writing {name}: {e}"))
-            })?;
-            written.push(name);
-            continue;
+            f
         } else if kind == "paper" {
             let (table, report) = CompTable::from_records(&records, &TableBuildOptions::default())
                 .map_err(|e| bad(format!("paper tables from {}: {e}", params.log)))?;
@@ -240,7 +237,11 @@ pub fn build_blocking(
             f
         };
         file.frame = frame;
-        file.area = crate::comp::Area::of_scans(&records);
+        // A map's area is its nodes' span (set by `CompFile::grid`); the
+        // tables' and the model's is the scans'.
+        if file.area.is_none() {
+            file.area = crate::comp::Area::of_scans(&records);
+        }
         let p = data_dir.join(&name);
         file.write_path(&p)
             .map_err(|e| ProtoError::new(ErrorCode::LogError, format!("writing {name}: {e}")))?;
@@ -248,14 +249,6 @@ pub fn build_blocking(
     }
     out["written"] = json!(written);
     Ok((out, written))
-}
-
-/// The log's targets as a lattice, if they are a grid (drift-corrected
-/// records).
-fn grid_map(parsed: &log::MeasurementLog, records: &[Record]) -> Option<GridMap> {
-    let mut log = parsed.clone();
-    log.records = records.to_vec();
-    GridMap::from_log(&log, [true, true])
 }
 
 /// What `tables build` makes when the request names no kind: a 2-D map

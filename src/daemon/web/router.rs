@@ -82,9 +82,8 @@ pub fn bind(cfg: &WebSection) -> Result<WebListener, ProtoError> {
 
 /// The routes, every one behind the `Host` allow-list
 /// ([`host::check`]).
-pub fn router(web: Arc<Web>, hosts: Vec<String>) -> Router {
-    let hosts = Arc::new(hosts);
-    Router::new()
+pub fn router(web: Arc<Web>, hosts: Arc<Vec<String>>) -> Router {
+    let routes = Router::new()
         .route("/", get(page::index))
         .route("/app.js", get(page::app_js))
         .route("/figures.js", get(page::figures_js))
@@ -94,10 +93,15 @@ pub fn router(web: Arc<Web>, hosts: Vec<String>) -> Router {
         .route("/api/camera", get(camera_overlay))
         .route("/api/camera.png", get(camera_png))
         .route("/metrics", get(metrics_text))
-        .with_state(web)
-        .layer(axum::middleware::from_fn(move |req, next| {
-            host::check(hosts.clone(), req, next)
-        }))
+        .with_state(web);
+    behind_host_check(routes, hosts)
+}
+
+/// `routes` behind the `Host` allow-list ([`host::check`]).
+fn behind_host_check(routes: Router, hosts: Arc<Vec<String>>) -> Router {
+    routes.layer(axum::middleware::from_fn(move |req, next| {
+        host::check(hosts.clone(), req, next)
+    }))
 }
 
 /// HTTP connections open at once at most (event streams included, which
@@ -150,8 +154,9 @@ pub async fn serve(daemon: Arc<Daemon>, l: WebListener) {
         streams: Arc::new(Semaphore::new(MAX_STREAMS)),
         shutdown: daemon.shutdown.clone(),
     });
-    let stop_app = stop_router(web.clone(), l.hosts.clone());
-    let app = router(web, l.hosts);
+    let hosts = Arc::new(l.hosts);
+    let stop_app = stop_router(web.clone(), hosts.clone());
+    let app = router(web, hosts);
     let open = Arc::new(Semaphore::new(MAX_CONNECTIONS));
     let stop_slots = Arc::new(Semaphore::new(STOP_SLOTS));
     let per_source = Sources::default();
@@ -297,9 +302,8 @@ impl Drop for SourceSlot {
 
 /// The routes of a stop slot: `POST /api/command` (which serves only
 /// `stop` there), everything else 503; behind the same `Host` allow-list.
-fn stop_router(web: Arc<Web>, hosts: Vec<String>) -> Router {
-    let hosts = Arc::new(hosts);
-    Router::new()
+fn stop_router(web: Arc<Web>, hosts: Arc<Vec<String>>) -> Router {
+    let routes = Router::new()
         .route("/api/command", post(command::command))
         .fallback(|| async {
             (
@@ -308,10 +312,8 @@ fn stop_router(web: Arc<Web>, hosts: Vec<String>) -> Router {
                 "the web listener's connections are all taken; this connection serves only POST /api/command {\"cmd\":\"stop\"}\n",
             )
         })
-        .with_state(web)
-        .layer(axum::middleware::from_fn(move |req, next| {
-            host::check(hosts.clone(), req, next)
-        }))
+        .with_state(web);
+    behind_host_check(routes, hosts)
 }
 
 fn json_response(status: StatusCode, v: serde_json::Value) -> Response {

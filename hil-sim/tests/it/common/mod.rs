@@ -163,8 +163,21 @@ pub async fn http(
     headers: &[(&str, &str)],
     body: &[u8],
 ) -> (u16, String, Vec<u8>) {
+    let s = tokio::net::TcpStream::connect(addr).await.unwrap();
+    http_on(s, addr, method, path, headers, body).await
+}
+
+/// [`http`] on a stream already connected to `addr` (e.g. from a chosen
+/// source address).
+pub async fn http_on(
+    mut s: tokio::net::TcpStream,
+    addr: std::net::SocketAddr,
+    method: &str,
+    path: &str,
+    headers: &[(&str, &str)],
+    body: &[u8],
+) -> (u16, String, Vec<u8>) {
     use tokio::io::AsyncReadExt;
-    let mut s = tokio::net::TcpStream::connect(addr).await.unwrap();
     let mut req = format!(
         "{method} {path} HTTP/1.1\r\nHost: {addr}\r\nConnection: close\r\nContent-Length: {}\r\n",
         body.len()
