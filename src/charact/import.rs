@@ -353,7 +353,7 @@ fn cycle_of(s: &str, line: usize, column: &str) -> Result<u32, ImportError> {
     Ok(v as u32)
 }
 
-fn direction_of(s: &str, line: usize, column: &str) -> Result<f64, ImportError> {
+pub(super) fn direction_of(s: &str, line: usize, column: &str) -> Result<f64, ImportError> {
     let t = s.trim().trim_matches('"');
     match t.to_ascii_lowercase().as_str() {
         "forward" | "fwd" | "f" | "up" | "+" | "pos" | "positive" | "1" | "+1" | "↑" => Ok(1.0),

@@ -19,14 +19,18 @@
 //!   `x_cmd`, `x_nominal`, `x_setpoint`, `x_position`, `x`; likewise `y_…`)
 //!   and, per axis, either the reference reading (`x_meas`, `x_measured`,
 //!   `x_reading`, `x_actual`, `x_laser`) or the error (`x_error`,
-//!   `x_deviation`, `ex`); optional `cycle`, `t_s` / `time_s`, `temp_c`
-//!   and any other columns (carried through). An error column's sign is
+//!   `x_deviation`, `ex`); optional `cycle`, `t_s` / `time_s`, `temp_c`,
+//!   `direction` (how the point was reached on both axes: `forward` /
+//!   `fwd` / `+` from below, `backward` / `bwd` / `-` from above) and any
+//!   other columns (carried through). An error column's sign is
 //!   [`GridImportOptions::error_sign`] (default ISO 230-2's
 //!   `measured − target`).
 //!
-//! The log written has one segment `grid`, target = command = the
-//! commanded position, meas = the reading, both axes measured. A point
-//! visited again is the next cycle of its target. Times are the input's,
+//! The log written has one segment `grid` (a grid with a direction column:
+//! `grid_fwd` and `grid_bwd`, which `tables build` makes a map per
+//! direction of), target = command = the commanded position, meas = the
+//! reading, both axes measured. A point visited again (in the same
+//! direction) is the next cycle of its target. Times are the input's,
 //! else synthetic (1 s per row, said in the metadata, so `diagnose` draws
 //! nothing from them). Parsing is sans-IO, never panics, and names the
 //! line and column of anything it refuses.
@@ -64,6 +68,8 @@ struct Point {
     t_s: Option<f64>,
     temp_c: Option<f64>,
     cycle: Option<u32>,
+    /// `+1` reached from below on both axes, `−1` from above.
+    direction: Option<f64>,
     extra: Vec<String>,
 }
 
@@ -202,6 +208,7 @@ fn parse_rows(text: &str, opts: &GridImportOptions) -> Result<Grid, ImportError>
                 None => None,
             },
             cycle: None,
+            direction: None,
             extra: extra_idx.iter().map(|&i| f[i].to_string()).collect(),
         });
     }
@@ -342,9 +349,10 @@ fn parse_csv(text: &str, opts: &GridImportOptions) -> Result<Grid, ImportError> 
         &["temp_c", "temperature_c", "temp", "temperature", "mattemp"],
     );
     let cycle = find(&names, &["cycle", "run", "iteration"]);
+    let direction = find(&names, &["direction", "dir", "approach"]);
     let used = [target[0], target[1], value[0].0, value[1].0];
     let extra_idx: Vec<usize> = (0..names.len())
-        .filter(|i| !used.contains(i) && Some(*i) != time && Some(*i) != temp && Some(*i) != cycle)
+        .filter(|i| !used.contains(i) && ![time, temp, cycle, direction].contains(&Some(*i)))
         .collect();
     let extra: Vec<String> = extra_idx.iter().map(|&i| snake(&names[i].0)).collect();
     // Every length column needs a unit: its suffix, or the option.
@@ -405,12 +413,17 @@ fn parse_csv(text: &str, opts: &GridImportOptions) -> Result<Grid, ImportError> 
             }
             None => None,
         };
+        let direction = match direction {
+            Some(i) => Some(super::import::direction_of(f[i], line, &names[i].0)?),
+            None => None,
+        };
         points.push(Point {
             cmd_um: cmd,
             meas_um: meas,
             t_s: opt_num(time)?,
             temp_c: opt_num(temp)?,
             cycle,
+            direction,
             extra: extra_idx.iter().map(|&i| f[i].to_string()).collect(),
         });
     }
@@ -472,9 +485,14 @@ fn write(grid: &Grid, opts: &GridImportOptions) -> Result<Vec<u8>, ImportError> 
         },
     );
     md.insert("error_sign", "target - meas (micropos)");
+    let directed = grid.points.iter().any(|p| p.direction.is_some());
     md.insert(
         "layout",
-        "one segment 'grid'; a point visited again is the next cycle of its target",
+        if directed {
+            "segments 'grid_fwd' (reached from below) and 'grid_bwd' (from above), from the input's direction column; a point visited again in one direction is the next cycle of its target"
+        } else {
+            "one segment 'grid'; a point visited again is the next cycle of its target"
+        },
     );
     for (k, v) in &grid.notes {
         md.insert(k.as_str(), clean(v));
@@ -482,14 +500,21 @@ fn write(grid: &Grid, opts: &GridImportOptions) -> Result<Vec<u8>, ImportError> 
     let has_temp = grid.points.iter().any(|p| p.temp_c.is_some());
     let columns = Columns::new(has_temp, grid.extra.clone())?;
     let mut w = LogWriter::create(Vec::new(), &md, columns, SyncPolicy::FlushOnly)?;
-    let mut seen: std::collections::HashMap<(u64, u64), u32> = std::collections::HashMap::new();
+    let mut seen: std::collections::HashMap<(u64, u64, bool), u32> =
+        std::collections::HashMap::new();
     for (i, p) in grid.points.iter().enumerate() {
-        let key = (p.cmd_um[0].to_bits(), p.cmd_um[1].to_bits());
+        let above = p.direction.is_some_and(|d| d < 0.0);
+        let key = (p.cmd_um[0].to_bits(), p.cmd_um[1].to_bits(), above);
         let visit = seen.entry(key).or_insert(0);
         *visit += 1;
+        let segment = match (directed, above) {
+            (false, _) => "grid",
+            (true, false) => super::scan::SEGMENT_GRID_FWD,
+            (true, true) => super::scan::SEGMENT_GRID_BWD,
+        };
         w.append(&Record {
             t_s: p.t_s.unwrap_or(i as f64),
-            segment: "grid".into(),
+            segment: segment.into(),
             cycle: p.cycle.unwrap_or(*visit),
             x_target_um: p.cmd_um[0],
             y_target_um: p.cmd_um[1],
@@ -543,6 +568,35 @@ mod tests {
         };
         let log = parse_bytes(&import_grid_bytes(src.as_bytes(), &opts).unwrap()).unwrap();
         assert!((log.records[0].x_meas_um - 999.5).abs() < 1e-9);
+    }
+
+    /// A direction column splits the grid into the nodes reached from
+    /// below and from above; a row without a direction in such a column is
+    /// refused with its line.
+    #[test]
+    fn a_direction_column_gives_a_grid_per_direction() {
+        let mut src = String::from("x_mm,y_mm,x_error_um,y_error_um,direction\n");
+        for (d, play) in [("fwd", 0.0), ("bwd", 1.5)] {
+            for iy in 0..3 {
+                for ix in 0..3 {
+                    src.push_str(&format!("{ix},{iy},{play},0,{d}\n"));
+                }
+            }
+        }
+        let log =
+            parse_bytes(&import_grid_bytes(src.as_bytes(), &GridImportOptions::default()).unwrap())
+                .unwrap();
+        let segs: Vec<&str> = log.records.iter().map(|r| r.segment.as_str()).collect();
+        assert_eq!(segs.iter().filter(|s| **s == "grid_fwd").count(), 9);
+        assert_eq!(segs.iter().filter(|s| **s == "grid_bwd").count(), 9);
+        assert!(log.records.iter().all(|r| r.cycle == 1));
+        let [below, above] =
+            crate::analysis::grid::GridMap::directional(&log.records, [true, true]).unwrap();
+        let e = |m: &crate::analysis::grid::GridMap| m.cell(1, 1).map(|c| c.e_um[0]);
+        assert_eq!((e(&below), e(&above)), (Some(0.0), Some(1.5)));
+        let bad = "x_mm,y_mm,x_error_um,y_error_um,direction\n0,0,0,0,sideways\n";
+        let err = import_grid_bytes(bad.as_bytes(), &GridImportOptions::default()).unwrap_err();
+        assert!(err.to_string().contains("line 2"), "{err}");
     }
 
     #[test]

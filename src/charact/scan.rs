@@ -52,6 +52,25 @@ pub const SEGMENTS_SWEEP_ANCHOR: [&str; 4] = [
     "anchor_y_bwd",
 ];
 
+/// Log segment of a grid's nodes reached from below on both axes, in a
+/// grid measured both ways (microposd's grid plan with `approach = both`,
+/// or an import with a direction column). A grid measured one way only
+/// logs its nodes as `grid`.
+pub const SEGMENT_GRID_FWD: &str = "grid_fwd";
+/// Log segment of a grid's nodes reached from above on both axes.
+pub const SEGMENT_GRID_BWD: &str = "grid_bwd";
+
+/// The direction a grid record's node was reached on both axes, by its
+/// segment ([`SEGMENT_GRID_FWD`], [`SEGMENT_GRID_BWD`]); `None` for any
+/// other segment (a one-way grid does not say).
+pub fn grid_direction(segment: &str) -> Option<Direction> {
+    match segment {
+        SEGMENT_GRID_FWD => Some(Direction::Forward),
+        SEGMENT_GRID_BWD => Some(Direction::Backward),
+        _ => None,
+    }
+}
+
 /// Whether `segment` is one of [`SEGMENTS_SWEEP_ANCHOR`].
 pub fn is_sweep_anchor(segment: &str) -> bool {
     SEGMENTS_SWEEP_ANCHOR.contains(&segment)

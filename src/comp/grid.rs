@@ -14,12 +14,19 @@
 //! predicts the offset `observed − commanded = −e` at the commanded
 //! position.
 //!
-//! Direction: a node's value is the mean of its visits, whatever their
-//! approach. A grid measured with one approach direction per axis (a
-//! raster) holds that direction's errors, and moves compensated with it
-//! should arrive the same way (a unidirectional approach policy); a grid
-//! measured from both sides holds the mean of the two, half the play off
-//! either way.
+//! Direction: a grid measured with one approach direction per axis (a
+//! raster, every node from below) holds that direction's errors, and moves
+//! compensated with it arrive the same way ([`GridArrival::FromBelow`]: a
+//! unidirectional approach). A grid measured from both sides, each visit's
+//! direction known (microposd's grid plan with `approach = both`, or an
+//! import with a direction column), holds two layers, as the paper's
+//! tables hold a forward and a backward table per axis
+//! ([`GridArrival::Both`]): the nodes reached from below on both axes, and
+//! [`GridTable::from_above`], those reached from above. A compensated move
+//! then arrives either way (the caller's approach policy); the x component
+//! is read from the layer of x's arrival direction, y from y's. Where a
+//! grid's visits' directions are not known the node holds the mean of the
+//! visits, half the play off either way.
 //!
 //! Nodes the grid did not visit are filled from their neighbours (the
 //! discrete Laplace equation, so a hole inside the lattice gets the smooth
@@ -56,6 +63,24 @@ pub struct GridTable {
     /// How the nodes were reached (default: not known).
     #[serde(default)]
     pub arrival: GridArrival,
+    /// The nodes reached from above on both axes, on the same lattice
+    /// (present exactly when `arrival` is [`GridArrival::Both`]; the fields
+    /// above then hold the nodes reached from below).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub from_above: Option<GridLayer>,
+}
+
+/// One direction's node values of a bidirectional map (same layout and
+/// sign as [`GridTable`]'s own fields).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct GridLayer {
+    /// `e_x = x_target − x_measured` per node, row-major, µm.
+    pub ex_um: Vec<f64>,
+    /// `e_y = y_target − y_measured` per node, row-major, µm.
+    pub ey_um: Vec<f64>,
+    /// Whether each node was measured in this direction.
+    pub measured: Vec<bool>,
 }
 
 /// How a grid's nodes were reached, which decides how compensated moves
@@ -72,6 +97,12 @@ pub enum GridArrival {
     /// unidirectional approach, whatever the caller's policy), so it meets
     /// the play as the map did.
     FromBelow,
+    /// Every node from below and from above on both axes (microposd's grid
+    /// plan with `approach = both`, or an import with a direction column):
+    /// two layers, moves arrive either way (the caller's policy) and each
+    /// component is read from its own axis's arrival direction; an axis
+    /// whose direction is not known gets the mean of the two layers.
+    Both,
 }
 
 /// What a map build found.
@@ -85,8 +116,17 @@ pub struct GridBuildReport {
     pub filled: usize,
     /// Mean spacing of the nodes along x and y, µm.
     pub pitch_um: [f64; 2],
-    /// Rms of `e` over the measured nodes, per component, µm.
+    /// Rms of `e` over the measured nodes, per component, µm (the layer
+    /// from below when there are two).
     pub rms_error_um: [f64; 2],
+    /// A bidirectional map: nodes measured from above.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub measured_from_above: Option<usize>,
+    /// A bidirectional map: rms over the nodes measured both ways of the
+    /// reversal `e_above − e_below` per component, µm (the play and its
+    /// variation over the plane).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub reversal_rms_um: Option<[f64; 2]>,
 }
 
 /// Sweeps of the Laplace fill (each moves every hole towards the mean of
@@ -104,30 +144,43 @@ impl GridTable {
         ys_um: &[f64],
         offsets_um: &[Option<[f64; 2]>],
     ) -> Result<(GridTable, GridBuildReport), CompError> {
+        Self::from_lattices(xs_um, ys_um, offsets_um, None)
+    }
+
+    /// A bidirectional map ([`GridArrival::Both`]) when `above_um` holds
+    /// the offsets of the nodes reached from above (`below_um` those
+    /// reached from below, same layout as [`GridTable::from_lattice`]);
+    /// with `None`, [`GridTable::from_lattice`].
+    pub fn from_lattices(
+        xs_um: &[f64],
+        ys_um: &[f64],
+        below_um: &[Option<[f64; 2]>],
+        above_um: Option<&[Option<[f64; 2]>]>,
+    ) -> Result<(GridTable, GridBuildReport), CompError> {
         let (nx, ny) = (xs_um.len(), ys_um.len());
-        if offsets_um.len() != nx.saturating_mul(ny) {
-            return Err(invalid(
-                "grid",
-                format!("{} node values for {nx} × {ny} nodes", offsets_um.len()),
-            ));
-        }
-        let mut ex = vec![0.0; offsets_um.len()];
-        let mut ey = vec![0.0; offsets_um.len()];
-        let mut measured = vec![false; offsets_um.len()];
-        for (k, o) in offsets_um.iter().enumerate() {
-            if let Some(o) = o {
-                ex[k] = -o[0];
-                ey[k] = -o[1];
-                measured[k] = true;
+        let layer = |offsets: &[Option<[f64; 2]>], key: &str| {
+            if offsets.len() != nx.saturating_mul(ny) {
+                return Err(invalid(
+                    key,
+                    format!("{} node values for {nx} × {ny} nodes", offsets.len()),
+                ));
             }
-        }
+            Ok(layer_of(offsets, nx, ny))
+        };
+        let below = layer(below_um, "grid")?;
+        let from_above = above_um.map(|a| layer(a, "grid.from_above")).transpose()?;
         let t = GridTable {
             xs_um: xs_um.to_vec(),
             ys_um: ys_um.to_vec(),
-            ex_um: fill_holes(&ex, &measured, nx, ny),
-            ey_um: fill_holes(&ey, &measured, nx, ny),
-            measured,
-            arrival: GridArrival::Unknown,
+            ex_um: below.ex_um,
+            ey_um: below.ey_um,
+            measured: below.measured,
+            arrival: if from_above.is_some() {
+                GridArrival::Both
+            } else {
+                GridArrival::Unknown
+            },
+            from_above,
         };
         t.validate()?;
         let report = t.report();
@@ -147,12 +200,27 @@ impl GridTable {
             (s / n.max(1) as f64).sqrt()
         };
         let pitch = |v: &[f64]| (v[v.len() - 1] - v[0]) / (v.len() - 1) as f64;
+        let reversal = self.from_above.as_ref().map(|a| {
+            let both: Vec<usize> = (0..nx * ny)
+                .filter(|&k| self.measured[k] && a.measured[k])
+                .collect();
+            let rms_of = |below: &[f64], above: &[f64]| {
+                let s: f64 = both.iter().map(|&k| (above[k] - below[k]).powi(2)).sum();
+                (s / both.len().max(1) as f64).sqrt()
+            };
+            [rms_of(&self.ex_um, &a.ex_um), rms_of(&self.ey_um, &a.ey_um)]
+        });
         GridBuildReport {
             nodes: [nx, ny],
             measured: n,
             filled: nx * ny - n,
             pitch_um: [pitch(&self.xs_um), pitch(&self.ys_um)],
             rms_error_um: [rms(&self.ex_um), rms(&self.ey_um)],
+            measured_from_above: self
+                .from_above
+                .as_ref()
+                .map(|a| a.measured.iter().filter(|m| **m).count()),
+            reversal_rms_um: reversal,
         }
     }
 
@@ -172,27 +240,21 @@ impl GridTable {
                 return Err(invalid(k, "must be finite and strictly ascending"));
             }
         }
-        for (k, len) in [
-            ("grid.ex_um", self.ex_um.len()),
-            ("grid.ey_um", self.ey_um.len()),
-            ("grid.measured", self.measured.len()),
-        ] {
-            if len != nx * ny {
-                return Err(invalid(
-                    k,
-                    format!("has {len} values; {nx} × {ny} nodes need {}", nx * ny),
-                ));
+        validate_layer(&self.ex_um, &self.ey_um, &self.measured, nx * ny, "grid")?;
+        match (&self.from_above, self.arrival) {
+            (Some(a), GridArrival::Both) => {
+                validate_layer(&a.ex_um, &a.ey_um, &a.measured, nx * ny, "grid.from_above")
             }
+            (None, GridArrival::Both) => Err(invalid(
+                "grid.from_above",
+                "arrival = \"both\" needs the layer of the nodes reached from above",
+            )),
+            (Some(_), _) => Err(invalid(
+                "grid.from_above",
+                "a layer from above needs arrival = \"both\"",
+            )),
+            (None, _) => Ok(()),
         }
-        for (k, v) in [("grid.ex_um", &self.ex_um), ("grid.ey_um", &self.ey_um)] {
-            if !v.iter().all(|e| e.is_finite() && e.abs() <= 1e6) {
-                return Err(invalid(k, "every value must be finite, |e| ≤ 1e6 µm"));
-            }
-        }
-        if !self.measured.iter().any(|m| *m) {
-            return Err(invalid("grid.measured", "no node was measured"));
-        }
-        Ok(())
     }
 
     /// The span of the nodes.
@@ -205,19 +267,98 @@ impl GridTable {
     }
 
     /// `e = target − measured` at `(x, y)` (µm), bilinear between the
-    /// nodes, the edge values outside. Call on a validated table.
+    /// nodes, the edge values outside; of the layer from below when there
+    /// are two. Call on a validated table.
     pub fn error_at_um(&self, x_um: f64, y_um: f64) -> [f64; 2] {
+        let at = self.bilinear(x_um, y_um);
+        [at(&self.ex_um), at(&self.ey_um)]
+    }
+
+    /// `e` at `(x, y)` for an arrival in `dirs` (`[x, y]`): each component
+    /// from its own axis's layer when the map has two (the mean of both
+    /// for [`Direction::Unknown`]), else [`GridTable::error_at_um`].
+    pub fn error_at_dir_um(&self, x_um: f64, y_um: f64, dirs: [Direction; 2]) -> [f64; 2] {
+        let Some(above) = &self.from_above else {
+            return self.error_at_um(x_um, y_um);
+        };
+        let at = self.bilinear(x_um, y_um);
+        let pick = |below: &[f64], above: &[f64], dir: Direction| match dir {
+            Direction::Forward => at(below),
+            Direction::Backward => at(above),
+            Direction::Unknown => 0.5 * (at(below) + at(above)),
+        };
+        [
+            pick(&self.ex_um, &above.ex_um, dirs[0]),
+            pick(&self.ey_um, &above.ey_um, dirs[1]),
+        ]
+    }
+
+    /// Bilinear interpolation of a node field at `(x, y)`.
+    fn bilinear(&self, x_um: f64, y_um: f64) -> impl Fn(&[f64]) -> f64 {
         let (ix, fx) = cell_of(&self.xs_um, x_um);
         let (iy, fy) = cell_of(&self.ys_um, y_um);
         let nx = self.xs_um.len();
-        let at = |v: &[f64]| {
+        move |v: &[f64]| {
             let k = iy * nx + ix;
             let (a, b) = (v[k], v[k + 1]);
             let (c, d) = (v[k + nx], v[k + nx + 1]);
             (1.0 - fy) * ((1.0 - fx) * a + fx * b) + fy * ((1.0 - fx) * c + fx * d)
-        };
-        [at(&self.ex_um), at(&self.ey_um)]
+        }
     }
+}
+
+/// One direction's layer from its visited nodes' offsets (`measured −
+/// target`), the holes filled.
+fn layer_of(offsets_um: &[Option<[f64; 2]>], nx: usize, ny: usize) -> GridLayer {
+    let mut ex = vec![0.0; offsets_um.len()];
+    let mut ey = vec![0.0; offsets_um.len()];
+    let mut measured = vec![false; offsets_um.len()];
+    for (k, o) in offsets_um.iter().enumerate() {
+        if let Some(o) = o {
+            ex[k] = -o[0];
+            ey[k] = -o[1];
+            measured[k] = true;
+        }
+    }
+    GridLayer {
+        ex_um: fill_holes(&ex, &measured, nx, ny),
+        ey_um: fill_holes(&ey, &measured, nx, ny),
+        measured,
+    }
+}
+
+/// Checks one layer's lengths and numbers (`key` names it in errors).
+fn validate_layer(
+    ex_um: &[f64],
+    ey_um: &[f64],
+    measured: &[bool],
+    nodes: usize,
+    key: &str,
+) -> Result<(), CompError> {
+    for (k, len) in [
+        ("ex_um", ex_um.len()),
+        ("ey_um", ey_um.len()),
+        ("measured", measured.len()),
+    ] {
+        if len != nodes {
+            return Err(invalid(
+                format!("{key}.{k}"),
+                format!("has {len} values; the lattice has {nodes} nodes"),
+            ));
+        }
+    }
+    for (k, v) in [("ex_um", ex_um), ("ey_um", ey_um)] {
+        if !v.iter().all(|e| e.is_finite() && e.abs() <= 1e6) {
+            return Err(invalid(
+                format!("{key}.{k}"),
+                "every value must be finite, |e| ≤ 1e6 µm",
+            ));
+        }
+    }
+    if !measured.iter().any(|m| *m) {
+        return Err(invalid(format!("{key}.measured"), "no node was measured"));
+    }
+    Ok(())
 }
 
 /// The cell `[i, i+1]` of `nodes` (≥ 2, ascending) holding `v`, and the
@@ -317,7 +458,9 @@ impl Compensator for GridCompensator {
 
     fn predicted_offset_um(&self, state: &MotionState) -> Result<[f64; 2], CompError> {
         let [cx, cy] = state.cmd_xy_um();
-        let e = self.table.error_at_um(cx, cy);
+        let e = self
+            .table
+            .error_at_dir_um(cx, cy, [state.axes[0].dir, state.axes[1].dir]);
         Ok([-e[0], -e[1]])
     }
 
@@ -332,7 +475,9 @@ impl Compensator for GridCompensator {
         options: &PlanOptions,
     ) -> Result<MovePlan, CompError> {
         match self.table.arrival {
-            GridArrival::Unknown => super::solve(self, target, history, options),
+            GridArrival::Unknown | GridArrival::Both => {
+                super::solve(self, target, history, options)
+            }
             GridArrival::FromBelow => {
                 let below = PlanOptions {
                     policy: ApproachPolicy::Unidirectional([Direction::Forward; 2]),
@@ -368,6 +513,7 @@ mod tests {
             ey_um: ey,
             measured: vec![true; nx * ny],
             arrival: GridArrival::Unknown,
+            from_above: None,
         }
     }
 
@@ -435,6 +581,70 @@ mod tests {
         let mut t = good;
         t.measured = vec![false; 9];
         assert!(t.validate().unwrap_err().to_string().contains("measured"));
+    }
+
+    /// A map measured both ways reads each component from its own axis's
+    /// arrival direction, the mean where the direction is unknown; the
+    /// report gives the reversal between the layers.
+    #[test]
+    fn a_bidirectional_map_reads_each_axis_from_its_arrival() {
+        use Direction::{Backward, Forward, Unknown};
+        let below = table(4, 3, |x, y| [1e-3 * x, -2e-3 * y]);
+        let (xs, ys) = (below.xs_um.clone(), below.ys_um.clone());
+        let offsets = |play: [f64; 2]| -> Vec<Option<[f64; 2]>> {
+            below
+                .ex_um
+                .iter()
+                .zip(&below.ey_um)
+                .enumerate()
+                .map(|(k, (ex, ey))| (k != 5).then_some([-ex + play[0], -ey + play[1]]))
+                .collect()
+        };
+        let (t, report) =
+            GridTable::from_lattices(&xs, &ys, &offsets([0.0; 2]), Some(&offsets([-2.0, 0.5])))
+                .unwrap();
+        assert_eq!(t.arrival, GridArrival::Both);
+        assert_eq!(report.measured_from_above, Some(11));
+        let r = report.reversal_rms_um.unwrap();
+        assert!(
+            (r[0] - 2.0).abs() < 1e-9 && (r[1] - 0.5).abs() < 1e-9,
+            "{r:?}"
+        );
+        let (x, y) = (150.0, 300.0);
+        let e0 = t.error_at_um(x, y);
+        let e = t.error_at_dir_um(x, y, [Backward, Forward]);
+        assert!((e[0] - (e0[0] + 2.0)).abs() < 1e-9 && (e[1] - e0[1]).abs() < 1e-9);
+        let e = t.error_at_dir_um(x, y, [Forward, Backward]);
+        assert!((e[0] - e0[0]).abs() < 1e-9 && (e[1] - (e0[1] - 0.5)).abs() < 1e-9);
+        let e = t.error_at_dir_um(x, y, [Unknown, Unknown]);
+        assert!((e[0] - (e0[0] + 1.0)).abs() < 1e-9 && (e[1] - (e0[1] - 0.25)).abs() < 1e-9);
+        // Through the file format and back.
+        let back: GridTable = toml::from_str(&toml::to_string(&t).unwrap()).unwrap();
+        assert_eq!(back, t);
+        // A layer without its arrival, or the arrival without its layer.
+        let mut bad = t.clone();
+        bad.arrival = GridArrival::FromBelow;
+        assert!(bad
+            .validate()
+            .unwrap_err()
+            .to_string()
+            .contains("from_above"));
+        let mut bad = t.clone();
+        bad.from_above = None;
+        assert!(bad
+            .validate()
+            .unwrap_err()
+            .to_string()
+            .contains("from_above"));
+        let mut bad = t;
+        if let Some(a) = bad.from_above.as_mut() {
+            a.ey_um.pop();
+        }
+        assert!(bad
+            .validate()
+            .unwrap_err()
+            .to_string()
+            .contains("grid.from_above.ey_um"));
     }
 
     proptest! {

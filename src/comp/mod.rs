@@ -57,7 +57,7 @@ pub use closed_loop::{
 };
 pub use file::{fnv1a64_hex, CompFile, CompKind, SourceInfo, COMP_FORMAT_VERSION};
 pub use frame::{estimate_vision_frame, FrameReport, FrameSample, VisionFrame};
-pub use grid::{GridArrival, GridBuildReport, GridCompensator, GridTable};
+pub use grid::{GridArrival, GridBuildReport, GridCompensator, GridLayer, GridTable};
 pub use model_comp::{
     compensation_template, compensation_template_for, ModelBuildOptions, ModelCompensator,
 };

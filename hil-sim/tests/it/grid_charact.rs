@@ -256,3 +256,76 @@ async fn on_a_stacked_stage_the_map_holds_what_the_tables_cannot() {
     assert!(ap[1] < 0.5 * ap[0], "tables {} µm, map {} µm", ap[0], ap[1]);
     s.shutdown().await;
 }
+
+/// A grid measured both ways (`approach: "both"`) gives a map per arrival
+/// direction: compensated moves then arrive either way (the daemon's
+/// direction-aware policy) and each axis is read from its own direction's
+/// layer. On the default stage (lost motion of a few µm) that map
+/// compensates the square as the one-way map does; the same log read
+/// without its directions (every node the mean of both ways, half the play
+/// off either way) does worse.
+#[tokio::test(start_paused = true)]
+async fn a_grid_measured_both_ways_compensates_either_arrival() {
+    let mut s = setup(23, None).await;
+    let (cl, data) = (&mut s.cl, s.data.clone());
+    let range = 4.0 * PITCH_UM;
+    let started = cl
+        .call_ok(
+            json!({"cmd": "characterize", "action": "start", "log": "b.csv",
+                        "plan": "grid", "approach": "both", "pitch_um": PITCH_UM,
+                        "x_range_um": range, "y_range_um": range, "cycles": 1,
+                        "frames_per_point": 1, "settle_s": 0.5}),
+        )
+        .await;
+    assert_eq!(started["job"]["total"], 50, "{started}");
+    wait_done(cl, "characterize").await;
+    let log = micropos::charact::log::read_file(data.join("b.csv")).unwrap();
+    assert_eq!(log.metadata.get("grid_approach"), Some("both"));
+    let count = |seg: &str| log.records.iter().filter(|r| r.segment == seg).count();
+    assert_eq!((count("grid_fwd"), count("grid_bwd")), (25, 25));
+    // The same records without their directions: one pooled map.
+    let text = std::fs::read_to_string(data.join("b.csv")).unwrap();
+    let pooled = text
+        .replace(",grid_fwd,", ",grid,")
+        .replace(",grid_bwd,", ",grid,")
+        .replace("# grid_approach: both\n", "");
+    assert_ne!(pooled, text);
+    std::fs::write(data.join("p.csv"), pooled).unwrap();
+    let built = cl
+        .call_ok(json!({"cmd": "tables", "action": "build", "log": "b.csv"}))
+        .await;
+    let report = &built["grid"]["report"];
+    assert_eq!(report["measured_from_above"], 25, "{built}");
+    let reversal = report["reversal_rms_um"][0].as_f64().unwrap();
+    let file = micropos::comp::CompFile::read_path(data.join("b-grid.toml")).unwrap();
+    assert_eq!(
+        file.grid.map(|g| g.arrival),
+        Some(micropos::comp::GridArrival::Both)
+    );
+    cl.call_ok(json!({"cmd": "tables", "action": "build", "log": "p.csv", "kinds": ["grid"]}))
+        .await;
+    let mut ap = Vec::new();
+    for table in ["b-grid.toml", "p-grid.toml"] {
+        cl.call_ok(
+            json!({"cmd": "validate", "action": "start", "test": "square",
+                          "modes": ["raw", "table"], "table": table, "cycles": 1,
+                          "square_step_um": 1000.0, "frames_per_point": 1, "settle_s": 0.5,
+                          "log": format!("v-{table}.csv")}),
+        )
+        .await;
+        let v = wait_done(cl, "validate").await;
+        let r = &v["validation"]["results"]["square"];
+        ap.push((
+            r["raw"]["ap_um"].as_f64().unwrap(),
+            r["table"]["ap_um"].as_f64().unwrap(),
+        ));
+    }
+    eprintln!(
+        "GRID | both ways: x reversal rms {reversal:.2} µm; square AP raw {:.2} µm, map per direction {:.3} µm, pooled map {:.3} µm",
+        ap[0].0, ap[0].1, ap[1].1
+    );
+    assert!(reversal > 0.5, "the default stage has lost motion: {built}");
+    assert!(ap[0].1 < 0.15 * ap[0].0, "{ap:?}");
+    assert!(ap[0].1 < ap[1].1, "{ap:?}");
+    s.shutdown().await;
+}

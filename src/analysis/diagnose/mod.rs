@@ -137,7 +137,7 @@ use crate::model::{
     Axis, Environment, FitOptions, Interpolation, Sample, StageModel, TemperaturePoint,
 };
 
-use super::grid::{self, GridMap, GridReport};
+use super::grid::{self, GridReport};
 use super::AnalysisError;
 pub use corrections::{ParamCorrection, SIGNIFICANT_SIGMAS};
 pub use data::{parse_approach, APPROACH_COLUMN, MEASURED_AXES_KEY};
@@ -441,8 +441,7 @@ pub fn diagnose(
         log
     };
     let (measured, _) = data::measured_axes(log)?;
-    let grid = GridMap::from_log(log, measured)
-        .map(|m| grid::analyse(&m, opts.z_threshold, opts.min_gain_pct));
+    let grid = grid::report_of(&log.records, measured, opts.z_threshold, opts.min_gain_pct);
     let turned;
     let log = match &grid {
         Some(g) if !camera_tied(log) && g.geometry.frame_rotation_urad.value.is_finite() => {

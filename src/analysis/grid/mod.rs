@@ -39,8 +39,9 @@ mod tests;
 
 use serde::Serialize;
 
-use crate::charact::log::MeasurementLog;
-use crate::charact::scan::is_sweep_anchor;
+use crate::charact::log::{MeasurementLog, Record};
+use crate::charact::scan::{grid_direction, is_sweep_anchor};
+use crate::model::Direction;
 
 pub use geometry::{Geometry, Slope};
 pub use maps::{ComponentMaps, FoldScore, NonSeparable};
@@ -81,6 +82,104 @@ pub struct GridMap {
     pub ys_um: Vec<f64>,
     /// Cells, row-major: `cells[iy * nx + ix]`, `None` where not visited.
     pub cells: Vec<Option<Cell>>,
+}
+
+/// The records that can be cells of a map: on-grid segments, finite
+/// targets and readings; `None` unless both components are measured.
+fn grid_records(records: &[Record], measured: [bool; 2]) -> Option<Vec<&Record>> {
+    if measured != [true, true] {
+        return None;
+    }
+    Some(
+        records
+            .iter()
+            .filter(|r| !off_grid(&r.segment))
+            .filter(|r| {
+                [r.x_target_um, r.y_target_um, r.x_meas_um, r.y_meas_um]
+                    .iter()
+                    .all(|v| v.is_finite())
+            })
+            .collect(),
+    )
+}
+
+/// The distinct x and y targets of `recs`, or `None` when they are too
+/// few lines, or too many positions for the records to fill.
+fn lattice(recs: &[&Record]) -> Option<(Vec<f64>, Vec<f64>)> {
+    let span = |f: &dyn Fn(&Record) -> f64| {
+        let (lo, hi) = recs
+            .iter()
+            .map(|r| f(r))
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), v| {
+                (l.min(v), h.max(v))
+            });
+        hi - lo
+    };
+    let tol = |s: f64| (1e-6 * s).max(1e-3);
+    let xs = distinct(
+        recs.iter().map(|r| r.x_target_um).collect(),
+        tol(span(&|r| r.x_target_um)),
+    );
+    let ys = distinct(
+        recs.iter().map(|r| r.y_target_um).collect(),
+        tol(span(&|r| r.y_target_um)),
+    );
+    if xs.len() < MIN_LINES || ys.len() < MIN_LINES {
+        return None;
+    }
+    // At most `records` cells are visited: a lattice that many records
+    // cannot fill to MIN_FILL is no map (and is never allocated).
+    if (xs.len() as f64) * (ys.len() as f64) * MIN_FILL > recs.len() as f64 {
+        return None;
+    }
+    Some((xs, ys))
+}
+
+/// The cells of `recs` on the lattice `xs` × `ys`; `None` when they fill
+/// too little of it to be a map.
+fn cells_of(recs: &[&Record], xs: Vec<f64>, ys: Vec<f64>) -> Option<GridMap> {
+    let nx = xs.len();
+    let n = nx * ys.len();
+    if (n as f64) * MIN_FILL > recs.len() as f64 {
+        return None;
+    }
+    let mut sum = vec![[0.0f64; 2]; n];
+    let mut sum2 = vec![[0.0f64; 2]; n];
+    let mut count = vec![0usize; n];
+    for r in recs {
+        let k = nearest(&ys, r.y_target_um) * nx + nearest(&xs, r.x_target_um);
+        let e = [r.x_meas_um - r.x_target_um, r.y_meas_um - r.y_target_um];
+        for c in 0..2 {
+            sum[k][c] += e[c];
+            sum2[k][c] += e[c] * e[c];
+        }
+        count[k] += 1;
+    }
+    let filled = count.iter().filter(|&&n| n > 0).count();
+    if filled < MIN_CELLS || (filled as f64) < MIN_FILL * n as f64 {
+        return None;
+    }
+    let cells = (0..n)
+        .map(|k| {
+            let v = count[k];
+            (v > 0).then(|| {
+                let m = [sum[k][0] / v as f64, sum[k][1] / v as f64];
+                Cell {
+                    e_um: m,
+                    visits: v,
+                    ss_um2: [
+                        (sum2[k][0] - v as f64 * m[0] * m[0]).max(0.0),
+                        (sum2[k][1] - v as f64 * m[1] * m[1]).max(0.0),
+                    ],
+                }
+            })
+        })
+        .collect();
+    Some(GridMap {
+        xs_um: xs,
+        ys_um: ys,
+        cells,
+    })
 }
 
 /// Clusters sorted values that lie within `tol` of the previous one;
@@ -124,87 +223,42 @@ impl GridMap {
     }
 
     /// [`GridMap::from_log`] of a log's records alone (a lattice needs
-    /// nothing else of the log).
-    pub fn from_records(
-        records: &[crate::charact::log::Record],
-        measured: [bool; 2],
-    ) -> Option<GridMap> {
-        if measured != [true, true] {
-            return None;
-        }
-        let recs: Vec<_> = records
-            .iter()
-            .filter(|r| !off_grid(&r.segment))
-            .filter(|r| {
-                [r.x_target_um, r.y_target_um, r.x_meas_um, r.y_meas_um]
-                    .iter()
-                    .all(|v| v.is_finite())
-            })
-            .collect();
-        let span = |f: &dyn Fn(&&crate::charact::log::Record) -> f64| {
-            let (lo, hi) = recs
-                .iter()
-                .map(f)
-                .fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), v| {
-                    (l.min(v), h.max(v))
-                });
-            hi - lo
-        };
-        let tol = |s: f64| (1e-6 * s).max(1e-3);
-        let xs = distinct(
-            recs.iter().map(|r| r.x_target_um).collect(),
-            tol(span(&|r| r.x_target_um)),
-        );
-        let ys = distinct(
-            recs.iter().map(|r| r.y_target_um).collect(),
-            tol(span(&|r| r.y_target_um)),
-        );
-        if xs.len() < MIN_LINES || ys.len() < MIN_LINES {
-            return None;
-        }
-        let nx = xs.len();
-        // At most `records` cells are visited: a lattice that many records
-        // cannot fill to MIN_FILL is no map (and is never allocated).
-        if (nx as f64) * (ys.len() as f64) * MIN_FILL > recs.len() as f64 {
-            return None;
-        }
-        let mut sum = vec![[0.0f64; 2]; nx * ys.len()];
-        let mut sum2 = vec![[0.0f64; 2]; nx * ys.len()];
-        let mut count = vec![0usize; nx * ys.len()];
-        for r in &recs {
-            let k = nearest(&ys, r.y_target_um) * nx + nearest(&xs, r.x_target_um);
-            let e = [r.x_meas_um - r.x_target_um, r.y_meas_um - r.y_target_um];
-            for c in 0..2 {
-                sum[k][c] += e[c];
-                sum2[k][c] += e[c] * e[c];
+    /// nothing else of the log). A grid measured both ways, each node's
+    /// direction in its segment
+    /// ([`crate::charact::scan::SEGMENT_GRID_FWD`] / `…_BWD`), is read as its nodes reached from below (one
+    /// arrival per axis, as a one-way grid; the other way is
+    /// [`GridMap::directional`]'s), so the play is not read as noise.
+    pub fn from_records(records: &[Record], measured: [bool; 2]) -> Option<GridMap> {
+        match Self::directional(records, measured) {
+            Some([below, _]) => Some(below),
+            None => {
+                let recs = grid_records(records, measured)?;
+                let (xs, ys) = lattice(&recs)?;
+                cells_of(&recs, xs, ys)
             }
-            count[k] += 1;
         }
-        let filled = count.iter().filter(|&&n| n > 0).count();
-        if filled < MIN_CELLS || (filled as f64) < MIN_FILL * count.len() as f64 {
+    }
+
+    /// A grid measured both ways: the maps of its nodes reached from below
+    /// and from above (`[below, above]`) on the lattice of all its nodes;
+    /// `None` when the log does not hold both directions as a map each.
+    pub fn directional(records: &[Record], measured: [bool; 2]) -> Option<[GridMap; 2]> {
+        let recs = grid_records(records, measured)?;
+        let way = |d: Direction| -> Vec<&Record> {
+            recs.iter()
+                .copied()
+                .filter(|r| grid_direction(&r.segment) == Some(d))
+                .collect()
+        };
+        let (below, above) = (way(Direction::Forward), way(Direction::Backward));
+        if below.is_empty() || above.is_empty() {
             return None;
         }
-        let cells = (0..count.len())
-            .map(|k| {
-                let n = count[k];
-                (n > 0).then(|| {
-                    let m = [sum[k][0] / n as f64, sum[k][1] / n as f64];
-                    Cell {
-                        e_um: m,
-                        visits: n,
-                        ss_um2: [
-                            (sum2[k][0] - n as f64 * m[0] * m[0]).max(0.0),
-                            (sum2[k][1] - n as f64 * m[1] * m[1]).max(0.0),
-                        ],
-                    }
-                })
-            })
-            .collect();
-        Some(GridMap {
-            xs_um: xs,
-            ys_um: ys,
-            cells,
-        })
+        let (xs, ys) = lattice(&recs)?;
+        Some([
+            cells_of(&below, xs.clone(), ys.clone())?,
+            cells_of(&above, xs, ys)?,
+        ])
     }
 
     /// Column and row of the cell nearest to `(x, y)`.
@@ -265,6 +319,75 @@ pub struct GridReport {
     pub xs_um: Vec<f64>,
     /// The lattice's y positions (rows), µm.
     pub ys_um: Vec<f64>,
+    /// A grid measured both ways: the change with the arrival direction
+    /// (the maps above are then of the arrivals from below).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub reversal: Option<Reversal>,
+}
+
+/// What changes with the arrival direction on a grid measured both ways:
+/// per component, `e(from above) − e(from below)` over the cells measured
+/// both ways (ISO 230-2's reversal value, over the plane), µm. Positive:
+/// the stage stops further along the axis when it arrives from above (the
+/// play of a leadscrew axis).
+#[derive(Debug, Clone, Serialize)]
+pub struct Reversal {
+    /// Cells measured both ways.
+    pub cells: usize,
+    /// Mean per component, µm.
+    pub mean_um: [f64; 2],
+    /// Rms about the mean per component (how much the play varies over
+    /// the plane), µm.
+    pub spread_um: [f64; 2],
+    /// Largest `|reversal|` per component, µm.
+    pub max_abs_um: [f64; 2],
+}
+
+impl Reversal {
+    /// The reversal of two maps on one lattice (`None`: no cell measured
+    /// both ways).
+    fn between(below: &GridMap, above: &GridMap) -> Option<Reversal> {
+        let d: Vec<[f64; 2]> = below
+            .cells
+            .iter()
+            .zip(&above.cells)
+            .filter_map(|(b, a)| {
+                Some([
+                    a.as_ref()?.e_um[0] - b.as_ref()?.e_um[0],
+                    a.as_ref()?.e_um[1] - b.as_ref()?.e_um[1],
+                ])
+            })
+            .collect();
+        if d.is_empty() {
+            return None;
+        }
+        let n = d.len() as f64;
+        let mean_um = [0, 1].map(|c| d.iter().map(|v| v[c]).sum::<f64>() / n);
+        Some(Reversal {
+            cells: d.len(),
+            mean_um,
+            spread_um: [0, 1]
+                .map(|c| (d.iter().map(|v| (v[c] - mean_um[c]).powi(2)).sum::<f64>() / n).sqrt()),
+            max_abs_um: [0, 1].map(|c| d.iter().map(|v| v[c].abs()).fold(0.0, f64::max)),
+        })
+    }
+}
+
+/// The report of a log's grid ([`GridMap::from_records`], [`analyse`]),
+/// with the reversal of a grid measured both ways; `None` when the records
+/// are not a map.
+pub fn report_of(
+    records: &[Record],
+    measured: [bool; 2],
+    z_threshold: f64,
+    min_gain_pct: f64,
+) -> Option<GridReport> {
+    let map = GridMap::from_records(records, measured)?;
+    let mut report = analyse(&map, z_threshold, min_gain_pct);
+    if let Some([below, above]) = GridMap::directional(records, measured) {
+        report.reversal = Reversal::between(&below, &above);
+    }
+    Some(report)
 }
 
 /// Pitch of sorted positions: their median spacing.
@@ -299,6 +422,7 @@ pub fn analyse(map: &GridMap, z_threshold: f64, min_gain_pct: f64) -> GridReport
         components,
         xs_um: map.xs_um.clone(),
         ys_um: map.ys_um.clone(),
+        reversal: None,
     }
 }
 

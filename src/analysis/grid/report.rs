@@ -80,6 +80,19 @@ pub fn write_text(out: &mut String, r: &GridReport) {
         slope(&g.frame_rotation_urad, "µrad"),
         slope(&g.dex_dy_instrument_urad, "µrad")
     );
+    if let Some(rv) = &r.reversal {
+        let _ = writeln!(
+            out,
+            "  measured both ways: reversal e(from above) − e(from below) over {} cells: x mean {:+.3} µm (spread {}, largest |{}|), y mean {:+.3} µm (spread {}, largest |{}|); the maps here are of the arrivals from below",
+            rv.cells,
+            rv.mean_um[0],
+            um(rv.spread_um[0]),
+            um(rv.max_abs_um[0]),
+            rv.mean_um[1],
+            um(rv.spread_um[1]),
+            um(rv.max_abs_um[1])
+        );
+    }
     for (c, n) in r.noise.iter().enumerate() {
         let comp = if c == 0 { "x" } else { "y" };
         let along = |v: Option<f64>| v.map_or_else(|| "n/a".into(), um);

@@ -359,6 +359,65 @@ fn the_same_grid_in_any_encoding_gives_the_same_report() {
     }
 }
 
+/// A grid measured both ways (random stages, a play of random size and
+/// sign per axis that varies over the plane): the maps are of the arrivals
+/// from below, so the play is not read as noise nor as a joint error, and
+/// the reversal reads it back.
+#[test]
+fn a_grid_measured_both_ways_reads_the_play_apart() {
+    use crate::charact::scan::{SEGMENT_GRID_BWD, SEGMENT_GRID_FWD};
+    let mut rng = ChaCha8Rng::seed_from_u64(314);
+    for case in 0..10 {
+        let s = Stage::draw(&mut rng);
+        let one_way = s.log(&mut rng, Order::OneSegment);
+        let play = [
+            rng.gen_range(-3.0..3.0) * 20.0 * s.noise_um,
+            rng.gen_range(-3.0..3.0) * 20.0 * s.noise_um,
+        ];
+        // The play grows by up to 20 % across x (a worn screw end).
+        let (x0, x1) = (s.xs[0], s.xs[s.xs.len() - 1]);
+        let noise = Normal::new(0.0, s.noise_um).unwrap();
+        let mut both = one_way.clone();
+        both.records.clear();
+        for r in &one_way.records {
+            let mut f = r.clone();
+            f.segment = SEGMENT_GRID_FWD.into();
+            both.records.push(f);
+        }
+        for r in one_way.records.iter().rev() {
+            let mut b = r.clone();
+            b.segment = SEGMENT_GRID_BWD.into();
+            let grow = 1.0 + 0.2 * (r.x_target_um - x0) / (x1 - x0);
+            b.x_meas_um += play[0] * grow + noise.sample(&mut rng);
+            b.y_meas_um += play[1] * grow + noise.sample(&mut rng);
+            both.records.push(b);
+        }
+        let a = report(&one_way);
+        let b = report_of(&both.records, [true, true], 5.0, 1.0).unwrap();
+        let rv = b.reversal.as_ref().expect("a reversal");
+        assert_eq!(rv.cells, s.xs.len() * s.ys.len());
+        for (c, p) in play.iter().enumerate() {
+            let want = p * 1.1;
+            let sigma = s.noise_um * (2.0 / rv.cells as f64).sqrt();
+            assert!(
+                (rv.mean_um[c] - want).abs() < 5.0 * sigma + 1e-9,
+                "case {case} {c}: {} vs {want}",
+                rv.mean_um[c]
+            );
+            assert!(rv.max_abs_um[c] >= rv.mean_um[c].abs());
+            // The maps are the one-way grid's.
+            assert_eq!(
+                a.components[c].non_separable.is_some(),
+                b.components[c].non_separable.is_some()
+            );
+            assert!((a.noise[c].cell_sigma_um - b.noise[c].cell_sigma_um).abs() < 1e-12);
+        }
+        let mut text = String::new();
+        write_text(&mut text, &b);
+        assert!(text.contains("measured both ways: reversal"), "{text}");
+    }
+}
+
 #[test]
 fn a_cross_of_two_scan_lines_is_not_a_grid() {
     let mut s = String::from(

@@ -117,6 +117,11 @@ pub enum ClientCommand {
         /// Grid: node spacing along both axes, µm (default --step-um).
         #[arg(long)]
         pitch_um: Option<f64>,
+        /// Grid: below (every node from below on both axes, default) or
+        /// both (then every node from above too: a map per arrival
+        /// direction, for moves that arrive either way; twice the time).
+        #[arg(long)]
+        approach: Option<String>,
         /// Follow progress with a progress bar until the job ends.
         #[arg(long)]
         follow: bool,
@@ -282,11 +287,15 @@ fn build(cmd: &ClientCommand) -> Value {
             unanchored_log,
             plan,
             pitch_um,
+            approach,
             ..
         } => {
             let mut v = json!({"cmd": "characterize", "action": action});
             if let Some(p) = plan {
                 v["plan"] = json!(p);
+            }
+            if let Some(a) = approach {
+                v["approach"] = json!(a);
             }
             if let Some(p) = pitch_um {
                 v["pitch_um"] = json!(p);

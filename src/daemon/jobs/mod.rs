@@ -29,7 +29,8 @@ pub(crate) use super::rig::measure::{
 };
 
 use super::protocol::{
-    Axes, CharacterizeMode, CharacterizeParams, CharacterizePlan, ErrorCode, ProtoError, Topic,
+    Axes, CharacterizeMode, CharacterizeParams, CharacterizePlan, ErrorCode, GridApproach,
+    ProtoError, Topic,
 };
 use super::rig::Rig;
 use crate::analysis::drift::DRIFT_REF_SEGMENT;
@@ -130,6 +131,12 @@ impl Jobs {
                 "pitch_um is the grid plan's node spacing: give plan = \"grid\" (the scan lines take step_um)",
             ));
         }
+        if p.approach.is_some() && !grid {
+            return Err(ProtoError::new(
+                ErrorCode::BadValue,
+                "approach is how the grid plan reaches its nodes: give plan = \"grid\" (the scan lines are measured both ways already)",
+            ));
+        }
         if grid && p.mode == Some(CharacterizeMode::Sweep) {
             return Err(ProtoError::new(
                 ErrorCode::BadValue,
@@ -167,6 +174,7 @@ impl Jobs {
         };
         let plan = ScanPlan {
             grid,
+            grid_both: p.approach == Some(GridApproach::Both),
             scan_x: axes.x(),
             scan_y: axes.y(),
             step_um,
@@ -671,6 +679,8 @@ fn scan_line(segment: &str) -> Option<char> {
 }
 
 /// Where to go before `next` so that it is reached as its scan reaches it:
+/// a grid node (segments `grid`, `grid_fwd`, `grid_bwd`) from the side of
+/// its pass on both axes;
 /// the held axis from [`PARK_APPROACH_UM`] below (the park), the scanned
 /// axis from the side of its pass (below forward, above backward); for a
 /// point of no scan line (moves) both from below. Clamped into the travel:
@@ -683,7 +693,13 @@ fn scan_approach(rig: &Rig, next: &plan::Point) -> (f64, f64) {
     } else {
         1.0
     };
-    let (x, y) = if scan_line(next.segment) == Some('x') {
+    let grid = next.segment.starts_with(plan::SEGMENT_GRID);
+    let (x, y) = if grid {
+        (
+            next.x_um - dir * PARK_APPROACH_UM,
+            next.y_um - dir * PARK_APPROACH_UM,
+        )
+    } else if scan_line(next.segment) == Some('x') {
         (
             next.x_um - dir * PARK_APPROACH_UM,
             next.y_um - PARK_APPROACH_UM,

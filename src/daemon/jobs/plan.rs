@@ -4,7 +4,7 @@
 //! `k` of the plan: resume continues at index = records already logged).
 
 use crate::charact::log::Metadata;
-use crate::charact::scan::SEGMENT_MOVES;
+use crate::charact::scan::{SEGMENT_GRID_BWD, SEGMENT_GRID_FWD, SEGMENT_MOVES};
 
 /// One point of the plan.
 #[derive(Debug, Clone, PartialEq)]
@@ -30,6 +30,10 @@ pub struct ScanPlan {
     /// ranges, in rows of increasing x, rows in increasing y, per cycle
     /// (segment [`SEGMENT_GRID`]; `scan_x`/`scan_y` play no part).
     pub grid: bool,
+    /// A grid measured both ways: per cycle every node from below (segment
+    /// [`SEGMENT_GRID_FWD`], as above), then every node from above
+    /// ([`SEGMENT_GRID_BWD`]: rows of decreasing x, in decreasing y).
+    pub grid_both: bool,
     /// Scan X.
     pub scan_x: bool,
     /// Scan Y.
@@ -111,15 +115,29 @@ impl ScanPlan {
         if self.grid {
             let xs = self.grid_nodes(self.x_start_um, self.x_range_um);
             let ys = self.grid_nodes(self.y_start_um, self.y_range_um);
+            let passes: &[(&'static str, bool)] = if self.grid_both {
+                &[(SEGMENT_GRID_FWD, false), (SEGMENT_GRID_BWD, true)]
+            } else {
+                &[(SEGMENT_GRID, false)]
+            };
             for cycle in 1..=self.cycles {
-                for &y_um in &ys {
-                    for &x_um in &xs {
-                        v.push(Point {
-                            segment: SEGMENT_GRID,
-                            cycle,
-                            x_um,
-                            y_um,
-                        });
+                for &(segment, down) in passes {
+                    let order = |v: &[f64]| -> Vec<f64> {
+                        if down {
+                            v.iter().rev().copied().collect()
+                        } else {
+                            v.to_vec()
+                        }
+                    };
+                    for y_um in order(&ys) {
+                        for x_um in order(&xs) {
+                            v.push(Point {
+                                segment,
+                                cycle,
+                                x_um,
+                                y_um,
+                            });
+                        }
                     }
                 }
             }
@@ -214,7 +232,7 @@ impl ScanPlan {
     pub fn points_upper_bound(&self) -> f64 {
         let n = |r: f64| (r / self.step_um).min(1e7) + 2.0;
         let per_cycle = if self.grid {
-            n(self.x_range_um) * n(self.y_range_um)
+            n(self.x_range_um) * n(self.y_range_um) * if self.grid_both { 2.0 } else { 1.0 }
         } else {
             2.0 * (n(self.x_range_um) + n(self.y_range_um))
         };
@@ -245,6 +263,9 @@ impl ScanPlan {
         if self.grid {
             md.insert("plan", "grid");
         }
+        if self.grid_both {
+            md.insert("grid_approach", "both");
+        }
     }
 
     /// Reads a plan back from log metadata.
@@ -269,8 +290,19 @@ impl ScanPlan {
                 })
             }
         };
+        let grid_both = match md.get("grid_approach") {
+            None | Some("below") => false,
+            Some("both") => true,
+            Some(other) => {
+                return Err(PlanError {
+                    key: "grid_approach".to_owned(),
+                    problem: format!("{other:?} is neither \"below\" nor \"both\""),
+                })
+            }
+        };
         let p = ScanPlan {
             grid,
+            grid_both: grid && grid_both,
             scan_x: get(md, "scan_x")?,
             scan_y: get(md, "scan_y")?,
             step_um: get(md, "step_um")?,
@@ -393,6 +425,7 @@ mod tests {
     fn plan() -> ScanPlan {
         ScanPlan {
             grid: false,
+            grid_both: false,
             scan_x: true,
             scan_y: true,
             step_um: 5.0,
@@ -448,6 +481,38 @@ mod tests {
         assert!(md.get("plan").is_none());
         assert!(!ScanPlan::from_metadata(&md).unwrap().grid);
         md.insert("plan", "spiral");
+        assert!(ScanPlan::from_metadata(&md).is_err());
+    }
+
+    /// A grid measured both ways: per cycle the pass from below, then the
+    /// same nodes from above in reverse order; it round-trips.
+    #[test]
+    fn a_grid_both_ways_visits_every_node_from_each_side() {
+        let p = ScanPlan {
+            grid: true,
+            grid_both: true,
+            step_um: 500.0,
+            x_range_um: 2000.0,
+            y_range_um: 1000.0,
+            cycles: 2,
+            ..plan()
+        };
+        let pts = p.points();
+        assert_eq!(pts.len(), 2 * 2 * 15);
+        assert!(pts[..15].iter().all(|q| q.segment == SEGMENT_GRID_FWD));
+        assert!(pts[15..30].iter().all(|q| q.segment == SEGMENT_GRID_BWD));
+        for k in 0..15 {
+            let (a, b) = (&pts[k], &pts[29 - k]);
+            assert_eq!((a.x_um, a.y_um, a.cycle), (b.x_um, b.y_um, 1));
+        }
+        assert_eq!(pts[30].segment, SEGMENT_GRID_FWD);
+        assert_eq!(pts[30].cycle, 2);
+        assert!(p.points_upper_bound() >= pts.len() as f64);
+        let mut md = Metadata::new();
+        p.to_metadata(&mut md);
+        assert_eq!(md.get("grid_approach"), Some("both"));
+        assert_eq!(ScanPlan::from_metadata(&md).unwrap(), p);
+        md.insert("grid_approach", "sideways");
         assert!(ScanPlan::from_metadata(&md).is_err());
     }
 

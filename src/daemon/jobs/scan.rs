@@ -155,12 +155,22 @@ async fn points(
         let line = |q: &plan::Point| scan_line(q.segment);
         let before = i.checked_sub(1).and_then(|k| s.points.get(k));
         let new_line = line(p).is_some() && before.is_some_and(|q| line(q) != line(p));
-        // A grid node is reached from below on both axes, as the nodes
-        // along a row are: where a row or a cycle starts again (x or y goes
-        // back), the node is approached from below first, so the map holds
-        // one arrival direction per axis.
-        let grid_back = p.segment == plan::SEGMENT_GRID
-            && before.is_some_and(|q| p.x_um < q.x_um || p.y_um < q.y_um);
+        // A grid node is reached from its pass's side on both axes (below;
+        // above in a `grid_bwd` pass), as the nodes along a row are: where
+        // a row, a pass or a cycle starts again (x or y goes against the
+        // pass), the node is approached from that side first, so each map
+        // holds one arrival direction per axis.
+        let grid_back = p.segment.starts_with(plan::SEGMENT_GRID)
+            && before.is_some_and(|q| {
+                let dir = if p.segment.ends_with("_bwd") {
+                    -1.0
+                } else {
+                    1.0
+                };
+                dir * (p.x_um - q.x_um) < 0.0
+                    || dir * (p.y_um - q.y_um) < 0.0
+                    || q.segment != p.segment
+            });
         if !approached && (new_line || grid_back) {
             let (x, y) = scan_approach(rig, p);
             if move_raw(rig, x, y, cancel).await?.is_none() {

@@ -66,6 +66,27 @@ pub fn merged_scan_records(records: &[Record]) -> Vec<Record> {
     out
 }
 
+/// The 2-D map of a grid log's lattice `map`: two layers when its records
+/// hold the grid both ways (arrivals from below and from above, by their
+/// segments), else one.
+fn grid_table(
+    map: &GridMap,
+    records: &[Record],
+) -> Result<(GridTable, crate::comp::GridBuildReport), crate::comp::CompError> {
+    let offsets = |m: &GridMap| -> Vec<Option<[f64; 2]>> {
+        m.cells.iter().map(|c| c.map(|c| c.e_um)).collect()
+    };
+    match GridMap::directional(records, [true, true]) {
+        Some([below, above]) => GridTable::from_lattices(
+            &below.xs_um,
+            &below.ys_um,
+            &offsets(&below),
+            Some(&offsets(&above)),
+        ),
+        None => GridTable::from_lattice(&map.xs_um, &map.ys_um, &offsets(map)),
+    }
+}
+
 /// Records `frame` in a log's metadata, as [`frame_from_metadata`] reads
 /// it (full precision: a table built from the log must land in the same
 /// frame).
@@ -191,12 +212,11 @@ pub fn build_blocking(
                     params.log
                 ))
             })?;
-            let offsets: Vec<Option<[f64; 2]>> =
-                map.cells.iter().map(|c| c.map(|c| c.e_um)).collect();
-            let (mut table, report) = GridTable::from_lattice(&map.xs_um, &map.ys_um, &offsets)
+            let (mut table, report) = grid_table(map, &undrifted)
                 .map_err(|e| bad(format!("grid map from {}: {e}", params.log)))?;
-            // microposd's grid plan reaches every node from below.
-            if parsed.metadata.get("plan") == Some("grid") {
+            // microposd's one-way grid plan reaches every node from below.
+            if parsed.metadata.get("plan") == Some("grid") && table.arrival == GridArrival::Unknown
+            {
                 table.arrival = GridArrival::FromBelow;
             }
             out["grid"] = json!({"name": name, "report": report});
@@ -410,6 +430,71 @@ mod tests {
         };
         let e = build_blocking(dir.path(), &params).unwrap_err();
         assert!(e.to_string().contains("not a grid log"), "{e}");
+    }
+
+    /// A grid log measured both ways (segments `grid_fwd`, `grid_bwd`)
+    /// gives a two-layer map: a move arriving from above on x and from
+    /// below on y gets the x play and no y play; the reply names the
+    /// reversal.
+    #[test]
+    fn a_grid_measured_both_ways_builds_a_map_per_direction() {
+        use crate::charact::scan::{SEGMENT_GRID_BWD, SEGMENT_GRID_FWD};
+        use crate::model::{AxisMotion, Direction, MotionState};
+        let mut md = Metadata::default();
+        md.insert("plan", "grid");
+        md.insert("grid_approach", "both");
+        let e = |x: f64, y: f64| [1e-4 * x + 2e-8 * x * y, -3e-4 * y];
+        let play = [1.7, -0.6];
+        let mut w = log::LogWriter::create(
+            Vec::new(),
+            &md,
+            log::Columns::default(),
+            log::SyncPolicy::FlushOnly,
+        )
+        .unwrap();
+        for (seg, sign) in [(SEGMENT_GRID_FWD, 0.0), (SEGMENT_GRID_BWD, 1.0)] {
+            for iy in 0..5 {
+                for ix in 0..4 {
+                    let (x, y) = (500.0 * f64::from(ix), 700.0 * f64::from(iy));
+                    let mut r = rec(seg, x, y);
+                    let o = e(x, y);
+                    r.x_meas_um = x + o[0] + sign * play[0];
+                    r.y_meas_um = y + o[1] + sign * play[1];
+                    w.append(&r).unwrap();
+                }
+            }
+        }
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::write(dir.path().join("b.csv"), w.into_inner()).unwrap();
+        let params = TablesBuildParams {
+            log: "b.csv".into(),
+            name: None,
+            kinds: Vec::new(),
+            activate: false,
+        };
+        let (out, written) = build_blocking(dir.path(), &params).unwrap();
+        assert_eq!(written, ["b-grid.toml"], "{out}");
+        let rev = &out["grid"]["report"]["reversal_rms_um"];
+        assert!((rev[0].as_f64().unwrap() - 1.7).abs() < 1e-9, "{out}");
+        assert_eq!(out["grid"]["report"]["measured_from_above"], 20, "{out}");
+        let file = CompFile::read_path(dir.path().join("b-grid.toml")).unwrap();
+        let comp = file.compensator().unwrap();
+        let (x, y) = (750.0, 1000.0);
+        let mut state = MotionState::at_rest(x, y);
+        state.axes[0] = AxisMotion {
+            dir: Direction::Backward,
+            ..state.axes[0]
+        };
+        state.axes[1] = AxisMotion {
+            dir: Direction::Forward,
+            ..state.axes[1]
+        };
+        let p = comp.predicted_offset_um(&state).unwrap();
+        let want = e(x, y);
+        assert!(
+            (p[0] - want[0] - play[0]).abs() < 1e-9 && (p[1] - want[1]).abs() < 1e-9,
+            "{p:?}"
+        );
     }
 
     /// A stage with an effect the default model lacks (a periodic error

@@ -131,6 +131,22 @@ pub struct CharacterizeParams {
     pub plan: Option<CharacterizePlan>,
     /// Grid plan: node spacing along both axes, µm (default `step_um`).
     pub pitch_um: Option<f64>,
+    /// Grid plan: how the nodes are reached (default: from below).
+    pub approach: Option<GridApproach>,
+}
+
+/// How a grid plan reaches its nodes.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub enum GridApproach {
+    /// Every node from below on both axes, once per cycle: one map, for
+    /// moves that arrive from below (half the time of `Both`).
+    #[default]
+    Below,
+    /// Every node from below on both axes (segment `grid_fwd`), then every
+    /// node from above (`grid_bwd`, rows of decreasing x, in decreasing y),
+    /// per cycle: a map per arrival direction, as the paper's forward and
+    /// backward tables, for moves that arrive either way.
+    Both,
 }
 
 /// Which points a step characterization measures.

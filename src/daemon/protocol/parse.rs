@@ -8,8 +8,8 @@ use serde_json::{Map, Value};
 
 use super::command::{
     Axes, CharacterizeAction, CharacterizeMode, CharacterizeParams, CharacterizePlan, Command,
-    DriftAction, FiguresJob, FiguresParams, MoveMode, MoveRequest, Refusal, Request, TablesAction,
-    TablesBuildParams, Topic, ValidateAction, ValidateMode, ValidateParams, COMMANDS,
+    DriftAction, FiguresJob, FiguresParams, GridApproach, MoveMode, MoveRequest, Refusal, Request,
+    TablesAction, TablesBuildParams, Topic, ValidateAction, ValidateMode, ValidateParams, COMMANDS,
 };
 use super::fields::{
     check_file_name, opt_axes, opt_bool, opt_count, opt_f64, opt_f64_within, opt_str, opt_xy,
@@ -102,6 +102,7 @@ fn parse_command(obj: &Map<String, Value>) -> Result<Command, ProtoError> {
             "moves_per_cycle",
             "plan",
             "pitch_um",
+            "approach",
         ],
         "validate" => &[
             "action",
@@ -313,6 +314,12 @@ fn parse_characterize(obj: &Map<String, Value>) -> Result<CharacterizeAction, Pr
                     }
                 },
                 pitch_um: positive("pitch_um")?,
+                approach: match opt_str(obj, "approach")? {
+                    None => None,
+                    Some("below") => Some(GridApproach::Below),
+                    Some("both") => Some(GridApproach::Both),
+                    Some(other) => return Err(unknown_word("grid approach", other, "below, both")),
+                },
             })))
         }
         "status" => Ok(CharacterizeAction::Status),

@@ -175,6 +175,7 @@ def characterize_start(
     unanchored_log: Optional[str] = None,
     plan: Optional[str] = None,
     pitch_um: Optional[float] = None,
+    approach: Optional[str] = None,
 ) -> Json:
     """``characterize`` ``start``."""
     return request(
@@ -198,6 +199,7 @@ def characterize_start(
         unanchored_log=unanchored_log,
         plan=plan,
         pitch_um=pitch_um,
+        approach=approach,
     )
 
 

@@ -21,6 +21,7 @@ from .types import (
     Axes,
     CharacterizeMode,
     CharacterizePlan,
+    GridApproach,
     DriftMethod,
     Json,
     JobKind,
@@ -329,6 +330,7 @@ class AsyncRig:
         unanchored_log: Optional[str] = None,
         plan: Optional[CharacterizePlan] = None,
         pitch_um: Optional[float] = None,
+        approach: Optional[GridApproach] = None,
     ) -> "AsyncJob":
         """``characterize start``; see :meth:`Rig.characterize`."""
         reply = await self._call(
@@ -351,6 +353,7 @@ class AsyncRig:
                 unanchored_log=unanchored_log,
                 plan=plan,
                 pitch_um=pitch_um,
+                approach=approach,
             )
         )
         return AsyncJob._from_reply(self, "characterize", reply)

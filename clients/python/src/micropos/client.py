@@ -28,6 +28,7 @@ from .types import (
     Axes,
     CharacterizeMode,
     CharacterizePlan,
+    GridApproach,
     DriftMethod,
     Json,
     JobKind,
@@ -308,6 +309,7 @@ class Rig:
         unanchored_log: Optional[str] = None,
         plan: Optional[CharacterizePlan] = None,
         pitch_um: Optional[float] = None,
+        approach: Optional[GridApproach] = None,
     ) -> "Job":
         """``characterize start``: a characterization job, logged point by
         point into ``log`` (a file name in the daemon's data directory).
@@ -327,8 +329,9 @@ class Rig:
         a lost motion that grows with the move length. ``plan="grid"``
         (step mode) measures every node of a lattice over both ranges,
         ``pitch_um`` apart (default ``step_um``), each reached from below on
-        both axes; ``tables.build`` makes a 2-D map of it. Returns the job's
-        handle."""
+        both axes (``approach="both"``: then from above too, a map per
+        arrival direction); ``tables.build`` makes a 2-D map of it. Returns
+        the job's handle."""
         reply = self._call(
             proto.characterize_start(
                 log=log,
@@ -349,6 +352,7 @@ class Rig:
                 unanchored_log=unanchored_log,
                 plan=plan,
                 pitch_um=pitch_um,
+                approach=approach,
             )
         )
         return Job._from_reply(self, "characterize", reply)

@@ -19,6 +19,7 @@ __all__ = [
     "ValidateMode",
     "TableKind",
     "CharacterizePlan",
+    "GridApproach",
     "DriftMethod",
     "JobKind",
     "JobProgress",
@@ -48,6 +49,9 @@ JobKind = Literal["characterize", "validate"]
 #: fly at constant velocity (the camera delay estimated from the data).
 CharacterizeMode = Literal["step", "sweep"]
 CharacterizePlan = Literal["lines", "grid"]
+#: How a grid plan reaches its nodes: from below on both axes (default), or
+#: both ways (a map per arrival direction).
+GridApproach = Literal["below", "both"]
 
 
 class JobProgress(TypedDict, total=False):
