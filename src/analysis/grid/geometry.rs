@@ -135,13 +135,12 @@ fn invert3(m: &[[f64; 3]; 3]) -> Option<[[f64; 3]; 3]> {
         m[r0][c0] * m[r1][c1] - m[r0][c1] * m[r1][c0]
     };
     let det: f64 = (0..3).map(|j| m[0][j] * c(0, j)).sum();
-    let scale: f64 = m
-        .iter()
-        .flatten()
-        .map(|v| v.abs())
-        .fold(0.0, f64::max)
-        .powi(3);
-    if !det.is_finite() || det.abs() <= 1e-12 * scale {
+    // Singular when the determinant of the matrix scaled to a unit
+    // diagonal is (nearly) zero: independent of the columns' units, so a
+    // lattice of a few hundred µm (slopes' columns of 1e-4) is not taken
+    // for a degenerate one, as a test against the largest entry did.
+    let diag: f64 = (0..3).map(|i| m[i][i]).product();
+    if !det.is_finite() || diag.is_nan() || diag <= 0.0 || det.abs() <= 1e-12 * diag {
         return None;
     }
     // Inverse = adjugate / det; the cofactor of (j, i) gives entry (i, j).

@@ -27,7 +27,7 @@
 //!    `f(x) + g(y)` per component plus a squareness. What that leaves is
 //!    measured, and a 2-D term (the separable part plus the interaction
 //!    interpolated from the neighbouring cells) is judged on held-out
-//!    cells (checkerboard and alternate lines): a finding only when it
+//!    cells (diagonal thirds; checkerboard and alternate lines reported): a finding only when it
 //!    predicts held-out cells better by a paired test.
 
 mod geometry;

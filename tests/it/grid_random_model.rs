@@ -1,0 +1,388 @@
+//! Random 2-D stages drawn through the one stage model (the model the
+//! simulator runs), mapped on random lattices through a measuring frame
+//! rotated at random, against what the grid analysis reads from them.
+//!
+//! Why beside `analysis::grid`'s own random tests: those draw the error
+//! field from a generator written for them (waves and a Gaussian bump).
+//! Here every parameter of every family of the default stage model is
+//! drawn (both signs), the nodes are reached as microposd's grid plan
+//! reaches them (rows of increasing x, a row's first node by an approach
+//! from below), and the non-separable error is the physical kind a stacked
+//! stage has, of random size, sign and place: the lower carriage's yaw
+//! growing along its travel (`stacked_yaw`, bilinear), or a yawing lower
+//! carriage whose waviness the upper axis carries (`angular` with
+//! `carries_other_axis`, θ(x)·y). The grid analysis was developed on the
+//! other generator: every case here is held out from it.
+//!
+//! What must hold: the out-of-squareness in the stage's frame within 3 σ
+//! (+ 0.5 µrad) of the noise-free field's; no non-separable finding on
+//! ≥ 40 separable stages; the joint error found at 6× and 3× its noise at
+//! the rates printed (`--nocapture`), each miss with its z, size and
+//! noise (measured: 40 separable stages without a false finding, the
+//! squareness within 0.13 σ; 20/20 joint errors found at 6× and at 3×;
+//! judged on the checkerboard, as before `analysis::grid::maps` judged on
+//! diagonal thirds, 16/20 and 13/20).
+
+use micropos::analysis::grid::{report_of, GridReport};
+use micropos::charact::log::Record;
+use micropos::model::{MotionState, MotionTracker, StageModel, Waypoint, PAPER_DEFAULT_TOML};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use rand_distr::{Distribution, Normal};
+
+fn uniform(rng: &mut ChaCha8Rng, lo: f64, hi: f64) -> f64 {
+    lo + (hi - lo) * rng.gen::<f64>()
+}
+
+fn signed(rng: &mut ChaCha8Rng, lo: f64, hi: f64) -> f64 {
+    let v = uniform(rng, lo, hi);
+    if rng.gen() {
+        v
+    } else {
+        -v
+    }
+}
+
+/// Which non-separable error a stage gets.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Joint {
+    None,
+    /// `stacked_yaw` with this lower axis (0: x, 1: y).
+    StackedYaw(usize),
+    /// The lower carriage's `angular` yaw carried by the other axis.
+    CarriedYaw(usize),
+}
+
+/// One drawn stage: its model, lattice, noise and measuring frame.
+struct Stage {
+    model: StageModel,
+    xs: Vec<f64>,
+    ys: Vec<f64>,
+    noise_um: f64,
+    rotation_urad: f64,
+    offset_um: [f64; 2],
+    /// The component the joint error is in (`Joint::None`: none).
+    joint: Joint,
+}
+
+/// The default model's text with the non-separable term of `joint`.
+fn model_text(joint: Joint, rng: &mut ChaCha8Rng, xs: &[f64], ys: &[f64]) -> String {
+    let mut text = PAPER_DEFAULT_TOML.to_owned();
+    let mid = |v: &[f64], rng: &mut ChaCha8Rng| uniform(rng, v[0], v[v.len() - 1]);
+    match joint {
+        Joint::None => {}
+        Joint::StackedYaw(lower) => {
+            let (lo, up) = if lower == 0 { (xs, ys) } else { (ys, xs) };
+            text.push_str(&format!(
+                "\n[[term]]\nkind = \"stacked_yaw\"\nname = \"carriage_yaw\"\nlower_axis = \"{}\"\nslope_urad_per_mm = 1.0\nlower_center_um = {}\nupper_center_um = {}\n",
+                if lower == 0 { "x" } else { "y" },
+                mid(lo, rng),
+                mid(up, rng)
+            ));
+        }
+        Joint::CarriedYaw(0) => {
+            text = text.replace("carries_other_axis = false", "carries_other_axis = true");
+        }
+        Joint::CarriedYaw(_) => {
+            text = text.replace(
+                "name = \"y_yaw\"\n",
+                "name = \"y_yaw\"\ncarries_other_axis = true\n",
+            );
+        }
+    }
+    text
+}
+
+/// Every parameter of every family drawn: squareness ±3 mrad, scales
+/// ±300 ppm, play 0.3–5 µm, angular slopes ±10 µrad/mm and waviness
+/// ±30 µrad, cyclic first harmonics 0.3–4 µm (cross coupling 0.1–1.5 µm)
+/// with higher harmonics, thermal, drifts.
+fn draw_params(m: &mut StageModel, rng: &mut ChaCha8Rng) {
+    for p in m.params() {
+        let v = match (p.kind.as_str(), p.info.name.as_str()) {
+            ("squareness", _) => signed(rng, 0.0, 3000.0),
+            ("lead_error", _) => signed(rng, 0.0, 300.0),
+            ("backlash", _) => uniform(rng, 0.3, 5.0),
+            ("angular", n) if n.starts_with("slope") => signed(rng, 0.0, 10.0),
+            ("angular", n) if n.starts_with("sin") || n.starts_with("cos") => {
+                signed(rng, 0.0, 30.0)
+            }
+            ("thermal_expansion", _) => signed(rng, 0.0, 0.02),
+            ("optics_drift", _) => signed(rng, 0.0, 0.5),
+            ("time_drift", "rate_um_per_h") => signed(rng, 0.0, 0.3),
+            ("leadscrew_cyclic", _) => signed(rng, 0.0, 2.0),
+            ("cross_coupling", _) => signed(rng, 0.0, 0.7),
+            _ => continue,
+        };
+        let _ = m.set_param(&p.full_name, v);
+    }
+}
+
+impl Stage {
+    fn draw(rng: &mut ChaCha8Rng, joint: Joint) -> Stage {
+        let (nx, ny) = (rng.gen_range(10..=30), rng.gen_range(10..=30));
+        let pitch = [uniform(rng, 40.0, 800.0), uniform(rng, 40.0, 800.0)];
+        let (x0, y0) = (uniform(rng, 0.0, 1000.0), uniform(rng, 0.0, 1000.0));
+        let xs: Vec<f64> = (0..nx).map(|i| x0 + i as f64 * pitch[0]).collect();
+        let ys: Vec<f64> = (0..ny).map(|i| y0 + i as f64 * pitch[1]).collect();
+        let mut model = StageModel::from_toml(&model_text(joint, rng, &xs, &ys)).unwrap();
+        draw_params(&mut model, rng);
+        Stage {
+            model,
+            xs,
+            ys,
+            noise_um: 10f64.powf(uniform(rng, -2.0, -0.7)),
+            rotation_urad: signed(rng, 0.0, 2000.0),
+            offset_um: [signed(rng, 0.0, 5.0), signed(rng, 0.0, 5.0)],
+            joint,
+        }
+    }
+
+    /// The component the joint error is in.
+    fn joint_component(&self) -> Option<usize> {
+        match self.joint {
+            Joint::None => None,
+            // A yawing lower carriage moves the platform along its own
+            // axis by the yaw times the upper axis's reach (dx = −θ·y).
+            Joint::StackedYaw(lower) | Joint::CarriedYaw(lower) => Some(lower),
+        }
+    }
+
+    /// The noise-free error `true − commanded` at every node, reached as
+    /// the grid plan reaches it, row-major.
+    fn field(&self) -> Vec<[f64; 2]> {
+        let mut tracker = MotionTracker::new(MotionState::at_rest(0.0, 0.0)).unwrap();
+        let mut out = Vec::new();
+        let mut t_s = 0.0;
+        for &y in &self.ys {
+            tracker
+                .step(Waypoint::at(self.xs[0] - 100.0, y - 100.0))
+                .unwrap();
+            for &x in &self.xs {
+                t_s += 2.0;
+                let s = tracker
+                    .step(Waypoint {
+                        time_s: t_s,
+                        ..Waypoint::at(x, y)
+                    })
+                    .unwrap();
+                let o = self.model.observed_position(&s);
+                out.push([o.x_um - x, o.y_um - y]);
+            }
+        }
+        out
+    }
+
+    /// Scales the joint term so that its part no `f(x) + g(y)` holds has
+    /// `k` times the noise as rms over the lattice.
+    fn scale_joint(&mut self, k: f64) {
+        let Some(c) = self.joint_component() else {
+            return;
+        };
+        let names: Vec<String> = match self.joint {
+            Joint::StackedYaw(_) => vec!["carriage_yaw.slope_urad_per_mm".into()],
+            Joint::CarriedYaw(lower) => {
+                let t = if lower == 0 { "x_yaw" } else { "y_yaw" };
+                self.model
+                    .params()
+                    .into_iter()
+                    .filter(|p| {
+                        p.term == t
+                            && (p.info.name.starts_with("slope")
+                                || p.info.name.starts_with("sin")
+                                || p.info.name.starts_with("cos"))
+                    })
+                    .map(|p| p.full_name)
+                    .collect()
+            }
+            Joint::None => Vec::new(),
+        };
+        let unit = joint_rms(&self.field(), self.xs.len(), c);
+        let f = k * self.noise_um / unit;
+        for n in &names {
+            let v = self.model.param(n).unwrap();
+            if let Err(e) = self.model.set_param(n, v * f) {
+                panic!("{n} = {v} × {f}: {e}");
+            }
+        }
+    }
+
+    /// The map as a measurement log's records: each node once, read
+    /// through the rotated, offset frame with noise.
+    fn records(&self, rng: &mut ChaCha8Rng) -> Vec<Record> {
+        let noise = Normal::new(0.0, self.noise_um).unwrap();
+        let phi = 1e-6 * self.rotation_urad;
+        let field = self.field();
+        let nx = self.xs.len();
+        let mut out = Vec::new();
+        for (k, e) in field.iter().enumerate() {
+            let (x, y) = (self.xs[k % nx], self.ys[k / nx]);
+            let (tx, ty) = (x + e[0], y + e[1]);
+            out.push(Record {
+                t_s: 2.0 * k as f64,
+                segment: "grid".into(),
+                cycle: 1,
+                x_target_um: x,
+                y_target_um: y,
+                x_cmd_um: x,
+                y_cmd_um: y,
+                x_meas_um: tx * phi.cos() + ty * phi.sin() + self.offset_um[0] + noise.sample(rng),
+                y_meas_um: -tx * phi.sin() + ty * phi.cos() + self.offset_um[1] + noise.sample(rng),
+                temp_c: None,
+                extra: Vec::new(),
+            });
+        }
+        out
+    }
+
+    /// The out-of-squareness of the noise-free field in the stage's frame:
+    /// d(ex)/dy + d(ey)/dx of the least-squares planes, µrad.
+    fn true_squareness_urad(&self) -> f64 {
+        let field = self.field();
+        let nx = self.xs.len();
+        let slope = |c: usize, along_y: bool| {
+            // Plane fit on a full lattice: the slope along one axis is the
+            // regression on that coordinate alone (the lattice is
+            // orthogonal).
+            let pos = |k: usize| {
+                if along_y {
+                    self.ys[k / nx]
+                } else {
+                    self.xs[k % nx]
+                }
+            };
+            let n = field.len() as f64;
+            let mp = (0..field.len()).map(pos).sum::<f64>() / n;
+            let me = field.iter().map(|e| e[c]).sum::<f64>() / n;
+            let (mut sxy, mut sxx) = (0.0, 0.0);
+            for (k, e) in field.iter().enumerate() {
+                sxy += (pos(k) - mp) * (e[c] - me);
+                sxx += (pos(k) - mp).powi(2);
+            }
+            1e6 * sxy / sxx
+        };
+        slope(0, true) + slope(1, false)
+    }
+}
+
+/// Rms of component `c`'s part that no `f(x) + g(y)` holds (the doubly
+/// centred field of a full lattice).
+fn joint_rms(field: &[[f64; 2]], nx: usize, c: usize) -> f64 {
+    let ny = field.len() / nx;
+    let v = |ix: usize, iy: usize| field[iy * nx + ix][c];
+    let row: Vec<f64> = (0..ny)
+        .map(|iy| (0..nx).map(|ix| v(ix, iy)).sum::<f64>() / nx as f64)
+        .collect();
+    let col: Vec<f64> = (0..nx)
+        .map(|ix| (0..ny).map(|iy| v(ix, iy)).sum::<f64>() / ny as f64)
+        .collect();
+    let all = row.iter().sum::<f64>() / ny as f64;
+    let mut s = 0.0;
+    for (iy, r) in row.iter().enumerate() {
+        for (ix, c) in col.iter().enumerate() {
+            s += (v(ix, iy) - r - c + all).powi(2);
+        }
+    }
+    (s / field.len() as f64).sqrt()
+}
+
+fn report(s: &Stage, rng: &mut ChaCha8Rng) -> GridReport {
+    report_of(&s.records(rng), [true, true], 5.0, 1.0).expect("a grid")
+}
+
+/// Separable stages: the squareness in the stage's frame within 3 σ, and
+/// no non-separable finding.
+#[test]
+fn model_stages_get_their_squareness_and_no_false_joint_finding() {
+    let mut rng = ChaCha8Rng::seed_from_u64(0x2d_5eed);
+    let mut false_findings = Vec::new();
+    let mut worst_sigmas = 0.0f64;
+    let cases = 40;
+    for case in 0..cases {
+        let s = Stage::draw(&mut rng, Joint::None);
+        let r = report(&s, &mut rng);
+        let q = r.geometry.out_of_squareness_urad;
+        let truth = s.true_squareness_urad();
+        assert!(
+            q.sigma.is_finite(),
+            "case {case}: {q:?}; field finite: {}, lattice {} × {}, noise {}, report {}",
+            s.field()
+                .iter()
+                .all(|e| e[0].is_finite() && e[1].is_finite()),
+            s.xs.len(),
+            s.ys.len(),
+            s.noise_um,
+            serde_json::to_string(&r.geometry).unwrap()
+        );
+        let dev = (q.value - truth).abs();
+        worst_sigmas = worst_sigmas.max(dev / q.sigma);
+        assert!(
+            dev <= 3.0 * q.sigma + 0.5,
+            "case {case}: squareness {} ± {} µrad, true {truth} µrad (frame turned {} µrad)",
+            q.value,
+            q.sigma,
+            s.rotation_urad
+        );
+        for m in &r.components {
+            if let Some(ns) = &m.non_separable {
+                false_findings.push(format!(
+                    "case {case} {}: z {:.1}, gain {:.0} %, noise {:.3} µm",
+                    m.component, ns.z, ns.gain_pct, s.noise_um
+                ));
+            }
+        }
+    }
+    eprintln!(
+        "GRID-MODEL | {cases} separable stages: worst squareness |error|/σ {worst_sigmas:.2}; false joint findings: {}",
+        false_findings.len()
+    );
+    assert!(false_findings.is_empty(), "{false_findings:#?}");
+}
+
+/// Stages with a joint error of `k` times the noise: how often it is
+/// found in its component, never in the other.
+#[test]
+fn model_stages_with_a_joint_error_are_found_at_six_and_three_times_the_noise() {
+    let mut rng = ChaCha8Rng::seed_from_u64(0x2d_b1a5);
+    let cases = 20;
+    let mut rates = Vec::new();
+    for (k, min_rate) in [(6.0, 0.9), (3.0, 0.8)] {
+        let mut found = 0;
+        let mut misses = Vec::new();
+        for case in 0..cases {
+            let lower = rng.gen_range(0..2);
+            let joint = if rng.gen() {
+                Joint::StackedYaw(lower)
+            } else {
+                Joint::CarriedYaw(lower)
+            };
+            let mut s = Stage::draw(&mut rng, joint);
+            s.scale_joint(k);
+            let c = s.joint_component().unwrap();
+            let r = report(&s, &mut rng);
+            match &r.components[c].non_separable {
+                Some(_) => found += 1,
+                None => misses.push(format!(
+                    "case {case} {joint:?}: z {:.1} on {} × {} cells (noise {:.3} µm) joint {:.3} sep {:.3} folds {:?}",
+                    r.components[c].z,
+                    s.xs.len(),
+                    s.ys.len(),
+                    s.noise_um,
+                    joint_rms(&s.field(), s.xs.len(), c),
+                    r.components[c].separable_rms_um,
+                    r.components[c].folds.iter().map(|f| (f.separable_um, f.map_um)).collect::<Vec<_>>()
+                )),
+            }
+            assert!(
+                r.components[1 - c].non_separable.is_none(),
+                "case {case} {joint:?}: a finding on the component without the joint error"
+            );
+        }
+        let rate = f64::from(found) / f64::from(cases);
+        eprintln!("GRID-MODEL | joint error at {k}× the noise: found {found}/{cases}; misses: {misses:#?}");
+        rates.push((k, rate, min_rate));
+    }
+    for (k, rate, min_rate) in rates {
+        assert!(rate >= min_rate, "{k}×: {rate}");
+    }
+}
