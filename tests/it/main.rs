@@ -54,6 +54,7 @@ mod diagnose_robust_logs;
 mod diagnose_tables;
 mod drift_correction_gain;
 mod driver_cli;
+mod grid_zones;
 mod import_cli;
 mod import_props;
 mod log_format;

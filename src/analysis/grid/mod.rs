@@ -36,6 +36,7 @@ mod noise;
 mod report;
 #[cfg(test)]
 mod tests;
+pub mod zones;
 
 use serde::Serialize;
 
@@ -45,6 +46,7 @@ use crate::charact::scan::is_sweep_anchor;
 pub use geometry::{Geometry, Slope};
 pub use maps::{ComponentMaps, FoldScore, NonSeparable};
 pub use noise::NoiseFloor;
+pub use zones::{combine_zones, Zone, ZoneCombination, ZoneError, ZoneOptions, ZoneSetup};
 
 /// Segments that are not points of a map: drift references and the
 /// varied-length moves of a characterization.
