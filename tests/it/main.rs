@@ -55,6 +55,7 @@ mod diagnose_tables;
 mod drift_correction_gain;
 mod driver_cli;
 mod grid_random_model;
+mod grid_zones;
 mod import_cli;
 mod import_props;
 mod log_format;

@@ -36,6 +36,7 @@ mod noise;
 mod report;
 #[cfg(test)]
 mod tests;
+pub mod zones;
 
 use serde::Serialize;
 
@@ -46,6 +47,7 @@ use crate::model::Direction;
 pub use geometry::{Geometry, Slope};
 pub use maps::{ComponentMaps, FoldScore, NonSeparable};
 pub use noise::NoiseFloor;
+pub use zones::{combine_zones, Zone, ZoneCombination, ZoneError, ZoneOptions, ZoneSetup};
 
 /// Segments that are not points of a map: drift references and the
 /// varied-length moves of a characterization.

@@ -8,6 +8,7 @@
 mod axes;
 mod camera;
 mod client;
+mod combine;
 mod decode;
 mod diagnose;
 mod gcs;
@@ -61,6 +62,18 @@ enum Commands {
     /// cycle; or a .dat of targets and forward/backward readings per cycle)
     /// into a measurement log.
     Import(import::Args),
+    /// Combine grid logs of overlapping zones of one stage, each taken
+    /// with its own instrument set-up, into one map: the set-ups' offsets
+    /// and cross slopes fitted on the overlaps, one grid log written.
+    ///
+    /// Zone k reads e = E + s_k (e = meas − target), s_k = (ox + a·(y − yc),
+    /// oy + b·(x − xc)): offsets at the zone's centre (xc, yc), cross slopes
+    /// a = d(ex)/dy and b = d(ey)/dx in µrad (a turn of the whole instrument
+    /// by φ counter-clockwise is a = −φ, b = +φ). Printed per zone relative to
+    /// the reference zone, ± 1σ, with its overlap nodes and the rms of its
+    /// overlap differences; the map is written in the reference's set-up.
+    /// See docs/measurement-log.md.
+    Combine(combine::Args),
     /// The paper's procedure run on a stage model: every quantitative
     /// statement of the paper beside the model's figures.
     Paper(paper::Args),
@@ -123,6 +136,7 @@ fn main() -> ExitCode {
         }
         Commands::Diagnose(a) => (diagnose::run(&a), 1),
         Commands::Import(a) => (import::run(&a), 1),
+        Commands::Combine(a) => (combine::run(&a), 1),
         Commands::Simlog(a) => (simlog::run(&a), 1),
         Commands::Paper(a) => (paper::run(&a), 1),
         Commands::Plot(a) => (plot::run(&a), 1),
