@@ -67,7 +67,11 @@ fn run(seed: u64, effect: Option<&InjectedEffect>) -> Diagnosis {
     add_distractors(&mut log, seed);
     // Through the file format, as a user would.
     let parsed = parse_bytes(&log.to_bytes().unwrap()).unwrap();
-    diagnose(&parsed, &base, &DiagnoseOptions::default()).unwrap()
+    let d = diagnose(&parsed, &base, &DiagnoseOptions::default()).unwrap();
+    // Every printed number sane (`diagnose_sane`).
+    let bad = super::diagnose_sane::problems(&parsed, &d);
+    assert!(bad.is_empty(), "seed {seed}: {bad:#?}\n{}", d.to_text());
+    d
 }
 
 /// Peak error of the effect over the plan, µm (for the size/noise table).

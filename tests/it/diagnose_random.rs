@@ -27,20 +27,20 @@ use micropos::analysis::generate::{
 };
 use micropos::analysis::physical::{simulate_physical_log, PhysicalEffect, PhysicalStage};
 use micropos::analysis::{diagnose, DiagnoseOptions, Diagnosis, FindingKind};
-use micropos::charact::log::parse_bytes;
+use micropos::charact::log::{parse_bytes, MeasurementLog};
 use micropos::model::{Axis, StageModel};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
 /// Noise of the plan: settling σ 0.035 ⊕ camera σ 0.03, µm.
-const NOISE_UM: f64 = 0.046;
+pub(crate) const NOISE_UM: f64 = 0.046;
 
 /// Sizes of the hidden effects, multiples of the noise.
 const SIZES: [f64; 3] = [3.0, 6.0, 12.0];
 
 /// A reduced characterization plan (40 µm steps, 3 cycles): ≈ 2200
 /// points, enough to resolve the 400 µm screw's three harmonics.
-fn plan() -> SimPlan {
+pub(crate) fn plan() -> SimPlan {
     SimPlan {
         step_um: 40.0,
         ..SimPlan::default()
@@ -68,7 +68,7 @@ fn signed(rng: &mut ChaCha8Rng, lo: f64, hi: f64) -> f64 {
 /// ±10 µrad/mm and waviness ±30 µrad, thermal terms, x drift 0–0.3 µm/h.
 /// Abbe arms, periods and the documented-zero discovered terms (other
 /// than the x drift) keep their values.
-fn random_model(seed: u64) -> StageModel {
+pub(crate) fn random_model(seed: u64) -> StageModel {
     let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x4a4d_0000_0000_0011);
     let mut m = StageModel::paper_default().unwrap();
     let params = m.params();
@@ -127,7 +127,7 @@ fn random_model(seed: u64) -> StageModel {
 
 /// `f` over `items` on up to four threads (the diagnoses are independent
 /// and seeded; the order of the results is the order of `items`).
-fn par_map<T: Sync, R: Send>(items: &[T], f: impl Fn(&T) -> R + Sync) -> Vec<R> {
+pub(crate) fn par_map<T: Sync, R: Send>(items: &[T], f: impl Fn(&T) -> R + Sync) -> Vec<R> {
     let workers = std::thread::available_parallelism()
         .map_or(1, |n| n.get())
         .clamp(1, 4);
@@ -152,6 +152,13 @@ fn par_map<T: Sync, R: Send>(items: &[T], f: impl Fn(&T) -> R + Sync) -> Vec<R> 
 }
 
 fn describe(d: &Diagnosis) -> Vec<String> {
+    let withdrawn = d.withdrawn.iter().map(|w| {
+        let f = &w.finding;
+        format!(
+            "WITHDRAWN {} {} vs {} because {}",
+            f.kind, f.component, f.axis, w.reason
+        )
+    });
     d.findings
         .iter()
         .map(|f| {
@@ -160,20 +167,36 @@ fn describe(d: &Diagnosis) -> Vec<String> {
                 f.kind, f.component, f.axis, f.explanation
             )
         })
+        .chain(withdrawn)
         .collect()
 }
 
-/// Diagnoses `log` (through the file format) against the default model.
-fn run(log: &SimLog) -> Diagnosis {
-    let parsed = parse_bytes(&log.to_bytes().unwrap()).unwrap();
+/// `log` through the file format (what `diagnose` reads).
+pub(crate) fn parsed(log: &SimLog) -> MeasurementLog {
+    parse_bytes(&log.to_bytes().unwrap()).unwrap()
+}
+
+/// Diagnoses a parsed log against the default model.
+pub(crate) fn run_parsed(log: &MeasurementLog) -> Diagnosis {
     let model = StageModel::paper_default().unwrap();
-    diagnose(&parsed, &model, &DiagnoseOptions::default()).unwrap()
+    diagnose(log, &model, &DiagnoseOptions::default()).unwrap()
+}
+
+/// Diagnoses `log` (through the file format) against the default model,
+/// and requires every number its report prints to be sane
+/// (`diagnose_sane::problems`).
+fn run(log: &SimLog) -> Diagnosis {
+    let parsed = parsed(log);
+    let d = run_parsed(&parsed);
+    let bad = super::diagnose_sane::problems(&parsed, &d);
+    assert!(bad.is_empty(), "{bad:#?}\n{}", d.to_text());
+    d
 }
 
 /// What a finding must name: kind, component, and the variable axis for
 /// position-dependent kinds.
 #[derive(Debug, Clone, Copy)]
-struct Expect {
+pub(crate) struct Expect {
     kind: FindingKind,
     component: Axis,
     axis: Option<Axis>,
@@ -187,7 +210,7 @@ fn found(d: &Diagnosis, e: &Expect) -> bool {
 
 /// Kinds hidden in model-generated logs (structure the default model
 /// lacks; a time drift only on y: the default has an x drift term).
-const MODEL_KINDS: [FindingKind; 5] = [
+pub(crate) const MODEL_KINDS: [FindingKind; 5] = [
     FindingKind::PositionPeriodic,
     FindingKind::Localized,
     FindingKind::TimePeriodic,
@@ -198,7 +221,7 @@ const MODEL_KINDS: [FindingKind; 5] = [
 /// A hidden model-term effect of `kind` and peak `size_um` from `seed`,
 /// skipping draws the default model can express (a y drift only; an x
 /// periodic of x near the default's 1600 µm extra period).
-fn model_effect(kind: FindingKind, size_um: f64, seed: u64) -> (InjectedEffect, Expect) {
+pub(crate) fn model_effect(kind: FindingKind, size_um: f64, seed: u64) -> (InjectedEffect, Expect) {
     let plan = plan();
     for s in seed.. {
         let e = draw_effect_sized(s, kind, size_um, &plan).unwrap();
@@ -228,7 +251,7 @@ fn model_effect(kind: FindingKind, size_um: f64, seed: u64) -> (InjectedEffect, 
 
 /// A hidden physical effect of kind index `k` (dent, bearing, wind-up, air
 /// cycle, y drift) and peak `size_um` from `seed`.
-fn physical_effect(k: usize, size_um: f64, seed: u64) -> (PhysicalEffect, Expect) {
+pub(crate) fn physical_effect(k: usize, size_um: f64, seed: u64) -> (PhysicalEffect, Expect) {
     let plan = plan();
     let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x0ef1_0000_0000_0013);
     let axis = if rng.gen::<bool>() { Axis::X } else { Axis::Y };
@@ -313,7 +336,7 @@ fn physical_effect(k: usize, size_um: f64, seed: u64) -> (PhysicalEffect, Expect
     }
 }
 
-const PHYSICAL_KINDS: [&str; 5] = ["dent", "bearing", "wind-up", "air cycle", "y drift"];
+pub(crate) const PHYSICAL_KINDS: [&str; 5] = ["dent", "bearing", "wind-up", "air cycle", "y drift"];
 
 /// Clean stages: model-generated and physical. Returns the number of
 /// stages and of findings on them (all false: the stages have no

@@ -404,6 +404,8 @@ fn problems(path: &Path, log: &MeasurementLog, d: &Diagnosis) -> Vec<String> {
         }
         Err(e) => bad(format!("plots: {e}")),
     }
+    // Every printed number sane, in the text and the JSON.
+    out.extend(super::diagnose_sane::problems(log, d));
     out.into_iter()
         .map(|p| format!("{}: {p}", name(path)))
         .collect()

@@ -131,14 +131,10 @@ fn the_shared_map_is_read_in_the_stages_frame() {
         !text.contains("this stage's scale (lead error) `x_lead.ppm` is +215"),
         "{text}"
     );
-    for f in &d.findings {
-        if let Some(p) = f.params.get("position_um") {
-            assert!(
-                (-250_000.0..=100_000.0).contains(p),
-                "located outside the map: {f:?}"
-            );
-        }
-    }
+    // Every place inside the map, every σ usable, in the text and the
+    // JSON (or the finding withdrawn, with its reason).
+    let bad = super::diagnose_sane::problems(&log, &d);
+    assert!(bad.is_empty(), "{bad:#?}");
     assert!(d.to_json()["grid"]["geometry"]["out_of_squareness_urad"]["value"].is_f64());
 }
 

@@ -51,6 +51,7 @@ mod diagnose_real_extra;
 mod diagnose_real_grid;
 mod diagnose_rig_logs;
 mod diagnose_robust_logs;
+mod diagnose_sane;
 mod diagnose_tables;
 mod drift_correction_gain;
 mod driver_cli;

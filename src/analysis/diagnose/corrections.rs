@@ -138,8 +138,10 @@ pub(super) fn corrections(
 
 /// Says, in the sentence of a play fitted jointly with a reversal table on
 /// its axis, what that play is: the lost motion at the table's first knot
-/// (the table is zero there), not the axis's lost motion in general, which
-/// the table gives along the travel.
+/// (where the table is zero, unless the fit wanted the play below zero and
+/// the table holds the rest: the sentence follows the table's value
+/// there), not the axis's lost motion in general, which the table gives
+/// along the travel.
 ///
 /// Why: a reader compares the play with the replicates' mean reversal;
 /// on a stage whose lost motion changes sign along the travel the two
@@ -174,18 +176,24 @@ pub(super) fn note_tables(
             continue;
         };
         let mean = knots.iter().map(|k| k.1).sum::<f64>() / knots.len() as f64;
-        let deficit = v0 - p.fitted_value;
+        // The table's own value at its first knot: zero unless the fit
+        // wanted the play below zero (see `describe::first_knot`).
+        let table0 = v0 - p.fitted_value;
+        let there = if table0.abs() < super::describe::TABLE_ZERO_UM {
+            format!("which is zero at its first knot ({x0:.1} µm): this is the lost motion there")
+        } else {
+            format!(
+                "which holds {table0:+.3} µm at its first knot ({x0:.1} µm): the lost motion there is {v0:+.3} µm, this play plus the table{}",
+                if table0 < 0.0 && p.fitted_value <= 0.0 {
+                    " (a play cannot be negative: the table holds what lies below zero)"
+                } else {
+                    ""
+                }
+            )
+        };
         p.sentence.push_str(&format!(
-            "; fitted jointly with the reversal table `{}`, which is zero at its first knot ({:.1} µm): this is the lost motion there{}, the table gives it along the travel (from {:+.3} to {:+.3} µm, mean {mean:+.3} µm over its {} knots)",
+            "; fitted jointly with the reversal table `{}`, {there}; the table gives it along the travel (from {:+.3} to {:+.3} µm, mean {mean:+.3} µm over its {} knots)",
             f.term,
-            x0,
-            if deficit.abs() > 1e-9 {
-                format!(
-                    " (there {v0:+.3} µm: a play cannot be negative, so the table holds the {deficit:+.3} µm below zero)"
-                )
-            } else {
-                String::new()
-            },
             knots.iter().map(|k| k.1).fold(f64::INFINITY, f64::min),
             knots.iter().map(|k| k.1).fold(f64::NEG_INFINITY, f64::max),
             knots.len()

@@ -282,7 +282,7 @@ pub(super) fn describe(
             if lost_motion {
                 kind = FindingKind::ReversalVaries;
                 explanation = format!(
-                    "{a}'s lost motion on reversal changes along the travel, from {:+.3} µm at {} to {:+.3} µm at {} (a reversal table at {} knots, linear between them). Lost motion T = the model's play + the table, > 0 when the platform trails the command in both directions (the model's error is −½·T when arriving forward, +½·T backward), so T = −B in ISO 230-2's sign (B = x̄↑ − x̄↓, measured − target): {}; at {} the table is zero and T is the play{}",
+                    "{a}'s lost motion on reversal changes along the travel, from {:+.3} µm at {} to {:+.3} µm at {} (a reversal table at {} knots, linear between them). Lost motion T = the model's play + the table, > 0 when the platform trails the command in both directions (the model's error is −½·T when arriving forward, +½·T backward), so T = −B in ISO 230-2's sign (B = x̄↑ − x̄↓, measured − target): {}{}",
                     lo.1,
                     at(lo.0),
                     hi.1,
@@ -292,11 +292,7 @@ pub(super) fn describe(
                         .map(|(x, v)| format!("{v:+.3} µm at {}", at(*x)))
                         .collect::<Vec<_>>()
                         .join(", "),
-                    at(first.0),
-                    match &play_name {
-                        Some(n) => format!(" `{n}` ({play:+.3} µm)"),
-                        None => " (the model has no play term for this axis)".into(),
-                    }
+                    first_knot(&at(first.0), first.1, first.1 - play, play, play_name.as_deref())
                 );
                 cause = "nut preload or wear that varies along the screw, a bent screw or misaligned coupling whose wind-up changes with position, or guide friction that varies; one constant play cannot follow it".into();
             } else {
@@ -375,6 +371,39 @@ pub(super) fn describe(
         variable,
         in_extended_model: in_model,
     })
+}
+
+/// Below this (µm) a reversal table's own value at its first knot reads
+/// as zero: half the last digit the report prints values with.
+pub(super) const TABLE_ZERO_UM: f64 = 5e-5;
+
+/// The end of a reversal table's sentence: what the lost motion `t_um` at
+/// its first knot (at `at`) is made of, `t = play + table`, worded after
+/// the numbers (the table's own value there is `table_um`).
+///
+/// Why from the numbers: the table is held at zero at its first knot only
+/// when the model has a play for the axis and the fit leaves that play
+/// non-negative; a play the fit wants below zero is moved into the table
+/// (`extend`), and without a play term the table is free at every knot.
+/// A fixed "the table is zero there" sat beside a first value of
+/// −20.2 µm.
+fn first_knot(at: &str, t_um: f64, table_um: f64, play: f64, play_name: Option<&str>) -> String {
+    match play_name {
+        None => format!(
+            "; the model has no play term for this axis: T is the table alone ({t_um:+.3} µm at {at})"
+        ),
+        Some(n) if table_um.abs() < TABLE_ZERO_UM => {
+            format!("; at {at} the table is zero and T is the play `{n}` ({play:+.3} µm)")
+        }
+        Some(n) => format!(
+            "; at {at} T ({t_um:+.3} µm) is the play `{n}` ({play:+.3} µm) plus the table's {table_um:+.3} µm{}",
+            if table_um < 0.0 && play <= 0.0 {
+                " (the fit wants the play below zero, which a play cannot be: the table holds the rest)"
+            } else {
+                ""
+            }
+        ),
+    }
 }
 
 /// Extra play found for a reversal: the fitted play minus the play of the

@@ -16,7 +16,7 @@ use crate::model::terms::{
 use crate::model::{StageModel, DEFAULT_TEMP_C};
 
 use super::data::Data;
-use super::fit::{fold_base, solve_with_cov};
+use super::fit::{determined_variances, fold_base, solve_with_cov, FoldBase};
 use super::search::{backlash_term_of, base_columns, columns, table_free_knots, Spec};
 use crate::analysis::AnalysisError;
 
@@ -76,8 +76,10 @@ type Extended = (
     HashMap<String, f64>,
 );
 
-/// [`extended`] plus the standard error of every linear parameter, by full
-/// name.
+/// [`extended`] plus the standard error of every parameter by full name
+/// (linear ones, and the shape parameters of localized and step-size
+/// terms, see [`shape_columns`]; a finding's parameter the log does not
+/// determine has none).
 pub(super) fn extended_with_se(
     d: &Data,
     model: &StageModel,
@@ -100,10 +102,16 @@ pub(super) fn extended_with_se(
         cols.extend(columns(s, d, model));
     }
     let fb = fold_base(d, &cols, vec![true; d.n]);
-    let (beta, pdiag) = solve_with_cov(&fb.gbb, &fb.rb);
-    let rows = d.n * d.measured.iter().filter(|&&m| m).count();
-    let dof = rows.saturating_sub(cols.len()).max(1) as f64;
-    let sigma2 = fb.resid.iter().map(|v| v * v).sum::<f64>() / dof;
+    let (beta, _) = solve_with_cov(&fb.gbb, &fb.rb);
+    // Standard errors from the linearization at the reported values, the
+    // shape parameters' columns (∂/∂place, ∂/∂width, ∂/∂length) beside
+    // the linear ones: every σ, linear or not, from one covariance.
+    let shape = shape_columns(d, model, specs, &beta, base_names.len());
+    let n_lin = cols.len();
+    cols.extend(shape.iter().map(|s| s.col.clone()));
+    let (all_se, determined) = standard_errors(d, &cols, shape.is_empty().then_some(fb));
+    let se_of = |j: usize| all_se.get(j).copied().unwrap_or(f64::NAN);
+    let shape_se = |j: usize| determined.get(j).copied().flatten();
     let mut se: HashMap<String, f64> = HashMap::new();
     let mut ext = model.clone();
     // A play the fit wants below zero, by backlash term: a lost-motion
@@ -120,7 +128,7 @@ pub(super) fn extended_with_se(
             v = v.max(0.0);
         }
         ext.set_param(name, v)?;
-        se.insert(name.clone(), (sigma2 * pdiag[j]).sqrt());
+        se.insert(name.clone(), se_of(j));
     }
     let mut col = base_names.len();
     let mut term_names = Vec::new();
@@ -150,13 +158,133 @@ pub(super) fn extended_with_se(
             };
             add_term(&mut ext, model, spec, &coef, shift, k + 1, d.t0)?
         };
+        // A finding's coefficient the log does not determine (a column of
+        // zeros: a feature between the sampled positions) gets no σ.
         for (m, p) in pn.iter().enumerate() {
-            se.insert(format!("{name}.{p}"), (sigma2 * pdiag[col + m]).sqrt());
+            if let Some(e) = shape_se(col + m) {
+                se.insert(format!("{name}.{p}"), e);
+            }
         }
         col += pn.len();
         term_names.push(name);
     }
+    // A shape parameter the log does not determine gets no σ (`withdraw`
+    // then withdraws its finding).
+    for (j, s) in shape.iter().enumerate() {
+        if let (Some(e), Some(term)) = (shape_se(n_lin + j), term_names.get(s.spec)) {
+            se.insert(format!("{term}.{}", s.param), e);
+        }
+    }
     Ok((ext, term_names, se, unmodelled))
+}
+
+/// The standard errors of the coefficients of `cols` fitted jointly on
+/// all rows (`fit` when it is that fit already): the pseudo-inverse's
+/// (`0` along the directions it drops, as the base corrections always
+/// had), and the same `None` where the Gram matrix does not determine a
+/// coefficient ([`determined_variances`]).
+fn standard_errors(
+    d: &Data,
+    cols: &[Vec<f64>],
+    fit: Option<FoldBase>,
+) -> (Vec<f64>, Vec<Option<f64>>) {
+    let fit = fit.unwrap_or_else(|| fold_base(d, cols, vec![true; d.n]));
+    let (_, pdiag) = solve_with_cov(&fit.gbb, &fit.rb);
+    let rows = d.n * d.measured.iter().filter(|&&m| m).count();
+    let dof = rows.saturating_sub(cols.len()).max(1) as f64;
+    let sigma2 = fit.resid.iter().map(|v| v * v).sum::<f64>() / dof;
+    let determined = determined_variances(&fit.gbb)
+        .into_iter()
+        .map(|v| v.map(|v| (sigma2 * v).sqrt()))
+        .collect();
+    let all = pdiag.iter().map(|v| (sigma2 * v).sqrt()).collect();
+    (all, determined)
+}
+
+/// The column of one shape parameter of a nonlinear spec: the change of
+/// the spec's fitted contribution per unit of the parameter.
+struct ShapeColumn {
+    /// Index of the spec in the extension's list.
+    spec: usize,
+    /// The parameter (`position_um`, `width_um`, `length_um`).
+    param: &'static str,
+    /// `A·∂g/∂θ` (centred like every column), by central difference.
+    col: Vec<f64>,
+}
+
+/// Relative step of the central differences of [`shape_columns`].
+const SHAPE_STEP: f64 = 1e-3;
+
+/// The [`ShapeColumn`]s of `specs` (a localized feature's place and width,
+/// a step-size term's length) at the amplitudes `beta` (the linear solve's
+/// coefficients, the specs' starting after `n_base` base columns).
+///
+/// Why: the shape parameters come from the search and its refinement, not
+/// from the linear solve; their standard errors are those of the
+/// Gauss–Newton linearization at the values reported, in the same centred
+/// fit (block constants of static axes profiled out). The model's own
+/// Levenberg–Marquardt, used before, iterated to a place of its own
+/// (it cannot profile out the block constants) and gave the σ there:
+/// 5·10¹³ µm on a step-size length the log determines to 35 %.
+fn shape_columns(
+    d: &Data,
+    model: &StageModel,
+    specs: &[Spec],
+    beta: &nalgebra::DVector<f64>,
+    n_base: usize,
+) -> Vec<ShapeColumn> {
+    let mut out = Vec::new();
+    let mut col = n_base;
+    for (k, spec) in specs.iter().enumerate() {
+        let amp = beta.get(col).copied().unwrap_or(0.0);
+        col += spec_param_names(spec, model).len();
+        let params: &[(&'static str, f64)] = match *spec {
+            Spec::Localized { width_um, .. } => {
+                &[("position_um", width_um), ("width_um", width_um)]
+            }
+            Spec::StepSize { length_um, .. } => &[("length_um", length_um)],
+            _ => continue,
+        };
+        for &(param, scale) in params {
+            let h = SHAPE_STEP * scale;
+            let (Some(plus), Some(minus)) = (shifted(spec, param, h), shifted(spec, param, -h))
+            else {
+                continue;
+            };
+            let (plus, minus) = (columns(&plus, d, model), columns(&minus, d, model));
+            let (Some(p), Some(m)) = (plus.first(), minus.first()) else {
+                continue;
+            };
+            let c = p
+                .iter()
+                .zip(m)
+                .map(|(a, b)| amp * (a - b) / (2.0 * h))
+                .collect();
+            out.push(ShapeColumn {
+                spec: k,
+                param,
+                col: c,
+            });
+        }
+    }
+    out
+}
+
+/// `spec` with its shape parameter `param` moved by `delta`, or `None`
+/// for a step that is zero or not finite, or a parameter the spec does
+/// not have.
+fn shifted(spec: &Spec, param: &str, delta: f64) -> Option<Spec> {
+    if !(delta.is_finite() && delta != 0.0) {
+        return None;
+    }
+    let mut s = spec.clone();
+    match (&mut s, param) {
+        (Spec::Localized { position_um, .. }, "position_um") => *position_um += delta,
+        (Spec::Localized { width_um, .. }, "width_um") => *width_um += delta,
+        (Spec::StepSize { length_um, .. }, "length_um") => *length_um += delta,
+        _ => return None,
+    }
+    Some(s)
 }
 
 /// The term kinds owning `names` (to rebuild the same base columns).

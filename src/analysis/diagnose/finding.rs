@@ -57,3 +57,24 @@ pub struct Finding {
 fn yes() -> bool {
     true
 }
+
+/// A finding that passed the held-out test but states a number the log
+/// does not determine (a place outside the measured travel, a standard
+/// error missing, not finite or wider than the travel or the log's error),
+/// and why. It is not a finding: the report lists it apart, credits it with
+/// no gain, and the extended model does not include it.
+///
+/// Why kept at all: a reader who sees structure in the residual plots (or
+/// an `UNEXPLAINED` line) learns that a term was tried there and why it
+/// was not reported, instead of nothing.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Withdrawn {
+    /// The finding as it was described before it was withdrawn (its
+    /// held-out figures are those it was accepted on; `term` is empty and
+    /// `in_extended_model` false: the extended model was refitted without
+    /// it).
+    pub finding: Finding,
+    /// Why the log does not determine it (the offending parameter and
+    /// number).
+    pub reason: String,
+}

@@ -346,6 +346,37 @@ pub(super) fn solve_with_cov(g: &DMatrix<f64>, r: &DVector<f64>) -> (DVector<f64
     (se.solve(r), se.inverse_diagonal())
 }
 
+/// The diagonal of the pseudo-inverse of `g` (the parameter variances per
+/// unit residual variance), `None` for a parameter the Gram matrix does not
+/// determine: a zero column, or one whose weight on the directions the
+/// pseudo-inverse drops exceeds [`NULL_WEIGHT`].
+///
+/// Why not [`solve_with_cov`]'s diagonal: the pseudo-inverse leaves the
+/// dropped directions out, so a parameter that lies along one gets a small
+/// (or zero) variance instead of none; a place or width the log cannot
+/// fix would be printed with a confident σ.
+pub(super) fn determined_variances(g: &DMatrix<f64>) -> Vec<Option<f64>> {
+    if g.nrows() == 0 {
+        return Vec::new();
+    }
+    let se = ScaledEigen::new(g);
+    let diag = se.inverse_diagonal();
+    (0..g.nrows())
+        .map(|i| {
+            let null: f64 = (0..g.nrows())
+                .filter(|&k| !se.kept(se.eig.eigenvalues[k]))
+                .map(|k| se.eig.eigenvectors[(i, k)].powi(2))
+                .sum();
+            (se.scale[i] > 0.0 && null <= NULL_WEIGHT).then_some(diag[i])
+        })
+        .collect()
+}
+
+/// Largest weight of a parameter on the unidentifiable directions for it
+/// to count as determined (the rule of the model's own fit,
+/// `model::fit`).
+const NULL_WEIGHT: f64 = 1e-2;
+
 /// Base-fit model selection: which groups of base columns (one group per
 /// model term, or per term and axis where its parameters name one) the
 /// log supports. Backward elimination on the pooled

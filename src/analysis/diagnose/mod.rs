@@ -59,10 +59,26 @@
 //!    reduction) is accepted, added to the base, and the search repeats.
 //! 7. **Extension.** Accepted candidates become model terms
 //!    ([`crate::model::terms::discovered`], or more play in the model's
-//!    backlash term); the extended model is refitted with the model's own
-//!    Levenberg–Marquardt ([`StageModel::fit`]), which gives the standard
-//!    errors of the nonlinear parameters (a localized feature's place and
-//!    width, a step-size term's length).
+//!    backlash term); every linear coefficient comes from the centred
+//!    solve on all rows, and every standard error from the same solve with
+//!    the columns of the nonlinear parameters (a localized feature's place
+//!    and width, a step-size term's length: their derivatives at the
+//!    values the search refined) beside the linear ones: the Gauss–Newton
+//!    covariance at the values reported. A nonlinear parameter the log
+//!    does not determine gets no standard error.
+//! 8. **Withdrawal.** A finding that states a number the log does not
+//!    determine (a place outside the measured travel of its axis; a place,
+//!    width, length or amplitude without a finite standard error, or with
+//!    one larger than the travel, resp. the log's peak-to-peak error; any
+//!    non-finite number) is withdrawn ([`Withdrawn`], with the reason),
+//!    the last accepted first, and the extension refitted without it
+//!    until every finding left is usable (`withdraw`). The extended
+//!    model, its held-out and in-sample RMS, the parameter corrections and
+//!    the noise report's residual are those without the withdrawn ones;
+//!    the report lists them apart and credits them with no gain. The
+//!    greedy search does not search again in their place: what they
+//!    carried stays in the residual (and in the noise report's
+//!    unexplained error).
 //!
 //! # Extra columns (`other`)
 //! A log may carry columns the model has no input for (humidity, motor
@@ -101,7 +117,10 @@
 //! * `ident`: step 2, which base parameters the log can separate, and the
 //!   combinations it cannot.
 //! * `corrections`: step 2's parameter corrections (model vs fitted value).
-//! * `extend`: step 7, accepted candidates turned into model terms.
+//! * `extend`: step 7, accepted candidates turned into model terms, with
+//!   the standard errors of their parameters.
+//! * `withdraw`: step 8, findings whose numbers the log does not determine
+//!   withdrawn, the extension refitted without them.
 //! * `describe`: a finding's parameters, uncertainty, sentence and likely
 //!   cause.
 //! * `tables`: the readings of the replicates as table families, their
@@ -126,27 +145,23 @@ mod search;
 mod tables;
 #[cfg(test)]
 mod tests;
-
-use std::collections::HashMap;
+mod withdraw;
 
 use serde::{Deserialize, Serialize};
 
 use crate::charact::log::MeasurementLog;
 use crate::charact::scan::is_sweep_anchor;
-use crate::model::{
-    Axis, Environment, FitOptions, Interpolation, Sample, StageModel, TemperaturePoint,
-};
+use crate::model::{Axis, Environment, Interpolation, StageModel, TemperaturePoint};
 
 use super::grid::{self, GridReport};
 use super::AnalysisError;
 pub use corrections::{ParamCorrection, SIGNIFICANT_SIGMAS};
 pub use data::{parse_approach, APPROACH_COLUMN, MEASURED_AXES_KEY};
 use data::{FoldScheme, MeasuredSource};
-use describe::describe;
-use extend::{extended, extended_with_se};
+use extend::extended;
 use family::Family;
-pub use finding::Finding;
-use fit::{fold_base, keep_heldout, paired_z, rms_comp, select_base, unjudged, Verdict};
+pub use finding::{Finding, Withdrawn};
+use fit::{fold_base, paired_z, rms_comp, select_base, Verdict};
 pub use ident::Unidentifiable;
 use judge::{judge, passes_test, rejudge, with_findings, Accepted};
 pub use noise::{ComponentNoise, IsoFigures, NoiseReport, Outlier, Sampling, TargetRepeat};
@@ -332,7 +347,14 @@ pub struct Diagnosis {
     pub baseline_rms_um: RmsXy,
     /// Findings in order of acceptance.
     pub findings: Vec<Finding>,
-    /// Held-out RMS with every finding the extended model includes, µm.
+    /// Candidates that passed the held-out test but state a number the log
+    /// does not determine (a place outside the measured travel, a missing
+    /// or absurd standard error), with the reason (step 8, `withdraw`):
+    /// not findings, and not in the extended model.
+    pub withdrawn: Vec<Withdrawn>,
+    /// Held-out RMS with every finding the extended model includes, µm
+    /// (the reported findings only: not the `other` ones, nor the
+    /// withdrawn ones, each fold fitted without them).
     pub extended_rms_um: RmsXy,
     /// Held-out RMS with the `other` findings (log columns the model cannot
     /// read) as well, µm; absent when there are none.
@@ -401,7 +423,8 @@ pub struct Diagnosis {
     pub noise: NoiseReport,
     /// Options used.
     pub options: DiagnoseOptions,
-    /// The extended model (base fit + findings, refitted), with the log's
+    /// The extended model (base fit + the reported findings, refitted
+    /// without the withdrawn ones), with the log's
     /// temperature record as its environment (so a simulator running it
     /// replays the log under the same conditions).
     #[serde(skip)]
@@ -695,7 +718,6 @@ fn diagnose_with(
     let mut table_tests: Vec<tables::TableTest> = Vec::new();
     let mut acc: Vec<Accepted> = Vec::new();
     let mut baseline_rms = [0.0; 2];
-    let mut last_heldout: [f64; 2];
     let mut final_heldout: Vec<f64>;
     // Each pass accepts a finding (re-judging the others, which may drop
     // one), frees a carrier or stops. A dropped family can come back with
@@ -720,7 +742,6 @@ fn diagnose_with(
         if acc.is_empty() {
             baseline_rms = heldout;
         }
-        last_heldout = heldout;
         final_heldout = before.clone();
         if judged_fams.is_empty() {
             break;
@@ -850,82 +871,39 @@ fn diagnose_with(
                 .map(|s| (s, a.verdict.clone()))
         })
         .collect();
+    // Step 8: findings whose numbers the log does not determine are
+    // withdrawn, the extended model refitted without them (`withdraw`).
+    let settled = withdraw::settle(&d, model, &base_names, accepted)?;
+    let kept = &settled.accepted;
+    if !settled.withdrawn.is_empty() {
+        final_heldout = withdraw::heldout_of(&d, model, &base0, kept.iter().map(|(s, _)| s));
+    }
+    let all_heldout = [rms_comp(&final_heldout, 0), rms_comp(&final_heldout, 1)];
     // The extended model cannot carry `other` findings (log columns it has
     // no input for): its held-out RMS is that of the other findings only.
     let unmodelled = |s: &Spec| matches!(s, Spec::Other { .. });
-    let (extended_heldout, with_unmodelled) = if accepted.iter().any(|(s, _)| unmodelled(s)) {
-        let mut cols: Vec<Vec<f64>> = base0.clone();
-        for (s, _) in &accepted {
-            if !unmodelled(s) {
-                cols.extend(columns(s, &d, model));
-            }
-        }
-        let mut ho = unjudged(&d);
-        for f in 0..d.nfolds {
-            let train: Vec<bool> = d.fold.iter().map(|&k| k != f).collect();
-            let fb = fold_base(&d, &cols, train);
-            keep_heldout(&d, &mut ho, &fb.resid, &fb.train);
-        }
+    let (extended_heldout, with_unmodelled) = if kept.iter().any(|(s, _)| unmodelled(s)) {
+        let modelled = kept.iter().map(|(s, _)| s).filter(|s| !unmodelled(s));
+        let ho = withdraw::heldout_of(&d, model, &base0, modelled);
         (
             [rms_comp(&ho, 0), rms_comp(&ho, 1)],
-            Some(RmsXy::from(last_heldout)),
+            Some(RmsXy::from(all_heldout)),
         )
     } else {
-        (last_heldout, None)
+        (all_heldout, None)
     };
-
-    let samples: Vec<Sample> = (0..d.n)
-        .map(|i| Sample {
-            state: d.states[i],
-            measured_x_um: d.meas[i][0],
-            measured_y_um: d.meas[i][1],
-        })
-        .collect();
-    let specs: Vec<Spec> = accepted.iter().map(|(s, _)| s.clone()).collect();
-    let mut std_errs: HashMap<String, f64> = HashMap::new();
-    // Localized features: standard errors of place and width from the
-    // model's own Levenberg–Marquardt (the only nonlinear candidate). Its
-    // values are not taken: it cannot profile out the block constants of
-    // static axes, and the centred search already refined place and width.
-    let nonlinear = |s: &Spec| matches!(s, Spec::Localized { .. } | Spec::StepSize { .. });
-    if specs.iter().any(nonlinear) {
-        let (ext, names) = extended(&d, model, &base_names, &specs)?;
-        let mut free = base_names.clone();
-        for (spec, name) in specs.iter().zip(&names) {
-            if nonlinear(spec) {
-                free.push(format!("{name}.*"));
-            }
-        }
-        let mut fitted = ext.clone();
-        let fo = FitOptions {
-            free,
-            max_iterations: 30,
-            ..FitOptions::default()
-        };
-        if let Ok(report) = fitted.fit(&samples, &fo) {
-            for p in &report.params {
-                if p.name.ends_with(".position_um")
-                    || p.name.ends_with(".width_um")
-                    || p.name.ends_with(".length_um")
-                {
-                    if let Some(e) = p.std_error {
-                        std_errs.insert(p.name.clone(), e);
-                    }
-                }
-            }
-        }
-    }
-    // Every linear coefficient from the centred solve (block constants of
-    // static axes profiled out, which the plain model fit cannot do), with
-    // standard errors from the same normal equations.
-    let (mut fitted, term_names, lin_se, unmodelled_values) =
-        extended_with_se(&d, model, &base_names, &specs)?;
+    let withdraw::Settled {
+        findings,
+        withdrawn,
+        mut fitted,
+        std_errs,
+        ..
+    } = settled;
     let (mut base_model, _) = extended(&d, model, &base_names, &[])?;
     if let Some(env) = log_environment(log)? {
         fitted.set_environment(env.clone())?;
         base_model.set_environment(env)?;
     }
-    std_errs.extend(lin_se);
     let synthetic_time = log
         .metadata
         .get(TIME_SOURCE_KEY)
@@ -933,12 +911,6 @@ fn diagnose_with(
     let mut parameters =
         corrections::corrections(model, &fitted, &base_names, &std_errs, synthetic_time);
     corrections::with_joint_totals(&mut parameters, model, &unidentifiable);
-    let std_err = |name: &str| -> Option<f64> { std_errs.get(name).copied() };
-    let accepted: Vec<(Spec, Verdict)> = specs
-        .into_iter()
-        .zip(accepted)
-        .map(|(s, (_, v))| (s, v))
-        .collect();
     // Residual series and in-sample RMS of the extended model.
     let mut series = ResidualSeries::default();
     let mut after = vec![0.0; 2 * d.n];
@@ -971,12 +943,6 @@ fn diagnose_with(
         .map(|x| (x.name.clone(), x.values.clone()))
         .collect();
     let fit_rms = [rms_comp(&after, 0), rms_comp(&after, 1)];
-    let value = |name: &str| -> Option<f64> { unmodelled_values.get(name).copied() };
-    let findings = accepted
-        .iter()
-        .zip(&term_names)
-        .map(|((spec, v), name)| describe(spec, v, name, &fitted, model, &std_err, &value, &d))
-        .collect::<Result<Vec<_>, _>>()?;
     corrections::note_tables(&mut parameters, &findings, model);
     note_short_periods(&mut parameters, &d, model);
     let mut r0 = vec![0.0; 2 * d.n];
@@ -1038,6 +1004,7 @@ fn diagnose_with(
         model_rms_um: RmsXy::from([rms_comp(&r0, 0), rms_comp(&r0, 1)]),
         baseline_rms_um: RmsXy::from(baseline_rms),
         findings,
+        withdrawn,
         extended_rms_um: RmsXy::from(extended_heldout),
         with_unmodelled_rms_um: with_unmodelled,
         extended_fit_rms_um: RmsXy::from(fit_rms),

@@ -185,7 +185,15 @@ impl Diagnosis {
                 .iter()
                 .any(|c| c.non_separable.is_some() || c.unexplained.is_some())
         });
-        if self.findings.is_empty() && unexplained.is_empty() && map_left {
+        if self.findings.is_empty() && !self.withdrawn.is_empty() {
+            let _ = writeln!(
+                out,
+                "no finding is reported: {} candidate(s) passed the held-out test (z ≥ {}, gain ≥ {} %) but the log does not determine their numbers (withdrawn, below)",
+                self.withdrawn.len(),
+                self.options.z_threshold,
+                self.options.min_gain_pct
+            );
+        } else if self.findings.is_empty() && unexplained.is_empty() && map_left {
             let _ = writeln!(
                 out,
                 "no finding of the stage model passes the held-out test (z ≥ {}, gain ≥ {} %), but the map is NOT explained to its noise: see the grid map's FINDING / UNEXPLAINED lines above",
@@ -240,6 +248,7 @@ impl Diagnosis {
                 }
             );
         }
+        out.push_str(&self.withdrawn_text());
         let _ = writeln!(
             out,
             "\nextended model, held out: rms {}; in-sample {}",
@@ -263,6 +272,36 @@ impl Diagnosis {
             );
         }
         out.push_str(&self.noise_text());
+        out
+    }
+
+    /// The withdrawn candidates' section of the text report: what each
+    /// was (kind, component, variable) and why the log does not determine
+    /// it; empty when none was withdrawn.
+    ///
+    /// Why no numbers of its own: a withdrawn candidate's parameters are
+    /// the ones the log does not determine, and its held-out gain is not
+    /// credited (the extended model does not include it); the reason
+    /// quotes the one number that made it fail.
+    fn withdrawn_text(&self) -> String {
+        if self.withdrawn.is_empty() {
+            return String::new();
+        }
+        let mut out = format!(
+            "\nwithdrawn (not determined by this log; not in the extended model, no gain credited): {}\n",
+            self.withdrawn.len()
+        );
+        for w in &self.withdrawn {
+            let f = &w.finding;
+            let _ = writeln!(
+                out,
+                "  {} ({} error, variable {}) because {}",
+                f.kind,
+                f.component,
+                f.variable.as_deref().unwrap_or(f.axis.as_str()),
+                w.reason
+            );
+        }
         out
     }
 
@@ -514,6 +553,7 @@ impl Diagnosis {
             "parameters": self.parameters,
             "unidentifiable": self.unidentifiable,
             "findings": self.findings,
+            "withdrawn": self.withdrawn,
             "extended_rms_um": self.extended_rms_um,
             "extended_fit_rms_um": self.extended_fit_rms_um,
             "with_unmodelled_rms_um": self.with_unmodelled_rms_um,

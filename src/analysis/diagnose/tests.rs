@@ -728,3 +728,120 @@ fn an_error_that_changes_between_visits_is_judged_on_interleaved_folds() {
     );
     assert!(d.findings.is_empty(), "{}", d.to_text());
 }
+
+/// A verdict for a finding built by hand (`withdraw::settle` only carries
+/// it into the finding).
+fn verdict_for(family: Family) -> Verdict {
+    Verdict {
+        family,
+        after: Vec::new(),
+        reduction: 1.0,
+        z: 9.0,
+        gain_pct: 40.0,
+        rms_before: 0.2,
+        rms_after: 0.12,
+        table_z: f64::NEG_INFINITY,
+    }
+}
+
+#[test]
+fn a_feature_the_log_does_not_place_is_withdrawn_and_the_report_says_why() {
+    use crate::analysis::generate::draw_effect_sized;
+    let model = StageModel::paper_default().unwrap();
+    let plan = SimPlan {
+        cycles: 3,
+        ..small_plan(0)
+    };
+    // A real 0.8 µm feature of x along x, inside the travel.
+    let effect = (0u64..)
+        .map(|s| draw_effect_sized(s, FindingKind::Localized, 0.8, &plan).unwrap())
+        .find(|e| e.axis == Axis::X && e.component == Axis::X)
+        .unwrap();
+    let truth = truth_model(&model, Some(&effect), &plan, 21).unwrap();
+    let log = parse_bytes(&simulate_log(&truth, &plan, 21).unwrap().to_bytes().unwrap()).unwrap();
+    let d = prepare(&log, &model, 4).unwrap();
+    let fam = Family::Localized {
+        axis: Axis::X,
+        comp: Axis::X,
+    };
+    let at = |position_um: f64, width_um: f64| {
+        (
+            Spec::Localized {
+                axis: Axis::X,
+                comp: Axis::X,
+                position_um,
+                width_um,
+            },
+            verdict_for(fam),
+        )
+    };
+    let (p, w) = (effect.params["position_um"], effect.params["width_um"]);
+    let [lo, _] = plan.x_range_um;
+    let accepted = vec![
+        at(p, w),
+        // Centred outside the travel: seen by its tail alone.
+        at(lo - 3.0 * w, w),
+        // Narrower than the sampling, between two sampled positions (the
+        // plan steps 20 µm from 250 µm): its column is zero, nothing
+        // places it.
+        at(if p < 750.0 { 1010.0 } else { 510.0 }, 0.5),
+    ];
+    let s = withdraw::settle(&d, &model, &[], accepted).unwrap();
+    assert_eq!(s.findings.len(), 1, "{:?}", s.findings);
+    let f = &s.findings[0];
+    assert!((f.params["position_um"] - p).abs() < 1e-9);
+    for k in ["position_um", "width_um", "amplitude_um"] {
+        let e = f.uncertainty[k];
+        assert!(e.is_finite() && e > 0.0 && e < 0.2 * w, "{k} ± {e}");
+    }
+    let reasons: Vec<&str> = s.withdrawn.iter().map(|w| w.reason.as_str()).collect();
+    assert_eq!(reasons.len(), 2, "{reasons:?}");
+    assert!(
+        reasons
+            .iter()
+            .any(|r| r.contains("lies outside the measured x travel")),
+        "{reasons:?}"
+    );
+    assert!(
+        reasons.iter().any(|r| r.contains("standard error")),
+        "{reasons:?}"
+    );
+    assert!(s
+        .withdrawn
+        .iter()
+        .all(|w| w.finding.term.is_empty() && !w.finding.in_extended_model));
+    // The extended model carries the kept feature only (beside the
+    // model's own localized terms).
+    let localized = |m: &StageModel| {
+        m.terms()
+            .iter()
+            .filter(|t| t.kind() == crate::model::terms::discovered::LOCALIZED_KIND)
+            .count()
+    };
+    assert_eq!(localized(&s.fitted), localized(&model) + 1);
+
+    // The report: a section of its own, each reason, no finding block and
+    // no gain for them; the JSON lists them.
+    let mut diag = diagnose(&log, &model, &DiagnoseOptions::default()).unwrap();
+    diag.withdrawn = s.withdrawn.clone();
+    let text = diag.to_text();
+    let section = text
+        .split("\nwithdrawn (not determined by this log")
+        .nth(1)
+        .expect("a withdrawn section")
+        .split("\n\n")
+        .next()
+        .unwrap_or("");
+    for r in &reasons {
+        assert!(section.contains(r), "{section}");
+    }
+    assert!(!section.contains("finding") && !section.contains("% better"));
+    assert_eq!(
+        text.matches("\nfinding ").count(),
+        diag.findings.len(),
+        "{text}"
+    );
+    let json = diag.to_json();
+    assert_eq!(json["withdrawn"].as_array().map(|a| a.len()), Some(2));
+    assert!(json["withdrawn"][0]["reason"].is_string());
+}
