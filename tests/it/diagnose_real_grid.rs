@@ -227,3 +227,42 @@ fn the_shared_map_in_any_encoding_gives_the_same_conclusions() {
         );
     }
 }
+
+/// The model's reading states the scale the map measures: the lead, its
+/// Abbe partners and the thermal scale at the log's constant temperature
+/// (held at the model's values) in all, within the σ of both.
+#[test]
+fn the_models_scale_in_all_is_the_maps() {
+    let Some(log) = load() else { return };
+    let d = run(&log);
+    let g = d.grid.as_ref().expect("a grid");
+    let text = d.to_text();
+    for (axis, map) in [("x", g.geometry.scale_x_ppm), ("y", g.geometry.scale_y_ppm)] {
+        let key = format!("`{axis}_lead.ppm` together with");
+        let line = text
+            .lines()
+            .find(|l| l.contains(&key))
+            .unwrap_or_else(|| panic!("no total for {axis}: {text}"));
+        assert!(line.contains("stage_thermal"), "{line}");
+        let total: Vec<f64> = line
+            .split("measures ")
+            .nth(1)
+            .and_then(|t| t.split(" ppm").next())
+            .map(|t| {
+                t.split(" ± ")
+                    .filter_map(|v| v.trim().parse().ok())
+                    .collect()
+            })
+            .unwrap_or_default();
+        assert_eq!(total.len(), 2, "{line}");
+        let within = 3.0 * (total[1].powi(2) + map.sigma.powi(2)).sqrt();
+        assert!(
+            (total[0] - map.value).abs() <= within,
+            "{axis}: model total {} ± {} ppm, map {} ± {} ppm",
+            total[0],
+            total[1],
+            map.value,
+            map.sigma
+        );
+    }
+}

@@ -197,6 +197,73 @@ pub(super) fn identifiable_given(
     (kept, unident)
 }
 
+/// The held parameters (`held_names`, `held_cols`: kept at the model's
+/// value for a reason of their own, `why`) whose column at the log's
+/// points is a combination of the kept parameters' (`kept_names`,
+/// `kept_cols`), named with it.
+///
+/// Why: a temperature coefficient held because the log's temperature does
+/// not change still acts, at the model's value, through that constant
+/// temperature's difference from the model's reference: a scale, exactly
+/// the lead's column. The lead is then fitted to the data minus that
+/// scale, and reporting the lead (with its Abbe partners) as what "the log
+/// measures in all" left it out: −15 ppm stated where the map measures
+/// +1.6 ppm (the shared real grid, 1.3 °C above the reference). Named as
+/// a combination, it enters that total (`corrections::with_joint_totals`).
+pub(super) fn held_along(
+    d: &Data,
+    held: &[(String, Vec<f64>)],
+    kept_names: &[String],
+    kept_cols: &[Vec<f64>],
+    why: &str,
+) -> Vec<Unidentifiable> {
+    let rows = |v: &[f64]| -> Vec<f64> {
+        (0..d.n)
+            .flat_map(|i| (0..2).map(move |c| (i, c)))
+            .filter(|&(_, c)| d.measured[c])
+            .map(|(i, c)| v[2 * i + c])
+            .collect()
+    };
+    let span = Span::new(kept_cols.iter().map(|c| rows(c)));
+    let Some(chol) = span.chol.as_ref() else {
+        return Vec::new();
+    };
+    let kept: Vec<usize> = (0..kept_names.len()).collect();
+    held.iter()
+        .filter_map(|(name, col)| {
+            let target = rows(col);
+            let tt = dot(&target, &target);
+            if !(tt.is_finite() && tt > 0.0) {
+                return None;
+            }
+            let r = DVector::from_fn(span.cols.len(), |a, _| dot(&span.cols[a], &target));
+            let beta = chol.solve(&r);
+            let outside: f64 = (0..target.len())
+                .map(|k| {
+                    let fit: f64 = (0..span.cols.len()).map(|a| beta[a] * span.cols[a][k]).sum();
+                    (target[k] - fit).powi(2)
+                })
+                .sum();
+            if (outside / tt).sqrt() >= SEPARABLE_TOL {
+                return None;
+            }
+            let combination = combination_of(&target, &kept, &span, kept_names);
+            (!combination.is_empty()).then(|| Unidentifiable {
+                name: name.clone(),
+                sentence: format!(
+                    "{name} ({why}) still moves the measured points, at the model's value, as {} does: it is counted in that parameter's total",
+                    combination
+                        .iter()
+                        .map(|(n, c)| format!("{c:+.4}·{n}"))
+                        .collect::<Vec<_>>()
+                        .join(" ")
+                ),
+                combination,
+            })
+        })
+        .collect()
+}
+
 fn dot(a: &[f64], b: &[f64]) -> f64 {
     a.iter().zip(b).map(|(x, y)| x * y).sum()
 }

@@ -259,6 +259,9 @@ fn aliased_period(d: &data::Data, model: &StageModel, name: &str) -> Option<(f64
     (period_um < shortest_um).then_some((period_um, shortest_um))
 }
 
+/// The reason a temperature coefficient is held (the start of it).
+const CONSTANT_TEMPERATURE: &str = "the log's temperature does not change";
+
 /// Why the log cannot identify parameter `name` beyond aliasing, or
 /// `None`: a periodic term whose period is more than
 /// [`LONGEST_PERIOD_SPANS`] times the log's span of its variable (less
@@ -271,10 +274,9 @@ fn unresolved(d: &data::Data, model: &StageModel, name: &str) -> Option<String> 
     let mp = model.params();
     let unit = mp.iter().find(|p| p.full_name == name)?.info.unit;
     if unit.contains("°C") && !d.temp_varies {
-        return Some(
-            "the log's temperature does not change: temperature coefficients cannot be identified"
-                .into(),
-        );
+        return Some(format!(
+            "{CONSTANT_TEMPERATURE}: temperature coefficients cannot be identified"
+        ));
     }
     let time_reason = match (d.time_with, &d.time_unusable) {
         (Some((axis, r)), _) => Some(format!(
@@ -609,8 +611,19 @@ fn diagnose_with(
     // the model's value; their combination is named (see `ident`).
     let res_names: Vec<String> = resolvable.iter().map(|&j| all_names[j].clone()).collect();
     let res_cols: Vec<Vec<f64>> = resolvable.iter().map(|&j| all_base[j].clone()).collect();
+    // Temperature coefficients held at a constant temperature: their
+    // columns, to find those that still act along a kept parameter
+    // (`ident::held_along`).
+    let held: Vec<(String, Vec<f64>)> = base_fixed
+        .iter()
+        .filter(|f| f.reason.starts_with(CONSTANT_TEMPERATURE))
+        .filter_map(|f| {
+            let j = all_names.iter().position(|n| *n == f.name)?;
+            Some((f.name.clone(), all_base[j].clone()))
+        })
+        .collect();
     drop(all_base);
-    let (mut separable, unidentifiable) = ident::identifiable(&d, model, &res_names, &res_cols);
+    let (mut separable, mut unidentifiable) = ident::identifiable(&d, model, &res_names, &res_cols);
     // On a map from an outside instrument, a slope of the y error along x
     // is the measuring frame's rotation as much as the stage's (the frame
     // was turned to make it zero, see `diagnose`): a parameter whose
@@ -639,6 +652,17 @@ fn diagnose_with(
                 .into(),
             aliased: false,
         });
+    }
+    {
+        let kept_names: Vec<String> = separable.iter().map(|&j| res_names[j].clone()).collect();
+        let kept_cols: Vec<Vec<f64>> = separable.iter().map(|&j| res_cols[j].clone()).collect();
+        unidentifiable.extend(ident::held_along(
+            &d,
+            &held,
+            &kept_names,
+            &kept_cols,
+            "held: the log's temperature does not change",
+        ));
     }
     // A parameter the training rows of some fold do not vary (its effect
     // lies in the held-out cycle or chunk alone, e.g. the forward screw
