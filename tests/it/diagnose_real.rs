@@ -278,3 +278,60 @@ fn flexure_log_fits_no_more_than_it_supports() {
     assert!(x.neighbour_noise_um.is_some(), "{x:?}");
     reading_terms_are_reported(&d);
 }
+
+/// The scale a report states for an ISO 230-2 log is the log's: where a
+/// nonlinearity table makes the fitted scale a chord through the end
+/// targets, the report also gives the least-squares scale, which must be
+/// the slope of the targets' bidirectional means (computed here from the
+/// records, outlier visits left out by taking each direction's median).
+#[test]
+fn the_stated_scale_is_the_logs_own_slope() {
+    for name in ["ecmc_mcu1025_run1.csv", "bifrost_11360_ax1.csv"] {
+        let Some(d) = run(name) else { return };
+        let log = read_file(dir().join(name)).unwrap();
+        let mut by: std::collections::BTreeMap<(i64, String), Vec<f64>> = Default::default();
+        for r in &log.records {
+            let dir = r.extra.last().cloned().unwrap_or_default();
+            by.entry((r.x_target_um.round() as i64, dir))
+                .or_default()
+                .push(r.x_meas_um - r.x_target_um);
+        }
+        let median = |v: &mut Vec<f64>| {
+            v.sort_by(f64::total_cmp);
+            v[v.len() / 2]
+        };
+        let mut means: std::collections::BTreeMap<i64, Vec<f64>> = Default::default();
+        for ((t, _), mut v) in by {
+            means.entry(t).or_default().push(median(&mut v));
+        }
+        let pts: Vec<(f64, f64)> = means
+            .iter()
+            .map(|(t, v)| (*t as f64, v.iter().sum::<f64>() / v.len() as f64))
+            .collect();
+        let n = pts.len() as f64;
+        let (mx, my) = (
+            pts.iter().map(|p| p.0).sum::<f64>() / n,
+            pts.iter().map(|p| p.1).sum::<f64>() / n,
+        );
+        let own_ppm = 1e6 * pts.iter().map(|p| (p.0 - mx) * (p.1 - my)).sum::<f64>()
+            / pts.iter().map(|p| (p.0 - mx).powi(2)).sum::<f64>();
+        let lead = d
+            .parameters
+            .iter()
+            .find(|p| p.kind == "lead_error" && p.term.starts_with('x'))
+            .expect("the x scale");
+        let stated: f64 = match lead.sentence.split("chord and table together, is ").nth(1) {
+            Some(t) => t.split(" ppm").next().unwrap().trim().parse().unwrap(),
+            None => lead.total_value.unwrap_or(lead.fitted_value),
+        };
+        eprintln!(
+            "{name}: stated scale {stated:+.1} ppm, the log's own {own_ppm:+.1} ppm (σ {:.1})",
+            lead.std_error
+        );
+        assert!(
+            (stated - own_ppm).abs() <= 3.0 * lead.std_error.max(1.0),
+            "{name}: {}",
+            lead.sentence
+        );
+    }
+}
