@@ -968,6 +968,7 @@ fn diagnose_with(
         .collect();
     let fit_rms = [rms_comp(&after, 0), rms_comp(&after, 1)];
     corrections::note_tables(&mut parameters, &findings, model);
+    corrections::note_model_scale(&mut parameters, &fitted, &d.states, d.measured);
     note_short_periods(&mut parameters, &d, model);
     let mut r0 = vec![0.0; 2 * d.n];
     for i in 0..d.n {
