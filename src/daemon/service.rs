@@ -71,7 +71,10 @@ impl Daemon {
                 TablesAction::List => rig.comp.list(&rig.cfg.daemon.data_dir).await,
                 TablesAction::Load { name } => rig.comp.load(&rig.cfg.daemon.data_dir, &name).await,
                 TablesAction::Activate { name } => rig.comp.activate(name.as_deref()),
-                TablesAction::Build(p) => jobs::tables::build(rig, p).await,
+                TablesAction::Build(p) => {
+                    self.jobs.check_log_finished(&p.log)?;
+                    jobs::tables::build(rig, p).await
+                }
             },
             Command::Figures(p) => figures::figures(&rig.cfg.daemon.data_dir, p).await,
             Command::Subscribe(_) => Err(ProtoError::new(

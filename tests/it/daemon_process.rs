@@ -1198,3 +1198,96 @@ fn a_log_without_the_approach_column_resumes_in_its_own_columns() {
         "points lost or duplicated"
     );
 }
+
+/// `micropos characterize start … --follow` with stdout piped, as a script
+/// or a CI log runs it, on a tiny characterization (12 points).
+fn follow_cli(d: &Daemon, log: &str) -> Child {
+    Command::new(env!("CARGO_BIN_EXE_micropos"))
+        .arg("--socket")
+        .arg(&d.socket)
+        .args(["characterize", "start", "--log", log, "--step-um", "500"])
+        .args([
+            "--x-range-um",
+            "1000",
+            "--y-range-um",
+            "1000",
+            "--cycles",
+            "1",
+        ])
+        .arg("--follow")
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap()
+}
+
+/// The CLI's exit status, stdout and stderr once it exits (within the
+/// deadline: a CLI that never returns fails the test instead of hanging it).
+fn cli_end(mut cli: Child) -> (std::process::ExitStatus, String, String) {
+    let t = Instant::now();
+    while cli.try_wait().unwrap().is_none() {
+        if t.elapsed() > DEADLINE {
+            let _ = cli.kill();
+            panic!("micropos --follow did not return");
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let out = cli.wait_with_output().unwrap();
+    let text = |b: &[u8]| String::from_utf8_lossy(b).into_owned();
+    (out.status, text(&out.stdout), text(&out.stderr))
+}
+
+/// Polls until the job writing `log` has logged a point and still runs.
+fn running_with_a_point(c: &mut Client, log: &str) {
+    let s = c.wait_for(|s| s["job"]["log"] == log && s["job"]["done"].as_u64() >= Some(1));
+    assert_eq!(s["job"]["state"], "running", "the job ended too soon: {s}");
+}
+
+/// Issue 33, "a lab's first hour": `--follow` into a pipe returns only
+/// once the job ended, prints its final state and the next step, and exits
+/// 0 only for done (a cancelled job: 1, saying so); `tables build` refuses
+/// the log of the job still writing it and builds once the job is done.
+#[test]
+fn piped_follow_waits_for_the_job_and_tables_build_refuses_its_running_log() {
+    let dir = test_dir();
+    let _sim = Sim::start(dir.path(), 20.0);
+    let d = Daemon::start(dir.path(), 0);
+    let mut c = d.client();
+    c.ok(json!({"cmd": "reference"}));
+    let build = json!({"cmd": "tables", "action": "build", "log": "f.csv", "kinds": ["paper"]});
+
+    let cli = follow_cli(&d, "f.csv");
+    running_with_a_point(&mut c, "f.csv");
+    let refused = c.call(build.clone());
+    assert_eq!(code(&refused), "job_state", "{refused}");
+    let msg = refused["error"]["message"].as_str().unwrap();
+    assert!(
+        msg.contains("running characterize job f.csv") && msg.contains("cancel"),
+        "{msg}"
+    );
+    assert!(
+        !dir.path().join("data/f-paper.toml").exists(),
+        "a table was written from the running job's log"
+    );
+    let (st, out, err) = cli_end(cli);
+    assert!(st.success(), "{st:?}\n{out}\n{err}");
+    assert!(
+        out.contains("characterize f.csv: state done, 12/12 points\n")
+            && out.contains("next: micropos tables build f.csv\n"),
+        "{out}"
+    );
+    // It returned after the end: the daemon says done, the log is whole.
+    let s = c.ok(json!({"cmd": "characterize", "action": "status"}));
+    assert_eq!(s["job"]["state"], "done", "{s}");
+    check_log(&dir.path().join("data/f.csv"), None);
+    let built = c.ok(build);
+    assert_eq!(built["paper"]["name"], "f-paper.toml", "{built}");
+
+    let cli = follow_cli(&d, "g.csv");
+    running_with_a_point(&mut c, "g.csv");
+    c.ok(json!({"cmd": "characterize", "action": "cancel"}));
+    let (st, out, err) = cli_end(cli);
+    assert_eq!(st.code(), Some(1), "{out}\n{err}");
+    assert!(out.contains("characterize g.csv: state cancelled"), "{out}");
+    assert!(err.contains("ended cancelled, not done"), "{err}");
+}

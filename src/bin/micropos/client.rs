@@ -2,9 +2,10 @@
 //! output by default, the daemon's JSON reply with `--json`.
 //!
 //! Exit codes (scripts rely on them): 0 success; 1 the daemon refused or
-//! failed the command (its error code is printed, e.g. `out_of_travel`);
-//! 2 usage error; 3 the daemon is not reachable (socket missing, refused,
-//! closed mid-reply).
+//! failed the command (its error code is printed, e.g. `out_of_travel`),
+//! or a job followed with `--follow` ended other than done; 2 usage error;
+//! 3 the daemon is not reachable (socket missing, refused, closed
+//! mid-reply or while following a job).
 
 use anyhow::Context;
 use clap::{Args, Subcommand};
@@ -14,6 +15,8 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 use tokio::io::{AsyncBufReadExt, AsyncWriteExt, BufReader};
 use tokio::net::UnixStream;
+
+mod follow;
 
 /// Options of every daemon command.
 #[derive(Debug, Args)]
@@ -122,7 +125,10 @@ pub enum ClientCommand {
         /// direction, for moves that arrive either way; twice the time).
         #[arg(long)]
         approach: Option<String>,
-        /// Follow progress with a progress bar until the job ends.
+        /// Wait for the job to end (a progress bar on a terminal, a progress
+        /// line every 10 s on stderr otherwise), then print its final state,
+        /// what it measured and the next step. Exit 0 only if it ended done;
+        /// 1 if it failed, was cancelled or stopped; 3 if the daemon went away.
         #[arg(long)]
         follow: bool,
     },
@@ -162,7 +168,10 @@ pub enum ClientCommand {
         /// Model table for mode model (default: the latest loaded).
         #[arg(long)]
         model_table: Option<String>,
-        /// Follow progress with a progress bar until the job ends.
+        /// Wait for the job to end (a progress bar on a terminal, a progress
+        /// line every 10 s on stderr otherwise), then print its final state,
+        /// what it measured and the next step. Exit 0 only if it ended done;
+        /// 1 if it failed, was cancelled or stopped; 3 if the daemon went away.
         #[arg(long)]
         follow: bool,
     },
@@ -479,23 +488,26 @@ async fn run_inner(opts: &GlobalOpts, cmd: &ClientCommand) -> Result<ExitCode, U
             follow: true,
             action,
             ..
-        } if action == "start" || action == "resume" => follow(&mut conn, &reply).await,
+        } if action == "start" || action == "resume" => {
+            let job = follow::follow(&mut conn, &reply).await?;
+            let summary = follow::characterize_summary(&job);
+            Ok(follow::report_end(&job, summary, opts.json, None))
+        }
         ClientCommand::Validate {
             follow: true,
             action,
             ..
         } if action == "start" => {
-            let code = follow(&mut conn, &reply).await?;
-            // The results with the job-done state: print them like a reply.
+            let job = follow::follow(&mut conn, &reply).await?;
+            if job["state"] != "done" {
+                return Ok(follow::report_end(&job, None, opts.json, None));
+            }
+            // The results come with the job-done state: shown like a reply.
             let s = conn
                 .request(json!({"cmd": "validate", "action": "status"}))
                 .await?;
-            if opts.json {
-                let _ = writeln!(out.lock(), "{s}");
-            } else {
-                let _ = write!(out.lock(), "{}", validation_table(&s["validation"]));
-            }
-            Ok(code)
+            let table = validation_table(&s["validation"]);
+            Ok(follow::report_end(&job, Some(table), opts.json, Some(&s)))
         }
         _ => Ok(ExitCode::SUCCESS),
     }
@@ -548,68 +560,6 @@ fn validation_table(v: &Value) -> String {
         }
     }
     s
-}
-
-/// Shows job progress with a bar until the job ends; exit 0 only if done.
-async fn follow(conn: &mut Conn, started: &Value) -> Result<ExitCode, Unreachable> {
-    let total = started["job"]["total"].as_u64().unwrap_or(0);
-    let bar = indicatif::ProgressBar::new(total);
-    bar.set_style(
-        indicatif::ProgressStyle::with_template("{bar:40} {pos}/{len} points  ETA {msg}")
-            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
-    );
-    bar.set_position(started["job"]["done"].as_u64().unwrap_or(0));
-    conn.request(json!({"cmd": "subscribe", "topics": ["job", "fault"]}))
-        .await?;
-    // A job that ended before the subscription took effect sends no more
-    // events: its status (asked after subscribing) says so.
-    let kind = started["job"]["kind"].as_str().unwrap_or("characterize");
-    let status = conn
-        .request(json!({"cmd": kind, "action": "status"}))
-        .await?;
-    if let Some(code) = job_end(&bar, &status["job"]) {
-        return Ok(code);
-    }
-    loop {
-        let ev = conn.line().await?;
-        match ev["event"].as_str() {
-            Some("job") => {
-                bar.set_position(ev["done"].as_u64().unwrap_or(0));
-                if let Some(eta) = ev["eta_s"].as_f64() {
-                    bar.set_message(format!("{:.0} s", eta));
-                }
-                if let Some(code) = job_end(&bar, &ev) {
-                    return Ok(code);
-                }
-            }
-            Some("fault") => {
-                bar.println(format!("fault: {}", ev["reason"].as_str().unwrap_or("?")))
-            }
-            _ => {}
-        }
-    }
-}
-
-/// The exit code of a job that has ended (a job event or a status's
-/// `job`), after closing the bar and printing what a sweep measured; `None`
-/// while it runs.
-fn job_end(bar: &indicatif::ProgressBar, job: &Value) -> Option<ExitCode> {
-    match job["state"].as_str() {
-        Some("running") | None => None,
-        Some("done") => {
-            bar.set_position(job["done"].as_u64().unwrap_or(bar.position()));
-            bar.finish_with_message("done");
-            if let Some(s) = sweep_summary(&job["result"]) {
-                println!("{s}");
-            }
-            Some(ExitCode::SUCCESS)
-        }
-        Some(other) => {
-            bar.abandon_with_message(other.to_owned());
-            eprintln!("job {other}: {}", job["error"].as_str().unwrap_or(""));
-            Some(ExitCode::from(1))
-        }
-    }
 }
 
 /// What a finished sweep measured (its camera delay, frames, records and

@@ -59,6 +59,12 @@ const MAX_PLAN_POINTS: f64 = 1e7;
 struct Running {
     cancel: watch::Sender<bool>,
     task: tokio::task::JoinHandle<()>,
+    /// `characterize` or `validate`, for a refusal's message.
+    kind: &'static str,
+    /// Every log the job writes (the first is its own; a sweep's
+    /// companions follow), so that `tables build` refuses them while it
+    /// runs: see [`Jobs::check_log_finished`].
+    logs: Vec<String>,
 }
 
 /// The job manager.
@@ -83,6 +89,32 @@ impl Jobs {
         lock(&self.running)
             .as_ref()
             .is_some_and(|r| !r.task.is_finished())
+    }
+
+    /// Refuses `log` while the running job writes it (`job_state`): a table
+    /// built from a log the job is still writing covers only the points
+    /// measured so far and would pass for the whole plan (issue 33: a
+    /// `tables build` typed right after a `--follow` that returned early).
+    pub fn check_log_finished(&self, log: &str) -> Result<(), ProtoError> {
+        let running = lock(&self.running);
+        let Some(r) = running.as_ref().filter(|r| !r.task.is_finished()) else {
+            return Ok(());
+        };
+        if !r.logs.iter().any(|l| l == log) {
+            return Ok(());
+        }
+        let own = r.logs.first().map_or(log, String::as_str);
+        let progress = lock(&self.progress)
+            .as_ref()
+            .map(|p| format!(" ({} of {} points)", p.done, p.total))
+            .unwrap_or_default();
+        Err(ProtoError::new(
+            ErrorCode::JobState,
+            format!(
+                "{log} is still being written by the running {kind} job {own}{progress}: wait for it to end (`{kind} status` shows how far it is) or cancel it (`{kind} cancel`), then build",
+                kind = r.kind
+            ),
+        ))
     }
 
     /// Cancels the running job; its log stays resumable.
@@ -409,6 +441,15 @@ impl Jobs {
             retries: rig.job_retries.clone(),
             result: Value::Null,
         });
+        let logs = [
+            Some(&args.name),
+            args.uncorrected.as_ref(),
+            args.unanchored.as_ref(),
+        ]
+        .into_iter()
+        .flatten()
+        .cloned()
+        .collect();
         let progress = self.progress.clone();
         let rig2 = rig.clone();
         let task = tokio::spawn(async move {
@@ -431,7 +472,12 @@ impl Jobs {
                 rig2.push(Topic::Job, "job", p.to_json());
             }
         });
-        *lock(&self.running) = Some(Running { cancel, task });
+        *lock(&self.running) = Some(Running {
+            cancel,
+            task,
+            kind: "characterize",
+            logs,
+        });
         Ok(json!({"job": lock(&self.progress).as_ref().map(Progress::to_json)}))
     }
 
@@ -458,6 +504,7 @@ impl Jobs {
             retries: rig.job_retries.clone(),
             result: Value::Null,
         });
+        let logs = vec![name.clone()];
         let progress = self.progress.clone();
         let rig2 = rig.clone();
         let task = tokio::spawn(async move {
@@ -480,7 +527,12 @@ impl Jobs {
                 rig2.push(Topic::Job, "job", p.to_json());
             }
         });
-        *lock(&self.running) = Some(Running { cancel, task });
+        *lock(&self.running) = Some(Running {
+            cancel,
+            task,
+            kind: "characterize",
+            logs,
+        });
         Ok(json!({"job": lock(&self.progress).as_ref().map(Progress::to_json)}))
     }
 }
@@ -711,4 +763,44 @@ fn scan_approach(rig: &Rig, next: &plan::Point) -> (f64, f64) {
         )
     };
     clamp_to_travel(rig, x, y)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// While a sweep runs, `tables build` is refused each of its logs
+    /// (its own and the companions) with `job_state` naming the job; other
+    /// logs pass; once the job's task has ended, its logs pass too.
+    #[tokio::test]
+    async fn a_running_jobs_logs_are_refused_until_it_ends() {
+        let jobs = Jobs::default();
+        let (cancel, _rx) = watch::channel(false);
+        let (end, ended) = tokio::sync::oneshot::channel::<()>();
+        let task = tokio::spawn(async move {
+            let _ = ended.await;
+        });
+        *lock(&jobs.running) = Some(Running {
+            cancel,
+            task,
+            kind: "characterize",
+            logs: vec!["s.csv".into(), "s-raw.csv".into()],
+        });
+        for log in ["s.csv", "s-raw.csv"] {
+            let e = jobs.check_log_finished(log).unwrap_err();
+            assert_eq!(e.code, ErrorCode::JobState);
+            assert!(
+                e.message.contains("running characterize job s.csv")
+                    && e.message.contains("characterize cancel"),
+                "{}",
+                e.message
+            );
+        }
+        assert!(jobs.check_log_finished("other.csv").is_ok());
+        end.send(()).unwrap();
+        while !lock(&jobs.running).as_ref().unwrap().task.is_finished() {
+            tokio::task::yield_now().await;
+        }
+        assert!(jobs.check_log_finished("s.csv").is_ok());
+    }
 }

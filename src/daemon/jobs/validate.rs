@@ -399,6 +399,7 @@ impl Jobs {
             result: Value::Null,
         });
         *lock(&self.validation) = None;
+        let logs = vec![name.clone()];
         let progress = self.progress.clone();
         let results = self.validation.clone();
         let rig2 = rig.clone();
@@ -427,7 +428,12 @@ impl Jobs {
                 rig2.push(Topic::Job, "job", ev);
             }
         });
-        *lock(&self.running) = Some(Running { cancel, task });
+        *lock(&self.running) = Some(Running {
+            cancel,
+            task,
+            kind: "validate",
+            logs,
+        });
         let mut out = json!({"job": lock(&self.progress).as_ref().map(Progress::to_json),
                              "origin": {"x_um": origin.x_um, "y_um": origin.y_um}});
         if !warnings.is_empty() {

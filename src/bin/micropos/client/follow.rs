@@ -1,0 +1,276 @@
+//! `--follow`: waits for a started job to end, shows its progress, then
+//! prints how it ended and what to do next.
+//!
+//! Why the wait is the same on a terminal and in a pipe: a script or a CI
+//! log must not take a job that still runs for finished — a `tables build`
+//! typed right after would read the log only as far as it goes (issue 33).
+//! Only the progress display differs: a bar for a person at a terminal, a
+//! plain line now and then elsewhere (a hidden bar left a log with nothing
+//! between the start and the end).
+
+use super::{sweep_summary, Conn, Unreachable};
+use serde_json::{json, Value};
+use std::io::{IsTerminal, Write};
+use std::process::ExitCode;
+use std::time::{Duration, Instant};
+
+/// Least time between two plain progress lines: often enough to show the
+/// job is alive in a log, rarely enough not to drown it.
+const PLAIN_EVERY: Duration = Duration::from_secs(10);
+
+/// How progress is shown while the job runs.
+enum View {
+    /// A person watches a terminal.
+    Bar(indicatif::ProgressBar),
+    /// Output goes to a file or a pipe: a line on stderr now and then, so
+    /// stdout holds only the replies and the outcome.
+    Plain { last: Instant },
+}
+
+impl View {
+    /// A bar when both stdout and stderr (where indicatif draws) are
+    /// terminals, else plain lines (a bar would be hidden).
+    fn new(job: &Value) -> View {
+        if !(std::io::stdout().is_terminal() && std::io::stderr().is_terminal()) {
+            return View::Plain {
+                last: Instant::now(),
+            };
+        }
+        let bar = indicatif::ProgressBar::new(job["total"].as_u64().unwrap_or(0));
+        bar.set_style(
+            indicatif::ProgressStyle::with_template("{bar:40} {pos}/{len} points  ETA {msg}")
+                .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+        );
+        bar.set_position(job["done"].as_u64().unwrap_or(0));
+        View::Bar(bar)
+    }
+
+    /// Shows a running job's `job` event.
+    fn progress(&mut self, ev: &Value) {
+        match self {
+            View::Bar(bar) => {
+                bar.set_position(ev["done"].as_u64().unwrap_or(0));
+                if let Some(eta) = ev["eta_s"].as_f64() {
+                    bar.set_message(format!("{eta:.0} s"));
+                }
+            }
+            View::Plain { last } => {
+                if last.elapsed() >= PLAIN_EVERY {
+                    *last = Instant::now();
+                    eprintln!("{}", progress_line(ev));
+                }
+            }
+        }
+    }
+
+    /// A line between progress updates (a fault), not lost under the bar.
+    fn note(&self, line: &str) {
+        match self {
+            View::Bar(bar) => bar.println(line),
+            View::Plain { .. } => eprintln!("{line}"),
+        }
+    }
+
+    /// Closes the bar at the job's end state (nothing for plain lines).
+    fn close(&self, job: &Value) {
+        if let View::Bar(bar) = self {
+            if let Some(done) = job["done"].as_u64() {
+                bar.set_position(done);
+            }
+            match job["state"].as_str() {
+                Some("done") => bar.finish_with_message("done"),
+                other => bar.abandon_with_message(other.unwrap_or("?").to_owned()),
+            }
+        }
+    }
+}
+
+/// `progress: 5/12 points, ETA 30 s`.
+fn progress_line(ev: &Value) -> String {
+    let eta = ev["eta_s"]
+        .as_f64()
+        .map_or(String::new(), |s| format!(", ETA {s:.0} s"));
+    format!(
+        "progress: {}/{} points{eta}",
+        ev["done"].as_u64().unwrap_or(0),
+        ev["total"].as_u64().unwrap_or(0)
+    )
+}
+
+/// Whether a `job` object (event or status) is of a job that has ended.
+fn ended(job: &Value) -> bool {
+    job["state"].as_str().is_some_and(|s| s != "running")
+}
+
+/// Waits until the job the `started` reply announced ends; its last `job`
+/// object (the final event or a status's `job`). Losing the daemon is an
+/// error that says the job's end is unknown.
+pub(super) async fn follow(conn: &mut Conn, started: &Value) -> Result<Value, Unreachable> {
+    let job = &started["job"];
+    let kind = job["kind"].as_str().unwrap_or("characterize").to_owned();
+    let log = job["log"].as_str().unwrap_or("?").to_owned();
+    let mut view = View::new(job);
+    let end = wait_end(conn, &mut view, &kind).await;
+    match &end {
+        Ok(j) => view.close(j),
+        Err(_) => view.close(&json!({"state": "lost"})),
+    }
+    end.map_err(|Unreachable(e)| {
+        Unreachable(e.context(format!(
+            "lost the daemon while following {kind} job {log}; its end is unknown (`micropos {kind} status` once the daemon is back)"
+        )))
+    })
+}
+
+/// The subscription and the event loop of [`follow`].
+async fn wait_end(conn: &mut Conn, view: &mut View, kind: &str) -> Result<Value, Unreachable> {
+    conn.request(json!({"cmd": "subscribe", "topics": ["job", "fault"]}))
+        .await?;
+    // A job that ended before the subscription took effect sends no more
+    // events: its status (asked after subscribing) says so.
+    let mut last = job_status(conn, kind).await?;
+    while !ended(&last) {
+        let ev = conn.line().await?;
+        match ev["event"].as_str() {
+            Some("job") => {
+                view.progress(&ev);
+                last = ev;
+            }
+            Some("fault") => view.note(&format!("fault: {}", ev["reason"].as_str().unwrap_or("?"))),
+            // Events were dropped for this slow reader, perhaps the end:
+            // the status has the job's state now.
+            Some("lagged") => last = job_status(conn, kind).await?,
+            _ => {}
+        }
+    }
+    Ok(last)
+}
+
+/// The current `job` object of a `characterize` or `validate` status.
+async fn job_status(conn: &mut Conn, kind: &str) -> Result<Value, Unreachable> {
+    let s = conn
+        .request(json!({"cmd": kind, "action": "status"}))
+        .await?;
+    Ok(s["job"].clone())
+}
+
+/// Prints how a followed job ended — its final state, then `summary` (what
+/// it measured) and the next step if it ended done, else why not on stderr
+/// — and returns the exit code: 0 only for `done`. With `json` the final
+/// `job` object (or `json_reply` if given) is printed as one line instead.
+pub(super) fn report_end(
+    job: &Value,
+    summary: Option<String>,
+    json: bool,
+    json_reply: Option<&Value>,
+) -> ExitCode {
+    let done = ended_done(job);
+    let out = std::io::stdout();
+    let mut out = out.lock();
+    if json {
+        let line = json_reply.cloned().unwrap_or_else(|| json!({"job": job}));
+        let _ = writeln!(out, "{line}");
+    } else {
+        let _ = writeln!(out, "{}", final_line(job));
+        if done {
+            if let Some(s) = summary {
+                let _ = writeln!(out, "{}", s.trim_end());
+            }
+            let _ = writeln!(out, "next: {}", next_step(job));
+        }
+    }
+    if done {
+        return ExitCode::SUCCESS;
+    }
+    eprintln!("error: {}", not_done(job));
+    ExitCode::from(1)
+}
+
+/// Whether the job ended done: the only end a script may build on.
+fn ended_done(job: &Value) -> bool {
+    job["state"] == "done"
+}
+
+/// `characterize run1.csv: state done, 12/12 points (1 retry)`.
+fn final_line(job: &Value) -> String {
+    let retries = match job["retries"].as_u64() {
+        Some(0) | None => String::new(),
+        Some(1) => " (1 retry)".to_owned(),
+        Some(n) => format!(" ({n} retries)"),
+    };
+    format!(
+        "{} {}: state {}, {}/{} points{retries}",
+        job["kind"].as_str().unwrap_or("job"),
+        job["log"].as_str().unwrap_or("?"),
+        job["state"].as_str().unwrap_or("?"),
+        job["done"].as_u64().unwrap_or(0),
+        job["total"].as_u64().unwrap_or(0)
+    )
+}
+
+/// What a person does after a job that ended done.
+fn next_step(job: &Value) -> String {
+    let log = job["log"].as_str().unwrap_or("LOG");
+    if job["kind"] == "validate" {
+        format!(
+            "the log {log} is in the daemon's data_dir; its figures (Figs. 10-11): `micropos plot DATA_DIR/{log} --out DIR`, or the daemon's web view"
+        )
+    } else {
+        format!("micropos tables build {log}")
+    }
+}
+
+/// Why a job that did not end done ended, and what can be done.
+fn not_done(job: &Value) -> String {
+    let kind = job["kind"].as_str().unwrap_or("job");
+    let log = job["log"].as_str().unwrap_or("?");
+    let state = job["state"].as_str().unwrap_or("?");
+    let why = match (job["error"].as_str(), state) {
+        (Some(e), _) if !e.is_empty() => e.to_owned(),
+        (_, "cancelled") => "a client cancelled it".to_owned(),
+        (_, "stopped") => "a stop or a fault halted the rig (`micropos status`)".to_owned(),
+        _ => "no reason given".to_owned(),
+    };
+    let resume = if kind == "characterize" {
+        format!(" (a step log resumes where it ended: `micropos characterize resume --log {log}`)")
+    } else {
+        String::new()
+    };
+    format!("{kind} job {log} ended {state}, not done: {why}{resume}")
+}
+
+/// The text summary of a characterization's result (a sweep's delay and
+/// anchors; a step job has none beyond its final line).
+pub(super) fn characterize_summary(job: &Value) -> Option<String> {
+    sweep_summary(&job["result"])
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Only done counts as success, the others say how the job ended; the next step
+    /// names the log a characterization's tables are built from.
+    #[test]
+    fn only_done_exits_zero_and_the_next_step_names_the_log() {
+        let job = |state: &str, kind: &str| {
+            json!({"kind": kind, "log": "c.csv", "state": state, "done": 3,
+                   "total": 12, "retries": 0, "error": null})
+        };
+        assert!(ended_done(&job("done", "characterize")));
+        for s in ["failed", "cancelled", "stopped", "running"] {
+            assert!(!ended_done(&job(s, "characterize")), "{s}");
+            assert!(not_done(&job(s, "validate")).contains(&format!("ended {s}")));
+        }
+        assert!(!ended(&job("running", "validate")) && ended(&job("stopped", "validate")));
+        assert_eq!(
+            next_step(&job("done", "characterize")),
+            "micropos tables build c.csv"
+        );
+        assert!(next_step(&job("done", "validate")).contains("micropos plot DATA_DIR/c.csv"));
+        assert_eq!(
+            final_line(&job("done", "characterize")),
+            "characterize c.csv: state done, 3/12 points"
+        );
+    }
+}
