@@ -59,15 +59,36 @@ pub const SEGMENTS_SWEEP_ANCHOR: [&str; 4] = [
 pub const SEGMENT_GRID_FWD: &str = "grid_fwd";
 /// Log segment of a grid's nodes reached from above on both axes.
 pub const SEGMENT_GRID_BWD: &str = "grid_bwd";
+/// Log segment of a grid's nodes reached from above on x, from below on y
+/// (the returning rows of a serpentine).
+pub const SEGMENT_GRID_XBWD: &str = "grid_xbwd";
+/// Log segment of a grid's nodes reached from below on x, from above on y.
+pub const SEGMENT_GRID_YBWD: &str = "grid_ybwd";
 
-/// The direction a grid record's node was reached on both axes, by its
-/// segment ([`SEGMENT_GRID_FWD`], [`SEGMENT_GRID_BWD`]); `None` for any
-/// other segment (a one-way grid does not say).
-pub fn grid_direction(segment: &str) -> Option<Direction> {
+/// The direction a grid record's node was reached on each axis (`[x, y]`),
+/// by its segment ([`SEGMENT_GRID_FWD`], [`SEGMENT_GRID_BWD`],
+/// [`SEGMENT_GRID_XBWD`], [`SEGMENT_GRID_YBWD`]); `None` for any other
+/// segment (a one-way grid does not say).
+pub fn grid_direction(segment: &str) -> Option<[Direction; 2]> {
+    use Direction::{Backward as B, Forward as F};
     match segment {
-        SEGMENT_GRID_FWD => Some(Direction::Forward),
-        SEGMENT_GRID_BWD => Some(Direction::Backward),
+        SEGMENT_GRID_FWD => Some([F, F]),
+        SEGMENT_GRID_BWD => Some([B, B]),
+        SEGMENT_GRID_XBWD => Some([B, F]),
+        SEGMENT_GRID_YBWD => Some([F, B]),
         _ => None,
+    }
+}
+
+/// The segment of a grid node reached in `dirs` (`[x, y]`; an unknown
+/// direction counts as forward): the inverse of [`grid_direction`].
+pub fn grid_segment(dirs: [Direction; 2]) -> &'static str {
+    let up = |d: Direction| d != Direction::Backward;
+    match (up(dirs[0]), up(dirs[1])) {
+        (true, true) => SEGMENT_GRID_FWD,
+        (false, false) => SEGMENT_GRID_BWD,
+        (false, true) => SEGMENT_GRID_XBWD,
+        (true, false) => SEGMENT_GRID_YBWD,
     }
 }
 

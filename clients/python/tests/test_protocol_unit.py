@@ -126,7 +126,7 @@ def test_requests_use_exactly_the_daemons_field_names():
         frames_per_point=1, settle_s=0.1, drift_every_s=0.0, drift_reference_um=[0.0, 0.0],
         mode="sweep", velocity_um_per_s=120.0, uncorrected_log="u.csv", moves_per_cycle=3,
         anchor_spacing_um=250.0, unanchored_log="n.csv", plan="grid", pitch_um=100.0,
-        approach="both",
+        approach="both", order="serpentine",
     )) == known["characterize"]
     assert keys(proto.validate_start(
         test="both", modes=["raw"], cycles=1, log="v.csv", origin_x_um=0.0, origin_y_um=0.0,

@@ -266,13 +266,26 @@ async fn on_a_stacked_stage_the_map_holds_what_the_tables_cannot() {
 /// off either way) does worse.
 #[tokio::test(start_paused = true)]
 async fn a_grid_measured_both_ways_compensates_either_arrival() {
-    let mut s = setup(23, None).await;
+    both_ways(23, "raster").await;
+}
+
+/// The same in serpentine order: the returning rows reach x from above,
+/// the pass from above reverses the pass from below, and every node is
+/// still measured once each way on each axis.
+#[tokio::test(start_paused = true)]
+async fn a_serpentine_grid_both_ways_compensates_either_arrival() {
+    both_ways(29, "serpentine").await;
+}
+
+async fn both_ways(seed: u64, order: &str) {
+    let mut s = setup(seed, None).await;
     let (cl, data) = (&mut s.cl, s.data.clone());
     let range = 4.0 * PITCH_UM;
     let started = cl
         .call_ok(
             json!({"cmd": "characterize", "action": "start", "log": "b.csv",
-                        "plan": "grid", "approach": "both", "pitch_um": PITCH_UM,
+                        "plan": "grid", "approach": "both", "order": order,
+                        "pitch_um": PITCH_UM,
                         "x_range_um": range, "y_range_um": range, "cycles": 1,
                         "frames_per_point": 1, "settle_s": 0.5}),
         )
@@ -281,14 +294,23 @@ async fn a_grid_measured_both_ways_compensates_either_arrival() {
     wait_done(cl, "characterize").await;
     let log = micropos::charact::log::read_file(data.join("b.csv")).unwrap();
     assert_eq!(log.metadata.get("grid_approach"), Some("both"));
-    let count = |seg: &str| log.records.iter().filter(|r| r.segment == seg).count();
-    assert_eq!((count("grid_fwd"), count("grid_bwd")), (25, 25));
+    // Each node once each way on each axis, as the segments say.
+    for a in 0..2 {
+        let fwd = log
+            .records
+            .iter()
+            .filter_map(|r| micropos::charact::scan::grid_direction(&r.segment))
+            .filter(|d| d[a] == micropos::model::Direction::Forward)
+            .count();
+        assert_eq!(fwd, 25, "axis {a}");
+    }
     // The same records without their directions: one pooled map.
     let text = std::fs::read_to_string(data.join("b.csv")).unwrap();
-    let pooled = text
-        .replace(",grid_fwd,", ",grid,")
-        .replace(",grid_bwd,", ",grid,")
-        .replace("# grid_approach: both\n", "");
+    let pooled = ["grid_fwd", "grid_bwd", "grid_xbwd", "grid_ybwd"]
+        .iter()
+        .fold(text.clone(), |t, seg| {
+            t.replace(&format!(",{seg},"), ",grid,")
+        });
     assert_ne!(pooled, text);
     std::fs::write(data.join("p.csv"), pooled).unwrap();
     let built = cl
@@ -321,7 +343,7 @@ async fn a_grid_measured_both_ways_compensates_either_arrival() {
         ));
     }
     eprintln!(
-        "GRID | both ways: x reversal rms {reversal:.2} µm; square AP raw {:.2} µm, map per direction {:.3} µm, pooled map {:.3} µm",
+        "GRID | both ways, {order}: x reversal rms {reversal:.2} µm; square AP raw {:.2} µm, map per direction {:.3} µm, pooled map {:.3} µm",
         ap[0].0, ap[0].1, ap[1].1
     );
     assert!(reversal > 0.5, "the default stage has lost motion: {built}");

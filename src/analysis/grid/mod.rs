@@ -184,6 +184,53 @@ fn cells_of(recs: &[&Record], xs: Vec<f64>, ys: Vec<f64>) -> Option<GridMap> {
     })
 }
 
+/// The cells of `recs` reached in direction `way`, each component by its
+/// own axis's direction (records of a grid measured both ways); a cell
+/// needs a visit of each component.
+fn cells_of_way(recs: &[&Record], xs: Vec<f64>, ys: Vec<f64>, way: Direction) -> Option<GridMap> {
+    let nx = xs.len();
+    let n = nx * ys.len();
+    let mut sum = vec![[0.0f64; 2]; n];
+    let mut sum2 = vec![[0.0f64; 2]; n];
+    let mut count = vec![[0usize; 2]; n];
+    for r in recs {
+        let Some(dirs) = grid_direction(&r.segment) else {
+            continue;
+        };
+        let k = nearest(&ys, r.y_target_um) * nx + nearest(&xs, r.x_target_um);
+        let e = [r.x_meas_um - r.x_target_um, r.y_meas_um - r.y_target_um];
+        for c in 0..2 {
+            if dirs[c] == way {
+                sum[k][c] += e[c];
+                sum2[k][c] += e[c] * e[c];
+                count[k][c] += 1;
+            }
+        }
+    }
+    let cells: Vec<Option<Cell>> = (0..n)
+        .map(|k| {
+            let v = count[k];
+            (v[0] > 0 && v[1] > 0).then(|| {
+                let m = [sum[k][0] / v[0] as f64, sum[k][1] / v[1] as f64];
+                Cell {
+                    e_um: m,
+                    visits: v[0].min(v[1]),
+                    ss_um2: [0, 1].map(|c| (sum2[k][c] - v[c] as f64 * m[c] * m[c]).max(0.0)),
+                }
+            })
+        })
+        .collect();
+    let filled = cells.iter().filter(|c| c.is_some()).count();
+    if filled < MIN_CELLS || (filled as f64) < MIN_FILL * n as f64 {
+        return None;
+    }
+    Some(GridMap {
+        xs_um: xs,
+        ys_um: ys,
+        cells,
+    })
+}
+
 /// Clusters sorted values that lie within `tol` of the previous one;
 /// returns the cluster means.
 fn distinct(mut v: Vec<f64>, tol: f64) -> Vec<f64> {
@@ -242,24 +289,24 @@ impl GridMap {
     }
 
     /// A grid measured both ways: the maps of its nodes reached from below
-    /// and from above (`[below, above]`) on the lattice of all its nodes;
-    /// `None` when the log does not hold both directions as a map each.
+    /// and from above (`[below, above]`) on the lattice of all its nodes,
+    /// each component by its own axis's arrival direction (a serpentine's
+    /// returning row gives x from above and y from below); `None` when the
+    /// log does not hold both directions of both axes as a map each.
     pub fn directional(records: &[Record], measured: [bool; 2]) -> Option<[GridMap; 2]> {
         let recs = grid_records(records, measured)?;
-        let way = |d: Direction| -> Vec<&Record> {
-            recs.iter()
-                .copied()
-                .filter(|r| grid_direction(&r.segment) == Some(d))
-                .collect()
-        };
-        let (below, above) = (way(Direction::Forward), way(Direction::Backward));
-        if below.is_empty() || above.is_empty() {
+        let dirs: Vec<[Direction; 2]> = recs
+            .iter()
+            .filter_map(|r| grid_direction(&r.segment))
+            .collect();
+        let has = |c: usize, d: Direction| dirs.iter().any(|v| v[c] == d);
+        if !(0..2).all(|c| has(c, Direction::Forward) && has(c, Direction::Backward)) {
             return None;
         }
         let (xs, ys) = lattice(&recs)?;
         Some([
-            cells_of(&below, xs.clone(), ys.clone())?,
-            cells_of(&above, xs, ys)?,
+            cells_of_way(&recs, xs.clone(), ys.clone(), Direction::Forward)?,
+            cells_of_way(&recs, xs, ys, Direction::Backward)?,
         ])
     }
 

@@ -125,6 +125,11 @@ pub enum ClientCommand {
         /// direction, for moves that arrive either way; twice the time).
         #[arg(long)]
         approach: Option<String>,
+        /// Grid: raster (every row in increasing x, default) or serpentine
+        /// (rows alternately in increasing and decreasing x, no return
+        /// move per row; needs --approach both).
+        #[arg(long)]
+        order: Option<String>,
         /// Wait for the job to end (a progress bar on a terminal, a progress
         /// line every 10 s on stderr otherwise), then print its final state,
         /// what it measured and the next step. Exit 0 only if it ended done;
@@ -297,6 +302,7 @@ fn build(cmd: &ClientCommand) -> Value {
             plan,
             pitch_um,
             approach,
+            order,
             ..
         } => {
             let mut v = json!({"cmd": "characterize", "action": action});
@@ -305,6 +311,9 @@ fn build(cmd: &ClientCommand) -> Value {
             }
             if let Some(a) = approach {
                 v["approach"] = json!(a);
+            }
+            if let Some(o) = order {
+                v["order"] = json!(o);
             }
             if let Some(p) = pitch_um {
                 v["pitch_um"] = json!(p);

@@ -30,7 +30,7 @@ pub(crate) use super::rig::measure::{
 
 use super::protocol::{
     Axes, CharacterizeMode, CharacterizeParams, CharacterizePlan, ErrorCode, GridApproach,
-    ProtoError, Topic,
+    GridOrder, ProtoError, Topic,
 };
 use super::rig::Rig;
 use crate::analysis::drift::DRIFT_REF_SEGMENT;
@@ -169,6 +169,18 @@ impl Jobs {
                 "approach is how the grid plan reaches its nodes: give plan = \"grid\" (the scan lines are measured both ways already)",
             ));
         }
+        if p.order.is_some() && !grid {
+            return Err(ProtoError::new(
+                ErrorCode::BadValue,
+                "order is the grid plan's node order: give plan = \"grid\"",
+            ));
+        }
+        if p.order == Some(GridOrder::Serpentine) && p.approach != Some(GridApproach::Both) {
+            return Err(ProtoError::new(
+                ErrorCode::BadValue,
+                "a serpentine's returning rows reach x from above: give approach = \"both\" (every node is then measured each way on each axis)",
+            ));
+        }
         if grid && p.mode == Some(CharacterizeMode::Sweep) {
             return Err(ProtoError::new(
                 ErrorCode::BadValue,
@@ -207,6 +219,7 @@ impl Jobs {
         let plan = ScanPlan {
             grid,
             grid_both: p.approach == Some(GridApproach::Both),
+            grid_serpentine: p.order == Some(GridOrder::Serpentine),
             scan_x: axes.x(),
             scan_y: axes.y(),
             step_um,
@@ -720,6 +733,17 @@ async fn measure_reference(
 
 /// The scan line a segment belongs to (`Some('x')` for `scan_x_fwd` and
 /// `scan_x_bwd`), `None` for the other segments (moves).
+/// The way a grid node of `segment` is reached on each axis (`+1` from
+/// below, `−1` from above; plain `grid`: from below on both), or `None`
+/// for a segment that is no grid node's.
+fn grid_ways(segment: &str) -> Option<[f64; 2]> {
+    let sign = |d: crate::model::Direction| d.sign();
+    if segment == plan::SEGMENT_GRID {
+        return Some([1.0, 1.0]);
+    }
+    crate::charact::scan::grid_direction(segment).map(|d| [sign(d[0]), sign(d[1])])
+}
+
 fn scan_line(segment: &str) -> Option<char> {
     if segment.starts_with("scan_x") {
         Some('x')
@@ -745,11 +769,10 @@ fn scan_approach(rig: &Rig, next: &plan::Point) -> (f64, f64) {
     } else {
         1.0
     };
-    let grid = next.segment.starts_with(plan::SEGMENT_GRID);
-    let (x, y) = if grid {
+    let (x, y) = if let Some([wx, wy]) = grid_ways(next.segment) {
         (
-            next.x_um - dir * PARK_APPROACH_UM,
-            next.y_um - dir * PARK_APPROACH_UM,
+            next.x_um - wx * PARK_APPROACH_UM,
+            next.y_um - wy * PARK_APPROACH_UM,
         )
     } else if scan_line(next.segment) == Some('x') {
         (

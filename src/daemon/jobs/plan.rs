@@ -4,7 +4,8 @@
 //! `k` of the plan: resume continues at index = records already logged).
 
 use crate::charact::log::Metadata;
-use crate::charact::scan::{SEGMENT_GRID_BWD, SEGMENT_GRID_FWD, SEGMENT_MOVES};
+use crate::charact::scan::{grid_segment, SEGMENT_MOVES};
+use crate::model::Direction;
 
 /// One point of the plan.
 #[derive(Debug, Clone, PartialEq)]
@@ -31,9 +32,16 @@ pub struct ScanPlan {
     /// (segment [`SEGMENT_GRID`]; `scan_x`/`scan_y` play no part).
     pub grid: bool,
     /// A grid measured both ways: per cycle every node from below (segment
-    /// [`SEGMENT_GRID_FWD`], as above), then every node from above
-    /// ([`SEGMENT_GRID_BWD`]: rows of decreasing x, in decreasing y).
+    /// `grid_fwd`, as above), then every node from above
+    /// (`grid_bwd`: rows of decreasing x, in decreasing y).
     pub grid_both: bool,
+    /// A grid in serpentine order (needs `grid_both`): the rows of the pass
+    /// from below alternate in x (increasing, then decreasing), so no row
+    /// starts with a return move; the pass from above visits the same
+    /// nodes in reverse. Every node is still reached once each way on each
+    /// axis; each record's segment names its two directions
+    /// (`crate::charact::scan::grid_direction`).
+    pub grid_serpentine: bool,
     /// Scan X.
     pub scan_x: bool,
     /// Scan Y.
@@ -115,31 +123,8 @@ impl ScanPlan {
         if self.grid {
             let xs = self.grid_nodes(self.x_start_um, self.x_range_um);
             let ys = self.grid_nodes(self.y_start_um, self.y_range_um);
-            let passes: &[(&'static str, bool)] = if self.grid_both {
-                &[(SEGMENT_GRID_FWD, false), (SEGMENT_GRID_BWD, true)]
-            } else {
-                &[(SEGMENT_GRID, false)]
-            };
             for cycle in 1..=self.cycles {
-                for &(segment, down) in passes {
-                    let order = |v: &[f64]| -> Vec<f64> {
-                        if down {
-                            v.iter().rev().copied().collect()
-                        } else {
-                            v.to_vec()
-                        }
-                    };
-                    for y_um in order(&ys) {
-                        for x_um in order(&xs) {
-                            v.push(Point {
-                                segment,
-                                cycle,
-                                x_um,
-                                y_um,
-                            });
-                        }
-                    }
-                }
+                self.push_grid_cycle(&mut v, cycle, &xs, &ys);
             }
             self.push_moves(&mut v);
             return v;
@@ -192,6 +177,46 @@ impl ScanPlan {
         );
         self.push_moves(&mut v);
         v
+    }
+
+    /// One cycle of a grid: the pass from below (raster: every row in
+    /// increasing x; serpentine: alternating), then with `grid_both` the
+    /// same nodes in reverse order, each reached the other way on both
+    /// axes.
+    fn push_grid_cycle(&self, v: &mut Vec<Point>, cycle: u32, xs: &[f64], ys: &[f64]) {
+        use Direction::{Backward, Forward};
+        let mut up: Vec<(f64, f64, [Direction; 2])> = Vec::new();
+        for (i, &y_um) in ys.iter().enumerate() {
+            let back = self.grid_serpentine && i % 2 == 1;
+            let row: Vec<f64> = if back {
+                xs.iter().rev().copied().collect()
+            } else {
+                xs.to_vec()
+            };
+            let dx = if back { Backward } else { Forward };
+            up.extend(row.into_iter().map(|x_um| (x_um, y_um, [dx, Forward])));
+        }
+        let flip = |d: Direction| if d == Forward { Backward } else { Forward };
+        let down: Vec<(f64, f64, [Direction; 2])> = if self.grid_both {
+            up.iter()
+                .rev()
+                .map(|&(x, y, d)| (x, y, [flip(d[0]), flip(d[1])]))
+                .collect()
+        } else {
+            Vec::new()
+        };
+        for (x_um, y_um, dirs) in up.into_iter().chain(down) {
+            v.push(Point {
+                segment: if self.grid_both {
+                    grid_segment(dirs)
+                } else {
+                    SEGMENT_GRID
+                },
+                cycle,
+                x_um,
+                y_um,
+            });
+        }
     }
 
     /// A grid's node positions along one axis: every `step_um` from
@@ -266,6 +291,9 @@ impl ScanPlan {
         if self.grid_both {
             md.insert("grid_approach", "both");
         }
+        if self.grid_serpentine {
+            md.insert("grid_order", "serpentine");
+        }
     }
 
     /// Reads a plan back from log metadata.
@@ -300,9 +328,20 @@ impl ScanPlan {
                 })
             }
         };
+        let grid_serpentine = match md.get("grid_order") {
+            None | Some("raster") => false,
+            Some("serpentine") => true,
+            Some(other) => {
+                return Err(PlanError {
+                    key: "grid_order".to_owned(),
+                    problem: format!("{other:?} is neither \"raster\" nor \"serpentine\""),
+                })
+            }
+        };
         let p = ScanPlan {
             grid,
             grid_both: grid && grid_both,
+            grid_serpentine: grid && grid_both && grid_serpentine,
             scan_x: get(md, "scan_x")?,
             scan_y: get(md, "scan_y")?,
             step_um: get(md, "step_um")?,
@@ -426,6 +465,7 @@ mod tests {
         ScanPlan {
             grid: false,
             grid_both: false,
+            grid_serpentine: false,
             scan_x: true,
             scan_y: true,
             step_um: 5.0,
@@ -488,6 +528,7 @@ mod tests {
     /// same nodes from above in reverse order; it round-trips.
     #[test]
     fn a_grid_both_ways_visits_every_node_from_each_side() {
+        use crate::charact::scan::{SEGMENT_GRID_BWD, SEGMENT_GRID_FWD};
         let p = ScanPlan {
             grid: true,
             grid_both: true,
@@ -514,6 +555,59 @@ mod tests {
         assert_eq!(ScanPlan::from_metadata(&md).unwrap(), p);
         md.insert("grid_approach", "sideways");
         assert!(ScanPlan::from_metadata(&md).is_err());
+    }
+
+    /// A serpentine grid both ways: rows alternate in x, the pass from
+    /// above is the pass from below reversed, and every node is reached
+    /// once each way on each axis, as its segment says.
+    #[test]
+    fn a_serpentine_grid_reaches_every_node_each_way_on_each_axis() {
+        use crate::charact::scan::grid_direction;
+        let p = ScanPlan {
+            grid: true,
+            grid_both: true,
+            grid_serpentine: true,
+            step_um: 500.0,
+            x_range_um: 2000.0,
+            y_range_um: 1000.0,
+            cycles: 1,
+            ..plan()
+        };
+        let pts = p.points();
+        assert_eq!(pts.len(), 30);
+        // Row 1 runs back in x, without a return move.
+        assert_eq!((pts[4].x_um, pts[5].x_um), (4750.0, 4750.0));
+        assert!(pts[5].y_um > pts[4].y_um && pts[6].x_um < pts[5].x_um);
+        let mut seen: std::collections::HashMap<(u64, u64), Vec<[Direction; 2]>> =
+            std::collections::HashMap::new();
+        let mut last: Option<&Point> = None;
+        for q in &pts {
+            let d = grid_direction(q.segment).expect("a directed grid segment");
+            // Where an axis moves, it moves the way the segment says.
+            if let Some(l) = last {
+                for (a, (from, to)) in [(l.x_um, q.x_um), (l.y_um, q.y_um)].into_iter().enumerate()
+                {
+                    if to != from && q.segment == l.segment {
+                        assert_eq!((to > from), d[a] == Direction::Forward, "{q:?}");
+                    }
+                }
+            }
+            seen.entry((q.x_um.to_bits(), q.y_um.to_bits()))
+                .or_default()
+                .push(d);
+            last = Some(q);
+        }
+        assert_eq!(seen.len(), 15);
+        for ways in seen.values() {
+            for a in 0..2 {
+                let fwd = ways.iter().filter(|d| d[a] == Direction::Forward).count();
+                assert_eq!((fwd, ways.len()), (1, 2), "{ways:?}");
+            }
+        }
+        let mut md = Metadata::new();
+        p.to_metadata(&mut md);
+        assert_eq!(md.get("grid_order"), Some("serpentine"));
+        assert_eq!(ScanPlan::from_metadata(&md).unwrap(), p);
     }
 
     #[test]

@@ -155,22 +155,29 @@ async fn points(
         let line = |q: &plan::Point| scan_line(q.segment);
         let before = i.checked_sub(1).and_then(|k| s.points.get(k));
         let new_line = line(p).is_some() && before.is_some_and(|q| line(q) != line(p));
-        // A grid node is reached from its pass's side on both axes (below;
-        // above in a `grid_bwd` pass), as the nodes along a row are: where
-        // a row, a pass or a cycle starts again (x or y goes against the
-        // pass), the node is approached from that side first, so each map
-        // holds one arrival direction per axis.
-        let grid_back = p.segment.starts_with(plan::SEGMENT_GRID)
-            && before.is_some_and(|q| {
-                let dir = if p.segment.ends_with("_bwd") {
-                    -1.0
-                } else {
-                    1.0
-                };
-                dir * (p.x_um - q.x_um) < 0.0
-                    || dir * (p.y_um - q.y_um) < 0.0
-                    || q.segment != p.segment
-            });
+        // A grid node is reached on each axis the way its segment says
+        // (`grid`: from below on both), as the nodes along a row are: where
+        // an axis moves against that way (a row, a pass or a cycle starting
+        // again), or does not move but last moved the other way (a
+        // serpentine's turn, a pass from above starting where the pass
+        // from below ended), the node is approached from that side first,
+        // so each map holds one arrival direction per axis.
+        let grid_back = super::grid_ways(p.segment).is_some_and(|ways| {
+            before.is_some_and(|q| {
+                [(q.x_um, p.x_um), (q.y_um, p.y_um)]
+                    .into_iter()
+                    .zip(ways)
+                    .enumerate()
+                    .any(|(a, ((from, to), way))| {
+                        let arrives = if to != from {
+                            Some((to - from).signum())
+                        } else {
+                            approach.sign(a)
+                        };
+                        arrives != Some(way)
+                    })
+            })
+        });
         if !approached && (new_line || grid_back) {
             let (x, y) = scan_approach(rig, p);
             if move_raw(rig, x, y, cancel).await?.is_none() {

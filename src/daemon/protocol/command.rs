@@ -133,6 +133,21 @@ pub struct CharacterizeParams {
     pub pitch_um: Option<f64>,
     /// Grid plan: how the nodes are reached (default: from below).
     pub approach: Option<GridApproach>,
+    /// Grid plan: the order of the nodes (default: raster).
+    pub order: Option<GridOrder>,
+}
+
+/// The order of a grid plan's nodes.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub enum GridOrder {
+    /// Every row in increasing x, each row's first node by an approach
+    /// move from below.
+    #[default]
+    Raster,
+    /// Rows alternately in increasing and decreasing x (no return move per
+    /// row); needs `approach = both`, since its returning rows reach x
+    /// from above.
+    Serpentine,
 }
 
 /// How a grid plan reaches its nodes.

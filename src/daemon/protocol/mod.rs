@@ -34,8 +34,9 @@ mod tests;
 
 pub use command::{
     Axes, CharacterizeAction, CharacterizeMode, CharacterizeParams, CharacterizePlan, Command,
-    DriftAction, FiguresJob, FiguresParams, GridApproach, MoveMode, MoveRequest, Refusal, Request,
-    TablesAction, TablesBuildParams, Topic, ValidateAction, ValidateMode, ValidateParams, COMMANDS,
+    DriftAction, FiguresJob, FiguresParams, GridApproach, GridOrder, MoveMode, MoveRequest,
+    Refusal, Request, TablesAction, TablesBuildParams, Topic, ValidateAction, ValidateMode,
+    ValidateParams, COMMANDS,
 };
 pub use error::{ErrorCode, ProtoError};
 pub use parse::{parse_request, too_large};

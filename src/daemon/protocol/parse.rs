@@ -8,8 +8,9 @@ use serde_json::{Map, Value};
 
 use super::command::{
     Axes, CharacterizeAction, CharacterizeMode, CharacterizeParams, CharacterizePlan, Command,
-    DriftAction, FiguresJob, FiguresParams, GridApproach, MoveMode, MoveRequest, Refusal, Request,
-    TablesAction, TablesBuildParams, Topic, ValidateAction, ValidateMode, ValidateParams, COMMANDS,
+    DriftAction, FiguresJob, FiguresParams, GridApproach, GridOrder, MoveMode, MoveRequest,
+    Refusal, Request, TablesAction, TablesBuildParams, Topic, ValidateAction, ValidateMode,
+    ValidateParams, COMMANDS,
 };
 use super::fields::{
     check_file_name, opt_axes, opt_bool, opt_count, opt_f64, opt_f64_within, opt_str, opt_xy,
@@ -103,6 +104,7 @@ fn parse_command(obj: &Map<String, Value>) -> Result<Command, ProtoError> {
             "plan",
             "pitch_um",
             "approach",
+            "order",
         ],
         "validate" => &[
             "action",
@@ -319,6 +321,14 @@ fn parse_characterize(obj: &Map<String, Value>) -> Result<CharacterizeAction, Pr
                     Some("below") => Some(GridApproach::Below),
                     Some("both") => Some(GridApproach::Both),
                     Some(other) => return Err(unknown_word("grid approach", other, "below, both")),
+                },
+                order: match opt_str(obj, "order")? {
+                    None => None,
+                    Some("raster") => Some(GridOrder::Raster),
+                    Some("serpentine") => Some(GridOrder::Serpentine),
+                    Some(other) => {
+                        return Err(unknown_word("grid order", other, "raster, serpentine"))
+                    }
                 },
             })))
         }

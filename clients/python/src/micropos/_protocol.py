@@ -176,6 +176,7 @@ def characterize_start(
     plan: Optional[str] = None,
     pitch_um: Optional[float] = None,
     approach: Optional[str] = None,
+    order: Optional[str] = None,
 ) -> Json:
     """``characterize`` ``start``."""
     return request(
@@ -200,6 +201,7 @@ def characterize_start(
         plan=plan,
         pitch_um=pitch_um,
         approach=approach,
+        order=order,
     )
 
 

@@ -22,6 +22,7 @@ from .types import (
     CharacterizeMode,
     CharacterizePlan,
     GridApproach,
+    GridOrder,
     DriftMethod,
     Json,
     JobKind,
@@ -331,6 +332,7 @@ class AsyncRig:
         plan: Optional[CharacterizePlan] = None,
         pitch_um: Optional[float] = None,
         approach: Optional[GridApproach] = None,
+        order: Optional[GridOrder] = None,
     ) -> "AsyncJob":
         """``characterize start``; see :meth:`Rig.characterize`."""
         reply = await self._call(
@@ -354,6 +356,7 @@ class AsyncRig:
                 plan=plan,
                 pitch_um=pitch_um,
                 approach=approach,
+                order=order,
             )
         )
         return AsyncJob._from_reply(self, "characterize", reply)

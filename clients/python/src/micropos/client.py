@@ -29,6 +29,7 @@ from .types import (
     CharacterizeMode,
     CharacterizePlan,
     GridApproach,
+    GridOrder,
     DriftMethod,
     Json,
     JobKind,
@@ -310,6 +311,7 @@ class Rig:
         plan: Optional[CharacterizePlan] = None,
         pitch_um: Optional[float] = None,
         approach: Optional[GridApproach] = None,
+        order: Optional[GridOrder] = None,
     ) -> "Job":
         """``characterize start``: a characterization job, logged point by
         point into ``log`` (a file name in the daemon's data directory).
@@ -330,8 +332,9 @@ class Rig:
         (step mode) measures every node of a lattice over both ranges,
         ``pitch_um`` apart (default ``step_um``), each reached from below on
         both axes (``approach="both"``: then from above too, a map per
-        arrival direction); ``tables.build`` makes a 2-D map of it. Returns
-        the job's handle."""
+        arrival direction; ``order="serpentine"`` with it: rows alternately
+        in increasing and decreasing x); ``tables.build`` makes a 2-D map of
+        it. Returns the job's handle."""
         reply = self._call(
             proto.characterize_start(
                 log=log,
@@ -353,6 +356,7 @@ class Rig:
                 plan=plan,
                 pitch_um=pitch_um,
                 approach=approach,
+                order=order,
             )
         )
         return Job._from_reply(self, "characterize", reply)

@@ -20,6 +20,7 @@ __all__ = [
     "TableKind",
     "CharacterizePlan",
     "GridApproach",
+    "GridOrder",
     "DriftMethod",
     "JobKind",
     "JobProgress",
@@ -52,6 +53,9 @@ CharacterizePlan = Literal["lines", "grid"]
 #: How a grid plan reaches its nodes: from below on both axes (default), or
 #: both ways (a map per arrival direction).
 GridApproach = Literal["below", "both"]
+#: The order of a grid plan's nodes: raster (default) or serpentine (needs
+#: ``approach="both"``).
+GridOrder = Literal["raster", "serpentine"]
 
 
 class JobProgress(TypedDict, total=False):
