@@ -103,14 +103,7 @@ pub(super) fn identifiable_given(
     let mut order: Vec<usize> = (0..names.len()).collect();
     // Stable: within a kind, the model's term and parameter order.
     order.sort_by_key(|&j| priority(&kinds[j]));
-    let rows = |v: &[f64]| -> Vec<f64> {
-        // Only the measured components carry information.
-        (0..d.n)
-            .flat_map(|i| (0..2).map(move |c| (i, c)))
-            .filter(|&(_, c)| d.measured[c])
-            .map(|(i, c)| v[2 * i + c])
-            .collect()
-    };
+    let rows = |v: &[f64]| measured_rows(d, v);
     let mut basis: Vec<Vec<f64>> = Vec::new();
     let mut kept: Vec<usize> = Vec::new();
     let mut dropped: Vec<usize> = Vec::new();
@@ -217,13 +210,7 @@ pub(super) fn held_along(
     kept_cols: &[Vec<f64>],
     why: &str,
 ) -> Vec<Unidentifiable> {
-    let rows = |v: &[f64]| -> Vec<f64> {
-        (0..d.n)
-            .flat_map(|i| (0..2).map(move |c| (i, c)))
-            .filter(|&(_, c)| d.measured[c])
-            .map(|(i, c)| v[2 * i + c])
-            .collect()
-    };
+    let rows = |v: &[f64]| measured_rows(d, v);
     let span = Span::new(kept_cols.iter().map(|c| rows(c)));
     let Some(chol) = span.chol.as_ref() else {
         return Vec::new();
@@ -261,6 +248,16 @@ pub(super) fn held_along(
                 combination,
             })
         })
+        .collect()
+}
+
+/// The rows of a column (`2·i + c` per point) of the measured components
+/// only: the others carry no information.
+fn measured_rows(d: &Data, v: &[f64]) -> Vec<f64> {
+    (0..d.n)
+        .flat_map(|i| (0..2).map(move |c| (i, c)))
+        .filter(|&(_, c)| d.measured[c])
+        .map(|(i, c)| v[2 * i + c])
         .collect()
 }
 

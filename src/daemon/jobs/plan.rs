@@ -88,6 +88,20 @@ fn moves_fraction(k: u32) -> (f64, f64) {
     (unit(splitmix(2 * k)), unit(splitmix(2 * k + 1)))
 }
 
+/// A two-way metadata choice: `false` for `words[0]` (or no entry),
+/// `true` for `words[1]`, an error naming both for anything else.
+fn either(md: &Metadata, key: &str, words: [&str; 2]) -> Result<bool, PlanError> {
+    match md.get(key) {
+        None => Ok(false),
+        Some(v) if v == words[0] => Ok(false),
+        Some(v) if v == words[1] => Ok(true),
+        Some(other) => Err(PlanError {
+            key: key.to_owned(),
+            problem: format!("{other:?} is neither {:?} nor {:?}", words[0], words[1]),
+        }),
+    }
+}
+
 /// A metadata entry was missing or unreadable.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 #[error("log metadata {key}: {problem}")]
@@ -308,36 +322,9 @@ impl ScanPlan {
                 problem: format!("{v:?} is not a valid value"),
             })
         }
-        let grid = match md.get("plan") {
-            None | Some("lines") => false,
-            Some("grid") => true,
-            Some(other) => {
-                return Err(PlanError {
-                    key: "plan".to_owned(),
-                    problem: format!("{other:?} is neither \"lines\" nor \"grid\""),
-                })
-            }
-        };
-        let grid_both = match md.get("grid_approach") {
-            None | Some("below") => false,
-            Some("both") => true,
-            Some(other) => {
-                return Err(PlanError {
-                    key: "grid_approach".to_owned(),
-                    problem: format!("{other:?} is neither \"below\" nor \"both\""),
-                })
-            }
-        };
-        let grid_serpentine = match md.get("grid_order") {
-            None | Some("raster") => false,
-            Some("serpentine") => true,
-            Some(other) => {
-                return Err(PlanError {
-                    key: "grid_order".to_owned(),
-                    problem: format!("{other:?} is neither \"raster\" nor \"serpentine\""),
-                })
-            }
-        };
+        let grid = either(md, "plan", ["lines", "grid"])?;
+        let grid_both = either(md, "grid_approach", ["below", "both"])?;
+        let grid_serpentine = either(md, "grid_order", ["raster", "serpentine"])?;
         let p = ScanPlan {
             grid,
             grid_both: grid && grid_both,

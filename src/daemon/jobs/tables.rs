@@ -354,6 +354,32 @@ mod tests {
         }
     }
 
+    /// A log of `records` with `md`, as written to the data directory.
+    fn log_bytes(md: &Metadata, records: &[Record]) -> Vec<u8> {
+        let mut w = log::LogWriter::create(
+            Vec::new(),
+            md,
+            log::Columns::default(),
+            log::SyncPolicy::FlushOnly,
+        )
+        .unwrap();
+        for r in records {
+            w.append(r).unwrap();
+        }
+        w.into_inner()
+    }
+
+    /// `tables build` of `log` in `dir` with the default kinds.
+    fn build_default(dir: &Path, log: &str) -> (Value, Vec<String>) {
+        let params = TablesBuildParams {
+            log: log.into(),
+            name: None,
+            kinds: Vec::new(),
+            activate: false,
+        };
+        build_blocking(dir, &params).unwrap()
+    }
+
     /// A grid log (targets on a lattice, no scan segments) gets a 2-D map
     /// by default, whose prediction at a node is the error measured there;
     /// asking a scan log for a map is refused with the reason.
@@ -377,28 +403,10 @@ mod tests {
                 records.push(r);
             }
         }
-        let bytes = |records: &[Record]| {
-            let mut w = log::LogWriter::create(
-                Vec::new(),
-                &md,
-                log::Columns::default(),
-                log::SyncPolicy::FlushOnly,
-            )
-            .unwrap();
-            for r in records {
-                w.append(r).unwrap();
-            }
-            w.into_inner()
-        };
+        let bytes = |records: &[Record]| log_bytes(&md, records);
         let dir = tempfile::tempdir().unwrap();
         std::fs::write(dir.path().join("g.csv"), bytes(&records)).unwrap();
-        let params = TablesBuildParams {
-            log: "g.csv".into(),
-            name: None,
-            kinds: Vec::new(),
-            activate: false,
-        };
-        let (out, written) = build_blocking(dir.path(), &params).unwrap();
+        let (out, written) = build_default(dir.path(), "g.csv");
         assert_eq!(written, ["g-grid.toml"], "{out}");
         assert_eq!(out["grid"]["report"]["measured"], 42, "{out}");
         let file = CompFile::read_path(dir.path().join("g-grid.toml")).unwrap();
@@ -425,8 +433,9 @@ mod tests {
         std::fs::write(dir.path().join("s.csv"), bytes(&scans)).unwrap();
         let params = TablesBuildParams {
             log: "s.csv".into(),
+            name: None,
             kinds: vec!["grid".into()],
-            ..params
+            activate: false,
         };
         let e = build_blocking(dir.path(), &params).unwrap_err();
         assert!(e.to_string().contains("not a grid log"), "{e}");
@@ -445,13 +454,7 @@ mod tests {
         md.insert("grid_approach", "both");
         let e = |x: f64, y: f64| [1e-4 * x + 2e-8 * x * y, -3e-4 * y];
         let play = [1.7, -0.6];
-        let mut w = log::LogWriter::create(
-            Vec::new(),
-            &md,
-            log::Columns::default(),
-            log::SyncPolicy::FlushOnly,
-        )
-        .unwrap();
+        let mut records = Vec::new();
         for (seg, sign) in [(SEGMENT_GRID_FWD, 0.0), (SEGMENT_GRID_BWD, 1.0)] {
             for iy in 0..5 {
                 for ix in 0..4 {
@@ -460,19 +463,13 @@ mod tests {
                     let o = e(x, y);
                     r.x_meas_um = x + o[0] + sign * play[0];
                     r.y_meas_um = y + o[1] + sign * play[1];
-                    w.append(&r).unwrap();
+                    records.push(r);
                 }
             }
         }
         let dir = tempfile::tempdir().unwrap();
-        std::fs::write(dir.path().join("b.csv"), w.into_inner()).unwrap();
-        let params = TablesBuildParams {
-            log: "b.csv".into(),
-            name: None,
-            kinds: Vec::new(),
-            activate: false,
-        };
-        let (out, written) = build_blocking(dir.path(), &params).unwrap();
+        std::fs::write(dir.path().join("b.csv"), log_bytes(&md, &records)).unwrap();
+        let (out, written) = build_default(dir.path(), "b.csv");
         assert_eq!(written, ["b-grid.toml"], "{out}");
         let rev = &out["grid"]["report"]["reversal_rms_um"];
         assert!((rev[0].as_f64().unwrap() - 1.7).abs() < 1e-9, "{out}");
