@@ -79,15 +79,24 @@ fn the_socket_appears_with_its_final_mode_and_nothing_is_left_behind() {
     let child = start(&cfg, &err);
     let seen = modes_seen(&socket, 200);
     let mut clients = std::os::unix::net::UnixStream::connect(&socket);
+    // The private bind directory goes once the socket is renamed into
+    // place: wait for it (a kill between the rename and its removal would
+    // leave it, which is not what this test is about).
+    let names = || -> Vec<String> {
+        std::fs::read_dir(socket.parent().unwrap())
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .collect()
+    };
+    let t0 = std::time::Instant::now();
+    while names() != ["micropos.sock"] && t0.elapsed() < std::time::Duration::from_secs(10) {
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
     stop(child);
     let octal: Vec<String> = seen.iter().map(|m| format!("{m:o}")).collect();
     assert!(seen.iter().all(|m| *m == 0o600), "modes seen: {octal:?}");
     assert!(clients.as_mut().is_ok(), "{clients:?}");
-    let names: Vec<String> = std::fs::read_dir(socket.parent().unwrap())
-        .unwrap()
-        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
-        .collect();
-    assert_eq!(names, ["micropos.sock"], "left in the socket's directory");
+    assert_eq!(names(), ["micropos.sock"], "left in the socket's directory");
     let stderr = std::fs::read_to_string(&err).unwrap();
     assert!(!stderr.contains("every local user"), "{stderr}");
 }
