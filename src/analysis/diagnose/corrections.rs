@@ -248,7 +248,8 @@ fn axis_of(model: &StageModel, term: &str) -> Option<String> {
 }
 
 /// Adds to each measured axis's scale sentence the least-squares scale of
-/// the fitted model's error along that axis at the log's points: all its
+/// the fitted model's error (`observed`, the fitted model's position at
+/// each of `states`) along that axis at the log's points: all its
 /// terms together (the lead, Abbe slopes and thermal scale held at the
 /// model's values, cyclic harmonics over a span of about one period,
 /// tables), so the figure does not depend on how the model splits it.
@@ -261,6 +262,7 @@ pub(super) fn note_model_scale(
     parameters: &mut [ParamCorrection],
     fitted: &StageModel,
     states: &[crate::model::MotionState],
+    observed: &[crate::model::XyUm],
     measured: [bool; 2],
 ) {
     for p in parameters.iter_mut().filter(|p| p.kind == "lead_error") {
@@ -275,8 +277,8 @@ pub(super) fn note_model_scale(
         }
         let pts: Vec<(f64, f64)> = states
             .iter()
-            .map(|s| {
-                let o = fitted.observed_position(s);
+            .zip(observed)
+            .map(|(s, o)| {
                 let cmd = s.cmd_um(axis);
                 (cmd, if c == 0 { o.x_um } else { o.y_um } - cmd)
             })

@@ -937,9 +937,13 @@ fn diagnose_with(
     corrections::with_joint_totals(&mut parameters, model, &unidentifiable);
     // Residual series and in-sample RMS of the extended model.
     let mut series = ResidualSeries::default();
+    let observed: Vec<_> = d
+        .states
+        .iter()
+        .map(|s| fitted.observed_position(s))
+        .collect();
     let mut after = vec![0.0; 2 * d.n];
-    for i in 0..d.n {
-        let o = fitted.observed_position(&d.states[i]);
+    for (i, o) in observed.iter().enumerate() {
         after[2 * i] = d.meas[i][0] - o.x_um;
         after[2 * i + 1] = d.meas[i][1] - o.y_um;
     }
@@ -968,7 +972,7 @@ fn diagnose_with(
         .collect();
     let fit_rms = [rms_comp(&after, 0), rms_comp(&after, 1)];
     corrections::note_tables(&mut parameters, &findings, model);
-    corrections::note_model_scale(&mut parameters, &fitted, &d.states, d.measured);
+    corrections::note_model_scale(&mut parameters, &fitted, &d.states, &observed, d.measured);
     note_short_periods(&mut parameters, &d, model);
     let mut r0 = vec![0.0; 2 * d.n];
     for i in 0..d.n {

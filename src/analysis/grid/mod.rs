@@ -137,9 +137,17 @@ fn lattice(recs: &[&Record]) -> Option<(Vec<f64>, Vec<f64>)> {
     Some((xs, ys))
 }
 
-/// The cells of `recs` on the lattice `xs` × `ys`; `None` when they fill
-/// too little of it to be a map.
-fn cells_of(recs: &[&Record], xs: Vec<f64>, ys: Vec<f64>) -> Option<GridMap> {
+/// The cells of `recs` on the lattice `xs` × `ys`, component `c` of each
+/// from the records `takes(record, c)` (every record for a one-way grid;
+/// one arrival direction of that component's axis for a grid measured
+/// both ways); a cell needs a visit of each component. `None` when they
+/// fill too little of the lattice to be a map.
+fn cells_of(
+    recs: &[&Record],
+    xs: Vec<f64>,
+    ys: Vec<f64>,
+    takes: impl Fn(&Record, usize) -> bool,
+) -> Option<GridMap> {
     let nx = xs.len();
     let n = nx * ys.len();
     if (n as f64) * MIN_FILL > recs.len() as f64 {
@@ -147,60 +155,12 @@ fn cells_of(recs: &[&Record], xs: Vec<f64>, ys: Vec<f64>) -> Option<GridMap> {
     }
     let mut sum = vec![[0.0f64; 2]; n];
     let mut sum2 = vec![[0.0f64; 2]; n];
-    let mut count = vec![0usize; n];
-    for r in recs {
-        let k = nearest(&ys, r.y_target_um) * nx + nearest(&xs, r.x_target_um);
-        let e = [r.x_meas_um - r.x_target_um, r.y_meas_um - r.y_target_um];
-        for c in 0..2 {
-            sum[k][c] += e[c];
-            sum2[k][c] += e[c] * e[c];
-        }
-        count[k] += 1;
-    }
-    let filled = count.iter().filter(|&&n| n > 0).count();
-    if filled < MIN_CELLS || (filled as f64) < MIN_FILL * n as f64 {
-        return None;
-    }
-    let cells = (0..n)
-        .map(|k| {
-            let v = count[k];
-            (v > 0).then(|| {
-                let m = [sum[k][0] / v as f64, sum[k][1] / v as f64];
-                Cell {
-                    e_um: m,
-                    visits: v,
-                    ss_um2: [
-                        (sum2[k][0] - v as f64 * m[0] * m[0]).max(0.0),
-                        (sum2[k][1] - v as f64 * m[1] * m[1]).max(0.0),
-                    ],
-                }
-            })
-        })
-        .collect();
-    Some(GridMap {
-        xs_um: xs,
-        ys_um: ys,
-        cells,
-    })
-}
-
-/// The cells of `recs` reached in direction `way`, each component by its
-/// own axis's direction (records of a grid measured both ways); a cell
-/// needs a visit of each component.
-fn cells_of_way(recs: &[&Record], xs: Vec<f64>, ys: Vec<f64>, way: Direction) -> Option<GridMap> {
-    let nx = xs.len();
-    let n = nx * ys.len();
-    let mut sum = vec![[0.0f64; 2]; n];
-    let mut sum2 = vec![[0.0f64; 2]; n];
     let mut count = vec![[0usize; 2]; n];
     for r in recs {
-        let Some(dirs) = grid_direction(&r.segment) else {
-            continue;
-        };
         let k = nearest(&ys, r.y_target_um) * nx + nearest(&xs, r.x_target_um);
         let e = [r.x_meas_um - r.x_target_um, r.y_meas_um - r.y_target_um];
         for c in 0..2 {
-            if dirs[c] == way {
+            if takes(r, c) {
                 sum[k][c] += e[c];
                 sum2[k][c] += e[c] * e[c];
                 count[k][c] += 1;
@@ -273,19 +233,12 @@ impl GridMap {
 
     /// [`GridMap::from_log`] of a log's records alone (a lattice needs
     /// nothing else of the log). A grid measured both ways, each node's
-    /// direction in its segment
-    /// ([`crate::charact::scan::SEGMENT_GRID_FWD`] / `…_BWD`), is read as its nodes reached from below (one
-    /// arrival per axis, as a one-way grid; the other way is
-    /// [`GridMap::directional`]'s), so the play is not read as noise.
+    /// direction in its segment (`crate::charact::scan::grid_direction`),
+    /// is read as its nodes reached from below (one arrival per axis, as a
+    /// one-way grid; the other way is [`GridMap::read`]'s), so the play is
+    /// not read as noise.
     pub fn from_records(records: &[Record], measured: [bool; 2]) -> Option<GridMap> {
-        match Self::directional(records, measured) {
-            Some([below, _]) => Some(below),
-            None => {
-                let recs = grid_records(records, measured)?;
-                let (xs, ys) = lattice(&recs)?;
-                cells_of(&recs, xs, ys)
-            }
-        }
+        Self::read(records, measured).map(|(map, _)| map)
     }
 
     /// A grid measured both ways: the maps of its nodes reached from below
@@ -294,20 +247,34 @@ impl GridMap {
     /// returning row gives x from above and y from below); `None` when the
     /// log does not hold both directions of both axes as a map each.
     pub fn directional(records: &[Record], measured: [bool; 2]) -> Option<[GridMap; 2]> {
+        match Self::read(records, measured)? {
+            (below, Some(above)) => Some([below, above]),
+            (_, None) => None,
+        }
+    }
+
+    /// The log's map ([`GridMap::from_records`]) and, for a grid measured
+    /// both ways, the map of its arrivals from above: one pass over the
+    /// records for callers that want both.
+    pub fn read(records: &[Record], measured: [bool; 2]) -> Option<(GridMap, Option<GridMap>)> {
         let recs = grid_records(records, measured)?;
+        let (xs, ys) = lattice(&recs)?;
         let dirs: Vec<[Direction; 2]> = recs
             .iter()
             .filter_map(|r| grid_direction(&r.segment))
             .collect();
         let has = |c: usize, d: Direction| dirs.iter().any(|v| v[c] == d);
-        if !(0..2).all(|c| has(c, Direction::Forward) && has(c, Direction::Backward)) {
-            return None;
+        if (0..2).all(|c| has(c, Direction::Forward) && has(c, Direction::Backward)) {
+            let way = |d: Direction| {
+                move |r: &Record, c: usize| grid_direction(&r.segment).is_some_and(|v| v[c] == d)
+            };
+            let below = cells_of(&recs, xs.clone(), ys.clone(), way(Direction::Forward));
+            let above = cells_of(&recs, xs.clone(), ys.clone(), way(Direction::Backward));
+            if let (Some(below), Some(above)) = (below, above) {
+                return Some((below, Some(above)));
+            }
         }
-        let (xs, ys) = lattice(&recs)?;
-        Some([
-            cells_of_way(&recs, xs.clone(), ys.clone(), Direction::Forward)?,
-            cells_of_way(&recs, xs, ys, Direction::Backward)?,
-        ])
+        cells_of(&recs, xs, ys, |_, _| true).map(|map| (map, None))
     }
 
     /// Column and row of the cell nearest to `(x, y)`.
@@ -431,11 +398,9 @@ pub fn report_of(
     z_threshold: f64,
     min_gain_pct: f64,
 ) -> Option<GridReport> {
-    let map = GridMap::from_records(records, measured)?;
+    let (map, above) = GridMap::read(records, measured)?;
     let mut report = analyse(&map, z_threshold, min_gain_pct);
-    if let Some([below, above]) = GridMap::directional(records, measured) {
-        report.reversal = Reversal::between(&below, &above);
-    }
+    report.reversal = above.and_then(|above| Reversal::between(&map, &above));
     Some(report)
 }
 

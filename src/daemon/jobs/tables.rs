@@ -66,25 +66,18 @@ pub fn merged_scan_records(records: &[Record]) -> Vec<Record> {
     out
 }
 
-/// The 2-D map of a grid log's lattice `map`: two layers when its records
-/// hold the grid both ways (arrivals from below and from above, by their
-/// segments), else one.
+/// The 2-D map of a grid log's lattice `map`: two layers when the log
+/// holds the grid both ways (`above`: the arrivals from above, `map` those
+/// from below; see `GridMap::read`), else one.
 fn grid_table(
     map: &GridMap,
-    records: &[Record],
+    above: Option<&GridMap>,
 ) -> Result<(GridTable, crate::comp::GridBuildReport), crate::comp::CompError> {
     let offsets = |m: &GridMap| -> Vec<Option<[f64; 2]>> {
         m.cells.iter().map(|c| c.map(|c| c.e_um)).collect()
     };
-    match GridMap::directional(records, [true, true]) {
-        Some([below, above]) => GridTable::from_lattices(
-            &below.xs_um,
-            &below.ys_um,
-            &offsets(&below),
-            Some(&offsets(&above)),
-        ),
-        None => GridTable::from_lattice(&map.xs_um, &map.ys_um, &offsets(map)),
-    }
+    let above = above.map(offsets);
+    GridTable::from_lattices(&map.xs_um, &map.ys_um, &offsets(map), above.as_deref())
 }
 
 /// Records `frame` in a log's metadata, as [`frame_from_metadata`] reads
@@ -195,7 +188,7 @@ pub fn build_blocking(
     let mut out = json!({"log": params.log, "frame": frame, "drift": drift});
     // The lattice, when a map may be asked for (named, or the default).
     let grid = (params.kinds.is_empty() || params.kinds.iter().any(|k| k == "grid"))
-        .then(|| GridMap::from_records(&undrifted, [true, true]))
+        .then(|| GridMap::read(&undrifted, [true, true]))
         .flatten();
     let kinds = if params.kinds.is_empty() {
         default_kinds(grid.is_some(), &records)
@@ -205,14 +198,14 @@ pub fn build_blocking(
     for kind in &kinds {
         let name = format!("{stem}-{kind}.toml");
         let mut file = if kind == "grid" {
-            let map = grid.as_ref().ok_or_else(|| {
+            let (map, above) = grid.as_ref().ok_or_else(|| {
                 bad(format!(
                     "{} is not a grid log (its targets do not fill a lattice of at least 3 × 3 \
                      positions with both axes measured): build paper or model tables from it",
                     params.log
                 ))
             })?;
-            let (mut table, report) = grid_table(map, &undrifted)
+            let (mut table, report) = grid_table(map, above.as_ref())
                 .map_err(|e| bad(format!("grid map from {}: {e}", params.log)))?;
             // microposd's one-way grid plan reaches every node from below.
             if parsed.metadata.get("plan") == Some("grid") && table.arrival == GridArrival::Unknown
