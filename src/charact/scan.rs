@@ -52,6 +52,10 @@ pub const SEGMENTS_SWEEP_ANCHOR: [&str; 4] = [
     "anchor_y_bwd",
 ];
 
+/// Log segment of a grid's nodes measured one way: microposd's grid plan
+/// (`plan: grid` in the log's metadata, without `grid_approach: both`)
+/// reaches each of them from below on both axes; an import does not say.
+pub const SEGMENT_GRID: &str = "grid";
 /// Log segment of a grid's nodes reached from below on both axes, in a
 /// grid measured both ways (microposd's grid plan with `approach = both`,
 /// or an import with a direction column). A grid measured one way only

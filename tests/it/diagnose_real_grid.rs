@@ -15,7 +15,7 @@ use std::path::PathBuf;
 
 use micropos::analysis::{diagnose, DiagnoseOptions, Diagnosis};
 use micropos::charact::log::{read_file, MeasurementLog};
-use micropos::model::StageModel;
+use micropos::model::{MotionState, StageModel, StageSimulator};
 
 fn path() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
@@ -215,6 +215,17 @@ fn the_shared_map_in_any_encoding_gives_the_same_conclusions() {
             sq(&d),
             sq(&base)
         );
+        // The 2-D map term joins the model in the same components.
+        let terms = |d: &Diagnosis| -> Vec<bool> {
+            d.map_term
+                .as_ref()
+                .unwrap()
+                .components
+                .iter()
+                .map(|c| c.term.is_some())
+                .collect()
+        };
+        assert_eq!(terms(&d), terms(&base), "{how}");
         assert!(d.time_unusable.is_some(), "{how}");
         assert!(
             d.findings.iter().all(|f| !matches!(
@@ -263,6 +274,90 @@ fn the_models_scale_in_all_is_the_maps() {
             total[1],
             map.value,
             map.sigma
+        );
+    }
+}
+
+/// Rms per component of `e_sim − e_log` over the nodes once the best
+/// rigid motion (offset per component, one rotation) is removed: the
+/// extended model lives in the frame `diagnose` turned to the stage's x
+/// axis, the log in the laser's.
+fn rigid_rms(p: &[[f64; 2]], d: &[[f64; 2]]) -> [f64; 2] {
+    let n = p.len() as f64;
+    let mean = |f: &dyn Fn(usize) -> f64| (0..p.len()).map(f).sum::<f64>() / n;
+    let (px, py) = (mean(&|i| p[i][0]), mean(&|i| p[i][1]));
+    let (dx, dy) = (mean(&|i| d[i][0]), mean(&|i| d[i][1]));
+    let (mut num, mut den) = (0.0, 0.0);
+    for i in 0..p.len() {
+        let (x, y) = (p[i][0] - px, p[i][1] - py);
+        num += -y * (d[i][0] - dx) + x * (d[i][1] - dy);
+        den += x * x + y * y;
+    }
+    let th = num / den;
+    [0, 1].map(|c| {
+        let s: f64 = (0..p.len())
+            .map(|i| {
+                let (x, y) = (p[i][0] - px, p[i][1] - py);
+                let r = [d[i][0] - dx + th * y, d[i][1] - dy - th * x];
+                r[c] * r[c]
+            })
+            .sum();
+        (s / n).sqrt()
+    })
+}
+
+/// The measured map runs in the simulator: the extended model, written
+/// as `micropos diagnose --out` writes it and read back as `hil-sim
+/// --model` reads it, driven through the log's targets by the simulator's
+/// own stage (`StageSimulator`, settling noise off), reproduces the
+/// measured map at its nodes (the node values are the measured cells'
+/// residuals, so to rounding); without its map terms it leaves what the
+/// named terms cannot carry. Measured (`--nocapture`): see the MAP-IN-SIM line.
+#[test]
+fn the_shared_map_runs_in_the_simulator() {
+    let Some(log) = load() else { return };
+    let d = run(&log);
+    let m = d.map_term.as_ref().expect("a grid");
+    assert!(m.components.iter().all(|c| c.term.is_some()), "{m:?}");
+    let text = d.extended_model.to_toml().unwrap();
+    assert!(text.contains("kind = \"position_map\""));
+    let with = StageModel::from_toml(&text).unwrap();
+    let mut without = with.clone();
+    for c in &m.components {
+        without.remove_term(c.term.as_deref().unwrap()).unwrap();
+    }
+    let replay = |model: &StageModel| -> [f64; 2] {
+        let mut model = model.clone();
+        let mut st = model.stochastic().clone();
+        st.repeatability_sigma_um = [0.0; 2];
+        st.rough_spots.clear();
+        model.set_stochastic(st).unwrap();
+        let r0 = &log.records[0];
+        let start = MotionState::at_rest(r0.x_cmd_um, r0.y_cmd_um);
+        let mut sim = StageSimulator::new(model, start, 1).unwrap();
+        let mut pts = Vec::new();
+        let mut diff = Vec::new();
+        for r in &log.records {
+            let s = sim.move_to(r.x_cmd_um, r.y_cmd_um, r.t_s, r.cycle).unwrap();
+            pts.push([r.x_target_um, r.y_target_um]);
+            diff.push([
+                (s.observed_um.x_um - r.x_cmd_um) - (r.x_meas_um - r.x_target_um),
+                (s.observed_um.y_um - r.y_cmd_um) - (r.y_meas_um - r.y_target_um),
+            ]);
+        }
+        rigid_rms(&pts, &diff)
+    };
+    let (a, b) = (replay(&without), replay(&with));
+    let g = d.grid.as_ref().unwrap();
+    eprintln!(
+        "MAP-IN-SIM | simulator vs the measured map, rms x / y: named terms only {:.4} / {:.4} µm, with the map {:.4} / {:.4} µm (cell noise {:.4} / {:.4} µm)",
+        a[0], a[1], b[0], b[1], g.noise[0].cell_sigma_um, g.noise[1].cell_sigma_um
+    );
+    for c in 0..2 {
+        assert!(b[c] < 0.5 * a[c], "component {c}: {a:?} → {b:?}");
+        assert!(
+            b[c] < 0.1 * g.noise[c].cell_sigma_um,
+            "component {c}: {b:?}"
         );
     }
 }

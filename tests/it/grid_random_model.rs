@@ -24,8 +24,11 @@
 //! diagonal thirds, 16/20 and 13/20).
 
 use micropos::analysis::grid::{report_of, GridReport};
-use micropos::charact::log::Record;
-use micropos::model::{MotionState, MotionTracker, StageModel, Waypoint, PAPER_DEFAULT_TOML};
+use micropos::analysis::{diagnose, DiagnoseOptions, Diagnosis};
+use micropos::charact::log::{Columns, MeasurementLog, Metadata, Record};
+use micropos::model::{
+    Direction, MotionState, MotionTracker, StageModel, Waypoint, PAPER_DEFAULT_TOML,
+};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};
@@ -385,4 +388,147 @@ fn model_stages_with_a_joint_error_are_found_at_six_and_three_times_the_noise() 
     for (k, rate, min_rate) in rates {
         assert!(rate >= min_rate, "{k}×: {rate}");
     }
+}
+
+/// The stage's map as a measurement log.
+fn log_of(records: Vec<Record>) -> MeasurementLog {
+    let mut metadata = Metadata::new();
+    metadata.insert("measured_axes", "x,y");
+    // Reached as microposd's one-way grid plan reaches its nodes.
+    metadata.insert("plan", "grid");
+    MeasurementLog {
+        metadata,
+        comments: Vec::new(),
+        columns: Columns::new(false, Vec::new()).unwrap(),
+        records,
+        warnings: Vec::new(),
+        warnings_dropped: 0,
+        torn_tail: None,
+    }
+}
+
+/// Rms of component `c` of `d` (per point `[dx, dy]` at `p`) once the
+/// best rigid motion (an offset per component and one rotation) is
+/// removed: the frames of the truth and of a diagnosis differ by that
+/// (the measuring frame's offset and rotation, which `diagnose` turns).
+fn rigid_rms(p: &[[f64; 2]], d: &[[f64; 2]], c: usize) -> f64 {
+    let n = p.len() as f64;
+    let mean = |f: &dyn Fn(usize) -> f64| (0..p.len()).map(f).sum::<f64>() / n;
+    let (px, py) = (mean(&|i| p[i][0]), mean(&|i| p[i][1]));
+    let (dx, dy) = (mean(&|i| d[i][0]), mean(&|i| d[i][1]));
+    let (mut num, mut den) = (0.0, 0.0);
+    for i in 0..p.len() {
+        let (x, y) = (p[i][0] - px, p[i][1] - py);
+        num += -y * (d[i][0] - dx) + x * (d[i][1] - dy);
+        den += x * x + y * y;
+    }
+    let th = if den > 0.0 { num / den } else { 0.0 };
+    let s: f64 = (0..p.len())
+        .map(|i| {
+            let (x, y) = (p[i][0] - px, p[i][1] - py);
+            let r = [d[i][0] - dx + th * y, d[i][1] - dy - th * x];
+            r[c] * r[c]
+        })
+        .sum();
+    (s / n).sqrt()
+}
+
+/// What the extended model with and without its map terms leaves of the
+/// stage's noise-free error at the centres of the lattice's cells (points
+/// the map never measured, reached as the grid plan reaches a node),
+/// component `c`, after a rigid motion: `[without, with]`, µm.
+fn between_nodes(s: &Stage, d: &Diagnosis, c: usize) -> [f64; 2] {
+    let mut without = d.extended_model.clone();
+    for m in d.map_term.iter().flat_map(|m| &m.components) {
+        if let Some(t) = &m.term {
+            without.remove_term(t);
+        }
+    }
+    let mut pts = Vec::new();
+    let mut diff = [Vec::new(), Vec::new()];
+    for w in s.xs.windows(2) {
+        for v in s.ys.windows(2) {
+            let (x, y) = (0.5 * (w[0] + w[1]), 0.5 * (v[0] + v[1]));
+            let st = MotionState::arrived(x, Direction::Forward, y, Direction::Forward);
+            let t = s.model.observed_position(&st);
+            pts.push([x, y]);
+            for (k, m) in [&without, &d.extended_model].into_iter().enumerate() {
+                let o = m.observed_position(&st);
+                diff[k].push([t.x_um - o.x_um, t.y_um - o.y_um]);
+            }
+        }
+    }
+    [rigid_rms(&pts, &diff[0], c), rigid_rms(&pts, &diff[1], c)]
+}
+
+/// The 2-D map term through the whole diagnosis, on stages whose model is
+/// known but for the joint error (the model given to `diagnose` is the
+/// stage's own, its `stacked_yaw` removed): a separable stage gets no map
+/// (nothing is left between neighbours but noise); a stage with the joint
+/// error of 6× the noise gets a map in that component, which brings the
+/// extended model closer to the stage's truth at points it never measured
+/// (the centres of the cells). Measured (`--nocapture`): see the
+/// GRID-MAP-TERM lines.
+#[test]
+fn the_map_term_joins_the_model_where_a_joint_error_is_and_only_there() {
+    let mut rng = ChaCha8Rng::seed_from_u64(0x3a9_7e44);
+    let opts = DiagnoseOptions::default();
+    let mut false_maps = Vec::new();
+    let separable = 12;
+    for case in 0..separable {
+        let s = Stage::draw(&mut rng, Joint::None);
+        let d = diagnose(&log_of(s.records(&mut rng)), &s.model, &opts).unwrap();
+        for m in &d.map_term.as_ref().expect("a grid").components {
+            if m.term.is_some() {
+                false_maps.push(format!("case {case} {}: {}", m.component, m.verdict));
+            }
+        }
+    }
+    let joint = 10;
+    let mut found = 0;
+    let mut gains = Vec::new();
+    let mut misses = Vec::new();
+    for case in 0..joint {
+        let lower = rng.gen_range(0..2);
+        let mut s = Stage::draw(&mut rng, Joint::StackedYaw(lower));
+        s.scale_joint(6.0);
+        let mut given = s.model.clone();
+        given.remove_term("carriage_yaw").expect("the joint term");
+        let d = diagnose(&log_of(s.records(&mut rng)), &given, &opts).unwrap();
+        let m = &d.map_term.as_ref().expect("a grid").components;
+        let other = m.iter().find(|m| m.component != ["x", "y"][lower]).unwrap();
+        if other.term.is_some() {
+            false_maps.push(format!("case {case} other component: {}", other.verdict));
+        }
+        let mine = m.iter().find(|m| m.component == ["x", "y"][lower]).unwrap();
+        if mine.term.is_none() {
+            misses.push(format!("case {case}: {}", mine.verdict));
+            continue;
+        }
+        found += 1;
+        let [without, with] = between_nodes(&s, &d, lower);
+        gains.push((without, with));
+        assert!(
+            with < without,
+            "case {case}: between the nodes the map made it worse: {without:.4} → {with:.4} µm (noise {:.4})",
+            s.noise_um
+        );
+    }
+    eprintln!(
+        "GRID-MAP-TERM | {separable} separable stages + {joint} with the other component: {} false maps",
+        false_maps.len()
+    );
+    eprintln!(
+        "GRID-MAP-TERM | joint error at 6× the noise: map found {found}/{joint}; misses {misses:#?}"
+    );
+    eprintln!(
+        "GRID-MAP-TERM | at the cells' centres, the extended model's error without → with the map (µm): {}",
+        gains
+            .iter()
+            .map(|(a, b)| format!("{a:.4} → {b:.4}"))
+            .collect::<Vec<_>>()
+            .join(", ")
+    );
+    assert!(false_maps.is_empty(), "{false_maps:#?}");
+    assert!(found >= 9, "{found}/{joint}: {misses:#?}");
 }

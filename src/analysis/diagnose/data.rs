@@ -11,6 +11,7 @@ use std::collections::HashMap;
 
 use crate::analysis::grid::GridMap;
 use crate::charact::log::MeasurementLog;
+use crate::charact::scan::{grid_direction, SEGMENT_GRID};
 use crate::model::{Axis, MotionState, MotionTracker, StageModel, Waypoint};
 
 use crate::analysis::AnalysisError;
@@ -472,7 +473,24 @@ pub fn parse_approach(s: &str) -> Option<f64> {
 /// alone in its segment (a 1-D scan; with both axes moving the column
 /// cannot say which it means).
 fn declared_approach(log: &MeasurementLog) -> Vec<[Option<f64>; 2]> {
-    let mut out = vec![[None; 2]; log.records.len()];
+    // A grid measured both ways names each node's arrival on both axes in
+    // its segment, and microposd's one-way grid plan reaches every node
+    // from below; their approach moves (a row's first node reached from
+    // its pass's side) are not logged.
+    let one_way_plan = log.metadata.get("plan") == Some("grid")
+        && log
+            .metadata
+            .get("grid_approach")
+            .is_none_or(|v| v == "below");
+    let mut out: Vec<[Option<f64>; 2]> = log
+        .records
+        .iter()
+        .map(|r| match grid_direction(&r.segment) {
+            Some(d) => [Some(d[0].sign()), Some(d[1].sign())],
+            None if one_way_plan && r.segment == SEGMENT_GRID => [Some(1.0), Some(1.0)],
+            None => [None; 2],
+        })
+        .collect();
     let Some(j) = log.columns.extra.iter().position(|c| c == APPROACH_COLUMN) else {
         return out;
     };
@@ -536,18 +554,35 @@ fn with_approach_moves(
     let steps = [step(0), step(1)];
     let mut out: Vec<Waypoint> = Vec::with_capacity(wps.len() + wps.len() / 4);
     let mut real = Vec::with_capacity(wps.len());
+    // Direction of each axis's last motion over the waypoints so far.
+    let mut last_dir = [0.0f64; 2];
+    let at = |p: &Waypoint, a: usize| if a == 0 { p.x_um } else { p.y_um };
+    let push = |out: &mut Vec<Waypoint>, w: Waypoint, last_dir: &mut [f64; 2]| {
+        if let Some(p) = out.last() {
+            for (a, d) in last_dir.iter_mut().enumerate() {
+                let dp = at(&w, a) - at(p, a);
+                if dp.abs() > min_move_um {
+                    *d = dp.signum();
+                }
+            }
+        }
+        out.push(w);
+    };
     for (i, wp) in wps.iter().enumerate() {
         let mut virt = *wp;
         let mut needed = false;
         for (a, dir) in declared[i].iter().enumerate() {
             let Some(dir) = *dir else { continue };
-            let here = if a == 0 { wp.x_um } else { wp.y_um };
-            let prev = out
-                .last()
-                .map(|p: &Waypoint| if a == 0 { p.x_um } else { p.y_um });
+            let here = at(wp, a);
+            let prev = out.last().map(|p| at(p, a));
             // Approached the declared way when the previous command is
-            // on the far side by more than the minimum motion.
-            let ok = prev.is_some_and(|p| dir * (here - p) > min_move_um);
+            // on the far side by more than the minimum motion, or the
+            // axis has not moved since it last moved that way (a grid
+            // row's held y).
+            let ok = prev.is_some_and(|p| {
+                dir * (here - p) > min_move_um
+                    || ((here - p).abs() <= min_move_um && last_dir[a] == dir)
+            });
             if !ok {
                 let from = here - dir * steps[a];
                 if a == 0 {
@@ -559,10 +594,10 @@ fn with_approach_moves(
             }
         }
         if needed {
-            out.push(virt);
+            push(&mut out, virt, &mut last_dir);
         }
         real.push(out.len());
-        out.push(*wp);
+        push(&mut out, *wp, &mut last_dir);
     }
     (out, real)
 }

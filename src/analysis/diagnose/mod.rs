@@ -137,6 +137,7 @@ mod fit;
 mod ident;
 mod iso_figures;
 mod judge;
+mod map_term;
 mod noise;
 mod options;
 mod readings;
@@ -164,6 +165,7 @@ pub use finding::{Finding, Withdrawn};
 use fit::{fold_base, paired_z, rms_comp, select_base, Verdict};
 pub use ident::Unidentifiable;
 use judge::{judge, passes_test, rejudge, with_findings, Accepted};
+pub use map_term::{MapComponent, MapFold, MapTermReport};
 pub use noise::{ComponentNoise, IsoFigures, NoiseReport, Outlier, Sampling, TargetRepeat};
 pub use options::DiagnoseOptions;
 pub use readings::{Reading, ReadingKind, ReadingTerm, READING_Z};
@@ -401,6 +403,10 @@ pub struct Diagnosis {
     /// The 2-D grid map's own reading (stage-frame geometry, noise,
     /// separable or not), when the log is one (`analysis::grid`).
     pub grid: Option<GridReport>,
+    /// The 2-D map term judged on the grid's held-out cells, per
+    /// component (`map_term`), when the log is a map: a `position_map`
+    /// term in the extended model where it passed.
+    pub map_term: Option<MapTermReport>,
     /// The angle a grid map's readings were turned by before the model
     /// fit (the measuring frame's rotation, µrad), when they were.
     pub frame_turn_urad: Option<f64>,
@@ -480,6 +486,9 @@ pub fn diagnose(
         .metadata
         .get(FRAME_TURN_KEY)
         .and_then(|v| v.parse().ok());
+    if let Some(g) = &grid {
+        out.map_term = Some(map_term::fit(&mut out, g)?);
+    }
     out.grid = grid;
     Ok(out)
 }
@@ -1053,6 +1062,7 @@ fn diagnose_with(
         time_with: d.time_with,
         time_unusable: d.time_unusable.clone(),
         grid: None,
+        map_term: None,
         frame_turn_urad: None,
         whole_cycle_folds: d.whole_cycle_folds,
         folds_interleaved: None,

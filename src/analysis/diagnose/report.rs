@@ -271,7 +271,45 @@ impl Diagnosis {
                 rms(w)
             );
         }
+        out.push_str(&self.map_term_text());
         out.push_str(&self.noise_text());
+        out
+    }
+
+    /// The 2-D map term's section of the text report (grid logs): per
+    /// component, whether a `position_map` joined the extended model and
+    /// its held-out scores under every fold scheme; empty for other logs.
+    fn map_term_text(&self) -> String {
+        let Some(m) = &self.map_term else {
+            return String::new();
+        };
+        let mut out = String::new();
+        let nodes = m.components.first().map_or([0, 0], |c| c.nodes);
+        let _ = writeln!(
+            out,
+            "\n2-D map term (the extended model's residual at the grid's {} × {} nodes, bilinear between them; a held-out node is predicted from its training neighbours, the model alone predicts zero):",
+            nodes[0], nodes[1]
+        );
+        for c in &m.components {
+            let _ = writeln!(out, "  {}: {}", c.component, c.verdict);
+            let folds: Vec<String> = c
+                .folds
+                .iter()
+                .map(|f| {
+                    format!(
+                        "{} {:.4} → {:.4} µm ({} cells)",
+                        f.scheme, f.model_um, f.with_map_um, f.cells
+                    )
+                })
+                .collect();
+            let _ = writeln!(
+                out,
+                "    held out: {}; one cell's noise {:.4} µm; layers: {}",
+                folds.join(", "),
+                c.cell_noise_um,
+                c.layers.join(" and ")
+            );
+        }
         out
     }
 
@@ -569,6 +607,7 @@ impl Diagnosis {
             "time_with": self.time_with.map(|(a, r)| serde_json::json!({"axis": a, "r": r})),
             "time_unusable": self.time_unusable,
             "grid": self.grid,
+            "map_term": self.map_term,
             "frame_turn_urad": self.frame_turn_urad,
             "whole_cycle_folds": self.whole_cycle_folds,
             "folds_interleaved": self.folds_interleaved,

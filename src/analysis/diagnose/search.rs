@@ -617,10 +617,17 @@ pub const ALL_KINDS: &str = "*";
 /// on a steady approach (its Jacobian, taken at the model's play, is that
 /// sign; the solve is the first Gauss–Newton step); and angular error
 /// motions, which are linear in their angles at a given Abbe arm (the arm
-/// itself is geometry, see [`base_param_fittable`]). Other nonlinear terms
+/// itself is geometry, see [`base_param_fittable`]); never a position map.
+/// Other nonlinear terms
 /// (a localized feature's place and width, a step-size length) stay at the
 /// model's values.
 pub(super) fn base_fittable(t: &dyn Term) -> bool {
+    // A position map has a parameter per node: freed in the base it would
+    // take every target's error as its own. On a grid log `diagnose`
+    // fits a map itself, judged on held-out cells (`map_term`).
+    if t.kind() == crate::model::terms::position_map::KIND {
+        return false;
+    }
     t.is_linear()
         || t.kind() == crate::model::terms::backlash::KIND
         || t.kind() == crate::model::terms::angular::KIND

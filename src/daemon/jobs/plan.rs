@@ -20,8 +20,7 @@ pub struct Point {
     pub y_um: f64,
 }
 
-/// Segment of a grid plan's nodes.
-pub const SEGMENT_GRID: &str = "grid";
+pub use crate::charact::scan::SEGMENT_GRID;
 
 /// Per-axis 1-DoF scans, the other axis held at the centre of its range;
 /// or, with `grid`, every node of a lattice over the area.

@@ -11,6 +11,7 @@ pub mod cyclic;
 pub mod discovered;
 pub mod lead;
 pub mod offset;
+pub mod position_map;
 pub mod squareness;
 pub mod stacked_yaw;
 pub mod thermal;
@@ -26,6 +27,7 @@ pub use discovered::{
 };
 pub use lead::{Lead, LeadConfig, LeadTerm};
 pub use offset::{OriginOffset, OriginOffsetConfig, OriginOffsetTerm};
+pub use position_map::{PositionMapConfig, PositionMapTerm};
 pub use squareness::{Squareness, SquarenessConfig, SquarenessTerm};
 pub use stacked_yaw::{StackedYaw, StackedYawConfig, StackedYawTerm};
 pub use thermal::{
@@ -124,6 +126,11 @@ pub(crate) const BUILTIN: &[(&str, &str, TermBuilder)] = &[
         discovered::POSITION_TABLE_KIND,
         "error or lost motion tabulated at knots along an axis, linear between them (found by `micropos diagnose`)",
         discovered::build_position_table,
+    ),
+    (
+        position_map::KIND,
+        "error over x and y tabulated at the nodes of a lattice, bilinear between them, per arrival direction (fitted by `micropos diagnose` on grid maps)",
+        position_map::PositionMapTerm::build,
     ),
 ];
 
