@@ -38,5 +38,6 @@ mod serve;
 mod sweep_anchors;
 mod sweep_charact;
 mod tie_drift;
+mod validate_origin;
 mod web_browser;
 mod web_metrics;
