@@ -16,6 +16,7 @@
 mod common;
 
 mod camera_blur;
+mod camera_scale;
 mod charact_lost_motion;
 mod comp_range;
 mod daemon_access;
