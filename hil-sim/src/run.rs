@@ -415,6 +415,7 @@ pub fn daemon_config(
     c.camera.source = format!("sim:{}", rig_dir.join("camera.sock").display());
     c.camera.period_um = rig.camera.period_um;
     c.camera.bits = rig.camera.bits;
+    c.camera.pixel_um = Some(rig.camera.pixel_um);
     c.camera.timeout_ms = 5000;
     // The paper's frame: scans from (0, 0), where the pattern is in view
     // (config/sim-rig.toml keeps stage x, y in about [−80, 11890] µm on it).

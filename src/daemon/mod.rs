@@ -158,6 +158,7 @@ impl Daemon {
             Some(src) => {
                 let mut opts = DecodeOptions::new(cfg.camera.period_um, cfg.camera.bits);
                 opts.mirrored = cfg.camera.mirrored;
+                opts.pixel_um = cfg.camera.pixel_um;
                 Some(
                     vision::Vision::start_with(src, opts, clock.clone(), capture).map_err(|e| {
                         ProtoError::new(ErrorCode::CameraUnavailable, e.to_string())

@@ -4,7 +4,7 @@
 //! naming the area and the target) under the default `[compensation]
 //! outside_table = "refuse"`, moves with a warning under `"warn"`; a
 //! validation whose poses leave the table's area is refused before it
-//! moves.
+//! moves, saying which origins would keep them inside (here: none).
 
 use crate::common::{self, Client};
 use hil_sim::run::{daemon_config, RunPlan};
@@ -165,6 +165,16 @@ async fn validation_leaving_the_table_is_refused_before_it_moves() {
     let msg = r["error"]["message"].as_str().unwrap();
     assert!(msg.contains("mode table pose 1"), "{msg}");
     assert!(msg.contains("origin is (1000.0, 1000.0) µm"), "{msg}");
+    // Table II spans more than the table holds: no origin helps, and the
+    // refusal says so instead of suggesting another origin.
+    assert!(
+        msg.contains(
+            "no origin keeps every one inside that area and the travel, too short in x \
+             (7161.0 µm of poses, 1020.0 µm available) and y (3956.0 µm of poses, 520.0 µm \
+             available); characterize an area that covers them"
+        ),
+        "{msg}"
+    );
     assert!(
         !s.data.join("v.csv").exists(),
         "no log: the job never started"

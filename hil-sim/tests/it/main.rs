@@ -16,6 +16,7 @@
 mod common;
 
 mod camera_blur;
+mod camera_scale;
 mod charact_lost_motion;
 mod comp_range;
 mod daemon_access;
@@ -38,5 +39,6 @@ mod serve;
 mod sweep_anchors;
 mod sweep_charact;
 mod tie_drift;
+mod validate_origin;
 mod web_browser;
 mod web_metrics;

@@ -158,10 +158,12 @@ pub enum ClientCommand {
         /// Log file name (in the daemon's data directory).
         #[arg(long)]
         log: Option<String>,
-        /// Stage position of the paper's (0, 0), µm.
+        /// Stage x of the paper's (0, 0), µm (default: the characterization
+        /// start, or the travel's start where the poses would leave the
+        /// travel from there; a refusal names the range that fits).
         #[arg(long, allow_hyphen_values = true)]
         origin_x_um: Option<f64>,
-        /// Stage position of the paper's (0, 0), µm.
+        /// Stage y of the paper's (0, 0), µm (default as --origin-x-um).
         #[arg(long, allow_hyphen_values = true)]
         origin_y_um: Option<f64>,
         /// Distance between square poses, µm (default 500).

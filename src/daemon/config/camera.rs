@@ -20,6 +20,13 @@ pub struct CameraSection {
     pub bits: u32,
     /// The optics mirror the image.
     pub mirrored: bool,
+    /// The camera's pixel size on the pattern, µm (sensor pixel ÷
+    /// magnification), if known. Why: `period_um` only scales every
+    /// position, so a wrong one gives confident positions off by its ratio;
+    /// with the pixel size set, every decode checks the measured dot pitch
+    /// against `period_um` (within 5 %) and a frame where they disagree is a
+    /// decode error naming the period that fits. Unset: not checked.
+    pub pixel_um: Option<f64>,
     /// Oldest measurement a closed-loop move or a job point may use, s.
     pub max_age_s: f64,
     /// Lowest decode quality accepted: the code evidence in bits (log₂
@@ -41,6 +48,7 @@ impl Default for CameraSection {
             period_um: 9.0,
             bits: 12,
             mirrored: false,
+            pixel_um: None,
             max_age_s: 1.0,
             min_quality: 16.0,
             rotation_rad: 0.0,

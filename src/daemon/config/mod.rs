@@ -285,6 +285,9 @@ impl DaemonConfig {
         if !(4..=12).contains(&c.bits) {
             return Err(bad("camera.bits", "must be within 4..=12"));
         }
+        if c.pixel_um.is_some_and(|p| !(p.is_finite() && p > 0.0)) {
+            return Err(bad("camera.pixel_um", "must be a positive number of µm"));
+        }
         if !(c.max_age_s.is_finite() && c.max_age_s > 0.0) {
             return Err(bad("camera.max_age_s", "must be a positive number of s"));
         }

@@ -229,6 +229,21 @@ fn access_and_client_limits_are_checked() {
     assert!(e.problem.contains("write"), "{e}");
 }
 
+/// `camera.pixel_um`: unset by default (the period is not checked), a
+/// positive number when set; the simulated rig's config sets its camera's.
+#[test]
+fn camera_pixel_size_is_optional_and_checked() {
+    assert_eq!(DaemonConfig::from_toml(MIN).unwrap().camera.pixel_um, None);
+    let c = DaemonConfig::from_toml(&format!("{MIN}[camera]\npixel_um = 0.4\n")).unwrap();
+    assert_eq!(c.camera.pixel_um, Some(0.4));
+    for bad in ["0", "-0.4", "nan"] {
+        let e = DaemonConfig::from_toml(&format!("{MIN}[camera]\npixel_um = {bad}\n")).unwrap_err();
+        assert_eq!(e.key, "camera.pixel_um", "{bad}");
+    }
+    let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("config/microposd-sim.toml");
+    assert_eq!(DaemonConfig::load(&p).unwrap().camera.pixel_um, Some(0.4));
+}
+
 #[test]
 fn shipped_configs_are_valid() {
     for f in ["config/microposd.toml", "config/microposd-sim.toml"] {

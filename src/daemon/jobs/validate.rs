@@ -8,7 +8,11 @@
 //! 10 to 4010 µm, Table II) shifted by an origin inside the travel: by
 //! default the start of the configured characterization scans, so the
 //! validation covers the characterized area as in the paper (its scans ran
-//! from 0). Poses are labelled `A`…`D` / `AB3` (square) and `1`…`10`
+//! from 0); along an axis where the poses would leave the travel from
+//! there, the travel's start ([`ORIGIN_CLEARANCE_UM`] in). An origin that
+//! puts a pose outside the travel, or a table mode's pose outside its
+//! table's area, is refused with the range of origins that fits. Poses are
+//! labelled `A`…`D` / `AB3` (square) and `1`…`10`
 //! (random) in the log's `pose` column.
 //!
 //! Figures: ISO 9283 AP and RP per pose (`crate::metrology::iso9283`).
@@ -52,6 +56,16 @@ pub const DEFAULT_CYCLES: u32 = 3;
 /// Distance between square poses along a side when the request names none,
 /// µm: 8 poses per side (corners included), 32 in all.
 pub const DEFAULT_SQUARE_STEP_UM: f64 = 500.0;
+
+/// Distance from the travel's start at which a default origin that cannot
+/// be the characterization start puts the poses, where the travel allows,
+/// µm. Why: a compensated command lies up
+/// to the stage's error from its target (≈ 25 µm on the paper's stage) and
+/// a unidirectional approach starts `overshoot_um` (20 µm by default)
+/// below it, so a pose right at the travel's end could be refused in the
+/// middle of the run. An origin the request names, or the characterization
+/// start, is only held to the travel itself.
+pub const ORIGIN_CLEARANCE_UM: f64 = 50.0;
 
 /// A validation pose: its label and the paper's coordinates.
 #[derive(Debug, Clone, PartialEq)]
@@ -295,16 +309,6 @@ impl Jobs {
             }
         };
         let (xl, yl) = (limits("x_um")?, limits("y_um")?);
-        let origin = XyUm {
-            x_um: p
-                .origin_x_um
-                .or(d.x_start_um)
-                .unwrap_or((xl.0 + xl.1 - d.x_range_um) / 2.0),
-            y_um: p
-                .origin_y_um
-                .or(d.y_start_um)
-                .unwrap_or((yl.0 + yl.1 - d.y_range_um) / 2.0),
-        };
         let mut tests = Vec::new();
         for t in &p.tests {
             if t == "square" {
@@ -316,6 +320,36 @@ impl Jobs {
                 tests.push((SEGMENT_RANDOM, random()));
             }
         }
+        let span = pose_span(&tests);
+        let travel = [xl, yl];
+        let fits = span.map(|s| [0, 1].map(|a| origin_range(s[a], travel[a])));
+        // Unless named: the characterization start, so that the validation
+        // covers the characterized area as in the paper. Along an axis where
+        // the poses would leave the travel from there (a scan of a small
+        // area, centred in the travel), the paper's own placement instead:
+        // from the travel's start (its scans and validation ran from 0),
+        // `ORIGIN_CLEARANCE_UM` in where the travel allows.
+        let preferred = [
+            d.x_start_um.unwrap_or((xl.0 + xl.1 - d.x_range_um) / 2.0),
+            d.y_start_um.unwrap_or((yl.0 + yl.1 - d.y_range_um) / 2.0),
+        ];
+        let named = [p.origin_x_um, p.origin_y_um];
+        let o = [0, 1].map(|a| {
+            let plain = fits.and_then(|f| f[a]);
+            let c = ORIGIN_CLEARANCE_UM;
+            let cleared = span.and_then(|s| origin_range(s[a], (travel[a].0 + c, travel[a].1 - c)));
+            match named[a] {
+                Some(v) => v,
+                None if plain.is_some_and(|(lo, hi)| (lo..=hi).contains(&preferred[a])) => {
+                    preferred[a]
+                }
+                None => cleared.or(plain).map_or(preferred[a], |(lo, _)| lo),
+            }
+        });
+        let origin = XyUm {
+            x_um: o[0],
+            y_um: o[1],
+        };
         let plan = Plan {
             tests,
             modes: p.modes.clone(),
@@ -333,8 +367,22 @@ impl Jobs {
                     return Err(ProtoError::new(
                         ErrorCode::OutOfTravel,
                         format!(
-                            "pose {} at ({:.1}, {:.1}) µm (origin ({:.1}, {:.1}) µm) is outside the travel x {:?}, y {:?} µm; choose origin_x_um/origin_y_um",
-                            pose.label, t.x_um, t.y_um, origin.x_um, origin.y_um, xl, yl
+                            "validation pose {} would be at ({:.1}, {:.1}) µm with the origin ({:.1}, {:.1}) µm, outside the travel x {:.1} … {:.1} µm, y {:.1} … {:.1} µm; {}",
+                            pose.label,
+                            t.x_um,
+                            t.y_um,
+                            origin.x_um,
+                            origin.y_um,
+                            xl.0,
+                            xl.1,
+                            yl.0,
+                            yl.1,
+                            origin_advice(
+                                span,
+                                travel,
+                                "the travel",
+                                "validate fewer poses (validate start --test square, or --test random)"
+                            )
                         ),
                     ));
                 }
@@ -359,10 +407,29 @@ impl Jobs {
                     check_area(&*a.comp, &a.name, plan.target(pose), &cfg, &what).transpose()
                 }) {
                     let w = w.map_err(|e| {
+                        let inside = a.comp.characterized_area().map(|r| {
+                            let m = cfg.outside_margin_um;
+                            let within = |r: [f64; 2], t: (f64, f64)| {
+                                ((r[0] - m).max(t.0), (r[1] + m).min(t.1))
+                            };
+                            [within(r.x_um, xl), within(r.y_um, yl)]
+                        });
+                        let advice = inside.map_or_else(String::new, |b| {
+                            format!(
+                                "; {}",
+                                origin_advice(
+                                    span,
+                                    b,
+                                    "that area and the travel",
+                                    "characterize an area that covers them, or validate without table \
+                                     modes (validate start --modes raw,closed_loop)"
+                                )
+                            )
+                        });
                         ProtoError::new(
                             e.code,
                             format!(
-                                "{}; the validation origin is ({:.1}, {:.1}) µm (validate start --origin-x-um/--origin-y-um move it)",
+                                "{}; the validation origin is ({:.1}, {:.1}) µm{advice}",
                                 e.message, origin.x_um, origin.y_um
                             ),
                         )
@@ -440,6 +507,76 @@ impl Jobs {
             out["warnings"] = json!(warnings);
         }
         Ok(out)
+    }
+}
+
+/// The span of the poses' paper coordinates, `[[x_lo, x_hi], [y_lo,
+/// y_hi]]` µm; `None` without poses.
+fn pose_span(tests: &[(&'static str, Vec<Pose>)]) -> Option<[[f64; 2]; 2]> {
+    let mut it = tests.iter().flat_map(|(_, p)| p).map(|p| p.paper_um);
+    let first = it.next()?;
+    Some(it.fold(
+        [[first.x_um, first.x_um], [first.y_um, first.y_um]],
+        |[x, y], p| {
+            [
+                [x[0].min(p.x_um), x[1].max(p.x_um)],
+                [y[0].min(p.y_um), y[1].max(p.y_um)],
+            ]
+        },
+    ))
+}
+
+/// The origins along one axis that keep poses spanning `span` (paper
+/// coordinates, µm) within `allowed` (stage µm): `[allowed.0 − span[0],
+/// allowed.1 − span[1]]`; `None` when the span is longer than `allowed`
+/// (or anything is not finite).
+fn origin_range(span: [f64; 2], allowed: (f64, f64)) -> Option<(f64, f64)> {
+    let (lo, hi) = (allowed.0 - span[0], allowed.1 - span[1]);
+    (lo.is_finite() && hi.is_finite() && lo <= hi).then_some((lo, hi))
+}
+
+/// What origin would do, for an error: the range of origins that keeps
+/// the poses (spanning `span`) inside `allowed` (per axis, stage µm;
+/// `what` names it), with the CLI flags and request fields that set it,
+/// or why none does and what would (`remedy`). Why: the user chose (or
+/// took the default of) an origin that does not fit, and only the daemon
+/// knows the travel and the poses' extent to say which would.
+fn origin_advice(
+    span: Option<[[f64; 2]; 2]>,
+    allowed: [(f64, f64); 2],
+    what: &str,
+    remedy: &str,
+) -> String {
+    let Some(s) = span else {
+        return "choose another origin (validate start --origin-x-um X --origin-y-um Y)".into();
+    };
+    let lie = format!(
+        "the poses lie x {:.1} … {:.1} µm and y {:.1} … {:.1} µm from the origin",
+        s[0][0], s[0][1], s[1][0], s[1][1]
+    );
+    match [0, 1].map(|a| origin_range(s[a], allowed[a])) {
+        [Some(x), Some(y)] => format!(
+            "{lie}, so an origin x {:.1} … {:.1} µm, y {:.1} … {:.1} µm keeps every one inside {what}: \
+             validate start --origin-x-um X --origin-y-um Y (request fields origin_x_um, origin_y_um)",
+            x.0, x.1, y.0, y.1
+        ),
+        r => {
+            let short: Vec<String> = [("x", 0), ("y", 1)]
+                .iter()
+                .filter(|(_, a)| r[*a].is_none())
+                .map(|&(n, a)| {
+                    format!(
+                        "{n} ({:.1} µm of poses, {:.1} µm available)",
+                        s[a][1] - s[a][0],
+                        (allowed[a].1 - allowed[a].0).max(0.0)
+                    )
+                })
+                .collect();
+            format!(
+                "{lie}: no origin keeps every one inside {what}, too short in {}; {remedy}",
+                short.join(" and ")
+            )
+        }
     }
 }
 
@@ -827,6 +964,45 @@ async fn run(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The issue's case: the paper's poses from an origin centred for a
+    /// 1000 × 500 µm scan in a 15 mm travel. The advice gives the origins
+    /// that fit, with the CLI flags (it named only the request fields).
+    #[test]
+    fn origin_advice_names_the_flags_and_the_range_that_fits() {
+        let both = vec![
+            (SEGMENT_SQUARE, square(DEFAULT_SQUARE_STEP_UM).unwrap()),
+            (SEGMENT_RANDOM, random()),
+        ];
+        let span = pose_span(&both);
+        assert_eq!(span, Some([[10.0, 8196.0], [10.0, 4010.0]]));
+        let travel = [(0.0, 15000.0), (0.0, 15000.0)];
+        assert_eq!(
+            origin_range([10.0, 8196.0], travel[0]),
+            Some((-10.0, 6804.0))
+        );
+        let a = origin_advice(span, travel, "the travel", "fewer");
+        assert_eq!(
+            a,
+            "the poses lie x 10.0 … 8196.0 µm and y 10.0 … 4010.0 µm from the origin, so an \
+             origin x -10.0 … 6804.0 µm, y -10.0 … 10990.0 µm keeps every one inside the travel: \
+             validate start --origin-x-um X --origin-y-um Y (request fields origin_x_um, origin_y_um)"
+        );
+        // A 1000 × 500 µm table cannot hold them, whatever the origin.
+        let table = [(990.0, 2010.0), (990.0, 1510.0)];
+        assert_eq!(origin_range([10.0, 8196.0], table[0]), None);
+        let a = origin_advice(span, table, "that area", "characterize more");
+        assert!(
+            a.ends_with(
+                "no origin keeps every one inside that area, too short in x (8186.0 µm of poses, \
+                 1020.0 µm available) and y (4000.0 µm of poses, 520.0 µm available); characterize more"
+            ),
+            "{a}"
+        );
+        // An empty or non-finite span fits nothing.
+        assert_eq!(origin_range([0.0, f64::NAN], travel[0]), None);
+        assert_eq!(pose_span(&[]), None);
+    }
 
     #[test]
     fn a_target_is_aimed_in_the_frame_of_its_compensation() {
