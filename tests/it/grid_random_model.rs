@@ -532,3 +532,129 @@ fn the_map_term_joins_the_model_where_a_joint_error_is_and_only_there() {
     assert!(false_maps.is_empty(), "{false_maps:#?}");
     assert!(found >= 9, "{found}/{joint}: {misses:#?}");
 }
+
+/// A grid measured both ways whose reversal changes over the plane (a
+/// play that grows along x at one end of y only: no `f(x) + g(y)` per
+/// direction, no single play): the map term gets a layer per arrival
+/// direction, and the extended model reproduces the map of each
+/// direction at its nodes, where one pooled layer could not.
+#[test]
+fn a_map_measured_both_ways_gets_a_layer_per_direction() {
+    let mut rng = ChaCha8Rng::seed_from_u64(0xb0_7a);
+    let noise = Normal::new(0.0, 0.01).unwrap();
+    let (nx, ny) = (14, 11);
+    let xs: Vec<f64> = (0..nx).map(|i| 300.0 + 250.0 * i as f64).collect();
+    let ys: Vec<f64> = (0..ny).map(|i| 500.0 + 200.0 * i as f64).collect();
+    let (sx, sy) = (xs[nx - 1] - xs[0], ys[ny - 1] - ys[0]);
+    // Error per direction (from below: 0, from above: 1), component.
+    let field = |x: f64, y: f64, up: usize| -> [f64; 2] {
+        let (u, v) = ((x - xs[0]) / sx, (y - ys[0]) / sy);
+        let below = [
+            0.3 * (6.0 * u).sin() + 0.2 * v,
+            -0.4 * u * u + 0.1 * (5.0 * v).cos(),
+        ];
+        let play = [1.5 * u * v, 0.8 * (1.0 - u) * v * v];
+        [0, 1].map(|c| below[c] + if up == 1 { play[c] } else { 0.0 })
+    };
+    let mut records = Vec::new();
+    let mut t = 0.0;
+    for (up, seg) in [(0usize, "grid_fwd"), (1, "grid_bwd")] {
+        let order: Vec<(f64, f64)> = ys
+            .iter()
+            .flat_map(|&y| xs.iter().map(move |&x| (x, y)))
+            .collect();
+        let order: Vec<(f64, f64)> = if up == 1 {
+            order.into_iter().rev().collect()
+        } else {
+            order
+        };
+        for (x, y) in order {
+            let e = field(x, y, up);
+            t += 2.0;
+            records.push(Record {
+                t_s: t,
+                segment: seg.into(),
+                cycle: 1,
+                x_target_um: x,
+                y_target_um: y,
+                x_cmd_um: x,
+                y_cmd_um: y,
+                x_meas_um: x + e[0] + noise.sample(&mut rng),
+                y_meas_um: y + e[1] + noise.sample(&mut rng),
+                temp_c: None,
+                extra: Vec::new(),
+            });
+        }
+    }
+    let model = StageModel::paper_default().unwrap();
+    let d = diagnose(&log_of(records), &model, &DiagnoseOptions::default()).unwrap();
+    let m = d.map_term.as_ref().expect("a grid");
+    for c in &m.components {
+        assert_eq!(c.layers, ["from below", "from above"], "{c:?}");
+        assert!(c.term.is_some(), "{c:?}");
+    }
+    // The written model, each direction's nodes reached that way.
+    let back = StageModel::from_toml(&d.extended_model.to_toml().unwrap()).unwrap();
+    let mut pooled = back.clone();
+    for c in &m.components {
+        let name = c.term.as_deref().unwrap();
+        let t = pooled.remove_term(name).unwrap();
+        let mut cfg: toml::Table = t.to_config().unwrap();
+        let below: Vec<f64> = cfg["values_um"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|v| v.as_float().unwrap())
+            .collect();
+        let above: Vec<f64> = cfg["from_above_um"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|v| v.as_float().unwrap())
+            .collect();
+        let mean: Vec<toml::Value> = below
+            .iter()
+            .zip(&above)
+            .map(|(a, b)| toml::Value::Float(0.5 * (a + b)))
+            .collect();
+        cfg.insert("values_um".into(), toml::Value::Array(mean));
+        cfg.remove("from_above_um");
+        cfg.insert("name".into(), name.into());
+        cfg.insert("kind".into(), "position_map".into());
+        let text = format!(
+            "{}\n[[term]]\n{}",
+            pooled.to_toml().unwrap(),
+            toml::to_string(&cfg).unwrap()
+        );
+        pooled = StageModel::from_toml(&text).unwrap();
+    }
+    let left = |model: &StageModel| -> [f64; 2] {
+        let mut pts = Vec::new();
+        let mut diff = Vec::new();
+        for up in 0..2 {
+            let dir = if up == 0 {
+                Direction::Forward
+            } else {
+                Direction::Backward
+            };
+            for &y in &ys {
+                for &x in &xs {
+                    let o = model.observed_position(&MotionState::arrived(x, dir, y, dir));
+                    let e = field(x, y, up);
+                    pts.push([x, y]);
+                    diff.push([o.x_um - x - e[0], o.y_um - y - e[1]]);
+                }
+            }
+        }
+        [rigid_rms(&pts, &diff, 0), rigid_rms(&pts, &diff, 1)]
+    };
+    let (layered, one) = (left(&back), left(&pooled));
+    eprintln!(
+        "GRID-MAP-TERM | both ways, the true map per direction left by the model: a layer per direction x {:.4} / y {:.4} µm, the layers pooled x {:.4} / y {:.4} µm (noise 0.01)",
+        layered[0], layered[1], one[0], one[1]
+    );
+    for c in 0..2 {
+        assert!(layered[c] < 0.03, "{layered:?}");
+        assert!(one[c] > 5.0 * layered[c], "{one:?} vs {layered:?}");
+    }
+}
