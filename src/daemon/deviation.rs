@@ -10,7 +10,8 @@
 //! itself.
 //!
 //! The frame. Vision is in pattern µm; [`DeviationJudge::set_frame`] gives
-//! the rotation (and mirror) from vision to stage: the active table's
+//! the rotation (and mirror) from vision to stage: the rig's vision tie
+//! (`daemon::vision_tie`, taken after `reference`), else the active table's
 //! vision frame (fitted by the characterization that built it) or, with
 //! `safety.deviation_frame = "camera"`, `camera.rotation_rad`. The
 //! translation is *tied*: the first good measurement with both axes at rest
@@ -104,6 +105,8 @@ pub struct DeviationJudge {
     sent: [VecDeque<Sent>; 2],
     pending: VecDeque<Seen>,
     tie_um: Option<[f64; 2]>,
+    /// Where the frame comes from, or why there is none (for `status`).
+    frame_source: String,
     /// False after a breach until [`DeviationJudge::retie`]: one fault per
     /// breach, not one per frame.
     armed: bool,
@@ -120,14 +123,18 @@ impl DeviationJudge {
             sent: [VecDeque::new(), VecDeque::new()],
             pending: VecDeque::new(),
             tie_um: None,
+            frame_source: "no frame yet".to_owned(),
             armed: true,
             last_um: None,
         }
     }
 
     /// The vision → stage orientation (its translation is ignored: the tie
-    /// replaces it); `None`: unknown, no check. A change drops the tie.
-    pub fn set_frame(&mut self, frame: Option<VisionFrame>) {
+    /// replaces it); `None`: unknown, no check. `source`: where it comes
+    /// from, or why there is none (for `status`). A change of orientation
+    /// drops the tie.
+    pub fn set_frame(&mut self, frame: Option<VisionFrame>, source: String) {
+        self.frame_source = source;
         let orient = |f: &VisionFrame| (f.rotation_rad, f.mirrored);
         if self.frame.as_ref().map(orient) != frame.as_ref().map(orient) {
             self.frame = frame;
@@ -154,13 +161,38 @@ impl DeviationJudge {
         self.tie_um.is_some()
     }
 
-    /// The state for `status`.
+    /// Whether the check runs now: a bound, a frame, a tie at rest and no
+    /// breach since the last [`DeviationJudge::retie`].
+    pub fn checking(&self) -> bool {
+        self.bound_um > 0.0 && self.frame.is_some() && self.tie_um.is_some() && self.armed
+    }
+
+    /// The state for `status`: `armed` is true only while the check runs
+    /// ([`DeviationJudge::checking`]); `state` says in words what it does
+    /// or why it does not, `frame` where its orientation comes from.
     pub fn to_json(&self) -> serde_json::Value {
+        let state = if self.bound_um <= 0.0 {
+            "off: safety.deviation_um = 0".to_owned()
+        } else if self.frame.is_none() {
+            format!("off: {}", self.frame_source)
+        } else if !self.armed {
+            "off after a breach until reset".to_owned()
+        } else if self.tie_um.is_none() {
+            "waiting: it ties its translation at the first decoded frame with both axes at rest"
+                .to_owned()
+        } else {
+            format!(
+                "checking: vision − controller within ±{} µm per axis (stage frame)",
+                self.bound_um
+            )
+        };
         serde_json::json!({
+            "armed": self.checking(),
+            "state": state,
             "bound_um": self.bound_um,
+            "frame": self.frame.is_some().then_some(&self.frame_source),
             "frame_known": self.frame.is_some(),
             "tied": self.tie_um.is_some(),
-            "armed": self.armed,
             "last_um": self.last_um.map(|d| serde_json::json!({"x": d[0], "y": d[1]})),
         })
     }
@@ -330,6 +362,7 @@ fn idx(a: AxisId) -> usize {
 mod tests {
     use super::*;
     use rand::{Rng, SeedableRng};
+    use serde_json::{json, Value};
 
     fn frame(rot: f64, mirrored: bool) -> Option<VisionFrame> {
         Some(VisionFrame {
@@ -381,7 +414,7 @@ mod tests {
             let t_off = [rng.gen_range(-2e4..2e4), rng.gen_range(-2e4..2e4)];
             let bound = rng.gen_range(20.0..200.0);
             let mut j = DeviationJudge::new(bound);
-            j.set_frame(Some(f));
+            j.set_frame(Some(f), String::new());
             let p0 = [rng.gen_range(0.0..15000.0), rng.gen_range(0.0..15000.0)];
             // At rest: the tie.
             let r = rest_at(&mut j, &f, t_off, p0);
@@ -451,7 +484,7 @@ mod tests {
             .unwrap();
             let t_off = [rng.gen_range(-2e4..2e4), rng.gen_range(-2e4..2e4)];
             let mut j = DeviationJudge::new(rng.gen_range(20.0..200.0));
-            j.set_frame(Some(f));
+            j.set_frame(Some(f), String::new());
             let v_um_s = rng.gen_range(200.0..20000.0);
             let read_period_s = rng.gen_range(0.02..1.0);
             let mut pos = [rng.gen_range(0.0..15000.0), rng.gen_range(0.0..15000.0)];
@@ -543,7 +576,7 @@ mod tests {
             let f = frame(0.3, false).unwrap();
             let t_off = [1000.0, -2000.0];
             let mut j = DeviationJudge::new(50.0);
-            j.set_frame(Some(f));
+            j.set_frame(Some(f), String::new());
             let home = [7500.0, 7500.0];
             let corner = [7000.0, 7000.0];
             assert!(rest_at(&mut j, &f, t_off, home).tied_um.is_some());
@@ -584,7 +617,7 @@ mod tests {
         let f = frame(-1.2, true).unwrap();
         let t_off = [300.0, 400.0];
         let mut j = DeviationJudge::new(50.0);
-        j.set_frame(Some(f));
+        j.set_frame(Some(f), String::new());
         assert!(rest_at(&mut j, &f, t_off, [7500.0, 7500.0])
             .tied_um
             .is_some());
@@ -606,7 +639,7 @@ mod tests {
         j.vision(0.01, 0.01, 0.0, 0.0);
         read_both(&mut j, 0.1, [100.0, 100.0]);
         assert_eq!(j.judge(true), Judged::default());
-        j.set_frame(frame(0.0, false));
+        j.set_frame(frame(0.0, false), String::new());
         j.vision(0.11, 0.12, 5.0, -5.0);
         // No read after the frame yet: waits.
         assert_eq!(j.judge(true), Judged::default());
@@ -615,7 +648,7 @@ mod tests {
         assert_eq!(r.tied_um, Some([95.0, 105.0]));
         // While moving no tie is taken: a fresh judge stays untied.
         let mut k = DeviationJudge::new(50.0);
-        k.set_frame(frame(0.0, false));
+        k.set_frame(frame(0.0, false), String::new());
         read_both(&mut k, 0.0, [0.0, 0.0]);
         k.vision(0.01, 0.01, 0.0, 0.0);
         read_both(&mut k, 0.1, [0.0, 0.0]);
@@ -623,7 +656,7 @@ mod tests {
         assert!(!k.tied());
         // A gap of silence around a frame: not judged.
         let mut g = DeviationJudge::new(50.0);
-        g.set_frame(frame(0.0, false));
+        g.set_frame(frame(0.0, false), String::new());
         read_both(&mut g, 0.0, [0.0, 0.0]);
         g.vision(1.0, 1.0, 0.0, 0.0);
         read_both(&mut g, 3.5, [0.0, 0.0]);
@@ -633,19 +666,22 @@ mod tests {
     #[test]
     fn a_new_orientation_or_a_retie_drops_the_tie() {
         let mut j = DeviationJudge::new(50.0);
-        j.set_frame(frame(0.5, false));
+        j.set_frame(frame(0.5, false), String::new());
         read_both(&mut j, 0.0, [0.0, 0.0]);
         j.vision(0.01, 0.01, 0.0, 0.0);
         read_both(&mut j, 0.1, [0.0, 0.0]);
         assert!(j.judge(true).tied_um.is_some());
         // The same orientation with another translation keeps it.
-        j.set_frame(Some(VisionFrame {
-            rotation_rad: 0.5,
-            mirrored: false,
-            translation_um: [1.0, 2.0],
-        }));
+        j.set_frame(
+            Some(VisionFrame {
+                rotation_rad: 0.5,
+                mirrored: false,
+                translation_um: [1.0, 2.0],
+            }),
+            String::new(),
+        );
         assert!(j.tied());
-        j.set_frame(frame(0.5, true));
+        j.set_frame(frame(0.5, true), String::new());
         assert!(!j.tied());
         read_both(&mut j, 0.2, [0.0, 0.0]);
         j.vision(0.21, 0.21, 0.0, 0.0);
@@ -653,5 +689,56 @@ mod tests {
         assert!(j.judge(true).tied_um.is_some());
         j.retie();
         assert!(!j.tied());
+    }
+
+    /// `status` says armed only while the check runs, and why not
+    /// otherwise (before: `armed: true` with no frame and no tie, the
+    /// check silently off).
+    #[test]
+    fn armed_only_while_checking_and_says_why_not() {
+        let mut j = DeviationJudge::new(50.0);
+        j.set_frame(
+            None,
+            "vision is not tied to the stage: no reference run".to_owned(),
+        );
+        let s = j.to_json();
+        assert_eq!(
+            (s["armed"].clone(), s["tied"].clone()),
+            (json!(false), json!(false))
+        );
+        assert_eq!(
+            s["state"],
+            "off: vision is not tied to the stage: no reference run"
+        );
+        assert_eq!(s["frame"], Value::Null);
+        j.set_frame(frame(0.5, false), "tie after reference".to_owned());
+        let s = j.to_json();
+        assert_eq!(s["armed"], false);
+        assert!(s["state"].as_str().unwrap().starts_with("waiting: "), "{s}");
+        assert_eq!(s["frame"], "tie after reference");
+        read_both(&mut j, 0.0, [0.0, 0.0]);
+        j.vision(0.01, 0.01, 0.0, 0.0);
+        read_both(&mut j, 0.1, [0.0, 0.0]);
+        j.judge(true);
+        let s = j.to_json();
+        assert_eq!(
+            (s["armed"].clone(), s["tied"].clone()),
+            (json!(true), json!(true))
+        );
+        assert!(
+            s["state"].as_str().unwrap().starts_with("checking: "),
+            "{s}"
+        );
+        // A breach disarms it until retie.
+        read_both(&mut j, 0.2, [0.0, 0.0]);
+        j.vision(0.21, 0.21, 500.0, 0.0);
+        read_both(&mut j, 0.3, [0.0, 0.0]);
+        assert!(j.judge(true).fault.is_some());
+        let s = j.to_json();
+        assert_eq!(s["armed"], false);
+        assert_eq!(s["state"], "off after a breach until reset");
+        let mut off = DeviationJudge::new(0.0);
+        off.set_frame(frame(0.5, false), String::new());
+        assert_eq!(off.to_json()["state"], "off: safety.deviation_um = 0");
     }
 }

@@ -17,6 +17,8 @@
 //! - [`rig`]: motion coordinator, soft limits, positions, event bus (one
 //!   file per duty; compensation and drift state are its components);
 //! - [`vision`]: capture and decoding, never blocking the runtime;
+//! - [`vision_tie`]: vision → stage measured after a reference run, kept
+//!   across restarts;
 //! - [`jobs`]: characterization with resume (and its own camera tie),
 //!   validation, `tables build`;
 //! - [`comp`]: loaded tables, the active compensator, the motion history;
@@ -51,6 +53,7 @@ pub mod service;
 pub mod state;
 pub mod supervisor;
 pub mod vision;
+pub mod vision_tie;
 pub mod web;
 
 use crate::camera::FrameSource;
@@ -183,6 +186,7 @@ impl Daemon {
             audit,
         });
         let mut tasks = vec![
+            tokio::spawn(rig.clone().restore_tie()),
             tokio::spawn(rig.clone().connect_loop(shutdown.subscribe())),
             tokio::spawn(rig.clone().poll_loop(shutdown.subscribe())),
             tokio::spawn(rig::supervise::run(rig.clone(), shutdown.subscribe())),

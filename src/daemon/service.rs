@@ -52,7 +52,13 @@ impl Daemon {
                 rig.stop().await
             }
             Command::Reset => Ok(rig.reset()),
-            Command::Reference(axes) => rig.reference(axes).await,
+            Command::Reference(axes) => {
+                // The reference run, then the rig's vision tie
+                // (`daemon::vision_tie`): its outcome is part of the reply.
+                let mut r = rig.reference(axes).await?;
+                r["vision_tie"] = jobs::tie::after_reference(rig).await;
+                Ok(r)
+            }
             Command::Config => serde_json::to_value(self.effective_config())
                 .map(|c| json!({"config": c}))
                 .map_err(|e| ProtoError::new(ErrorCode::Internal, e.to_string())),

@@ -540,7 +540,7 @@ async fn figures_of_the_latest_logs_over_socket_and_http() {
 
 /// `micropos_vision_residual_um{axis}` = vision, mapped to the stage frame
 /// by the active table's tie, minus the controller's position: absent
-/// without an active table; after a closed-loop move (vision on target,
+/// without an active table (and no vision tie: `tie_after_reference` off); after a closed-loop move (vision on target,
 /// the controller where the stage's errors put it) it is
 /// `target − controller` within the loop's tolerance, and it is exactly
 /// what `position` gives through the table's frame.
@@ -565,6 +565,9 @@ async fn the_vision_residual_is_vision_minus_controller() {
         listen: "127.0.0.1:0".to_owned(),
         ..WebSection::default()
     });
+    // The table's frame is what this measures: no vision tie after the
+    // reference run (which would map vision instead of the table's frame).
+    c.camera.tie_after_reference = false;
     c.validate().unwrap();
     let tolerance_um = c.closed_loop.tolerance_um;
     let poll = std::time::Duration::from_millis(c.daemon.poll_interval_ms);

@@ -37,6 +37,13 @@ pub struct CameraSection {
     /// Angle from the pattern frame to the stage frame, rad
     /// (counter-clockwise positive): stage = R(angle)·vision + offset.
     pub rotation_rad: f64,
+    /// After a successful reference run of both axes, tie vision to the
+    /// stage (`daemon::vision_tie`: two short lines, about 14 measurements,
+    /// then back where the reference left the stage). Why on by default:
+    /// without a tie a decoded position is no stage position and the
+    /// vision-vs-controller deviation check has no frame (unless a table
+    /// with one is active). Off: `reference` moves only to the reference.
+    pub tie_after_reference: bool,
 }
 
 impl Default for CameraSection {
@@ -52,6 +59,7 @@ impl Default for CameraSection {
             max_age_s: 1.0,
             min_quality: 16.0,
             rotation_rad: 0.0,
+            tie_after_reference: true,
         }
     }
 }

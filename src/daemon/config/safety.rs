@@ -40,13 +40,14 @@ pub struct SafetySection {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
 #[serde(rename_all = "snake_case")]
 pub enum DeviationFrame {
-    /// The active compensation table's vision frame (fitted by the
-    /// characterization that built it); no active table with a frame, no
-    /// check.
+    /// A fitted vision frame: the rig's vision tie (`daemon::vision_tie`,
+    /// taken after `reference`), else the active compensation table's
+    /// (fitted by the characterization that built it); neither, no check.
     #[default]
     Table,
-    /// `camera.rotation_rad` (for a rig without a table whose camera
-    /// orientation is set by hand); an active table's frame still wins.
+    /// `camera.rotation_rad` (for a rig without a tie or table whose
+    /// camera orientation is set by hand); a tie or an active table's frame
+    /// still wins.
     Camera,
 }
 

@@ -434,6 +434,152 @@ pub async fn measure_frame(
     })
 }
 
+/// Length of each line of the rig's tie after a reference run, µm: six
+/// points a pitch apart (five steps of [`PITCH_UM`]). Why this long: the
+/// rotation's error grows the stage error of a point by its distance from
+/// the tie, and over 2 mm the decoder's noise (tens of nm) leaves tens of
+/// µrad, a few tenths of a µm across a 25 mm travel; why not longer: the
+/// tie follows every reference run, and its moves should stay near where
+/// the reference left the stage.
+pub const REFERENCE_TIE_RANGE_UM: f64 = 5.0 * PITCH_UM;
+
+/// The rig's tie after a reference run (`daemon::vision_tie`): when a
+/// camera is configured, `camera.tie_after_reference` is on and both axes
+/// are referenced, measures the frame on two lines of
+/// [`REFERENCE_TIE_RANGE_UM`] from where the reference left the stage
+/// ([`measure_frame`], moved inside the travel where they would leave it),
+/// moves back there, and stores the tie (or drops it with the reason).
+/// Owns the axes as a job meanwhile. Returns what `reference` replies as
+/// `vision_tie`: `tied` with the frame and what it saw, or `tied: false`
+/// and `why`. A failed tie does not fail the reference run; it leaves
+/// vision untied and says so.
+pub async fn after_reference(rig: &Arc<Rig>) -> serde_json::Value {
+    use serde_json::json;
+    let skip = |why: String| json!({"tied": false, "why": why});
+    if rig.vision.is_none() {
+        return skip("no camera is configured (camera.source)".to_owned());
+    }
+    let why = if !rig.cfg.camera.tie_after_reference {
+        Some(
+            "camera.tie_after_reference = false: reference does not tie vision to the stage"
+                .to_owned(),
+        )
+    } else {
+        match rig.commanded_um() {
+            [Some(x), Some(y)] if rig.referenced_both() => return tie_from(rig, [x, y]).await,
+            _ => Some(
+                "both axes must be referenced for the tie (reference the other axis too)"
+                    .to_owned(),
+            ),
+        }
+    };
+    let why = why.unwrap_or_default();
+    let mut out = skip(why.clone());
+    if let Some(w) = rig.store_tie(Err(why)).await {
+        out["warning"] = json!(w);
+    }
+    out
+}
+
+/// [`after_reference`] from the stage position `start_um`.
+async fn tie_from(rig: &Arc<Rig>, start_um: [f64; 2]) -> serde_json::Value {
+    use serde_json::json;
+    let fail = |why: String| async move {
+        let mut out = json!({"tied": false, "why": why});
+        if let Some(w) = rig.store_tie(Err(why)).await {
+            out["warning"] = json!(w);
+        }
+        out
+    };
+    if let Err(e) = rig.begin_job() {
+        return fail(format!("the tie could not take the axes: {}", e.message)).await;
+    }
+    let gen = rig.stop_generation();
+    let (lo_x, lo_y) = clamp_to_travel(rig, f64::MIN / 4.0, f64::MIN / 4.0);
+    let (hi_x, hi_y) = clamp_to_travel(rig, f64::MAX / 4.0, f64::MAX / 4.0);
+    // Each line from the start position forward, moved back inside the
+    // travel where it would leave it.
+    let line = |start: f64, lo: f64, hi: f64| {
+        let range = REFERENCE_TIE_RANGE_UM.min(hi - lo);
+        (start.min(hi - range).max(lo), range)
+    };
+    let (x0, rx) = line(start_um[0], lo_x, hi_x);
+    let (y0, ry) = line(start_um[1], lo_y, hi_y);
+    let lines = [
+        TieLine {
+            x_axis: true,
+            start_um: x0,
+            range_um: rx,
+            hold_um: y0,
+        },
+        TieLine {
+            x_axis: false,
+            start_um: y0,
+            range_um: ry,
+            hold_um: x0,
+        },
+    ];
+    let k = &rig.cfg.characterize;
+    let r = measure_frame(rig, lines, k.frames_per_point, k.settle_s).await;
+    // Back where the reference left the stage, unless a stop came.
+    let back = if rig.stop_generation() == gen {
+        raw_move(rig, start_um[0], start_um[1]).await.err()
+    } else {
+        None
+    };
+    rig.end_job();
+    let tie = match r {
+        Ok(t) => t,
+        Err(e) => {
+            return fail(format!(
+                "the tie after the reference run failed: {}",
+                e.message
+            ))
+            .await;
+        }
+    };
+    let unix_s = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_secs());
+    let anchor = tie.drift.anchor_um();
+    let stored = crate::daemon::vision_tie::StoredTie::new(
+        &rig.cfg,
+        tie.frame,
+        &tie.report,
+        [anchor.x_um, anchor.y_um],
+        super::tables::rfc3339_utc(unix_s),
+    );
+    tracing::info!(
+        "vision tied to the stage after the reference run: rotation {:.6} rad, translation ({:.1}, {:.1}) µm, rms ({:.2}, {:.2}) µm",
+        tie.frame.rotation_rad,
+        tie.frame.translation_um[0],
+        tie.frame.translation_um[1],
+        tie.report.rms_error_um[0],
+        tie.report.rms_error_um[1]
+    );
+    let mut out = json!({
+        "tied": true,
+        "rotation_rad": tie.frame.rotation_rad,
+        "mirrored": tie.frame.mirrored,
+        "translation_um": {"x": tie.frame.translation_um[0], "y": tie.frame.translation_um[1]},
+        "rms_error_um": {"x": tie.report.rms_error_um[0], "y": tie.report.rms_error_um[1]},
+        "measurements": tie.measurements,
+        "duration_s": tie.duration_s,
+    });
+    let mut warnings = Vec::new();
+    if let Some(e) = back {
+        warnings.push(format!(
+            "the stage did not return to ({:.1}, {:.1}) µm after the tie: {}",
+            start_um[0], start_um[1], e.message
+        ));
+    }
+    warnings.extend(rig.store_tie(Ok(stored)).await);
+    if !warnings.is_empty() {
+        out["warnings"] = json!(warnings);
+    }
+    out
+}
+
 /// The lines moved inside the travel, by whole screw pitches, until every
 /// tie point can be approached from [`PARK_APPROACH_UM`] below on both
 /// axes (`lower_um`: the travel's lower ends, x and y).

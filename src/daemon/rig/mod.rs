@@ -22,7 +22,9 @@
 //! - [`drift`]: re-measuring the drift reference, a move's correction;
 //! - [`measure`]: the park approach, averaged frames, retried moves;
 //! - [`job`]: a job's ownership of the axes, retries after transient faults;
-//! - [`reference`](mod@reference): the reference run.
+//! - [`reference`](mod@reference): the reference run;
+//! - [`tie`](mod@tie): the vision → stage frame in force (the rig's tie,
+//!   else the active table's) and the tie's file.
 
 pub mod closed_loop;
 pub mod drift;
@@ -33,6 +35,7 @@ pub mod reference;
 pub mod safety;
 pub mod supervise;
 pub mod tasks;
+pub mod tie;
 
 use super::config::DaemonConfig;
 use super::deviation::DeviationJudge;
@@ -80,6 +83,9 @@ pub struct Rig {
     supervisor: Mutex<Supervisor>,
     /// Vision against controller (`daemon::deviation`).
     deviation: Mutex<DeviationJudge>,
+    /// Vision → stage, measured after the reference run
+    /// (`daemon::vision_tie`).
+    tie: Mutex<super::vision_tie::VisionTie>,
     /// Held by the supervisor and the position poller while they read
     /// positions: a reference run takes it after it owns the axes, so no
     /// read begun before the run ends after it began (its `FRF?` would read
@@ -181,6 +187,7 @@ impl Rig {
         Rig {
             supervisor: Mutex::new(supervisor),
             deviation: Mutex::new(DeviationJudge::new(cfg.safety.deviation_um)),
+            tie: Mutex::default(),
             sampling: tokio::sync::Mutex::new(()),
             drift,
             live: super::reload::Live::new(&cfg),
@@ -268,11 +275,8 @@ impl Rig {
         }
         let vision = self.vision.as_ref().and_then(|v| {
             let m = (*v.latest.borrow())?;
-            let (sx, sy) = self.vision_to_stage(&m);
-            let mut j = m.to_json();
+            let mut j = self.vision_json(&m);
             j["age_s"] = json!(self.clock.now_s() - m.t_s);
-            j["stage_x_um"] = json!(sx);
-            j["stage_y_um"] = json!(sy);
             Some(j)
         });
         json!({
@@ -319,6 +323,7 @@ impl Rig {
             "camera": self.vision.as_ref().map(|v| v.to_json()),
             "drift": self.drift.to_json(self.clock.now_s()),
             "deviation": self.deviation_json(),
+            "vision_tie": self.tie_json(),
         })
     }
 

@@ -4,21 +4,12 @@
 use super::{driver_error, lock, refusal, ActivityGuard, Rig};
 use crate::daemon::protocol::{ErrorCode, MoveMode, MoveRequest, ProtoError, Topic};
 use crate::daemon::state::{Activity, AxisId, Input};
-use crate::daemon::vision::Measurement;
 use crate::driver::{Axis, DriverError};
 use serde_json::{json, Value};
 use std::sync::atomic::Ordering;
 use std::sync::Arc;
 
 impl Rig {
-    /// Vision (pattern frame) to stage frame with the configured rotation;
-    /// the offset is not known here (jobs establish it), so these are
-    /// pattern coordinates rotated into the stage axes.
-    pub fn vision_to_stage(&self, m: &Measurement) -> (f64, f64) {
-        let (s, c) = self.cfg.camera.rotation_rad.sin_cos();
-        (c * m.x_um - s * m.y_um, s * m.x_um + c * m.y_um)
-    }
-
     /// Soft limits ∩ controller travel for an axis, µm.
     pub fn limits_um(&self, axis: &Axis, a: AxisId) -> (f64, f64) {
         let (tmin, tmax) = axis.travel_um();

@@ -75,8 +75,14 @@ impl Rig {
             }
         };
         let ((x, y), ()) = tokio::join!(runs, watch);
-        // The counts changed meaning: the deviation check ties afresh.
+        // The counts changed meaning: the deviation check ties afresh, and
+        // the vision tie of the last reference no longer applies (the
+        // caller ties again after a successful run).
         lock(&self.deviation).retie();
+        self.store_tie(Err(
+            "a reference run changed the controllers' zero since the last tie; a successful reference run ties again".to_owned(),
+        ))
+        .await;
         if self.stop_gen.load(Ordering::SeqCst) != gen {
             // Halted once more: an `FRF` written after the stop's `#24` or
             // `HLT` runs while its `ERR?` reports the stop (10), so the run

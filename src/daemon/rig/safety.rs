@@ -12,20 +12,30 @@ use std::sync::Arc;
 use std::time::Duration;
 
 impl Rig {
-    /// The vision → stage orientation for the deviation check: the active
-    /// table's frame, else with `safety.deviation_frame = "camera"` the
-    /// configured camera rotation, else none (no check).
-    pub(super) fn deviation_frame(&self) -> Option<crate::comp::VisionFrame> {
-        self.vision.as_ref()?;
-        if let Some(f) = self.comp.active().and_then(|a| a.frame) {
-            return Some(f);
+    /// The vision → stage orientation for the deviation check and where
+    /// it comes from: the frame in force ([`Rig::vision_frame`]: the rig's
+    /// tie, else the active table's), else with `safety.deviation_frame =
+    /// "camera"` the configured camera rotation; `Err`: none, why (no
+    /// check).
+    pub(super) fn deviation_frame(&self) -> Result<(crate::comp::VisionFrame, String), String> {
+        if self.vision.is_none() {
+            return Err("no camera is configured (camera.source)".to_owned());
         }
-        (self.cfg.safety.deviation_frame == crate::daemon::config::DeviationFrame::Camera)
-            .then_some(crate::comp::VisionFrame {
-                rotation_rad: self.cfg.camera.rotation_rad,
-                mirrored: false,
-                translation_um: [0.0, 0.0],
-            })
+        let why = match self.vision_frame() {
+            Ok(f) => return Ok((f.frame, f.source)),
+            Err(why) => why,
+        };
+        if self.cfg.safety.deviation_frame == crate::daemon::config::DeviationFrame::Camera {
+            return Ok((
+                crate::comp::VisionFrame {
+                    rotation_rad: self.cfg.camera.rotation_rad,
+                    mirrored: false,
+                    translation_um: [0.0, 0.0],
+                },
+                "camera.rotation_rad (safety.deviation_frame = \"camera\")".to_owned(),
+            ));
+        }
+        Err(format!("vision is not tied to the stage: {why}"))
     }
 
     /// A controller position read of `axis` between `t0_s` and `t1_s`
@@ -35,15 +45,21 @@ impl Rig {
         self.judge_deviation();
     }
 
-    /// Judges the frames that can be judged; a breach is a fault.
+    /// Judges the frames that can be judged; a breach is a fault. The
+    /// first tie at rest under the rig's own tie confirms a tie restored at
+    /// start ([`Rig::confirm_tie`]).
     pub(super) fn judge_deviation(self: &Arc<Self>) {
         let frame = self.deviation_frame();
+        let from_tie = frame.as_ref().is_ok_and(|(_, src)| src.starts_with("tie "));
         // A tie needs both axes at rest: no move watched and no reference
         // run (the judge also wants the reads around the frame to agree).
         let quiet = self.supervisor().watching() == [false, false] && !self.referencing();
         let r = {
             let mut j = lock(&self.deviation);
-            j.set_frame(frame);
+            match frame {
+                Ok((f, src)) => j.set_frame(Some(f), src),
+                Err(why) => j.set_frame(None, why),
+            }
             j.judge(quiet)
         };
         if let Some(tie) = r.tied_um {
@@ -52,15 +68,25 @@ impl Rig {
                 tie[0],
                 tie[1]
             );
+            if from_tie {
+                self.confirm_tie(tie);
+            }
         }
         if let Some(reason) = r.fault {
             self.supervisor_fault(reason);
         }
     }
 
-    /// The deviation check's state (for `status`).
+    /// The deviation check's state (for `status`), with the frame it
+    /// would use now.
     pub fn deviation_json(&self) -> Value {
-        lock(&self.deviation).to_json()
+        let frame = self.deviation_frame();
+        let mut j = lock(&self.deviation);
+        match frame {
+            Ok((f, src)) => j.set_frame(Some(f), src),
+            Err(why) => j.set_frame(None, why),
+        }
+        j.to_json()
     }
 
     /// A breach found by the motion supervisor: halts both axes, latches.

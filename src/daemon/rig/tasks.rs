@@ -174,11 +174,8 @@ impl Rig {
                 lock(&self.deviation).vision(m.t_s, m.frame_t_s, m.x_um, m.y_um);
                 self.judge_deviation();
             }
-            let (sx, sy) = self.vision_to_stage(&m);
-            let mut f = m.to_json();
+            let mut f = self.vision_json(&m);
             f["source"] = json!("vision");
-            f["stage_x_um"] = json!(sx);
-            f["stage_y_um"] = json!(sy);
             self.push(Topic::Position, "position", f);
         }
     }

@@ -157,7 +157,7 @@ impl Metrics {
         }
         r.register(
             "micropos_vision_residual_um",
-            "Vision (in the stage frame of the active table's tie) minus controller position",
+            "Vision (in the stage frame: the rig's tie, else the active table's frame) minus controller position",
             m.residual_um.clone(),
         );
         r.register(
@@ -167,7 +167,7 @@ impl Metrics {
         );
         r.register(
             "micropos_position_um",
-            "Position by source (commanded, controller, vision in the rotated pattern frame)",
+            "Position by source (commanded, controller, vision through the rig's tie or the active table's frame; absent untied)",
             m.position_um.clone(),
         );
         r.register(

@@ -53,18 +53,34 @@ impl Metrics {
             let latest = *v.latest.borrow();
             if let Some(m) = latest {
                 self.decode_quality_bits.set(m.quality);
-                let (sx, sy) = rig.vision_to_stage(&m);
-                set_axes(&self.position_um, "vision", Some(sx), Some(sy));
-                let fresh = now_s - m.t_s <= rig.cfg.camera.max_age_s;
-                let frame = rig.comp.active().and_then(|a| a.frame);
-                if let (true, Some(f), Some(px), Some(py)) = (fresh, frame, px, py) {
-                    let s = f.to_stage(crate::model::XyUm {
+                // Through the frame in force (the rig's tie, else the
+                // active table's); without one a decoded position is no
+                // stage position, and the series are absent.
+                let frame = rig.vision_frame().ok().map(|f| f.frame);
+                let s = frame.map(|f| {
+                    f.to_stage(crate::model::XyUm {
                         x_um: m.x_um,
                         y_um: m.y_um,
-                    });
+                    })
+                });
+                match s {
+                    Some(s) => set_axes(&self.position_um, "vision", Some(s.x_um), Some(s.y_um)),
+                    None => {
+                        for axis in ["x", "y"] {
+                            self.position_um.remove(&PositionLabel {
+                                source: "vision",
+                                axis,
+                            });
+                        }
+                    }
+                }
+                let fresh = now_s - m.t_s <= rig.cfg.camera.max_age_s;
+                if let (true, Some(s), Some(px), Some(py)) = (fresh, s, px, py) {
                     for (axis, r) in [("x", s.x_um - px), ("y", s.y_um - py)] {
                         self.residual_um.get_or_create(&AxisLabel { axis }).set(r);
                     }
+                } else if s.is_none() {
+                    self.residual_um.clear();
                 }
             }
         }
