@@ -1291,3 +1291,174 @@ fn piped_follow_waits_for_the_job_and_tables_build_refuses_its_running_log() {
     assert!(out.contains("characterize g.csv: state cancelled"), "{out}");
     assert!(err.contains("ended cancelled, not done"), "{err}");
 }
+
+/// `position` until its vision reading was grabbed after rig time `t_s`.
+fn vision_after(c: &mut Client, t_s: f64) -> Value {
+    let t = Instant::now();
+    loop {
+        let p = c.ok(json!({"cmd": "position"}));
+        if p["vision"]["t_s"].as_f64().is_some_and(|v| v > t_s) {
+            return p;
+        }
+        assert!(t.elapsed() < DEADLINE, "no fresh frame: {p}");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+/// Vision in stage coordinates minus the platform's true position
+/// (hil-sim's truth), µm `[x, y]`, at rest: the tie's constant offset
+/// (its origin is where vision and controller agree on the tie's X line,
+/// the truth's where the stage model has none), the same everywhere when
+/// vision measures the platform in the stage's axes.
+fn vision_minus_truth(c: &mut Client, sim: &Sim) -> [f64; 2] {
+    let now = c.ok(json!({"cmd": "status"}))["t_s"].as_f64().unwrap();
+    let p = vision_after(c, now);
+    let (truth, moving) = truth(sim);
+    assert!(!moving);
+    let v = &p["vision"];
+    [
+        v["stage_x_um"].as_f64().unwrap() - truth[0],
+        v["stage_y_um"].as_f64().unwrap() - truth[1],
+    ]
+}
+
+/// The tie on a served rig (issue 33): `hil-sim serve` and `microposd`
+/// with the shipped config/microposd-sim.toml. Before: after `reference`,
+/// `position` gave vision x −4498 µm against the controller's 7500, and
+/// `status` said the deviation check was armed while it had no frame.
+/// Now: untied, both say so and what that switches off; `reference` ties
+/// (vision within the stage's few-µm errors of the controller where it
+/// tied; after a move to (2000, 12000) vision tracks the platform's true
+/// position to 1 µm, the controller differs by the stage's squareness);
+/// the check is armed and tied; a restart restores the tie (confirmed at
+/// rest); a stored tie the rig contradicts is dropped, saying why.
+#[test]
+fn reference_ties_vision_to_the_stage_and_a_restart_keeps_it() {
+    let dir = test_dir();
+    let sim = Sim::start(dir.path(), 20.0);
+    let d = Daemon::start(dir.path(), 0);
+    let mut c = d.client();
+    // Untied: no stage coordinates, and the reasons in words.
+    let p = vision_after(&mut c, 0.0);
+    let untied = p["vision"]["untied"].as_str().unwrap_or_default();
+    for part in [
+        "vision is not tied to the stage",
+        "reference ties it",
+        "pattern coordinates, not stage positions",
+        "deviation check",
+    ] {
+        assert!(untied.contains(part), "{part:?} not in {p}");
+    }
+    assert!(p["vision"]["stage_x_um"].is_null(), "{p}");
+    let st = c.ok(json!({"cmd": "status"}));
+    assert_eq!(st["deviation"]["armed"], false, "{st}");
+    assert!(
+        st["deviation"]["state"]
+            .as_str()
+            .unwrap()
+            .starts_with("off: vision is not tied to the stage"),
+        "{st}"
+    );
+    assert_eq!(st["vision_tie"]["tied"], false, "{st}");
+
+    // The reference run ties, and leaves the stage at its reference.
+    let r = c.ok(json!({"cmd": "reference", "axes": "xy"}));
+    assert_eq!(r["vision_tie"]["tied"], true, "{r}");
+    let t_ref = c.ok(json!({"cmd": "status"}))["t_s"].as_f64().unwrap();
+    let p = vision_after(&mut c, t_ref);
+    let (v, k) = (&p["vision"], &p["controller"]);
+    assert!(v["frame"]
+        .as_str()
+        .unwrap()
+        .starts_with("tie after reference"));
+    for a in ["x", "y"] {
+        let (vs, ks) = (
+            v[format!("stage_{a}_um")].as_f64().unwrap(),
+            k[format!("{a}_um")].as_f64().unwrap(),
+        );
+        assert!((ks - 7500.0).abs() < 0.01, "{p}");
+        // The stage's cyclic error and backlash where it tied.
+        assert!(
+            (vs - ks).abs() < 3.0,
+            "axis {a}: vision {vs} controller {ks}"
+        );
+    }
+    let off_ref = vision_minus_truth(&mut c, &sim);
+    c.ok(json!({"cmd": "move", "x_um": 2000.0, "y_um": 12000.0, "wait": true}));
+    let off_far = vision_minus_truth(&mut c, &sim);
+    for i in 0..2 {
+        assert!(
+            (off_far[i] - off_ref[i]).abs() < 1.0,
+            "vision − truth {off_ref:?} at the reference, {off_far:?} at (2000, 12000)"
+        );
+    }
+    // The check runs.
+    let st = c.wait_for(|s| s["deviation"]["armed"] == true);
+    assert_eq!(st["deviation"]["tied"], true, "{st}");
+    assert!(
+        st["deviation"]["state"]
+            .as_str()
+            .unwrap()
+            .starts_with("checking:"),
+        "{st}"
+    );
+    assert_eq!(st["vision_tie"]["restored"], "no", "{st}");
+    drop(c);
+
+    // A restart keeps the tie: restored, then confirmed at rest; the same
+    // stage coordinates.
+    d.sigkill();
+    let d = Daemon::start(dir.path(), 1);
+    let mut c = d.client();
+    let st = c.ok(json!({"cmd": "status"}));
+    assert_eq!(st["vision_tie"]["tied"], true, "{st}");
+    let st = c.wait_for(|s| {
+        s["vision_tie"]["restored"] == "from the data directory, confirmed at rest"
+            && s["deviation"]["armed"] == true
+    });
+    assert!(st["vision_tie"]["frame_in_force"]
+        .as_str()
+        .unwrap()
+        .starts_with("tie after reference"));
+    let off_again = vision_minus_truth(&mut c, &sim);
+    for i in 0..2 {
+        assert!(
+            (off_again[i] - off_far[i]).abs() < 1.0,
+            "{off_again:?} {off_far:?}"
+        );
+    }
+    drop(c);
+
+    // A stored tie 50 µm off (the camera moved while the daemon was down):
+    // dropped at the first tie at rest, saying why, and its file removed.
+    d.sigkill();
+    let file = dir.path().join("data").join("vision-tie.json");
+    let mut t: Value = serde_json::from_slice(&std::fs::read(&file).unwrap()).unwrap();
+    t["frame"]["translation_um"][1] =
+        json!(t["frame"]["translation_um"][1].as_f64().unwrap() + 50.0);
+    std::fs::write(&file, t.to_string()).unwrap();
+    let d = Daemon::start(dir.path(), 2);
+    let mut c = d.client();
+    let st = c.wait_for(|s| s["vision_tie"]["tied"] == false);
+    let why = st["vision_tie"]["why"].as_str().unwrap();
+    for part in [
+        "disagrees with the rig by",
+        "beyond the stage errors the tie measured",
+        "reference ties it again",
+    ] {
+        assert!(why.contains(part), "{part:?} not in {st}");
+    }
+    let p = c.ok(json!({"cmd": "position"}));
+    assert!(
+        p["vision"]["untied"]
+            .as_str()
+            .unwrap()
+            .contains("disagrees with the rig"),
+        "{p}"
+    );
+    let t = Instant::now();
+    while file.exists() {
+        assert!(t.elapsed() < DEADLINE, "the dropped tie's file stays");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
