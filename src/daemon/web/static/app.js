@@ -47,7 +47,9 @@ function onPosition(p) {
   } else if (p.source === 'vision') {
     setText('pos-vision-x', num(p.stage_x_um, 3));
     setText('pos-vision-y', num(p.stage_y_um, 3));
-    setText('pos-vision-q', 'q ' + num(p.quality, 1));
+    // Untied, the daemon sends no stage coordinates (a pattern reading is
+    // no stage position): say so, with its reason, where they would be.
+    setText('pos-vision-q', p.untied ? 'untied: ' + p.untied : 'q ' + num(p.quality, 1));
   }
   bumpPositions();
 }
