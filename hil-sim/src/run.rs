@@ -417,6 +417,11 @@ pub fn daemon_config(
     c.camera.bits = rig.camera.bits;
     c.camera.pixel_um = Some(rig.camera.pixel_um);
     c.camera.timeout_ms = 5000;
+    // Every job of the main job ties vision itself before it logs (the
+    // characterization's pre-scan tie, the paper's procedure); a tie after
+    // the reference would only add moves and simulated time before them
+    // (and new random draws under every figure the run prints).
+    c.camera.tie_after_reference = false;
     // The paper's frame: scans from (0, 0), where the pattern is in view
     // (config/sim-rig.toml keeps stage x, y in about [−80, 11890] µm on it).
     c.characterize.x_start_um = Some(0.0);
