@@ -75,6 +75,9 @@ impl Activity {
 /// An input to the machine.
 #[derive(Debug, Clone, PartialEq)]
 pub enum Input {
+    /// Connecting the stage failed (it is retried): why, for `status`
+    /// and for refusals until it connects.
+    ConnectFailed(String),
     /// The stage is connected and brought up (both axes).
     StageUp {
         /// Referenced state per axis (X, Y).
@@ -143,6 +146,10 @@ pub struct SafetyState {
     last_fault: Option<FaultRecord>,
     latched: bool,
     faults: u64,
+    /// Why the stage has not connected (the last failed attempt).
+    connect_error: Option<FaultRecord>,
+    /// Why each line went down, while it is down.
+    link_down_reason: [Option<String>; 2],
 }
 
 impl Default for SafetyState {
@@ -163,6 +170,8 @@ impl SafetyState {
             last_fault: None,
             latched: false,
             faults: 0,
+            connect_error: None,
+            link_down_reason: [None, None],
         }
     }
 
@@ -180,19 +189,27 @@ impl SafetyState {
             vec![Action::HaltAll { reason }]
         };
         match input {
+            Input::ConnectFailed(reason) => {
+                self.connect_error = Some(FaultRecord { t_s, reason });
+                vec![]
+            }
             Input::StageUp { referenced } => {
                 self.stage_up = true;
                 self.link_up = [true; 2];
+                self.link_down_reason = [None, None];
+                self.connect_error = None;
                 self.referenced = referenced;
                 vec![]
             }
             Input::LinkUp(a) => {
                 self.link_up[a.index()] = true;
+                self.link_down_reason[a.index()] = None;
                 vec![]
             }
             Input::LinkDown(a, why) => {
                 let was_up = self.link_up[a.index()];
                 self.link_up[a.index()] = false;
+                self.link_down_reason[a.index()] = Some(why.clone());
                 if was_up || self.activity != Activity::Idle {
                     fault(self, format!("axis {} line down: {why}", a.name()))
                 } else {
@@ -272,19 +289,50 @@ impl SafetyState {
 
     fn connected(&self) -> Result<(), Refusal> {
         if !self.stage_up {
-            return Err(Refusal::NotConnected(
-                "the controllers are not connected yet".to_owned(),
-            ));
+            return Err(Refusal::NotConnected(self.not_connected_because()));
         }
         for a in [AxisId::X, AxisId::Y] {
             if !self.link_up[a.index()] {
                 return Err(Refusal::NotConnected(format!(
-                    "axis {} line is down",
-                    a.name()
+                    "axis {} line is down{}",
+                    a.name(),
+                    self.link_down_reason[a.index()]
+                        .as_deref()
+                        .map(|w| format!(": {w}"))
+                        .unwrap_or_default()
                 )));
             }
         }
         Ok(())
+    }
+
+    /// Why the stage is not connected, in words (before it first
+    /// connects).
+    pub fn not_connected_because(&self) -> String {
+        match &self.connect_error {
+            Some(e) => format!(
+                "the controllers are not connected: {} (microposd retries; check [driver] port and the cable, its log has every attempt)",
+                e.reason
+            ),
+            None => "the controllers are not connected yet (connecting)".to_owned(),
+        }
+    }
+
+    /// Per axis, why it is not connected (`None` when it is).
+    fn axis_not_connected(&self, a: AxisId) -> Option<String> {
+        if !self.stage_up {
+            Some(self.not_connected_because())
+        } else if !self.link_up[a.index()] {
+            Some(format!(
+                "line down{}",
+                self.link_down_reason[a.index()]
+                    .as_deref()
+                    .map(|w| format!(": {w}"))
+                    .unwrap_or_default()
+            ))
+        } else {
+            None
+        }
     }
 
     /// Whether a client move of these axes may start (`from_job` for moves
@@ -346,6 +394,15 @@ impl SafetyState {
 
     /// Status as JSON for the `status` command.
     pub fn to_json(&self) -> Value {
+        let mut v = self.to_json_connected();
+        let why = [AxisId::X, AxisId::Y].map(|a| self.axis_not_connected(a));
+        if why.iter().any(Option::is_some) {
+            v["not_connected"] = json!({"x": why[0], "y": why[1]});
+        }
+        v
+    }
+
+    fn to_json_connected(&self) -> Value {
         json!({
             "mode": self.mode(),
             "activity": self.activity.as_str(),
@@ -371,6 +428,55 @@ mod tests {
             0.0,
         );
         s
+    }
+
+    #[test]
+    fn status_and_refusals_say_why_the_stage_is_not_connected() {
+        let mut s = SafetyState::new();
+        assert!(s.to_json()["not_connected"]["x"]
+            .as_str()
+            .unwrap()
+            .contains("connecting"));
+        s.apply(
+            Input::ConnectFailed("x: cannot open /dev/ttyUSB7: No such file or directory".into()),
+            1.0,
+        );
+        let j = s.to_json();
+        for a in ["x", "y"] {
+            assert!(
+                j["not_connected"][a]
+                    .as_str()
+                    .unwrap()
+                    .contains("/dev/ttyUSB7"),
+                "{j}"
+            );
+        }
+        let Err(Refusal::NotConnected(m)) = s.may_move([true, true], false) else {
+            panic!("moved while not connected");
+        };
+        assert!(
+            m.contains("/dev/ttyUSB7") && m.contains("[driver] port"),
+            "{m}"
+        );
+        s.apply(
+            Input::StageUp {
+                referenced: [true, true],
+            },
+            2.0,
+        );
+        assert!(s.to_json().get("not_connected").is_none());
+        s.apply(Input::LinkDown(AxisId::Y, "read timeout".into()), 3.0);
+        let j = s.to_json();
+        assert!(j["not_connected"]["x"].is_null(), "{j}");
+        assert!(
+            j["not_connected"]["y"]
+                .as_str()
+                .unwrap()
+                .contains("read timeout"),
+            "{j}"
+        );
+        s.apply(Input::LinkUp(AxisId::Y), 4.0);
+        assert!(s.to_json().get("not_connected").is_none());
     }
 
     #[test]

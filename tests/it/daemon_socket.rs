@@ -119,3 +119,49 @@ fn a_socket_open_to_everyone_without_access_is_warned_about() {
         );
     }
 }
+
+/// A wrong serial port, seen as a user sees it: `micropos status` names
+/// the port and why it failed for both axes (not only the daemon's log),
+/// and a move is refused with the same reason.
+#[test]
+fn a_wrong_serial_port_is_named_in_status_and_in_a_refused_move() {
+    let dir = tempfile::tempdir().unwrap();
+    let (cfg, socket) = config(dir.path(), "0600", false);
+    let err = dir.path().join("stderr");
+    let child = start(&cfg, &err);
+    let _ = modes_seen(&socket, 1);
+    let cli = |args: &[&str]| {
+        let out = Command::new(env!("CARGO_BIN_EXE_micropos"))
+            .arg("--socket")
+            .arg(&socket)
+            .args(args)
+            .output()
+            .unwrap();
+        (
+            out.status.success(),
+            String::from_utf8_lossy(&out.stdout).into_owned()
+                + &String::from_utf8_lossy(&out.stderr),
+        )
+    };
+    // The first attempt's failure is recorded once it has been made.
+    let t0 = Instant::now();
+    let mut status = String::new();
+    while t0.elapsed() < Duration::from_secs(20) {
+        status = cli(&["status"]).1;
+        if status.contains("no-such-tty") {
+            break;
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    let (moved, refusal) = cli(&["move", "--x", "100", "--y", "100"]);
+    stop(child);
+    assert!(status.contains("not_connected"), "{status}");
+    let why: Vec<&str> = status
+        .lines()
+        .filter(|l| l.contains("no-such-tty"))
+        .collect();
+    assert_eq!(why.len(), 2, "both axes with the reason: {status}");
+    assert!(why.iter().all(|l| l.contains("[driver] port")), "{status}");
+    assert!(!moved, "{refusal}");
+    assert!(refusal.contains("no-such-tty"), "{refusal}");
+}

@@ -17,6 +17,8 @@ use micropos::analysis::{diagnose, DiagnoseOptions, Diagnosis};
 use micropos::charact::log::{read_file, MeasurementLog};
 use micropos::model::{MotionState, StageModel, StageSimulator};
 
+use super::grid_random_model::rigid_rms;
+
 fn path() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
         .join("../shared/reference/real-2d-grids/aerotech_planarhd_cz1.csv")
@@ -278,34 +280,6 @@ fn the_models_scale_in_all_is_the_maps() {
     }
 }
 
-/// Rms per component of `e_sim − e_log` over the nodes once the best
-/// rigid motion (offset per component, one rotation) is removed: the
-/// extended model lives in the frame `diagnose` turned to the stage's x
-/// axis, the log in the laser's.
-fn rigid_rms(p: &[[f64; 2]], d: &[[f64; 2]]) -> [f64; 2] {
-    let n = p.len() as f64;
-    let mean = |f: &dyn Fn(usize) -> f64| (0..p.len()).map(f).sum::<f64>() / n;
-    let (px, py) = (mean(&|i| p[i][0]), mean(&|i| p[i][1]));
-    let (dx, dy) = (mean(&|i| d[i][0]), mean(&|i| d[i][1]));
-    let (mut num, mut den) = (0.0, 0.0);
-    for i in 0..p.len() {
-        let (x, y) = (p[i][0] - px, p[i][1] - py);
-        num += -y * (d[i][0] - dx) + x * (d[i][1] - dy);
-        den += x * x + y * y;
-    }
-    let th = num / den;
-    [0, 1].map(|c| {
-        let s: f64 = (0..p.len())
-            .map(|i| {
-                let (x, y) = (p[i][0] - px, p[i][1] - py);
-                let r = [d[i][0] - dx + th * y, d[i][1] - dy - th * x];
-                r[c] * r[c]
-            })
-            .sum();
-        (s / n).sqrt()
-    })
-}
-
 /// The measured map runs in the simulator: the extended model, written
 /// as `micropos diagnose --out` writes it and read back as `hil-sim
 /// --model` reads it, driven through the log's targets by the simulator's
@@ -345,7 +319,7 @@ fn the_shared_map_runs_in_the_simulator() {
                 (s.observed_um.y_um - r.y_cmd_um) - (r.y_meas_um - r.y_target_um),
             ]);
         }
-        rigid_rms(&pts, &diff)
+        [0, 1].map(|c| rigid_rms(&pts, &diff, c))
     };
     let (a, b) = (replay(&without), replay(&with));
     let g = d.grid.as_ref().unwrap();

@@ -411,7 +411,7 @@ fn log_of(records: Vec<Record>) -> MeasurementLog {
 /// best rigid motion (an offset per component and one rotation) is
 /// removed: the frames of the truth and of a diagnosis differ by that
 /// (the measuring frame's offset and rotation, which `diagnose` turns).
-fn rigid_rms(p: &[[f64; 2]], d: &[[f64; 2]], c: usize) -> f64 {
+pub(crate) fn rigid_rms(p: &[[f64; 2]], d: &[[f64; 2]], c: usize) -> f64 {
     let n = p.len() as f64;
     let mean = |f: &dyn Fn(usize) -> f64| (0..p.len()).map(f).sum::<f64>() / n;
     let (px, py) = (mean(&|i| p[i][0]), mean(&|i| p[i][1]));

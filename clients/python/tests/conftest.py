@@ -54,13 +54,16 @@ def daemon_config(link_dir: pathlib.Path) -> pathlib.Path:
     taken more than 3 s), one job retry. Compensated moves and validations
     outside a table's small test area are warned, not refused (the tests
     drive the client's plumbing with 1 mm tables; the refusal has its own
-    test in hil-sim/tests/it/comp_range.rs)."""
+    test in hil-sim/tests/it/comp_range.rs). No vision tie after each
+    reference (about 6 s of wall time each here; no test of the client
+    needs it, and the tie has its own test in tests/it/daemon_process.rs)."""
     text = (REPO / "config" / "microposd-sim.toml").read_text()
     text = text.replace("/tmp/rig", str(link_dir))
     text = re.sub(r"(?m)^poll_interval_ms = \d+", "poll_interval_ms = 50", text)
     text = re.sub(r"(?m)^timeout_ms = \d+", "timeout_ms = 2000", text)
     text = re.sub(r"(?m)^job_retries = \d+", "job_retries = 1", text)
     text = re.sub(r"(?m)^\[camera\]$", "[camera]\ntimeout_ms = 10000", text)
+    text = re.sub(r"(?m)^tie_after_reference = true", "tie_after_reference = false", text)
     text += '\n[compensation]\noutside_table = "warn"\n'
     path = link_dir / "microposd.toml"
     path.write_text(text)

@@ -5,22 +5,19 @@
 //! measurement fails naming the period that fits.
 
 use crate::common::{self, Client};
-use hil_sim::run::{daemon_config, RunPlan};
 use serde_json::{json, Value};
 use std::time::{Duration, Instant};
 
 #[tokio::test(start_paused = true)]
 async fn a_wrong_period_fails_the_measurement_naming_the_period_that_fits() {
-    let dir = tempfile::tempdir().unwrap();
-    let rig_dir = dir.path().join("rig");
-    let data = dir.path().join("data");
-    std::fs::create_dir_all(&rig_dir).unwrap();
-    std::fs::create_dir_all(&data).unwrap();
-    let cfg = common::serve_config(&rig_dir, 50.0, 31);
-    let rig_cfg = cfg.rig.clone();
-    let sim = common::serve_in_process(cfg);
-    let socket = dir.path().join("d.sock");
-    let mut c = daemon_config(&rig_dir, &data, &socket, &rig_cfg, &RunPlan::reduced()).unwrap();
+    let common::InProcess {
+        dir: _dir,
+        data: _,
+        socket,
+        sim,
+        rig: rig_cfg,
+        config: mut c,
+    } = common::in_process_rig(31);
     assert_eq!(c.camera.pixel_um, Some(rig_cfg.camera.pixel_um));
     assert_eq!(c.camera.period_um, 4.0);
     c.camera.period_um = 8.0;

@@ -7,7 +7,6 @@
 //! moves, saying which origins would keep them inside (here: none).
 
 use crate::common::{self, Client};
-use hil_sim::run::{daemon_config, RunPlan};
 use micropos::comp::{AxisTables, CompFile, CompTable, DirTable, Interpolation, SourceInfo};
 use micropos::daemon::config::OutsideTable;
 use micropos::daemon::Running;
@@ -52,16 +51,14 @@ struct Setup {
 /// The in-process rig and daemon with `outside_table`, the small table
 /// written to the data directory, loaded and activated, axes referenced.
 async fn setup(outside: OutsideTable) -> Setup {
-    let dir = tempfile::tempdir().unwrap();
-    let rig_dir = dir.path().join("rig");
-    let data = dir.path().join("data");
-    std::fs::create_dir_all(&rig_dir).unwrap();
-    std::fs::create_dir_all(&data).unwrap();
-    let cfg = common::serve_config(&rig_dir, 50.0, 23);
-    let rig_cfg = cfg.rig.clone();
-    let sim = common::serve_in_process(cfg);
-    let socket = dir.path().join("d.sock");
-    let mut c = daemon_config(&rig_dir, &data, &socket, &rig_cfg, &RunPlan::reduced()).unwrap();
+    let common::InProcess {
+        dir,
+        data,
+        socket,
+        sim,
+        rig: _,
+        config: mut c,
+    } = common::in_process_rig(23);
     c.compensation.outside_table = outside;
     c.validate().unwrap();
     let daemon = common::start_daemon_in_process(c, &sim, &socket);

@@ -11,7 +11,6 @@
 
 use crate::common::{self, Client};
 use hil_sim::camera::CameraMode;
-use hil_sim::run::{daemon_config, RunPlan};
 use hil_sim::{AxisName, Corruption, Fault, SimHandle};
 use micropos::daemon::Running;
 use serde_json::{json, Value};
@@ -48,16 +47,14 @@ async fn rig() -> Rig {
 
 /// [`rig`] with `tune` applied to the daemon's configuration last.
 async fn rig_with(tune: impl FnOnce(&mut micropos::daemon::config::DaemonConfig)) -> Rig {
-    let dir = tempfile::tempdir().unwrap();
-    let rig_dir = dir.path().join("rig");
-    let data = dir.path().join("data");
-    std::fs::create_dir_all(&rig_dir).unwrap();
-    std::fs::create_dir_all(&data).unwrap();
-    let cfg = common::serve_config(&rig_dir, 50.0, 7);
-    let rig_cfg = cfg.rig.clone();
-    let sim = common::serve_in_process(cfg);
-    let socket = dir.path().join("d.sock");
-    let mut c = daemon_config(&rig_dir, &data, &socket, &rig_cfg, &RunPlan::reduced()).unwrap();
+    let common::InProcess {
+        dir,
+        data,
+        socket,
+        sim,
+        rig: _,
+        config: mut c,
+    } = common::in_process_rig(7);
     // No controller poll during the test: every value answer the rig sends
     // belongs to the job, so a corrupted one lands on the job.
     c.daemon.poll_interval_ms = 60_000;

@@ -6,7 +6,6 @@
 //! refused naming the CLI flags and the range of origins that fits.
 
 use crate::common::{self, Client};
-use hil_sim::run::{daemon_config, RunPlan};
 use micropos::daemon::jobs::validate::ORIGIN_CLEARANCE_UM;
 use serde_json::{json, Value};
 
@@ -26,16 +25,14 @@ fn limits(status: &Value, axis: &str) -> (f64, f64) {
 
 #[tokio::test(start_paused = true)]
 async fn validate_start_fits_the_travel_by_default_and_names_its_flags() {
-    let dir = tempfile::tempdir().unwrap();
-    let rig_dir = dir.path().join("rig");
-    let data = dir.path().join("data");
-    std::fs::create_dir_all(&rig_dir).unwrap();
-    std::fs::create_dir_all(&data).unwrap();
-    let cfg = common::serve_config(&rig_dir, 50.0, 29);
-    let rig_cfg = cfg.rig.clone();
-    let sim = common::serve_in_process(cfg);
-    let socket = dir.path().join("d.sock");
-    let mut c = daemon_config(&rig_dir, &data, &socket, &rig_cfg, &RunPlan::reduced()).unwrap();
+    let common::InProcess {
+        dir: _dir,
+        data,
+        socket,
+        sim,
+        rig: _,
+        config: mut c,
+    } = common::in_process_rig(29);
     // config/microposd-sim.toml's scan: 1000 × 500 µm, centred.
     c.characterize.x_start_um = None;
     c.characterize.y_start_um = None;

@@ -10,7 +10,6 @@
 //! idle timeout.
 
 use crate::common::{self, http, Client};
-use hil_sim::run::{daemon_config, RunPlan};
 use hil_sim::{AxisName, Fault};
 use micropos::daemon::config::WebSection;
 use prometheus_parse::{Scrape, Value as PValue};
@@ -43,16 +42,14 @@ fn operate_with_token() -> WebSection {
 }
 
 fn web_rig(seed: u64, web: WebSection) -> WebRig {
-    let dir = tempfile::tempdir().unwrap();
-    let rig_dir = dir.path().join("rig");
-    let data = dir.path().join("data");
-    std::fs::create_dir_all(&rig_dir).unwrap();
-    std::fs::create_dir_all(&data).unwrap();
-    let cfg = common::serve_config(&rig_dir, 50.0, seed);
-    let rig_cfg = cfg.rig.clone();
-    let sim = common::serve_in_process(cfg);
-    let socket = dir.path().join("d.sock");
-    let mut c = daemon_config(&rig_dir, &data, &socket, &rig_cfg, &RunPlan::reduced()).unwrap();
+    let common::InProcess {
+        dir,
+        data,
+        socket,
+        sim,
+        rig: _,
+        config: mut c,
+    } = common::in_process_rig(seed);
     c.web = Some(WebSection {
         listen: "127.0.0.1:0".to_owned(),
         ..web
@@ -551,16 +548,14 @@ async fn the_vision_residual_is_vision_minus_controller() {
     use micropos::model::XyUm;
     use rand::{Rng, SeedableRng};
 
-    let dir = tempfile::tempdir().unwrap();
-    let rig_dir = dir.path().join("rig");
-    let data = dir.path().join("data");
-    std::fs::create_dir_all(&rig_dir).unwrap();
-    std::fs::create_dir_all(&data).unwrap();
-    let cfg = common::serve_config(&rig_dir, 50.0, 29);
-    let rig_cfg = cfg.rig.clone();
-    let sim = common::serve_in_process(cfg);
-    let socket = dir.path().join("d.sock");
-    let mut c = daemon_config(&rig_dir, &data, &socket, &rig_cfg, &RunPlan::reduced()).unwrap();
+    let common::InProcess {
+        dir: _dir,
+        data,
+        socket,
+        sim,
+        rig: _,
+        config: mut c,
+    } = common::in_process_rig(29);
     c.web = Some(WebSection {
         listen: "127.0.0.1:0".to_owned(),
         ..WebSection::default()

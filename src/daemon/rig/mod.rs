@@ -137,7 +137,17 @@ impl Drop for ActivityGuard<'_> {
 pub fn driver_error(e: DriverError) -> ProtoError {
     let code = match &e {
         DriverError::OutOfTravel { .. } => ErrorCode::OutOfTravel,
-        DriverError::NotReferenced { .. } => ErrorCode::NotReferenced,
+        // The driver's own advice names the direct CLI (`micropos axes`),
+        // which would fight microposd for the ports: through the daemon
+        // the reference is the daemon's command.
+        DriverError::NotReferenced { axis } => {
+            return ProtoError::new(
+                ErrorCode::NotReferenced,
+                format!(
+                    "axis {axis} is not referenced (power cycle or never referenced): its position is unknown; send reference first (CLI: `micropos reference {axis}`)"
+                ),
+            )
+        }
         DriverError::Halted { .. } => ErrorCode::Halted,
         e if e.is_link_fault() => ErrorCode::NotConnected,
         _ => ErrorCode::DriverError,
@@ -155,7 +165,11 @@ fn refusal(r: Refusal) -> ProtoError {
         Refusal::NotConnected(m) => ProtoError::new(ErrorCode::NotConnected, m),
         Refusal::NotReferenced(a) => ProtoError::new(
             ErrorCode::NotReferenced,
-            format!("axis {} is not referenced; send reference first", a.name()),
+            format!(
+                "axis {} is not referenced; send reference first (CLI: `micropos reference {}`)",
+                a.name(),
+                a.name()
+            ),
         ),
         Refusal::Busy(a) => ProtoError::new(
             ErrorCode::Busy,
@@ -249,11 +263,12 @@ impl Rig {
     }
 
     pub(crate) fn stage(&self) -> Result<Stage, ProtoError> {
-        lock(&self.stage).clone().ok_or_else(|| {
-            ProtoError::new(
-                ErrorCode::NotConnected,
-                "the controllers are not connected (yet); see status",
-            )
+        let stage = lock(&self.stage).clone();
+        stage.ok_or_else(|| {
+            // Why, as `status` says it (the last failed attempt), not only
+            // in the daemon's log.
+            let why = lock(&self.state).not_connected_because();
+            ProtoError::new(ErrorCode::NotConnected, format!("{why}; see status"))
         })
     }
 

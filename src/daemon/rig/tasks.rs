@@ -26,6 +26,7 @@ impl Rig {
                 r = Stage::connect_via(&self.cfg.driver, tx.clone(), self.links.as_ref()) => match r {
                     Ok(s) => break s,
                     Err(e) => {
+                        self.apply(Input::ConnectFailed(e.to_string()));
                         if !reported {
                             tracing::warn!("controllers not available: {e}; retrying");
                             self.push(Topic::Fault, "fault", json!({"t_s": self.clock.now_s(), "reason": format!("controllers not available: {e}")}));

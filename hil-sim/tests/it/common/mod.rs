@@ -145,6 +145,48 @@ pub fn serve_config(rig_dir: &Path, time_scale: f64, seed: u64) -> ServeConfig {
     }
 }
 
+/// An in-process rig (time scale 50, its virtual clock) and the main
+/// job's daemon configuration for it (reduced plan), in a fresh temporary
+/// directory: what the in-process daemon tests start from. `dir` must
+/// outlive the test's use of the others (dropping it removes them).
+pub struct InProcess {
+    pub dir: tempfile::TempDir,
+    pub data: PathBuf,
+    pub socket: PathBuf,
+    pub sim: SimHandle,
+    pub rig: hil_sim::rig::RigConfig,
+    pub config: DaemonConfig,
+}
+
+/// [`InProcess`] with the rig's `seed`.
+pub fn in_process_rig(seed: u64) -> InProcess {
+    let dir = tempfile::tempdir().unwrap();
+    let rig_dir = dir.path().join("rig");
+    let data = dir.path().join("data");
+    std::fs::create_dir_all(&rig_dir).unwrap();
+    std::fs::create_dir_all(&data).unwrap();
+    let cfg = serve_config(&rig_dir, 50.0, seed);
+    let rig = cfg.rig.clone();
+    let sim = serve_in_process(cfg);
+    let socket = dir.path().join("d.sock");
+    let config = hil_sim::run::daemon_config(
+        &rig_dir,
+        &data,
+        &socket,
+        &rig,
+        &hil_sim::run::RunPlan::reduced(),
+    )
+    .unwrap();
+    InProcess {
+        dir,
+        data,
+        socket,
+        sim,
+        rig,
+        config,
+    }
+}
+
 /// Starts the served rig (on a blocking thread: it creates ptys and threads).
 pub async fn serve(cfg: ServeConfig) -> SimHandle {
     tokio::task::spawn_blocking(move || SimHandle::start(cfg))
