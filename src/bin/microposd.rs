@@ -143,8 +143,9 @@ fn bind(path: &Path, mode: u32) -> anyhow::Result<std::os::unix::net::UnixListen
         _ => Path::new("."),
     };
     std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    remove_stale_bind_dirs(dir);
     let private = tempfile::Builder::new()
-        .prefix(".microposd-bind-")
+        .prefix(BIND_PREFIX)
         .tempdir_in(dir)
         .with_context(|| format!("creating a private directory in {}", dir.display()))?;
     let staged = private.path().join("socket");
@@ -155,6 +156,29 @@ fn bind(path: &Path, mode: u32) -> anyhow::Result<std::os::unix::net::UnixListen
     std::fs::rename(&staged, path)
         .with_context(|| format!("moving the socket into place at {}", path.display()))?;
     Ok(l)
+}
+
+/// Name prefix of [`bind`]'s private directories.
+const BIND_PREFIX: &str = ".microposd-bind-";
+
+/// Removes the empty private directories that a daemon killed between the
+/// socket's rename and the directory's removal left next to the socket.
+/// Only empty ones (`remove_dir` refuses any other), never through a
+/// symbolic link: a directory with something in it is not ours to judge.
+fn remove_stale_bind_dirs(dir: &Path) {
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return;
+    };
+    for e in entries.flatten() {
+        let ours = e.file_name().to_string_lossy().starts_with(BIND_PREFIX);
+        if ours && e.file_type().is_ok_and(|t| t.is_dir()) && std::fs::remove_dir(e.path()).is_ok()
+        {
+            tracing::info!(
+                "removed {}, left empty by an earlier daemon that stopped while binding",
+                e.path().display()
+            );
+        }
+    }
 }
 
 /// A socket every local user may connect to, with no `[access]` section to

@@ -165,3 +165,28 @@ fn a_wrong_serial_port_is_named_in_status_and_in_a_refused_move() {
     assert!(!moved, "{refusal}");
     assert!(refusal.contains("no-such-tty"), "{refusal}");
 }
+
+/// A daemon killed between the socket's rename and its private
+/// directory's removal leaves that directory, empty: the next start
+/// removes it, and leaves alone one with something in it.
+#[test]
+fn an_empty_bind_directory_left_by_a_killed_daemon_is_removed_at_start() {
+    let dir = tempfile::tempdir().unwrap();
+    let (cfg, socket) = config(dir.path(), "0600", false);
+    let run = socket.parent().unwrap();
+    let stale = run.join(".microposd-bind-AbC123");
+    let kept = run.join(".microposd-bind-XyZ789");
+    std::fs::create_dir_all(&stale).unwrap();
+    std::fs::create_dir_all(&kept).unwrap();
+    std::fs::write(kept.join("note"), "not a daemon's").unwrap();
+    let err = dir.path().join("stderr");
+    let child = start(&cfg, &err);
+    let _ = modes_seen(&socket, 1);
+    let t0 = Instant::now();
+    while stale.exists() && t0.elapsed() < Duration::from_secs(10) {
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    stop(child);
+    assert!(!stale.exists(), "the empty bind directory is still there");
+    assert!(kept.join("note").exists(), "a non-empty one was touched");
+}
