@@ -552,6 +552,17 @@ fn reply_warnings(v: &Value) -> Vec<String> {
     w
 }
 
+/// The order a person reads the modes in: uncompensated first, then by
+/// what each adds (the paper's tables, the model, the closed loop); modes
+/// this client does not know follow, by name.
+fn mode_rank(mode: &str) -> (usize, &str) {
+    let known = ["raw", "table", "model", "closed_loop"];
+    (
+        known.iter().position(|m| *m == mode).unwrap_or(known.len()),
+        mode,
+    )
+}
+
 /// AP and RP per trajectory and mode from `validate status`'s results.
 fn validation_table(v: &Value) -> String {
     let mut s = String::from("trajectory  mode         AP max µm  AP mean µm  RP max µm\n");
@@ -559,6 +570,8 @@ fn validation_table(v: &Value) -> String {
     if let Some(tests) = v["results"].as_object() {
         for (test, modes) in tests {
             if let Some(modes) = modes.as_object() {
+                let mut modes: Vec<(&String, &Value)> = modes.iter().collect();
+                modes.sort_by(|a, b| mode_rank(a.0).cmp(&mode_rank(b.0)));
                 for (mode, r) in modes {
                     s.push_str(&format!(
                         "{test:<11} {mode:<12} {:>9}  {:>10}  {:>9}\n",
@@ -611,4 +624,29 @@ fn sweep_summary(r: &Value) -> Option<String> {
         }
     }
     Some(s)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_validation_table_lists_modes_raw_first_then_what_each_adds() {
+        let v = json!({"results": {"square": {
+            "table": {"ap_um": 3.0}, "closed_loop": {"ap_um": 0.1},
+            "raw": {"ap_um": 22.0}, "model": {"ap_um": 1.0}, "extra": {"ap_um": 5.0}
+        }}});
+        let t = validation_table(&v);
+        let modes: Vec<&str> = t
+            .lines()
+            .skip(1)
+            .filter_map(|l| l.split_whitespace().nth(1))
+            .collect();
+        assert_eq!(
+            modes,
+            ["raw", "table", "model", "closed_loop", "extra"],
+            "{t}"
+        );
+        assert!(t.starts_with("trajectory  mode"), "{t}");
+    }
 }
