@@ -27,7 +27,7 @@
 use serde::Serialize;
 
 use super::{Diagnosis, ResidualSeries};
-use crate::analysis::grid::GridReport;
+use crate::analysis::grid::{nearest, paired_reduction_z, GridReport};
 use crate::model::terms::position_map::{PositionMapConfig, PositionMapTerm};
 use crate::model::{Axis, ModelError};
 
@@ -117,26 +117,12 @@ fn cells_of_rows(s: &ResidualSeries, g: &GridReport) -> Vec<Option<usize>> {
             if s.excluded.get(i).copied().unwrap_or(true) {
                 return None;
             }
-            let ix = nearest(&g.xs_um, s.x_um[i])?;
-            let iy = nearest(&g.ys_um, s.y_um[i])?;
+            let ix = nearest(&g.xs_um, s.x_um[i]);
+            let iy = nearest(&g.ys_um, s.y_um[i]);
             ((g.xs_um[ix] - s.x_um[i]).abs() <= tx && (g.ys_um[iy] - s.y_um[i]).abs() <= ty)
                 .then_some(iy * nx + ix)
         })
         .collect()
-}
-
-fn nearest(sorted: &[f64], x: f64) -> Option<usize> {
-    if !x.is_finite() || sorted.is_empty() {
-        return None;
-    }
-    let i = sorted.partition_point(|&v| v < x);
-    Some(if i == 0 {
-        0
-    } else if i == sorted.len() || x - sorted[i - 1] <= sorted[i] - x {
-        i - 1
-    } else {
-        i
-    })
 }
 
 /// The layers of component `c`: one per arrival direction of `c`'s axis
@@ -300,7 +286,8 @@ pub(super) fn fit(d: &mut Diagnosis, g: &GridReport) -> Result<MapTermReport, Mo
         } else {
             0.0
         };
-        let z = z_of(model_sq, map_sq);
+        let reductions: Vec<f64> = model_sq.iter().zip(map_sq).map(|(a, b)| a - b).collect();
+        let z = paired_reduction_z(&reductions);
         let (zt, gt) = (d.options.z_threshold, d.options.min_gain_pct);
         let passes = judged.cells >= 3 && z >= zt && gain_pct >= gt;
         let mut comp = MapComponent {
@@ -344,22 +331,4 @@ pub(super) fn fit(d: &mut Diagnosis, g: &GridReport) -> Result<MapTermReport, Mo
         components.push(comp);
     }
     Ok(MapTermReport { components })
-}
-
-/// Paired z of the reduction `model − map` of squared errors (0 without
-/// two cells or spread).
-fn z_of(model: &[f64], map: &[f64]) -> f64 {
-    let n = model.len().min(map.len());
-    if n < 2 {
-        return 0.0;
-    }
-    let diff: Vec<f64> = model.iter().zip(map).map(|(a, b)| a - b).collect();
-    let m = diff.iter().sum::<f64>() / n as f64;
-    let sd = (diff.iter().map(|v| (v - m).powi(2)).sum::<f64>() / (n - 1) as f64).sqrt();
-    if sd > 0.0 {
-        m / (sd / (n as f64).sqrt())
-    } else {
-        // Every cell gained the same: no spread to judge it by.
-        0.0
-    }
 }

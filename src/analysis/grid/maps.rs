@@ -404,11 +404,18 @@ fn rms_col(s: &Scored, j: usize) -> f64 {
 
 /// Paired z of `col a − col b` (a reduction when positive).
 fn paired_z(s: &Scored, a: usize, b: usize) -> f64 {
-    let n = s.len() as f64;
-    if s.len() < 3 {
+    let d: Vec<f64> = s.iter().map(|r| r[a] - r[b]).collect();
+    paired_reduction_z(&d)
+}
+
+/// Paired z of the reductions `d` (mean over its standard error; 0 for
+/// fewer than 3 or without spread): the held-out test of a map, shared
+/// with the map term of `diagnose`.
+pub(crate) fn paired_reduction_z(d: &[f64]) -> f64 {
+    let n = d.len() as f64;
+    if d.len() < 3 {
         return 0.0;
     }
-    let d: Vec<f64> = s.iter().map(|r| r[a] - r[b]).collect();
     let m = d.iter().sum::<f64>() / n;
     let sd = (d.iter().map(|v| (v - m).powi(2)).sum::<f64>() / (n - 1.0)).sqrt();
     if sd > 0.0 {

@@ -45,6 +45,7 @@ use crate::charact::scan::{grid_direction, is_sweep_anchor};
 use crate::model::Direction;
 
 pub use geometry::{Geometry, Slope};
+pub(crate) use maps::paired_reduction_z;
 pub use maps::{ComponentMaps, FoldScore, NonSeparable};
 pub use noise::NoiseFloor;
 pub use zones::{combine_zones, Zone, ZoneCombination, ZoneError, ZoneOptions, ZoneSetup};
@@ -210,8 +211,8 @@ fn distinct(mut v: Vec<f64>, tol: f64) -> Vec<f64> {
     out.into_iter().map(|(s, n)| s / n as f64).collect()
 }
 
-/// Index of the value in `sorted` nearest to `x`.
-fn nearest(sorted: &[f64], x: f64) -> usize {
+/// Index of the value in `sorted` nearest to `x` (0 for a NaN `x`).
+pub(crate) fn nearest(sorted: &[f64], x: f64) -> usize {
     let i = sorted.partition_point(|&v| v < x);
     if i == 0 {
         0
