@@ -192,6 +192,39 @@ impl SimClock {
         Ok(c)
     }
 
+    /// Like [`SimClock::connect`], but waits up to `wait` for the simulator
+    /// to come up: a daemon and `hil-sim serve` started together (a script,
+    /// the README's lines pasted at once) must not race. Only a missing or
+    /// refusing socket is waited for; any other failure returns at once.
+    pub fn connect_waiting(
+        path: &std::path::Path,
+        wait: Duration,
+    ) -> Result<Self, SimClockError> {
+        let deadline = std::time::Instant::now() + wait;
+        let mut logged = false;
+        loop {
+            match Self::connect(path) {
+                Err(SimClockError::Io { ref source, .. })
+                    if matches!(
+                        source.kind(),
+                        std::io::ErrorKind::NotFound | std::io::ErrorKind::ConnectionRefused
+                    ) && std::time::Instant::now() < deadline =>
+                {
+                    if !logged {
+                        tracing::info!(
+                            "waiting up to {:.0} s for the simulator's control socket {}",
+                            wait.as_secs_f64(),
+                            path.display()
+                        );
+                        logged = true;
+                    }
+                    std::thread::sleep(Duration::from_millis(100));
+                }
+                r => return r,
+            }
+        }
+    }
+
     /// Simulated time now, or why it could not be read.
     pub fn try_now_s(&self) -> Result<f64, SimClockError> {
         let mut g = self.conn.lock().unwrap_or_else(|e| e.into_inner());

@@ -158,6 +158,10 @@ fn bind(path: &Path, mode: u32) -> anyhow::Result<std::os::unix::net::UnixListen
     Ok(l)
 }
 
+/// How long a daemon on a simulated rig waits for `hil-sim serve` to come
+/// up (its control socket answers last, after the lines and the camera).
+const SIM_CLOCK_WAIT: Duration = Duration::from_secs(30);
+
 /// Name prefix of [`bind`]'s private directories.
 const BIND_PREFIX: &str = ".microposd-bind-";
 
@@ -272,7 +276,7 @@ async fn run(cfg: DaemonConfig, source: ConfigSource) -> anyhow::Result<()> {
         ClockSpec::Wall => Arc::new(WallClock::new()),
         ClockSpec::Sim(path) => {
             let p = path.clone();
-            let c = tokio::task::spawn_blocking(move || SimClock::connect(&p))
+            let c = tokio::task::spawn_blocking(move || SimClock::connect_waiting(&p, SIM_CLOCK_WAIT))
                 .await?
                 .with_context(|| {
                     format!("connecting the sim clock (rig.clock) at {}", path.display())

@@ -174,6 +174,12 @@ pub fn compensation_template_for(model: &StageModel, moves: bool) -> Result<Stag
                 // identifiable terms absorb the angular errors' effect on
                 // the scanned lines instead.
                 || t.kind() == "angular"
+                // A 2-D map has a parameter per node: the scans' two lines
+                // cannot fit it (freed, its nodes on the lines would take
+                // the scans' errors as their own, the rest are reported
+                // unidentifiable). A map comes from a grid log, whose
+                // compensation is the grid table.
+                || t.kind() == crate::model::terms::position_map::KIND
         })
         .map(|t| t.name().to_string())
         .collect();
@@ -405,6 +411,13 @@ mod tests {
         // Not identifiable from 1-DoF scans: left out.
         assert!(tmpl.terms().iter().all(|t| t.kind() != "angular"));
         assert!(model.terms().iter().any(|t| t.kind() == "angular"));
+        // Nor a 2-D map (the shipped models carry a zero one).
+        let map = crate::model::terms::position_map::KIND;
+        assert!(model.terms().iter().any(|t| t.kind() == map));
+        assert!(tmpl
+            .terms()
+            .iter()
+            .all(|t| t.kind() != map));
         // The template is a valid model file (a zero width would not be).
         let text = tmpl.to_toml().unwrap();
         StageModel::from_toml(&text).unwrap();

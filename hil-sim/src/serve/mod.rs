@@ -493,15 +493,17 @@ impl SimHandle {
                 handle.probe(axis, cfg.daisy_chain)?;
             }
         }
-        if let Some(path) = &cfg.control_socket {
-            let injector: Arc<dyn crate::control::Injector> = handle.core.clone();
-            handle.control = Some(crate::control::ControlServer::start(path, injector)?);
-        }
+        // The control socket last: a daemon that waits for it (the sim
+        // clock) then finds the lines and the camera in place.
         if let Some(path) = &cfg.camera_socket {
             handle.camera_server = Some(crate::camera::server::CameraServer::start(
                 path,
                 handle.core.camera.clone(),
             )?);
+        }
+        if let Some(path) = &cfg.control_socket {
+            let injector: Arc<dyn crate::control::Injector> = handle.core.clone();
+            handle.control = Some(crate::control::ControlServer::start(path, injector)?);
         }
         Ok(handle)
     }

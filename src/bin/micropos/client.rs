@@ -27,6 +27,19 @@ pub struct GlobalOpts {
     /// Print the daemon's JSON replies instead of text.
     #[arg(long, global = true)]
     pub json: bool,
+    /// Wait up to this many seconds for the daemon's socket to accept
+    /// (a script that has just started microposd); 0 fails at once.
+    #[arg(long, global = true, default_value_t = 0.0, value_name = "S",
+          value_parser = parse_wait_s)]
+    pub wait_s: f64,
+}
+
+/// A wait in seconds: finite and not negative.
+fn parse_wait_s(s: &str) -> Result<f64, String> {
+    match s.parse::<f64>() {
+        Ok(v) if v.is_finite() && (0.0..=86_400.0).contains(&v) => Ok(v),
+        _ => Err(format!("{s:?} is not a wait in seconds (0 to 86400)")),
+    }
 }
 
 /// Commands sent to microposd.
@@ -216,12 +229,27 @@ struct Conn {
 struct Unreachable(anyhow::Error);
 
 impl Conn {
-    async fn open(path: &PathBuf) -> Result<Conn, Unreachable> {
-        let s = UnixStream::connect(path)
-            .await
+    /// Connects, retrying a missing or refusing socket for `wait_s` seconds
+    /// (a daemon still starting binds its socket within milliseconds).
+    async fn open(path: &PathBuf, wait_s: f64) -> Result<Conn, Unreachable> {
+        let deadline = tokio::time::Instant::now() + std::time::Duration::from_secs_f64(wait_s);
+        let s = loop {
+            match UnixStream::connect(path).await {
+                Err(e)
+                    if matches!(
+                        e.kind(),
+                        std::io::ErrorKind::NotFound | std::io::ErrorKind::ConnectionRefused
+                    ) && tokio::time::Instant::now() < deadline =>
+                {
+                    tokio::time::sleep(std::time::Duration::from_millis(100)).await;
+                }
+                r => break r,
+            }
+        };
+        let s = s
             .with_context(|| {
                 format!(
-                    "cannot reach microposd at {} (is it running? --socket)",
+                    "cannot reach microposd at {} (is it running? --socket names its socket; --wait-s S waits for one that is starting)",
                     path.display()
                 )
             })
@@ -456,7 +484,7 @@ pub async fn run(opts: GlobalOpts, cmd: ClientCommand) -> anyhow::Result<ExitCod
 }
 
 async fn run_inner(opts: &GlobalOpts, cmd: &ClientCommand) -> Result<ExitCode, Unreachable> {
-    let mut conn = Conn::open(&opts.socket).await?;
+    let mut conn = Conn::open(&opts.socket, opts.wait_s).await?;
     let reply = conn.request(build(cmd)).await?;
     let out = std::io::stdout();
     if opts.json {
