@@ -7,6 +7,7 @@
 # - Python: PI's own client (PIPython) against the simulated controllers, and
 #   micropos' Python client (clients/python) against microposd and the simulated
 #   rig, each in a virtualenv under target/ that its script creates on first use.
+# - The README followed in order from a fresh clone (scripts/newcomer.sh).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 root=$PWD
@@ -53,3 +54,9 @@ PIPYTHON_VENV="${PIPYTHON_VENV:-$target/venv-pipython}" ./scripts/pipython.sh
 
 step "Python client against microposd + hil-sim"
 PYCLIENT_VENV="${PYCLIENT_VENV:-$target/venv-pyclient}" ./scripts/pyclient.sh
+
+# A newcomer's first hour: a fresh clone, the README's commands in the
+# order written (the main job, the served rig, the Python example), and the
+# checkout left clean (scripts/newcomer.sh).
+step "the README in order, from a fresh clone"
+./scripts/newcomer.sh

@@ -155,6 +155,23 @@ impl Rig {
         })
     }
 
+    /// The leadscrew periods of the stage model this rig runs, µm (one per
+    /// `leadscrew_cyclic` term): what a plan's step must resolve, so a
+    /// report can say when it did not.
+    pub fn lead_periods_um(&self) -> Vec<f64> {
+        let st = self.lock();
+        st.sim
+            .model()
+            .params()
+            .into_iter()
+            .filter(|p| {
+                p.kind == micropos::model::terms::cyclic::LEADSCREW_KIND
+                    && p.info.name == "period_um"
+            })
+            .map(|p| p.info.value)
+            .collect()
+    }
+
     /// The pattern mounting.
     pub fn mounting(&self) -> &Mounting {
         &self.mounting
