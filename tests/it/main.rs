@@ -29,6 +29,7 @@ mod camera_genicam;
 #[cfg(feature = "v4l2")]
 mod camera_v4l2;
 mod cli_pipe;
+mod cli_wait;
 mod closed_loop_paper;
 mod comp_file;
 mod comp_frame;

@@ -27,8 +27,9 @@ pub struct GlobalOpts {
     /// Print the daemon's JSON replies instead of text.
     #[arg(long, global = true)]
     pub json: bool,
-    /// Wait up to this many seconds for the daemon's socket to accept
-    /// (a script that has just started microposd); 0 fails at once.
+    /// Wait up to this many seconds for the daemon to accept and its
+    /// controllers to connect (a script that has just started microposd);
+    /// 0 fails at once.
     #[arg(long, global = true, default_value_t = 0.0, value_name = "S",
           value_parser = parse_wait_s)]
     pub wait_s: f64,
@@ -484,8 +485,19 @@ pub async fn run(opts: GlobalOpts, cmd: ClientCommand) -> anyhow::Result<ExitCod
 }
 
 async fn run_inner(opts: &GlobalOpts, cmd: &ClientCommand) -> Result<ExitCode, Unreachable> {
+    let deadline = tokio::time::Instant::now() + std::time::Duration::from_secs_f64(opts.wait_s);
     let mut conn = Conn::open(&opts.socket, opts.wait_s).await?;
-    let reply = conn.request(build(cmd)).await?;
+    // A daemon just started connects its controllers within moments:
+    // `not_connected` refuses a command without doing anything, so with
+    // --wait-s the command is sent again until they are (or time is up).
+    let reply = loop {
+        let reply = conn.request(build(cmd)).await?;
+        if reply["error"]["code"] == "not_connected" && tokio::time::Instant::now() < deadline {
+            tokio::time::sleep(std::time::Duration::from_millis(200)).await;
+            continue;
+        }
+        break reply;
+    };
     let out = std::io::stdout();
     if opts.json {
         let _ = writeln!(out.lock(), "{reply}");
