@@ -196,10 +196,7 @@ impl SimClock {
     /// to come up: a daemon and `hil-sim serve` started together (a script,
     /// the README's lines pasted at once) must not race. Only a missing or
     /// refusing socket is waited for; any other failure returns at once.
-    pub fn connect_waiting(
-        path: &std::path::Path,
-        wait: Duration,
-    ) -> Result<Self, SimClockError> {
+    pub fn connect_waiting(path: &std::path::Path, wait: Duration) -> Result<Self, SimClockError> {
         let deadline = std::time::Instant::now() + wait;
         let mut logged = false;
         loop {
@@ -288,6 +285,36 @@ mod tests {
         c.sleep(Duration::from_secs(3600)).await;
         assert!((c.now_s() - 3600.0).abs() < 2e-3, "{}", c.now_s());
         assert!(wall.elapsed() < Duration::from_secs(60));
+    }
+
+    /// A daemon started beside `hil-sim serve` waits for its control
+    /// socket instead of exiting; without a wait a missing socket fails.
+    #[test]
+    fn sim_clock_waits_for_a_simulator_that_is_starting() {
+        use std::io::{BufRead, Write};
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("control.sock");
+        assert!(matches!(
+            SimClock::connect_waiting(&path, Duration::ZERO),
+            Err(SimClockError::Io { .. })
+        ));
+        let p = path.clone();
+        let server = std::thread::spawn(move || {
+            std::thread::sleep(Duration::from_millis(300));
+            let l = std::os::unix::net::UnixListener::bind(&p).unwrap();
+            let (s, _) = l.accept().unwrap();
+            let mut r = std::io::BufReader::new(s.try_clone().unwrap());
+            let mut w = s;
+            let mut line = String::new();
+            while r.read_line(&mut line).unwrap_or(0) > 0 {
+                writeln!(w, r#"{{"ok":true,"t_s":12.5}}"#).unwrap();
+                line.clear();
+            }
+        });
+        let c = SimClock::connect_waiting(&path, Duration::from_secs(60)).unwrap();
+        assert_eq!(c.try_now_s().unwrap(), 12.5);
+        drop(c);
+        server.join().unwrap();
     }
 
     #[tokio::test]

@@ -1015,7 +1015,12 @@ fn model_note(summary: &Value) -> Option<String> {
         .map(|v| v.iter().filter_map(Value::as_f64).collect())
         .unwrap_or_default();
     let mut why = Vec::new();
-    if let Some(lead) = leads.iter().copied().filter(|l| step > l / 2.0).reduce(f64::min) {
+    if let Some(lead) = leads
+        .iter()
+        .copied()
+        .filter(|l| step > l / 2.0)
+        .reduce(f64::min)
+    {
         why.push(format!(
             "its {step:.0} µm steps cannot resolve the screw's {lead:.0} µm cycle (a step of at most {:.0} µm can)",
             lead / 2.0
@@ -1028,7 +1033,8 @@ fn model_note(summary: &Value) -> Option<String> {
         );
     }
     let because = if why.is_empty() {
-        "on this plan the model's terms do not hold this stage's error better than the tables".to_owned()
+        "on this plan the model's terms do not hold this stage's error better than the tables"
+            .to_owned()
     } else {
         why.join("; ")
     };
@@ -1154,12 +1160,18 @@ mod tests {
         };
         let n = model_note(&summary(5.06, 500.0, 0)).unwrap();
         assert!(n.contains("model table (square)"), "{n}");
-        assert!(n.contains("500 µm steps cannot resolve the screw's 400 µm cycle"), "{n}");
+        assert!(
+            n.contains("500 µm steps cannot resolve the screw's 400 µm cycle"),
+            "{n}"
+        );
         assert!(n.contains("at most 200 µm"), "{n}");
         assert!(n.contains("no moves of varied length"), "{n}");
         // Fine steps, moves of varied length: no plan reason, a plain one.
         let n = model_note(&summary(5.06, 50.0, 40)).unwrap();
-        assert!(!n.contains("cannot resolve") && !n.contains("no moves"), "{n}");
+        assert!(
+            !n.contains("cannot resolve") && !n.contains("no moves"),
+            "{n}"
+        );
         // The model ahead: nothing to explain.
         assert_eq!(model_note(&summary(0.4, 500.0, 0)), None);
         // The note is part of the table.

@@ -276,11 +276,12 @@ async fn run(cfg: DaemonConfig, source: ConfigSource) -> anyhow::Result<()> {
         ClockSpec::Wall => Arc::new(WallClock::new()),
         ClockSpec::Sim(path) => {
             let p = path.clone();
-            let c = tokio::task::spawn_blocking(move || SimClock::connect_waiting(&p, SIM_CLOCK_WAIT))
-                .await?
-                .with_context(|| {
-                    format!("connecting the sim clock (rig.clock) at {}", path.display())
-                })?;
+            let c =
+                tokio::task::spawn_blocking(move || SimClock::connect_waiting(&p, SIM_CLOCK_WAIT))
+                    .await?
+                    .with_context(|| {
+                        format!("connecting the sim clock (rig.clock) at {}", path.display())
+                    })?;
             Arc::new(c)
         }
     };

@@ -414,10 +414,7 @@ mod tests {
         // Nor a 2-D map (the shipped models carry a zero one).
         let map = crate::model::terms::position_map::KIND;
         assert!(model.terms().iter().any(|t| t.kind() == map));
-        assert!(tmpl
-            .terms()
-            .iter()
-            .all(|t| t.kind() != map));
+        assert!(tmpl.terms().iter().all(|t| t.kind() != map));
         // The template is a valid model file (a zero width would not be).
         let text = tmpl.to_toml().unwrap();
         StageModel::from_toml(&text).unwrap();
