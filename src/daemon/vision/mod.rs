@@ -113,7 +113,7 @@ impl Default for VisionStats {
 }
 
 /// The newest frame and what its decode found, kept for the web view's
-/// camera image only while someone watches ([`FrameTap::watch`]).
+/// camera image ([`FrameTap`]).
 #[derive(Debug, Clone)]
 pub struct Snapshot {
     /// The frame as grabbed.
@@ -140,52 +140,34 @@ pub struct SnapshotDecode {
 }
 
 /// Hands the decode path's newest frame to the web view without ever
-/// making decode wait: the decode thread only `try_lock`s, and keeps a
-/// frame (an `Arc`, no copy of the pixels) only while a viewer asked for
-/// one within the last [`FrameTap::WATCH_S`] seconds.
+/// making decode wait: the decode thread only `try_lock`s and keeps the
+/// newest frame (the frame it already owns, moved into an `Arc`: no copy
+/// of the pixels).
+///
+/// Why always, not only while a page watches: a page's first camera
+/// request must find a frame to show (else the image stays black until a
+/// later poll), and on the in-process rig (on-demand capture) frames exist
+/// only while something measures, so the view shows the last measured one.
+/// The cost is one frame's memory; the decode path drops the frame it
+/// replaces instead of the one it just decoded.
 #[derive(Debug, Default)]
 pub struct FrameTap {
-    /// When a viewer last asked (wall clock), `None`: nobody ever did.
-    watched: std::sync::Mutex<Option<std::time::Instant>>,
     latest: std::sync::Mutex<Option<Snapshot>>,
 }
 
 impl FrameTap {
-    /// How long one viewer's request keeps frames coming, s.
-    pub const WATCH_S: f64 = 5.0;
-
-    /// A viewer wants frames (called on every camera request).
-    pub fn watch(&self) {
-        if let Ok(mut g) = self.watched.lock() {
-            *g = Some(std::time::Instant::now());
-        }
-    }
-
-    /// Whether a viewer asked recently. Never blocks (a contended lock
-    /// counts as "yes": the viewer is asking right now).
-    pub fn watched(&self) -> bool {
-        match self.watched.try_lock() {
-            Ok(g) => g.is_some_and(|t| t.elapsed().as_secs_f64() < Self::WATCH_S),
-            Err(std::sync::TryLockError::WouldBlock) => true,
-            Err(std::sync::TryLockError::Poisoned(_)) => false,
-        }
-    }
-
     /// The newest kept snapshot.
     pub fn latest(&self) -> Option<Snapshot> {
         self.latest.lock().ok().and_then(|g| g.clone())
     }
 
-    /// Keeps `frame` and its decode if a viewer watches; skips when the
-    /// web view holds the lock (the decode path never waits).
+    /// Keeps `frame` and its decode; skips when the web view holds the
+    /// lock (the decode path never waits).
     fn offer(
         &self,
         frame: Frame,
         decoded: &Result<crate::pattern::decode::Decoded, crate::pattern::decode::DecodeError>,
     ) {
-        if !self.watched() {
-            return;
-        }
         if let Ok(mut g) = self.latest.try_lock() {
             *g = Some(Snapshot {
                 frame: Arc::new(frame),
@@ -209,7 +191,7 @@ pub struct Vision {
     pub latest: watch::Receiver<Option<Measurement>>,
     /// Counters.
     pub stats: Arc<VisionStats>,
-    /// The newest frame for the web view (kept only while watched).
+    /// The newest frame for the web view (always the newest decoded).
     pub tap: Arc<FrameTap>,
     /// The last camera or decode error, readable.
     pub last_error: Arc<std::sync::Mutex<Option<String>>>,

@@ -5,11 +5,10 @@
 //! and alignment can be judged by eye.
 //!
 //! Why it never disturbs decoding or motion: frames reach it through
-//! [`FrameTap`] (the decode path only `try_lock`s and keeps frames only
-//! while a viewer asked within [`FrameTap::WATCH_S`]), the downscale and
-//! the PNG encoding run on the blocking pool, and at most `camera_max_hz`
-//! renders a second are made however many viewers ask (the newest render
-//! is shared).
+//! [`FrameTap`] (the decode path only `try_lock`s to keep its newest
+//! frame, it never waits), the downscale and the PNG encoding run on the
+//! blocking pool, and at most `camera_max_hz` renders a second are made
+//! however many viewers ask (the newest render is shared).
 
 use crate::daemon::vision::{FrameTap, Snapshot, SnapshotDecode};
 use crate::frame::Frame;
@@ -65,10 +64,9 @@ impl CameraView {
     }
 
     /// The newest render, made anew if the last one is older than the rate
-    /// allows and a newer frame exists; `None` while no frame was kept yet
-    /// (the first request starts the tap).
+    /// allows and a newer frame exists; `None` while the camera has
+    /// delivered no frame yet.
     pub async fn current(&self) -> Option<Rendered> {
-        self.tap.watch();
         let mut g = self.renders.lock().await;
         let due = g.0.is_none_or(|t| t.elapsed() >= self.min_interval);
         if due {
@@ -96,7 +94,6 @@ impl CameraView {
 
     /// The kept render of frame `sequence`, if still kept.
     pub async fn by_sequence(&self, sequence: u64) -> Option<Rendered> {
-        self.tap.watch();
         let g = self.renders.lock().await;
         g.1.iter().find(|r| r.sequence == sequence).cloned()
     }

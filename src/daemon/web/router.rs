@@ -321,8 +321,8 @@ fn json_response(status: StatusCode, v: serde_json::Value) -> Response {
 }
 
 /// `GET /api/camera`: the overlay of the newest render (`sequence` null
-/// while no frame was kept yet; the first request starts the tap;
-/// `camera: false` without a camera).
+/// while the camera has delivered no frame yet; `camera: false` without a
+/// camera).
 async fn camera_overlay(State(web): State<Arc<Web>>) -> Response {
     let Some(view) = &web.camera else {
         return json_response(StatusCode::OK, json!({"camera": false, "sequence": null}));

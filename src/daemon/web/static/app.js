@@ -1,12 +1,28 @@
-// micropos web view: live state from GET /api/events (server-sent events:
-// the socket protocol's event lines), reads and commands through
-// POST /api/command (the socket protocol's requests), the camera from
-// GET /api/camera (overlay JSON) and /api/camera.png.
+// micropos web view: the state the page was served with (a JSON data
+// block and the first camera image in index.html), then, once the page has
+// loaded, live state from GET /api/events (server-sent events: the socket
+// protocol's event lines), reads and commands through POST /api/command
+// (the socket protocol's requests), the camera from GET /api/camera
+// (overlay JSON) and /api/camera.png.
+//
+// Why nothing live starts before `load`: the event stream never ends, so
+// the page is complete at `load` (what a headless screenshot captures) and
+// keeps no request open until then. `?live=0` never goes live: the state
+// at load and the figures, then no request at all (a still page for
+// screenshots that wait for the network to go idle, and for printing).
 'use strict';
 
 const $ = (id) => document.getElementById(id);
 const num = (v, digits) => (typeof v === 'number' && Number.isFinite(v)) ? v.toFixed(digits) : '–';
-const view = { positionUpdates: 0, cameraUpdates: 0, lastSeq: null, faults: [], jobState: null };
+const LIVE = new URLSearchParams(location.search).get('live') !== '0';
+const view = {
+  positionUpdates: 0, cameraUpdates: 0, lastSeq: null, faults: [], jobState: null,
+  lastController: null, moving: false, lastStatusAsk: 0,
+};
+// A controller position that moved more than this between two polls means
+// the stage moves, µm (well above the simulator's and a C-863's noise at
+// rest, well below one poll of the slowest useful move).
+const MOTION_UM = 0.05;
 let token = sessionStorage.getItem('micropos-token') || '';
 
 async function command(req, withToken) {
@@ -44,14 +60,65 @@ function onPosition(p) {
     setText('pos-controller-x', num(p.x_um, 3));
     setText('pos-controller-y', num(p.y_um, 3));
     setText('pos-controller-t', 't ' + num(p.t_s, 1) + ' s');
+    noteMotion(p);
   } else if (p.source === 'vision') {
     setText('pos-vision-x', num(p.stage_x_um, 3));
     setText('pos-vision-y', num(p.stage_y_um, 3));
     // Untied, the daemon sends no stage coordinates (a pattern reading is
-    // no stage position): say so, with its reason, where they would be.
-    setText('pos-vision-q', p.untied ? 'untied: ' + p.untied : 'q ' + num(p.quality, 1));
+    // no stage position): say so, with its reason, below the table.
+    setText('pos-vision-q', (p.untied ? 'untied' : 'stage axes') + ' · quality ' + num(p.quality, 1) + ' bits');
+    setText('pos-vision-untied', p.untied ? 'vision: ' + p.untied : '');
   }
   bumpPositions();
+}
+
+// Whether the stage moves, from consecutive controller positions: shown
+// at once with the position that shows it. The daemon's own activity (the
+// header badge) comes with `status`, which has no event: it is asked for
+// when the stage starts or stops moving (at most every 300 ms).
+function noteMotion(p) {
+  if (typeof p.x_um !== 'number' || typeof p.y_um !== 'number') return;
+  const last = view.lastController;
+  view.lastController = [p.x_um, p.y_um];
+  if (!last) return;
+  const moving = Math.abs(p.x_um - last[0]) > MOTION_UM || Math.abs(p.y_um - last[1]) > MOTION_UM;
+  if (moving !== view.moving) {
+    setMotion(moving);
+    const now = performance.now();
+    if (now - view.lastStatusAsk > 300) {
+      view.lastStatusAsk = now;
+      refreshStatus();
+      if (moving) refreshPosition();
+    }
+  }
+}
+
+function setMotion(moving) {
+  view.moving = moving;
+  const m = $('motion');
+  setText('motion', moving ? 'moving' : 'at rest');
+  m.className = 'badge' + (moving ? ' moving' : '');
+}
+
+// Why a latched fault blocks motion and what clears it: the socket's
+// `reset` (role admin; the CLI's `micropos reset`), after the cause is
+// found. A reset does not restore a lost reference.
+const RESET_HINT = 'Motion is refused until the fault is reset. Find and remove its cause, then clear it ' +
+  'with `micropos reset` (socket: `{"cmd":"reset"}`, role admin). ' +
+  'An axis that lost its reference then needs `micropos reference`.';
+
+function showHint(el, text) {
+  // Backticked parts as <code>, the rest as text (no HTML from strings).
+  while (el.firstChild) el.removeChild(el.firstChild);
+  text.split('`').forEach((part, i) => {
+    if (i % 2) {
+      const c = document.createElement('code');
+      c.textContent = part;
+      el.appendChild(c);
+    } else if (part) {
+      el.appendChild(document.createTextNode(part));
+    }
+  });
 }
 
 function onStatus(s) {
@@ -60,8 +127,22 @@ function onStatus(s) {
     setText('rig-activity', s.rig.activity || '?');
     const latched = s.rig.fault_latched;
     $('rig-mode').className = 'badge' + (latched ? ' fault' : '');
-    setText('fault-latched', latched ? 'LATCHED: ' + latched.reason : 'none latched');
+    $('rig-activity').className = 'badge' + (s.rig.activity === 'moving' ? ' moving' : '');
+    // Until two controller positions tell, the daemon's activity does.
+    if (!view.lastController || $('motion').textContent === '–') setMotion(s.rig.activity === 'moving');
+    const panel = $('fault-panel');
+    panel.hidden = !latched;
+    if (latched) {
+      setText('fault-latched', (typeof latched.t_s === 'number' ? 't ' + num(latched.t_s, 1) + ' s: ' : '') + latched.reason);
+      if (!$('fault-hint').textContent) showHint($('fault-hint'), RESET_HINT);
+    } else {
+      setText('fault-latched', '');
+    }
   }
+  // The list shows events as they come; the last fault before the page
+  // opened comes from `status`.
+  const last = s.rig && s.rig.last_fault;
+  if (last && view.faults.length === 0) onFault(Object.assign({ event: 'fault' }, last), true);
   if (s.drift) onDrift({ drift: s.drift });
   if (s.job) onJob(s.job);
 }
@@ -79,7 +160,8 @@ function onJob(j) {
   bar.value = done;
   setText('job-eta', typeof j.eta_s === 'number' ? formatDuration(j.eta_s) : '–');
   setText('job-error', j.error || '');
-  setText('job-result', j.result ? JSON.stringify(j.result) : '');
+  setText('job-result', j.result ? JSON.stringify(j.result, null, 1) : '');
+  if (j.result) $('job-result-box').dataset.has = '1'; else delete $('job-result-box').dataset.has;
   if (view.jobState === 'running' && j.state && j.state !== 'running') loadResults();
   view.jobState = j.state || null;
 }
@@ -92,7 +174,7 @@ function formatDuration(s) {
   return (h ? h + ' h ' : '') + (h || m ? m + ' min ' : '') + sec + ' s';
 }
 
-function onFault(f) {
+function onFault(f, fromStatus) {
   const line = (typeof f.t_s === 'number' ? num(f.t_s, 1) + ' s ' : '') + f.event +
     (f.reason ? ': ' + f.reason : '') + (f.line ? ' ' + f.line : '') + (f.state ? ' ' + f.state : '');
   view.faults.unshift(line);
@@ -102,7 +184,7 @@ function onFault(f) {
   li.textContent = line;
   ul.insertBefore(li, ul.firstChild);
   while (ul.children.length > 50) ul.removeChild(ul.lastChild);
-  if (f.event === 'fault' || f.event === 'reset') refreshStatus();
+  if (!fromStatus && (f.event === 'fault' || f.event === 'reset')) refreshStatus();
 }
 
 function onDrift(d) {
@@ -156,8 +238,8 @@ function imageHash(ctx, w, h) {
 
 function drawCamera(bmp, o) {
   const c = $('camera');
-  if (c.width !== o.width) c.width = o.width;
-  if (c.height !== o.height) c.height = o.height;
+  if (typeof o.width === 'number' && c.width !== o.width) c.width = o.width;
+  if (typeof o.height === 'number' && c.height !== o.height) c.height = o.height;
   const ctx = c.getContext('2d', { willReadFrequently: true });
   ctx.drawImage(bmp, 0, 0);
   c.dataset.hash = imageHash(ctx, c.width, c.height);
@@ -282,9 +364,40 @@ function setupControl() {
   });
 }
 
+// The state the page was served with: shown before `load`, so the page
+// is complete when it fires. Its camera image (`camera-first`) holds the
+// `load` event until it has arrived.
+function showInitial() {
+  const block = $('initial-state');
+  if (!block) return;
+  let s;
+  try { s = JSON.parse(block.textContent); } catch (e) { return; }
+  if (s.status) onStatus(s.status);
+  if (s.position) onPosition(s.position);
+  const img = $('camera-first');
+  if (s.camera && img) {
+    const draw = () => {
+      if (img.naturalWidth > 0 && view.lastSeq === null) {
+        drawCamera(img, s.camera);
+        view.lastSeq = s.camera.sequence;
+      }
+    };
+    if (img.complete) draw(); else img.addEventListener('load', draw);
+  }
+}
+
 setupControl();
-connect();
-cameraTick();
-loadResults();
-setInterval(refreshStatus, 2000);
-setInterval(refreshPosition, 2000);
+showInitial();
+window.addEventListener('load', () => {
+  loadResults();
+  if (!LIVE) {
+    const c = $('conn');
+    c.textContent = 'still (live=0)';
+    c.className = 'badge';
+    return;
+  }
+  connect();
+  cameraTick();
+  setInterval(refreshStatus, 2000);
+  setInterval(refreshPosition, 2000);
+});

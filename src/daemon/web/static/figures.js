@@ -1,6 +1,17 @@
 // micropos figures: draws the `figures` command's Figure data (the same
 // panels `micropos plot` writes as PNG/SVG: x–y traces on linear or log
 // axes, grouped bars) as inline SVG. Plain DOM, no library, no build step.
+//
+// Layout rules (each checked by hil-sim's web_browser test):
+// - the legend sits in a band between the title and the plot area, never
+//   over the data, and wraps onto more lines rather than leave the panel;
+// - numbers are rounded to what they resolve: values to 0.001 (1 nm in
+//   µm, the resolution the summary tables and the legends give), ticks to
+//   the tick step's decimals; value labels carry the axis's unit;
+// - a bar's value label is drawn upright when it fits the bar's width,
+//   turned upright along the bar when not, and left out (the bar's tooltip
+//   and the table beside the figure still give it) when bars are too thin
+//   for even that: labels never overlap.
 'use strict';
 
 const FIG = (() => {
@@ -9,7 +20,25 @@ const FIG = (() => {
   const PALETTE = ['#1f77b4', '#d62728', '#2ca02c', '#ff7f0e', '#9467bd', '#646464'];
   const W = 560;
   const H = 280;
-  const M = { left: 62, right: 12, top: 26, bottom: 40 };
+  // Margins around the plot area before the legend band is added to `top`.
+  const M = { left: 62, right: 12, top: 24, bottom: 40 };
+  // The small text of ticks, legends and values (style.css: .fig-tick,
+  // .fig-value, .fig-legend text), for measuring before drawing.
+  const SMALL_FONT = '10px system-ui, sans-serif';
+  const LEGEND_ROW = 13;
+  // Decimals a value is shown with: 0.001 µm, as in the summary tables.
+  const VALUE_DECIMALS = 3;
+
+  let measureCtx = null;
+  // Width of `s` in the small font, px (a canvas measures without the
+  // text being in the document).
+  function textWidth(s) {
+    if (!measureCtx) {
+      measureCtx = document.createElement('canvas').getContext('2d');
+      if (measureCtx) measureCtx.font = SMALL_FONT;
+    }
+    return measureCtx ? measureCtx.measureText(s).width : 6 * s.length;
+  }
 
   function el(name, attrs, parent) {
     const e = document.createElementNS(NS, name);
@@ -38,6 +67,98 @@ const FIG = (() => {
     return out;
   }
 
+  // Decimals that show a tick step exactly (0.25 → 2, 5 → 0).
+  function stepDecimals(step) {
+    if (!(step > 0)) return 0;
+    for (let d = 0; d < 10; d++) {
+      if (Math.abs(step * Math.pow(10, d) - Math.round(step * Math.pow(10, d))) < 1e-6) return d;
+    }
+    return 10;
+  }
+
+  // Tick labels of one axis, each with the decimals of the step.
+  function tickLabeller(ts) {
+    const step = ts.length > 1 ? Math.abs(ts[1] - ts[0]) : 0;
+    const d = stepDecimals(step);
+    return (v) => {
+      const a = Math.abs(v);
+      if (a !== 0 && (a >= 1e6 || a < 1e-4)) return v.toExponential(0);
+      return (Math.abs(v) < 0.5 * Math.pow(10, -d) ? 0 : v).toFixed(d);
+    };
+  }
+
+  // A value rounded to its resolution (26.99251 → "26.993", 0.0510548 →
+  // "0.051").
+  function value(v) {
+    return v.toFixed(VALUE_DECIMALS);
+  }
+
+  // The unit of an axis label: "AP (µm)" → "µm", a bare "µm" → itself.
+  function unitOf(axisLabel) {
+    const m = /\(([^()]+)\)\s*$/.exec(axisLabel || '');
+    if (m) return m[1];
+    const s = (axisLabel || '').trim();
+    return s && !/\s/.test(s) && s.length <= 4 ? s : '';
+  }
+
+  // Legend entries laid out in rows across the plot's width: returns the
+  // placed entries and the band's height.
+  function layoutLegend(entries) {
+    const left = M.left;
+    const right = W - M.right;
+    const placed = [];
+    let x = left;
+    let row = 0;
+    for (const [name, colour] of entries) {
+      const w = 16 + textWidth(name);
+      if (x > left && x + w > right) {
+        row += 1;
+        x = left;
+      }
+      placed.push({ name, colour, x, row, w });
+      x += w + 14;
+    }
+    return { placed, height: entries.length ? (row + 1) * LEGEND_ROW + 4 : 0 };
+  }
+
+  function drawLegend(svg, layout) {
+    if (!layout.placed.length) return;
+    const g = el('g', { class: 'fig-legend' }, svg);
+    for (const e of layout.placed) {
+      const y = M.top + e.row * LEGEND_ROW + 9;
+      el('rect', { x: e.x, y: y - 8, width: 12, height: 8, fill: e.colour }, g);
+      // Long names are cut to the panel's width (the whole name stays the
+      // element's tooltip).
+      const room = W - M.right - (e.x + 16);
+      let name = e.name;
+      while (name.length > 1 && textWidth(name) > room) name = name.slice(0, -2) + '…';
+      const t = text(g, e.x + 16, y, name);
+      if (name !== e.name) el('title', {}, t).textContent = e.name;
+    }
+  }
+
+  function frame(svg, title, xLabel, yLabel, top) {
+    text(svg, W / 2, 15, title, { 'text-anchor': 'middle', class: 'fig-title' });
+    text(svg, (M.left + W - M.right) / 2, H - 6, xLabel, { 'text-anchor': 'middle', class: 'fig-label' });
+    const y = (top + H - M.bottom) / 2;
+    text(svg, 12, y, yLabel, { 'text-anchor': 'middle', class: 'fig-label', transform: `rotate(-90 12 ${y})` });
+  }
+
+  function axes(svg, top, sx, sy, xt, yt, xLabelOf, yLabelOf) {
+    const g = el('g', { class: 'fig-axes' }, svg);
+    for (const t of xt) {
+      const x = sx(t);
+      el('line', { x1: x, x2: x, y1: top, y2: H - M.bottom, class: 'fig-grid' }, g);
+      text(g, x, H - M.bottom + 14, xLabelOf(t), { 'text-anchor': 'middle', class: 'fig-tick' });
+    }
+    for (const t of yt) {
+      const y = sy(t);
+      el('line', { x1: M.left, x2: W - M.right, y1: y, y2: y, class: 'fig-grid' }, g);
+      text(g, M.left - 4, y + 4, yLabelOf(t), { 'text-anchor': 'end', class: 'fig-tick' });
+    }
+    el('rect', { x: M.left, y: top, width: W - M.left - M.right, height: H - top - M.bottom, class: 'fig-box' }, g);
+  }
+
   function range(values) {
     let lo = Infinity;
     let hi = -Infinity;
@@ -50,47 +171,15 @@ const FIG = (() => {
     return [lo - pad, hi + pad];
   }
 
-  function label(v) {
-    const a = Math.abs(v);
-    if (a !== 0 && (a >= 1e5 || a < 1e-3)) return v.toExponential(1);
-    return String(Number(v.toPrecision(6)));
-  }
-
-  function frame(svg, title, xLabel, yLabel) {
-    text(svg, W / 2, 16, title, { 'text-anchor': 'middle', class: 'fig-title' });
-    text(svg, (M.left + W - M.right) / 2, H - 6, xLabel, { 'text-anchor': 'middle', class: 'fig-label' });
-    const y = (M.top + H - M.bottom) / 2;
-    text(svg, 12, y, yLabel, { 'text-anchor': 'middle', class: 'fig-label', transform: `rotate(-90 12 ${y})` });
-  }
-
-  function axes(svg, sx, sy, xt, yt, yLabelOf) {
-    const g = el('g', { class: 'fig-axes' }, svg);
-    for (const t of xt) {
-      const x = sx(t);
-      el('line', { x1: x, x2: x, y1: M.top, y2: H - M.bottom, class: 'fig-grid' }, g);
-      text(g, x, H - M.bottom + 14, label(t), { 'text-anchor': 'middle', class: 'fig-tick' });
-    }
-    for (const t of yt) {
-      const y = sy(t);
-      el('line', { x1: M.left, x2: W - M.right, y1: y, y2: y, class: 'fig-grid' }, g);
-      text(g, M.left - 4, y + 4, yLabelOf(t), { 'text-anchor': 'end', class: 'fig-tick' });
-    }
-    el('rect', { x: M.left, y: M.top, width: W - M.left - M.right, height: H - M.top - M.bottom, class: 'fig-box' }, g);
-  }
-
-  function legend(svg, entries) {
-    let y = M.top + 12;
-    for (const [name, colour] of entries) {
-      el('rect', { x: W - M.right - 150, y: y - 8, width: 12, height: 8, fill: colour }, svg);
-      text(svg, W - M.right - 134, y, name, { class: 'fig-tick' });
-      y += 13;
-    }
-  }
-
   function xyPanel(p) {
     const svg = el('svg', { viewBox: `0 0 ${W} ${H}`, width: W, height: H, class: 'fig-panel', 'data-kind': 'xy' });
     const log = p.y_scale === 'log';
     const ty = (v) => (log ? (finite(v) && v > 0 ? Math.log10(v) : NaN) : v);
+    const entries = p.traces
+      .filter((t) => t.label)
+      .map((t) => [t.label, PALETTE[t.color % PALETTE.length]]);
+    const legend = layoutLegend(entries);
+    const top = M.top + legend.height;
     const xs = [];
     const ys = [];
     for (const t of p.traces) {
@@ -101,7 +190,7 @@ const FIG = (() => {
     let [x0, x1] = range(xs);
     let [y0, y1] = range(ys);
     const pw = W - M.left - M.right;
-    const ph = H - M.top - M.bottom;
+    const ph = H - top - M.bottom;
     if (p.equal_aspect && !log) {
       // Same µm per pixel on both axes: widen the tighter one.
       const k = Math.max((x1 - x0) / pw, (y1 - y0) / ph);
@@ -112,16 +201,18 @@ const FIG = (() => {
     }
     const sx = (v) => M.left + (v - x0) / (x1 - x0) * pw;
     const sy = (v) => H - M.bottom - (v - y0) / (y1 - y0) * ph;
-    frame(svg, p.title, p.x_label, p.y_label);
+    frame(svg, p.title, p.x_label, p.y_label, top);
+    const xt = ticks(x0, x1, 8);
     const yt = log
       ? ticks(Math.floor(y0), Math.ceil(y1), 8).filter((t) => t >= y0 && t <= y1 && Number.isInteger(t))
       : ticks(y0, y1, 6);
-    axes(svg, sx, sy, ticks(x0, x1, 8), yt, (t) => (log ? label(Math.pow(10, t)) : label(t)));
-    const entries = [];
+    // A decade 10^k is written with k's decimals (0.01, 1, 100).
+    const logLabel = (t) => Math.pow(10, t).toFixed(Math.max(0, -t));
+    axes(svg, top, sx, sy, xt, yt, tickLabeller(xt), log ? logLabel : tickLabeller(yt));
     let marks = 0;
     for (const t of p.traces) {
       const colour = PALETTE[t.color % PALETTE.length];
-      const g = el('g', { stroke: colour, fill: colour }, svg);
+      const g = el('g', { stroke: colour, fill: colour, class: 'fig-data' }, svg);
       const pts = t.points
         .filter((pt) => pt && finite(pt[0]) && finite(ty(pt[1])))
         .map((pt) => [sx(pt[0]), sy(ty(pt[1]))]);
@@ -138,38 +229,60 @@ const FIG = (() => {
         el('path', { d, fill: 'none', 'stroke-width': 1.2 }, g);
         marks += pts.length;
       }
-      if (t.label) entries.push([t.label, colour]);
     }
-    legend(svg, entries);
+    drawLegend(svg, legend);
     svg.dataset.marks = String(marks);
     return svg;
   }
 
   function barPanel(p) {
     const svg = el('svg', { viewBox: `0 0 ${W} ${H}`, width: W, height: H, class: 'fig-panel', 'data-kind': 'bars' });
-    frame(svg, p.title, p.x_label, p.y_label);
+    const legend = layoutLegend(p.groups.map((g) => [g.label, PALETTE[g.color % PALETTE.length]]));
+    const top = M.top + legend.height;
+    frame(svg, p.title, p.x_label, p.y_label, top);
+    const unit = unitOf(p.y_label);
+    const labelOf = (v) => value(v) + (unit ? ' ' + unit : '');
     const values = p.groups.flatMap((g) => g.values).filter(finite);
-    const top = values.length ? Math.max(...values) * 1.15 : 1;
     const pw = W - M.left - M.right;
-    const ph = H - M.top - M.bottom;
-    const sy = (v) => H - M.bottom - v / top * ph;
-    axes(svg, () => M.left, sy, [], ticks(0, top, 5), label);
+    const ph = H - top - M.bottom;
     const slot = pw / Math.max(p.categories.length, 1);
     const bw = Math.max(2, (slot - 10) / Math.max(p.groups.length, 1));
+    // How each value label is drawn: across the bar when it fits its
+    // width, along it when the bar is at least a line of text wide, else
+    // not at all.
+    const widest = values.reduce((m, v) => Math.max(m, textWidth(labelOf(v))), 0);
+    const mode = widest + 2 <= bw ? 'across' : (bw >= 11 ? 'along' : 'none');
+    // Room above the tallest bar for its label.
+    const room = mode === 'across' ? 14 : (mode === 'along' ? widest + 6 : 4);
+    const hi = values.length ? Math.max(...values, 0) : 1;
+    const top0 = hi > 0 ? hi * ph / Math.max(ph - room, 1) : 1;
+    const yt = ticks(0, top0, 5);
+    const sy = (v) => H - M.bottom - v / top0 * ph;
+    axes(svg, top, () => M.left, sy, [], yt, String, tickLabeller(yt));
     let marks = 0;
+    const g = el('g', { class: 'fig-data' }, svg);
+    const labels = el('g', { class: 'fig-values' }, svg);
     p.categories.forEach((c, ci) => {
       text(svg, M.left + ci * slot + slot / 2, H - M.bottom + 14, c, { 'text-anchor': 'middle', class: 'fig-tick' });
-      p.groups.forEach((g, gi) => {
-        const v = g.values[ci];
+      p.groups.forEach((grp, gi) => {
+        const v = grp.values[ci];
         if (!finite(v)) return;
         const x = M.left + ci * slot + 5 + gi * bw;
-        el('rect', { x, y: sy(v), width: bw - 1, height: H - M.bottom - sy(v), fill: PALETTE[g.color % PALETTE.length] }, svg);
-        text(svg, x + bw / 2, sy(v) - 3, label(v), { 'text-anchor': 'middle', class: 'fig-value' });
+        const y = sy(Math.max(v, 0));
+        const bar = el('rect', { x, y, width: Math.max(bw - 1, 1), height: Math.max(H - M.bottom - y, 0), fill: PALETTE[grp.color % PALETTE.length] }, g);
+        el('title', {}, bar).textContent = `${grp.label}, ${c}: ${labelOf(v)}`;
+        const cx = x + bw / 2;
+        if (mode === 'across') {
+          text(labels, cx, y - 3, labelOf(v), { 'text-anchor': 'middle', class: 'fig-value' });
+        } else if (mode === 'along') {
+          text(labels, cx + 3.5, y - 3, labelOf(v), { 'text-anchor': 'start', class: 'fig-value', transform: `rotate(-90 ${cx + 3.5} ${y - 3})` });
+        }
         marks += 1;
       });
     });
-    legend(svg, p.groups.map((g) => [g.label, PALETTE[g.color % PALETTE.length]]));
+    drawLegend(svg, legend);
     svg.dataset.marks = String(marks);
+    svg.dataset.values = mode;
     return svg;
   }
 
@@ -198,5 +311,5 @@ const FIG = (() => {
     return panels;
   }
 
-  return { draw };
+  return { draw, value, unitOf };
 })();
