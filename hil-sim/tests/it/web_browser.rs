@@ -706,6 +706,11 @@ async fn the_page_shows_the_live_rig() {
         problems.extend(figure_problems(&mut b, "#validation-figures", true));
         assert!(problems.is_empty(), "the figures: {problems:#?}");
         assert_fits_the_screen(&mut b, "figures");
+        b.wait_for(
+            "the page says the stage is at rest after the job",
+            "document.getElementById('motion').textContent === 'at rest'",
+            Duration::from_secs(30),
+        );
         // The figures panel scrolled (inside itself) to the AP/RP bars.
         b.eval("document.querySelector('#validation-figures svg[data-kind=bars]').scrollIntoView({ block: 'end' }), true");
         b.screenshot(&artifacts().join("web-figures.png"));
@@ -758,6 +763,13 @@ async fn the_page_shows_the_live_rig() {
             "the fault panel does not say what clears the fault: {hint:?}"
         );
         assert_eq!(text(&mut b, "rig-mode"), "fault");
+        // Both axes are halted; y reads no position any more (not
+        // referenced), x alone still tells that the stage is at rest.
+        b.wait_for(
+            "the page says the halted stage is at rest",
+            "document.getElementById('motion').textContent === 'at rest'",
+            Duration::from_secs(30),
+        );
         assert_fits_the_screen(&mut b, "fault");
         b.screenshot(&artifacts().join("web-fault.png"));
         assert!(

@@ -17,7 +17,7 @@ const num = (v, digits) => (typeof v === 'number' && Number.isFinite(v)) ? v.toF
 const LIVE = new URLSearchParams(location.search).get('live') !== '0';
 const view = {
   positionUpdates: 0, cameraUpdates: 0, lastSeq: null, faults: [], jobState: null,
-  lastController: null, moving: false, lastStatusAsk: 0,
+  lastController: null, moving: false, motionFromPositions: false, lastStatusAsk: 0,
 };
 // A controller position that moved more than this between two polls means
 // the stage moves, µm (well above the simulator's and a C-863's noise at
@@ -73,30 +73,44 @@ function onPosition(p) {
 }
 
 // Whether the stage moves, from consecutive controller positions: shown
-// at once with the position that shows it. The daemon's own activity (the
-// header badge) comes with `status`, which has no event: it is asked for
-// when the stage starts or stops moving (at most every 300 ms).
+// at once with the position that shows it. An axis without a position
+// (not referenced, read failed) is left out; with neither axis, motion is
+// unknown. The daemon's own activity (the header badge) comes with
+// `status`, which has no event: it is asked for when the stage starts or
+// stops moving (at most every 300 ms).
 function noteMotion(p) {
-  if (typeof p.x_um !== 'number' || typeof p.y_um !== 'number') return;
+  const now = [p.x_um, p.y_um].map((v) => (typeof v === 'number' && Number.isFinite(v) ? v : null));
   const last = view.lastController;
-  view.lastController = [p.x_um, p.y_um];
+  view.lastController = now;
   if (!last) return;
-  const moving = Math.abs(p.x_um - last[0]) > MOTION_UM || Math.abs(p.y_um - last[1]) > MOTION_UM;
+  view.motionFromPositions = true;
+  let known = false;
+  let moving = false;
+  for (let i = 0; i < 2; i++) {
+    if (now[i] === null || last[i] === null) continue;
+    known = true;
+    if (Math.abs(now[i] - last[i]) > MOTION_UM) moving = true;
+  }
+  if (!known) {
+    setMotion(null);
+    return;
+  }
   if (moving !== view.moving) {
     setMotion(moving);
-    const now = performance.now();
-    if (now - view.lastStatusAsk > 300) {
-      view.lastStatusAsk = now;
+    const t = performance.now();
+    if (t - view.lastStatusAsk > 300) {
+      view.lastStatusAsk = t;
       refreshStatus();
       if (moving) refreshPosition();
     }
   }
 }
 
+// `moving`: true, false, or null (unknown).
 function setMotion(moving) {
   view.moving = moving;
   const m = $('motion');
-  setText('motion', moving ? 'moving' : 'at rest');
+  setText('motion', moving === null ? '–' : (moving ? 'moving' : 'at rest'));
   m.className = 'badge' + (moving ? ' moving' : '');
 }
 
@@ -129,7 +143,7 @@ function onStatus(s) {
     $('rig-mode').className = 'badge' + (latched ? ' fault' : '');
     $('rig-activity').className = 'badge' + (s.rig.activity === 'moving' ? ' moving' : '');
     // Until two controller positions tell, the daemon's activity does.
-    if (!view.lastController || $('motion').textContent === '–') setMotion(s.rig.activity === 'moving');
+    if (!view.motionFromPositions) setMotion(s.rig.activity === 'moving');
     const panel = $('fault-panel');
     panel.hidden = !latched;
     if (latched) {
