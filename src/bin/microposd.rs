@@ -240,10 +240,8 @@ async fn reload(daemon: &Daemon, source: &ConfigSource) {
                 );
             }
         }
-        Ok(Err(e)) => tracing::error!(
-            "SIGHUP: {}: {e}; the running configuration stays",
-            source.path.display()
-        ),
+        // The error names the file, line and key.
+        Ok(Err(e)) => tracing::error!("SIGHUP: {e}; the running configuration stays"),
         Err(e) => tracing::error!("SIGHUP: reading the configuration failed: {e}"),
     }
     notify::ready();
@@ -338,8 +336,9 @@ fn main() -> ExitCode {
     };
     let cfg = match source.load() {
         Ok(c) => c,
+        // The error names the file (and line, column and key).
         Err(e) => {
-            eprintln!("microposd: {}: {e}", args.config.display());
+            eprintln!("microposd: {e}");
             return ExitCode::from(2);
         }
     };

@@ -41,7 +41,7 @@ fn the_token_file_is_checked_with_the_configuration() {
     let (code, stderr) = check(&config);
     assert_eq!(code, 2, "{stderr}");
     assert!(
-        stderr.contains("web.token_file") && stderr.contains("chmod 600"),
+        stderr.contains("[web].token_file") && stderr.contains("chmod 600"),
         "{stderr}"
     );
 
@@ -52,11 +52,11 @@ fn the_token_file_is_checked_with_the_configuration() {
     std::fs::remove_file(&token).unwrap();
     let (code, stderr) = check(&config);
     assert_eq!(code, 2, "{stderr}");
-    assert!(stderr.contains("web.token_file"), "{stderr}");
+    assert!(stderr.contains("[web].token_file"), "{stderr}");
 
     // control without any token is refused by the plain validation.
     std::fs::write(&config, format!("{MIN}[web]\ncontrol = true\n")).unwrap();
     let (code, stderr) = check(&config);
     assert_eq!(code, 2, "{stderr}");
-    assert!(stderr.contains("web.control"), "{stderr}");
+    assert!(stderr.contains("[web].control"), "{stderr}");
 }

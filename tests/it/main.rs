@@ -34,6 +34,7 @@ mod comp_file;
 mod comp_frame;
 mod comp_grid;
 mod comp_paper;
+mod daemon_check_config;
 mod daemon_process;
 mod daemon_socket;
 mod daemon_systemd;

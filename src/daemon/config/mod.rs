@@ -9,6 +9,7 @@ mod compensation;
 mod daemon;
 mod drift;
 mod error;
+mod locate;
 mod safety;
 mod web;
 
@@ -18,7 +19,7 @@ pub use characterize::CharacterizeDefaults;
 pub use compensation::{Approach, ClosedLoop, CompensationSection, OutsideTable};
 pub use daemon::{ClockSpec, DaemonSection, RigSection};
 pub use drift::{DriftMethodName, DriftSection};
-pub use error::ConfigError;
+pub use error::{written_key, ConfigError};
 pub use safety::{DeviationFrame, Limits, SafetySection};
 pub use web::{WebSection, MIN_WEB_TOKEN_CHARS};
 
@@ -65,31 +66,38 @@ pub struct DaemonConfig {
 }
 
 impl DaemonConfig {
-    /// Parses and validates a TOML text.
+    /// Parses and validates a TOML text. An error names the key as the
+    /// file writes it, its line and column, and for a misspelt key or
+    /// value the one that was probably meant.
     pub fn from_toml(text: &str) -> Result<Self, ConfigError> {
-        let cfg: DaemonConfig = toml::from_str(text).map_err(|e| ConfigError {
-            key: e
-                .span()
-                .map(|s| format!("at byte {}", s.start))
-                .unwrap_or_else(|| "(file)".to_owned()),
-            problem: e.message().to_owned(),
+        let cfg: DaemonConfig = toml::from_str(text).map_err(|e| parse_error(text, &e))?;
+        cfg.validate().map_err(|mut e| {
+            e.line_column = locate::offset_of(text, &e.key).map(|o| locate::line_column(text, o));
+            e
         })?;
-        cfg.validate()?;
         Ok(cfg)
     }
 
-    /// Reads, parses and validates a file.
+    /// Reads, parses and validates a file; an error names the file.
     pub fn load(path: &Path) -> Result<Self, ConfigError> {
+        let in_file = |mut e: ConfigError| {
+            e.file = Some(path.to_owned());
+            e
+        };
         let text = std::fs::read_to_string(path)
-            .map_err(|e| bad("(file)", format!("cannot read {}: {e}", path.display())))?;
-        let cfg = Self::from_toml(&text)?;
+            .map_err(|e| in_file(bad("(file)", format!("cannot read it: {e}"))))?;
+        let cfg = Self::from_toml(&text).map_err(in_file)?;
         if let Some(web) = &cfg.web {
             use std::os::unix::fs::PermissionsExt;
             let mode = std::fs::metadata(path)
-                .map_err(|e| bad("(file)", format!("cannot read {}: {e}", path.display())))?
+                .map_err(|e| in_file(bad("(file)", format!("cannot read it: {e}"))))?
                 .permissions()
                 .mode();
-            web::check_inline_token_file_mode(web, path, mode)?;
+            web::check_inline_token_file_mode(web, path, mode).map_err(|mut e| {
+                e.line_column =
+                    locate::offset_of(&text, &e.key).map(|o| locate::line_column(&text, o));
+                in_file(e)
+            })?;
         }
         Ok(cfg)
     }
@@ -391,6 +399,43 @@ impl DaemonConfig {
             ));
         }
         Ok(())
+    }
+}
+
+/// A parse error of `text` (syntax, unknown key, wrong type) as a
+/// [`ConfigError`]: the key path and the line and column at its span, a
+/// did-you-mean for an unknown key or value, Rust's type names in words.
+fn parse_error(text: &str, e: &toml::de::Error) -> ConfigError {
+    let at = e.span().map(|s| s.start);
+    let message = e.message().trim_end();
+    let mut problem = message.to_owned();
+    if let Some((word, expected)) = locate::unknown_and_expected(message) {
+        if let Some(meant) = locate::did_you_mean(word, &expected) {
+            // Right after the unknown word, before the (long) list.
+            let head = format!("`{word}`");
+            problem = message.replacen(&head, &format!("{head} (did you mean `{meant}`?)"), 1);
+        }
+    }
+    for (rust, words) in [
+        ("expected u8", "expected a whole number 0..=255"),
+        ("expected u16", "expected a whole number 0..=65535"),
+        ("expected u32", "expected a whole number ≥ 0"),
+        ("expected u64", "expected a whole number ≥ 0"),
+        ("expected usize", "expected a whole number ≥ 0"),
+        ("expected i64", "expected a whole number"),
+        ("expected f64", "expected a number"),
+    ] {
+        if let Some(head) = problem.strip_suffix(rust) {
+            problem = format!("{head}{words}");
+        }
+    }
+    ConfigError {
+        key: at
+            .and_then(|a| locate::key_at(text, a))
+            .unwrap_or_else(|| "(syntax)".to_owned()),
+        problem,
+        line_column: at.map(|a| locate::line_column(text, a)),
+        file: None,
     }
 }
 

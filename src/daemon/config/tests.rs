@@ -33,6 +33,59 @@ fn errors_name_the_key() {
     assert_eq!(e.key, "driver");
     let e = DaemonConfig::from_toml(&format!("{MIN}[daemon]\nsokcet = \"/x\"\n")).unwrap_err();
     assert!(e.problem.contains("sokcet"), "{e}");
+    assert!(e.problem.contains("did you mean `socket`?"), "{e}");
+}
+
+/// Issue 33: a typo was reported "at byte 217". Now: the line and column,
+/// the key as the file writes it (`[camera].pixl_um`), the key that was
+/// probably meant; a wrong type in words; a bad value found by the checks
+/// after parsing at its line too.
+#[test]
+fn errors_give_line_column_key_path_and_did_you_mean() {
+    // MIN is lines 1-4.
+    let e = DaemonConfig::from_toml(&format!("{MIN}[camera]\nperiod_um = 4.0\npixl_um = 0.4\n"))
+        .unwrap_err();
+    assert_eq!(e.key, "camera.pixl_um");
+    assert_eq!(e.line_column, Some((7, 1)));
+    let text = e.to_string();
+    assert!(
+        text.starts_with(
+            "line 7, column 1: config key [camera].pixl_um: unknown field `pixl_um` (did you mean `pixel_um`?), expected one of"
+        ),
+        "{text}"
+    );
+    assert!(!text.contains("byte"), "{text}");
+
+    let e = DaemonConfig::from_toml(&format!("{MIN}[daemon]\npoll_interval_ms = \"fast\"\n"))
+        .unwrap_err();
+    assert_eq!(e.key, "daemon.poll_interval_ms");
+    assert_eq!(e.line_column, Some((6, 20)));
+    assert!(e.problem.ends_with("expected a whole number ≥ 0"), "{e}");
+
+    // A misspelt section, a misspelt value.
+    let e = DaemonConfig::from_toml(&format!("{MIN}[camra]\nbits = 10\n")).unwrap_err();
+    assert_eq!((e.key.as_str(), e.line_column), ("camra", Some((5, 2))));
+    assert!(
+        e.to_string()
+            .contains("config key [camra]: unknown field `camra` (did you mean `camera`?)"),
+        "{e}"
+    );
+    let e = DaemonConfig::from_toml(&format!("{MIN}[drift]\nmethod = \"adaptve\"\n")).unwrap_err();
+    assert_eq!(e.key, "drift.method");
+    assert!(e.problem.contains("(did you mean `adaptive`?)"), "{e}");
+
+    // Found by `validate`, after parsing: located by its key.
+    let e = DaemonConfig::from_toml(&format!(
+        "{MIN}\n[characterize]\ncycles = 2\nstep_um = -1\n"
+    ))
+    .unwrap_err();
+    assert_eq!(e.key, "characterize.step_um");
+    assert_eq!(e.line_column, Some((8, 1)));
+
+    // A syntax error: no key, still a line and column.
+    let e = DaemonConfig::from_toml(&format!("{MIN}[camera\n")).unwrap_err();
+    assert_eq!(e.key, "(syntax)");
+    assert_eq!(e.line_column.map(|l| l.0), Some(5));
 }
 
 #[test]
