@@ -11,6 +11,7 @@ mod client;
 mod combine;
 mod decode;
 mod diagnose;
+mod fmt;
 mod gcs;
 mod import;
 mod paper;
