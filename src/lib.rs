@@ -48,6 +48,42 @@ pub fn error_text(e: &(dyn std::error::Error + 'static)) -> String {
     out
 }
 
+/// Whether the binaries' log lines on stderr may carry ANSI colour codes:
+/// only when stderr is a terminal, and not when `NO_COLOR` is set to a
+/// non-empty value (<https://no-color.org>).
+///
+/// Why the binaries ask rather than leave it to `tracing-subscriber`: its
+/// default colours whenever its `ansi` feature is on, so a log redirected
+/// to a file or piped into `grep` was full of escape sequences.
+pub fn stderr_colour() -> bool {
+    use std::io::IsTerminal;
+    colour_wanted(
+        std::io::stderr().is_terminal(),
+        std::env::var_os("NO_COLOR").as_deref(),
+    )
+}
+
+/// [`stderr_colour`]'s rule, apart from the process: colour on a terminal
+/// unless `no_color` (the value of `NO_COLOR`) is present and not empty.
+pub fn colour_wanted(is_terminal: bool, no_color: Option<&std::ffi::OsStr>) -> bool {
+    is_terminal && no_color.is_none_or(|v| v.is_empty())
+}
+
+#[cfg(test)]
+mod colour_tests {
+    use super::colour_wanted;
+    use std::ffi::OsStr;
+
+    #[test]
+    fn colour_only_on_a_terminal_and_never_under_no_color() {
+        assert!(colour_wanted(true, None));
+        assert!(colour_wanted(true, Some(OsStr::new(""))));
+        assert!(!colour_wanted(true, Some(OsStr::new("1"))));
+        assert!(!colour_wanted(false, None));
+        assert!(!colour_wanted(false, Some(OsStr::new("1"))));
+    }
+}
+
 #[cfg(test)]
 mod error_text_tests {
     use super::error_text;

@@ -151,6 +151,7 @@ fn main() -> anyhow::Result<()> {
                 .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("warn")),
         )
         .with_writer(std::io::stderr)
+        .with_ansi(micropos::stderr_colour())
         .init();
     let cli = Cli::parse();
     match cli.cmd {

@@ -731,12 +731,18 @@ async fn pipeline(
         )
         .await?;
     lap(c.now_s().await?, "tables", &mut phases);
+    let rms = |i: usize| {
+        model["model"]["rms_residual_um"][i]
+            .as_f64()
+            .unwrap_or(f64::NAN)
+    };
     progress(&format!(
-        "  paper tables: squareness {:.1} µrad; model fit residual rms {} µm",
+        "  paper tables: squareness {:.1} µrad; model fit residual rms x {:.3} µm, y {:.3} µm",
         paper["paper"]["report"]["squareness_urad"]
             .as_f64()
             .unwrap_or(f64::NAN),
-        model["model"]["rms_residual_um"]
+        rms(0),
+        rms(1)
     ));
     c.call(
         json!({"cmd": "drift", "action": "set", "method": p.live_drift,

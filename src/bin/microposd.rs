@@ -80,14 +80,15 @@ async fn halt(cfg: DaemonConfig) -> bool {
 
 fn init_logging() {
     // Under systemd stderr goes to the journal (JOURNAL_STREAM is set):
-    // no colours, no timestamps (journald adds its own).
+    // no colours, no timestamps (journald adds its own). Elsewhere colour
+    // only on a terminal and without NO_COLOR (`micropos::stderr_colour`).
     let journald = std::env::var_os("JOURNAL_STREAM").is_some();
     let filter = tracing_subscriber::EnvFilter::try_from_default_env()
         .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info"));
     let b = tracing_subscriber::fmt()
         .with_writer(std::io::stderr)
         .with_env_filter(filter)
-        .with_ansi(!journald && std::io::IsTerminal::is_terminal(&std::io::stderr()));
+        .with_ansi(!journald && micropos::stderr_colour());
     if journald {
         b.without_time().init();
     } else {

@@ -458,7 +458,7 @@ fn scan_tables(
         return Err(invalid(
             format!("segment `{segment}`"),
             format!(
-                "the {} command varies ({} then {} µm at record {i} of the segment): a 1-DoF scan holds the other axis",
+                "the {} command varies ({:.3} then {:.3} µm at record {i} of the segment): a 1-DoF scan holds the other axis",
                 axis.other(),
                 hold,
                 held[i]

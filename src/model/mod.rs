@@ -35,6 +35,7 @@ pub mod env;
 pub mod error;
 pub mod file;
 pub mod fit;
+pub mod sampling;
 pub mod sim;
 pub mod spec;
 pub mod stage;

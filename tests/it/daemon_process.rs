@@ -964,6 +964,7 @@ fn sigterm_halts_before_exit_and_the_stop_hook_halts_after_sigkill() {
     at_rest_short_of(&sim, [13_500.0, 1_500.0]);
     let log = std::fs::read_to_string(dir.path().join("microposd-0.log")).unwrap();
     assert!(log.contains("halting both axes"), "{log}");
+    assert_requested_halts_do_not_warn(&log);
 
     d = Daemon::start(dir.path(), 1);
     let mut c = d.client();
@@ -1290,6 +1291,146 @@ fn piped_follow_waits_for_the_job_and_tables_build_refuses_its_running_log() {
     assert_eq!(st.code(), Some(1), "{out}\n{err}");
     assert!(out.contains("characterize g.csv: state cancelled"), "{out}");
     assert!(err.contains("ended cancelled, not done"), "{err}");
+    let log = d.log_text();
+    assert!(
+        log.lines()
+            .any(|l| l.contains("INFO") && l.contains("halting both axes: job cancelled")),
+        "{log}"
+    );
+    assert_requested_halts_do_not_warn(&log);
+}
+
+/// A halt someone asked for (a job cancel, a shutdown) is logged at info:
+/// a warning at the end of every normal run (issue 33) taught users to
+/// ignore warnings. Only a fault's halt, or one that leaves an axis
+/// moving, warns.
+fn assert_requested_halts_do_not_warn(log: &str) {
+    let warned: Vec<&str> = log
+        .lines()
+        .filter(|l| l.contains("WARN") && l.contains("halt"))
+        .collect();
+    assert!(warned.is_empty(), "requested halts warned: {warned:#?}");
+}
+
+/// What a terminal shows of `raw` (a pty's output): per line, what
+/// follows the line's last carriage return, escape sequences removed.
+fn visible_lines(raw: &str) -> Vec<String> {
+    raw.split('\n')
+        .map(|l| {
+            let l = l.trim_end_matches('\r');
+            let shown = l.rsplit('\r').next().unwrap_or("");
+            let mut out = String::new();
+            let mut chars = shown.chars();
+            while let Some(c) = chars.next() {
+                if c == '\u{1b}' {
+                    // CSI: ESC [ parameters, then a final letter.
+                    for d in chars.by_ref() {
+                        if d.is_ascii_alphabetic() {
+                            break;
+                        }
+                    }
+                } else {
+                    out.push(c);
+                }
+            }
+            out
+        })
+        .collect()
+}
+
+/// Issue 33: `--follow` on a terminal ended at the bar ("12/12 points
+/// ETA 0 s") with the final state printed on the bar's own line. Now the
+/// bar is taken off at the end, and the final state, the log and the next
+/// step are lines of their own. stdout and stderr on a pseudo-terminal, as
+/// a person runs it.
+#[test]
+fn follow_on_a_terminal_ends_with_the_final_state_on_its_own_line() {
+    use std::io::Read;
+    let dir = test_dir();
+    let _sim = Sim::start(dir.path(), 20.0);
+    let d = Daemon::start(dir.path(), 0);
+    d.client().ok(json!({"cmd": "reference"}));
+    let size = nix::pty::Winsize {
+        ws_row: 24,
+        ws_col: 120,
+        ws_xpixel: 0,
+        ws_ypixel: 0,
+    };
+    let pty = nix::pty::openpty(Some(&size), None).unwrap();
+    let stderr_fd = pty.slave.try_clone().unwrap();
+    let mut cli = Command::new(env!("CARGO_BIN_EXE_micropos"))
+        .arg("--socket")
+        .arg(&d.socket)
+        .args([
+            "characterize",
+            "start",
+            "--log",
+            "t.csv",
+            "--step-um",
+            "500",
+        ])
+        .args([
+            "--x-range-um",
+            "1000",
+            "--y-range-um",
+            "1000",
+            "--cycles",
+            "1",
+        ])
+        .arg("--follow")
+        .env("TERM", "xterm")
+        .env_remove("NO_COLOR")
+        .stdin(Stdio::null())
+        .stdout(Stdio::from(pty.slave))
+        .stderr(Stdio::from(stderr_fd))
+        .spawn()
+        .unwrap();
+    // The master is read on a thread until the CLI's end closes the
+    // terminal: a full pty would stall the CLI.
+    let mut master = std::fs::File::from(pty.master);
+    let reader = std::thread::spawn(move || {
+        let mut all = Vec::new();
+        let mut chunk = [0u8; 4096];
+        while let Ok(n) = master.read(&mut chunk) {
+            if n == 0 {
+                break;
+            }
+            all.extend_from_slice(&chunk[..n]);
+        }
+        all
+    });
+    let t = Instant::now();
+    let status = loop {
+        if let Some(st) = cli.try_wait().unwrap() {
+            break st;
+        }
+        if t.elapsed() > DEADLINE {
+            let _ = cli.kill();
+            panic!("micropos --follow did not return");
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    let raw = String::from_utf8_lossy(&reader.join().unwrap()).into_owned();
+    let lines = visible_lines(&raw);
+    assert!(status.success(), "{status:?}\n{raw:?}");
+    assert!(
+        raw.contains("points  ETA"),
+        "no progress bar: not the terminal view\n{raw:?}"
+    );
+    let end = lines
+        .iter()
+        .position(|l| l.contains("characterize t.csv: state done"))
+        .unwrap_or_else(|| panic!("no final state in {lines:#?}"));
+    assert!(
+        lines[end].starts_with("characterize t.csv: state done, 12/12 points"),
+        "the final state shares its line: {:?}",
+        lines[end]
+    );
+    assert_eq!(
+        lines[end + 1],
+        "log: t.csv in the daemon's data_dir, 12 points"
+    );
+    assert_eq!(lines[end + 2], "next: micropos tables build t.csv");
 }
 
 /// `position` until its vision reading was grabbed after rig time `t_s`.

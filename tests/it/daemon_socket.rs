@@ -155,7 +155,10 @@ fn a_wrong_serial_port_is_named_in_status_and_in_a_refused_move() {
     }
     let (moved, refusal) = cli(&["move", "--x", "100", "--y", "100"]);
     stop(child);
-    assert!(status.contains("not_connected"), "{status}");
+    assert!(
+        status.contains("motion refused: the controllers are not connected"),
+        "{status}"
+    );
     let why: Vec<&str> = status
         .lines()
         .filter(|l| l.contains("no-such-tty"))

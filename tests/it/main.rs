@@ -23,6 +23,7 @@
 pub static ARAVIS: std::sync::Mutex<()> = std::sync::Mutex::new(());
 
 mod bins;
+mod camera_cli;
 mod camera_files;
 #[cfg(feature = "genicam")]
 mod camera_genicam;
@@ -61,6 +62,7 @@ mod grid_random_model;
 mod grid_zones;
 mod import_cli;
 mod import_props;
+mod log_colour;
 mod log_format;
 mod log_props;
 mod log_resume;

@@ -101,6 +101,16 @@ async fn commands_safe_states_and_limits() {
     assert_eq!(code(&m), "out_of_travel", "{m}");
     let m = c.call(json!({"cmd":"move","x_um":-1.0})).await;
     assert_eq!(code(&m), "out_of_travel");
+    // The refusal says the target to the nanometre, not to 17 digits
+    // (issue 33: "target 16522.654282786934 µm").
+    let m = c
+        .call(json!({"cmd":"move","x_um":16522.654282786934}))
+        .await;
+    let msg = m["error"]["message"].as_str().unwrap_or("");
+    assert!(
+        msg.contains("target 16522.654 µm") && msg.contains("0.000..14000.000 µm"),
+        "{m}"
+    );
     let m = c
         .call(json!({"cmd":"move","x_um":7600.0,"y_um":7400.0,"wait":true}))
         .await;

@@ -30,6 +30,15 @@ fn finish(child: std::process::Child) -> Vec<u8> {
     );
     let v: serde_json::Value = serde_json::from_slice(&stdout).expect("one JSON object");
     assert!(v["square"]["table"]["ap_um"].as_f64().is_some(), "{v}");
+    // A run that succeeded ends without a warning: the daemon's halt at
+    // its shutdown is asked for (issue 33: "WARN halting both axes" at the
+    // end of every run taught users to ignore warnings).
+    let log = String::from_utf8_lossy(&stderr);
+    assert!(
+        !log.lines()
+            .any(|l| l.contains("WARN") && l.contains("halt")),
+        "a successful run warned about its halt:\n{log}"
+    );
     stdout
 }
 

@@ -801,35 +801,10 @@ pub(super) fn shortest_period_um(d: &Data, a: Axis) -> Option<f64> {
     sampling_spacing_um(&distinct_positions(d, a)).map(|s| 2.0 * s)
 }
 
-/// Share of an axis's span that the gaps up to the sampling spacing must
-/// cover (see [`sampling_spacing_um`]).
-const COVERED_SPAN: f64 = 0.9;
-
-/// The spacing at which sorted positions `pos` sample their span: the
-/// smallest gap `g` such that the gaps no longer than `g` add up to
-/// [`COVERED_SPAN`] of the span.
-///
-/// Why not the median gap: positions in clusters (a test whose backward
-/// targets sit 0.2 mm from its forward ones, 10 mm apart) have a median
-/// gap of 0.2 mm, yet a period of 0.4 mm is sampled at two points per
-/// 10 mm; fitted there, a screw harmonic becomes an arbitrary per-target
-/// correction. On an even grid (with a few holes) this is the step.
-pub(super) fn sampling_spacing_um(pos: &[f64]) -> Option<f64> {
-    if pos.len() < 2 {
-        return None;
-    }
-    let span = pos[pos.len() - 1] - pos[0];
-    let mut gaps: Vec<f64> = pos.windows(2).map(|w| w[1] - w[0]).collect();
-    gaps.sort_by(f64::total_cmp);
-    let mut covered = 0.0;
-    for &g in &gaps {
-        covered += g;
-        if covered >= COVERED_SPAN * span {
-            return Some(g);
-        }
-    }
-    gaps.last().copied()
-}
+/// The spacing at which sorted positions sample their span (the step of
+/// an even grid): one definition with the model table's advice on what a
+/// step resolves.
+pub(super) use crate::model::sampling::sampling_spacing_um;
 
 /// Fraction of the sampling spacing within which distinct positions count
 /// as one target (see [`targets_of`]).

@@ -602,7 +602,8 @@ fn diagnose_with(
             base_fixed.push(FixedParam {
                 name: name.clone(),
                 reason: format!(
-                    "the log cannot resolve them: period {period_um:.1} µm is shorter than the {shortest_um:.1} µm its spacing resolves (aliased)"
+                    "the log cannot resolve them: period {period_um:.1} µm is shorter than the {shortest_um:.1} µm its spacing resolves (aliased); sampling at ≤ {:.1} µm, or a dense segment at that step, resolves it",
+                    crate::model::sampling::resolving_step_um(period_um)
                 ),
                 aliased: true,
             });

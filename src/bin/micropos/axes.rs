@@ -134,7 +134,7 @@ pub async fn run(a: AxesArgs) -> anyhow::Result<ExitCode> {
 fn fmt_um(v: Option<f64>) -> String {
     v.map_or_else(
         || "unknown (not referenced)".to_owned(),
-        |v| format!("{v:.4} µm"),
+        |v| format!("{v:.3} µm"),
     )
 }
 
@@ -161,7 +161,7 @@ async fn status(stage: &Stage) -> anyhow::Result<()> {
             .status()
             .await
             .with_context(|| format!("status of axis {}", ax.name()))?;
-        println!("   travel {min:.4} .. {max:.4} µm, velocity {velocity_um_per_s:.4} µm/s");
+        println!("   travel {min:.3} .. {max:.3} µm, velocity {velocity_um_per_s:.1} µm/s");
         println!(
             "   referenced {}, servo {}, on target {}",
             yes(referenced),
@@ -190,7 +190,7 @@ async fn reference(stage: &Stage) -> anyhow::Result<()> {
     let (x, y) = tokio::join!(stage.x.reference(), stage.y.reference());
     let x = x.context("referencing axis x")?;
     let y = y.context("referencing axis y")?;
-    println!("referenced: x = {x:.4} µm, y = {y:.4} µm");
+    println!("referenced: x = {x:.3} µm, y = {y:.3} µm");
     Ok(())
 }
 
@@ -223,7 +223,7 @@ async fn move_to(stage: &Stage, x_um: f64, y_um: f64, velocity: Option<f64>) -> 
         let (ox, oy) = tokio::join!(stage.x.on_target(), stage.y.on_target());
         let done = ox.context("axis x")? && oy.context("axis y")?;
         println!(
-            "x = {px:.4} µm  y = {py:.4} µm{}",
+            "x = {px:.3} µm  y = {py:.3} µm{}",
             if done { "  (on target)" } else { "" }
         );
         if done {

@@ -7,9 +7,10 @@ use anyhow::{bail, Context, Result};
 use clap::{Args, Subcommand};
 use micropos::camera::files::{write_png, FileOptions, FileTiming};
 use micropos::camera::{
-    backends, frame_mean, list_cameras, open_source, FrameSource, OpenOptions, PixelFormat,
-    SourceSpec,
+    backends, frame_mean, list_cameras, open_source, CameraInfo, FrameSource, OpenOptions,
+    PixelFormat, SourceSpec,
 };
+use micropos::frame::Frame;
 
 /// Camera subcommands.
 #[derive(Debug, Subcommand)]
@@ -91,23 +92,41 @@ impl SourceArgs {
         }
         if let Some(e) = self.exposure_us {
             let got = src.set_exposure_us(e)?;
-            eprintln!("exposure {got} µs");
+            eprintln!("exposure {got:.1} µs");
         }
         if let Some(g) = self.gain_db {
             let got = src.set_gain_db(g)?;
-            eprintln!("gain {got} dB");
+            eprintln!("gain {got:.2} dB");
         }
         if let (Some(r), false) = (self.rate_hz, is_files) {
             let got = src.set_frame_rate_hz(r)?;
-            eprintln!("frame rate {got} Hz");
+            eprintln!("frame rate {got:.3} Hz");
         }
-        let i = src.info();
-        eprintln!(
-            "{} {} {}: {}×{} {} ({} bit)",
-            i.backend, i.model, i.serial, i.width, i.height, i.pixel_format, i.bit_depth
-        );
         Ok(src)
     }
+}
+
+/// The source and what its frames are, from `frame` (`sim … : 1024×768
+/// Mono10 (10 bit)`). Why from the frame: a source's info can be stale or
+/// empty until a frame arrived (the simulated camera's says 0×0, 0 bit
+/// before its first frame; a format change takes effect at the next
+/// frame), and what was grabbed is what the user asks about. The info's
+/// pixel format is kept only when it agrees with the frame's depth.
+fn describe(info: &CameraInfo, frame: &Frame) -> String {
+    let bits = frame.bit_depth();
+    let format = if info.bit_depth == bits && !info.pixel_format.is_empty() {
+        info.pixel_format.clone()
+    } else {
+        format!("Mono{bits}")
+    };
+    format!(
+        "{} {} {}: {}×{} {format} ({bits} bit)",
+        info.backend,
+        info.model,
+        info.serial,
+        frame.width(),
+        frame.height()
+    )
 }
 
 /// Runs a camera subcommand.
@@ -144,6 +163,9 @@ pub fn run(cmd: CameraCommand) -> Result<()> {
             let mut src = source.open()?;
             for k in 0..count {
                 let frame = src.next_frame().context("grabbing a frame")?;
+                if k == 0 {
+                    eprintln!("{}", describe(&src.info(), &frame));
+                }
                 let path = if count == 1 {
                     out.clone()
                 } else {
@@ -187,6 +209,9 @@ pub fn run(cmd: CameraCommand) -> Result<()> {
                         continue;
                     }
                 };
+                if n == 0 {
+                    eprintln!("{}", describe(&src.info(), &frame));
+                }
                 let fps = last_t
                     .map(|t| frame.timestamp_s - t)
                     .filter(|dt| *dt > 0.0)
@@ -204,5 +229,40 @@ pub fn run(cmd: CameraCommand) -> Result<()> {
             eprintln!("{n} frames in {secs:.2} s");
             Ok(())
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Issue 33: a 1024 × 768 10-bit frame was announced as "0×0 Mono8 (0
+    /// bit)" from the simulated camera's info before its first frame.
+    #[test]
+    fn the_description_is_the_frames_not_a_stale_infos() {
+        let pixels = micropos::frame::Pixels::U16(vec![0; 1024 * 768]);
+        let frame = Frame::new(1024, 768, 10, pixels, 0.0, 0).unwrap();
+        let empty = CameraInfo {
+            backend: "sim",
+            model: "m".into(),
+            serial: "s".into(),
+            width: 0,
+            height: 0,
+            pixel_format: "Mono8".into(),
+            bit_depth: 0,
+        };
+        assert_eq!(
+            describe(&empty, &frame),
+            "sim m s: 1024×768 Mono10 (10 bit)"
+        );
+        let agreeing = CameraInfo {
+            pixel_format: "Mono10".into(),
+            bit_depth: 10,
+            ..empty
+        };
+        assert_eq!(
+            describe(&agreeing, &frame),
+            "sim m s: 1024×768 Mono10 (10 bit)"
+        );
     }
 }

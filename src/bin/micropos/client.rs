@@ -17,6 +17,9 @@ use tokio::io::{AsyncBufReadExt, AsyncWriteExt, BufReader};
 use tokio::net::UnixStream;
 
 mod follow;
+mod status;
+
+use crate::fmt::{human, rms_um};
 
 /// Options of every daemon command.
 #[derive(Debug, Args)]
@@ -443,36 +446,6 @@ fn build(cmd: &ClientCommand) -> Value {
     }
 }
 
-fn human(v: &Value) -> String {
-    fn walk(v: &Value, indent: usize, out: &mut String) {
-        if let Value::Object(m) = v {
-            for (k, x) in m {
-                if k == "id" || k == "ok" {
-                    continue;
-                }
-                match x {
-                    Value::Object(_) => {
-                        out.push_str(&format!("{:indent$}{k}:\n", ""));
-                        walk(x, indent + 2, out);
-                    }
-                    Value::Null => out.push_str(&format!("{:indent$}{k}: -\n", "")),
-                    Value::Number(n) => match n.as_f64() {
-                        Some(f) if n.is_f64() => {
-                            out.push_str(&format!("{:indent$}{k}: {f:.4}\n", ""))
-                        }
-                        _ => out.push_str(&format!("{:indent$}{k}: {n}\n", "")),
-                    },
-                    Value::String(s) => out.push_str(&format!("{:indent$}{k}: {s}\n", "")),
-                    other => out.push_str(&format!("{:indent$}{k}: {other}\n", "")),
-                }
-            }
-        }
-    }
-    let mut s = String::new();
-    walk(v, 0, &mut s);
-    s
-}
-
 /// Runs a client command.
 pub async fn run(opts: GlobalOpts, cmd: ClientCommand) -> anyhow::Result<ExitCode> {
     match run_inner(&opts, &cmd).await {
@@ -513,10 +486,8 @@ async fn run_inner(opts: &GlobalOpts, cmd: &ClientCommand) -> Result<ExitCode, U
         return Ok(ExitCode::from(1));
     }
     if !opts.json {
-        if let ClientCommand::Move { .. } = cmd {
-            let _ = write!(out.lock(), "{}", move_summary(&reply));
-        }
-        let _ = write!(out.lock(), "{}", human(&reply));
+        let text = text_of(cmd, &reply, &mut conn).await?;
+        let _ = write!(out.lock(), "{text}");
         for w in reply_warnings(&reply) {
             eprintln!("warning: {w}");
         }
@@ -564,6 +535,129 @@ async fn run_inner(opts: &GlobalOpts, cmd: &ClientCommand) -> Result<ExitCode, U
     }
 }
 
+/// A command's reply for a person. Most replies print as indented
+/// `key: value` lines with rounded numbers and units ([`human`]); the
+/// ones a person reads most have their own form: `status` (the state that
+/// matters first, with positions, table and settings asked for on the same
+/// connection), `move` (target and command first), `validate status` (the
+/// AP/RP table), `characterize status` (the job in a line), `tables build`
+/// (the unidentifiable parameters grouped, with advice).
+async fn text_of(
+    cmd: &ClientCommand,
+    reply: &Value,
+    conn: &mut Conn,
+) -> Result<String, Unreachable> {
+    Ok(match cmd {
+        ClientCommand::Status => {
+            let extra = status::Extra {
+                position: optional(conn, json!({"cmd": "position"})).await?,
+                tables: optional(conn, json!({"cmd": "tables", "action": "list"})).await?,
+                config: optional(conn, json!({"cmd": "config"})).await?,
+            };
+            status::text(reply, &extra)
+        }
+        ClientCommand::Move { .. } => format!("{}{}", move_summary(reply), human(reply)),
+        ClientCommand::Validate { action, .. } if action == "status" => validate_status_text(reply),
+        ClientCommand::Characterize { action, .. } if action == "status" => {
+            let mut s = format!("job: {}\n", status::job_line(&reply["job"]));
+            if let Some(sweep) = sweep_summary(&reply["job"]["result"]) {
+                s.push_str(&sweep);
+                s.push('\n');
+            }
+            s
+        }
+        ClientCommand::Tables { action, .. } if action == "build" => tables_build_text(reply),
+        // start, resume, cancel: the job in a line, then the rest.
+        ClientCommand::Characterize { .. } | ClientCommand::Validate { .. }
+            if reply["job"].is_object() =>
+        {
+            let mut rest = reply.clone();
+            if let Some(m) = rest.as_object_mut() {
+                m.remove("job");
+            }
+            format!("job: {}\n{}", status::job_line(&reply["job"]), human(&rest))
+        }
+        _ => human(reply),
+    })
+}
+
+/// A reply the view can do without: `None` when the daemon refused it
+/// (a role that may not read it).
+async fn optional(conn: &mut Conn, req: Value) -> Result<Option<Value>, Unreachable> {
+    let r = conn.request(req).await?;
+    Ok((r["ok"] == true).then_some(r))
+}
+
+/// `validate status`: the job, the AP/RP table (modes in the order raw,
+/// table, model, closed_loop), the logs; the per-pose figures are in
+/// `--json`.
+fn validate_status_text(reply: &Value) -> String {
+    let mut s = format!("job: {}\n", status::job_line(&reply["job"]));
+    let v = &reply["validation"];
+    if v["results"].as_object().is_some_and(|r| !r.is_empty()) {
+        s.push_str(&validation_table(v));
+        if let Some(logs) = v["logs"].as_array() {
+            let names: Vec<&str> = logs.iter().filter_map(Value::as_str).collect();
+            if !names.is_empty() {
+                s.push_str(&format!(
+                    "logs (daemon data_dir): {}; per-pose figures: `micropos validate status --json`\n",
+                    names.join(", ")
+                ));
+            }
+        }
+    } else {
+        s.push_str("no validation results yet\n");
+    }
+    s
+}
+
+/// `tables build`: the reply as usual, but the model's unidentifiable
+/// parameters as groups with their cause and remedy, not a list of names.
+fn tables_build_text(reply: &Value) -> String {
+    let mut shown = reply.clone();
+    let model = &reply["model"];
+    let groups = model["unidentifiable_groups"].as_array().cloned();
+    let n = model["unidentifiable"].as_array().map_or(0, Vec::len);
+    if let Some(m) = shown["model"].as_object_mut() {
+        m.remove("unidentifiable_groups");
+        if n > 0 {
+            m.insert(
+                "unidentifiable".to_owned(),
+                json!(format!(
+                    "{n} parameters, kept at the template's values (below)"
+                )),
+            );
+        }
+    }
+    let mut s = human(&shown);
+    match groups {
+        Some(groups) if !groups.is_empty() => {
+            s.push_str(&format!(
+                "{n} parameters of {} the log cannot identify, by cause:\n",
+                model["name"].as_str().unwrap_or("the model table")
+            ));
+            for g in groups {
+                let k = g["params"].as_array().map_or(0, Vec::len);
+                s.push_str(&format!(
+                    "  - {} ({k} parameter{})\n",
+                    g["advice"].as_str().unwrap_or("?"),
+                    if k == 1 { "" } else { "s" }
+                ));
+            }
+        }
+        // An older daemon: the names, on one line.
+        _ if n > 0 => {
+            let names: Vec<&str> = model["unidentifiable"]
+                .as_array()
+                .map(|a| a.iter().filter_map(Value::as_str).collect())
+                .unwrap_or_default();
+            s.push_str(&format!("unidentifiable: {}\n", names.join(", ")));
+        }
+        _ => {}
+    }
+    s
+}
+
 /// The first line of a move's reply: the target the user asked for, then
 /// the command the daemon sent to reach it (they differ by the
 /// compensation).
@@ -605,23 +699,37 @@ fn mode_rank(mode: &str) -> (usize, &str) {
 
 /// AP and RP per trajectory and mode from `validate status`'s results.
 fn validation_table(v: &Value) -> String {
-    let mut s = String::from("trajectory  mode         AP max µm  AP mean µm  RP max µm\n");
+    let mut s =
+        String::from("trajectory  mode         AP max µm  AP mean µm  RP max µm  RP mean µm\n");
     let f = |v: &Value| v.as_f64().map_or("-".to_owned(), |x| format!("{x:.3}"));
+    let mut rp_missing = false;
     if let Some(tests) = v["results"].as_object() {
+        let mut tests: Vec<(&String, &Value)> = tests.iter().collect();
+        // The paper's order: the square, then Table II's random targets.
+        tests.sort_by_key(|(t, _)| match t.as_str() {
+            "square" => 0,
+            "random" => 1,
+            _ => 2,
+        });
         for (test, modes) in tests {
             if let Some(modes) = modes.as_object() {
                 let mut modes: Vec<(&String, &Value)> = modes.iter().collect();
                 modes.sort_by(|a, b| mode_rank(a.0).cmp(&mode_rank(b.0)));
                 for (mode, r) in modes {
+                    rp_missing |= r["rp_um"].is_null();
                     s.push_str(&format!(
-                        "{test:<11} {mode:<12} {:>9}  {:>10}  {:>9}\n",
+                        "{test:<11} {mode:<12} {:>9}  {:>10}  {:>9}  {:>10}\n",
                         f(&r["ap_um"]),
                         f(&r["ap_mean_um"]),
-                        f(&r["rp_um"])
+                        f(&r["rp_um"]),
+                        f(&r["rp_mean_um"])
                     ));
                 }
             }
         }
+    }
+    if rp_missing {
+        s.push_str("RP -: a pose visited once has no spread (RP needs --cycles 2 or more)\n");
     }
     s
 }
@@ -631,9 +739,9 @@ fn validation_table(v: &Value) -> String {
 fn sweep_summary(r: &Value) -> Option<String> {
     let d = r["camera_delay_s"].as_f64()?;
     let mut s = format!(
-        "sweep: camera delay {:.3} ms (residual {:.4} µm), {} frames, {} records, {:.0} s",
+        "sweep: camera delay {:.3} ms (residual {}), {} frames, {} records, {:.0} s",
         d * 1e3,
-        r["camera_delay_residual_um"].as_f64().unwrap_or(f64::NAN),
+        rms_um(r["camera_delay_residual_um"].as_f64().unwrap_or(f64::NAN)),
         r["frames"],
         r["records"],
         r["duration_s"].as_f64().unwrap_or(f64::NAN)
@@ -649,9 +757,9 @@ fn sweep_summary(r: &Value) -> Option<String> {
             })
         };
         s.push_str(&format!(
-            "\nanchors: {n} visits at {} positions every {} µm ({:.0} s); correction up to x {:.3} µm, y {:.3} µm",
+            "\nanchors: {n} visits at {} positions every {:.0} µm ({:.0} s); correction up to x {:.3} µm, y {:.3} µm",
             a["positions"],
-            a["spacing_um"],
+            a["spacing_um"].as_f64().unwrap_or(f64::NAN),
             a["duration_s"].as_f64().unwrap_or(f64::NAN),
             a["x"]["max_along_um"].as_f64().unwrap_or(f64::NAN),
             a["y"]["max_along_um"].as_f64().unwrap_or(f64::NAN),
@@ -679,7 +787,7 @@ mod tests {
         let t = validation_table(&v);
         let modes: Vec<&str> = t
             .lines()
-            .skip(1)
+            .filter(|l| l.starts_with("square "))
             .filter_map(|l| l.split_whitespace().nth(1))
             .collect();
         assert_eq!(
@@ -688,5 +796,81 @@ mod tests {
             "{t}"
         );
         assert!(t.starts_with("trajectory  mode"), "{t}");
+    }
+
+    /// Issue 33: `validate status` printed the reply as a dump (modes by
+    /// name, no header); now the job, then the table with its header and
+    /// units, the square before the random targets, raw first.
+    #[test]
+    fn validate_status_is_the_job_and_the_table() {
+        let r = |ap: f64| {
+            json!({"ap_um": ap, "ap_mean_um": ap / 2.0, "rp_um": 0.123456, "rp_mean_um": 0.05,
+                                 "poses": [{"pose": "A", "ap_um": ap}]})
+        };
+        let reply = json!({"ok": true,
+            "job": {"kind": "validate", "log": "v.csv", "state": "done", "done": 84, "total": 84,
+                    "retries": 0, "error": null, "eta_s": null},
+            "validation": {"results": {"random": {"raw": r(19.55), "closed_loop": r(0.048)},
+                                       "square": {"closed_loop": r(0.075), "raw": r(28.66123456)}},
+                           "logs": ["v.csv"]}});
+        let t = validate_status_text(&reply);
+        let lines: Vec<&str> = t.lines().collect();
+        assert_eq!(lines[0], "job: validate v.csv: done, 84/84 points", "{t}");
+        assert_eq!(
+            lines[1], "trajectory  mode         AP max µm  AP mean µm  RP max µm  RP mean µm",
+            "{t}"
+        );
+        let rows: Vec<(&str, &str)> = lines[2..6]
+            .iter()
+            .map(|l| {
+                let mut w = l.split_whitespace();
+                (w.next().unwrap_or(""), w.next().unwrap_or(""))
+            })
+            .collect();
+        assert_eq!(
+            rows,
+            [
+                ("square", "raw"),
+                ("square", "closed_loop"),
+                ("random", "raw"),
+                ("random", "closed_loop")
+            ],
+            "{t}"
+        );
+        assert!(
+            lines[2].contains("28.661") && lines[2].contains("0.123"),
+            "{t}"
+        );
+        assert!(lines[6].starts_with("logs (daemon data_dir): v.csv"), "{t}");
+        // Every RP measured: no note about single visits.
+        assert!(!t.contains("RP -"), "{t}");
+        assert!(!t.contains("poses"), "{t}");
+    }
+
+    /// Issue 33: a model table's unidentifiable parameters were a list of
+    /// names; now one line per cause, with the advice, and the rest of the
+    /// reply rounded.
+    #[test]
+    fn tables_build_groups_the_unidentifiable_parameters() {
+        let reply = json!({"ok": true, "log": "c.csv",
+            "model": {"name": "c-model.toml", "rms_residual_um": [0.020993187246186144, 0.022473125779433657],
+                      "unidentifiable": ["x_cyclic.forward_sin_2_um", "x_cyclic.forward_sin_3_um", "origin.y_um"],
+                      "unidentifiable_groups": [
+                          {"term": "x_cyclic", "params": ["x_cyclic.forward_sin_2_um", "x_cyclic.forward_sin_3_um"],
+                           "advice": "x_cyclic: a step of 100 µm along x cannot resolve …"},
+                          {"term": null, "params": ["origin.y_um"], "advice": "origin.y_um: …"}],
+                      "extended_by": []},
+            "written": ["c-model.toml"]});
+        let t = tables_build_text(&reply);
+        for want in [
+            "  rms_residual: [0.0210, 0.0225] µm\n",
+            "  unidentifiable: 3 parameters, kept at the template's values (below)\n",
+            "3 parameters of c-model.toml the log cannot identify, by cause:\n",
+            "  - x_cyclic: a step of 100 µm along x cannot resolve … (2 parameters)\n",
+            "  - origin.y_um: … (1 parameter)\n",
+        ] {
+            assert!(t.contains(want), "want {want:?} in\n{t}");
+        }
+        assert!(!t.contains("forward_sin_2_um"), "{t}");
     }
 }

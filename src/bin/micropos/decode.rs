@@ -158,13 +158,13 @@ pub fn run(args: &Args) -> Result<ExitCode> {
                     String::new()
                 };
                 println!(
-                    "{prefix}x = {:.4} µm, y = {:.4} µm, θ = {:.6} rad ({:.4}°), pixel = {:.6} µm, {}",
+                    "{prefix}x = {:.3} µm, y = {:.3} µm, θ = {:.6} rad ({:.4}°), pixel = {:.6} µm, {}",
                     d.x_um,
                     d.y_um,
                     d.theta_rad,
                     d.theta_rad.to_degrees(),
                     d.pixel_um,
-                    margin_words(d.quality)
+                    crate::fmt::margin_words(d.quality)
                 );
                 for w in warnings(&d, args) {
                     println!("{prefix}warning: {w}");
@@ -194,26 +194,6 @@ pub fn run(args: &Args) -> Result<ExitCode> {
     } else {
         ExitCode::SUCCESS
     })
-}
-
-/// Margin (bits of evidence) below which a decode is refused
-/// (`CoarseThresholds::min_code_margin_bits`' default).
-const MARGIN_REFUSED_BITS: f64 = 16.0;
-/// Margin above which a misread code position is practically excluded
-/// (a likelihood ratio of 2⁴⁰ ≈ 10¹², where clean views score hundreds).
-const MARGIN_SAFE_BITS: f64 = 40.0;
-
-/// The code margin in words: what it is and whether it is comfortable.
-fn margin_words(bits: f64) -> String {
-    let verdict = if bits >= MARGIN_SAFE_BITS {
-        "safe"
-    } else {
-        "thin: check focus, lighting and dust"
-    };
-    format!(
-        "code margin {bits:.0} bits (the best code position is 2^{bits:.0} times likelier than the next best; \
-         refused below {MARGIN_REFUSED_BITS:.0}, safe from {MARGIN_SAFE_BITS:.0}: {verdict})"
-    )
 }
 
 /// What the result cannot vouch for.

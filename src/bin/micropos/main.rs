@@ -11,6 +11,7 @@ mod client;
 mod combine;
 mod decode;
 mod diagnose;
+mod fmt;
 mod gcs;
 mod import;
 mod paper;
@@ -115,6 +116,7 @@ fn main() -> ExitCode {
     let cli = Cli::parse();
     tracing_subscriber::fmt()
         .with_writer(std::io::stderr)
+        .with_ansi(micropos::stderr_colour())
         .with_env_filter(
             tracing_subscriber::EnvFilter::try_from_default_env()
                 .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("warn")),

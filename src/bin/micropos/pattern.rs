@@ -190,7 +190,7 @@ fn export(a: ExportArgs) -> Result<()> {
     };
     let r = layout.region();
     println!(
-        "{}: {}-bit, period {} µm, dot {} µm, columns {}..{}, rows {}..{}: {what}",
+        "{}: {}-bit, period {} µm, dot {:.3} µm, columns {}..{}, rows {}..{}: {what}",
         a.out.display(),
         a.bits,
         a.period_um,

@@ -241,8 +241,21 @@ pub fn build_blocking(
             source
                 .metadata
                 .insert("fit.extended_by".into(), extended_by.join(", "));
+            // Why the fit could not identify what it could not, per
+            // cause, with the step that would (issue 33: a bare list of 33
+            // names). The fit's samples again: the same records, the same
+            // options, so the same positions.
+            let samples =
+                crate::comp::model_comp::scan_samples(&records, &ModelBuildOptions::default())
+                    .unwrap_or_default();
+            let groups = crate::model::sampling::unidentifiable_groups(
+                comp.model(),
+                &report.unidentifiable,
+                &samples,
+            );
             out["model"] = json!({"name": name, "rms_residual_um": rms,
                                   "unidentifiable": report.unidentifiable,
+                                  "unidentifiable_groups": groups,
                                   "extended_by": extended_by});
             let mut f = CompFile::model(comp.model(), rfc3339_utc(unix_s), source.clone())
                 .map_err(|e| bad(e.to_string()))?;
@@ -512,6 +525,24 @@ mod tests {
         assert_eq!(written, vec!["c-model.toml".to_owned()]);
         let ext = out["model"]["extended_by"].as_array().unwrap();
         assert_eq!(ext.len(), 1, "{out}");
+        // Every unidentifiable parameter is in exactly one group, which
+        // says why and what would identify it.
+        let strs = |v: &Value| -> Vec<String> {
+            v.as_array()
+                .unwrap()
+                .iter()
+                .map(|s| s.as_str().unwrap().to_owned())
+                .collect()
+        };
+        let mut names = strs(&out["model"]["unidentifiable"]);
+        let groups = out["model"]["unidentifiable_groups"].as_array().unwrap();
+        let mut grouped: Vec<String> = groups.iter().flat_map(|g| strs(&g["params"])).collect();
+        assert!(groups
+            .iter()
+            .all(|g| g["advice"].as_str().is_some_and(|a| !a.is_empty())));
+        names.sort();
+        grouped.sort();
+        assert_eq!(names, grouped, "{out}");
         let extended_rms = out["model"]["rms_residual_um"][e.component as usize]
             .as_f64()
             .unwrap();

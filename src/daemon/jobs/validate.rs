@@ -643,7 +643,7 @@ async fn reach(
             // The stage is where the loop left it: measure it like any other
             // arrival (that is what a user gets), count the failure.
             tracing::warn!(
-                "validation: closed loop to ({}, {}) µm: {}: {}",
+                "validation: closed loop to ({:.3}, {:.3}) µm: {}: {}",
                 target.x_um,
                 target.y_um,
                 e.code,
@@ -876,7 +876,7 @@ async fn run(
                     }
                     let target = plan.target(pose);
                     let what = format!(
-                        "{} move to ({}, {}) µm",
+                        "{} move to ({:.3}, {:.3}) µm",
                         mode.as_str(),
                         target.x_um,
                         target.y_um

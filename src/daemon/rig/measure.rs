@@ -238,7 +238,7 @@ pub(crate) async fn expose_retrying(rig: &Rig, n: u32) -> Result<Option<Exposed>
 /// An absolute raw move and wait, retried after transient faults.
 pub(crate) async fn move_raw_retrying(rig: &Arc<Rig>, x: f64, y: f64) -> Result<Value, ProtoError> {
     let req = MoveRequest::raw_to(x, y);
-    rig.retry_transient(&format!("move to ({x}, {y}) µm"), || {
+    rig.retry_transient(&format!("move to ({x:.3}, {y:.3}) µm"), || {
         rig.move_to(&req, true)
     })
     .await

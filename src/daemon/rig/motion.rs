@@ -248,7 +248,7 @@ impl Rig {
                 return Err(ProtoError::new(
                     ErrorCode::OutOfTravel,
                     format!(
-                        "axis {} target {t} µm is outside the allowed range {lo}..{hi} µm (soft limits ∩ controller travel); nothing was sent",
+                        "axis {} target {t:.3} µm is outside the allowed range {lo:.3}..{hi:.3} µm (soft limits ∩ controller travel); nothing was sent",
                         a.name()
                     ),
                 ));

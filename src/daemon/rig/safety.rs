@@ -145,9 +145,14 @@ impl Rig {
     /// job cancel must not return while the stage still moves; a smooth
     /// halt decelerates, it does not stop at once. `why` goes to the log
     /// and to `fault` subscribers (`halted` event).
+    ///
+    /// Logged at info: it is asked for (a shutdown, a job cancel) and ends
+    /// every normal run, so a warning would teach a lab to ignore
+    /// warnings. A halt that leaves an axis moving or fails is a warning;
+    /// a fault's halt ([`Rig::apply`]) is one too.
     pub async fn halt_and_wait(&self, why: &str) -> Value {
         self.stop_gen.fetch_add(1, Ordering::SeqCst);
-        tracing::warn!("halting both axes: {why}");
+        tracing::info!("halting both axes: {why}");
         let t = self.clock.now_s();
         let halts = self.halt_all().await;
         let mut r = self.wait_at_rest(halts).await;
@@ -157,7 +162,12 @@ impl Rig {
             "halted",
             json!({"t_s": t, "reason": why, "at_rest": r["at_rest"], "wait_s": r["wait_s"]}),
         );
-        tracing::info!("halt ({why}): {r}");
+        let failed = r["errors"].as_array().is_some_and(|e| !e.is_empty());
+        if r["at_rest"] == true && !failed {
+            tracing::info!("halt ({why}): both axes at rest: {r}");
+        } else {
+            tracing::warn!("halt ({why}) did not bring both axes to rest: {r}");
+        }
         r
     }
 

@@ -71,16 +71,14 @@ impl View {
         }
     }
 
-    /// Closes the bar at the job's end state (nothing for plain lines).
-    fn close(&self, job: &Value) {
+    /// Takes the bar off the terminal at the job's end (nothing for plain
+    /// lines): the final state line replaces it. Why not leave it: a
+    /// finished bar keeps the cursor at its end, so the final state was
+    /// printed on the bar's line ("… 10/10 points  ETA done characterize
+    /// c.csv: state done …") and read as no summary at all (issue 33).
+    fn close(&self) {
         if let View::Bar(bar) = self {
-            if let Some(done) = job["done"].as_u64() {
-                bar.set_position(done);
-            }
-            match job["state"].as_str() {
-                Some("done") => bar.finish_with_message("done"),
-                other => bar.abandon_with_message(other.unwrap_or("?").to_owned()),
-            }
+            bar.finish_and_clear();
         }
     }
 }
@@ -111,10 +109,7 @@ pub(super) async fn follow(conn: &mut Conn, started: &Value) -> Result<Value, Un
     let log = job["log"].as_str().unwrap_or("?").to_owned();
     let mut view = View::new(job);
     let end = wait_end(conn, &mut view, &kind).await;
-    match &end {
-        Ok(j) => view.close(j),
-        Err(_) => view.close(&json!({"state": "lost"})),
-    }
+    view.close();
     end.map_err(|Unreachable(e)| {
         Unreachable(e.context(format!(
             "lost the daemon while following {kind} job {log}; its end is unknown (`micropos {kind} status` once the daemon is back)"
@@ -239,10 +234,18 @@ fn not_done(job: &Value) -> String {
     format!("{kind} job {log} ended {state}, not done: {why}{resume}")
 }
 
-/// The text summary of a characterization's result (a sweep's delay and
-/// anchors; a step job has none beyond its final line).
+/// The text summary of a characterization: the log it wrote, and a
+/// sweep's delay and anchors.
 pub(super) fn characterize_summary(job: &Value) -> Option<String> {
-    sweep_summary(&job["result"])
+    let log = format!(
+        "log: {} in the daemon's data_dir, {} points",
+        job["log"].as_str().unwrap_or("?"),
+        job["done"].as_u64().unwrap_or(0)
+    );
+    Some(match sweep_summary(&job["result"]) {
+        Some(sweep) => format!("{log}\n{sweep}"),
+        None => log,
+    })
 }
 
 #[cfg(test)]
