@@ -6,7 +6,8 @@
 const FIG = (() => {
   const NS = 'http://www.w3.org/2000/svg';
   // plot::PALETTE, in the same order.
-  const PALETTE = ['#1f77b4', '#d62728', '#2ca02c', '#ff7f0e', '#9467bd', '#646464'];
+  const PALETTE = ['#1f77b4', '#d62728', '#2ca02c', '#ff7f0e', '#9467bd', '#646464',
+    '#8c564b', '#e377c2', '#bcbd22', '#17becf'];
   const W = 560;
   const H = 280;
   const M = { left: 62, right: 12, top: 26, bottom: 40 };
@@ -164,7 +165,9 @@ const FIG = (() => {
         if (!finite(v)) return;
         const x = M.left + ci * slot + 5 + gi * bw;
         el('rect', { x, y: sy(v), width: bw - 1, height: H - M.bottom - sy(v), fill: PALETTE[g.color % PALETTE.length] }, svg);
-        text(svg, x + bw / 2, sy(v) - 3, label(v), { 'text-anchor': 'middle', class: 'fig-value' });
+        // The value as the figure data prints it (rounded, with its unit).
+        const shown = (g.value_labels && g.value_labels[ci]) || label(v);
+        text(svg, x + bw / 2, sy(v) - 3, shown, { 'text-anchor': 'middle', class: 'fig-value' });
         marks += 1;
       });
     });
