@@ -467,20 +467,17 @@ fn main_job(
         );
     }
     if let (Some(plots), Some(dir)) = (&plots, &report.data_dir) {
-        std::fs::create_dir_all(plots).with_context(|| format!("creating {}", plots.display()))?;
-        // The paper's figures from the run's own logs: Figs. 4-6 from the
-        // characterization logs, Figs. 10-11 from the validation log.
-        let logs: Vec<PathBuf> = report
-            .files
-            .iter()
-            .filter(|f| f.ends_with(".csv"))
-            .map(|f| dir.join(f))
-            .collect();
-        let written = micropos::plot::write_all(&logs, plots, micropos::plot::Format::Both)
+        // The paper's figures from the run's own logs, each log's own:
+        // Figs. 4-6 of the characterization logs, Figs. 10-11 of each
+        // validation log (the drift comparison's in figures of their own).
+        let p = hil_sim::run::plot_run(dir, &report.files, plots, micropos::plot::Format::Both)
             .with_context(|| format!("drawing plots into {}", plots.display()))?;
+        for n in &p.notes {
+            eprintln!("hil-sim run: plot: {n}");
+        }
         eprintln!(
             "hil-sim run: {} plot files in {}",
-            written.len(),
+            p.files.len(),
             plots.display()
         );
     }

@@ -1054,6 +1054,41 @@ fn model_note(summary: &Value) -> Option<String> {
     ))
 }
 
+/// The figures of a run (`hil-sim run --plots DIR`): from the run's logs in
+/// `data_dir` (`files` as [`RunReport::files`] lists them), each log's own
+/// figures, no comparison: Figs. 4–5 (and 6 with at least two cycles) of
+/// every characterization log that has scans, Figs. 10–11 of every
+/// validation log. So `validate_fig11_random` shows the AP and RP the run
+/// printed, and the drift comparison's and the sweep's and grid's
+/// validations are figures of their own (`validate-drift-off_fig11_random`,
+/// …), never pooled into one mode. Logs with no paper figure (the grid's
+/// map, sweeps' raw passes without scans) are named in the notes.
+pub fn plot_run(
+    data_dir: &Path,
+    files: &[String],
+    out_dir: &Path,
+    format: micropos::plot::Format,
+) -> Result<micropos::plot::Plotted, micropos::plot::PlotError> {
+    use micropos::plot::{plot_logs, read_logs};
+    let paths: Vec<PathBuf> = files
+        .iter()
+        .filter(|f| f.ends_with(".csv"))
+        .map(|f| data_dir.join(f))
+        .collect();
+    let (plottable, other): (Vec<_>, Vec<_>) = read_logs(&paths)?.into_iter().partition(|l| {
+        let c = micropos::plot::report::contents(&l.log);
+        c.characterization || c.validation
+    });
+    let mut p = plot_logs(&plottable, out_dir, format, false)?;
+    for l in other {
+        p.notes.push(format!(
+            "{}: no scan or validation records: none of the paper's figures",
+            l.name
+        ));
+    }
+    Ok(p)
+}
+
 /// The human-readable table of AP and RP per trajectory and mode.
 pub fn format_table(summary: &Value) -> String {
     let mut s =

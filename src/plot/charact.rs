@@ -18,10 +18,8 @@
 //!   direction, the measured (x, y) of the cycles around their barycentre.
 
 use std::collections::BTreeMap;
-use std::path::{Path, PathBuf};
 
-use super::figure::{render_figure, Figure, Format, Panel, Scale, Style, Trace, XyPanel};
-use super::PlotError;
+use super::figure::{Figure, NamedFigure, Panel, Scale, Style, Trace, XyPanel};
 use crate::charact::log::{MeasurementLog, Record};
 use crate::charact::scan::{SEGMENT_SCAN_X, SEGMENT_SCAN_Y};
 use crate::comp::table::infer_directions;
@@ -348,26 +346,24 @@ pub fn fig6_repeatability(name: &str, scans: &[Scan]) -> Option<Figure> {
     })
 }
 
-/// Writes Figs. 4, 5 and 6 of the scans of `log` as `<dir>/<stem>_fig4_errors`,
-/// `_fig5_coupling`, `_fig6_repeatability`; returns the files and notes for
-/// the user (points left out, figures skipped and why). Writes nothing and
-/// returns no file when the log has no scan segment.
-pub fn write_charact(
+/// Figs. 4, 5 and 6 of the scans of `log`, named `<stem>_fig4_errors`,
+/// `_fig5_coupling`, `_fig6_repeatability`, and notes for the user (points
+/// left out, figures skipped and why). No figure when the log has no scan
+/// segment; no Fig. 6 when no target was visited twice in one direction.
+pub fn charact_figures(
     name: &str,
     stem: &str,
     log: &MeasurementLog,
-    dir: &Path,
-    format: Format,
-) -> Result<(Vec<PathBuf>, Vec<String>), PlotError> {
+) -> (Vec<NamedFigure>, Vec<String>) {
     let scans: Vec<Scan> = scans(log)
         .into_iter()
         .flatten()
         .filter(|s| !s.points.is_empty())
         .collect();
     let mut notes = Vec::new();
-    let mut files = Vec::new();
+    let mut figures = Vec::new();
     if scans.is_empty() {
-        return Ok((files, notes));
+        return (figures, notes);
     }
     for s in &scans {
         if s.undetermined > 0 {
@@ -378,25 +374,17 @@ pub fn write_charact(
             ));
         }
     }
-    files.extend(render_figure(
-        &fig4_errors(name, &scans),
-        &dir.join(format!("{stem}_fig4_errors")),
-        format,
-    )?);
-    files.extend(render_figure(
-        &fig5_coupling(name, &scans),
-        &dir.join(format!("{stem}_fig5_coupling")),
-        format,
-    )?);
+    let named = |suffix: &str, figure: Figure| NamedFigure {
+        stem: format!("{stem}_{suffix}"),
+        figure,
+    };
+    figures.push(named("fig4_errors", fig4_errors(name, &scans)));
+    figures.push(named("fig5_coupling", fig5_coupling(name, &scans)));
     match fig6_repeatability(name, &scans) {
-        Some(f) => files.extend(render_figure(
-            &f,
-            &dir.join(format!("{stem}_fig6_repeatability")),
-            format,
-        )?),
+        Some(f) => figures.push(named("fig6_repeatability", f)),
         None => notes.push(format!(
             "{name}: no target visited twice in one direction: no repeatability figure (needs ≥ 2 cycles)"
         )),
     }
-    Ok((files, notes))
+    (figures, notes)
 }

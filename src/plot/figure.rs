@@ -1,17 +1,28 @@
-//! Multi-panel figures: x–y panels (lines, dots, crosses; linear or
-//! logarithmic y) and grouped bar panels, written as PNG and/or SVG.
+//! Multi-panel figures: x–y panels (lines, dashed lines, dots, crosses;
+//! linear or logarithmic y) and grouped bar panels, written as PNG and/or
+//! SVG. Every plot of the crate is drawn here ([`super::render`] turns a
+//! one-panel [`super::Chart`] into a [`Figure`]).
 //!
-//! Why a second drawing layer next to [`super::Chart`]: the paper's figures
-//! put related views side by side (one panel per axis in Figs. 4–6; the
-//! trajectory, the per-pose accuracy and a summary in Figs. 10–11), need
-//! several traces sharing one colour and one legend entry (three cycles of
-//! a forward pass), a logarithmic scale (raw 22 µm next to closed-loop
-//! 0.1 µm) and bars. [`Figure`] is still plain data built by the numeric
-//! code; [`render_figure`] alone knows plotters. The same data serializes
-//! to JSON (`serde`: panels tagged `kind` = `xy` / `bars`, points as
-//! `[x, y]`, non-finite values as `null`): the daemon's `figures` command
-//! sends it and the web page draws it, so browser and files show one
-//! computation.
+//! Why this shape: the paper's figures put related views side by side (one
+//! panel per axis in Figs. 4–6; the trajectory, the per-pose accuracy and a
+//! summary in Figs. 10–11), need several traces sharing one colour and one
+//! legend entry (three cycles of a forward pass), a logarithmic scale (raw
+//! 22 µm next to closed-loop 0.1 µm) and bars. [`Figure`] is plain data
+//! built by the numeric code; [`render_figure`] alone knows plotters. The
+//! same data serializes to JSON (`serde`: panels tagged `kind` = `xy` /
+//! `bars`, points as `[x, y]`, non-finite values as `null`): the daemon's
+//! `figures` command sends it and the web page draws it, so browser and
+//! files show one computation.
+//!
+//! Layout rules, so that a figure shows its data and all its text:
+//! * every title, caption and category name is fitted to the width it has
+//!   (wrapped at words, then shrunk; measured with the shipped font, see
+//!   [`text_extent`]), never left to run off the canvas;
+//! * legends sit in a strip below their panel's axes, never on the
+//!   plotting area;
+//! * bar values carry their own text ([`BarGroup::value_labels`]: rounded to
+//!   the resolution, with the unit) and are turned upright when they do not
+//!   fit beside each other.
 //!
 //! Ticks are computed here (1-2-5 steps on linear axes, decades and 2/5
 //! subdivisions on log axes) and handed to plotters as fixed key points, so
@@ -25,6 +36,8 @@ use plotters::coord::ranged1d::{DefaultFormatting, KeyPointHint, Ranged};
 use plotters::coord::types::RangedCoordf64;
 use plotters::coord::Shift;
 use plotters::prelude::*;
+use plotters::style::text_anchor::{HPos, Pos, VPos};
+use plotters::style::FontTransform;
 
 use super::{font, PlotError, FAMILY, PALETTE};
 
@@ -73,6 +86,8 @@ pub enum Style {
     Dots,
     /// Polyline with a dot at each point.
     LineDots,
+    /// Dashed polyline (bands such as ISO 230-2's mean ± 2s).
+    Dashed,
     /// Crosses (targets).
     Crosses,
 }
@@ -129,6 +144,58 @@ pub struct BarGroup {
     pub color: usize,
     /// Value per category; `None` = not available (no bar drawn).
     pub values: Vec<Option<f64>>,
+    /// The text printed above each bar, e.g. `0.10 µm`: the value rounded
+    /// to what the measurement resolves, with its unit (see
+    /// [`BarGroup::labelled`]). Carried in the data so that the files and
+    /// the web page print the same text; `None` (or a missing entry): the
+    /// value to three significant digits.
+    pub value_labels: Vec<Option<String>>,
+}
+
+impl BarGroup {
+    /// A bar series whose value labels are the values rounded to
+    /// `resolution` (e.g. 0.01) followed by `unit` (e.g. `µm`).
+    pub fn labelled(
+        label: impl Into<String>,
+        color: usize,
+        values: Vec<Option<f64>>,
+        resolution: f64,
+        unit: &str,
+    ) -> Self {
+        let value_labels = values
+            .iter()
+            .map(|v| {
+                v.filter(|v| v.is_finite())
+                    .map(|v| value_label(v, resolution, unit))
+            })
+            .collect();
+        BarGroup {
+            label: label.into(),
+            color,
+            values,
+            value_labels,
+        }
+    }
+}
+
+/// `v` rounded to a multiple of `resolution` and printed with the decimals
+/// that resolution has, then `unit`: `value_label(0.100124, 0.01, "µm")` =
+/// `0.10 µm`. Why not significant digits: a value is known to the
+/// measurement's resolution, whatever its size (22.08 µm and 0.05 µm alike).
+pub fn value_label(v: f64, resolution: f64, unit: &str) -> String {
+    let (r, decimals) = if resolution.is_finite() && resolution > 0.0 {
+        let d = (-resolution.log10() - 1e-9).ceil().max(0.0) as usize;
+        ((v / resolution).round() * resolution, d)
+    } else {
+        (v, 3)
+    };
+    // No "-0.00".
+    let r = if r == 0.0 { 0.0 } else { r };
+    if unit.is_empty() {
+        format!("{r:.decimals$}")
+    } else {
+        format!("{r:.decimals$} {unit}")
+    }
 }
 
 /// A grouped bar chart with the value printed above each bar (bars of very
@@ -166,6 +233,16 @@ pub struct Figure {
     pub rows: Vec<Vec<Panel>>,
     /// Size in pixels (PNG) / user units (SVG).
     pub size: (u32, u32),
+}
+
+/// A figure with the file stem it is written under (`<stem>.png` /
+/// `<stem>.svg`).
+#[derive(Debug, Clone, PartialEq)]
+pub struct NamedFigure {
+    /// File stem, e.g. `validate_fig11_random`.
+    pub stem: String,
+    /// The figure.
+    pub figure: Figure,
 }
 
 /// Nice 1-2-5 ticks covering `[lo, hi]`, at most about `n` of them.
@@ -290,11 +367,380 @@ fn label_area(y_label: &str) -> u32 {
     }
 }
 
+/// Font sizes, px: figure title, panel caption, legend, bar values, and
+/// the smallest any of them is shrunk to before it is wrapped or shortened.
+const TITLE_PX: f64 = 20.0;
+const CAPTION_PX: f64 = 17.0;
+const LEGEND_PX: f64 = 12.0;
+const VALUE_PX: f64 = 11.0;
+const MIN_TEXT_PX: f64 = 9.0;
+/// Line height as a multiple of the font size.
+const LINE_SPACING: f64 = 1.25;
+/// Space around a figure's title and a panel's chart, px.
+const MARGIN: f64 = 10.0;
+/// Height of the x-axis label area (tick labels and description), px.
+const X_LABEL_AREA: u32 = 45;
+/// Width of a legend marker, the gap to its text and the gap between
+/// entries, px.
+const MARK_W: f64 = 18.0;
+const MARK_GAP: f64 = 5.0;
+const ENTRY_GAP: f64 = 18.0;
+/// Radius of a legend's dot marker, px: larger than any data dot (at most
+/// 3), so the two are told apart in a drawing.
+pub const LEGEND_DOT_RADIUS: i32 = 4;
+
+/// Width and height (px) of `text` at `size` px in the shipped font; 0.6 em
+/// per character when the font cannot lay it out.
+///
+/// Why measured here and not left to plotters: plotters centres a caption
+/// and lets it run off both edges when it is wider than its area; every
+/// text this module draws is fitted to its space first with these numbers
+/// (the ones the bitmap backend draws with).
+pub fn text_extent(text: &str, size: f64) -> (f64, f64) {
+    let _ = font();
+    match (FAMILY, size).into_font().box_size(text) {
+        Ok((w, h)) => (f64::from(w), f64::from(h)),
+        Err(_) => (0.6 * size * text.chars().count() as f64, size),
+    }
+}
+
+/// A text broken into lines at one font size.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Fitted {
+    /// The lines, top to bottom (none for an empty text).
+    pub lines: Vec<String>,
+    /// Font size, px.
+    pub size: f64,
+}
+
+impl Fitted {
+    /// Height of the lines, px.
+    pub fn height(&self) -> f64 {
+        self.lines.len() as f64 * self.size * LINE_SPACING
+    }
+}
+
+/// Greedy word wrap of `text` into lines no wider than `max_w` px at
+/// `size`; a word wider than a line is broken between characters.
+fn wrap(text: &str, max_w: f64, size: f64) -> Vec<String> {
+    let fits = |s: &str| text_extent(s, size).0 <= max_w;
+    let mut lines: Vec<String> = Vec::new();
+    let mut line = String::new();
+    for word in text.split_whitespace() {
+        let joined = if line.is_empty() {
+            word.to_string()
+        } else {
+            format!("{line} {word}")
+        };
+        if fits(&joined) {
+            line = joined;
+            continue;
+        }
+        if !line.is_empty() {
+            lines.push(std::mem::take(&mut line));
+        }
+        if fits(word) {
+            line = word.to_string();
+            continue;
+        }
+        for ch in word.chars() {
+            let mut next = line.clone();
+            next.push(ch);
+            if !line.is_empty() && !fits(&next) {
+                lines.push(std::mem::take(&mut line));
+                next = ch.to_string();
+            }
+            line = next;
+        }
+    }
+    if !line.is_empty() {
+        lines.push(line);
+    }
+    lines
+}
+
+/// Fits `text` into lines no wider than `max_w` px: at the largest size
+/// from `size` down to `min_size` (steps of 10 %) that needs at most
+/// `max_lines` lines, else at `min_size` in as many lines as it takes.
+pub fn fit_text(text: &str, max_w: f64, size: f64, min_size: f64, max_lines: usize) -> Fitted {
+    let min_size = min_size.min(size);
+    let mut s = size;
+    loop {
+        let lines = wrap(text, max_w, s);
+        if lines.len() <= max_lines.max(1) {
+            return Fitted { lines, size: s };
+        }
+        if s <= min_size {
+            return Fitted { lines, size: s };
+        }
+        s = (s * 0.9).max(min_size);
+    }
+}
+
+/// `text` shortened with "…" until it is at most `max_w` px wide at `size`.
+fn ellipsize(text: &str, max_w: f64, size: f64) -> String {
+    if text_extent(text, size).0 <= max_w {
+        return text.to_string();
+    }
+    let mut chars: Vec<char> = text.chars().collect();
+    while !chars.is_empty() {
+        chars.pop();
+        let s: String = chars.iter().collect::<String>() + "…";
+        if text_extent(&s, size).0 <= max_w {
+            return s;
+        }
+    }
+    "…".into()
+}
+
+/// Draws `f`'s lines centred on `x_centre`, the first one's top at `top`
+/// (pixel coordinates of `area`).
+fn draw_lines<DB: DrawingBackend>(
+    area: &DrawingArea<DB, Shift>,
+    f: &Fitted,
+    x_centre: i32,
+    top: i32,
+) -> Result<(), DrawingAreaErrorKind<DB::ErrorType>> {
+    let style =
+        TextStyle::from((FAMILY, f.size).into_font()).pos(Pos::new(HPos::Center, VPos::Top));
+    for (k, line) in f.lines.iter().enumerate() {
+        let y = top + (k as f64 * f.size * LINE_SPACING).round() as i32;
+        area.draw(&Text::new(line.as_str(), (x_centre, y), style.clone()))?;
+    }
+    Ok(())
+}
+
+/// How a legend entry shows its trace.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Marker {
+    Line,
+    Dashed,
+    Dot,
+    LineDot,
+    Cross,
+    Bar,
+}
+
+impl From<Style> for Marker {
+    fn from(s: Style) -> Self {
+        match s {
+            Style::Line => Marker::Line,
+            Style::Dashed => Marker::Dashed,
+            Style::Dots => Marker::Dot,
+            Style::LineDots => Marker::LineDot,
+            Style::Crosses => Marker::Cross,
+        }
+    }
+}
+
+/// One legend entry.
+#[derive(Debug, Clone, PartialEq)]
+struct LegendItem {
+    label: String,
+    color: usize,
+    marker: Marker,
+}
+
+/// One row of a legend: per entry (item index, text as drawn, x of the
+/// entry from the row's start), and the row's width.
+type LegendRow = (Vec<(usize, String, f64)>, f64);
+
+/// A legend laid out in rows across its strip.
+#[derive(Debug, Clone, PartialEq)]
+struct LegendLayout {
+    /// Font size, px.
+    size: f64,
+    /// The rows, top to bottom.
+    rows: Vec<LegendRow>,
+    /// Height of a row, px.
+    row_h: f64,
+    /// Height of the strip, px.
+    height: f64,
+}
+
+/// Lays `items` out in rows of at most `width` px: one font size for all
+/// (the largest down to [`MIN_TEXT_PX`] at which the widest fits a row),
+/// a label still too wide shortened with "…".
+fn legend_layout(items: &[LegendItem], width: f64) -> Option<LegendLayout> {
+    if items.is_empty() {
+        return None;
+    }
+    let avail = (width - 2.0 * MARGIN).max(60.0);
+    let room = avail - MARK_W - MARK_GAP;
+    let mut size = LEGEND_PX;
+    while size > MIN_TEXT_PX && items.iter().any(|i| text_extent(&i.label, size).0 > room) {
+        size = (size * 0.9).max(MIN_TEXT_PX);
+    }
+    let mut rows: Vec<LegendRow> = Vec::new();
+    let mut row: Vec<(usize, String, f64)> = Vec::new();
+    let mut x = 0.0;
+    for (k, item) in items.iter().enumerate() {
+        let text = ellipsize(&item.label, room, size);
+        let w = MARK_W + MARK_GAP + text_extent(&text, size).0;
+        if !row.is_empty() && x + ENTRY_GAP + w > avail {
+            rows.push((std::mem::take(&mut row), x));
+            x = 0.0;
+        }
+        let at = if row.is_empty() { 0.0 } else { x + ENTRY_GAP };
+        row.push((k, text, at));
+        x = at + w;
+    }
+    rows.push((row, x));
+    let row_h = (size * 1.5).ceil();
+    // Frame padding above and below the rows, and a gap before the next
+    // panel's caption.
+    let height = rows.len() as f64 * row_h + 2.0 * 4.0 + 4.0 + 10.0;
+    Some(LegendLayout {
+        size,
+        rows,
+        row_h,
+        height,
+    })
+}
+
+/// Draws a legend laid out by [`legend_layout`] into its strip `area`
+/// (below the chart, outside the plotting area): a thin frame, then each
+/// entry's marker and text.
+fn draw_legend<DB: DrawingBackend>(
+    area: &DrawingArea<DB, Shift>,
+    items: &[LegendItem],
+    l: &LegendLayout,
+) -> Result<(), DrawingAreaErrorKind<DB::ErrorType>> {
+    let (w, _) = area.dim_in_pixel();
+    let w = f64::from(w);
+    let widest = l.rows.iter().map(|r| r.1).fold(0.0, f64::max);
+    let x_frame = ((w - widest) / 2.0 - 6.0).max(0.0);
+    let top = 4.0;
+    area.draw(&Rectangle::new(
+        [
+            (x_frame.round() as i32, top as i32),
+            (
+                (x_frame + widest + 12.0).min(w - 1.0).round() as i32,
+                (top + 4.0 + l.rows.len() as f64 * l.row_h + 4.0).round() as i32,
+            ),
+        ],
+        RGBColor(190, 190, 190).stroke_width(1),
+    ))?;
+    let style =
+        TextStyle::from((FAMILY, l.size).into_font()).pos(Pos::new(HPos::Left, VPos::Center));
+    for (r, (row, row_w)) in l.rows.iter().enumerate() {
+        let x0 = (w - row_w) / 2.0;
+        let y = (top + 4.0 + (r as f64 + 0.5) * l.row_h).round() as i32;
+        for (k, text, at) in row {
+            let item = &items[*k];
+            let color = PALETTE[item.color % PALETTE.len()];
+            let x = (x0 + at).round() as i32;
+            let m = MARK_W as i32;
+            match item.marker {
+                Marker::Line => area.draw(&PathElement::new(
+                    vec![(x, y), (x + m, y)],
+                    color.stroke_width(2),
+                ))?,
+                Marker::Dashed => {
+                    area.draw(&PathElement::new(
+                        vec![(x, y), (x + 7, y)],
+                        color.stroke_width(1),
+                    ))?;
+                    area.draw(&PathElement::new(
+                        vec![(x + 11, y), (x + m, y)],
+                        color.stroke_width(1),
+                    ))?;
+                }
+                Marker::Dot => area.draw(&Circle::new(
+                    (x + m / 2, y),
+                    LEGEND_DOT_RADIUS,
+                    color.filled(),
+                ))?,
+                Marker::LineDot => {
+                    area.draw(&PathElement::new(
+                        vec![(x, y), (x + m, y)],
+                        color.stroke_width(1),
+                    ))?;
+                    area.draw(&Circle::new(
+                        (x + m / 2, y),
+                        LEGEND_DOT_RADIUS,
+                        color.filled(),
+                    ))?;
+                }
+                Marker::Cross => {
+                    area.draw(&Cross::new((x + m / 2, y), 4, color.stroke_width(1)))?
+                }
+                Marker::Bar => area.draw(&Rectangle::new(
+                    [(x + 2, y - 5), (x + m - 2, y + 5)],
+                    color.filled(),
+                ))?,
+            }
+            area.draw(&Text::new(
+                text.as_str(),
+                (x + m + MARK_GAP as i32, y),
+                style.clone(),
+            ))?;
+        }
+    }
+    Ok(())
+}
+
+/// A panel cell split into its caption (drawn here, fitted to the cell's
+/// width), the chart and the legend strip below it: the legend never sits
+/// on the data.
+struct PanelAreas<DB: DrawingBackend> {
+    chart: DrawingArea<DB, Shift>,
+    legend: Option<(DrawingArea<DB, Shift>, LegendLayout)>,
+}
+
+fn panel_areas<DB: DrawingBackend>(
+    cell: &DrawingArea<DB, Shift>,
+    title: &str,
+    items: &[LegendItem],
+) -> Result<PanelAreas<DB>, DrawingAreaErrorKind<DB::ErrorType>> {
+    let (w, h) = cell.dim_in_pixel();
+    let (w, h) = (f64::from(w), f64::from(h));
+    let cap = fit_text(title, w - 2.0 * MARGIN, CAPTION_PX, 10.0, 2);
+    let cap_h = if cap.lines.is_empty() {
+        0.0
+    } else {
+        draw_lines(cell, &cap, (w / 2.0).round() as i32, 6)?;
+        cap.height() + 8.0
+    };
+    let legend = legend_layout(items, w);
+    let leg_h = legend.as_ref().map_or(0.0, |l| l.height);
+    let (_, rest) = cell.split_vertically(cap_h.round() as i32);
+    let rest_h = (h - cap_h).max(0.0);
+    let chart_h = (rest_h - leg_h).max(rest_h.min(60.0));
+    let (chart, below) = rest.split_vertically(chart_h.round() as i32);
+    Ok(PanelAreas {
+        chart,
+        legend: legend.map(|l| (below, l)),
+    })
+}
+
+/// Dot radius for `n` points in a panel: large enough to see on a
+/// 50-point test, small enough not to merge on a 2000-point scan.
+fn dot_radius(n: usize) -> i32 {
+    match n {
+        0..=300 => 3,
+        301..=2000 => 2,
+        _ => 1,
+    }
+}
+
 fn draw_xy<DB: DrawingBackend>(area: &DrawingArea<DB, Shift>, p: &XyPanel) -> Result<(), String>
 where
     DB::ErrorType: 'static,
 {
     let e = |x: DrawingAreaErrorKind<DB::ErrorType>| x.to_string();
+    let items: Vec<LegendItem> = p
+        .traces
+        .iter()
+        .filter_map(|t| {
+            t.label.as_ref().map(|l| LegendItem {
+                label: l.clone(),
+                color: t.color,
+                marker: t.style.into(),
+            })
+        })
+        .collect();
+    let areas = panel_areas(area, &p.title, &items).map_err(e)?;
     let pts: Vec<(usize, Vec<(f64, f64)>)> = p
         .traces
         .iter()
@@ -320,11 +766,11 @@ where
     }
     let (mut x0, mut x1) = pad_range(xr.0, xr.1, 0.03);
     let (mut y0, mut y1) = pad_range(yr.0, yr.1, 0.06);
-    let (w, h) = area.dim_in_pixel();
+    let (w, h) = areas.chart.dim_in_pixel();
     let y_area = label_area(&p.y_label);
     if p.equal_aspect {
-        let pw = (w as f64 - y_area as f64 - 30.0).max(10.0);
-        let ph = (h as f64 - 45.0 - 40.0).max(10.0);
+        let pw = (f64::from(w) - f64::from(y_area) - 2.0 * MARGIN).max(10.0);
+        let ph = (f64::from(h) - f64::from(X_LABEL_AREA) - 2.0 * MARGIN).max(10.0);
         let (sx, sy) = ((x1 - x0) / pw, (y1 - y0) / ph);
         if sx > sy {
             let c = 0.5 * (y0 + y1);
@@ -342,10 +788,9 @@ where
         Scale::Log => log_ticks(y0, y1),
     };
     let scale = p.y_scale;
-    let mut c = ChartBuilder::on(area)
-        .caption(&p.title, (FAMILY, 17))
-        .margin(10)
-        .x_label_area_size(45)
+    let mut c = ChartBuilder::on(&areas.chart)
+        .margin(MARGIN as u32)
+        .x_label_area_size(X_LABEL_AREA)
         .y_label_area_size(y_area)
         .build_cartesian_2d(Keyed::new(x0, x1, x_keys), Keyed::new(y0, y1, y_keys))
         .map_err(e)?;
@@ -362,15 +807,10 @@ where
         .bold_line_style(RGBColor(225, 225, 225))
         .draw()
         .map_err(e)?;
-    draw_traces(&mut c, p, &pts).map_err(e)?;
-    if p.traces.iter().any(|t| t.label.is_some()) {
-        c.configure_series_labels()
-            .label_font((FAMILY, 12))
-            .background_style(WHITE.mix(0.85))
-            .border_style(BLACK)
-            .position(SeriesLabelPosition::UpperRight)
-            .draw()
-            .map_err(e)?;
+    let radius = dot_radius(pts.iter().map(|(_, v)| v.len()).sum());
+    draw_traces(&mut c, p, &pts, radius).map_err(e)?;
+    if let Some((a, l)) = &areas.legend {
+        draw_legend(a, &items, l).map_err(e)?;
     }
     Ok(())
 }
@@ -379,42 +819,45 @@ fn draw_traces<DB: DrawingBackend>(
     c: &mut ChartContext<'_, DB, Coord>,
     p: &XyPanel,
     pts: &[(usize, Vec<(f64, f64)>)],
+    radius: i32,
 ) -> Result<(), DrawingAreaErrorKind<DB::ErrorType>> {
     for (i, v) in pts {
         let t = &p.traces[*i];
         let color = PALETTE[t.color % PALETTE.len()];
-        let label = t.label.as_deref().unwrap_or("");
-        // The part drawn last carries the legend entry.
         match t.style {
             Style::Line => {
-                let a = c.draw_series(LineSeries::new(v.iter().copied(), color.stroke_width(1)))?;
-                if t.label.is_some() {
-                    a.label(label).legend(move |(x, y)| {
-                        Rectangle::new([(x, y - 1), (x + 14, y + 1)], color.filled())
-                    });
-                }
+                c.draw_series(LineSeries::new(v.iter().copied(), color.stroke_width(1)))?;
+            }
+            Style::Dashed => {
+                c.draw_series(DashedLineSeries::new(
+                    v.iter().copied(),
+                    6,
+                    4,
+                    color.stroke_width(1),
+                ))?;
             }
             Style::Dots | Style::LineDots => {
                 if t.style == Style::LineDots {
                     c.draw_series(LineSeries::new(v.iter().copied(), color.stroke_width(1)))?;
                 }
-                let a = c.draw_series(v.iter().map(|&q| Circle::new(q, 2, color.filled())))?;
-                if t.label.is_some() {
-                    a.label(label)
-                        .legend(move |(x, y)| Circle::new((x + 7, y), 3, color.filled()));
-                }
+                c.draw_series(v.iter().map(|&q| Circle::new(q, radius, color.filled())))?;
             }
             Style::Crosses => {
-                let a =
-                    c.draw_series(v.iter().map(|&q| Cross::new(q, 4, color.stroke_width(1))))?;
-                if t.label.is_some() {
-                    a.label(label)
-                        .legend(move |(x, y)| Cross::new((x + 7, y), 4, color.stroke_width(1)));
-                }
+                c.draw_series(v.iter().map(|&q| Cross::new(q, 4, color.stroke_width(1))))?;
             }
         }
     }
     Ok(())
+}
+
+/// The text above a bar: the group's label for it, else the value to three
+/// significant digits.
+fn bar_text(g: &BarGroup, i: usize, v: f64) -> String {
+    g.value_labels
+        .get(i)
+        .cloned()
+        .flatten()
+        .unwrap_or_else(|| tick_label(round_sig(v, 3)))
 }
 
 fn draw_bars<DB: DrawingBackend>(area: &DrawingArea<DB, Shift>, p: &BarPanel) -> Result<(), String>
@@ -422,7 +865,34 @@ where
     DB::ErrorType: 'static,
 {
     let e = |x: DrawingAreaErrorKind<DB::ErrorType>| x.to_string();
+    let items: Vec<LegendItem> = p
+        .groups
+        .iter()
+        .map(|g| LegendItem {
+            label: g.label.clone(),
+            color: g.color,
+            marker: Marker::Bar,
+        })
+        .collect();
+    let areas = panel_areas(area, &p.title, &items).map_err(e)?;
     let n = p.categories.len().max(1);
+    let k = p.groups.len().max(1) as f64;
+    let width = 0.8 / k;
+    let (w, h) = areas.chart.dim_in_pixel();
+    let y_area = label_area(&p.y_label);
+    let pw = (f64::from(w) - f64::from(y_area) - 2.0 * MARGIN).max(10.0);
+    // Category names fitted to their slot (wrapped into two lines, or
+    // smaller): drawn here, not by the mesh, which would let long ones run
+    // into each other.
+    let slot_px = pw / n as f64;
+    let cats: Vec<Fitted> = p
+        .categories
+        .iter()
+        .map(|c| fit_text(c, slot_px - 6.0, 12.0, MIN_TEXT_PX, 2))
+        .collect();
+    let cat_h = cats.iter().map(Fitted::height).fold(0.0, f64::max);
+    let x_area = X_LABEL_AREA + (cat_h - 15.0).max(0.0).round() as u32;
+    let ph = (f64::from(h) - f64::from(x_area) - 2.0 * MARGIN).max(10.0);
     let top = p
         .groups
         .iter()
@@ -430,14 +900,54 @@ where
         .copied()
         .filter(|v| v.is_finite())
         .fold(0.0f64, f64::max);
-    let y1 = if top > 0.0 { top * 1.18 } else { 1.0 };
+    // Value labels: horizontal when each fits the width of its bar and
+    // the gap beside it, else turned upright, so no two ever overlap.
+    let labels: Vec<Vec<Option<String>>> = p
+        .groups
+        .iter()
+        .map(|g| {
+            g.values
+                .iter()
+                .enumerate()
+                .map(|(i, v)| v.filter(|v| v.is_finite()).map(|v| bar_text(g, i, v)))
+                .collect()
+        })
+        .collect();
+    let bar_px = width * pw / n as f64;
+    let widest = labels
+        .iter()
+        .flatten()
+        .flatten()
+        .map(|l| text_extent(l, VALUE_PX).0)
+        .fold(0.0, f64::max);
+    let upright = widest > bar_px - 2.0;
+    let value_px = if upright {
+        VALUE_PX.min((bar_px - 2.0).max(7.0))
+    } else {
+        VALUE_PX
+    };
+    let room = if upright {
+        labels
+            .iter()
+            .flatten()
+            .flatten()
+            .map(|l| text_extent(l, value_px).0)
+            .fold(0.0, f64::max)
+    } else {
+        value_px * LINE_SPACING
+    } + 6.0;
+    // Head room above the tallest bar for its label (at most 3/4 of the
+    // plot kept for it).
+    let y1 = if top > 0.0 {
+        top * ph / (ph - room).max(0.25 * ph)
+    } else {
+        1.0
+    };
     let centres: Vec<f64> = (0..n).map(|i| i as f64 + 0.5).collect();
-    let cats = p.categories.clone();
-    let mut c = ChartBuilder::on(area)
-        .caption(&p.title, (FAMILY, 17))
-        .margin(10)
-        .x_label_area_size(45)
-        .y_label_area_size(label_area(&p.y_label))
+    let mut c = ChartBuilder::on(&areas.chart)
+        .margin(MARGIN as u32)
+        .x_label_area_size(x_area)
+        .y_label_area_size(y_area)
         .build_cartesian_2d(
             Keyed::new(0.0, n as f64, centres),
             Keyed::new(0.0, y1, linear_ticks(0.0, y1, 8)),
@@ -447,57 +957,57 @@ where
         .disable_x_mesh()
         .x_desc(p.x_label.as_str())
         .y_desc(p.y_label.as_str())
-        .x_label_formatter(&|v| {
-            let i = v.floor();
-            if i >= 0.0 && (i as usize) < cats.len() {
-                cats[i as usize].clone()
-            } else {
-                String::new()
-            }
-        })
+        .x_label_formatter(&|_| String::new())
         .y_label_formatter(&|v| tick_label(*v))
         .label_style((FAMILY, 12))
         .axis_desc_style((FAMILY, 14))
         .bold_line_style(RGBColor(225, 225, 225))
         .draw()
         .map_err(e)?;
-    let k = p.groups.len().max(1) as f64;
-    let width = 0.8 / k;
+    let base = areas.chart.get_base_pixel();
+    let to_area = |q: (i32, i32)| (q.0 - base.0, q.1 - base.1);
+    for (i, f) in cats.iter().enumerate() {
+        let (x, y) = to_area(c.backend_coord(&(i as f64 + 0.5, 0.0)));
+        draw_lines(&areas.chart, f, x, y + 6).map_err(e)?;
+    }
+    let value_style = TextStyle::from((FAMILY, value_px).into_font());
+    let value_style = if upright {
+        value_style
+            .transform(FontTransform::Rotate270)
+            .pos(Pos::new(HPos::Left, VPos::Center))
+    } else {
+        value_style.pos(Pos::new(HPos::Center, VPos::Bottom))
+    };
     for (gi, g) in p.groups.iter().enumerate() {
         let color = PALETTE[g.color % PALETTE.len()];
-        let bars: Vec<(f64, f64)> = g
+        let bars: Vec<(usize, f64, f64)> = g
             .values
             .iter()
             .enumerate()
             .filter_map(|(i, v)| {
                 v.filter(|v| v.is_finite())
-                    .map(|v| (i as f64 + 0.1 + gi as f64 * width, v))
+                    .map(|v| (i, i as f64 + 0.1 + gi as f64 * width, v))
             })
             .collect();
         c.draw_series(
-            bars.iter()
-                .map(|&(x, v)| Rectangle::new([(x, 0.0), (x + width * 0.92, v)], color.filled())),
+            bars.iter().map(|&(_, x, v)| {
+                Rectangle::new([(x, 0.0), (x + width * 0.92, v)], color.filled())
+            }),
         )
-        .map_err(e)?
-        .label(g.label.as_str())
-        .legend(move |(x, y)| Rectangle::new([(x, y - 4), (x + 14, y + 4)], color.filled()));
-        c.draw_series(bars.iter().map(|&(x, v)| {
-            Text::new(
-                tick_label(round_sig(v, 3)),
-                (x, v + 0.02 * y1),
-                (FAMILY, 11).into_font(),
-            )
-        }))
         .map_err(e)?;
+        for &(i, x, v) in &bars {
+            let Some(text) = labels[gi][i].as_deref() else {
+                continue;
+            };
+            let (px, py) = to_area(c.backend_coord(&(x + width * 0.46, v)));
+            areas
+                .chart
+                .draw(&Text::new(text, (px, py - 3), value_style.clone()))
+                .map_err(e)?;
+        }
     }
-    if !p.groups.is_empty() {
-        c.configure_series_labels()
-            .label_font((FAMILY, 12))
-            .background_style(WHITE.mix(0.85))
-            .border_style(BLACK)
-            .position(SeriesLabelPosition::UpperRight)
-            .draw()
-            .map_err(e)?;
+    if let Some((a, l)) = &areas.legend {
+        draw_legend(a, &items, l).map_err(e)?;
     }
     Ok(())
 }
@@ -517,8 +1027,16 @@ where
 {
     let e = |x: DrawingAreaErrorKind<DB::ErrorType>| x.to_string();
     root.fill(&WHITE).map_err(e)?;
-    let root = root.titled(&fig.title, (FAMILY, 20)).map_err(e)?;
-    let rows = root.split_evenly((fig.rows.len().max(1), 1));
+    let (w, _) = root.dim_in_pixel();
+    let title = fit_text(&fig.title, f64::from(w) - 2.0 * MARGIN, TITLE_PX, 11.0, 3);
+    let title_h = if title.lines.is_empty() {
+        0.0
+    } else {
+        draw_lines(&root, &title, (f64::from(w) / 2.0).round() as i32, 6).map_err(e)?;
+        title.height() + 12.0
+    };
+    let (_, body) = root.split_vertically(title_h.round() as i32);
+    let rows = body.split_evenly((fig.rows.len().max(1), 1));
     for (row, area) in fig.rows.iter().zip(rows) {
         let cells = area.split_evenly((1, row.len().max(1)));
         for (panel, cell) in row.iter().zip(cells) {
@@ -562,6 +1080,7 @@ pub fn render_figure(fig: &Figure, stem: &Path, format: Format) -> Result<Vec<Pa
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::plot::svg_check::{circles, texts, texts_off_canvas, BoxPx};
 
     #[test]
     fn ticks_are_nice_and_inside() {
@@ -579,5 +1098,225 @@ mod tests {
         assert_eq!(tick_label(-0.0), "0");
         assert_eq!(round_sig(0.012345, 3), 0.0123);
         assert!("PNG".parse::<Format>().is_ok() && "gif".parse::<Format>().is_err());
+    }
+
+    fn svg_of(fig: &Figure) -> String {
+        let dir = tempfile::tempdir().unwrap();
+        let files = render_figure(fig, &dir.path().join("f"), Format::Svg).unwrap();
+        std::fs::read_to_string(&files[0]).unwrap()
+    }
+
+    fn xy(title: &str, traces: Vec<Trace>) -> Panel {
+        Panel::Xy(XyPanel {
+            title: title.into(),
+            x_label: "x (µm)".into(),
+            y_label: "y (µm)".into(),
+            traces,
+            y_scale: Scale::Linear,
+            equal_aspect: false,
+        })
+    }
+
+    #[test]
+    fn text_is_fitted_to_its_width() {
+        let long = "Fig. 11: accuracy on the random points, 10 poses, up to 10 visits each; AP max (µm): raw 18.741, table 6.588, model 7.755, closed_loop 0.058 — validate.csv, validate-drift-off.csv, validate-drift-static.csv, validate-drift-adaptive.csv, validate-grid.csv";
+        let f = fit_text(long, 600.0, 20.0, 11.0, 3);
+        assert!(
+            f.lines.len() <= 3 && f.size <= 20.0 && f.size >= 11.0,
+            "{f:?}"
+        );
+        for l in &f.lines {
+            assert!(text_extent(l, f.size).0 <= 600.0, "{l}");
+        }
+        assert_eq!(f.lines.join(" "), long, "nothing dropped");
+        // A word longer than the line is broken, never cut off.
+        let f = fit_text(&"x".repeat(400), 100.0, 20.0, 11.0, 2);
+        assert_eq!(f.lines.concat(), "x".repeat(400));
+        assert!(f.lines.iter().all(|l| text_extent(l, f.size).0 <= 100.0));
+        assert!(fit_text("", 100.0, 20.0, 11.0, 2).lines.is_empty());
+        assert_eq!(value_label(0.100124, 0.01, "µm"), "0.10 µm");
+        assert_eq!(value_label(0.0572587, 0.01, "µm"), "0.06 µm");
+        assert_eq!(value_label(18.7414, 0.01, "µm"), "18.74 µm");
+        assert_eq!(value_label(-0.001, 0.01, "µm"), "0.00 µm");
+        assert_eq!(value_label(4.26, 0.1, ""), "4.3");
+    }
+
+    /// Titles and captions far wider than the canvas: every text the SVG
+    /// holds lies on the canvas (plotters alone centres them and cuts
+    /// both ends).
+    #[test]
+    fn titles_and_captions_stay_on_the_canvas() {
+        let long = "Fig. 11: accuracy on the random points, 10 poses, up to 10 visits each; AP max (µm): raw 18.741, table 6.588, model 7.755, closed_loop 0.058 — validate.csv, validate-drift-off.csv, validate-drift-static.csv, validate-drift-adaptive.csv, validate-grid.csv";
+        let dots = |c: usize| Trace {
+            label: Some(format!("series {c}")),
+            color: c,
+            points: (0..20).map(|i| (i as f64, (i * c) as f64)).collect(),
+            style: Style::Dots,
+        };
+        let fig = Figure {
+            title: long.into(),
+            rows: vec![vec![
+                xy(long, vec![dots(0), dots(1)]),
+                xy(
+                    "plan view: measured positions, deviations drawn ×500 over the whole square",
+                    vec![dots(2)],
+                ),
+            ]],
+            size: (900, 500),
+        };
+        let svg = svg_of(&fig);
+        let off = texts_off_canvas(&svg);
+        assert!(off.is_empty(), "text off the canvas: {off:#?}");
+        // All of the title is there.
+        let all: Vec<String> = texts(&svg).into_iter().map(|t| t.text).collect();
+        assert!(
+            all.iter().any(|t| t.contains("validate-grid.csv")),
+            "{all:?}"
+        );
+        assert!(all.iter().any(|t| t.starts_with("Fig. 11")), "{all:?}");
+    }
+
+    /// Data over the whole range, the upper right corner included (where a
+    /// legend used to sit): no legend text or marker is on the data.
+    #[test]
+    fn legends_are_drawn_below_the_axes_off_the_data() {
+        let grid = |c: usize| Trace {
+            label: Some(format!("mode {c} (run-{c}.csv), AP max {c}.00 µm")),
+            color: c,
+            points: (0..15)
+                .flat_map(|i| (0..15).map(move |j| (i as f64 + 0.1 * c as f64, j as f64)))
+                .collect(),
+            style: if c == 2 { Style::LineDots } else { Style::Dots },
+        };
+        let lines = Trace {
+            label: Some("a line".into()),
+            color: 3,
+            points: vec![(0.0, 0.0), (14.0, 14.0)],
+            style: Style::Line,
+        };
+        let fig = Figure {
+            title: "legend test".into(),
+            rows: vec![vec![xy("panel", vec![grid(0), grid(1), grid(2), lines])]],
+            size: (800, 500),
+        };
+        let svg = svg_of(&fig);
+        let data: Vec<(f64, f64, f64)> = circles(&svg)
+            .into_iter()
+            .filter(|c| c.2 < f64::from(LEGEND_DOT_RADIUS))
+            .collect();
+        assert_eq!(data.len(), 3 * 225, "every data point drawn");
+        let bbox = data
+            .iter()
+            .map(|&(x, y, r)| BoxPx {
+                x0: x - r,
+                y0: y - r,
+                x1: x + r,
+                y1: y + r,
+            })
+            .reduce(|a, b| a.union(&b))
+            .unwrap();
+        let labels: Vec<_> = texts(&svg)
+            .into_iter()
+            .filter(|t| t.text.starts_with("mode ") || t.text == "a line")
+            .collect();
+        assert_eq!(labels.len(), 4, "one legend entry per labelled trace");
+        for t in &labels {
+            assert!(
+                !t.bbox().overlaps(&bbox, 0.0),
+                "legend {:?} at {:?} on the data {bbox:?}",
+                t.text,
+                t.bbox()
+            );
+            assert!(t.bbox().y0 > bbox.y1, "legend below the data: {t:?}");
+        }
+        for (x, y, r) in circles(&svg)
+            .into_iter()
+            .filter(|c| c.2 >= f64::from(LEGEND_DOT_RADIUS))
+        {
+            assert!(y - r > bbox.y1, "legend marker at ({x}, {y}) on the data");
+        }
+        assert!(texts_off_canvas(&svg).is_empty());
+    }
+
+    /// Bars whose values differ in the sixth digit and bars too narrow for
+    /// their labels: labels are the values at the resolution with the
+    /// unit, and no two overlap.
+    #[test]
+    fn bar_labels_are_rounded_with_units_and_never_overlap() {
+        let values = [0.100124, 0.0572587, 18.7414, 3.2243, 1.36520, 0.0513];
+        for (categories, width) in [(4usize, 1400u32), (9, 700)] {
+            let groups: Vec<BarGroup> = (0..3)
+                .map(|g| {
+                    BarGroup::labelled(
+                        format!("group {g}"),
+                        g,
+                        (0..categories)
+                            .map(|c| Some(values[(c * 3 + g) % values.len()]))
+                            .collect(),
+                        0.01,
+                        "µm",
+                    )
+                })
+                .collect();
+            let fig = Figure {
+                title: "bars".into(),
+                rows: vec![vec![Panel::Bars(BarPanel {
+                    title: "summary per mode".into(),
+                    categories: (0..categories)
+                        .map(|c| format!("table (validate-drift-{c}.csv)"))
+                        .collect(),
+                    x_label: "mode".into(),
+                    y_label: "µm".into(),
+                    groups,
+                })]],
+                size: (width, 500),
+            };
+            let svg = svg_of(&fig);
+            let labels: Vec<_> = texts(&svg)
+                .into_iter()
+                .filter(|t| t.text.ends_with(" µm"))
+                .collect();
+            assert_eq!(labels.len(), 3 * categories, "one label per bar");
+            for t in &labels {
+                let v: f64 = t.text.trim_end_matches(" µm").parse().unwrap();
+                assert!(
+                    values.iter().any(|w| (w - v).abs() <= 0.005 + 1e-12),
+                    "{}",
+                    t.text
+                );
+                assert_eq!(
+                    t.text.split('.').nth(1).map(|d| d.chars().count()),
+                    Some(5),
+                    "two decimals: {}",
+                    t.text
+                );
+            }
+            let others: Vec<_> = texts(&svg)
+                .into_iter()
+                .filter(|t| !t.text.ends_with(" µm"))
+                .collect();
+            for (i, a) in labels.iter().enumerate() {
+                for b in &labels[i + 1..] {
+                    assert!(
+                        !a.bbox().overlaps(&b.bbox(), 0.0),
+                        "{categories} categories: {:?} {:?} overlap {:?} {:?}",
+                        a.text,
+                        a.bbox(),
+                        b.text,
+                        b.bbox()
+                    );
+                }
+                for o in &others {
+                    assert!(
+                        !a.bbox().overlaps(&o.bbox(), 0.0),
+                        "{:?} overlaps {:?}",
+                        a.text,
+                        o.text
+                    );
+                }
+            }
+            let off = texts_off_canvas(&svg);
+            assert!(off.is_empty(), "{off:#?}");
+        }
     }
 }

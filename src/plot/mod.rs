@@ -1,19 +1,19 @@
-//! Plot infrastructure: simple x–y charts (scatter and lines) written as
-//! PNG and SVG with no system library.
+//! Plot infrastructure: x–y charts and multi-panel figures written as PNG
+//! and SVG with no system library.
 //!
-//! Why this shape: analyses (diagnose, later compensation and metrology
-//! reports) need many similar plots — residuals against a variable,
-//! periodograms, before/after — that a person opens in a browser or an
-//! image viewer. A [`Chart`] is plain data (title, axis labels, series), so
-//! the numeric code builds it without knowing plotters; [`render`] draws it
-//! with `plotters` through its pure-Rust bitmap and SVG backends. Text uses
+//! Why this shape: analyses (diagnose, compensation and metrology reports)
+//! need many similar plots — residuals against a variable, periodograms,
+//! before/after, the paper's figures — that a person opens in a browser or
+//! an image viewer. A [`Chart`] (one panel) and a [`figure::Figure`]
+//! (panels in rows) are plain data, so the numeric code builds them without
+//! knowing plotters; [`figure::render_figure`] draws both with `plotters`
+//! through its pure-Rust bitmap and SVG backends. Text uses
 //! the DejaVu Sans font shipped in `assets/fonts/` (registered once through
 //! plotters' `ab_glyph` feature), so no fontconfig/freetype is needed.
 
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
 
-use plotters::coord::Shift;
 use plotters::prelude::*;
 use thiserror::Error;
 
@@ -21,10 +21,12 @@ pub mod charact;
 pub mod diagnosis;
 pub mod figure;
 pub mod report;
+#[cfg(test)]
+pub(crate) mod svg_check;
 pub mod validation;
 
 pub use figure::Format;
-pub use report::{plot_logs, read_logs, write_all, NamedLog, Plotted};
+pub use report::{figure_set, plot_logs, read_logs, write_all, FigureSet, NamedLog, Plotted};
 
 /// The shipped font (DejaVu Sans; license in `assets/fonts/LICENSE-DejaVu.txt`).
 const FONT: &[u8] = include_bytes!("../../assets/fonts/DejaVuSans.ttf");
@@ -103,13 +105,20 @@ pub struct Chart {
     pub series: Vec<Series>,
 }
 
-const PALETTE: [RGBColor; 6] = [
+/// Trace colours by index (a [`figure::Trace::color`]); index 5, grey, is
+/// for references (targets). Ten, so that a comparison of several runs'
+/// modes keeps one colour per series.
+const PALETTE: [RGBColor; 10] = [
     RGBColor(31, 119, 180),
     RGBColor(214, 39, 40),
     RGBColor(44, 160, 44),
     RGBColor(255, 127, 14),
     RGBColor(148, 103, 189),
     RGBColor(100, 100, 100),
+    RGBColor(140, 86, 75),
+    RGBColor(227, 119, 194),
+    RGBColor(188, 189, 34),
+    RGBColor(23, 190, 207),
 ];
 
 fn font() -> Result<(), PlotError> {
@@ -123,113 +132,45 @@ fn font() -> Result<(), PlotError> {
         .map_err(PlotError::Font)
 }
 
-fn range(chart: &Chart) -> ((f64, f64), (f64, f64)) {
-    let mut xr = (f64::INFINITY, f64::NEG_INFINITY);
-    let mut yr = (f64::INFINITY, f64::NEG_INFINITY);
-    for s in &chart.series {
-        for &(x, y) in &s.points {
-            if x.is_finite() && y.is_finite() {
-                xr = (xr.0.min(x), xr.1.max(x));
-                yr = (yr.0.min(y), yr.1.max(y));
-            }
-        }
-    }
-    let fix = |(lo, hi): (f64, f64)| {
-        if !lo.is_finite() {
-            (0.0, 1.0)
-        } else if hi - lo <= 0.0 {
-            (lo - 0.5, hi + 0.5)
-        } else {
-            let pad = 0.03 * (hi - lo);
-            (lo - pad, hi + pad)
-        }
-    };
-    (fix(xr), fix(yr))
-}
-
-fn draw<DB: DrawingBackend>(root: DrawingArea<DB, Shift>, chart: &Chart) -> Result<(), String>
-where
-    DB::ErrorType: 'static,
-{
-    let e = |x: DrawingAreaErrorKind<DB::ErrorType>| x.to_string();
-    root.fill(&WHITE).map_err(e)?;
-    let ((x0, x1), (y0, y1)) = range(chart);
-    let mut c = ChartBuilder::on(&root)
-        .caption(&chart.title, (FAMILY, 20))
-        .margin(12)
-        .x_label_area_size(45)
-        .y_label_area_size(70)
-        .build_cartesian_2d(x0..x1, y0..y1)
-        .map_err(e)?;
-    c.configure_mesh()
-        .x_desc(chart.x_label.as_str())
-        .y_desc(chart.y_label.as_str())
-        .label_style((FAMILY, 13))
-        .axis_desc_style((FAMILY, 15))
-        .light_line_style(RGBColor(235, 235, 235))
-        .draw()
-        .map_err(e)?;
-    // Dots large enough to see on a 50-point test, small enough not to
-    // merge on a 2000-point scan.
-    let total: usize = chart.series.iter().map(|s| s.points.len()).sum();
-    let radius = match total {
-        0..=300 => 3,
-        301..=2000 => 2,
-        _ => 1,
-    };
-    for (i, s) in chart.series.iter().enumerate() {
-        let color = PALETTE[i % PALETTE.len()];
-        let pts = s
-            .points
+impl Chart {
+    /// The chart as a one-panel [`figure::Figure`] of `size` pixels: its
+    /// title the figure's, its series traces in palette order.
+    pub fn to_figure(&self, size: (u32, u32)) -> figure::Figure {
+        let traces = self
+            .series
             .iter()
-            .copied()
-            .filter(|(x, y)| x.is_finite() && y.is_finite());
-        let anno = match s.mark {
-            Mark::Dots => c
-                .draw_series(pts.map(|p| Circle::new(p, radius, color.filled())))
-                .map_err(e)?,
-            Mark::Line => c
-                .draw_series(LineSeries::new(pts, color.stroke_width(1)))
-                .map_err(e)?,
-        };
-        anno.label(s.label.as_str())
-            .legend(move |(x, y)| Rectangle::new([(x, y - 4), (x + 14, y + 4)], color.filled()));
+            .enumerate()
+            .map(|(i, s)| figure::Trace {
+                label: (!s.label.is_empty()).then(|| s.label.clone()),
+                color: i,
+                points: s.points.clone(),
+                style: match s.mark {
+                    Mark::Dots => figure::Style::Dots,
+                    Mark::Line => figure::Style::Line,
+                },
+            })
+            .collect();
+        figure::Figure {
+            title: self.title.clone(),
+            rows: vec![vec![figure::Panel::Xy(figure::XyPanel {
+                title: String::new(),
+                x_label: self.x_label.clone(),
+                y_label: self.y_label.clone(),
+                traces,
+                y_scale: figure::Scale::Linear,
+                equal_aspect: false,
+            })]],
+            size,
+        }
     }
-    if chart.series.len() > 1 || chart.series.iter().any(|s| !s.label.is_empty()) {
-        c.configure_series_labels()
-            .label_font((FAMILY, 13))
-            .background_style(WHITE.mix(0.85))
-            .border_style(BLACK)
-            .draw()
-            .map_err(e)?;
-    }
-    root.present().map_err(e)?;
-    Ok(())
 }
 
 /// Writes `chart` as `<stem>.png` (1000×600) and `<stem>.svg`; returns the
-/// two paths.
+/// two paths. Drawn by [`figure::render_figure`], so a chart follows the
+/// same layout rules as every figure (title fitted to the width, legend
+/// below the axes).
 pub fn render(chart: &Chart, stem: &Path) -> Result<Vec<PathBuf>, PlotError> {
-    font()?;
-    let png = stem.with_extension("png");
-    let svg = stem.with_extension("svg");
-    draw(
-        BitMapBackend::new(&png, (1000, 600)).into_drawing_area(),
-        chart,
-    )
-    .map_err(|m| PlotError::Draw {
-        path: png.clone(),
-        message: m,
-    })?;
-    draw(
-        SVGBackend::new(&svg, (1000, 600)).into_drawing_area(),
-        chart,
-    )
-    .map_err(|m| PlotError::Draw {
-        path: svg.clone(),
-        message: m,
-    })?;
-    Ok(vec![png, svg])
+    figure::render_figure(&chart.to_figure((1000, 600)), stem, Format::Both)
 }
 
 /// Creates `dir` (and parents) if needed.

@@ -4,10 +4,17 @@
 //! Input: measurement logs with segment `square` or `random` and the extra
 //! columns `mode` (`raw`, `table`, `model`, `closed_loop`, or any other
 //! name) and `pose` (the pose's index along the trajectory). A log without
-//! a `mode` column is taken as one mode named after the file (so `raw.csv`
-//! and `table.csv` written by another program compare as modes `raw` and
-//! `table`); the returned notes say so. Without a `pose` column, poses are
-//! told apart by their target.
+//! a `mode` column is taken as one mode named after the file; the returned
+//! notes say so. Without a `pose` column, poses are told apart by their
+//! target.
+//!
+//! One series per log and mode: records of one mode from different logs
+//! (several runs, e.g. `table` in a validation and in its drift
+//! comparison) are never pooled, since their AP and RP would describe no
+//! run. A figure of one log labels its series by mode, one that compares
+//! logs by mode and log (`table (validate.csv)`); which logs share a figure
+//! is the caller's choice (`plot::report`: one log per figure unless a
+//! comparison is asked for).
 //!
 //! What is drawn, per segment:
 //! * a plan view: the targets and the measured positions of every visit,
@@ -22,12 +29,8 @@
 //!   AP over poses, worst RP (where every pose was visited at least twice).
 
 use std::collections::HashMap;
-use std::path::{Path, PathBuf};
 
-use super::figure::{
-    render_figure, BarGroup, BarPanel, Figure, Format, Panel, Scale, Style, Trace, XyPanel,
-};
-use super::PlotError;
+use super::figure::{BarGroup, BarPanel, Figure, NamedFigure, Panel, Scale, Style, Trace, XyPanel};
 use crate::charact::log::MeasurementLog;
 use crate::charact::scan::{SEGMENT_RANDOM, SEGMENT_SQUARE};
 use crate::metrology::{pose_stats, summarize_poses, PoseStats, PoseSummary, Xy};
@@ -38,13 +41,28 @@ pub const MODE_COLUMN: &str = "mode";
 pub const POSE_COLUMN: &str = "pose";
 /// The validation segments, with the paper's figure number.
 pub const SEGMENTS: [(&str, u32); 2] = [(SEGMENT_SQUARE, 10), (SEGMENT_RANDOM, 11)];
-/// Modes in the order they are shown (others follow in order of appearance).
+/// Modes in the order they are shown (others follow in order of
+/// appearance; one mode of several logs in the logs' order).
 pub const KNOWN_MODES: [&str; 4] = ["raw", "table", "model", "closed_loop"];
 
 /// Targets closer than this are the same pose (µm).
 const SAME_TARGET_UM: f64 = 1e-3;
 /// Palette index of the targets (grey).
 const TARGET_COLOR: usize = 5;
+/// Resolution of the AP/RP bar labels, µm. A validation's figures come from
+/// camera measurements of poses the stage re-approaches with a settling
+/// scatter of σ ≈ 0.035 µm (docs/design/conventions.md): a digit below
+/// 10 nm is noise and only lengthens the label.
+pub const VALUE_RESOLUTION_UM: f64 = 0.01;
+
+/// Palette index of series `k` of a figure (the targets' grey skipped).
+fn series_color(k: usize) -> usize {
+    if k >= TARGET_COLOR {
+        k + 1
+    } else {
+        k
+    }
+}
 
 /// One target pose of a validation trajectory.
 #[derive(Debug, Clone, PartialEq)]
@@ -55,11 +73,17 @@ pub struct Pose {
     pub label: Option<String>,
 }
 
-/// The visits of one mode.
+/// The visits of one mode in one log.
 #[derive(Debug, Clone, PartialEq)]
 pub struct ModeVisits {
     /// Mode name.
     pub name: String,
+    /// The log the visits come from (its name; its stem, or its name and
+    /// place in the list, when another log given has the same name).
+    pub source: String,
+    /// How figures name the series: the mode, or `mode (log)` when the
+    /// validation gathers several logs.
+    pub label: String,
     /// Measured positions, µm, per pose (index into [`Validation::poses`]).
     pub visits: Vec<Vec<Xy>>,
 }
@@ -89,7 +113,7 @@ pub struct Validation {
     pub segment: String,
     /// Poses in trajectory order.
     pub poses: Vec<Pose>,
-    /// Modes in display order.
+    /// One entry per log and mode, in display order.
     pub modes: Vec<ModeVisits>,
     /// Names of the logs it comes from.
     pub sources: Vec<String>,
@@ -107,6 +131,9 @@ struct Builder {
     poses: Vec<Pose>,
     by_target: HashMap<(i64, i64), Vec<usize>>,
     modes: Vec<ModeVisits>,
+    /// Index into the logs given of each entry of `modes`: a series is
+    /// one log's, whatever the logs are called.
+    mode_logs: Vec<usize>,
     sources: Vec<String>,
 }
 
@@ -137,19 +164,28 @@ impl Builder {
         i
     }
 
-    fn mode_index(&mut self, name: &str) -> usize {
-        if let Some(i) = self.modes.iter().position(|m| m.name == name) {
+    fn mode_index(&mut self, log: usize, source: &str, name: &str) -> usize {
+        if let Some(i) = self
+            .modes
+            .iter()
+            .zip(&self.mode_logs)
+            .position(|(m, &l)| m.name == name && l == log)
+        {
             return i;
         }
+        self.mode_logs.push(log);
         self.modes.push(ModeVisits {
             name: name.to_string(),
+            source: source.to_string(),
+            label: name.to_string(),
             visits: Vec::new(),
         });
         self.modes.len() - 1
     }
 
     /// Orders poses by their numeric label when every pose has one, and
-    /// modes with the known ones first.
+    /// modes with the known ones first; names each series after its log
+    /// too when there are several logs.
     fn finish(mut self) -> Validation {
         let numeric: Option<Vec<f64>> = self
             .poses
@@ -182,8 +218,15 @@ impl Builder {
                 .position(|k| *k == name)
                 .unwrap_or(KNOWN_MODES.len())
         };
-        // Stable: unknown modes keep their order of appearance.
+        // Stable: unknown modes keep their order of appearance, one mode's
+        // logs their order.
         self.modes.sort_by_key(|m| rank(&m.name));
+        self.mode_logs.clear();
+        if self.sources.len() > 1 {
+            for m in &mut self.modes {
+                m.label = format!("{} ({})", m.name, m.source);
+            }
+        }
         Validation {
             segment: self.segment,
             poses: self.poses,
@@ -193,9 +236,24 @@ impl Builder {
     }
 }
 
+/// How series and titles name log `k` of `logs`: its name, or its stem when
+/// another log has the same name (two runs' `validate.csv`), or its name
+/// and place in the list when the stems agree too.
+fn source_name(logs: &[(&str, &str, &MeasurementLog)], k: usize) -> String {
+    let (name, stem, _) = logs[k];
+    if logs.iter().filter(|l| l.0 == name).count() == 1 {
+        name.to_string()
+    } else if logs.iter().filter(|l| l.1 == stem).count() == 1 {
+        stem.to_string()
+    } else {
+        format!("{name} #{}", k + 1)
+    }
+}
+
 /// Gathers the validation segments of `logs` (`(name, stem, log)`; the stem
-/// names the mode of a log without a `mode` column). Returns the segments
-/// found (in the order of [`SEGMENTS`]) and notes for the user.
+/// names the mode of a log without a `mode` column), one series per log
+/// and mode. Returns the segments found (in the order of [`SEGMENTS`]) and
+/// notes for the user.
 pub fn gather(logs: &[(&str, &str, &MeasurementLog)]) -> (Vec<Validation>, Vec<String>) {
     let mut notes = Vec::new();
     let mut out = Vec::new();
@@ -205,15 +263,15 @@ pub fn gather(logs: &[(&str, &str, &MeasurementLog)]) -> (Vec<Validation>, Vec<S
             poses: Vec::new(),
             by_target: HashMap::new(),
             modes: Vec::new(),
+            mode_logs: Vec::new(),
             sources: Vec::new(),
         };
-        // Mode names already taken by earlier logs, so two files without a
-        // mode column, or with the same modes, stay apart only when needed.
-        for (name, stem, log) in logs {
+        for (k, (name, stem, log)) in logs.iter().enumerate() {
             if !log.records.iter().any(|r| r.segment == segment) {
                 continue;
             }
-            b.sources.push(name.to_string());
+            let source = source_name(logs, k);
+            b.sources.push(source.clone());
             let col = |c: &str| log.columns.extra.iter().position(|e| e == c);
             let (mode_col, pose_col) = (col(MODE_COLUMN), col(POSE_COLUMN));
             if mode_col.is_none() {
@@ -236,7 +294,7 @@ pub fn gather(logs: &[(&str, &str, &MeasurementLog)]) -> (Vec<Validation>, Vec<S
                     .map(|s| s.trim())
                     .filter(|s| !s.is_empty());
                 let p = b.pose_index(Xy::new(r.x_target_um, r.y_target_um), label);
-                let m = b.mode_index(mode);
+                let m = b.mode_index(k, &source, mode);
                 let v = &mut b.modes[m].visits;
                 if v.len() <= p {
                     v.resize(p + 1, Vec::new());
@@ -352,14 +410,14 @@ pub fn validation_figure(v: &Validation) -> Figure {
             }
         }
         plan.push(Trace {
-            label: Some(m.name.clone()),
-            color: k,
+            label: Some(m.label.clone()),
+            color: series_color(k),
             points: pts,
             style: Style::Dots,
         });
         scatter.push(Trace {
-            label: Some(m.name.clone()),
-            color: k,
+            label: Some(m.label.clone()),
+            color: series_color(k),
             points: dev,
             style: Style::Dots,
         });
@@ -367,8 +425,8 @@ pub fn validation_figure(v: &Validation) -> Figure {
             .as_ref()
             .map_or("n/a".into(), |s| format!("{:.3}", s.ap_max_um));
         ap_traces.push(Trace {
-            label: Some(format!("{} (AP max {ap} µm)", m.name)),
-            color: k,
+            label: Some(format!("{} (AP max {ap} µm)", m.label)),
+            color: series_color(k),
             points: stats[k].iter().map(|(i, s)| (*i as f64, s.ap_um)).collect(),
             style: Style::LineDots,
         });
@@ -426,35 +484,52 @@ pub fn validation_figure(v: &Validation) -> Figure {
             equal_aspect: false,
         })],
         vec![Panel::Bars(BarPanel {
-            title: "summary per mode".into(),
-            categories: v.modes.iter().map(|m| m.name.clone()).collect(),
-            x_label: "mode".into(),
-            y_label: "µm".into(),
+            title: format!(
+                "summary per {} (ISO 9283, µm)",
+                if v.sources.len() > 1 {
+                    "mode and log"
+                } else {
+                    "mode"
+                }
+            ),
+            categories: v.modes.iter().map(|m| m.label.clone()).collect(),
+            x_label: if v.sources.len() > 1 {
+                "mode (log)".into()
+            } else {
+                "mode".into()
+            },
+            y_label: "AP, RP (µm)".into(),
             groups: vec![
-                BarGroup {
-                    label: "AP, worst pose".into(),
-                    color: 0,
-                    values: summaries
+                BarGroup::labelled(
+                    BAR_AP_MAX,
+                    0,
+                    summaries
                         .iter()
                         .map(|s| s.as_ref().map(|s| s.ap_max_um))
                         .collect(),
-                },
-                BarGroup {
-                    label: "AP, mean over poses".into(),
-                    color: 2,
-                    values: summaries
+                    VALUE_RESOLUTION_UM,
+                    "µm",
+                ),
+                BarGroup::labelled(
+                    BAR_AP_MEAN,
+                    2,
+                    summaries
                         .iter()
                         .map(|s| s.as_ref().map(|s| s.ap_mean_um))
                         .collect(),
-                },
-                BarGroup {
-                    label: "RP, worst pose".into(),
-                    color: 3,
-                    values: summaries
+                    VALUE_RESOLUTION_UM,
+                    "µm",
+                ),
+                BarGroup::labelled(
+                    BAR_RP_MAX,
+                    3,
+                    summaries
                         .iter()
                         .map(|s| s.as_ref().and_then(|s| s.rp_max_um))
                         .collect(),
-                },
+                    VALUE_RESOLUTION_UM,
+                    "µm",
+                ),
             ],
         })],
     ];
@@ -462,41 +537,49 @@ pub fn validation_figure(v: &Validation) -> Figure {
         .modes
         .iter()
         .zip(&summaries)
-        .map(|(m, s)| format!("{} {}", m.name, fmt_opt(s.as_ref().map(|s| s.ap_max_um))))
+        .map(|(m, s)| format!("{} {}", m.label, fmt_opt(s.as_ref().map(|s| s.ap_max_um))))
         .collect();
     Figure {
         title: format!(
-            "Fig. {fig_no}: accuracy on the {what}, {} poses, up to {cycles} visits each; AP max (µm): {} — {}",
+            "Fig. {fig_no}: accuracy on the {what}, {} poses, up to {cycles} visits each — {}{}; AP max (µm): {}",
             v.poses.len(),
+            if v.sources.len() > 1 { "compared: " } else { "" },
+            v.sources.join(", "),
             headline.join(", "),
-            v.sources.join(", ")
         ),
         rows,
         size: (1400, 1500),
     }
 }
 
-/// Writes the figure of every validation segment in `logs` into `dir` as
-/// `<prefix>_fig10_square` / `<prefix>_fig11_random`; returns the files and
-/// notes.
-pub fn write_validation(
+/// Legend of the bars of the worst pose's AP.
+pub const BAR_AP_MAX: &str = "AP, worst pose";
+/// Legend of the bars of the mean AP over poses.
+pub const BAR_AP_MEAN: &str = "AP, mean over poses";
+/// Legend of the bars of the worst pose's RP.
+pub const BAR_RP_MAX: &str = "RP, worst pose";
+
+/// The figure of every validation segment in `logs`, named
+/// `<prefix>_fig10_square` / `<prefix>_fig11_random`, and notes. All of
+/// `logs` share each figure (one series per log and mode): pass one log
+/// for a figure of one run.
+pub fn validation_figures(
     logs: &[(&str, &str, &MeasurementLog)],
     prefix: &str,
-    dir: &Path,
-    format: Format,
-) -> Result<(Vec<PathBuf>, Vec<String>), PlotError> {
+) -> (Vec<NamedFigure>, Vec<String>) {
     let (sets, notes) = gather(logs);
-    let mut files = Vec::new();
-    for v in &sets {
-        let fig_no = SEGMENTS
-            .iter()
-            .find(|(s, _)| *s == v.segment)
-            .map_or(0, |(_, n)| *n);
-        files.extend(render_figure(
-            &validation_figure(v),
-            &dir.join(format!("{prefix}_fig{fig_no}_{}", v.segment)),
-            format,
-        )?);
-    }
-    Ok((files, notes))
+    let figures = sets
+        .iter()
+        .map(|v| {
+            let fig_no = SEGMENTS
+                .iter()
+                .find(|(s, _)| *s == v.segment)
+                .map_or(0, |(_, n)| *n);
+            NamedFigure {
+                stem: format!("{prefix}_fig{fig_no}_{}", v.segment),
+                figure: validation_figure(v),
+            }
+        })
+        .collect();
+    (figures, notes)
 }

@@ -35,6 +35,7 @@ mod motion_safety;
 mod rig_camera;
 mod rig_paper;
 mod run_pipeline;
+mod run_plots;
 mod serve;
 mod sweep_anchors;
 mod sweep_charact;

@@ -9,7 +9,7 @@
 use serde::Serialize;
 
 use crate::charact::log::MeasurementLog;
-use crate::metrology::iso230_2::{self, Approach, Observation};
+use crate::metrology::iso230_2::{self, Approach, Observation, TargetFigures};
 use crate::model::Axis;
 
 use super::data::Data;
@@ -45,6 +45,12 @@ pub struct IsoFigures {
     pub m_um: f64,
     /// `A`, accuracy, µm.
     pub a_um: f64,
+    /// Per target (increasing): the mean deviations `x̄↑_i`, `x̄↓_i` and
+    /// their `s↑_i`, `s↓_i` (measured − target), what ISO 230-2's
+    /// deviation chart draws (`plot::diagnosis`). Not in the JSON report,
+    /// which gives the axis figures.
+    #[serde(skip)]
+    pub per_target: Vec<TargetFigures>,
 }
 
 /// ISO 230-2 figures of axis `c` when the log is a complete bidirectional
@@ -111,5 +117,6 @@ pub(super) fn iso_figures(
         e_um: f.e_um,
         m_um: f.m_um,
         a_um: f.a_um,
+        per_target: f.targets,
     })
 }

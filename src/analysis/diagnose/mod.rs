@@ -204,7 +204,10 @@ pub struct ResidualSeries {
     pub y_um: Vec<f64>,
     /// Time, s.
     pub t_s: Vec<f64>,
-    /// Temperature, °C.
+    /// The log's temperature, °C; NaN where the log has none (no `temp_c`
+    /// column, or an empty cell). Not the model's assumed temperature
+    /// history the replay uses there: a plot against it would show the
+    /// model's assumption as if it were a measurement.
     pub temp_c: Vec<f64>,
     /// Direction sign of the x axis (+1, −1, 0).
     pub x_dir: Vec<f64>,
@@ -964,7 +967,13 @@ fn diagnose_with(
         series.x_um.push(s.cmd_um(Axis::X));
         series.y_um.push(s.cmd_um(Axis::Y));
         series.t_s.push(s.time_s);
-        series.temp_c.push(s.temp_c);
+        series.temp_c.push(
+            log.records
+                .get(i)
+                .and_then(|r| r.temp_c)
+                .filter(|t| t.is_finite())
+                .unwrap_or(f64::NAN),
+        );
         series.x_dir.push(s.axes[0].dir.sign());
         series.y_dir.push(s.axes[1].dir.sign());
         series.x_last_move_um.push(s.axes[0].last_move_um);

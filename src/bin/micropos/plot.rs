@@ -1,6 +1,8 @@
 //! `micropos plot LOG... --out DIR`: the paper's figures from measurement
 //! logs — Figs. 4, 5, 6 from characterization scans, Figs. 10, 11 from
-//! validation runs — as PNG and/or SVG.
+//! validation runs — as PNG and/or SVG, each log's own; `--compare` draws
+//! the validation logs given in one figure per trajectory, one series per
+//! log and mode.
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -22,6 +24,12 @@ pub struct Args {
     /// File format: png, svg or both.
     #[arg(long, default_value = "both", value_parser = parse_format)]
     pub format: Format,
+    /// Compare the validation logs given: one Fig. 10 / Fig. 11 over all of
+    /// them (`validation_fig10_square`, …), a series per log and mode
+    /// labelled `mode (log)`, instead of figures per log. Records of one
+    /// mode from different logs are never pooled.
+    #[arg(long)]
+    pub compare: bool,
 }
 
 fn parse_format(s: &str) -> Result<Format, String> {
@@ -36,7 +44,7 @@ pub fn run(args: &Args) -> Result<ExitCode> {
             eprintln!("warning: {}: line {}: {:?}", l.name, w.line, w.kind);
         }
     }
-    let p = plot_logs(&logs, &args.out, args.format)
+    let p = plot_logs(&logs, &args.out, args.format, args.compare)
         .with_context(|| format!("plotting into {}", args.out.display()))?;
     for n in &p.notes {
         eprintln!("note: {n}");

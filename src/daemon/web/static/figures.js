@@ -17,7 +17,8 @@
 const FIG = (() => {
   const NS = 'http://www.w3.org/2000/svg';
   // plot::PALETTE, in the same order.
-  const PALETTE = ['#1f77b4', '#d62728', '#2ca02c', '#ff7f0e', '#9467bd', '#646464'];
+  const PALETTE = ['#1f77b4', '#d62728', '#2ca02c', '#ff7f0e', '#9467bd', '#646464',
+    '#8c564b', '#e377c2', '#bcbd22', '#17becf'];
   const W = 560;
   const H = 280;
   // Margins around the plot area before the legend band is added to `top`.
@@ -242,6 +243,9 @@ const FIG = (() => {
     frame(svg, p.title, p.x_label, p.y_label, top);
     const unit = unitOf(p.y_label);
     const labelOf = (v) => value(v) + (unit ? ' ' + unit : '');
+    // The value as the figure data prints it (rounded to its resolution,
+    // with its unit), else rounded here.
+    const shownOf = (grp, i, v) => (grp.value_labels && grp.value_labels[i]) || labelOf(v);
     const values = p.groups.flatMap((g) => g.values).filter(finite);
     const pw = W - M.left - M.right;
     const ph = H - top - M.bottom;
@@ -250,7 +254,8 @@ const FIG = (() => {
     // How each value label is drawn: across the bar when it fits its
     // width, along it when the bar is at least a line of text wide, else
     // not at all.
-    const widest = values.reduce((m, v) => Math.max(m, textWidth(labelOf(v))), 0);
+    const widest = p.groups.reduce((m, grp) => grp.values.reduce(
+      (w, v, i) => (finite(v) ? Math.max(w, textWidth(shownOf(grp, i, v))) : w), m), 0);
     const mode = widest + 2 <= bw ? 'across' : (bw >= 11 ? 'along' : 'none');
     // Room above the tallest bar for its label.
     const room = mode === 'across' ? 14 : (mode === 'along' ? widest + 6 : 4);
@@ -270,12 +275,13 @@ const FIG = (() => {
         const x = M.left + ci * slot + 5 + gi * bw;
         const y = sy(Math.max(v, 0));
         const bar = el('rect', { x, y, width: Math.max(bw - 1, 1), height: Math.max(H - M.bottom - y, 0), fill: PALETTE[grp.color % PALETTE.length] }, g);
-        el('title', {}, bar).textContent = `${grp.label}, ${c}: ${labelOf(v)}`;
+        const shown = shownOf(grp, ci, v);
+        el('title', {}, bar).textContent = `${grp.label}, ${c}: ${shown}`;
         const cx = x + bw / 2;
         if (mode === 'across') {
-          text(labels, cx, y - 3, labelOf(v), { 'text-anchor': 'middle', class: 'fig-value' });
+          text(labels, cx, y - 3, shown, { 'text-anchor': 'middle', class: 'fig-value' });
         } else if (mode === 'along') {
-          text(labels, cx + 3.5, y - 3, labelOf(v), { 'text-anchor': 'start', class: 'fig-value', transform: `rotate(-90 ${cx + 3.5} ${y - 3})` });
+          text(labels, cx + 3.5, y - 3, shown, { 'text-anchor': 'start', class: 'fig-value', transform: `rotate(-90 ${cx + 3.5} ${y - 3})` });
         }
         marks += 1;
       });
