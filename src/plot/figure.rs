@@ -1050,18 +1050,34 @@ where
     Ok(())
 }
 
+/// Draws `fig` into an RGB buffer and encodes it with the `image` crate the
+/// decoder already uses, so plotters needs no encoder of its own (its
+/// `bitmap_encoder` feature brings a second, older `image` into the build).
+fn write_png(fig: &Figure, png: &Path) -> Result<(), PlotError> {
+    let draw = |message: String| PlotError::Draw {
+        path: png.to_path_buf(),
+        message,
+    };
+    let (w, h) = fig.size;
+    let mut rgb = vec![0u8; w as usize * h as usize * 3];
+    draw_figure(
+        BitMapBackend::with_buffer(&mut rgb, fig.size).into_drawing_area(),
+        fig,
+    )
+    .map_err(draw)?;
+    let img = image::RgbImage::from_raw(w, h, rgb)
+        .ok_or_else(|| draw(format!("a {w}×{h} buffer of the wrong length")))?;
+    img.save_with_format(png, image::ImageFormat::Png)
+        .map_err(|e| draw(format!("writing the PNG: {e}")))
+}
+
 /// Writes `fig` as `<stem>.png` and/or `<stem>.svg`; returns the files.
 pub fn render_figure(fig: &Figure, stem: &Path, format: Format) -> Result<Vec<PathBuf>, PlotError> {
     font()?;
     let mut out = Vec::new();
     if format.png() {
         let png = stem.with_extension("png");
-        draw_figure(BitMapBackend::new(&png, fig.size).into_drawing_area(), fig).map_err(|m| {
-            PlotError::Draw {
-                path: png.clone(),
-                message: m,
-            }
-        })?;
+        write_png(fig, &png)?;
         out.push(png);
     }
     if format.svg() {
