@@ -37,7 +37,8 @@ pub mod periodogram;
 pub mod physical;
 
 pub use diagnose::{
-    diagnose, DiagnoseOptions, Diagnosis, Finding, Reading, ReadingKind, ReadingTerm,
+    diagnose, DiagnoseOptions, Diagnosis, Finding, LeadCheck, LeadTest, LeadVerdict, Reading,
+    ReadingKind, ReadingTerm,
 };
 
 /// Why an analysis could not run.

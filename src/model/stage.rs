@@ -127,6 +127,23 @@ impl StageModel {
         Ok(())
     }
 
+    /// Puts `term` in the place of the term of the same name. Why in
+    /// place: the terms' order is the parameter vector's and the model
+    /// file's, so a term rebuilt with other geometry (a screw lead the
+    /// analysis corrected) keeps every other parameter where it was.
+    pub fn replace_term(&mut self, term: Box<dyn Term>) -> Result<(), ModelError> {
+        let slot = self
+            .terms
+            .iter_mut()
+            .find(|t| t.name() == term.name())
+            .ok_or_else(|| ModelError::Invalid {
+                key: format!("term `{}`", term.name()),
+                reason: "no term of that name to replace".into(),
+            })?;
+        *slot = term;
+        Ok(())
+    }
+
     /// Removes a term by name.
     pub fn remove_term(&mut self, name: &str) -> Option<Box<dyn Term>> {
         let i = self.terms.iter().position(|t| t.name() == name)?;

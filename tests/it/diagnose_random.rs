@@ -26,7 +26,7 @@ use micropos::analysis::generate::{
     draw_effect_sized, simulate_log, truth_model, InjectedEffect, SimLog, SimPlan,
 };
 use micropos::analysis::physical::{simulate_physical_log, PhysicalEffect, PhysicalStage};
-use micropos::analysis::{diagnose, DiagnoseOptions, Diagnosis, FindingKind};
+use micropos::analysis::{diagnose, DiagnoseOptions, Diagnosis, FindingKind, LeadVerdict};
 use micropos::charact::log::{parse_bytes, MeasurementLog};
 use micropos::model::{Axis, StageModel};
 use rand::{Rng, SeedableRng};
@@ -356,6 +356,7 @@ fn clean(n_model: u64, n_physical: u64) -> (usize, usize) {
         };
         let d = run(&log);
         check_corrections(&d);
+        check_leads_kept(&d);
         check_findings_hold(&d);
         eprintln!(
             "clean {} stage {seed}: {} finding(s) {:?}; {} significant corrections; fixed: {:?}",
@@ -389,6 +390,21 @@ fn check_corrections(d: &Diagnosis) {
             .all(|f| f.kind != FindingKind::CrossAxis && f.kind != FindingKind::Scale),
         "a scale or squareness difference reported as a finding: {:?}",
         d.findings
+    );
+}
+
+/// Every screw of the clean stages has the default model's 400 µm lead
+/// (the physical stages' besides a bearing's periodic error at another
+/// period): the lead check must keep it on both axes, never correct it.
+fn check_leads_kept(d: &Diagnosis) {
+    assert_eq!(d.leads.len(), 2, "{:?}", d.leads);
+    for l in &d.leads {
+        assert_eq!(l.verdict, LeadVerdict::Kept, "{l:?}");
+    }
+    assert!(
+        d.parameters.iter().all(|p| p.parameter != "period_um"),
+        "{:?}",
+        d.parameters
     );
 }
 

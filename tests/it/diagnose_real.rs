@@ -15,7 +15,9 @@
 
 use std::path::PathBuf;
 
-use micropos::analysis::{diagnose, DiagnoseOptions, Diagnosis, FindingKind, Reading, ReadingKind};
+use micropos::analysis::{
+    diagnose, DiagnoseOptions, Diagnosis, FindingKind, LeadVerdict, Reading, ReadingKind,
+};
 use micropos::charact::log::read_file;
 use micropos::model::{Axis, StageModel};
 
@@ -277,6 +279,48 @@ fn flexure_log_fits_no_more_than_it_supports() {
     // Dense steps: the noise from neighbouring positions is estimated.
     assert!(x.neighbour_noise_um.is_some(), "{x:?}");
     reading_terms_are_reported(&d);
+}
+
+/// The flexure's 450 µm travel spans 1.1 of the default model's 400 µm
+/// screw leads (the stage's own micrometer has a 500 µm pitch): the
+/// screw's lead cannot be checked nor its harmonics told from a bow of
+/// the travel, so none is fitted or shown as a correction, and the report
+/// says why, with the numbers, and what scan would resolve them.
+#[test]
+fn flexure_log_holds_the_screw_it_cannot_check_and_says_why() {
+    let Some(d) = run("swli_flexure_40step.csv") else {
+        return;
+    };
+    assert!(
+        d.parameters.iter().all(|p| p.kind != "leadscrew_cyclic"),
+        "{:?}",
+        d.parameters
+    );
+    assert!(d
+        .base_free_params
+        .iter()
+        .all(|p| !p.starts_with("x_cyclic.")));
+    let text = d.to_text();
+    assert!(!text.contains("spans only"), "{text}");
+    let l = d
+        .leads
+        .iter()
+        .find(|l| l.term == "x_cyclic")
+        .expect("x checked");
+    assert_eq!(l.verdict, LeadVerdict::NotChecked);
+    assert_eq!(l.lead_um, 400.0);
+    for part in [
+        "x_cyclic (the screw lead, 400 µm in the model) is not checked",
+        "the log spans 450 µm of x, less than two leads (800 µm)",
+        "held at the model's values",
+        "a scan over ≥ 800 µm at ≤ 100 µm steps resolves them",
+    ] {
+        assert!(l.sentence.contains(part), "{part:?} in {:?}", l.sentence);
+    }
+    assert!(text.contains(&l.sentence), "{text}");
+    assert_eq!(d.to_json()["leads"][0]["verdict"], "not_checked");
+    // Only the measured axis's screw is spoken of.
+    assert_eq!(d.leads.len(), 1, "{:?}", d.leads);
 }
 
 /// The scale a report states for a real log is the log's: whatever the

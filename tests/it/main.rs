@@ -47,6 +47,7 @@ mod decode_render;
 mod decode_robust;
 mod diagnose_drift;
 mod diagnose_hidden;
+mod diagnose_lead;
 mod diagnose_loop;
 mod diagnose_random;
 mod diagnose_real;

@@ -17,6 +17,7 @@ use crate::model::{Axis, MotionState, MotionTracker, StageModel, Waypoint};
 use crate::analysis::AnalysisError;
 
 /// The log turned into model states and residual rows.
+#[derive(Clone)]
 pub(super) struct Data {
     pub(super) n: usize,
     pub(super) states: Vec<MotionState>,
@@ -158,6 +159,7 @@ pub(super) enum MeasuredSource {
 }
 
 /// A numeric extra column of the log.
+#[derive(Clone)]
 pub(super) struct ExtraVar {
     pub(super) name: String,
     /// Value per row (unparsable cells: the column mean).

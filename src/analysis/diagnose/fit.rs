@@ -206,6 +206,31 @@ pub(super) fn fit_with(
     (resid, beta.iter().skip(p).cloned().collect())
 }
 
+/// Squared error of `r` (every entry: centred vectors are zero on the
+/// rows and components no fit sees) after the least-squares fit of
+/// `cols` to it.
+pub(super) fn sse_after(r: &[f64], cols: &[Vec<f64>]) -> f64 {
+    let dot = |a: &[f64], b: &[f64]| a.iter().zip(b).map(|(x, y)| x * y).sum::<f64>();
+    let k = cols.len();
+    let mut g = DMatrix::zeros(k, k);
+    for a in 0..k {
+        for b in a..k {
+            let v = dot(&cols[a], &cols[b]);
+            g[(a, b)] = v;
+            g[(b, a)] = v;
+        }
+    }
+    let rhs = DVector::from_fn(k, |a, _| dot(&cols[a], r));
+    let beta = solve_normal(&g, &rhs);
+    r.iter()
+        .enumerate()
+        .map(|(i, v)| {
+            let e = v - (0..k).map(|a| beta[a] * cols[a][i]).sum::<f64>();
+            e * e
+        })
+        .sum()
+}
+
 /// Copies the held-out rows (`!train[i]`, index `2i + c`) of `src` into
 /// `dst`: pooled over the folds, this assembles every point's held-out
 /// residual. Only judged rows ([`Data::judged`]) of measured components

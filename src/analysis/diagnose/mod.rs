@@ -6,6 +6,15 @@
 //!    [`MotionTracker`] (with the model's minimum incremental motion), so
 //!    each point gets the state the simulator would have had; the logged
 //!    temperature is used when present (else the model's environment).
+//!
+//!    **Screw leads.** The period of each `leadscrew_cyclic` term on a
+//!    measured axis (the screw's lead) is checked next, where the log can
+//!    tell it (two leads spanned, four points per lead): candidate leads
+//!    are scanned and one is adopted only when it predicts held-out data
+//!    better by the findings' test; the rest of the diagnosis runs on the
+//!    model with that lead, reported as a parameter correction
+//!    ([`LeadCheck`]). Where the log cannot tell it, the check says why
+//!    and what scan would (`lead`).
 //! 2. **Base fit.** Every parameter of the model the log can identify is
 //!    fitted (`base_free_kinds = ["*"]`: linear terms, backlash through its
 //!    Jacobian, the angles of angular terms at their Abbe arms), with
@@ -14,7 +23,8 @@
 //!    as a finding: a stage that is merely another stage differs from the
 //!    model in its values, not its structure. A parameter stays at the
 //!    model's value, with its reason ([`FixedParam`]), when its period is
-//!    aliased by the log's spacing or longer than twice the span it covers,
+//!    aliased by the log's spacing or longer than twice the span it covers
+//!    (a screw's cyclic terms: when the log spans fewer than two leads),
 //!    when it is a temperature coefficient and the log's temperature does
 //!    not change, when the log cannot separate it from parameters taken
 //!    before it (`ident`: the rank of the Jacobian, column by column in a
@@ -114,6 +124,8 @@
 //!   family's period, place, width or length; a candidate's design columns.
 //! * `fit`: step 5, the centred least squares per fold and the held-out
 //!   verdict (paired z, RMS); the base fit's held-out selection.
+//! * `lead`: step 1b, the screw leads the log can correct, and what it
+//!   cannot check.
 //! * `ident`: step 2, which base parameters the log can separate, and the
 //!   combinations it cannot.
 //! * `corrections`: step 2's parameter corrections (model vs fitted value).
@@ -137,6 +149,7 @@ mod fit;
 mod ident;
 mod iso_figures;
 mod judge;
+mod lead;
 mod map_term;
 mod noise;
 mod options;
@@ -165,6 +178,7 @@ pub use finding::{Finding, Withdrawn};
 use fit::{fold_base, paired_z, rms_comp, select_base, Verdict};
 pub use ident::Unidentifiable;
 use judge::{judge, passes_test, rejudge, with_findings, Accepted};
+pub use lead::{LeadCheck, LeadTest, LeadVerdict};
 pub use map_term::{MapComponent, MapFold, MapTermReport};
 pub use noise::{ComponentNoise, IsoFigures, NoiseReport, Outlier, Sampling, TargetRepeat};
 pub use options::DiagnoseOptions;
@@ -306,6 +320,9 @@ fn unresolved(d: &data::Data, model: &StageModel, name: &str) -> Option<String> 
         return None;
     }
     let term = model.terms().iter().find(|t| t.name() == term_name)?;
+    if let Some(reason) = lead::held_screw_reason(d, &**term) {
+        return Some(reason);
+    }
     let cfg = term.to_config().ok()?;
     if let Some(period_s) = cfg.get("period_s").and_then(|v| v.as_float()) {
         let (lo, hi) = d
@@ -374,6 +391,11 @@ pub struct Diagnosis {
     /// The model's own parameters as the log measured them (base fit,
     /// jointly with the findings): parameter corrections, not findings.
     pub parameters: Vec<ParamCorrection>,
+    /// The screw leads of the model's `leadscrew_cyclic` terms on the
+    /// measured axes as the log measured them: corrected (also a
+    /// parameter correction, and the extended model's period), kept, or
+    /// not checked with what scan would check them (`lead`).
+    pub leads: Vec<LeadCheck>,
     /// Parameters the log cannot separate from others (kept at the
     /// model's value), with the combination it measures instead.
     pub unidentifiable: Vec<Unidentifiable>,
@@ -586,14 +608,23 @@ fn diagnose_cross_folds(
     Ok(second)
 }
 
-/// [`diagnose`] with the rows assigned to folds by `scheme`.
+/// [`diagnose`] with the rows assigned to folds by `scheme`. The screw
+/// leads are checked first (`lead`): the rest runs on `given` with the
+/// leads the log supports; "model as given" is `given`.
 fn diagnose_with(
     log: &MeasurementLog,
-    model: &StageModel,
+    given: &StageModel,
     opts: &DiagnoseOptions,
     scheme: FoldScheme,
 ) -> Result<Diagnosis, AnalysisError> {
-    let d = prepare_with(log, model, opts.max_folds, scheme)?;
+    let d = prepare_with(log, given, opts.max_folds, scheme)?;
+    let leads = lead::check_leads(&d, given, opts)?;
+    let d = if leads.corrections.is_empty() {
+        d
+    } else {
+        prepare_with(log, &leads.model, opts.max_folds, scheme)?
+    };
+    let model = &leads.model;
     let (all_names, all_base) = base_columns(&d, model, &opts.base_free_kinds);
     // A periodic base term whose period the log's sampling cannot resolve
     // is aliased: fitting it would turn it into an arbitrary per-target
@@ -750,6 +781,7 @@ fn diagnose_with(
     // candidate terms, tables judged on held-out data like every family.
     let mut fams = families(&d);
     fams.extend(tables::wanted(log, &d, &base0));
+    fams.extend(lead::shape_tables(&leads.checks, &d, &fams));
     // The last held-out test of each table family (against the final
     // model when it was not accepted).
     let mut table_tests: Vec<tables::TableTest> = Vec::new();
@@ -945,8 +977,14 @@ fn diagnose_with(
         .metadata
         .get(TIME_SOURCE_KEY)
         .is_some_and(|v| v.trim_start().starts_with("synthetic"));
-    let mut parameters =
-        corrections::corrections(model, &fitted, &base_names, &std_errs, synthetic_time);
+    let mut parameters = leads.corrections.clone();
+    parameters.extend(corrections::corrections(
+        model,
+        &fitted,
+        &base_names,
+        &std_errs,
+        synthetic_time,
+    ));
     corrections::with_joint_totals(&mut parameters, model, &unidentifiable);
     // Residual series and in-sample RMS of the extended model.
     let mut series = ResidualSeries::default();
@@ -995,7 +1033,7 @@ fn diagnose_with(
     note_short_periods(&mut parameters, &d, model);
     let mut r0 = vec![0.0; 2 * d.n];
     for i in 0..d.n {
-        let o = model.observed_position(&d.states[i]);
+        let o = given.observed_position(&d.states[i]);
         for c in 0..2 {
             if d.measured[c] {
                 r0[2 * i + c] = d.meas[i][c] - if c == 0 { o.x_um } else { o.y_um };
@@ -1046,6 +1084,7 @@ fn diagnose_with(
             ));
         }
     }
+    lead::note_held(&mut findings, &leads.checks);
     Ok(Diagnosis {
         points: d.n,
         folds: d.nfolds,
@@ -1057,6 +1096,7 @@ fn diagnose_with(
         with_unmodelled_rms_um: with_unmodelled,
         extended_fit_rms_um: RmsXy::from(fit_rms),
         parameters,
+        leads: leads.checks,
         unidentifiable,
         base_free_params: base_names,
         base_fixed_params: base_fixed,
@@ -1178,11 +1218,11 @@ const PERIODS_FOR_A_PERIOD: f64 = 2.0;
 /// log spans fewer than [`PERIODS_FOR_A_PERIOD`] periods of, that its
 /// value is as much a bow of the travel as a periodic error.
 ///
-/// Why: the default model's 400 µm screw harmonics fitted on a flexure's
-/// 450 µm travel (a 500 µm micrometer) are freed, predict held-out cycles
-/// better and come out at 10σ, but over 1.1 periods a sinusoid is a smooth
-/// curve as much as a screw's periodic error; a reader must not take it
-/// for this stage's screw error at that period.
+/// Why: over fewer than two periods a fitted sinusoid is a smooth curve
+/// as much as a periodic error (a guideway's 5 mm waviness on a 4.2 mm
+/// scan); a reader must not take it for the error at that period. A
+/// screw's cyclic terms never get here: over fewer than two leads they
+/// are not fitted at all (`lead::held_screw_reason`).
 fn note_short_periods(parameters: &mut [ParamCorrection], d: &data::Data, model: &StageModel) {
     for p in parameters.iter_mut() {
         if !(p.parameter.contains("sin") || p.parameter.contains("cos")) {

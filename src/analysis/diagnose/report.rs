@@ -149,6 +149,13 @@ impl Diagnosis {
                     .join(", ")
             );
         }
+        for l in self
+            .leads
+            .iter()
+            .filter(|l| l.verdict != super::LeadVerdict::Corrected)
+        {
+            let _ = writeln!(out, "  screw lead: {}", l.sentence);
+        }
         out.push_str(&self.parameters_text());
         let rms = |r: &RmsXy| -> String {
             Axis::ALL
@@ -364,13 +371,15 @@ impl Diagnosis {
                 self.parameters.len(),
                 super::SIGNIFICANT_SIGMAS
             );
-            // Largest departures (in σ) first.
+            // Corrected screw leads first (they change what every cyclic
+            // amplitude means), then the largest departures (in σ).
             let mut sig = sig;
             sig.sort_by(|a, b| {
                 let z = |p: &&super::ParamCorrection| {
                     (p.fitted_value - p.model_value).abs() / p.std_error.max(1e-300)
                 };
-                z(b).total_cmp(&z(a))
+                let lead = |p: &&super::ParamCorrection| p.parameter == super::lead::LEAD_PARAM;
+                lead(b).cmp(&lead(a)).then(z(b).total_cmp(&z(a)))
             });
             for p in sig.iter().take(PARAMS_SHOWN) {
                 let _ = writeln!(out, "  {}", p.sentence);
@@ -589,6 +598,7 @@ impl Diagnosis {
             "model_rms_um": self.model_rms_um,
             "baseline_rms_um": self.baseline_rms_um,
             "parameters": self.parameters,
+            "leads": self.leads,
             "unidentifiable": self.unidentifiable,
             "findings": self.findings,
             "withdrawn": self.withdrawn,
