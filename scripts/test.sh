@@ -45,9 +45,19 @@ hil_unit=(-p hil-sim --lib)
 lib_unit=(-p micropos --lib --profile dev)
 if [ "${MICROPOS_NEXTEST:-1}" = 1 ] && cargo nextest --version >/dev/null 2>&1; then
   step "build the tests (cargo test --no-run ${features[*]:-}: integration, hil-sim unit, micropos unit)"
-  cargo test "${integration[@]}" "${features[@]}" --no-run
-  cargo test "${hil_unit[@]}" "${features[@]}" --no-run
-  cargo test "${lib_unit[@]}" "${features[@]}" --no-run
+  # MICROPOS_TIMINGS=1 (CI): cargo's --timings reports, and the longest
+  # units of each build printed (scripts/cargo-timings.py).
+  timings=()
+  if [ "${MICROPOS_TIMINGS:-0}" = 1 ]; then
+    timings=(--timings)
+    rm -f "$target"/cargo-timings/cargo-timing-*.html
+  fi
+  cargo test "${integration[@]}" "${features[@]}" "${timings[@]}" --no-run
+  cargo test "${hil_unit[@]}" "${features[@]}" "${timings[@]}" --no-run
+  cargo test "${lib_unit[@]}" "${features[@]}" "${timings[@]}" --no-run
+  if [ ${#timings[@]} -gt 0 ]; then
+    python3 scripts/cargo-timings.py "$target"/cargo-timings/cargo-timing-*.html || true
+  fi
   step "cargo nextest run: integration tests and the CLI's unit tests"
   cargo nextest run "${integration[@]}" "${features[@]}"
   step "cargo nextest run: unit tests of hil-sim, then of micropos (dev profile)"

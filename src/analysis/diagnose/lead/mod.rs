@@ -36,12 +36,18 @@
 //! the curvature of that fit's squared error.
 //!
 //! **When it cannot**, the check says so with the numbers, and what scan
-//! would resolve it (`LeadCheck::sentence`), and the screw's harmonics
-//! are not fitted at all ([`held_screw_reason`], used by
-//! `super::unresolved`): a sinusoid over 1.1 periods is a bow of the
-//! travel as much as a periodic error, and on a stage whose lead is
+//! would resolve it (`LeadCheck::sentence`). Over fewer than two leads
+//! the screw's harmonics are not fitted at all ([`held_screw_reason`],
+//! used by `super::unresolved`): a sinusoid over 1.1 periods is a bow of
+//! the travel as much as a periodic error, and on a stage whose lead is
 //! unknown a fitted 400 µm harmonic would be presented as a correction of
-//! a screw the stage may not have.
+//! a screw the stage may not have. Over two leads or more, sampled too
+//! coarsely to check the lead, the harmonics are fitted at the model's
+//! lead, taken as given (the sentence says so): the log still measures
+//! them there, and a claim held at the model's values that the log
+//! contradicts would stay in every residual (a grid at 200 µm pitch whose
+//! stage has no cyclic error kept the model's 1.3 µm of it, and no map
+//! could be told from it).
 //!
 //! * `screw`: a screw's terms (the `leadscrew_cyclic` term and its cross
 //!   coupling) rebuilt at any lead, and their columns;
@@ -326,19 +332,22 @@ impl Sampling {
     }
 
     /// Whether a screw's harmonics at `lead_um` are held at the model's
-    /// values for the lead check's reason (it cannot tell the lead) and
-    /// not for aliasing, whose contribution the base fit states on its
-    /// own (`Diagnosis::aliased_contribution_rms_um`).
+    /// values for the lead check's reason (the log spans fewer than
+    /// [`LEADS_SPANNED`] leads) and not for aliasing, whose contribution
+    /// the base fit states on its own
+    /// (`Diagnosis::aliased_contribution_rms_um`). A log long enough but
+    /// too coarse to check the lead has them fitted at the model's lead.
     fn holds(&self, lead_um: f64) -> bool {
         let aliased = self.spacing_um.is_some_and(|s| lead_um < 2.0 * s);
-        self.range(lead_um).is_none() && !aliased
+        self.span_um < LEADS_SPANNED * lead_um && !aliased
     }
 }
 
 /// Why a screw's cyclic term (`leadscrew_cyclic` or `cross_coupling`) is
-/// held at the model's values, or `None`: the log cannot tell the
-/// screw's lead along its axis (fewer than [`LEADS_SPANNED`] leads, or
-/// fewer than [`POINTS_PER_LEAD`] points per lead).
+/// held at the model's values, or `None`: the log spans fewer than
+/// [`LEADS_SPANNED`] of the screw's leads along its axis. (A longer log
+/// sampled too coarsely to check the lead has the harmonics fitted at the
+/// model's lead: see the module's notes.)
 ///
 /// Why the whole term, every harmonic: over 1.1 periods a fitted
 /// sinusoid is a bow of the travel as much as a periodic error, and it
@@ -347,9 +356,8 @@ impl Sampling {
 /// harmonics came out at 10σ and were listed as "corrections" of a screw
 /// the stage does not have; its bow is the search's (a table, a localized
 /// feature) and the scale's. The higher harmonics belong to the same lead,
-/// which the log cannot check either, so they are held with it; and a
-/// lead the log cannot check is a lead at which no fitted amplitude means
-/// anything, however finely the log samples it.
+/// which the log cannot check either, so they are held with it, however
+/// finely the log samples them.
 pub(super) fn held_screw_reason(d: &Data, term: &dyn Term) -> Option<String> {
     if term.kind() != LEADSCREW_KIND && term.kind() != COUPLING_KIND {
         return None;
@@ -360,18 +368,13 @@ pub(super) fn held_screw_reason(d: &Data, term: &dyn Term) -> Option<String> {
     if s.range(lead_um).is_some() {
         return None;
     }
-    if s.span_um < LEADS_SPANNED * lead_um {
-        return Some(format!(
+    (s.span_um < LEADS_SPANNED * lead_um).then(|| {
+        format!(
             "the log spans {} µm of {axis}, less than two screw leads ({} µm): the screw's harmonics cannot be told from a bow of the travel, nor its lead checked",
             sentence::um(s.span_um),
             sentence::um(LEADS_SPANNED * lead_um)
-        ));
-    }
-    Some(format!(
-        "the log's {axis} positions are {} µm apart, more than a quarter of the screw's lead ({} µm): its lead cannot be checked, nor its harmonics told from another lead's",
-        sentence::um(s.spacing_um.unwrap_or(f64::NAN)),
-        sentence::um(lead_um / POINTS_PER_LEAD)
-    ))
+        )
+    })
 }
 
 /// The check of one screw.

@@ -134,9 +134,10 @@ fn why_not_checked(check: &LeadCheck, spacing_um: f64) -> String {
     why.join(" and ")
 }
 
-/// What becomes of the harmonics the log cannot check: aliased, or held
+/// What becomes of the harmonics the log cannot check: aliased; held,
 /// with what they contribute at the log's points (a claim of the model
-/// the log can neither confirm nor correct).
+/// the log can neither confirm nor correct), over fewer than two leads;
+/// else fitted at the model's lead.
 fn held_harmonics(check: &LeadCheck, spacing_um: f64) -> String {
     if check.model_lead_um < 2.0 * spacing_um {
         return "its harmonics are aliased and held at the model's values".into();
@@ -152,6 +153,6 @@ fn held_harmonics(check: &LeadCheck, spacing_um: f64) -> String {
     if check.span_um < check.needs_span_um {
         format!("its harmonics cannot be told from a bow of the travel and are held at the model's values{held}")
     } else {
-        format!("its harmonics cannot be told from another lead's and are held at the model's values{held}")
+        "its harmonics are fitted at the model's lead, taken as given".into()
     }
 }

@@ -109,16 +109,23 @@ fn cfg_of(model: &StageModel, name: &str) -> CyclicConfig {
 
 /// A log that spans many leads at more than a quarter lead apart (and
 /// less than half: not aliased) cannot tell the lead either: the
-/// harmonics are held, not fitted at a lead the log cannot check, and the
-/// sentence gives the spacing and the scan that would.
+/// harmonics are fitted at the model's lead, taken as given, and the
+/// sentence gives the spacing and the scan that would check it. A log
+/// over fewer than two leads holds them.
 #[test]
-fn a_coarse_log_holds_the_harmonics_and_says_what_scan_would_check_them() {
+fn a_coarse_log_fits_the_harmonics_at_the_models_lead_and_says_what_scan_would_check_it() {
     let coarse = Sampling {
         span_um: 4000.0,
         spacing_um: Some(150.0),
     };
     assert_eq!(coarse.range(400.0), None);
-    assert!(coarse.holds(400.0));
+    assert!(!coarse.holds(400.0));
+    let short = Sampling {
+        span_um: 600.0,
+        spacing_um: Some(20.0),
+    };
+    assert_eq!(short.range(400.0), None);
+    assert!(short.holds(400.0));
     // Aliased (a period below two spacings): held by the base fit's own
     // rule, with its own figure.
     assert!(!coarse.holds(250.0));
@@ -139,14 +146,14 @@ fn a_coarse_log_holds_the_harmonics_and_says_what_scan_would_check_them() {
         spacing_um: Some(150.0),
         scanned_um: None,
         candidate: None,
-        held_contribution_rms_um: Some(0.5),
+        held_contribution_rms_um: None,
         needs_span_um: 800.0,
         needs_step_um: 100.0,
         sentence: String::new(),
     };
     assert_eq!(
         sentence(&check),
-        "x_cyclic (the screw lead, 400 µm in the model) is not checked: its x positions are 150 µm apart, more than a quarter lead (100 µm); its harmonics cannot be told from another lead's and are held at the model's values (0.500 µm rms at the log's points, a claim the log can neither confirm nor correct); a scan over ≥ 800 µm at ≤ 100 µm steps resolves them"
+        "x_cyclic (the screw lead, 400 µm in the model) is not checked: its x positions are 150 µm apart, more than a quarter lead (100 µm); its harmonics are fitted at the model's lead, taken as given; a scan over ≥ 800 µm at ≤ 100 µm steps resolves them"
     );
 }
 
