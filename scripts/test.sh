@@ -23,56 +23,40 @@ if [ "${MICROPOS_ALL_FEATURES:-0}" = 1 ]; then
   features=(--all-features)
 fi
 
-# Three groups, so that no unit is compiled twice at opt-level 3 for nothing:
-# - the integration tests and the CLI's unit tests, in the test profile
-#   (opt-level 3: the rig tests render and decode thousands of frames);
-# - hil-sim's unit tests, in the test profile too (their harness needs the
-#   micropos library the first group built);
-# - micropos' own unit tests in the dev profile, where micropos is at
-#   opt-level 1 (Cargo.toml): they run in seconds there, and their harness,
-#   the largest unit of the build, compiles in half the time.
-# Dependencies are built once for all three (same settings, same target/debug).
+# cargo-nextest, when installed, runs every test of both packages in one pool
+# (each in a process of its own; .config/nextest.toml), so the run does not
+# wait on one binary's slowest test before the next binary starts; the doc
+# tests, which nextest does not run, follow. Without it, `cargo test`.
+# MICROPOS_NEXTEST=0 forces `cargo test`. Each step prints the seconds since
+# the script started, so a slow one shows (the build apart from the run).
 #
-# cargo-nextest, when installed, runs each group's tests in one pool (each in
-# a process of its own; .config/nextest.toml), so the run does not wait on one
-# binary's slowest test before the next binary starts; the doc tests, which
-# nextest does not run, follow. Without it, `cargo test`. MICROPOS_NEXTEST=0
-# forces `cargo test`. Each step prints the seconds since the script started,
-# so a slow one shows (the build apart from the run).
+# One build for all the tests: a second cargo invocation (another profile,
+# or one package) resolves features for its own selection and compiles the
+# library again (measured: the library's unit tests at opt-level 1 in the dev
+# profile cost 104 s after the main build, the library rebuilt for hil-sim's
+# unit tests alone 102 s, against the lib-test harness at opt-level 3
+# compiled beside the library within the one build).
 step() { echo "== [${SECONDS}s] $*"; }
-integration=(--workspace --bin micropos --test '*')
-hil_unit=(-p hil-sim --lib)
-lib_unit=(-p micropos --lib --profile dev)
 if [ "${MICROPOS_NEXTEST:-1}" = 1 ] && cargo nextest --version >/dev/null 2>&1; then
-  step "build the tests (cargo test --no-run ${features[*]:-}: integration, hil-sim unit, micropos unit)"
-  # MICROPOS_TIMINGS=1 (CI): cargo's --timings reports, and the longest
-  # units of each build printed (scripts/cargo-timings.py).
+  step "build the tests (cargo test --no-run ${features[*]:-})"
+  # MICROPOS_TIMINGS=1 (CI): cargo's --timings report, and the build's
+  # longest units printed (scripts/cargo-timings.py).
   timings=()
   if [ "${MICROPOS_TIMINGS:-0}" = 1 ]; then
     timings=(--timings)
     rm -f "$target"/cargo-timings/cargo-timing-*.html
   fi
-  cargo test "${integration[@]}" "${features[@]}" "${timings[@]}" --no-run
-  cargo test "${hil_unit[@]}" "${features[@]}" "${timings[@]}" --no-run
-  cargo test "${lib_unit[@]}" "${features[@]}" "${timings[@]}" --no-run
+  cargo test --workspace "${features[@]}" "${timings[@]}" --no-run
   if [ ${#timings[@]} -gt 0 ]; then
-    python3 scripts/cargo-timings.py "$target"/cargo-timings/cargo-timing-*.html || true
+    python3 scripts/cargo-timings.py -n 12 "$target"/cargo-timings/cargo-timing-*.html || true
   fi
-  step "cargo nextest run: integration tests and the CLI's unit tests"
-  cargo nextest run "${integration[@]}" "${features[@]}"
-  step "cargo nextest run: unit tests of hil-sim, then of micropos (dev profile)"
-  cargo nextest run "${hil_unit[@]}" "${features[@]}"
-  cargo nextest run -p micropos --lib --cargo-profile dev "${features[@]}"
+  step "cargo nextest run ${features[*]:-}"
+  cargo nextest run --workspace "${features[@]}"
   step "cargo test --doc ${features[*]:-}"
   cargo test --workspace --doc "${features[@]}"
 else
-  step "cargo test: integration tests and the CLI's unit tests"
-  cargo test "${integration[@]}" "${features[@]}"
-  step "cargo test: unit tests of hil-sim, then of micropos (dev profile)"
-  cargo test "${hil_unit[@]}" "${features[@]}"
-  cargo test "${lib_unit[@]}" "${features[@]}"
-  step "cargo test --doc ${features[*]:-}"
-  cargo test --workspace --doc "${features[@]}"
+  step "cargo test ${features[*]:-}"
+  cargo test --workspace "${features[@]}"
 fi
 
 # The Python suites run the hil-sim and microposd that `cargo test` just
