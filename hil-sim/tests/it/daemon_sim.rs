@@ -147,6 +147,34 @@ async fn commands_safe_states_and_limits() {
     assert!(truth < 8990.0, "stop did not stop: {truth}");
     let st = c.call(json!({"cmd":"status"})).await;
     assert_eq!(st["rig"]["mode"], "idle", "{st}");
+    // A move waited on and cut short by another client's stop says why it
+    // was halted (it said only "the move was halted before reaching its
+    // target", which a job's log repeated without its cause).
+    let x_um = || r.sim.as_ref().unwrap().true_position_mm(AxisName::X) * 1000.0;
+    let x0_um = x_um();
+    let mut mover = Client::connect(&r.socket).await;
+    let waiting = tokio::spawn(async move {
+        mover
+            .call(json!({"cmd":"move","x_um":2000.0,"wait":true}))
+            .await
+    });
+    let t = Instant::now();
+    while x_um() > x0_um - 100.0 {
+        assert!(
+            t.elapsed() < Duration::from_secs(30),
+            "the move never started"
+        );
+        tokio::time::sleep(Duration::from_millis(2)).await;
+    }
+    assert_eq!(c.call(json!({"cmd":"stop"})).await["ok"], true);
+    let m = waiting.await.unwrap();
+    assert_eq!(code(&m), "halted", "{m}");
+    assert!(
+        m["error"]["message"]
+            .as_str()
+            .is_some_and(|s| s.ends_with("(halted by the daemon: stop requested by a client)")),
+        "{m}"
+    );
     let cfg = c.call(json!({"cmd":"config"})).await;
     assert_eq!(cfg["config"]["limits"]["x_max_um"], 14000.0);
     drop(r);

@@ -80,6 +80,9 @@ pub struct Rig {
     reported: Mutex<Reported>,
     motion: tokio::sync::Mutex<()>,
     stop_gen: AtomicU64,
+    /// Why the last stop, halt or fault overtook the moves in flight
+    /// ([`Rig::begin_stop`]), so a move cut short can say why.
+    stop_why: Mutex<String>,
     supervisor: Mutex<Supervisor>,
     /// Vision against controller (`daemon::deviation`).
     deviation: Mutex<DeviationJudge>,
@@ -213,6 +216,7 @@ impl Rig {
             reported: Mutex::new(Reported::default()),
             motion: tokio::sync::Mutex::new(()),
             stop_gen: AtomicU64::new(0),
+            stop_why: Mutex::new(String::new()),
             events,
             vision,
             heartbeat: AtomicU64::new(0),

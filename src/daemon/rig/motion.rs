@@ -215,9 +215,12 @@ impl Rig {
         let gen = self.stop_gen.load(Ordering::SeqCst);
         let _queue = self.motion.lock().await;
         if self.stop_gen.load(Ordering::SeqCst) != gen {
-            return Err(ProtoError::new(
-                ErrorCode::Halted,
-                "a stop or fault came before this move started; it was not sent",
+            return Err(self.halted_because(
+                ProtoError::new(
+                    ErrorCode::Halted,
+                    "a stop or fault came before this move started; it was not sent",
+                ),
+                gen,
             ));
         }
         let want = [req.x_um.is_some(), req.y_um.is_some()];
@@ -309,9 +312,12 @@ impl Rig {
             // halt (written ahead of the queue) may have reached the
             // controller before this `MOV`, which would then run on.
             self.halt_all().await;
-            return Err(ProtoError::new(
-                ErrorCode::Halted,
-                "a stop or fault came while this move was being sent; both axes were halted again",
+            return Err(self.halted_because(
+                ProtoError::new(
+                    ErrorCode::Halted,
+                    "a stop or fault came while this move was being sent; both axes were halted again",
+                ),
+                gen,
             ));
         }
         {
@@ -344,7 +350,8 @@ impl Rig {
                     self.apply(Input::Fault(format!("while waiting for a move: {e}")));
                 }
             }
-            let (wx, wy) = (wx.map_err(driver_error)?, wy.map_err(driver_error)?);
+            let why = |e| self.halted_because(driver_error(e), gen);
+            let (wx, wy) = (wx.map_err(why)?, wy.map_err(why)?);
             out["reported"] = json!({"x_um": wx, "y_um": wy});
             out["on_target"] = json!(true);
         }
@@ -354,7 +361,7 @@ impl Rig {
     /// Halts everything now: overtakes queued moves (they are refused when
     /// their turn comes), stops a job, sends `#24` to both controllers.
     pub async fn stop(self: &Arc<Self>) -> Result<Value, ProtoError> {
-        self.stop_gen.fetch_add(1, Ordering::SeqCst);
+        self.begin_stop("stop requested by a client");
         let t = self.clock.now_s();
         lock(&self.state).apply(Input::Stop, t);
         self.push(
@@ -385,5 +392,27 @@ impl Rig {
     /// A stop generation: jobs compare it to notice a stop or a fault.
     pub fn stop_generation(&self) -> u64 {
         self.stop_gen.load(Ordering::SeqCst)
+    }
+
+    /// A stop, halt or fault overtakes every move in flight: the
+    /// generation moves on (queued moves are refused when their turn
+    /// comes) and `why` is kept for the moves it cuts short.
+    pub(super) fn begin_stop(&self, why: &str) {
+        *lock(&self.stop_why) = why.to_owned();
+        self.stop_gen.fetch_add(1, Ordering::SeqCst);
+    }
+
+    /// A move's `halted` error with the reason of the stop, halt or fault
+    /// that came since generation `gen`: "the move was halted" alone leaves
+    /// a client (or a job's log) guessing whether a user, a cancel or a
+    /// fault did it.
+    fn halted_because(&self, mut e: ProtoError, gen: u64) -> ProtoError {
+        if e.code == ErrorCode::Halted && self.stop_generation() != gen {
+            let why = lock(&self.stop_why).clone();
+            if !why.is_empty() {
+                e.message = format!("{} (halted by the daemon: {why})", e.message);
+            }
+        }
+        e
     }
 }

@@ -7,7 +7,6 @@ use crate::daemon::protocol::Topic;
 use crate::daemon::state::{Action, AxisId, Input};
 use crate::driver::DriverError;
 use serde_json::{json, Value};
-use std::sync::atomic::Ordering;
 use std::sync::Arc;
 use std::time::Duration;
 
@@ -104,7 +103,7 @@ impl Rig {
                 Action::HaltAll { reason } => {
                     tracing::warn!("halting both axes: {reason}");
                     self.metrics.record_fault();
-                    self.stop_gen.fetch_add(1, Ordering::SeqCst);
+                    self.begin_stop(&format!("fault: {reason}"));
                     self.supervisor().clear();
                     self.push(
                         Topic::Fault,
@@ -151,7 +150,7 @@ impl Rig {
     /// warnings. A halt that leaves an axis moving or fails is a warning;
     /// a fault's halt ([`Rig::apply`]) is one too.
     pub async fn halt_and_wait(&self, why: &str) -> Value {
-        self.stop_gen.fetch_add(1, Ordering::SeqCst);
+        self.begin_stop(why);
         tracing::info!("halting both axes: {why}");
         let t = self.clock.now_s();
         let halts = self.halt_all().await;
