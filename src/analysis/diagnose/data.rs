@@ -795,6 +795,14 @@ pub(super) fn distinct_positions(d: &Data, a: Axis) -> Vec<f64> {
     pos
 }
 
+/// The span of sorted positions `pos`, µm (0 without any).
+pub(super) fn span_um(pos: &[f64]) -> f64 {
+    match (pos.first(), pos.last()) {
+        (Some(a), Some(b)) => b - a,
+        _ => 0.0,
+    }
+}
+
 /// Shortest period the log resolves along axis `a`, µm: two positions per
 /// period at the [`sampling_spacing_um`] of its distinct positions (`None`
 /// with fewer than two positions). A periodic error of a shorter period is

@@ -342,11 +342,7 @@ fn unresolved(d: &data::Data, model: &StageModel, name: &str) -> Option<String> 
         "y" => Axis::Y,
         _ => return None,
     };
-    let pos = data::distinct_positions(d, axis);
-    let span_um = match (pos.first(), pos.last()) {
-        (Some(a), Some(b)) => b - a,
-        _ => 0.0,
-    };
+    let span_um = data::span_um(&data::distinct_positions(d, axis));
     (period_um > LONGEST_PERIOD_SPANS * span_um).then(|| {
         format!("the log cannot resolve them: period {period_um:.1} µm is more than {LONGEST_PERIOD_SPANS}× the {span_um:.1} µm of {axis} it spans")
     })

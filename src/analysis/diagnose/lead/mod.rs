@@ -308,12 +308,8 @@ struct Sampling {
 impl Sampling {
     fn of(d: &Data, axis: Axis) -> Self {
         let pos = data::distinct_positions(d, axis);
-        let span_um = match (pos.first(), pos.last()) {
-            (Some(a), Some(b)) => b - a,
-            _ => 0.0,
-        };
         Sampling {
-            span_um,
+            span_um: data::span_um(&pos),
             spacing_um: data::sampling_spacing_um(&pos),
         }
     }
