@@ -30,6 +30,7 @@ use crate::serve::{AxisName, ServeConfig, SimHandle};
 use micropos::camera::{open_source, OpenOptions};
 use micropos::clock::{SimClock, WallClock};
 use micropos::daemon::config::DaemonConfig;
+use micropos::daemon::protocol::JobState;
 use micropos::daemon::vision::Capture;
 use micropos::daemon::{Daemon, Environment, Running};
 use serde_json::{json, Value};
@@ -337,12 +338,12 @@ impl Client {
         loop {
             let s = self.call(status_req.clone()).await?;
             let job = &s["job"];
-            let state = job["state"].as_str().unwrap_or("?");
-            if state != "running" {
-                if state != "done" {
+            let state = JobState::of(job);
+            if state != Some(JobState::Running) {
+                if state != Some(JobState::Done) {
                     return Err(RunError::Job {
                         kind: what.to_owned(),
-                        state: state.to_owned(),
+                        state: job["state"].as_str().unwrap_or("?").to_owned(),
                         error: job["error"].as_str().unwrap_or("").to_owned(),
                     });
                 }

@@ -9,6 +9,7 @@
 
 use anyhow::Context;
 use clap::{Args, Subcommand};
+use micropos::daemon::protocol::JobState;
 use serde_json::{json, Value};
 use std::io::Write;
 use std::path::PathBuf;
@@ -521,7 +522,7 @@ async fn run_inner(opts: &GlobalOpts, cmd: &ClientCommand) -> Result<ExitCode, U
             ..
         } if action == "start" => {
             let job = follow::follow(&mut conn, &reply).await?;
-            if job["state"] != "done" {
+            if JobState::of(&job) != Some(JobState::Done) {
                 return Ok(follow::report_end(&job, None, opts.json, None));
             }
             // The results come with the job-done state: shown like a reply.

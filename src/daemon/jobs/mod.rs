@@ -10,6 +10,7 @@ pub mod approach;
 pub mod plan;
 pub mod record;
 mod scan;
+mod spawn;
 pub mod sweep;
 pub mod sweep_anchor;
 pub mod sweep_job;
@@ -22,6 +23,7 @@ pub use approach::step_columns;
 /// The record helpers the job files share.
 pub(crate) use record::{append_record, drift_ref_record, lock};
 pub use record::{columns, Progress};
+pub(crate) use spawn::{Ended, Launch};
 
 /// The measuring helpers every job uses, from the rig (`rig::measure`).
 pub(crate) use super::rig::measure::{
@@ -30,7 +32,7 @@ pub(crate) use super::rig::measure::{
 
 use super::protocol::{
     Axes, CharacterizeMode, CharacterizeParams, CharacterizePlan, ErrorCode, GridApproach,
-    GridOrder, ProtoError, Topic,
+    GridOrder, JobKind, JobState, ProtoError,
 };
 use super::rig::Rig;
 use crate::analysis::drift::DRIFT_REF_SEGMENT;
@@ -39,7 +41,7 @@ use crate::comp::VisionFrame;
 use crate::model::XyUm;
 use approach::ApproachTracker;
 use plan::{DriftPlan, ScanPlan};
-use serde_json::{json, Value};
+use serde_json::Value;
 use std::fs::File;
 use std::path::PathBuf;
 use std::sync::{Arc, Mutex};
@@ -59,8 +61,8 @@ const MAX_PLAN_POINTS: f64 = 1e7;
 struct Running {
     cancel: watch::Sender<bool>,
     task: tokio::task::JoinHandle<()>,
-    /// `characterize` or `validate`, for a refusal's message.
-    kind: &'static str,
+    /// For a refusal's message.
+    kind: JobKind,
     /// Every log the job writes (the first is its own; a sweep's
     /// companions follow), so that `tables build` refuses them while it
     /// runs: see [`Jobs::check_log_finished`].
@@ -324,11 +326,17 @@ impl Jobs {
                 settle_s: plan.settle_s,
                 drift,
             };
-            return self.launch_sweep(rig, args, total);
+            return Ok(self.launch_sweep(rig, args, total));
         }
         rig.begin_job()?;
         let total = plan.points().len();
-        self.launch(rig, plan, drift, name, None, 0, total)
+        let job = StepJob {
+            plan,
+            drift,
+            name,
+            resumed: None,
+        };
+        Ok(self.launch(rig, job, 0, total))
     }
 
     /// Resumes a job from its log.
@@ -424,36 +432,17 @@ impl Jobs {
         }
         let t0 = resume.last_record.map_or(0.0, |r| r.t_s);
         rig.begin_job()?;
-        self.launch(
-            rig,
+        let job = StepJob {
             plan,
             drift,
-            name.to_owned(),
-            Some((writer, offset, t0)),
-            done,
-            total,
-        )
+            name: name.to_owned(),
+            resumed: Some((writer, offset, t0)),
+        };
+        Ok(self.launch(rig, job, done, total))
     }
 
     /// Starts the sweep job task (see [`sweep_job`]).
-    fn launch_sweep(
-        &self,
-        rig: &Arc<Rig>,
-        args: sweep_job::SweepArgs,
-        total: usize,
-    ) -> Result<Value, ProtoError> {
-        let (cancel, cancel_rx) = watch::channel(false);
-        *lock(&self.progress) = Some(Progress {
-            kind: "characterize",
-            log: args.name.clone(),
-            state: "running",
-            done: 0,
-            total,
-            eta_s: None,
-            error: None,
-            retries: rig.job_retries.clone(),
-            result: Value::Null,
-        });
+    fn launch_sweep(&self, rig: &Arc<Rig>, args: sweep_job::SweepArgs, total: usize) -> Value {
         let logs = [
             Some(&args.name),
             args.uncorrected.as_ref(),
@@ -463,91 +452,51 @@ impl Jobs {
         .flatten()
         .cloned()
         .collect();
-        let progress = self.progress.clone();
-        let rig2 = rig.clone();
-        let task = tokio::spawn(async move {
-            let r = sweep_job::run(&rig2, &args, &progress, cancel_rx).await;
-            rig2.end_job();
-            let mut g = lock(&progress);
-            if let Some(p) = g.as_mut() {
-                match r {
-                    Ok((state, result)) => {
-                        p.state = state;
-                        p.result = result;
-                    }
-                    Err(e) => {
-                        tracing::warn!("sweep characterization {} failed: {e}", args.name);
-                        p.state = "failed";
-                        p.error = Some(e.to_string());
-                    }
-                }
-                p.eta_s = None;
-                rig2.push(Topic::Job, "job", p.to_json());
-            }
-        });
-        *lock(&self.running) = Some(Running {
-            cancel,
-            task,
-            kind: "characterize",
+        let launch = Launch {
+            kind: JobKind::Characterize,
+            what: format!("sweep characterization {}", args.name),
             logs,
-        });
-        Ok(json!({"job": lock(&self.progress).as_ref().map(Progress::to_json)}))
+            done: 0,
+            total,
+        };
+        let (rig2, progress) = (rig.clone(), self.progress.clone());
+        self.spawn(rig, launch, |cancel| async move {
+            let (state, result) = sweep_job::run(&rig2, &args, &progress, cancel).await?;
+            Ok(Ended {
+                result,
+                ..Ended::state(state)
+            })
+        })
     }
 
-    #[allow(clippy::too_many_arguments)]
-    fn launch(
-        &self,
-        rig: &Arc<Rig>,
-        plan: ScanPlan,
-        drift: Option<DriftPlan>,
-        name: String,
-        resumed: Option<(LogWriter<File>, VisionFrame, f64)>,
-        done: usize,
-        total: usize,
-    ) -> Result<Value, ProtoError> {
-        let (cancel, cancel_rx) = watch::channel(false);
-        *lock(&self.progress) = Some(Progress {
-            kind: "characterize",
-            log: name.clone(),
-            state: "running",
+    /// Starts a step or grid characterization's task, new or resumed
+    /// (`resumed`: the log's writer, its frame and its last record's time,
+    /// s; `done` of `total` points logged).
+    fn launch(&self, rig: &Arc<Rig>, job: StepJob, done: usize, total: usize) -> Value {
+        let launch = Launch {
+            kind: JobKind::Characterize,
+            what: format!("characterization {}", job.name),
+            logs: vec![job.name.clone()],
             done,
             total,
-            eta_s: None,
-            error: None,
-            retries: rig.job_retries.clone(),
-            result: Value::Null,
-        });
-        let logs = vec![name.clone()];
-        let progress = self.progress.clone();
-        let rig2 = rig.clone();
-        let task = tokio::spawn(async move {
-            let r = run(
-                &rig2, &plan, drift, &name, resumed, done, &progress, cancel_rx,
-            )
-            .await;
-            rig2.end_job();
-            let mut g = lock(&progress);
-            if let Some(p) = g.as_mut() {
-                match r {
-                    Ok(state) => p.state = state,
-                    Err(e) => {
-                        tracing::warn!("characterization {name} failed: {e}");
-                        p.state = "failed";
-                        p.error = Some(e.to_string());
-                    }
-                }
-                p.eta_s = None;
-                rig2.push(Topic::Job, "job", p.to_json());
-            }
-        });
-        *lock(&self.running) = Some(Running {
-            cancel,
-            task,
-            kind: "characterize",
-            logs,
-        });
-        Ok(json!({"job": lock(&self.progress).as_ref().map(Progress::to_json)}))
+        };
+        let (rig2, progress) = (rig.clone(), self.progress.clone());
+        self.spawn(rig, launch, move |cancel| async move {
+            run(&rig2, job, done, &progress, cancel)
+                .await
+                .map(Ended::state)
+        })
     }
+}
+
+/// A step or grid characterization to run: its plan, drift references,
+/// log, and for a resumed job the log's writer, frame and last record's
+/// time (s).
+struct StepJob {
+    plan: ScanPlan,
+    drift: Option<DriftPlan>,
+    name: String,
+    resumed: Option<(LogWriter<File>, VisionFrame, f64)>,
 }
 
 fn unix_seconds() -> u64 {
@@ -556,17 +505,20 @@ fn unix_seconds() -> u64 {
         .map_or(0, |d| d.as_secs())
 }
 
-#[allow(clippy::too_many_arguments)]
 async fn run(
     rig: &Arc<Rig>,
-    plan: &ScanPlan,
-    drift: Option<DriftPlan>,
-    name: &str,
-    resumed: Option<(LogWriter<File>, VisionFrame, f64)>,
+    job: StepJob,
     start: usize,
     progress: &Arc<Mutex<Option<Progress>>>,
     mut cancel: watch::Receiver<bool>,
-) -> Result<&'static str, ProtoError> {
+) -> Result<JobState, ProtoError> {
+    let StepJob {
+        plan,
+        drift,
+        name,
+        resumed,
+    } = job;
+    let (plan, name) = (&plan, name.as_str());
     let points = plan.points();
     let gen = rig.stop_generation();
     let clock = rig.clock.clone();
@@ -597,7 +549,7 @@ async fn run(
         ];
         let tied = tokio::select! {
             r = tie::measure_frame(rig, lines, plan.frames_per_point, plan.settle_s) => r?,
-            _ = cancel.changed() => return Ok("cancelled"),
+            _ = cancel.changed() => return Ok(JobState::Cancelled),
         };
         frame = tied.frame;
         let mut md = Metadata::new();
@@ -628,7 +580,7 @@ async fn run(
     if let Some(p0) = points.get(start) {
         let (x, y) = scan_approach(rig, p0);
         if move_raw(rig, x, y, &mut cancel).await?.is_none() {
-            return Ok("cancelled");
+            return Ok(JobState::Cancelled);
         }
         approach.moved_to(x, y);
     }
@@ -806,7 +758,7 @@ mod tests {
         *lock(&jobs.running) = Some(Running {
             cancel,
             task,
-            kind: "characterize",
+            kind: JobKind::Characterize,
             logs: vec!["s.csv".into(), "s-raw.csv".into()],
         });
         for log in ["s.csv", "s-raw.csv"] {

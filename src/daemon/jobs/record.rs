@@ -4,7 +4,7 @@
 
 use crate::analysis::drift::DRIFT_REF_SEGMENT;
 use crate::charact::log::{Columns, LogWriter, Record};
-use crate::daemon::protocol::{ErrorCode, ProtoError};
+use crate::daemon::protocol::{ErrorCode, JobKind, JobState, ProtoError};
 use crate::model::XyUm;
 use serde_json::{json, Value};
 use std::fs::File;
@@ -33,12 +33,12 @@ pub fn columns() -> Columns {
 /// Progress of the current or last job.
 #[derive(Debug, Clone)]
 pub struct Progress {
-    /// `characterize`.
-    pub kind: &'static str,
+    /// Which job.
+    pub kind: JobKind,
     /// Log file name.
     pub log: String,
-    /// `running`, `done`, `cancelled`, `stopped`, `failed`.
-    pub state: &'static str,
+    /// Running, or how it ended.
+    pub state: JobState,
     /// Points logged.
     pub done: usize,
     /// Points in the plan.
@@ -58,7 +58,7 @@ pub struct Progress {
 impl Progress {
     /// As JSON.
     pub fn to_json(&self) -> Value {
-        json!({"kind": self.kind, "log": self.log, "state": self.state, "done": self.done,
+        json!({"kind": self.kind.as_str(), "log": self.log, "state": self.state.as_str(), "done": self.done,
                "total": self.total, "eta_s": self.eta_s, "error": self.error,
                "retries": self.retries.load(std::sync::atomic::Ordering::SeqCst),
                "result": self.result})

@@ -26,7 +26,7 @@ use super::record::{append_record, lock, measured_columns, Progress};
 use super::{measure_reference, move_raw, scan_approach, scan_line, RefContext};
 use crate::charact::log::{LogWriter, Record};
 use crate::comp::VisionFrame;
-use crate::daemon::protocol::{ErrorCode, ProtoError, Topic};
+use crate::daemon::protocol::{ErrorCode, JobState, ProtoError, Topic};
 use crate::daemon::rig::measure::{self, Exposed};
 use crate::daemon::rig::Rig;
 use crate::daemon::vision::Measurement;
@@ -86,7 +86,7 @@ pub(super) async fn run(
     s: &Scan<'_>,
     approach: &mut ApproachTracker,
     cancel: &mut watch::Receiver<bool>,
-) -> Result<&'static str, ProtoError> {
+) -> Result<JobState, ProtoError> {
     let mut pending = None;
     let r = points(s, approach, cancel, &mut pending).await;
     if let Some(p) = pending.take() {
@@ -107,7 +107,7 @@ async fn points(
     approach: &mut ApproachTracker,
     cancel: &mut watch::Receiver<bool>,
     pending: &mut Option<Pending>,
-) -> Result<&'static str, ProtoError> {
+) -> Result<JobState, ProtoError> {
     let rig = s.rig;
     let clock = rig.clock.clone();
     let settle_for = Duration::try_from_secs_f64(s.plan.settle_s).unwrap_or_default();
@@ -116,10 +116,10 @@ async fn points(
     let mut last_ref_s: Option<f64> = None;
     for (i, p) in s.points.iter().enumerate().skip(s.start) {
         if *cancel.borrow_and_update() {
-            return Ok("cancelled");
+            return Ok(JobState::Cancelled);
         }
         if rig.stop_generation() != s.gen {
-            return Ok("stopped");
+            return Ok(JobState::Stopped);
         }
         // Re-approached already (the start's park or a reference detour).
         let mut approached = i == s.start;
@@ -138,7 +138,7 @@ async fn points(
                     with_approach: s.with_approach,
                 };
                 if !measure_reference(rig, &ctx, d, p, approach, cancel).await? {
-                    return Ok("cancelled");
+                    return Ok(JobState::Cancelled);
                 }
                 last_ref_s = Some(clock.now_s());
                 approached = true;
@@ -181,12 +181,12 @@ async fn points(
         if !approached && (new_line || grid_back) {
             let (x, y) = scan_approach(rig, p);
             if move_raw(rig, x, y, cancel).await?.is_none() {
-                return Ok("cancelled");
+                return Ok(JobState::Cancelled);
             }
             approach.moved_to(x, y);
         }
         let Some(moved) = move_raw(rig, p.x_um, p.y_um, cancel).await? else {
-            return Ok("cancelled");
+            return Ok(JobState::Cancelled);
         };
         approach.moved_to(p.x_um, p.y_um);
         clock.sleep(settle_for).await;
@@ -217,7 +217,7 @@ async fn points(
                     let Some(again) =
                         measure_again(s, prev.index, &why, cur, approach, cancel).await?
                     else {
-                        return Ok("cancelled");
+                        return Ok(JobState::Cancelled);
                     };
                     cur = again;
                 }
@@ -228,7 +228,7 @@ async fn points(
     if let Some(prev) = pending.take() {
         settle(s, prev, true).await?;
     }
-    Ok("done")
+    Ok(JobState::Done)
 }
 
 /// Completes a pending point where the stage still is (nothing moved since

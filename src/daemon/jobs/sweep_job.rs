@@ -39,7 +39,7 @@ use super::{
 use crate::charact::log::{self, Columns, Metadata, Record, SyncPolicy};
 use crate::charact::scan::SEGMENTS_SWEEP_ANCHOR;
 use crate::comp::VisionFrame;
-use crate::daemon::protocol::{ErrorCode, MoveRequest, ProtoError, Topic};
+use crate::daemon::protocol::{ErrorCode, JobState, MoveRequest, ProtoError, Topic};
 use crate::daemon::rig::{driver_error, Rig};
 use crate::driver::Axis;
 use crate::model::XyUm;
@@ -109,7 +109,7 @@ pub(super) async fn run(
     a: &SweepArgs,
     progress: &Arc<Mutex<Option<Progress>>>,
     mut cancel: watch::Receiver<bool>,
-) -> Result<(&'static str, Value), ProtoError> {
+) -> Result<(JobState, Value), ProtoError> {
     let plan = &a.plan;
     let began = rig.clock.now_s();
     let lines = [
@@ -128,7 +128,7 @@ pub(super) async fn run(
     ];
     let tied = tokio::select! {
         r = tie::measure_frame(rig, lines, a.frames_per_point, a.settle_s) => r?,
-        _ = cancel.changed() => return Ok(("cancelled", Value::Null)),
+        _ = cancel.changed() => return Ok((JobState::Cancelled, Value::Null)),
     };
     let origin = rig.clock.now_s();
     let gen = rig.stop_generation();
@@ -155,10 +155,10 @@ pub(super) async fn run(
     let total = plan.records_total();
     for (k, spec) in specs.iter().enumerate() {
         if *cancel.borrow_and_update() {
-            return Ok(("cancelled", Value::Null));
+            return Ok((JobState::Cancelled, Value::Null));
         }
         if rig.stop_generation() != gen {
-            return Ok(("stopped", Value::Null));
+            return Ok((JobState::Stopped, Value::Null));
         }
         // The anchors or a reference detour left the axis elsewhere.
         let mut park = k == 0 || specs[k - 1].x_axis != spec.x_axis || moved_away;
@@ -166,7 +166,7 @@ pub(super) async fn run(
             if last_ref_s.is_none_or(|t| rig.clock.now_s() - t >= d.every_s) {
                 let rec = tokio::select! {
                     r = drift_reference(rig, d, a, &tied.frame, origin, spec.cycle) => r?,
-                    _ = cancel.changed() => return Ok(("cancelled", Value::Null)),
+                    _ = cancel.changed() => return Ok((JobState::Cancelled, Value::Null)),
                 };
                 between.push((k, Between::Ref(rec)));
                 last_ref_s = Some(rig.clock.now_s());
@@ -180,7 +180,7 @@ pub(super) async fn run(
             _ = cancel.changed() => {
                 // The pass was dropped mid-sweep: its velocity is still set.
                 restore_velocities(rig, velocities).await;
-                return Ok(("cancelled", Value::Null));
+                return Ok((JobState::Cancelled, Value::Null));
             }
         };
         passes.push(r);
@@ -197,10 +197,10 @@ pub(super) async fn run(
                 };
                 let rows = tokio::select! {
                     r = anchor_group(rig, plan, &group, a, &tied.frame, gen) => r?,
-                    _ = cancel.changed() => return Ok(("cancelled", Value::Null)),
+                    _ = cancel.changed() => return Ok((JobState::Cancelled, Value::Null)),
                 };
                 let Some(rows) = rows else {
-                    return Ok(("stopped", Value::Null));
+                    return Ok((JobState::Stopped, Value::Null));
                 };
                 for row in rows {
                     anchors.push(row.m);
@@ -316,7 +316,7 @@ pub(super) async fn run(
         p.done = n_records;
         p.total = n_records;
     }
-    Ok(("done", result))
+    Ok((JobState::Done, result))
 }
 
 /// What the data recorder delivered over the sweep.

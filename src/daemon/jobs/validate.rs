@@ -30,10 +30,11 @@
 use super::super::comp::{check_area, Active};
 use super::super::drift::is_measurement_error;
 use super::super::protocol::{
-    ErrorCode, MoveMode, MoveRequest, ProtoError, Topic, ValidateMode, ValidateParams,
+    ErrorCode, JobKind, JobState, MoveMode, MoveRequest, ProtoError, Topic, ValidateMode,
+    ValidateParams,
 };
 use super::super::rig::Rig;
-use super::{append_record, lock, measure_retrying, tie, Jobs, Progress, Running};
+use super::{append_record, lock, measure_retrying, tie, Ended, Jobs, Launch, Progress};
 use crate::analysis::drift::DRIFT_REF_SEGMENT;
 use crate::charact::log::{self, Columns, LogWriter, Metadata, Record};
 use crate::charact::scan::{
@@ -234,7 +235,7 @@ impl Jobs {
     pub fn validation_status(&self) -> Value {
         let job = lock(&self.progress)
             .as_ref()
-            .filter(|p| p.kind == "validate")
+            .filter(|p| p.kind == JobKind::Validate)
             .map_or(Value::Null, Progress::to_json);
         let results = lock(&self.validation).clone().unwrap_or(Value::Null);
         json!({"job": job, "validation": results})
@@ -452,57 +453,22 @@ impl Jobs {
             ));
         }
         rig.begin_job()?;
-        let total = plan.total();
-        let (cancel, cancel_rx) = watch::channel(false);
-        *lock(&self.progress) = Some(Progress {
-            kind: "validate",
-            log: name.clone(),
-            state: "running",
+        let launch = Launch {
+            kind: JobKind::Validate,
+            what: format!("validation {name}"),
+            logs: vec![name.clone()],
             done: 0,
-            total,
-            eta_s: None,
-            error: None,
-            retries: rig.job_retries.clone(),
-            result: Value::Null,
+            total: plan.total(),
+        };
+        let (rig2, progress) = (rig.clone(), self.progress.clone());
+        let mut out = self.spawn(rig, launch, |cancel| async move {
+            let (state, results) = run(&rig2, &plan, &name, &progress, cancel).await?;
+            Ok(Ended {
+                validation: results.map(|r| json!({"results": r, "logs": [name]})),
+                ..Ended::state(state)
+            })
         });
-        *lock(&self.validation) = None;
-        let logs = vec![name.clone()];
-        let progress = self.progress.clone();
-        let results = self.validation.clone();
-        let rig2 = rig.clone();
-        let task = tokio::spawn(async move {
-            let r = run(&rig2, &plan, &name, &progress, cancel_rx).await;
-            rig2.end_job();
-            let (state, error, res) = match r {
-                Ok((state, res)) => (state, None, res),
-                Err(e) => {
-                    tracing::warn!("validation {name} failed: {e}");
-                    ("failed", Some(e.to_string()), None)
-                }
-            };
-            let res = res.map(|r| json!({"results": r, "logs": [name]}));
-            *lock(&results) = res.clone();
-            let mut g = lock(&progress);
-            if let Some(p) = g.as_mut() {
-                p.state = state;
-                p.error = error;
-                p.eta_s = None;
-                let mut ev = p.to_json();
-                if let Some(r) = res {
-                    ev["results"] = r["results"].clone();
-                    ev["logs"] = r["logs"].clone();
-                }
-                rig2.push(Topic::Job, "job", ev);
-            }
-        });
-        *lock(&self.running) = Some(Running {
-            cancel,
-            task,
-            kind: "validate",
-            logs,
-        });
-        let mut out = json!({"job": lock(&self.progress).as_ref().map(Progress::to_json),
-                             "origin": {"x_um": origin.x_um, "y_um": origin.y_um}});
+        out["origin"] = json!({"x_um": origin.x_um, "y_um": origin.y_um});
         if !warnings.is_empty() {
             out["warnings"] = json!(warnings);
         }
@@ -749,7 +715,7 @@ async fn run(
     name: &str,
     progress: &Arc<Mutex<Option<Progress>>>,
     mut cancel: watch::Receiver<bool>,
-) -> Result<(&'static str, Option<Value>), ProtoError> {
+) -> Result<(JobState, Option<Value>), ProtoError> {
     let gen = rig.stop_generation();
     let clock = rig.clock.clone();
     let settle = Duration::try_from_secs_f64(plan.settle_s).unwrap_or_default();
@@ -772,7 +738,7 @@ async fn run(
             ];
             tokio::select! {
                 r = tie::measure_frame(rig, lines, plan.frames, plan.settle_s) => r?.frame,
-                _ = cancel.changed() => return Ok(("cancelled", None)),
+                _ = cancel.changed() => return Ok((JobState::Cancelled, None)),
             }
         }
     };
@@ -862,15 +828,15 @@ async fn run(
             for cycle in 1..=plan.cycles {
                 for (i, pose) in poses.iter().enumerate() {
                     if *cancel.borrow_and_update() {
-                        return Ok(("cancelled", None));
+                        return Ok((JobState::Cancelled, None));
                     }
                     if rig.stop_generation() != gen {
-                        return Ok(("stopped", None));
+                        return Ok((JobState::Stopped, None));
                     }
                     if matches!(mode, ValidateMode::Table | ValidateMode::Model) {
                         let logged = tokio::select! {
                             r = rig.retry_transient("drift reference", || drift_reference(rig, plan, mode, cycle, origin_t, &writer, name)) => r?,
-                            _ = cancel.changed() => return Ok(("cancelled", None)),
+                            _ = cancel.changed() => return Ok((JobState::Cancelled, None)),
                         };
                         drift_refs += usize::from(logged);
                     }
@@ -888,7 +854,7 @@ async fn run(
                     );
                     let (cmd, reported, failure, correction) = tokio::select! {
                         r = rig.retry_transient(&what, || reach(rig, plan, mode, aim)) => r?,
-                        _ = cancel.changed() => return Ok(("cancelled", None)),
+                        _ = cancel.changed() => return Ok((JobState::Cancelled, None)),
                     };
                     if failure.is_some() {
                         loop_failures += 1;
@@ -958,7 +924,7 @@ async fn run(
         }
         results.insert((*segment).to_owned(), Value::Object(per_mode));
     }
-    Ok(("done", Some(Value::Object(results))))
+    Ok((JobState::Done, Some(Value::Object(results))))
 }
 
 #[cfg(test)]

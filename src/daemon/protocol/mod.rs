@@ -18,6 +18,8 @@
 //!   one object (serde_json would keep the last silently).
 //! * `fields`: the field readers `parse` is built from (type, range and
 //!   file-name checks with their error messages).
+//! * `job`: a long job's kind and state ([`JobKind`], [`JobState`]), as
+//!   replies and events carry them and clients read them.
 //! * `reply`: replies and events serialized to one line each.
 //! * `role`: the role each command needs ([`Role`], [`Command::role`]) and
 //!   which commands are audited.
@@ -25,6 +27,7 @@
 mod command;
 mod error;
 mod fields;
+mod job;
 mod parse;
 mod reply;
 mod role;
@@ -39,6 +42,7 @@ pub use command::{
     ValidateParams, COMMANDS,
 };
 pub use error::{ErrorCode, ProtoError};
+pub use job::{JobKind, JobState};
 pub use parse::{parse_request, too_large};
 pub use reply::{error_reply, event_line, ok_reply, reply_fields};
 pub use role::Role;

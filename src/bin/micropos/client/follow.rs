@@ -9,6 +9,7 @@
 //! between the start and the end).
 
 use super::{sweep_summary, Conn, Unreachable};
+use micropos::daemon::protocol::JobState;
 use serde_json::{json, Value};
 use std::io::{IsTerminal, Write};
 use std::process::ExitCode;
@@ -97,7 +98,10 @@ fn progress_line(ev: &Value) -> String {
 
 /// Whether a `job` object (event or status) is of a job that has ended.
 fn ended(job: &Value) -> bool {
-    job["state"].as_str().is_some_and(|s| s != "running")
+    // A state this client does not know (a newer daemon's) has ended too.
+    job["state"]
+        .as_str()
+        .is_some_and(|s| JobState::parse(s) != Some(JobState::Running))
 }
 
 /// Waits until the job the `started` reply announced ends; its last `job`
@@ -183,7 +187,7 @@ pub(super) fn report_end(
 
 /// Whether the job ended done: the only end a script may build on.
 fn ended_done(job: &Value) -> bool {
-    job["state"] == "done"
+    JobState::of(job) == Some(JobState::Done)
 }
 
 /// `characterize run1.csv: state done, 12/12 points (1 retry)`.
@@ -220,10 +224,12 @@ fn not_done(job: &Value) -> String {
     let kind = job["kind"].as_str().unwrap_or("job");
     let log = job["log"].as_str().unwrap_or("?");
     let state = job["state"].as_str().unwrap_or("?");
-    let why = match (job["error"].as_str(), state) {
+    let why = match (job["error"].as_str(), JobState::of(job)) {
         (Some(e), _) if !e.is_empty() => e.to_owned(),
-        (_, "cancelled") => "a client cancelled it".to_owned(),
-        (_, "stopped") => "a stop or a fault halted the rig (`micropos status`)".to_owned(),
+        (_, Some(JobState::Cancelled)) => "a client cancelled it".to_owned(),
+        (_, Some(JobState::Stopped)) => {
+            "a stop or a fault halted the rig (`micropos status`)".to_owned()
+        }
         _ => "no reason given".to_owned(),
     };
     let resume = if kind == "characterize" {

@@ -10,6 +10,7 @@
 //! `--json` prints the `status` reply alone, as before.
 
 use crate::fmt::{margin_short, rms_um, um};
+use micropos::daemon::protocol::JobState;
 use serde_json::Value;
 use std::fmt::Write;
 
@@ -339,7 +340,10 @@ pub(super) fn job_line(j: &Value) -> String {
         j["done"].as_u64().unwrap_or(0),
         j["total"].as_u64().unwrap_or(0)
     );
-    if let Some(eta) = j["eta_s"].as_f64().filter(|_| j["state"] == "running") {
+    if let Some(eta) = j["eta_s"]
+        .as_f64()
+        .filter(|_| JobState::of(j) == Some(JobState::Running))
+    {
         let _ = write!(s, ", ETA {eta:.0} s");
     }
     match j["retries"].as_u64() {
