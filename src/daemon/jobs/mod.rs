@@ -142,7 +142,8 @@ impl Jobs {
         rig.cfg.daemon.data_dir.join(name)
     }
 
-    /// Starts a new characterization.
+    /// Starts a new characterization. Every refusal comes before anything
+    /// moves or is written, in the order of the checks below.
     pub async fn start(&self, rig: &Arc<Rig>, p: CharacterizeParams) -> Result<Value, ProtoError> {
         if self.is_running() {
             return Err(ProtoError::new(
@@ -156,120 +157,20 @@ impl Jobs {
                 "characterization measures with the camera; none is configured (camera.source)",
             ));
         }
-        let d = &rig.cfg.characterize;
-        let axes = p.axes.unwrap_or(Axes::Both);
-        let grid = p.plan == Some(CharacterizePlan::Grid);
-        if p.pitch_um.is_some() && !grid {
-            return Err(ProtoError::new(
-                ErrorCode::BadValue,
-                "pitch_um is the grid plan's node spacing: give plan = \"grid\" (the scan lines take step_um)",
-            ));
-        }
-        if p.approach.is_some() && !grid {
-            return Err(ProtoError::new(
-                ErrorCode::BadValue,
-                "approach is how the grid plan reaches its nodes: give plan = \"grid\" (the scan lines are measured both ways already)",
-            ));
-        }
-        if p.order.is_some() && !grid {
-            return Err(ProtoError::new(
-                ErrorCode::BadValue,
-                "order is the grid plan's node order: give plan = \"grid\"",
-            ));
-        }
-        if p.order == Some(GridOrder::Serpentine) && p.approach != Some(GridApproach::Both) {
-            return Err(ProtoError::new(
-                ErrorCode::BadValue,
-                "a serpentine's returning rows reach x from above: give approach = \"both\" (every node is then measured each way on each axis)",
-            ));
-        }
-        if grid && p.mode == Some(CharacterizeMode::Sweep) {
-            return Err(ProtoError::new(
-                ErrorCode::BadValue,
-                "the grid plan is measured point by point: mode sweep scans lines only",
-            ));
-        }
-        let step_um = if grid {
-            p.pitch_um.or(p.step_um).unwrap_or(d.step_um)
-        } else {
-            p.step_um.unwrap_or(d.step_um)
-        };
-        let x_range_um = p.x_range_um.unwrap_or(d.x_range_um);
-        let y_range_um = p.y_range_um.unwrap_or(d.y_range_um);
-        let status = rig.status();
-        let centre = |axis: &str, range: f64| -> Result<f64, ProtoError> {
-            let l = &status["limits"][axis];
-            match (l[0].as_f64(), l[1].as_f64()) {
-                (Some(lo), Some(hi)) => {
-                    if hi - lo < range {
-                        Err(ProtoError::new(
-                            ErrorCode::OutOfTravel,
-                            format!(
-                                "{axis} range {range} µm exceeds the allowed travel {lo}..{hi} µm"
-                            ),
-                        ))
-                    } else {
-                        Ok((lo + hi - range) / 2.0)
-                    }
-                }
-                _ => Err(ProtoError::new(
-                    ErrorCode::NotConnected,
-                    "the controllers are not connected",
-                )),
-            }
-        };
-        let plan = ScanPlan {
-            grid,
-            grid_both: p.approach == Some(GridApproach::Both),
-            grid_serpentine: p.order == Some(GridOrder::Serpentine),
-            scan_x: axes.x(),
-            scan_y: axes.y(),
-            step_um,
-            x_start_um: match d.x_start_um {
-                Some(v) => v,
-                None => centre("x_um", x_range_um)?,
-            },
-            x_range_um,
-            y_start_um: match d.y_start_um {
-                Some(v) => v,
-                None => centre("y_um", y_range_um)?,
-            },
-            y_range_um,
-            cycles: p.cycles.unwrap_or(d.cycles),
-            frames_per_point: p.frames_per_point.unwrap_or(d.frames_per_point),
-            settle_s: p.settle_s.unwrap_or(d.settle_s),
-            moves_per_cycle: p.moves_per_cycle.unwrap_or(0),
-        };
-        if step_um > x_range_um.min(y_range_um) {
-            return Err(ProtoError::new(
-                ErrorCode::BadValue,
-                if grid {
-                    "the grid's pitch exceeds a range"
-                } else {
-                    "step_um exceeds a scan range"
-                },
-            ));
-        }
-        if plan.points_upper_bound() > MAX_PLAN_POINTS {
-            return Err(ProtoError::new(
-                ErrorCode::BadValue,
-                format!(
-                    "the plan has about {:.0} points, more than {MAX_PLAN_POINTS:.0}: a larger step or pitch, or smaller ranges",
-                    plan.points_upper_bound()
-                ),
-            ));
-        }
+        check_plan_options(&p)?;
+        let plan = scan_plan(rig, &p)?;
         let name = p
             .log
+            .clone()
             .unwrap_or_else(|| format!("charact-{}.csv", unix_seconds()));
-        let path = Self::log_path(rig, &name);
-        if path.exists() {
+        if Self::log_path(rig, &name).exists() {
             return Err(ProtoError::new(
                 ErrorCode::LogError,
                 format!("log {name} exists already; resume it or choose another name"),
             ));
         }
         // Both modes re-measure the same drift reference.
+        let d = &rig.cfg.characterize;
         let drift_every_s = p.drift_every_s.unwrap_or(d.drift_every_s);
         let drift = (drift_every_s > 0.0).then(|| DriftPlan {
             every_s: drift_every_s,
@@ -279,54 +180,7 @@ impl Jobs {
                 .unwrap_or([plan.x_start_um, plan.y_start_um]),
         });
         if p.mode == Some(CharacterizeMode::Sweep) {
-            let sweep = sweep::SweepPlan {
-                scan_x: plan.scan_x,
-                scan_y: plan.scan_y,
-                step_um: plan.step_um,
-                x_start_um: plan.x_start_um,
-                x_range_um: plan.x_range_um,
-                y_start_um: plan.y_start_um,
-                y_range_um: plan.y_range_um,
-                cycles: plan.cycles,
-                velocity_um_per_s: p
-                    .velocity_um_per_s
-                    .unwrap_or(DEFAULT_SWEEP_VELOCITY_UM_PER_S),
-                anchor_spacing_um: p
-                    .anchor_spacing_um
-                    .unwrap_or(sweep_anchor::DEFAULT_ANCHOR_SPACING_UM),
-            };
-            sweep
-                .validate()
-                .map_err(|e| ProtoError::new(ErrorCode::BadValue, e.to_string()))?;
-            let companions = [
-                ("uncorrected_log", &p.uncorrected_log),
-                ("unanchored_log", &p.unanchored_log),
-            ];
-            for (key, u) in companions {
-                let Some(u) = u else { continue };
-                let clash = u == &name
-                    || companions
-                        .iter()
-                        .any(|(k, o)| *k != key && o.as_ref() == Some(u));
-                if clash || Self::log_path(rig, u).exists() {
-                    return Err(ProtoError::new(
-                        ErrorCode::LogError,
-                        format!("{key} {u} exists already or names another log of the job"),
-                    ));
-                }
-            }
-            rig.begin_job()?;
-            let total = sweep.records_total();
-            let args = sweep_job::SweepArgs {
-                plan: sweep,
-                name,
-                uncorrected: p.uncorrected_log,
-                unanchored: p.unanchored_log,
-                frames_per_point: plan.frames_per_point,
-                settle_s: plan.settle_s,
-                drift,
-            };
-            return Ok(self.launch_sweep(rig, args, total));
+            return self.start_sweep(rig, p, &plan, name, drift);
         }
         rig.begin_job()?;
         let total = plan.points().len();
@@ -337,6 +191,66 @@ impl Jobs {
             resumed: None,
         };
         Ok(self.launch(rig, job, 0, total))
+    }
+
+    /// The sweep mode's part of [`Jobs::start`]: its plan from the step
+    /// plan's area, and its companion logs checked.
+    fn start_sweep(
+        &self,
+        rig: &Arc<Rig>,
+        p: CharacterizeParams,
+        plan: &ScanPlan,
+        name: String,
+        drift: Option<DriftPlan>,
+    ) -> Result<Value, ProtoError> {
+        let sweep = sweep::SweepPlan {
+            scan_x: plan.scan_x,
+            scan_y: plan.scan_y,
+            step_um: plan.step_um,
+            x_start_um: plan.x_start_um,
+            x_range_um: plan.x_range_um,
+            y_start_um: plan.y_start_um,
+            y_range_um: plan.y_range_um,
+            cycles: plan.cycles,
+            velocity_um_per_s: p
+                .velocity_um_per_s
+                .unwrap_or(DEFAULT_SWEEP_VELOCITY_UM_PER_S),
+            anchor_spacing_um: p
+                .anchor_spacing_um
+                .unwrap_or(sweep_anchor::DEFAULT_ANCHOR_SPACING_UM),
+        };
+        sweep
+            .validate()
+            .map_err(|e| ProtoError::new(ErrorCode::BadValue, e.to_string()))?;
+        let companions = [
+            ("uncorrected_log", &p.uncorrected_log),
+            ("unanchored_log", &p.unanchored_log),
+        ];
+        for (key, u) in companions {
+            let Some(u) = u else { continue };
+            let clash = u == &name
+                || companions
+                    .iter()
+                    .any(|(k, o)| *k != key && o.as_ref() == Some(u));
+            if clash || Self::log_path(rig, u).exists() {
+                return Err(ProtoError::new(
+                    ErrorCode::LogError,
+                    format!("{key} {u} exists already or names another log of the job"),
+                ));
+            }
+        }
+        rig.begin_job()?;
+        let total = sweep.records_total();
+        let args = sweep_job::SweepArgs {
+            plan: sweep,
+            name,
+            uncorrected: p.uncorrected_log,
+            unanchored: p.unanchored_log,
+            frames_per_point: plan.frames_per_point,
+            settle_s: plan.settle_s,
+            drift,
+        };
+        Ok(self.launch_sweep(rig, args, total))
     }
 
     /// Resumes a job from its log.
@@ -497,6 +411,100 @@ struct StepJob {
     drift: Option<DriftPlan>,
     name: String,
     resumed: Option<(LogWriter<File>, VisionFrame, f64)>,
+}
+
+/// Refuses the options that belong to another plan or mode than the one
+/// requested (each names the option that would make sense of it).
+fn check_plan_options(p: &CharacterizeParams) -> Result<(), ProtoError> {
+    let grid = p.plan == Some(CharacterizePlan::Grid);
+    let refusal = if p.pitch_um.is_some() && !grid {
+        "pitch_um is the grid plan's node spacing: give plan = \"grid\" (the scan lines take step_um)"
+    } else if p.approach.is_some() && !grid {
+        "approach is how the grid plan reaches its nodes: give plan = \"grid\" (the scan lines are measured both ways already)"
+    } else if p.order.is_some() && !grid {
+        "order is the grid plan's node order: give plan = \"grid\""
+    } else if p.order == Some(GridOrder::Serpentine) && p.approach != Some(GridApproach::Both) {
+        "a serpentine's returning rows reach x from above: give approach = \"both\" (every node is then measured each way on each axis)"
+    } else if grid && p.mode == Some(CharacterizeMode::Sweep) {
+        "the grid plan is measured point by point: mode sweep scans lines only"
+    } else {
+        return Ok(());
+    };
+    Err(ProtoError::new(ErrorCode::BadValue, refusal))
+}
+
+/// The step or grid plan a start request asks for: the request's values,
+/// else the configuration's; an area the configuration does not place is
+/// centred in the allowed travel. Refused when the area does not fit the
+/// travel, the step exceeds a range, or the plan is too large.
+fn scan_plan(rig: &Rig, p: &CharacterizeParams) -> Result<ScanPlan, ProtoError> {
+    let d = &rig.cfg.characterize;
+    let axes = p.axes.unwrap_or(Axes::Both);
+    let grid = p.plan == Some(CharacterizePlan::Grid);
+    let step_um = if grid {
+        p.pitch_um.or(p.step_um).unwrap_or(d.step_um)
+    } else {
+        p.step_um.unwrap_or(d.step_um)
+    };
+    let x_range_um = p.x_range_um.unwrap_or(d.x_range_um);
+    let y_range_um = p.y_range_um.unwrap_or(d.y_range_um);
+    let status = rig.status();
+    let start = |configured: Option<f64>, axis: &str, range: f64| match configured {
+        Some(v) => Ok(v),
+        None => centred_start(&status["limits"][axis], axis, range),
+    };
+    let plan = ScanPlan {
+        grid,
+        grid_both: p.approach == Some(GridApproach::Both),
+        grid_serpentine: p.order == Some(GridOrder::Serpentine),
+        scan_x: axes.x(),
+        scan_y: axes.y(),
+        step_um,
+        x_start_um: start(d.x_start_um, "x_um", x_range_um)?,
+        x_range_um,
+        y_start_um: start(d.y_start_um, "y_um", y_range_um)?,
+        y_range_um,
+        cycles: p.cycles.unwrap_or(d.cycles),
+        frames_per_point: p.frames_per_point.unwrap_or(d.frames_per_point),
+        settle_s: p.settle_s.unwrap_or(d.settle_s),
+        moves_per_cycle: p.moves_per_cycle.unwrap_or(0),
+    };
+    if step_um > x_range_um.min(y_range_um) {
+        return Err(ProtoError::new(
+            ErrorCode::BadValue,
+            if grid {
+                "the grid's pitch exceeds a range"
+            } else {
+                "step_um exceeds a scan range"
+            },
+        ));
+    }
+    if plan.points_upper_bound() > MAX_PLAN_POINTS {
+        return Err(ProtoError::new(
+            ErrorCode::BadValue,
+            format!(
+                "the plan has about {:.0} points, more than {MAX_PLAN_POINTS:.0}: a larger step or pitch, or smaller ranges",
+                plan.points_upper_bound()
+            ),
+        ));
+    }
+    Ok(plan)
+}
+
+/// The start of a `range` µm long scan centred in the allowed travel
+/// `limits` (status's `[lo, hi]` of `axis`, µm).
+fn centred_start(limits: &Value, axis: &str, range: f64) -> Result<f64, ProtoError> {
+    match (limits[0].as_f64(), limits[1].as_f64()) {
+        (Some(lo), Some(hi)) if hi - lo < range => Err(ProtoError::new(
+            ErrorCode::OutOfTravel,
+            format!("{axis} range {range} µm exceeds the allowed travel {lo}..{hi} µm"),
+        )),
+        (Some(lo), Some(hi)) => Ok((lo + hi - range) / 2.0),
+        _ => Err(ProtoError::new(
+            ErrorCode::NotConnected,
+            "the controllers are not connected",
+        )),
+    }
 }
 
 fn unix_seconds() -> u64 {

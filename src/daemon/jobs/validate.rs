@@ -241,7 +241,9 @@ impl Jobs {
         json!({"job": job, "validation": results})
     }
 
-    /// `validate start`.
+    /// `validate start`. Every refusal comes before anything moves: the
+    /// tables the modes need, every pose inside the travel, and every pose
+    /// of a compensated mode inside its table's area.
     pub async fn start_validation(
         &self,
         rig: &Arc<Rig>,
@@ -259,57 +261,14 @@ impl Jobs {
                 "validation measures with the camera; none is configured (camera.source)",
             ));
         }
-        let needs_table = p.modes.iter().any(|m| matches!(m, ValidateMode::Table));
-        let needs_model = p.modes.contains(&ValidateMode::Model);
-        let needs_any = p.modes.contains(&ValidateMode::ClosedLoop);
-        let mut comps = Comps {
-            table: None,
-            model: None,
-        };
-        if needs_table || p.table.is_some() {
-            comps.table = Some(resolve(rig, p.table.as_deref(), CompKind::Lookup, "table").await?);
-        }
-        if needs_model || p.model_table.is_some() {
-            comps.model =
-                Some(resolve(rig, p.model_table.as_deref(), CompKind::Model, "model").await?);
-        }
-        if needs_any && comps.table.is_none() && comps.model.is_none() {
-            comps.table = resolve(rig, None, CompKind::Lookup, "closed_loop")
-                .await
-                .ok();
-            if comps.table.is_none() {
-                comps.model = Some(resolve(rig, None, CompKind::Model, "closed_loop").await?);
-            }
-        }
-        if needs_any
-            && comps
-                .for_mode(ValidateMode::ClosedLoop)
-                .and_then(|a| a.frame)
-                .is_none()
-        {
-            return Err(ProtoError::new(
-                ErrorCode::NoActiveTable,
-                "closed_loop needs a table that records the vision frame (built by tables build)",
-            ));
-        }
+        let comps = resolve_comps(rig, &p).await?;
         let frame = comps
             .table
             .as_ref()
             .and_then(|a| a.frame)
             .or_else(|| comps.model.as_ref().and_then(|a| a.frame));
         let d = &rig.cfg.characterize;
-        let status = rig.status();
-        let limits = |axis: &str| -> Result<(f64, f64), ProtoError> {
-            let l = &status["limits"][axis];
-            match (l[0].as_f64(), l[1].as_f64()) {
-                (Some(lo), Some(hi)) => Ok((lo, hi)),
-                _ => Err(ProtoError::new(
-                    ErrorCode::NotConnected,
-                    "the controllers are not connected",
-                )),
-            }
-        };
-        let (xl, yl) = (limits("x_um")?, limits("y_um")?);
+        let travel = travel(rig)?;
         let mut tests = Vec::new();
         for t in &p.tests {
             if t == "square" {
@@ -322,35 +281,7 @@ impl Jobs {
             }
         }
         let span = pose_span(&tests);
-        let travel = [xl, yl];
-        let fits = span.map(|s| [0, 1].map(|a| origin_range(s[a], travel[a])));
-        // Unless named: the characterization start, so that the validation
-        // covers the characterized area as in the paper. Along an axis where
-        // the poses would leave the travel from there (a scan of a small
-        // area, centred in the travel), the paper's own placement instead:
-        // from the travel's start (its scans and validation ran from 0),
-        // `ORIGIN_CLEARANCE_UM` in where the travel allows.
-        let preferred = [
-            d.x_start_um.unwrap_or((xl.0 + xl.1 - d.x_range_um) / 2.0),
-            d.y_start_um.unwrap_or((yl.0 + yl.1 - d.y_range_um) / 2.0),
-        ];
-        let named = [p.origin_x_um, p.origin_y_um];
-        let o = [0, 1].map(|a| {
-            let plain = fits.and_then(|f| f[a]);
-            let c = ORIGIN_CLEARANCE_UM;
-            let cleared = span.and_then(|s| origin_range(s[a], (travel[a].0 + c, travel[a].1 - c)));
-            match named[a] {
-                Some(v) => v,
-                None if plain.is_some_and(|(lo, hi)| (lo..=hi).contains(&preferred[a])) => {
-                    preferred[a]
-                }
-                None => cleared.or(plain).map_or(preferred[a], |(lo, _)| lo),
-            }
-        });
-        let origin = XyUm {
-            x_um: o[0],
-            y_um: o[1],
-        };
+        let origin = validation_origin(d, &p, span, travel);
         let plan = Plan {
             tests,
             modes: p.modes.clone(),
@@ -361,86 +292,8 @@ impl Jobs {
             comps,
             frame,
         };
-        for (_, poses) in &plan.tests {
-            for pose in poses {
-                let t = plan.target(pose);
-                if !(xl.0..=xl.1).contains(&t.x_um) || !(yl.0..=yl.1).contains(&t.y_um) {
-                    return Err(ProtoError::new(
-                        ErrorCode::OutOfTravel,
-                        format!(
-                            "validation pose {} would be at ({:.1}, {:.1}) µm with the origin ({:.1}, {:.1}) µm, outside the travel x {:.1} … {:.1} µm, y {:.1} … {:.1} µm; {}",
-                            pose.label,
-                            t.x_um,
-                            t.y_um,
-                            origin.x_um,
-                            origin.y_um,
-                            xl.0,
-                            xl.1,
-                            yl.0,
-                            yl.1,
-                            origin_advice(
-                                span,
-                                travel,
-                                "the travel",
-                                "validate fewer poses (validate start --test square, or --test random)"
-                            )
-                        ),
-                    ));
-                }
-            }
-        }
-        // Compensated modes outside their table's characterized area:
-        // refused (or warned) before anything moves. The targets are in the
-        // measuring frame; a table's frame differs from it by a tie's drift
-        // (≈ 0.5 µm), which `outside_margin_um` absorbs.
-        let cfg = rig.live.compensation();
-        let mut warnings = Vec::new();
-        for mode in &plan.modes {
-            if !matches!(mode, ValidateMode::Table | ValidateMode::Model) {
-                continue;
-            }
-            let Some(a) = plan.comps.for_mode(*mode) else {
-                continue;
-            };
-            for (_, poses) in &plan.tests {
-                if let Some(w) = poses.iter().find_map(|pose| {
-                    let what = format!("mode {} pose {}", mode.as_str(), pose.label);
-                    check_area(&*a.comp, &a.name, plan.target(pose), &cfg, &what).transpose()
-                }) {
-                    let w = w.map_err(|e| {
-                        let inside = a.comp.characterized_area().map(|r| {
-                            let m = cfg.outside_margin_um;
-                            let within = |r: [f64; 2], t: (f64, f64)| {
-                                ((r[0] - m).max(t.0), (r[1] + m).min(t.1))
-                            };
-                            [within(r.x_um, xl), within(r.y_um, yl)]
-                        });
-                        let advice = inside.map_or_else(String::new, |b| {
-                            format!(
-                                "; {}",
-                                origin_advice(
-                                    span,
-                                    b,
-                                    "that area and the travel",
-                                    "characterize an area that covers them, or validate without table \
-                                     modes (validate start --modes raw,closed_loop)"
-                                )
-                            )
-                        });
-                        ProtoError::new(
-                            e.code,
-                            format!(
-                                "{}; the validation origin is ({:.1}, {:.1}) µm{advice}",
-                                e.message, origin.x_um, origin.y_um
-                            ),
-                        )
-                    })?;
-                    if let Some(t) = w.get("warning") {
-                        warnings.push(t.clone());
-                    }
-                }
-            }
-        }
+        check_poses_in_travel(&plan, span, travel)?;
+        let warnings = check_table_areas(rig, &plan, span, travel)?;
         let name = p
             .log
             .clone()
@@ -474,6 +327,209 @@ impl Jobs {
         }
         Ok(out)
     }
+}
+
+/// The tables the requested modes use: named in the request, else the
+/// latest loaded of their kind (`closed_loop` takes the lookup table, else
+/// the model table). Refused when one is missing, or when `closed_loop`'s
+/// table does not record the vision frame it corrects in.
+async fn resolve_comps(rig: &Rig, p: &ValidateParams) -> Result<Comps, ProtoError> {
+    let needs_table = p.modes.iter().any(|m| matches!(m, ValidateMode::Table));
+    let needs_model = p.modes.contains(&ValidateMode::Model);
+    let needs_any = p.modes.contains(&ValidateMode::ClosedLoop);
+    let mut comps = Comps {
+        table: None,
+        model: None,
+    };
+    if needs_table || p.table.is_some() {
+        comps.table = Some(resolve(rig, p.table.as_deref(), CompKind::Lookup, "table").await?);
+    }
+    if needs_model || p.model_table.is_some() {
+        comps.model = Some(resolve(rig, p.model_table.as_deref(), CompKind::Model, "model").await?);
+    }
+    if needs_any && comps.table.is_none() && comps.model.is_none() {
+        comps.table = resolve(rig, None, CompKind::Lookup, "closed_loop")
+            .await
+            .ok();
+        if comps.table.is_none() {
+            comps.model = Some(resolve(rig, None, CompKind::Model, "closed_loop").await?);
+        }
+    }
+    if needs_any
+        && comps
+            .for_mode(ValidateMode::ClosedLoop)
+            .and_then(|a| a.frame)
+            .is_none()
+    {
+        return Err(ProtoError::new(
+            ErrorCode::NoActiveTable,
+            "closed_loop needs a table that records the vision frame (built by tables build)",
+        ));
+    }
+    Ok(comps)
+}
+
+/// The allowed travel `[(x_lo, x_hi), (y_lo, y_hi)]`, µm, from the
+/// controllers' limits; refused while they are not connected.
+fn travel(rig: &Rig) -> Result<[(f64, f64); 2], ProtoError> {
+    let status = rig.status();
+    let limits = |axis: &str| -> Result<(f64, f64), ProtoError> {
+        let l = &status["limits"][axis];
+        match (l[0].as_f64(), l[1].as_f64()) {
+            (Some(lo), Some(hi)) => Ok((lo, hi)),
+            _ => Err(ProtoError::new(
+                ErrorCode::NotConnected,
+                "the controllers are not connected",
+            )),
+        }
+    };
+    Ok([limits("x_um")?, limits("y_um")?])
+}
+
+/// Where the paper's (0, 0) goes on the stage, µm: the request's, else the
+/// characterization start, so that the validation covers the
+/// characterized area as in the paper. Along an axis where the poses
+/// (spanning `span`) would leave the travel from there (a scan of a small
+/// area, centred in the travel), the paper's own placement instead: from
+/// the travel's start (its scans and validation ran from 0),
+/// `ORIGIN_CLEARANCE_UM` in where the travel allows.
+fn validation_origin(
+    d: &crate::daemon::config::CharacterizeDefaults,
+    p: &ValidateParams,
+    span: Option<[[f64; 2]; 2]>,
+    travel: [(f64, f64); 2],
+) -> XyUm {
+    let [xl, yl] = travel;
+    let fits = span.map(|s| [0, 1].map(|a| origin_range(s[a], travel[a])));
+    let preferred = [
+        d.x_start_um.unwrap_or((xl.0 + xl.1 - d.x_range_um) / 2.0),
+        d.y_start_um.unwrap_or((yl.0 + yl.1 - d.y_range_um) / 2.0),
+    ];
+    let named = [p.origin_x_um, p.origin_y_um];
+    let o = [0, 1].map(|a| {
+        let plain = fits.and_then(|f| f[a]);
+        let c = ORIGIN_CLEARANCE_UM;
+        let cleared = span.and_then(|s| origin_range(s[a], (travel[a].0 + c, travel[a].1 - c)));
+        match named[a] {
+            Some(v) => v,
+            None if plain.is_some_and(|(lo, hi)| (lo..=hi).contains(&preferred[a])) => preferred[a],
+            None => cleared.or(plain).map_or(preferred[a], |(lo, _)| lo),
+        }
+    });
+    XyUm {
+        x_um: o[0],
+        y_um: o[1],
+    }
+}
+
+/// Refuses a plan with a pose outside the travel (`out_of_travel`, with
+/// the range of origins that fits).
+fn check_poses_in_travel(
+    plan: &Plan,
+    span: Option<[[f64; 2]; 2]>,
+    travel: [(f64, f64); 2],
+) -> Result<(), ProtoError> {
+    let ([xl, yl], origin) = (travel, plan.origin);
+    for (_, poses) in &plan.tests {
+        for pose in poses {
+            let t = plan.target(pose);
+            if !(xl.0..=xl.1).contains(&t.x_um) || !(yl.0..=yl.1).contains(&t.y_um) {
+                return Err(ProtoError::new(
+                    ErrorCode::OutOfTravel,
+                    format!(
+                        "validation pose {} would be at ({:.1}, {:.1}) µm with the origin ({:.1}, {:.1}) µm, outside the travel x {:.1} … {:.1} µm, y {:.1} … {:.1} µm; {}",
+                        pose.label,
+                        t.x_um,
+                        t.y_um,
+                        origin.x_um,
+                        origin.y_um,
+                        xl.0,
+                        xl.1,
+                        yl.0,
+                        yl.1,
+                        origin_advice(
+                            span,
+                            travel,
+                            "the travel",
+                            "validate fewer poses (validate start --test square, or --test random)"
+                        )
+                    ),
+                ));
+            }
+        }
+    }
+    Ok(())
+}
+
+/// Compensated modes outside their table's characterized area: refused
+/// (or warned: the warnings returned) before anything moves. The targets
+/// are in the measuring frame; a table's frame differs from it by a tie's
+/// drift (≈ 0.5 µm), which `outside_margin_um` absorbs.
+fn check_table_areas(
+    rig: &Rig,
+    plan: &Plan,
+    span: Option<[[f64; 2]; 2]>,
+    travel: [(f64, f64); 2],
+) -> Result<Vec<Value>, ProtoError> {
+    let cfg = rig.live.compensation();
+    let mut warnings = Vec::new();
+    for mode in &plan.modes {
+        if !matches!(mode, ValidateMode::Table | ValidateMode::Model) {
+            continue;
+        }
+        let Some(a) = plan.comps.for_mode(*mode) else {
+            continue;
+        };
+        for (_, poses) in &plan.tests {
+            if let Some(w) = poses.iter().find_map(|pose| {
+                let what = format!("mode {} pose {}", mode.as_str(), pose.label);
+                check_area(&*a.comp, &a.name, plan.target(pose), &cfg, &what).transpose()
+            }) {
+                let w = w.map_err(|e| outside_table(e, &a, &cfg, plan.origin, span, travel))?;
+                if let Some(t) = w.get("warning") {
+                    warnings.push(t.clone());
+                }
+            }
+        }
+    }
+    Ok(warnings)
+}
+
+/// A table-area refusal with the origin and the range of origins that
+/// keeps the poses inside both the table's area and the travel.
+fn outside_table(
+    e: ProtoError,
+    a: &Active,
+    cfg: &crate::daemon::config::CompensationSection,
+    origin: XyUm,
+    span: Option<[[f64; 2]; 2]>,
+    travel: [(f64, f64); 2],
+) -> ProtoError {
+    let [xl, yl] = travel;
+    let inside = a.comp.characterized_area().map(|r| {
+        let m = cfg.outside_margin_um;
+        let within = |r: [f64; 2], t: (f64, f64)| ((r[0] - m).max(t.0), (r[1] + m).min(t.1));
+        [within(r.x_um, xl), within(r.y_um, yl)]
+    });
+    let advice = inside.map_or_else(String::new, |b| {
+        format!(
+            "; {}",
+            origin_advice(
+                span,
+                b,
+                "that area and the travel",
+                "characterize an area that covers them, or validate without table \
+                 modes (validate start --modes raw,closed_loop)"
+            )
+        )
+    });
+    ProtoError::new(
+        e.code,
+        format!(
+            "{}; the validation origin is ({:.1}, {:.1}) µm{advice}",
+            e.message, origin.x_um, origin.y_um
+        ),
+    )
 }
 
 /// The span of the poses' paper coordinates, `[[x_lo, x_hi], [y_lo,
