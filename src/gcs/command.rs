@@ -365,177 +365,193 @@ impl Command {
     /// Parses a received command line (address prefix already removed).
     ///
     /// Mnemonics are case-sensitive upper case, as on PI controllers;
-    /// arguments are separated by one or more spaces.
+    /// arguments are separated by one or more spaces. Each family of
+    /// commands (no arguments, axes, axis-value pairs, tables and
+    /// parameters) has its own reader; a mnemonic belongs to one only.
     pub fn parse(line: &str) -> Result<Self, CommandError> {
         let mut words = line.split(' ').filter(|w| !w.is_empty());
         let Some(mnemonic) = words.next() else {
             return Err(CommandError::Unknown(String::new()));
         };
         let args: Vec<&str> = words.collect();
-        let axes = |cmd: &'static str| -> Result<Axes, CommandError> {
-            let _ = cmd;
-            args.iter().map(|a| AxisId::new(a)).collect()
-        };
-        let none = |cmd: &'static str, c: Command| -> Result<Command, CommandError> {
-            if args.is_empty() {
+        if let Some((cmd, c)) = Self::without_args(mnemonic) {
+            return if args.is_empty() {
                 Ok(c)
             } else {
                 Err(CommandError::ArgCount { cmd })
-            }
-        };
-        let pairs = |cmd: &'static str| -> Result<Vec<(AxisId, f64)>, CommandError> {
-            if args.is_empty() || args.len() % 2 != 0 {
-                return Err(CommandError::ArgCount { cmd });
-            }
-            args.chunks(2)
-                .map(|c| Ok((AxisId::new(c[0])?, parse_f64(cmd, c[1])?)))
-                .collect()
-        };
-        let bools = |cmd: &'static str| -> Result<Vec<(AxisId, bool)>, CommandError> {
-            if args.is_empty() || args.len() % 2 != 0 {
-                return Err(CommandError::ArgCount { cmd });
-            }
-            args.chunks(2)
-                .map(|c| {
-                    let v = match c[1] {
-                        "0" => false,
-                        "1" => true,
-                        other => {
-                            return Err(CommandError::BadNumber {
-                                cmd,
-                                arg: other.to_owned(),
-                            })
-                        }
-                    };
-                    Ok((AxisId::new(c[0])?, v))
-                })
-                .collect()
-        };
-        Ok(match mnemonic {
-            "*IDN?" => none("*IDN?", Self::Idn)?,
-            "CSV?" => none("CSV?", Self::Csv)?,
-            "ERR?" => none("ERR?", Self::Err)?,
-            "HLP?" => none("HLP?", Self::Hlp)?,
-            "HPA?" => none("HPA?", Self::Hpa)?,
-            "VER?" => none("VER?", Self::Ver)?,
-            "STP" => none("STP", Self::Stp)?,
-            "TNR?" => none("TNR?", Self::TnrQuery)?,
-            "HDR?" => none("HDR?", Self::HdrQuery)?,
-            "RTR?" => none("RTR?", Self::RtrQuery)?,
-            "RTR" => match args.as_slice() {
-                [r] => Self::Rtr(parse_u32("RTR", r)?),
-                _ => return Err(CommandError::ArgCount { cmd: "RTR" }),
-            },
-            "DRC?" => Self::DrcQuery(u32_list("DRC?", &args)?),
-            "DRL?" => Self::DrlQuery(u32_list("DRL?", &args)?),
-            "DRC" => {
-                if args.is_empty() || args.len() % 3 != 0 {
-                    return Err(CommandError::ArgCount { cmd: "DRC" });
-                }
-                Self::Drc(
-                    args.chunks(3)
-                        .map(|c| {
-                            Ok((
-                                parse_u32("DRC", c[0])?,
-                                AxisId::new(c[1])?,
-                                parse_u32("DRC", c[2])?,
-                            ))
-                        })
-                        .collect::<Result<_, CommandError>>()?,
-                )
-            }
-            "DRT" => {
-                if args.is_empty() || args.len() % 3 != 0 {
-                    return Err(CommandError::ArgCount { cmd: "DRT" });
-                }
-                Self::Drt(
-                    args.chunks(3)
-                        .map(|c| {
-                            Ok((
-                                parse_u32("DRT", c[0])?,
-                                parse_u32("DRT", c[1])?,
-                                c[2].to_owned(),
-                            ))
-                        })
-                        .collect::<Result<_, CommandError>>()?,
-                )
-            }
-            "DRR?" => {
-                let nums = u32_list("DRR?", &args)?;
-                match nums.as_slice() {
-                    [] => Self::DrrQuery {
-                        start: None,
-                        count: None,
-                        tables: Vec::new(),
-                    },
-                    [a] => Self::DrrQuery {
-                        start: Some(*a),
-                        count: None,
-                        tables: Vec::new(),
-                    },
-                    [a, n, t @ ..] => Self::DrrQuery {
-                        start: Some(*a),
-                        count: Some(*n),
-                        tables: t.to_vec(),
-                    },
-                }
-            }
-            "SAI?" => match args.as_slice() {
-                [] => Self::SaiQuery { all: false },
-                ["ALL"] => Self::SaiQuery { all: true },
-                _ => return Err(CommandError::ArgCount { cmd: "SAI?" }),
-            },
-            "CST?" => Self::CstQuery(axes("CST?")?),
-            "TMN?" => Self::TmnQuery(axes("TMN?")?),
-            "TMX?" => Self::TmxQuery(axes("TMX?")?),
-            "POS?" => Self::PosQuery(axes("POS?")?),
-            "MOV?" => Self::MovQuery(axes("MOV?")?),
-            "ONT?" => Self::OntQuery(axes("ONT?")?),
-            "FRF?" => Self::FrfQuery(axes("FRF?")?),
-            "SVO?" => Self::SvoQuery(axes("SVO?")?),
-            "VEL?" => Self::VelQuery(axes("VEL?")?),
-            "ACC?" => Self::AccQuery(axes("ACC?")?),
-            "DEC?" => Self::DecQuery(axes("DEC?")?),
-            "RON?" => Self::RonQuery(axes("RON?")?),
-            "FRF" => Self::Frf(axes("FRF")?),
-            "FNL" => Self::Fnl(axes("FNL")?),
-            "FPL" => Self::Fpl(axes("FPL")?),
-            "HLT" => Self::Hlt(axes("HLT")?),
-            "SVO" => Self::Svo(bools("SVO")?),
-            "RON" => Self::Ron(bools("RON")?),
-            "MOV" => Self::Mov(pairs("MOV")?),
-            "MVR" => Self::Mvr(pairs("MVR")?),
-            "VEL" => Self::Vel(pairs("VEL")?),
-            "ACC" => Self::Acc(pairs("ACC")?),
-            "DEC" => Self::Dec(pairs("DEC")?),
-            "SPA?" => {
-                if args.len() % 2 != 0 {
-                    return Err(CommandError::ArgCount { cmd: "SPA?" });
-                }
-                Self::SpaQuery(
-                    args.chunks(2)
-                        .map(|c| Ok((AxisId::new(c[0])?, parse_param_id("SPA?", c[1])?)))
-                        .collect::<Result<_, CommandError>>()?,
-                )
-            }
-            "SPA" => {
-                if args.is_empty() || args.len() % 3 != 0 {
-                    return Err(CommandError::ArgCount { cmd: "SPA" });
-                }
-                Self::Spa(
-                    args.chunks(3)
-                        .map(|c| {
-                            Ok((
-                                AxisId::new(c[0])?,
-                                parse_param_id("SPA", c[1])?,
-                                c[2].to_owned(),
-                            ))
-                        })
-                        .collect::<Result<_, CommandError>>()?,
-                )
-            }
-            other => return Err(CommandError::Unknown(other.to_owned())),
+            };
+        }
+        Self::on_axes(mnemonic, &args)
+            .or_else(|| Self::axis_values(mnemonic, &args))
+            .or_else(|| Self::tables_and_parameters(mnemonic, &args))
+            .unwrap_or_else(|| Err(CommandError::Unknown(mnemonic.to_owned())))
+    }
+
+    /// The commands that take no argument, with their mnemonic.
+    fn without_args(mnemonic: &str) -> Option<(&'static str, Self)> {
+        Some(match mnemonic {
+            "*IDN?" => ("*IDN?", Self::Idn),
+            "CSV?" => ("CSV?", Self::Csv),
+            "ERR?" => ("ERR?", Self::Err),
+            "HLP?" => ("HLP?", Self::Hlp),
+            "HPA?" => ("HPA?", Self::Hpa),
+            "VER?" => ("VER?", Self::Ver),
+            "STP" => ("STP", Self::Stp),
+            "TNR?" => ("TNR?", Self::TnrQuery),
+            "HDR?" => ("HDR?", Self::HdrQuery),
+            "RTR?" => ("RTR?", Self::RtrQuery),
+            _ => return None,
         })
+    }
+
+    /// The commands whose arguments are axes (none: every axis).
+    fn on_axes(mnemonic: &str, args: &[&str]) -> Option<Result<Self, CommandError>> {
+        let make: fn(Axes) -> Self = match mnemonic {
+            "CST?" => Self::CstQuery,
+            "TMN?" => Self::TmnQuery,
+            "TMX?" => Self::TmxQuery,
+            "POS?" => Self::PosQuery,
+            "MOV?" => Self::MovQuery,
+            "ONT?" => Self::OntQuery,
+            "FRF?" => Self::FrfQuery,
+            "SVO?" => Self::SvoQuery,
+            "VEL?" => Self::VelQuery,
+            "ACC?" => Self::AccQuery,
+            "DEC?" => Self::DecQuery,
+            "RON?" => Self::RonQuery,
+            "FRF" => Self::Frf,
+            "FNL" => Self::Fnl,
+            "FPL" => Self::Fpl,
+            "HLT" => Self::Hlt,
+            _ => return None,
+        };
+        Some(
+            args.iter()
+                .map(|a| AxisId::new(a))
+                .collect::<Result<_, _>>()
+                .map(make),
+        )
+    }
+
+    /// The commands whose arguments are axis-value pairs: numbers, or
+    /// switches (`0`, `1`).
+    fn axis_values(mnemonic: &str, args: &[&str]) -> Option<Result<Self, CommandError>> {
+        let numbers = |cmd, make: fn(Vec<(AxisId, f64)>) -> Self| {
+            groups::<2, _>(cmd, args, |c| {
+                Ok((AxisId::new(c[0])?, parse_f64(cmd, c[1])?))
+            })
+            .map(make)
+        };
+        let switches = |cmd, make: fn(Vec<(AxisId, bool)>) -> Self| {
+            groups::<2, _>(cmd, args, |c| {
+                Ok((AxisId::new(c[0])?, parse_switch(cmd, c[1])?))
+            })
+            .map(make)
+        };
+        Some(match mnemonic {
+            "SVO" => switches("SVO", Self::Svo),
+            "RON" => switches("RON", Self::Ron),
+            "MOV" => numbers("MOV", Self::Mov),
+            "MVR" => numbers("MVR", Self::Mvr),
+            "VEL" => numbers("VEL", Self::Vel),
+            "ACC" => numbers("ACC", Self::Acc),
+            "DEC" => numbers("DEC", Self::Dec),
+            _ => return None,
+        })
+    }
+
+    /// The data recorder's and the parameters' commands.
+    fn tables_and_parameters(mnemonic: &str, args: &[&str]) -> Option<Result<Self, CommandError>> {
+        let c = || -> Result<Option<Self>, CommandError> {
+            Ok(Some(match mnemonic {
+                "RTR" => match args {
+                    [r] => Self::Rtr(parse_u32("RTR", r)?),
+                    _ => return Err(CommandError::ArgCount { cmd: "RTR" }),
+                },
+                "DRC?" => Self::DrcQuery(u32_list("DRC?", args)?),
+                "DRL?" => Self::DrlQuery(u32_list("DRL?", args)?),
+                "DRC" => Self::Drc(groups::<3, _>("DRC", args, |c| {
+                    Ok((
+                        parse_u32("DRC", c[0])?,
+                        AxisId::new(c[1])?,
+                        parse_u32("DRC", c[2])?,
+                    ))
+                })?),
+                "DRT" => Self::Drt(groups::<3, _>("DRT", args, |c| {
+                    Ok((
+                        parse_u32("DRT", c[0])?,
+                        parse_u32("DRT", c[1])?,
+                        c[2].to_owned(),
+                    ))
+                })?),
+                "DRR?" => Self::drr_query(&u32_list("DRR?", args)?),
+                "SAI?" => match args {
+                    [] => Self::SaiQuery { all: false },
+                    ["ALL"] => Self::SaiQuery { all: true },
+                    _ => return Err(CommandError::ArgCount { cmd: "SAI?" }),
+                },
+                // Every parameter of every axis without arguments.
+                "SPA?" if args.is_empty() => Self::SpaQuery(Vec::new()),
+                "SPA?" => Self::SpaQuery(groups::<2, _>("SPA?", args, |c| {
+                    Ok((AxisId::new(c[0])?, parse_param_id("SPA?", c[1])?))
+                })?),
+                "SPA" => Self::Spa(groups::<3, _>("SPA", args, |c| {
+                    Ok((
+                        AxisId::new(c[0])?,
+                        parse_param_id("SPA", c[1])?,
+                        c[2].to_owned(),
+                    ))
+                })?),
+                _ => return Ok(None),
+            }))
+        };
+        c().transpose()
+    }
+
+    /// `DRR?` from its numbers: start point, count, then tables.
+    fn drr_query(nums: &[u32]) -> Self {
+        match nums {
+            [] => Self::DrrQuery {
+                start: None,
+                count: None,
+                tables: Vec::new(),
+            },
+            [a] => Self::DrrQuery {
+                start: Some(*a),
+                count: None,
+                tables: Vec::new(),
+            },
+            [a, n, t @ ..] => Self::DrrQuery {
+                start: Some(*a),
+                count: Some(*n),
+                tables: t.to_vec(),
+            },
+        }
+    }
+}
+
+/// Arguments read in groups of `N` by `read`: at least one group, and no
+/// argument left over (else `ArgCount`).
+fn groups<const N: usize, T>(
+    cmd: &'static str,
+    args: &[&str],
+    read: impl Fn(&[&str]) -> Result<T, CommandError>,
+) -> Result<Vec<T>, CommandError> {
+    if args.is_empty() || args.len() % N != 0 {
+        return Err(CommandError::ArgCount { cmd });
+    }
+    args.chunks(N).map(read).collect()
+}
+
+/// A switch argument: `0` off, `1` on.
+fn parse_switch(cmd: &'static str, s: &str) -> Result<bool, CommandError> {
+    match s {
+        "0" => Ok(false),
+        "1" => Ok(true),
+        other => Err(CommandError::BadNumber {
+            cmd,
+            arg: other.to_owned(),
+        }),
     }
 }
 
