@@ -4,6 +4,7 @@
 //! without importing the camera.
 
 use serde::{Deserialize, Serialize};
+use std::ops::RangeInclusive;
 
 /// Optics, sensor and pattern of the simulated camera (`[camera]` of the rig
 /// file). Defaults: the paper's rig.
@@ -113,160 +114,117 @@ impl Default for CameraConfig {
 }
 
 impl CameraConfig {
-    /// Checks every value; the message names the key and the accepted range.
+    /// Checks every value, in the order of the fields; the message names
+    /// the key and the accepted range.
     pub fn validate(&self) -> Result<(), String> {
-        let chk = |name: &str, v: f64, ok: bool, why: &str| {
-            if ok && v.is_finite() {
-                Ok(())
-            } else {
-                Err(format!("camera.{name} = {v}: {why}"))
+        // (key, value, whether it is accepted, the accepted range)
+        let check = |name, v: f64, ok: bool, why| (name, v, ok, why);
+        let within = |name, v: f64, r: RangeInclusive<f64>, why| (name, v, r.contains(&v), why);
+        let period_px = self.period_um / self.pixel_um;
+        let (dust_min, dust_max) = (self.dust_radius_px[0], self.dust_radius_px[1]);
+        let before = [
+            within("width", self.width as f64, 16.0..=8192.0, "16..=8192"),
+            within("height", self.height as f64, 16.0..=8192.0, "16..=8192"),
+            within("bit_depth", f64::from(self.bit_depth), 8.0..=16.0, "8..=16"),
+            within("bits", f64::from(self.bits), 4.0..=12.0, "4..=12"),
+            check("period_um", self.period_um, self.period_um > 0.0, "> 0"),
+            check("pixel_um", self.pixel_um, self.pixel_um > 0.0, "> 0"),
+            within(
+                "period in px",
+                period_px,
+                3.0..=64.0,
+                "period_um / pixel_um must be 3..=64 px",
+            ),
+            check(
+                "fps",
+                self.fps,
+                self.fps > 0.0 && self.fps <= 10_000.0,
+                "0 < fps <= 10000",
+            ),
+            check(
+                "exposure_us",
+                self.exposure_us,
+                self.exposure_us > 0.0 && self.exposure_us * 1e-6 <= 1.0 / self.fps,
+                "> 0 and at most one frame period",
+            ),
+            within("background", self.background, 0.0..=1.0, "0..=1"),
+            within("foreground", self.foreground, 0.0..=1.0, "0..=1"),
+            within("blur_sigma_px", self.blur_sigma_px, 0.0..=5.0, "0..=5"),
+            within(
+                "defocus_radius_px",
+                self.defocus_radius_px,
+                0.0..=10.0,
+                "0..=10",
+            ),
+        ];
+        let gradients = self
+            .gradient
+            .map(|g| check("gradient", g, g.abs() < 1.9, "|g| < 1.9"));
+        let after = [
+            check(
+                "vignetting",
+                self.vignetting,
+                (0.0..1.0).contains(&self.vignetting),
+                "0..1",
+            ),
+            check(
+                "full_well_e",
+                self.full_well_e,
+                self.full_well_e >= 0.0,
+                ">= 0",
+            ),
+            within("read_noise", self.read_noise, 0.0..=1.0, "0..=1"),
+            within("dust_fraction", self.dust_fraction, 0.0..=0.9, "0..=0.9"),
+            check(
+                "dust_radius_px",
+                dust_min,
+                dust_min > 0.0 && dust_max >= dust_min && dust_max <= 1000.0,
+                "0 < min <= max <= 1000",
+            ),
+            within(
+                "dust_transmission",
+                self.dust_transmission,
+                0.0..=1.0,
+                "0..=1",
+            ),
+            check(
+                "illumination_drift",
+                self.illumination_drift,
+                (0.0..0.5).contains(&self.illumination_drift),
+                "0..0.5",
+            ),
+            check(
+                "illumination_period_s",
+                self.illumination_period_s,
+                self.illumination_period_s > 0.0,
+                "> 0",
+            ),
+            within("latency_us", self.latency_us, -1e6..=1e6, "−1e6..=1e6"),
+            within(
+                "timestamp_jitter_us",
+                self.timestamp_jitter_us,
+                0.0..=1e4,
+                "0..=1e4",
+            ),
+            within(
+                "clock_offset_s",
+                self.clock_offset_s,
+                0.0..=1e8,
+                "0..=1e8 (a tick counter starts at 0 when the camera powers up)",
+            ),
+            within(
+                "clock_rate_ppm",
+                self.clock_rate_ppm,
+                -500.0..=500.0,
+                "−500..=500",
+            ),
+        ];
+        let checks = before.into_iter().chain(gradients).chain(after);
+        for (name, v, ok, why) in checks {
+            if !(ok && v.is_finite()) {
+                return Err(format!("camera.{name} = {v}: {why}"));
             }
-        };
-        chk(
-            "width",
-            self.width as f64,
-            (16..=8192).contains(&self.width),
-            "16..=8192",
-        )?;
-        chk(
-            "height",
-            self.height as f64,
-            (16..=8192).contains(&self.height),
-            "16..=8192",
-        )?;
-        chk(
-            "bit_depth",
-            f64::from(self.bit_depth),
-            (8..=16).contains(&self.bit_depth),
-            "8..=16",
-        )?;
-        chk(
-            "bits",
-            f64::from(self.bits),
-            (4..=12).contains(&self.bits),
-            "4..=12",
-        )?;
-        chk("period_um", self.period_um, self.period_um > 0.0, "> 0")?;
-        chk("pixel_um", self.pixel_um, self.pixel_um > 0.0, "> 0")?;
-        chk(
-            "period in px",
-            self.period_um / self.pixel_um,
-            (3.0..=64.0).contains(&(self.period_um / self.pixel_um)),
-            "period_um / pixel_um must be 3..=64 px",
-        )?;
-        chk(
-            "fps",
-            self.fps,
-            self.fps > 0.0 && self.fps <= 10_000.0,
-            "0 < fps <= 10000",
-        )?;
-        chk(
-            "exposure_us",
-            self.exposure_us,
-            self.exposure_us > 0.0 && self.exposure_us * 1e-6 <= 1.0 / self.fps,
-            "> 0 and at most one frame period",
-        )?;
-        chk(
-            "background",
-            self.background,
-            (0.0..=1.0).contains(&self.background),
-            "0..=1",
-        )?;
-        chk(
-            "foreground",
-            self.foreground,
-            (0.0..=1.0).contains(&self.foreground),
-            "0..=1",
-        )?;
-        chk(
-            "blur_sigma_px",
-            self.blur_sigma_px,
-            (0.0..=5.0).contains(&self.blur_sigma_px),
-            "0..=5",
-        )?;
-        chk(
-            "defocus_radius_px",
-            self.defocus_radius_px,
-            (0.0..=10.0).contains(&self.defocus_radius_px),
-            "0..=10",
-        )?;
-        for g in self.gradient {
-            chk("gradient", g, g.abs() < 1.9, "|g| < 1.9")?;
         }
-        chk(
-            "vignetting",
-            self.vignetting,
-            (0.0..1.0).contains(&self.vignetting),
-            "0..1",
-        )?;
-        chk(
-            "full_well_e",
-            self.full_well_e,
-            self.full_well_e >= 0.0,
-            ">= 0",
-        )?;
-        chk(
-            "read_noise",
-            self.read_noise,
-            (0.0..=1.0).contains(&self.read_noise),
-            "0..=1",
-        )?;
-        chk(
-            "dust_fraction",
-            self.dust_fraction,
-            (0.0..=0.9).contains(&self.dust_fraction),
-            "0..=0.9",
-        )?;
-        chk(
-            "dust_radius_px",
-            self.dust_radius_px[0],
-            self.dust_radius_px[0] > 0.0
-                && self.dust_radius_px[1] >= self.dust_radius_px[0]
-                && self.dust_radius_px[1] <= 1000.0,
-            "0 < min <= max <= 1000",
-        )?;
-        chk(
-            "dust_transmission",
-            self.dust_transmission,
-            (0.0..=1.0).contains(&self.dust_transmission),
-            "0..=1",
-        )?;
-        chk(
-            "illumination_drift",
-            self.illumination_drift,
-            (0.0..0.5).contains(&self.illumination_drift),
-            "0..0.5",
-        )?;
-        chk(
-            "illumination_period_s",
-            self.illumination_period_s,
-            self.illumination_period_s > 0.0,
-            "> 0",
-        )?;
-        chk(
-            "latency_us",
-            self.latency_us,
-            (-1e6..=1e6).contains(&self.latency_us),
-            "−1e6..=1e6",
-        )?;
-        chk(
-            "timestamp_jitter_us",
-            self.timestamp_jitter_us,
-            (0.0..=1e4).contains(&self.timestamp_jitter_us),
-            "0..=1e4",
-        )?;
-        chk(
-            "clock_offset_s",
-            self.clock_offset_s,
-            (0.0..=1e8).contains(&self.clock_offset_s),
-            "0..=1e8 (a tick counter starts at 0 when the camera powers up)",
-        )?;
-        chk(
-            "clock_rate_ppm",
-            self.clock_rate_ppm,
-            (-500.0..=500.0).contains(&self.clock_rate_ppm),
-            "−500..=500",
-        )?;
         Ok(())
     }
 
@@ -306,6 +264,37 @@ impl CameraConfig {
             dust_seed: self.dust_seed,
             oversample: 2,
             plain_grid: false,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The default camera passes; a value out of its range (or not a
+    /// number) is refused naming its key, whatever the others.
+    #[test]
+    fn the_default_passes_and_each_bad_value_names_its_key() {
+        let ok = CameraConfig::default();
+        assert_eq!(ok.validate(), Ok(()));
+        let cases: [(&str, fn(&mut CameraConfig)); 10] = [
+            ("width", |c| c.width = 8),
+            ("bits", |c| c.bits = 13),
+            ("period in px", |c| c.pixel_um = c.period_um),
+            ("fps", |c| c.fps = 0.0),
+            ("exposure_us", |c| c.exposure_us = 2e6 / c.fps),
+            ("gradient", |c| c.gradient[1] = -2.0),
+            ("vignetting", |c| c.vignetting = 1.0),
+            ("dust_radius_px", |c| c.dust_radius_px = [3.0, 2.0]),
+            ("latency_us", |c| c.latency_us = -2e6),
+            ("clock_rate_ppm", |c| c.clock_rate_ppm = f64::NAN),
+        ];
+        for (key, spoil) in cases {
+            let mut c = ok.clone();
+            spoil(&mut c);
+            let e = c.validate().unwrap_err();
+            assert!(e.starts_with(&format!("camera.{key} = ")), "{key}: {e}");
         }
     }
 }

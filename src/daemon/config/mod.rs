@@ -156,6 +156,30 @@ impl DaemonConfig {
     /// Checks every value that can be checked without hardware.
     pub fn validate(&self) -> Result<(), ConfigError> {
         self.clock_spec()?;
+        self.check_daemon_paths()?;
+        self.check_safety()?;
+        self.check_client_limits()?;
+        if let Some(w) = &self.web {
+            w.validate()?;
+        }
+        if let Some(a) = &self.access {
+            a.validate()?;
+        }
+        self.check_audit_and_retries()?;
+        self.driver
+            .validate()
+            .map_err(|e| bad("driver", e.to_string()))?;
+        self.check_limits()?;
+        self.camera_source()?;
+        self.check_camera()?;
+        self.check_characterize()?;
+        self.check_drift()?;
+        self.check_compensation()?;
+        Ok(())
+    }
+
+    /// The daemon's socket, data directory and polling.
+    fn check_daemon_paths(&self) -> Result<(), ConfigError> {
         if self.daemon.socket.as_os_str().is_empty() {
             return Err(bad("daemon.socket", "must be a path"));
         }
@@ -166,6 +190,11 @@ impl DaemonConfig {
         if !(10..=60_000).contains(&self.daemon.poll_interval_ms) {
             return Err(bad("daemon.poll_interval_ms", "must be within 10..=60000"));
         }
+        Ok(())
+    }
+
+    /// The supervisor's limits: what halts the rig.
+    fn check_safety(&self) -> Result<(), ConfigError> {
         let sf = &self.safety;
         if !(10..=60_000).contains(&sf.supervise_interval_ms) {
             return Err(bad(
@@ -191,6 +220,11 @@ impl DaemonConfig {
                 "must be a finite number of µm ≥ 0 (0 = off)",
             ));
         }
+        Ok(())
+    }
+
+    /// How many clients, for how long: what keeps a stop admitted.
+    fn check_client_limits(&self) -> Result<(), ConfigError> {
         if self.daemon.max_clients == 0 {
             return Err(bad("daemon.max_clients", "must be at least 1"));
         }
@@ -225,12 +259,11 @@ impl DaemonConfig {
                 return Err(bad(key, "must be within 0.01..=3600 s"));
             }
         }
-        if let Some(w) = &self.web {
-            w.validate()?;
-        }
-        if let Some(a) = &self.access {
-            a.validate()?;
-        }
+        Ok(())
+    }
+
+    /// The audit log's rate and size, and a job's retries.
+    fn check_audit_and_retries(&self) -> Result<(), ConfigError> {
         let au = &self.audit;
         if !(au.rate_per_s.is_finite() && au.rate_per_s > 0.0) {
             return Err(bad(
@@ -259,9 +292,11 @@ impl DaemonConfig {
                 "must be within 0..=60 s (finite)",
             ));
         }
-        self.driver
-            .validate()
-            .map_err(|e| bad("driver", e.to_string()))?;
+        Ok(())
+    }
+
+    /// The soft travel limits.
+    fn check_limits(&self) -> Result<(), ConfigError> {
         for (axis, lo, hi) in [
             ("x", self.limits.x_min_um, self.limits.x_max_um),
             ("y", self.limits.y_min_um, self.limits.y_max_um),
@@ -282,7 +317,11 @@ impl DaemonConfig {
                 }
             }
         }
-        self.camera_source()?;
+        Ok(())
+    }
+
+    /// The camera and the decoder's acceptance.
+    fn check_camera(&self) -> Result<(), ConfigError> {
         let c = &self.camera;
         if c.timeout_ms == 0 {
             return Err(bad("camera.timeout_ms", "must be positive"));
@@ -305,6 +344,11 @@ impl DaemonConfig {
         if !c.rotation_rad.is_finite() {
             return Err(bad("camera.rotation_rad", "must be a number"));
         }
+        Ok(())
+    }
+
+    /// A characterization's defaults.
+    fn check_characterize(&self) -> Result<(), ConfigError> {
         let k = &self.characterize;
         for (key, v) in [
             ("characterize.step_um", k.step_um),
@@ -350,6 +394,11 @@ impl DaemonConfig {
                 "must be two finite numbers [x, y] µm",
             ));
         }
+        Ok(())
+    }
+
+    /// Live drift correction.
+    fn check_drift(&self) -> Result<(), ConfigError> {
         let d = &self.drift;
         if !(d.every_s.is_finite() && (0.001..=86_400.0).contains(&d.every_s)) {
             return Err(bad("drift.every_s", "must be within 0.001..=86400 s"));
@@ -368,6 +417,11 @@ impl DaemonConfig {
                 "must be two finite numbers [x, y] µm",
             ));
         }
+        Ok(())
+    }
+
+    /// Closed loop and compensated moves.
+    fn check_compensation(&self) -> Result<(), ConfigError> {
         let cl = &self.closed_loop;
         if !(cl.tolerance_um.is_finite() && cl.tolerance_um > 0.0) {
             return Err(bad(
