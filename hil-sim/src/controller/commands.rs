@@ -197,120 +197,28 @@ impl Controller {
         ))
     }
 
+    /// Runs one command: its reply lines (`None` for a command without a
+    /// reply) or the GCS error it sets.
     fn execute(&mut self, now: Duration, cmd: &Command) -> Result<Option<Vec<String>>, E> {
         use Command as C;
         match cmd {
-            C::Idn => Ok(Some(vec![format!(
-                "{VENDOR}, {MODEL}, {}, {FIRMWARE}",
-                self.serial
-            )])),
-            C::Csv => Ok(Some(vec!["2.0".to_owned()])),
-            C::Err => {
-                let e = self.error;
-                self.error = E::NO_ERROR;
-                Ok(Some(vec![e.0.to_string()]))
+            C::Idn | C::Csv | C::Err | C::Hlp | C::Hpa | C::Ver | C::SaiQuery { .. } => {
+                Ok(Some(self.identify(cmd)))
             }
-            C::Hlp => {
-                let mut lines = vec!["The following commands are valid:".to_owned()];
-                lines.extend(HELP.iter().map(|(c, d)| format!("{c} {d}")));
-                lines.push("end of help".to_owned());
-                Ok(Some(lines))
-            }
-            C::Hpa => Ok(Some(params::hpa_lines())),
-            C::Ver => Ok(Some(vec![
-                format!("FW_ARM: V{FIRMWARE}"),
-                format!(
-                    "hil-sim: V{} (simulated controller)",
-                    env!("CARGO_PKG_VERSION")
-                ),
-            ])),
-            C::SaiQuery { .. } => Ok(Some(vec![AXIS.to_owned()])),
-            C::CstQuery(a) => {
-                let name = self
-                    .params
-                    .get(params::STAGE_NAME)
-                    .map(ParamValue::to_text)
-                    .unwrap_or_default();
-                Self::per_axis(a, || name.clone())
-            }
-            C::TmnQuery(a) => {
-                let v = self.params.number(params::MAX_TRAVEL_NEG, 0.0);
-                Self::per_axis(a, || num7(v))
-            }
-            C::TmxQuery(a) => {
-                let v = self.params.number(params::MAX_TRAVEL_POS, 15.0);
-                Self::per_axis(a, || num7(v))
-            }
-            C::PosQuery(a) => {
-                let v = self.encoder_mm(now);
-                Self::per_axis(a, || num7(v))
-            }
-            C::MovQuery(a) => {
-                let v = self.target_mm;
-                Self::per_axis(a, || num7(v))
-            }
-            C::OntQuery(a) => {
-                let v = self.on_target(now);
-                Self::per_axis(a, || bool01(v))
-            }
-            C::FrfQuery(a) => {
-                let v = self.is_referenced(now);
-                Self::per_axis(a, || bool01(v))
-            }
-            C::SvoQuery(a) => Self::per_axis(a, || bool01(self.servo)),
-            C::RonQuery(a) => Self::per_axis(a, || bool01(self.reference_mode)),
-            C::VelQuery(a) => {
-                let v = self.params.number(params::VELOCITY, 1.0);
-                Self::per_axis(a, || num7(v))
-            }
-            C::AccQuery(a) => {
-                let v = self.params.number(params::ACCELERATION, 10.0);
-                Self::per_axis(a, || num7(v))
-            }
-            C::DecQuery(a) => {
-                let v = self.params.number(params::DECELERATION, 10.0);
-                Self::per_axis(a, || num7(v))
-            }
-            C::SpaQuery(items) => {
-                if items.is_empty() {
-                    return Ok(Some(
-                        self.params
-                            .iter()
-                            .map(|(id, v)| format!("{AXIS} 0x{id:X}={}", v.to_text()))
-                            .collect(),
-                    ));
-                }
-                let mut out = Vec::new();
-                for (a, id) in items {
-                    Self::check_axis(a)?;
-                    let v = self.params.get(*id).ok_or(E::UNKNOWN_PARAMETER)?;
-                    out.push(format!("{a} 0x{id:X}={}", v.to_text()));
-                }
-                Ok(Some(out))
-            }
-            C::Svo(items) => {
-                for (a, _) in items {
-                    Self::check_axis(a)?;
-                }
-                for (_, on) in items {
-                    if *on && !self.servo {
-                        // Closing the loop holds the current position.
-                        self.encoder_mm = self.encoder_mm(now);
-                        self.target_mm = self.encoder_mm;
-                        self.settled_at = now;
-                    } else if !*on && self.servo {
-                        // Opening the loop: the motor is no longer driven.
-                        let (p, _) = self.state_at(now);
-                        if matches!(self.activity, Activity::Referencing { .. }) {
-                            self.referenced = false;
-                        }
-                        self.encoder_mm = p;
-                        self.activity = Activity::Idle;
-                    }
-                    self.servo = *on;
-                }
-                Ok(None)
-            }
+            C::CstQuery(a)
+            | C::TmnQuery(a)
+            | C::TmxQuery(a)
+            | C::PosQuery(a)
+            | C::MovQuery(a)
+            | C::OntQuery(a)
+            | C::FrfQuery(a)
+            | C::SvoQuery(a)
+            | C::RonQuery(a)
+            | C::VelQuery(a)
+            | C::AccQuery(a)
+            | C::DecQuery(a) => self.query_axes(now, cmd, a),
+            C::SpaQuery(items) => self.query_parameters(items).map(Some),
+            C::Svo(items) => self.set_servo(now, items).map(|()| None),
             C::Ron(items) => {
                 for (a, _) in items {
                     Self::check_axis(a)?;
@@ -329,91 +237,19 @@ impl Controller {
             C::Fpl(a) => self
                 .start_referencing(now, a, RefKind::PositiveLimit)
                 .map(|_| None),
-            C::Mov(items) | C::Mvr(items) => {
-                let relative = matches!(cmd, C::Mvr(_));
-                for (a, _) in items {
-                    Self::check_axis(a)?;
-                }
-                self.check_move_allowed(now)?;
-                // All targets are checked before anything moves.
-                let mut target = self.target_mm;
-                for (_, v) in items {
-                    target = if relative { target + v } else { *v };
-                    self.check_limits(target)?;
-                }
-                self.start_move(now, target);
-                self.recorder.on_move(now);
-                Ok(None)
+            C::Mov(items) => self.move_to(now, items, false).map(|()| None),
+            C::Mvr(items) => self.move_to(now, items, true).map(|()| None),
+            C::Vel(items) => self.set_velocity(now, items).map(|()| None),
+            C::Acc(items) => {
+                let ids = (params::ACCELERATION, params::MAX_ACCELERATION);
+                self.set_ramp(now, items, ids).map(|()| None)
             }
-            C::Vel(items) => {
-                let max = self.params.number(params::MAX_VELOCITY, 1.5);
-                for (a, v) in items {
-                    Self::check_axis(a)?;
-                    if !(*v > 0.0 && *v <= max) {
-                        return Err(E::VEL_OUT_OF_LIMITS);
-                    }
-                }
-                for (_, v) in items {
-                    self.params.set(params::VELOCITY, ParamValue::Float(*v));
-                }
-                self.replan(now);
-                Ok(None)
+            C::Dec(items) => {
+                let ids = (params::DECELERATION, params::MAX_DECELERATION);
+                self.set_ramp(now, items, ids).map(|()| None)
             }
-            C::Acc(items) | C::Dec(items) => {
-                let (id, max_id) = if matches!(cmd, C::Acc(_)) {
-                    (params::ACCELERATION, params::MAX_ACCELERATION)
-                } else {
-                    (params::DECELERATION, params::MAX_DECELERATION)
-                };
-                let max = self.params.number(max_id, 20.0);
-                for (a, v) in items {
-                    Self::check_axis(a)?;
-                    if !(*v > 0.0 && *v <= max) {
-                        return Err(E::PARAM_OUT_OF_RANGE);
-                    }
-                }
-                for (_, v) in items {
-                    self.params.set(id, ParamValue::Float(*v));
-                }
-                self.replan(now);
-                Ok(None)
-            }
-            C::Spa(items) => {
-                let mut parsed = Vec::with_capacity(items.len());
-                for (a, id, text) in items {
-                    Self::check_axis(a)?;
-                    let d = params::lookup(*id).ok_or(E::UNKNOWN_PARAMETER)?;
-                    let v = params::parse_value(d, text).map_err(|e| match e {
-                        ValueError::Syntax => E::PARAM_SYNTAX,
-                        ValueError::OutOfRange => E::PARAM_OUT_OF_RANGE,
-                    })?;
-                    parsed.push((*id, v));
-                }
-                for (id, v) in parsed {
-                    self.params.set(id, v);
-                }
-                self.replan(now);
-                Ok(None)
-            }
-            C::Hlt(a) => {
-                Self::axes(a)?;
-                self.stalled = false;
-                let (p, v, e) = self.command_state_at(now);
-                match &self.activity {
-                    Activity::Idle => {}
-                    Activity::Moving(_) | Activity::Referencing { .. } => {
-                        if matches!(self.activity, Activity::Referencing { .. }) {
-                            self.referenced = false;
-                        }
-                        let dec = self.limits().deceleration;
-                        let profile = Profile::brake(now, p, v, dec).with_lag(self.lag_s, e);
-                        self.target_mm = profile.end_mm();
-                        self.activity = Activity::Moving(profile);
-                    }
-                }
-                self.set_error(E::STOPPED);
-                Ok(None)
-            }
+            C::Spa(items) => self.set_parameters(now, items).map(|()| None),
+            C::Hlt(a) => self.halt(now, a).map(|()| None),
             C::Stp => {
                 self.stop_now(now);
                 Ok(None)
@@ -432,6 +268,207 @@ impl Controller {
                 tables,
             } => self.recorder.read(*start, *count, tables, AXIS).map(Some),
         }
+    }
+
+    /// The controller's identity, help and error queries (`ERR?` also
+    /// clears the error, as on the controller).
+    fn identify(&mut self, cmd: &Command) -> Vec<String> {
+        use Command as C;
+        match cmd {
+            C::Idn => vec![format!("{VENDOR}, {MODEL}, {}, {FIRMWARE}", self.serial)],
+            C::Csv => vec!["2.0".to_owned()],
+            C::Err => {
+                let e = self.error;
+                self.error = E::NO_ERROR;
+                vec![e.0.to_string()]
+            }
+            C::Hlp => {
+                let mut lines = vec!["The following commands are valid:".to_owned()];
+                lines.extend(HELP.iter().map(|(c, d)| format!("{c} {d}")));
+                lines.push("end of help".to_owned());
+                lines
+            }
+            C::Hpa => params::hpa_lines(),
+            C::Ver => vec![
+                format!("FW_ARM: V{FIRMWARE}"),
+                format!(
+                    "hil-sim: V{} (simulated controller)",
+                    env!("CARGO_PKG_VERSION")
+                ),
+            ],
+            // SAI?
+            _ => vec![AXIS.to_owned()],
+        }
+    }
+
+    /// The queries answered per axis (`AXIS=value` lines).
+    fn query_axes(
+        &self,
+        now: Duration,
+        cmd: &Command,
+        a: &[AxisId],
+    ) -> Result<Option<Vec<String>>, E> {
+        use Command as C;
+        let number = |id, default| num7(self.params.number(id, default));
+        let value = match cmd {
+            C::CstQuery(_) => self
+                .params
+                .get(params::STAGE_NAME)
+                .map(ParamValue::to_text)
+                .unwrap_or_default(),
+            C::TmnQuery(_) => number(params::MAX_TRAVEL_NEG, 0.0),
+            C::TmxQuery(_) => number(params::MAX_TRAVEL_POS, 15.0),
+            C::PosQuery(_) => num7(self.encoder_mm(now)),
+            C::MovQuery(_) => num7(self.target_mm),
+            C::OntQuery(_) => bool01(self.on_target(now)),
+            C::FrfQuery(_) => bool01(self.is_referenced(now)),
+            C::SvoQuery(_) => bool01(self.servo),
+            C::RonQuery(_) => bool01(self.reference_mode),
+            C::VelQuery(_) => number(params::VELOCITY, 1.0),
+            C::AccQuery(_) => number(params::ACCELERATION, 10.0),
+            // DEC?
+            _ => number(params::DECELERATION, 10.0),
+        };
+        Self::per_axis(a, || value.clone())
+    }
+
+    /// `SPA?`: the parameters asked for, or every one without arguments.
+    fn query_parameters(&self, items: &[(AxisId, u32)]) -> Result<Vec<String>, E> {
+        if items.is_empty() {
+            return Ok(self
+                .params
+                .iter()
+                .map(|(id, v)| format!("{AXIS} 0x{id:X}={}", v.to_text()))
+                .collect());
+        }
+        let mut out = Vec::new();
+        for (a, id) in items {
+            Self::check_axis(a)?;
+            let v = self.params.get(*id).ok_or(E::UNKNOWN_PARAMETER)?;
+            out.push(format!("{a} 0x{id:X}={}", v.to_text()));
+        }
+        Ok(out)
+    }
+
+    /// `SVO`: closing the loop holds the current position; opening it
+    /// leaves the motor undriven (and ends a reference move unreferenced).
+    fn set_servo(&mut self, now: Duration, items: &[(AxisId, bool)]) -> Result<(), E> {
+        for (a, _) in items {
+            Self::check_axis(a)?;
+        }
+        for (_, on) in items {
+            if *on && !self.servo {
+                self.encoder_mm = self.encoder_mm(now);
+                self.target_mm = self.encoder_mm;
+                self.settled_at = now;
+            } else if !*on && self.servo {
+                let (p, _) = self.state_at(now);
+                if matches!(self.activity, Activity::Referencing { .. }) {
+                    self.referenced = false;
+                }
+                self.encoder_mm = p;
+                self.activity = Activity::Idle;
+            }
+            self.servo = *on;
+        }
+        Ok(())
+    }
+
+    /// `MOV` (`relative`: `MVR`): every target is checked before anything
+    /// moves.
+    fn move_to(&mut self, now: Duration, items: &[(AxisId, f64)], relative: bool) -> Result<(), E> {
+        for (a, _) in items {
+            Self::check_axis(a)?;
+        }
+        self.check_move_allowed(now)?;
+        let mut target = self.target_mm;
+        for (_, v) in items {
+            target = if relative { target + v } else { *v };
+            self.check_limits(target)?;
+        }
+        self.start_move(now, target);
+        self.recorder.on_move(now);
+        Ok(())
+    }
+
+    /// `VEL`: within (0, the maximum velocity]; a move under way is
+    /// replanned.
+    fn set_velocity(&mut self, now: Duration, items: &[(AxisId, f64)]) -> Result<(), E> {
+        let max = self.params.number(params::MAX_VELOCITY, 1.5);
+        for (a, v) in items {
+            Self::check_axis(a)?;
+            if !(*v > 0.0 && *v <= max) {
+                return Err(E::VEL_OUT_OF_LIMITS);
+            }
+        }
+        for (_, v) in items {
+            self.params.set(params::VELOCITY, ParamValue::Float(*v));
+        }
+        self.replan(now);
+        Ok(())
+    }
+
+    /// `ACC` or `DEC` (`ids`: the parameter and its maximum's).
+    fn set_ramp(
+        &mut self,
+        now: Duration,
+        items: &[(AxisId, f64)],
+        ids: (u32, u32),
+    ) -> Result<(), E> {
+        let (id, max_id) = ids;
+        let max = self.params.number(max_id, 20.0);
+        for (a, v) in items {
+            Self::check_axis(a)?;
+            if !(*v > 0.0 && *v <= max) {
+                return Err(E::PARAM_OUT_OF_RANGE);
+            }
+        }
+        for (_, v) in items {
+            self.params.set(id, ParamValue::Float(*v));
+        }
+        self.replan(now);
+        Ok(())
+    }
+
+    /// `SPA`: every value parsed before any is set.
+    fn set_parameters(&mut self, now: Duration, items: &[(AxisId, u32, String)]) -> Result<(), E> {
+        let mut parsed = Vec::with_capacity(items.len());
+        for (a, id, text) in items {
+            Self::check_axis(a)?;
+            let d = params::lookup(*id).ok_or(E::UNKNOWN_PARAMETER)?;
+            let v = params::parse_value(d, text).map_err(|e| match e {
+                ValueError::Syntax => E::PARAM_SYNTAX,
+                ValueError::OutOfRange => E::PARAM_OUT_OF_RANGE,
+            })?;
+            parsed.push((*id, v));
+        }
+        for (id, v) in parsed {
+            self.params.set(id, v);
+        }
+        self.replan(now);
+        Ok(())
+    }
+
+    /// `HLT`: a move or a reference move brakes at the deceleration (a
+    /// reference move ends unreferenced); the error becomes "stopped".
+    fn halt(&mut self, now: Duration, a: &[AxisId]) -> Result<(), E> {
+        Self::axes(a)?;
+        self.stalled = false;
+        let (p, v, e) = self.command_state_at(now);
+        match &self.activity {
+            Activity::Idle => {}
+            Activity::Moving(_) | Activity::Referencing { .. } => {
+                if matches!(self.activity, Activity::Referencing { .. }) {
+                    self.referenced = false;
+                }
+                let dec = self.limits().deceleration;
+                let profile = Profile::brake(now, p, v, dec).with_lag(self.lag_s, e);
+                self.target_mm = profile.end_mm();
+                self.activity = Activity::Moving(profile);
+            }
+        }
+        self.set_error(E::STOPPED);
+        Ok(())
     }
 
     /// The commands `HLP?` lists (without descriptions).
