@@ -305,6 +305,26 @@ impl Audit {
         self.record_from(Origin::Socket(*peer), role, cmd, outcome, request);
     }
 
+    /// The gate both front doors pass a parsed request through, after
+    /// their own role rule decided `permitted`: a refusal is recorded, and
+    /// so is an admitted command that changes state, before it runs.
+    /// Returns `permitted`.
+    pub fn admit(
+        &self,
+        origin: Origin,
+        role: Option<Role>,
+        cmd: &Command,
+        request: &[u8],
+        permitted: bool,
+    ) -> bool {
+        if !permitted {
+            self.record_from(origin, role, cmd, Outcome::Denied, request);
+        } else if cmd.changes_state() {
+            self.record_from(origin, role, cmd, Outcome::Allowed, request);
+        }
+        permitted
+    }
+
     /// [`Audit::record`] for a client on either listener.
     pub fn record_from(
         &self,

@@ -20,7 +20,7 @@
 
 use super::access::Peer;
 use super::admission::{Admission, Admit, Limits, Slot};
-use super::audit::Outcome;
+use super::audit::Origin;
 use super::connection::{write_line, Incoming, LineReader};
 use super::protocol::{self, Command, ErrorCode, ProtoError, Role, Topic};
 use super::Daemon;
@@ -152,6 +152,9 @@ fn secs(s: f64) -> Duration {
     Duration::try_from_secs_f64(s).unwrap_or(Duration::MAX)
 }
 
+/// Serves one connection until it closes, idles, stalls, stops reading or
+/// the daemon shuts down; then lets its queued requests finish and their
+/// replies go out.
 async fn client(
     daemon: Arc<Daemon>,
     stream: UnixStream,
@@ -162,7 +165,6 @@ async fn client(
 ) -> std::io::Result<()> {
     let cfg = &daemon.rig.cfg.daemon;
     let read_timeout = secs(cfg.read_timeout_s);
-    let write_timeout = secs(cfg.write_timeout_s);
     let idle_timeout = match slot {
         Slot::StopOnly => Some(read_timeout),
         Slot::Full if cfg.idle_timeout_s > 0.0 => Some(secs(cfg.idle_timeout_s)),
@@ -176,12 +178,79 @@ async fn client(
         stop_only = slot == Slot::StopOnly,
         "client connected"
     );
-    let (r, mut w) = stream.into_split();
+    let (r, w) = stream.into_split();
     let mut reader = LineReader::new(r);
-    // Replies and events go through one writer task so lines never mix. A
-    // client that does not take a line within the write timeout is gone.
+    let (out_tx, mut gone_rx, writer) = spawn_writer(w, secs(cfg.write_timeout_s));
+    let busy = Busy::default();
+    let (req_tx, worker) = spawn_worker(&daemon, &out_tx, &busy);
+    let conn = Conn {
+        daemon: &daemon,
+        peer,
+        role,
+        slot,
+        busy: &busy,
+        req_tx: &req_tx,
+    };
+    let null = serde_json::Value::Null;
+    let timed_out =
+        |why: String| protocol::error_reply(&null, &ProtoError::new(ErrorCode::TimedOut, why));
+    loop {
+        let incoming = tokio::select! {
+            r = reader.next_within(idle_timeout, Some(read_timeout)) => r?,
+            _ = shutdown.recv() => {
+                let _ = out_tx.send(protocol::error_reply(&null, &ProtoError::new(ErrorCode::ShuttingDown, "the daemon is shutting down")).into()).await;
+                break;
+            }
+            _ = &mut gone_rx => break,
+        };
+        let line = match incoming {
+            Incoming::Closed => break,
+            Incoming::Idle if slot == Slot::Full && busy.any() => continue,
+            Incoming::Idle => {
+                let idle = idle_timeout.unwrap_or_default();
+                let _ = out_tx
+                    .send(timed_out(format!("idle for {idle:?}: disconnected")).into())
+                    .await;
+                break;
+            }
+            Incoming::Stalled => {
+                let why =
+                    format!("request line not finished within {read_timeout:?}: disconnected");
+                let _ = out_tx.send(timed_out(why).into()).await;
+                break;
+            }
+            Incoming::TooLarge(n) => protocol::error_reply(&null, &protocol::too_large(n)),
+            Incoming::Line(l) if l.iter().all(u8::is_ascii_whitespace) => continue,
+            Incoming::Line(l) => match conn.answer(&l).await {
+                Some(reply) => reply,
+                None => continue,
+            },
+        };
+        if out_tx.send(line.into()).await.is_err() {
+            break;
+        }
+    }
+    // Let queued requests finish and their replies go out, then close.
+    drop(req_tx);
+    let _ = worker.await;
+    drop(out_tx);
+    let _ = writer.await;
+    Ok(())
+}
+
+/// Replies and events go through one writer task so lines never mix. A
+/// client that does not take a line within `write_timeout` is gone: the
+/// returned receiver then resolves.
+fn spawn_writer(
+    mut w: tokio::net::unix::OwnedWriteHalf,
+    write_timeout: Duration,
+) -> (
+    mpsc::Sender<Arc<str>>,
+    tokio::sync::oneshot::Receiver<()>,
+    tokio::task::JoinHandle<()>,
+) {
     let (out_tx, mut out_rx) = mpsc::channel::<Arc<str>>(256);
-    let (gone_tx, mut gone_rx) = tokio::sync::oneshot::channel::<()>();
+    let (gone_tx, gone_rx) = tokio::sync::oneshot::channel::<()>();
     let writer = tokio::spawn(async move {
         while let Some(line) = out_rx.recv().await {
             match tokio::time::timeout(write_timeout, write_line(&mut w, &line)).await {
@@ -195,155 +264,143 @@ async fn client(
         }
         drop(gone_tx);
     });
-    // Whether the connection has work in flight (then it is not idle).
-    let pending = Arc::new(AtomicUsize::new(0));
-    let subscribed = Arc::new(AtomicBool::new(false));
-    // Requests run in order on a worker; stop bypasses it.
-    let (req_tx, mut req_rx) = mpsc::channel::<protocol::Request>(64);
-    let worker = {
-        let daemon = daemon.clone();
-        let out = out_tx.clone();
-        let pending = pending.clone();
-        let subscribed = subscribed.clone();
-        tokio::spawn(async move {
-            let mut subscription: Option<tokio::task::JoinHandle<()>> = None;
-            while let Some(req) = req_rx.recv().await {
-                let line = match req.command {
-                    Command::Subscribe(topics) => {
-                        if let Some(s) = subscription.take() {
-                            s.abort();
-                        }
-                        subscription = Some(spawn_forwarder(&daemon, topics.clone(), out.clone()));
-                        subscribed.store(true, Ordering::Relaxed);
-                        let names: Vec<&str> = topics.iter().map(|t| t.as_str()).collect();
-                        protocol::ok_reply(
-                            &req.id,
-                            protocol::reply_fields(serde_json::json!({"subscribed": names})),
-                        )
+    (out_tx, gone_rx, writer)
+}
+
+/// Whether a connection has work in flight: then it is not idle.
+#[derive(Default)]
+struct Busy {
+    /// Requests queued or running.
+    pending: Arc<AtomicUsize>,
+    /// Whether it subscribed to events.
+    subscribed: Arc<AtomicBool>,
+}
+
+impl Busy {
+    fn any(&self) -> bool {
+        self.pending.load(Ordering::Relaxed) > 0 || self.subscribed.load(Ordering::Relaxed)
+    }
+}
+
+/// The worker that runs a connection's requests in order (`stop`
+/// bypasses it) and sends their replies; a `subscribe` starts the event
+/// forwarder, replacing the one before.
+fn spawn_worker(
+    daemon: &Arc<Daemon>,
+    out: &mpsc::Sender<Arc<str>>,
+    busy: &Busy,
+) -> (mpsc::Sender<protocol::Request>, tokio::task::JoinHandle<()>) {
+    let (req_tx, mut req_rx) = mpsc::channel::<protocol::Request>(MAX_PENDING);
+    let daemon = daemon.clone();
+    let out = out.clone();
+    let pending = busy.pending.clone();
+    let subscribed = busy.subscribed.clone();
+    let worker = tokio::spawn(async move {
+        let mut subscription: Option<tokio::task::JoinHandle<()>> = None;
+        while let Some(req) = req_rx.recv().await {
+            let line = match req.command {
+                Command::Subscribe(topics) => {
+                    if let Some(s) = subscription.take() {
+                        s.abort();
                     }
-                    cmd => match daemon.execute(cmd).await {
-                        Ok(v) => protocol::ok_reply(&req.id, protocol::reply_fields(v)),
-                        Err(e) => protocol::error_reply(&req.id, &e),
-                    },
-                };
-                let sent = out.send(line.into()).await;
-                pending.fetch_sub(1, Ordering::Relaxed);
-                if sent.is_err() {
-                    break;
-                }
-            }
-            if let Some(s) = subscription {
-                s.abort();
-            }
-        })
-    };
-    let null = serde_json::Value::Null;
-    loop {
-        let incoming = tokio::select! {
-            r = reader.next_within(idle_timeout, Some(read_timeout)) => r?,
-            _ = shutdown.recv() => {
-                let _ = out_tx.send(protocol::error_reply(&null, &ProtoError::new(ErrorCode::ShuttingDown, "the daemon is shutting down")).into()).await;
-                break;
-            }
-            _ = &mut gone_rx => break,
-        };
-        let line = match incoming {
-            Incoming::Closed => break,
-            Incoming::Idle => {
-                let busy =
-                    pending.load(Ordering::Relaxed) > 0 || subscribed.load(Ordering::Relaxed);
-                if slot == Slot::Full && busy {
-                    continue;
-                }
-                let idle = idle_timeout.unwrap_or_default();
-                let _ = out_tx
-                    .send(
-                        protocol::error_reply(
-                            &null,
-                            &ProtoError::new(
-                                ErrorCode::TimedOut,
-                                format!("idle for {idle:?}: disconnected"),
-                            ),
-                        )
-                        .into(),
-                    )
-                    .await;
-                break;
-            }
-            Incoming::Stalled => {
-                let _ = out_tx.send(protocol::error_reply(&null, &ProtoError::new(ErrorCode::TimedOut, format!("request line not finished within {read_timeout:?}: disconnected"))).into()).await;
-                break;
-            }
-            Incoming::TooLarge(n) => protocol::error_reply(&null, &protocol::too_large(n)),
-            Incoming::Line(l) if l.iter().all(u8::is_ascii_whitespace) => continue,
-            Incoming::Line(l) => match protocol::parse_request(&l) {
-                Err(r) => protocol::error_reply(&r.id, &r.error),
-                Ok(req) if slot == Slot::StopOnly && req.command != Command::Stop => {
-                    protocol::error_reply(
+                    subscription = Some(spawn_forwarder(&daemon, topics.clone(), out.clone()));
+                    subscribed.store(true, Ordering::Relaxed);
+                    let names: Vec<&str> = topics.iter().map(|t| t.as_str()).collect();
+                    protocol::ok_reply(
                         &req.id,
-                        &ProtoError::new(
-                            ErrorCode::Busy,
-                            format!(
-                                "all {} client slots are taken; this connection accepts only stop",
-                                daemon.rig.cfg.daemon.max_clients
-                            ),
-                        ),
+                        protocol::reply_fields(serde_json::json!({"subscribed": names})),
                     )
                 }
-                Ok(req) if role < Some(req.command.role()) => {
-                    daemon
-                        .audit
-                        .record(&peer, role, &req.command, Outcome::Denied, &l);
-                    protocol::error_reply(
-                        &req.id,
-                        &ProtoError::new(
-                            ErrorCode::PermissionDenied,
-                            format!(
-                                "{} needs role {}; uid {} has {}",
-                                req.command.name(),
-                                req.command.role().as_str(),
-                                peer.uid,
-                                role.map_or("none", Role::as_str)
-                            ),
-                        ),
-                    )
-                }
-                Ok(req) => {
-                    if req.command.changes_state() {
-                        daemon
-                            .audit
-                            .record(&peer, role, &req.command, Outcome::Allowed, &l);
-                    }
-                    if req.command == Command::Stop {
-                        // Overtakes anything queued on this connection too.
-                        match daemon.execute(Command::Stop).await {
-                            Ok(v) => protocol::ok_reply(&req.id, protocol::reply_fields(v)),
-                            Err(e) => protocol::error_reply(&req.id, &e),
-                        }
-                    } else {
-                        let id = req.id.clone();
-                        pending.fetch_add(1, Ordering::Relaxed);
-                        match req_tx.try_send(req) {
-                            Ok(()) => continue,
-                            Err(_) => {
-                                pending.fetch_sub(1, Ordering::Relaxed);
-                                protocol::error_reply(&id, &ProtoError::new(ErrorCode::Busy, "more than 64 requests pending on this connection; wait for replies"))
-                            }
-                        }
-                    }
-                }
-            },
+                cmd => protocol::reply(&req.id, daemon.execute(cmd).await),
+            };
+            let sent = out.send(line.into()).await;
+            pending.fetch_sub(1, Ordering::Relaxed);
+            if sent.is_err() {
+                break;
+            }
+        }
+        if let Some(s) = subscription {
+            s.abort();
+        }
+    });
+    (req_tx, worker)
+}
+
+/// Most requests a connection may have queued behind the one running.
+const MAX_PENDING: usize = 64;
+
+/// A connection as its request lines are answered.
+struct Conn<'a> {
+    daemon: &'a Arc<Daemon>,
+    peer: Peer,
+    role: Option<Role>,
+    slot: Slot,
+    busy: &'a Busy,
+    req_tx: &'a mpsc::Sender<protocol::Request>,
+}
+
+impl Conn<'_> {
+    /// The reply to one request line now, or `None` when the request was
+    /// queued for the worker (its reply comes from there). A stop-only
+    /// connection takes nothing but `stop`; every request passes the role
+    /// check and the audit ([`Audit::admit`](super::audit::Audit::admit));
+    /// `stop` runs at once, overtaking anything queued.
+    async fn answer(&self, l: &[u8]) -> Option<String> {
+        let req = match protocol::parse_request(l) {
+            Err(r) => return Some(protocol::error_reply(&r.id, &r.error)),
+            Ok(req) => req,
         };
-        if out_tx.send(line.into()).await.is_err() {
-            break;
+        if self.slot == Slot::StopOnly && req.command != Command::Stop {
+            let why = format!(
+                "all {} client slots are taken; this connection accepts only stop",
+                self.daemon.rig.cfg.daemon.max_clients
+            );
+            return Some(protocol::error_reply(
+                &req.id,
+                &ProtoError::new(ErrorCode::Busy, why),
+            ));
+        }
+        let permitted = self.role >= Some(req.command.role());
+        let origin = Origin::Socket(self.peer);
+        if !self
+            .daemon
+            .audit
+            .admit(origin, self.role, &req.command, l, permitted)
+        {
+            let why = format!(
+                "{} needs role {}; uid {} has {}",
+                req.command.name(),
+                req.command.role().as_str(),
+                self.peer.uid,
+                self.role.map_or("none", Role::as_str)
+            );
+            return Some(protocol::error_reply(
+                &req.id,
+                &ProtoError::new(ErrorCode::PermissionDenied, why),
+            ));
+        }
+        if req.command == Command::Stop {
+            return Some(protocol::reply(
+                &req.id,
+                self.daemon.execute(Command::Stop).await,
+            ));
+        }
+        let id = req.id.clone();
+        self.busy.pending.fetch_add(1, Ordering::Relaxed);
+        match self.req_tx.try_send(req) {
+            Ok(()) => None,
+            Err(_) => {
+                self.busy.pending.fetch_sub(1, Ordering::Relaxed);
+                Some(protocol::error_reply(
+                    &id,
+                    &ProtoError::new(
+                        ErrorCode::Busy,
+                        "more than 64 requests pending on this connection; wait for replies",
+                    ),
+                ))
+            }
         }
     }
-    // Let queued requests finish and their replies go out, then close.
-    drop(req_tx);
-    let _ = worker.await;
-    drop(out_tx);
-    let _ = writer.await;
-    Ok(())
 }
 
 fn spawn_forwarder(

@@ -44,7 +44,7 @@ pub use command::{
 pub use error::{ErrorCode, ProtoError};
 pub use job::{JobKind, JobState};
 pub use parse::{parse_request, too_large};
-pub use reply::{error_reply, event_line, ok_reply, reply_fields};
+pub use reply::{error_reply, event_line, ok_reply, reply, reply_fields};
 pub use role::Role;
 
 /// Version of the protocol this daemon speaks (the `version` command reports

@@ -35,6 +35,15 @@ pub fn reply_fields(v: Value) -> Map<String, Value> {
     }
 }
 
+/// The reply line to a command's result: the one shape both front doors
+/// and every command answer with.
+pub fn reply(id: &Value, result: Result<Value, ProtoError>) -> String {
+    match result {
+        Ok(v) => ok_reply(id, reply_fields(v)),
+        Err(e) => error_reply(id, &e),
+    }
+}
+
 /// An error reply: `{"id":…,"ok":false,"error":{"code":…,"message":…}}`.
 pub fn error_reply(id: &Value, e: &ProtoError) -> String {
     let mut err = Map::new();

@@ -17,7 +17,7 @@
 //! 413 for one over the protocol's size limit.
 
 use super::shared::Web;
-use crate::daemon::audit::{Origin, Outcome};
+use crate::daemon::audit::Origin;
 use crate::daemon::protocol::{self, Command, ErrorCode, ProtoError, Role};
 use crate::daemon::Daemon;
 use axum::body::Bytes;
@@ -188,10 +188,11 @@ async fn run(
     req: protocol::Request,
     raw: &[u8],
 ) -> Response {
-    if !allowed(&req.command, role) {
-        daemon
-            .audit
-            .record_from(origin, role, &req.command, Outcome::Denied, raw);
+    let permitted = allowed(&req.command, role);
+    if !daemon
+        .audit
+        .admit(origin, role, &req.command, raw, permitted)
+    {
         let (status, why) = match cred {
             Credential::Valid => (
                 StatusCode::FORBIDDEN,
@@ -219,15 +220,7 @@ async fn run(
             protocol::error_reply(&req.id, &ProtoError::new(ErrorCode::PermissionDenied, why)),
         );
     }
-    if req.command.changes_state() {
-        daemon
-            .audit
-            .record_from(origin, role, &req.command, Outcome::Allowed, raw);
-    }
-    let line = match daemon.execute(req.command).await {
-        Ok(v) => protocol::ok_reply(&req.id, protocol::reply_fields(v)),
-        Err(e) => protocol::error_reply(&req.id, &e),
-    };
+    let line = protocol::reply(&req.id, daemon.execute(req.command).await);
     reply(StatusCode::OK, line)
 }
 
