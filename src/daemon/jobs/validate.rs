@@ -45,6 +45,7 @@ use crate::metrology::iso9283::{self, Iso9283Error, Xy};
 use crate::model::XyUm;
 use serde_json::{json, Map, Value};
 use std::fs::File;
+use std::ops::ControlFlow;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 use tokio::sync::watch;
@@ -765,6 +766,10 @@ async fn drift_reference(
     Ok(true)
 }
 
+/// Runs the validation: ties the vision frame (unless the tables carry
+/// one), writes the log's head, then visits every pose of every test in
+/// every mode, `cycles` times; `Ok` with the end state and, done, the
+/// ISO 9283 results per test and mode.
 async fn run(
     rig: &Arc<Rig>,
     plan: &Plan,
@@ -773,49 +778,90 @@ async fn run(
     mut cancel: watch::Receiver<bool>,
 ) -> Result<(JobState, Option<Value>), ProtoError> {
     let gen = rig.stop_generation();
-    let clock = rig.clock.clone();
-    let settle = Duration::try_from_secs_f64(plan.settle_s).unwrap_or_default();
-    let frame = match plan.frame {
-        Some(f) => f,
-        None => {
-            let lines = [
-                tie::TieLine {
-                    x_axis: true,
-                    start_um: plan.origin.x_um + 10.0,
-                    range_um: 4000.0,
-                    hold_um: plan.origin.y_um + 10.0,
-                },
-                tie::TieLine {
-                    x_axis: false,
-                    start_um: plan.origin.y_um + 10.0,
-                    range_um: 4000.0,
-                    hold_um: plan.origin.x_um + 10.0,
-                },
-            ];
-            tokio::select! {
-                r = tie::measure_frame(rig, lines, plan.frames, plan.settle_s) => r?.frame,
-                _ = cancel.changed() => return Ok((JobState::Cancelled, None)),
+    let Some(frame) = validation_frame(rig, plan, &mut cancel).await? else {
+        return Ok((JobState::Cancelled, None));
+    };
+    let md = validation_metadata(rig, plan, &frame);
+    let path = rig.cfg.daemon.data_dir.join(name);
+    let sync = rig.cfg.log_sync();
+    let writer: Arc<Mutex<LogWriter<File>>> = Arc::new(Mutex::new(
+        tokio::task::spawn_blocking(move || log::create_file(&path, &md, columns(), sync))
+            .await
+            .map_err(|e| ProtoError::new(ErrorCode::Internal, e.to_string()))?
+            .map_err(|e| {
+                ProtoError::new(ErrorCode::LogError, format!("cannot create {name}: {e}"))
+            })?,
+    ));
+    let run = Run {
+        rig,
+        plan,
+        frame,
+        origin_t: rig.clock.now_s(),
+        writer,
+        name,
+        progress,
+        gen,
+        settle: Duration::try_from_secs_f64(plan.settle_s).unwrap_or_default(),
+    };
+    let mut done = 0usize;
+    let mut results = Map::new();
+    for (segment, poses) in &plan.tests {
+        let mut per_mode = Map::new();
+        for &mode in &plan.modes {
+            match run
+                .mode(segment, poses, mode, &mut done, &mut cancel)
+                .await?
+            {
+                ControlFlow::Continue(r) => {
+                    per_mode.insert(mode.as_str().to_owned(), r);
+                }
+                ControlFlow::Break(state) => return Ok((state, None)),
             }
         }
-    };
+        results.insert((*segment).to_owned(), Value::Object(per_mode));
+    }
+    Ok((JobState::Done, Some(Value::Object(results))))
+}
+
+/// The frame the validation measures in: the tables', else one tied on
+/// two 4 mm lines from the origin. `None` if cancelled meanwhile.
+async fn validation_frame(
+    rig: &Arc<Rig>,
+    plan: &Plan,
+    cancel: &mut watch::Receiver<bool>,
+) -> Result<Option<VisionFrame>, ProtoError> {
+    if let Some(f) = plan.frame {
+        return Ok(Some(f));
+    }
+    let lines = [
+        tie::TieLine {
+            x_axis: true,
+            start_um: plan.origin.x_um + 10.0,
+            range_um: 4000.0,
+            hold_um: plan.origin.y_um + 10.0,
+        },
+        tie::TieLine {
+            x_axis: false,
+            start_um: plan.origin.y_um + 10.0,
+            range_um: 4000.0,
+            hold_um: plan.origin.x_um + 10.0,
+        },
+    ];
+    tokio::select! {
+        r = tie::measure_frame(rig, lines, plan.frames, plan.settle_s) => Ok(Some(r?.frame)),
+        _ = cancel.changed() => Ok(None),
+    }
+}
+
+/// The validation log's metadata: the plan, the tables and their frames'
+/// offsets from the measuring frame, the live drift correction.
+fn validation_metadata(rig: &Rig, plan: &Plan, frame: &VisionFrame) -> Metadata {
     let mut md = Metadata::new();
     md.insert("job", "validate");
-    md.insert(
-        "tests",
-        plan.tests
-            .iter()
-            .map(|(t, _)| *t)
-            .collect::<Vec<_>>()
-            .join(" "),
-    );
-    md.insert(
-        "modes",
-        plan.modes
-            .iter()
-            .map(|m| m.as_str())
-            .collect::<Vec<_>>()
-            .join(" "),
-    );
+    let tests: Vec<&str> = plan.tests.iter().map(|(t, _)| *t).collect();
+    md.insert("tests", tests.join(" "));
+    let modes: Vec<&str> = plan.modes.iter().map(|m| m.as_str()).collect();
+    md.insert("modes", modes.join(" "));
     md.insert("cycles", plan.cycles.to_string());
     md.insert("origin_x_um", plan.origin.x_um.to_string());
     md.insert("origin_y_um", plan.origin.y_um.to_string());
@@ -831,44 +877,60 @@ async fn run(
         if !plan.modes.contains(&mode) {
             continue;
         }
-        if let Some([dx, dy]) = frame_offset_um(
-            &frame,
-            plan.comps.for_mode(mode).and_then(|a| a.frame),
-            plan.origin,
-        ) {
-            md.insert(
-                format!("{}_frame_offset_x_um", mode.as_str()),
-                format!("{dx:.4}"),
-            );
-            md.insert(
-                format!("{}_frame_offset_y_um", mode.as_str()),
-                format!("{dy:.4}"),
-            );
+        let table_frame = plan.comps.for_mode(mode).and_then(|a| a.frame);
+        if let Some([dx, dy]) = frame_offset_um(frame, table_frame, plan.origin) {
+            let m = mode.as_str();
+            md.insert(format!("{m}_frame_offset_x_um"), format!("{dx:.4}"));
+            md.insert(format!("{m}_frame_offset_y_um"), format!("{dy:.4}"));
         }
     }
-    super::tables::frame_to_metadata(&mut md, &frame);
-    let live = rig.drift.to_json(clock.now_s());
+    super::tables::frame_to_metadata(&mut md, frame);
+    let live = rig.drift.to_json(rig.clock.now_s());
     md.insert(
         "live_drift_method",
         live["method"].as_str().unwrap_or("off").to_owned(),
     );
     md.insert("live_drift_every_s", live["every_s"].to_string());
     md.insert("daemon_version", env!("CARGO_PKG_VERSION"));
-    let path = rig.cfg.daemon.data_dir.join(name);
-    let sync = rig.cfg.log_sync();
-    let writer: Arc<Mutex<LogWriter<File>>> = Arc::new(Mutex::new(
-        tokio::task::spawn_blocking(move || log::create_file(&path, &md, columns(), sync))
-            .await
-            .map_err(|e| ProtoError::new(ErrorCode::Internal, e.to_string()))?
-            .map_err(|e| {
-                ProtoError::new(ErrorCode::LogError, format!("cannot create {name}: {e}"))
-            })?,
-    ));
-    let origin_t = clock.now_s();
-    let total = plan.total();
-    let mut done = 0usize;
-    let mut results = Map::new();
-    for (segment, poses) in &plan.tests {
+    md
+}
+
+/// A running validation, as its modes and visits need it.
+struct Run<'a> {
+    rig: &'a Arc<Rig>,
+    plan: &'a Plan,
+    /// The frame measurements are taken in.
+    frame: VisionFrame,
+    /// Rig time of the log's t = 0, s.
+    origin_t: f64,
+    writer: Arc<Mutex<LogWriter<File>>>,
+    name: &'a str,
+    progress: &'a Arc<Mutex<Option<Progress>>>,
+    /// The rig's stop generation at the start: a stop or fault moves it.
+    gen: u64,
+    settle: Duration,
+}
+
+/// One visit of a pose: where it was measured, and whether the closed
+/// loop gave up on it.
+struct Visit {
+    measured: Xy,
+    loop_failed: bool,
+}
+
+impl Run<'_> {
+    /// One mode of one test: every pose `cycles` times, then its ISO 9283
+    /// summary (with the closed loop's failures, the table and the drift
+    /// references where they apply).
+    async fn mode(
+        &self,
+        segment: &'static str,
+        poses: &[Pose],
+        mode: ValidateMode,
+        done: &mut usize,
+        cancel: &mut watch::Receiver<bool>,
+    ) -> Result<ControlFlow<JobState, Value>, ProtoError> {
+        let (rig, plan) = (self.rig, self.plan);
         let targets: Vec<Xy> = poses
             .iter()
             .map(|p| {
@@ -876,111 +938,132 @@ async fn run(
                 Xy::new(t.x_um, t.y_um)
             })
             .collect();
-        let mut per_mode = Map::new();
-        for &mode in &plan.modes {
-            let mut visits: Visits = vec![Vec::new(); poses.len()];
-            let mut drift_refs = 0usize;
-            let mut loop_failures = 0u32;
-            for cycle in 1..=plan.cycles {
-                for (i, pose) in poses.iter().enumerate() {
-                    if *cancel.borrow_and_update() {
-                        return Ok((JobState::Cancelled, None));
-                    }
-                    if rig.stop_generation() != gen {
-                        return Ok((JobState::Stopped, None));
-                    }
-                    if matches!(mode, ValidateMode::Table | ValidateMode::Model) {
-                        let logged = tokio::select! {
-                            r = rig.retry_transient("drift reference", || drift_reference(rig, plan, mode, cycle, origin_t, &writer, name)) => r?,
-                            _ = cancel.changed() => return Ok((JobState::Cancelled, None)),
-                        };
-                        drift_refs += usize::from(logged);
-                    }
-                    let target = plan.target(pose);
-                    let what = format!(
-                        "{} move to ({:.3}, {:.3}) µm",
-                        mode.as_str(),
-                        target.x_um,
-                        target.y_um
-                    );
-                    let aim = in_frame_of(
-                        &frame,
-                        plan.comps.for_mode(mode).and_then(|a| a.frame),
-                        target,
-                    );
-                    let (cmd, reported, failure, correction) = tokio::select! {
-                        r = rig.retry_transient(&what, || reach(rig, plan, mode, aim)) => r?,
-                        _ = cancel.changed() => return Ok((JobState::Cancelled, None)),
-                    };
-                    if failure.is_some() {
-                        loop_failures += 1;
-                    }
-                    clock.sleep(settle).await;
-                    let (m, quality) = measure_retrying(rig, plan.frames).await?;
-                    let meas = frame.to_stage(XyUm {
-                        x_um: m.x_um,
-                        y_um: m.y_um,
-                    });
-                    visits[i].push(Xy::new(meas.x_um, meas.y_um));
-                    let num = |v: &Value| v.as_f64().map_or(String::new(), |v| format!("{v:.4}"));
-                    let rec = Record {
-                        t_s: clock.now_s() - origin_t,
-                        segment: (*segment).to_owned(),
-                        cycle,
-                        x_target_um: target.x_um,
-                        y_target_um: target.y_um,
-                        x_cmd_um: cmd.x_um,
-                        y_cmd_um: cmd.y_um,
-                        x_meas_um: meas.x_um,
-                        y_meas_um: meas.y_um,
-                        temp_c: None,
-                        extra: vec![
-                            mode.as_str().to_owned(),
-                            pose.label.clone(),
-                            num(&reported["x_um"]),
-                            num(&reported["y_um"]),
-                            format!("{quality:.3}"),
-                            correction.map_or(String::new(), |c| format!("{:.4}", c[0])),
-                            correction.map_or(String::new(), |c| format!("{:.4}", c[1])),
-                        ],
-                    };
-                    append_record(&writer, rec, name).await?;
-                    done += 1;
-                    let per_point = (clock.now_s() - origin_t) / done as f64;
-                    let snapshot = {
-                        let mut g = lock(progress);
-                        g.as_mut().map(|pr| {
-                            pr.done = done;
-                            pr.eta_s = Some(per_point * (total - done) as f64);
-                            let mut j = pr.to_json();
-                            j["test"] = json!(segment);
-                            j["mode"] = json!(mode.as_str());
-                            j
-                        })
-                    };
-                    if let Some(s) = snapshot {
-                        rig.push(Topic::Job, "job", s);
-                    }
+        let mut visits: Visits = vec![Vec::new(); poses.len()];
+        let mut drift_refs = 0usize;
+        let mut loop_failures = 0u32;
+        for cycle in 1..=plan.cycles {
+            for (i, pose) in poses.iter().enumerate() {
+                if *cancel.borrow_and_update() {
+                    return Ok(ControlFlow::Break(JobState::Cancelled));
                 }
+                if rig.stop_generation() != self.gen {
+                    return Ok(ControlFlow::Break(JobState::Stopped));
+                }
+                if matches!(mode, ValidateMode::Table | ValidateMode::Model) {
+                    let (origin_t, writer, name) = (self.origin_t, &self.writer, self.name);
+                    let logged = tokio::select! {
+                        r = rig.retry_transient("drift reference", || drift_reference(rig, plan, mode, cycle, origin_t, writer, name)) => r?,
+                        _ = cancel.changed() => return Ok(ControlFlow::Break(JobState::Cancelled)),
+                    };
+                    drift_refs += usize::from(logged);
+                }
+                let visit = match self.visit(segment, mode, cycle, pose, cancel).await? {
+                    ControlFlow::Continue(v) => v,
+                    ControlFlow::Break(state) => return Ok(ControlFlow::Break(state)),
+                };
+                loop_failures += u32::from(visit.loop_failed);
+                visits[i].push(visit.measured);
+                *done += 1;
+                self.report(*done, segment, mode);
             }
-            let mut r = summarize(poses, &targets, &visits)
-                .map_err(|e| ProtoError::new(ErrorCode::Internal, format!("ISO 9283: {e}")))?;
-            if mode == ValidateMode::ClosedLoop {
-                r["closed_loop_failures"] = json!(loop_failures);
-            }
-            if let Some(a) = plan.comps.for_mode(mode) {
-                r["table"] = json!(a.name);
-            }
-            if rig.drift.enabled() && matches!(mode, ValidateMode::Table | ValidateMode::Model) {
-                let mut d = rig.drift.to_json(clock.now_s());
-                d["references_logged"] = json!(drift_refs);
-                r["drift"] = d;
-            }
-            per_mode.insert(mode.as_str().to_owned(), r);
         }
-        results.insert((*segment).to_owned(), Value::Object(per_mode));
+        let mut r = summarize(poses, &targets, &visits)
+            .map_err(|e| ProtoError::new(ErrorCode::Internal, format!("ISO 9283: {e}")))?;
+        if mode == ValidateMode::ClosedLoop {
+            r["closed_loop_failures"] = json!(loop_failures);
+        }
+        if let Some(a) = plan.comps.for_mode(mode) {
+            r["table"] = json!(a.name);
+        }
+        if rig.drift.enabled() && matches!(mode, ValidateMode::Table | ValidateMode::Model) {
+            let mut d = rig.drift.to_json(rig.clock.now_s());
+            d["references_logged"] = json!(drift_refs);
+            r["drift"] = d;
+        }
+        Ok(ControlFlow::Continue(r))
     }
-    Ok((JobState::Done, Some(Value::Object(results))))
+
+    /// Moves to a pose in `mode`, settles, measures and logs it.
+    async fn visit(
+        &self,
+        segment: &'static str,
+        mode: ValidateMode,
+        cycle: u32,
+        pose: &Pose,
+        cancel: &mut watch::Receiver<bool>,
+    ) -> Result<ControlFlow<JobState, Visit>, ProtoError> {
+        let (rig, plan, clock) = (self.rig, self.plan, &self.rig.clock);
+        let target = plan.target(pose);
+        let what = format!(
+            "{} move to ({:.3}, {:.3}) µm",
+            mode.as_str(),
+            target.x_um,
+            target.y_um
+        );
+        let aim = in_frame_of(
+            &self.frame,
+            plan.comps.for_mode(mode).and_then(|a| a.frame),
+            target,
+        );
+        let (cmd, reported, failure, correction) = tokio::select! {
+            r = rig.retry_transient(&what, || reach(rig, plan, mode, aim)) => r?,
+            _ = cancel.changed() => return Ok(ControlFlow::Break(JobState::Cancelled)),
+        };
+        clock.sleep(self.settle).await;
+        let (m, quality) = measure_retrying(rig, plan.frames).await?;
+        let meas = self.frame.to_stage(XyUm {
+            x_um: m.x_um,
+            y_um: m.y_um,
+        });
+        let num = |v: &Value| v.as_f64().map_or(String::new(), |v| format!("{v:.4}"));
+        let rec = Record {
+            t_s: clock.now_s() - self.origin_t,
+            segment: segment.to_owned(),
+            cycle,
+            x_target_um: target.x_um,
+            y_target_um: target.y_um,
+            x_cmd_um: cmd.x_um,
+            y_cmd_um: cmd.y_um,
+            x_meas_um: meas.x_um,
+            y_meas_um: meas.y_um,
+            temp_c: None,
+            extra: vec![
+                mode.as_str().to_owned(),
+                pose.label.clone(),
+                num(&reported["x_um"]),
+                num(&reported["y_um"]),
+                format!("{quality:.3}"),
+                correction.map_or(String::new(), |c| format!("{:.4}", c[0])),
+                correction.map_or(String::new(), |c| format!("{:.4}", c[1])),
+            ],
+        };
+        append_record(&self.writer, rec, self.name).await?;
+        Ok(ControlFlow::Continue(Visit {
+            measured: Xy::new(meas.x_um, meas.y_um),
+            loop_failed: failure.is_some(),
+        }))
+    }
+
+    /// The progress after `done` points, with an estimate of the rest and
+    /// the test and mode under way, pushed as a `job` event.
+    fn report(&self, done: usize, segment: &str, mode: ValidateMode) {
+        let per_point = (self.rig.clock.now_s() - self.origin_t) / done as f64;
+        let total = self.plan.total();
+        let snapshot = {
+            let mut g = lock(self.progress);
+            g.as_mut().map(|pr| {
+                pr.done = done;
+                pr.eta_s = Some(per_point * (total - done) as f64);
+                let mut j = pr.to_json();
+                j["test"] = json!(segment);
+                j["mode"] = json!(mode.as_str());
+                j
+            })
+        };
+        if let Some(s) = snapshot {
+            self.rig.push(Topic::Job, "job", s);
+        }
+    }
 }
 
 #[cfg(test)]
