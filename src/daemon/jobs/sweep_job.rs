@@ -44,6 +44,7 @@ use crate::daemon::rig::{driver_error, Rig};
 use crate::driver::Axis;
 use crate::model::XyUm;
 use serde_json::{json, Value};
+use std::ops::ControlFlow;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 use tokio::sync::watch;
@@ -103,7 +104,8 @@ pub struct SweepArgs {
 }
 
 /// Runs the sweep; returns the final state and the result (delay estimate,
-/// frame counts) for the job's progress.
+/// frame counts) for the job's progress. The logs are written at the end,
+/// from everything measured.
 pub(super) async fn run(
     rig: &Arc<Rig>,
     a: &SweepArgs,
@@ -130,6 +132,45 @@ pub(super) async fn run(
         r = tie::measure_frame(rig, lines, a.frames_per_point, a.settle_s) => r?,
         _ = cancel.changed() => return Ok((JobState::Cancelled, Value::Null)),
     };
+    let m = match measure(rig, a, &tied, progress, &mut cancel).await? {
+        ControlFlow::Continue(m) => m,
+        ControlFlow::Break(state) => return Ok((state, Value::Null)),
+    };
+    let (result, n_records) = finish(rig, a, &tied, m, began).await?;
+    if let Some(p) = lock(progress).as_mut() {
+        p.done = n_records;
+        p.total = n_records;
+    }
+    Ok((JobState::Done, result))
+}
+
+/// Everything a sweep measured, in the order measured.
+struct Measured {
+    /// Rig time the passes began at (after the tie), s: the logs' t = 0.
+    origin: f64,
+    passes: Vec<PassData>,
+    /// Drift references and anchors, each with the index of the pass it
+    /// precedes (`passes.len()`: after the last).
+    between: Vec<(usize, Between)>,
+    anchors: Vec<AnchorMeas>,
+    /// Time spent measuring anchors, s.
+    anchor_s: f64,
+    /// Which axes' controllers recorded positions themselves.
+    recorder: [bool; 2],
+    recorded: RecorderStats,
+}
+
+/// The passes, with drift references when due and each cycle's anchors
+/// after its two passes of an axis; `Break` with the state when cancelled
+/// or stopped.
+async fn measure(
+    rig: &Arc<Rig>,
+    a: &SweepArgs,
+    tied: &tie::Tie,
+    progress: &Arc<Mutex<Option<Progress>>>,
+    cancel: &mut watch::Receiver<bool>,
+) -> Result<ControlFlow<JobState, Measured>, ProtoError> {
+    let plan = &a.plan;
     let origin = rig.clock.now_s();
     let gen = rig.stop_generation();
     let stage = rig.stage()?;
@@ -137,28 +178,29 @@ pub(super) async fn run(
         stage.x.velocity_um_per_s().await.map_err(driver_error)?,
         stage.y.velocity_um_per_s().await.map_err(driver_error)?,
     ];
-    // Which axes' controllers record positions themselves.
-    let recorder = [
-        plan.scan_x && has_recorder(&stage.x).await?,
-        plan.scan_y && has_recorder(&stage.y).await?,
-    ];
-    let mut recorded = RecorderStats::default();
+    let mut m = Measured {
+        origin,
+        passes: Vec::new(),
+        between: Vec::new(),
+        anchors: Vec::new(),
+        anchor_s: 0.0,
+        recorder: [
+            plan.scan_x && has_recorder(&stage.x).await?,
+            plan.scan_y && has_recorder(&stage.y).await?,
+        ],
+        recorded: RecorderStats::default(),
+    };
     let specs = plan.passes();
-    let mut passes: Vec<PassData> = Vec::with_capacity(specs.len());
-    // Drift references and anchors in the order measured, each with the
-    // index of the pass it precedes (`specs.len()`: after the last).
-    let mut between: Vec<(usize, Between)> = Vec::new();
-    let mut anchors: Vec<AnchorMeas> = Vec::new();
-    let mut anchor_s = 0.0;
+    m.passes.reserve(specs.len());
     let mut last_ref_s: Option<f64> = None;
     let mut moved_away = false;
     let total = plan.records_total();
     for (k, spec) in specs.iter().enumerate() {
         if *cancel.borrow_and_update() {
-            return Ok((JobState::Cancelled, Value::Null));
+            return Ok(ControlFlow::Break(JobState::Cancelled));
         }
         if rig.stop_generation() != gen {
-            return Ok((JobState::Stopped, Value::Null));
+            return Ok(ControlFlow::Break(JobState::Stopped));
         }
         // The anchors or a reference detour left the axis elsewhere.
         let mut park = k == 0 || specs[k - 1].x_axis != spec.x_axis || moved_away;
@@ -166,24 +208,24 @@ pub(super) async fn run(
             if last_ref_s.is_none_or(|t| rig.clock.now_s() - t >= d.every_s) {
                 let rec = tokio::select! {
                     r = drift_reference(rig, d, a, &tied.frame, origin, spec.cycle) => r?,
-                    _ = cancel.changed() => return Ok((JobState::Cancelled, Value::Null)),
+                    _ = cancel.changed() => return Ok(ControlFlow::Break(JobState::Cancelled)),
                 };
-                between.push((k, Between::Ref(rec)));
+                m.between.push((k, Between::Ref(rec)));
                 last_ref_s = Some(rig.clock.now_s());
                 // The detour left both axes at the reference.
                 park = true;
             }
         }
-        let use_recorder = recorder[usize::from(!spec.x_axis)];
+        let use_recorder = m.recorder[usize::from(!spec.x_axis)];
         let r = tokio::select! {
-            r = one_pass(rig, spec, park, &tied.frame, use_recorder, &mut recorded) => r?,
+            r = one_pass(rig, spec, park, &tied.frame, use_recorder, &mut m.recorded) => r?,
             _ = cancel.changed() => {
                 // The pass was dropped mid-sweep: its velocity is still set.
                 restore_velocities(rig, velocities).await;
-                return Ok((JobState::Cancelled, Value::Null));
+                return Ok(ControlFlow::Break(JobState::Cancelled));
             }
         };
-        passes.push(r);
+        m.passes.push(r);
         moved_away = false;
         // The cycle's two passes of this axis are done: its anchors.
         if !spec.forward && plan.anchor_every().is_some() {
@@ -197,17 +239,17 @@ pub(super) async fn run(
                 };
                 let rows = tokio::select! {
                     r = anchor_group(rig, plan, &group, a, &tied.frame, gen) => r?,
-                    _ = cancel.changed() => return Ok((JobState::Cancelled, Value::Null)),
+                    _ = cancel.changed() => return Ok(ControlFlow::Break(JobState::Cancelled)),
                 };
                 let Some(rows) = rows else {
-                    return Ok((JobState::Stopped, Value::Null));
+                    return Ok(ControlFlow::Break(JobState::Stopped));
                 };
                 for row in rows {
-                    anchors.push(row.m);
-                    between.push((k + 1, Between::Anchor(row)));
+                    m.anchors.push(row.m);
+                    m.between.push((k + 1, Between::Anchor(row)));
                 }
             }
-            anchor_s += rig.clock.now_s() - t0;
+            m.anchor_s += rig.clock.now_s() - t0;
             moved_away = true;
         }
         let done = total * (k + 1) / specs.len();
@@ -222,74 +264,59 @@ pub(super) async fn run(
             rig.push(Topic::Job, "job", s);
         }
     }
-    let est = estimate_delay(&passes).map_err(|e| {
+    Ok(ControlFlow::Continue(m))
+}
+
+/// From what was measured: the camera delay, the anchor correction, the
+/// log (and its companions, which differ in the corrections applied only)
+/// and the job's result with the number of records the log holds.
+async fn finish(
+    rig: &Arc<Rig>,
+    a: &SweepArgs,
+    tied: &tie::Tie,
+    m: Measured,
+    began: f64,
+) -> Result<(Value, usize), ProtoError> {
+    let plan = &a.plan;
+    let est = estimate_delay(&m.passes).map_err(|e| {
         ProtoError::new(
             ErrorCode::LowQuality,
             format!("sweep characterization: {e}"),
         )
     })?;
-    let corr = anchor_correction(&passes, &anchors, est.delay_s, plan.step_um);
+    let corr = anchor_correction(&m.passes, &m.anchors, est.delay_s, plan.step_um);
     let duration_s = rig.clock.now_s() - began;
-    let frames: usize = passes.iter().map(|p| p.frames.len()).sum();
-    let samples: usize = passes.iter().map(|p| p.samples.len()).sum();
-    let mut md = Metadata::new();
-    plan.to_metadata(&mut md);
-    if let Some(d) = &a.drift {
-        d.to_metadata(&mut md);
-    }
-    tie::to_metadata(&mut md, &tied);
-    md.insert("daemon_version", env!("CARGO_PKG_VERSION"));
-    md.insert("sweep_frames", frames.to_string());
-    md.insert("sweep_pos_samples", samples.to_string());
-    for (key, used, swept) in [
-        ("sweep_position_source_x", recorder[0], plan.scan_x),
-        ("sweep_position_source_y", recorder[1], plan.scan_y),
-    ] {
-        if swept {
-            md.insert(key, if used { "data_recorder" } else { "pos_polling" });
-        }
-    }
-    if recorded.records > 0 {
-        md.insert("sweep_recorder_records", recorded.records.to_string());
-        md.insert(
-            "sweep_recorder_sample_time_s",
-            format!("{:.6}", recorded.sample_time_s),
-        );
-    }
-    md.insert("sweep_duration_s", format!("{duration_s:.3}"));
-    md.insert("camera_delay_s", format!("{:.7}", est.delay_s));
-    md.insert(
-        "camera_delay_residual_um",
-        format!("{:.5}", est.residual_um),
-    );
-    anchor_metadata(&mut md, &corr, anchors.len(), anchor_s);
+    let frames: usize = m.passes.iter().map(|p| p.frames.len()).sum();
+    let samples: usize = m.passes.iter().map(|p| p.samples.len()).sum();
+    let md = sweep_metadata(a, tied, &m, &est, &corr, [frames, samples], duration_s);
     let anchored = plan.anchor_every().is_some();
     let built = |delay_s: f64, apply: bool| {
         let ctx = RecordContext {
             plan,
             delay_s,
-            origin,
+            origin: m.origin,
             corr: &corr,
             apply,
         };
-        records(&passes, &between, &ctx)
+        records(&m.passes, &m.between, &ctx)
     };
     let records = built(est.delay_s, anchored);
-    let n_between = between.len();
-    let n_refs = between
+    let n_between = m.between.len();
+    let n_refs = m
+        .between
         .iter()
         .filter(|(_, b)| matches!(b, Between::Ref(_)))
         .count();
     let n_records = records.len() - n_between;
     // The log and its companions differ in the corrections applied only.
     let variant = |delay_s: f64, apply: bool| {
-        let mut m = md.clone();
-        m.insert("camera_delay_applied_s", format!("{delay_s:.7}"));
-        m.insert(
+        let mut v = md.clone();
+        v.insert("camera_delay_applied_s", format!("{delay_s:.7}"));
+        v.insert(
             "sweep_anchor_correction_applied",
             (apply && anchored).to_string(),
         );
-        m
+        v
     };
     write_log(rig, &a.name, variant(est.delay_s, true), records).await?;
     if let Some(u) = &a.uncorrected {
@@ -306,17 +333,61 @@ pub(super) async fn run(
     }
     let mut result = result_json(&est, frames, samples, n_records, duration_s);
     result["drift_references"] = json!(n_refs);
-    result["anchors"] = anchor_json(plan, &corr, anchors.len(), anchor_s);
+    result["anchors"] = anchor_json(plan, &corr, m.anchors.len(), m.anchor_s);
+    let source = |used: bool| if used { "data_recorder" } else { "pos_polling" };
     result["position_source"] = json!({
-        "x": if recorder[0] { "data_recorder" } else { "pos_polling" },
-        "y": if recorder[1] { "data_recorder" } else { "pos_polling" },
+        "x": source(m.recorder[0]),
+        "y": source(m.recorder[1]),
     });
-    result["recorder_records"] = json!(recorded.records);
-    if let Some(p) = lock(progress).as_mut() {
-        p.done = n_records;
-        p.total = n_records;
+    result["recorder_records"] = json!(m.recorded.records);
+    Ok((result, n_records))
+}
+
+/// The sweep log's metadata: the plan, drift references, the tie, what
+/// was measured (`counts`: frames, position samples) and found.
+fn sweep_metadata(
+    a: &SweepArgs,
+    tied: &tie::Tie,
+    m: &Measured,
+    est: &DelayEstimate,
+    corr: &AnchorCorrection,
+    counts: [usize; 2],
+    duration_s: f64,
+) -> Metadata {
+    let plan = &a.plan;
+    let [frames, samples] = counts;
+    let mut md = Metadata::new();
+    plan.to_metadata(&mut md);
+    if let Some(d) = &a.drift {
+        d.to_metadata(&mut md);
     }
-    Ok((JobState::Done, result))
+    tie::to_metadata(&mut md, tied);
+    md.insert("daemon_version", env!("CARGO_PKG_VERSION"));
+    md.insert("sweep_frames", frames.to_string());
+    md.insert("sweep_pos_samples", samples.to_string());
+    for (key, used, swept) in [
+        ("sweep_position_source_x", m.recorder[0], plan.scan_x),
+        ("sweep_position_source_y", m.recorder[1], plan.scan_y),
+    ] {
+        if swept {
+            md.insert(key, if used { "data_recorder" } else { "pos_polling" });
+        }
+    }
+    if m.recorded.records > 0 {
+        md.insert("sweep_recorder_records", m.recorded.records.to_string());
+        md.insert(
+            "sweep_recorder_sample_time_s",
+            format!("{:.6}", m.recorded.sample_time_s),
+        );
+    }
+    md.insert("sweep_duration_s", format!("{duration_s:.3}"));
+    md.insert("camera_delay_s", format!("{:.7}", est.delay_s));
+    md.insert(
+        "camera_delay_residual_um",
+        format!("{:.5}", est.residual_um),
+    );
+    anchor_metadata(&mut md, corr, m.anchors.len(), m.anchor_s);
+    md
 }
 
 /// What the data recorder delivered over the sweep.
