@@ -304,7 +304,8 @@ impl SimHandle {
 
     /// Like [`SimHandle::start`] but with a given clock (`cfg.time_scale` is
     /// ignored): a [`crate::clock::ManualClock`] makes served timing
-    /// deterministic.
+    /// deterministic. The rig and its camera first, then the controllers on
+    /// their lines, then each line's link; the sockets last.
     pub fn start_with_clock(
         cfg: ServeConfig,
         clock: Arc<dyn Clock>,
@@ -319,7 +320,7 @@ impl SimHandle {
             )));
         }
         cfg.rig.validate().map_err(SimError::Config)?;
-        let [cx, cy] = controller_configs(cfg.seed, cfg.daisy_chain, &cfg.rig.servo)?;
+        let [mut cx, mut cy] = controller_configs(cfg.seed, cfg.daisy_chain, &cfg.rig.servo)?;
         let model_path = cfg.model.clone().or_else(|| cfg.rig.model.clone());
         let model = match &cfg.stage_model {
             Some(m) => m.clone(),
@@ -338,130 +339,31 @@ impl SimHandle {
             crate::camera::SimCamera::new(&cfg.rig.camera, rig.clone(), clock.clone(), cfg.seed)
                 .map_err(SimError::Config)?,
         );
-        let mut cx = cx;
-        let mut cy = cy;
         cx.platform = rig.platform(micropos::model::Axis::X);
         cy.platform = rig.platform(micropos::model::Axis::Y);
         let stop = Arc::new(AtomicBool::new(false));
-        let (buses, routes, names): (Vec<Bus>, [Route; 2], Vec<(AxisName, &str)>) =
-            if cfg.daisy_chain {
-                (
-                    vec![Bus::new(vec![Controller::new(cx), Controller::new(cy)])?],
-                    [
-                        Route {
-                            line: 0,
-                            controller: 0,
-                        },
-                        Route {
-                            line: 0,
-                            controller: 1,
-                        },
-                    ],
-                    vec![(AxisName::X, "bus")],
-                )
-            } else {
-                (
-                    vec![
-                        Bus::new(vec![Controller::new(cx)])?,
-                        Bus::new(vec![Controller::new(cy)])?,
-                    ],
-                    [
-                        Route {
-                            line: 0,
-                            controller: 0,
-                        },
-                        Route {
-                            line: 1,
-                            controller: 0,
-                        },
-                    ],
-                    vec![(AxisName::X, "x"), (AxisName::Y, "y")],
-                )
-            };
+        let (buses, routes, names) = wiring(cfg.daisy_chain, cx, cy)?;
         let buses: Vec<Arc<Mutex<Bus>>> =
             buses.into_iter().map(|b| Arc::new(Mutex::new(b))).collect();
         let mut lines = Vec::new();
-        let core_stop_on_err = |lines: &mut Vec<LineCtl>| {
-            stop.store(true, Ordering::SeqCst);
-            for l in lines.iter_mut() {
-                l.join();
-            }
-        };
         for (i, (axis, name)) in names.iter().enumerate() {
             let link = cfg.link_dir.join(name);
-            if cfg.in_process {
-                let n = lock(&buses[i]).controllers().len();
-                lines.push(LineCtl {
-                    axis: *axis,
-                    link: link.clone(),
-                    probe: Arc::new(RxProbe::default()),
-                    backend: Backend::InProcess(Arc::new(crate::vline::InProcessLine::new(
-                        *axis,
-                        link,
-                        buses[i].clone(),
-                        clock.clone(),
-                        n,
-                    ))),
-                });
-                continue;
-            }
-            // Only ever replace our own kind of file: a stale symlink.
-            if let Ok(meta) = std::fs::symlink_metadata(&link) {
-                if !meta.file_type().is_symlink() {
-                    core_stop_on_err(&mut lines);
-                    return Err(SimError::Config(format!(
-                        "{} exists and is not a symlink; refusing to replace it",
-                        link.display()
-                    )));
-                }
-            }
-            let pty = match Pty::open(&link) {
-                Ok(p) => p,
+            let line = if cfg.in_process {
+                Ok(in_process_line(*axis, link, &buses[i], &clock))
+            } else {
+                pty_line(*axis, name, link, &buses[i], &clock, &stop)
+            };
+            match line {
+                Ok(l) => lines.push(l),
                 Err(e) => {
-                    core_stop_on_err(&mut lines);
+                    // The lines opened so far end with the error.
+                    stop.store(true, Ordering::SeqCst);
+                    for l in &mut lines {
+                        l.join();
+                    }
                     return Err(e);
                 }
-            };
-            let n = buses[i]
-                .lock()
-                .unwrap_or_else(|e| e.into_inner())
-                .controllers()
-                .len();
-            let probe = Arc::new(RxProbe::default());
-            let line = Line {
-                axis: *axis,
-                link: link.clone(),
-                pty: Some(pty),
-                bus: buses[i].clone(),
-                clock: clock.clone(),
-                faults: ReplyFaults::new(n),
-                pending: Vec::new(),
-                outbox: Vec::new(),
-                outbox_since: None,
-                probe: probe.clone(),
-            };
-            let (tx, rx) = mpsc::channel();
-            let stop2 = stop.clone();
-            let thread = std::thread::Builder::new()
-                .name(format!("hil-sim-{name}"))
-                .spawn(move || line.run(rx, stop2))
-                .map_err(io_err("spawn line thread"));
-            let thread = match thread {
-                Ok(t) => t,
-                Err(e) => {
-                    core_stop_on_err(&mut lines);
-                    return Err(e);
-                }
-            };
-            lines.push(LineCtl {
-                axis: *axis,
-                link,
-                probe,
-                backend: Backend::Pty {
-                    tx: Mutex::new(tx),
-                    thread: Some(thread),
-                },
-            });
+            }
         }
         let core = Arc::new(Core {
             clock,
@@ -690,4 +592,111 @@ impl crate::control::Injector for Core {
         }
         out
     }
+}
+
+/// The buses, each axis's route and each line's (axis, link name).
+type Wiring = (Vec<Bus>, [Route; 2], Vec<(AxisName, &'static str)>);
+
+/// The buses the two controllers sit on, how each axis is reached, and
+/// each line's link name: one daisy-chained line (`bus`), or a line per
+/// axis (`x`, `y`).
+fn wiring(
+    daisy_chain: bool,
+    cx: ControllerConfig,
+    cy: ControllerConfig,
+) -> Result<Wiring, SimError> {
+    let route = |line, controller| Route { line, controller };
+    Ok(if daisy_chain {
+        (
+            vec![Bus::new(vec![Controller::new(cx), Controller::new(cy)])?],
+            [route(0, 0), route(0, 1)],
+            vec![(AxisName::X, "bus")],
+        )
+    } else {
+        (
+            vec![
+                Bus::new(vec![Controller::new(cx)])?,
+                Bus::new(vec![Controller::new(cy)])?,
+            ],
+            [route(0, 0), route(1, 0)],
+            vec![(AxisName::X, "x"), (AxisName::Y, "y")],
+        )
+    })
+}
+
+/// A line served in process (`hil-sim run`, `demo`): no pseudo-terminal.
+fn in_process_line(
+    axis: AxisName,
+    link: PathBuf,
+    bus: &Arc<Mutex<Bus>>,
+    clock: &Arc<dyn Clock>,
+) -> LineCtl {
+    let n = lock(bus).controllers().len();
+    LineCtl {
+        axis,
+        link: link.clone(),
+        probe: Arc::new(RxProbe::default()),
+        backend: Backend::InProcess(Arc::new(crate::vline::InProcessLine::new(
+            axis,
+            link,
+            bus.clone(),
+            clock.clone(),
+            n,
+        ))),
+    }
+}
+
+/// A line served on a pseudo-terminal whose path is linked at `link`, by
+/// a thread of its own. Only our own kind of file is replaced there: a
+/// stale symlink.
+fn pty_line(
+    axis: AxisName,
+    name: &str,
+    link: PathBuf,
+    bus: &Arc<Mutex<Bus>>,
+    clock: &Arc<dyn Clock>,
+    stop: &Arc<AtomicBool>,
+) -> Result<LineCtl, SimError> {
+    if let Ok(meta) = std::fs::symlink_metadata(&link) {
+        if !meta.file_type().is_symlink() {
+            return Err(SimError::Config(format!(
+                "{} exists and is not a symlink; refusing to replace it",
+                link.display()
+            )));
+        }
+    }
+    let pty = Pty::open(&link)?;
+    let n = bus
+        .lock()
+        .unwrap_or_else(|e| e.into_inner())
+        .controllers()
+        .len();
+    let probe = Arc::new(RxProbe::default());
+    let line = Line {
+        axis,
+        link: link.clone(),
+        pty: Some(pty),
+        bus: bus.clone(),
+        clock: clock.clone(),
+        faults: ReplyFaults::new(n),
+        pending: Vec::new(),
+        outbox: Vec::new(),
+        outbox_since: None,
+        probe: probe.clone(),
+    };
+    let (tx, rx) = mpsc::channel();
+    let stop2 = stop.clone();
+    let thread = std::thread::Builder::new()
+        .name(format!("hil-sim-{name}"))
+        .spawn(move || line.run(rx, stop2))
+        .map_err(io_err("spawn line thread"))?;
+    Ok(LineCtl {
+        axis,
+        link,
+        probe,
+        backend: Backend::Pty {
+            tx: Mutex::new(tx),
+            thread: Some(thread),
+        },
+    })
 }
