@@ -165,7 +165,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::charact::log::MeasurementLog;
 use crate::charact::scan::is_sweep_anchor;
-use crate::model::{Axis, Environment, Interpolation, StageModel, TemperaturePoint};
+use crate::model::{Axis, Environment, Interpolation, StageModel, TemperaturePoint, XyUm};
 
 use super::grid::{self, GridReport};
 use super::AnalysisError;
@@ -621,69 +621,177 @@ fn diagnose_with(
         prepare_with(log, &leads.model, opts.max_folds, scheme)?
     };
     let model = &leads.model;
-    let (all_names, all_base) = base_columns(&d, model, &opts.base_free_kinds);
-    // A periodic base term whose period the log's sampling cannot resolve
-    // is aliased: fitting it would turn it into an arbitrary per-target
-    // correction. It stays at the model's value.
-    let mut base_fixed: Vec<FixedParam> = Vec::new();
-    let mut resolvable: Vec<usize> = Vec::new();
-    for (j, name) in all_names.iter().enumerate() {
-        if let Some((period_um, shortest_um)) = aliased_period(&d, model, name) {
-            base_fixed.push(FixedParam {
-                name: name.clone(),
-                reason: format!(
-                    "the log cannot resolve them: period {period_um:.1} µm is shorter than the {shortest_um:.1} µm its spacing resolves (aliased); sampling at ≤ {:.1} µm, or a dense segment at that step, resolves it",
-                    crate::model::sampling::resolving_step_um(period_um)
-                ),
-                aliased: true,
-            });
-        } else if let Some(reason) = unresolved(&d, model, name) {
-            base_fixed.push(FixedParam {
-                name: name.clone(),
-                reason,
-                aliased: false,
-            });
-        } else {
-            resolvable.push(j);
+    let (mut base, unidentifiable) = select_base_params(log, &d, model, opts);
+    // Readings of the replicates that the base leaves (a reversal that
+    // varies along the travel, a non-linearity between targets) become
+    // candidate terms, tables judged on held-out data like every family.
+    let mut fams = families(&d);
+    fams.extend(tables::wanted(log, &d, &base.cols));
+    fams.extend(lead::shape_tables(&leads.checks, &d, &fams));
+    let Greedy {
+        acc,
+        table_tests,
+        baseline_rms,
+        final_heldout,
+        ..
+    } = Greedy::run(&d, model, opts, &fams, &mut base);
+    let Outcome {
+        findings,
+        withdrawn,
+        mut fitted,
+        std_errs,
+        final_heldout,
+        extended_heldout,
+        with_unmodelled,
+    } = settle_findings(&d, model, &base, &acc, final_heldout)?;
+    let base_model = base_model_with_environment(log, &d, model, &base.names, &mut fitted)?;
+    let synthetic_time = log
+        .metadata
+        .get(TIME_SOURCE_KEY)
+        .is_some_and(|v| v.trim_start().starts_with("synthetic"));
+    let mut parameters = leads.corrections.clone();
+    parameters.extend(corrections::corrections(
+        model,
+        &fitted,
+        &base.names,
+        &std_errs,
+        synthetic_time,
+    ));
+    corrections::with_joint_totals(&mut parameters, model, &unidentifiable);
+    // Residual series and in-sample RMS of the extended model.
+    let observed: Vec<_> = d
+        .states
+        .iter()
+        .map(|s| fitted.observed_position(s))
+        .collect();
+    let after = extended_residual(&d, &observed);
+    let series = residual_series(log, &d, &base.cols, &after);
+    let fit_rms = [rms_comp(&after, 0), rms_comp(&after, 1)];
+    corrections::note_tables(&mut parameters, &findings, model);
+    corrections::note_model_scale(&mut parameters, &fitted, &d.states, &observed, d.measured);
+    note_short_periods(&mut parameters, &d, model);
+    let r0 = given_model_residual(&d, given);
+    let mut noise = noise::noise_report(log, &d, &final_heldout);
+    tables::reading_terms(&mut noise, &findings, &table_tests, &d, opts);
+    let aliased_rms = aliased_contribution(&d, model, &base.fixed)?;
+    let mut findings = findings;
+    note_aliased_in_tables(&mut findings, aliased_rms);
+    lead::note_held(&mut findings, &leads.checks);
+    Ok(Diagnosis {
+        points: d.n,
+        folds: d.nfolds,
+        model_rms_um: RmsXy::from([rms_comp(&r0, 0), rms_comp(&r0, 1)]),
+        baseline_rms_um: RmsXy::from(baseline_rms),
+        findings,
+        withdrawn,
+        extended_rms_um: RmsXy::from(extended_heldout),
+        with_unmodelled_rms_um: with_unmodelled,
+        extended_fit_rms_um: RmsXy::from(fit_rms),
+        parameters,
+        leads: leads.checks,
+        unidentifiable,
+        base_free_params: base.names,
+        base_fixed_params: base.fixed,
+        measured_axes: Axis::ALL
+            .into_iter()
+            .filter(|a| d.measured[a.index()])
+            .collect(),
+        measured_from: match d.measured_source {
+            MeasuredSource::Metadata => "metadata".into(),
+            MeasuredSource::Data => "data".into(),
+        },
+        synthetic_time,
+        time_with: d.time_with,
+        time_unusable: d.time_unusable.clone(),
+        grid: None,
+        map_term: None,
+        frame_turn_urad: None,
+        whole_cycle_folds: d.whole_cycle_folds,
+        folds_interleaved: None,
+        aliased_contribution_rms_um: RmsXy::from(aliased_rms),
+        judged_points: d.judged.iter().filter(|&&j| j).count(),
+        noise,
+        options: opts.clone(),
+        extended_model: fitted,
+        base_model,
+        series,
+    })
+}
+
+/// The base fit's parameters. The greedy search changes them: a finding
+/// may free a candidate the selection left at the model's value, or make
+/// a kept one inseparable from its table.
+struct Base {
+    /// Free parameters, in the order of `cols`.
+    names: Vec<String>,
+    /// Their design columns.
+    cols: Vec<Vec<f64>>,
+    /// Parameters at the model's value, each with the reason the report
+    /// gives.
+    fixed: Vec<FixedParam>,
+    /// The held-out selection's candidates, kept so that a later finding
+    /// can free one of them.
+    cand_names: Vec<String>,
+    cand_cols: Vec<Vec<f64>>,
+    /// Candidates the selection left at the model's value: a later finding
+    /// that one of them can carry frees it instead.
+    dropped: Vec<usize>,
+}
+
+impl Base {
+    /// Frees candidate `j`: a finding showed the log measures it after all.
+    fn free(&mut self, j: usize) {
+        self.cols.push(self.cand_cols[j].clone());
+        self.names.push(self.cand_names[j].clone());
+        let name = &self.cand_names[j];
+        self.fixed.retain(|f| f.name != *name);
+        self.dropped.retain(|&k| k != j);
+    }
+
+    /// A table with a knot at every target takes any error of its
+    /// axis at those targets: a base parameter whose effect it (with
+    /// the other base parameters) spans is no longer separable and
+    /// stays at the model's value (see `ident`). Fitted as well, the
+    /// split between it and the table is arbitrary, and so is its σ.
+    fn fix_spanned_by(&mut self, d: &data::Data, model: &StageModel, acc: &[Accepted]) {
+        let given: Vec<Vec<f64>> = acc.iter().flat_map(|a| a.cols.clone()).collect();
+        let (kept, unid) = ident::identifiable_given(d, model, &self.names, &self.cols, &given);
+        if kept.len() < self.names.len() {
+            for u in unid {
+                self.fixed.push(FixedParam {
+                    name: u.name.clone(),
+                    reason: "the per-target table of a finding spans its effect at the log's targets: not separable from it".into(),
+                    aliased: false,
+                });
+            }
+            self.cols = kept.iter().map(|&j| self.cols[j].clone()).collect();
+            self.names = kept.iter().map(|&j| self.names[j].clone()).collect();
         }
     }
+}
+
+/// Step 2's choice of the base parameters: each parameter of the model
+/// is free unless the log cannot measure it or freeing it does not
+/// predict held-out data better; the ones left at the model's value say
+/// why.
+fn select_base_params(
+    log: &MeasurementLog,
+    d: &data::Data,
+    model: &StageModel,
+    opts: &DiagnoseOptions,
+) -> (Base, Vec<Unidentifiable>) {
+    let (all_names, all_base) = base_columns(d, model, &opts.base_free_kinds);
+    let (mut base_fixed, resolvable) = split_resolvable(d, model, &all_names);
     // Parameters the log's geometry cannot separate from others stay at
     // the model's value; their combination is named (see `ident`).
     let res_names: Vec<String> = resolvable.iter().map(|&j| all_names[j].clone()).collect();
     let res_cols: Vec<Vec<f64>> = resolvable.iter().map(|&j| all_base[j].clone()).collect();
-    // Temperature coefficients held at a constant temperature: their
-    // columns, to find those that still act along a kept parameter
-    // (`ident::held_along`).
-    let held: Vec<(String, Vec<f64>)> = base_fixed
-        .iter()
-        .filter(|f| f.reason.starts_with(CONSTANT_TEMPERATURE))
-        .filter_map(|f| {
-            let j = all_names.iter().position(|n| *n == f.name)?;
-            Some((f.name.clone(), all_base[j].clone()))
-        })
-        .collect();
+    let held = held_temperature_columns(&base_fixed, &all_names, &all_base);
     drop(all_base);
-    let (mut separable, mut unidentifiable) = ident::identifiable(&d, model, &res_names, &res_cols);
-    // On a map from an outside instrument, a slope of the y error along x
-    // is the measuring frame's rotation as much as the stage's (the frame
-    // was turned to make it zero, see `diagnose`): a parameter whose
-    // column the rotation and the parameters before it span is not
-    // measured by the log.
+    let (mut separable, mut unidentifiable) = ident::identifiable(d, model, &res_names, &res_cols);
     if d.grid && frame_turned(log) {
-        let rot = rotation_column(&d);
-        let (with_rot, _) =
-            ident::identifiable_given(&d, model, &res_names, &res_cols, std::slice::from_ref(&rot));
-        separable.retain(|j| {
-            let kept = with_rot.contains(j);
-            if !kept {
-                base_fixed.push(FixedParam {
-                    name: res_names[*j].clone(),
-                    reason: "not determined by this log: in-plane readings cannot tell it from a rotation of the measuring frame (the frame is fixed by taking the stage's x axis as the reference)".into(),
-                    aliased: false,
-                });
-            }
-            kept
-        });
+        let res = (&res_names[..], &res_cols[..]);
+        fix_frame_rotation(d, model, res, &mut separable, &mut base_fixed);
     }
     for u in &unidentifiable {
         base_fixed.push(FixedParam {
@@ -697,22 +805,137 @@ fn diagnose_with(
         let kept_names: Vec<String> = separable.iter().map(|&j| res_names[j].clone()).collect();
         let kept_cols: Vec<Vec<f64>> = separable.iter().map(|&j| res_cols[j].clone()).collect();
         unidentifiable.extend(ident::held_along(
-            &d,
+            d,
             &held,
             &kept_names,
             &kept_cols,
             "held: the log's temperature does not change",
         ));
     }
-    // A parameter the training rows of some fold do not vary (its effect
-    // lies in the held-out cycle or chunk alone, e.g. the forward screw
-    // harmonics of a log with four forward points in its first chunk)
-    // is fitted from a handful of points no held-out row ever tests.
-    // Likewise a parameter whose effect lies on a handful of points (the
-    // play of an axis that only ever moves forward, seen at the log's
-    // first point alone): a fit to those points, not a measurement.
+    fix_undetermined(
+        d,
+        model,
+        (&res_names, &res_cols),
+        &mut separable,
+        &mut base_fixed,
+    );
+    let (testable, untestable): (Vec<usize>, Vec<usize>) = separable
+        .iter()
+        .partition(|&&j| testable_in_every_fold(d, &res_cols[j]));
+    for &j in &untestable {
+        base_fixed.push(FixedParam {
+            name: res_names[j].clone(),
+            reason: "no held-out test can judge them: on the training rows of a fold their effect does not vary (it lies in the held-out part alone)".into(),
+            aliased: false,
+        });
+    }
+    let cand_names: Vec<String> = testable.iter().map(|&j| res_names[j].clone()).collect();
+    let cand_cols: Vec<Vec<f64>> = testable.iter().map(|&j| res_cols[j].clone()).collect();
+    drop(res_cols);
+    let base = select_candidates(d, cand_names, cand_cols, base_fixed);
+    (base, unidentifiable)
+}
+
+/// Splits the base parameters into those the log's sampling resolves
+/// (their indices) and those it does not (at the model's value). A
+/// periodic base term whose period the log's sampling cannot resolve is
+/// aliased: fitting it would turn it into an arbitrary per-target
+/// correction.
+fn split_resolvable(
+    d: &data::Data,
+    model: &StageModel,
+    all_names: &[String],
+) -> (Vec<FixedParam>, Vec<usize>) {
+    let mut base_fixed: Vec<FixedParam> = Vec::new();
+    let mut resolvable: Vec<usize> = Vec::new();
+    for (j, name) in all_names.iter().enumerate() {
+        if let Some((period_um, shortest_um)) = aliased_period(d, model, name) {
+            base_fixed.push(FixedParam {
+                name: name.clone(),
+                reason: format!(
+                    "the log cannot resolve them: period {period_um:.1} µm is shorter than the {shortest_um:.1} µm its spacing resolves (aliased); sampling at ≤ {:.1} µm, or a dense segment at that step, resolves it",
+                    crate::model::sampling::resolving_step_um(period_um)
+                ),
+                aliased: true,
+            });
+        } else if let Some(reason) = unresolved(d, model, name) {
+            base_fixed.push(FixedParam {
+                name: name.clone(),
+                reason,
+                aliased: false,
+            });
+        } else {
+            resolvable.push(j);
+        }
+    }
+    (base_fixed, resolvable)
+}
+
+/// Temperature coefficients held at a constant temperature, with their
+/// columns: some may still act along a kept parameter, and the report
+/// names those (`ident::held_along`).
+fn held_temperature_columns(
+    base_fixed: &[FixedParam],
+    all_names: &[String],
+    all_base: &[Vec<f64>],
+) -> Vec<(String, Vec<f64>)> {
+    base_fixed
+        .iter()
+        .filter(|f| f.reason.starts_with(CONSTANT_TEMPERATURE))
+        .filter_map(|f| {
+            let j = all_names.iter().position(|n| *n == f.name)?;
+            Some((f.name.clone(), all_base[j].clone()))
+        })
+        .collect()
+}
+
+/// On a map from an outside instrument, a slope of the y error along x
+/// is the measuring frame's rotation as much as the stage's (the frame
+/// was turned to make it zero, see `diagnose`): a parameter whose
+/// column the rotation and the parameters before it span is not
+/// measured by the log. `res` holds the names and columns `separable`
+/// indexes.
+fn fix_frame_rotation(
+    d: &data::Data,
+    model: &StageModel,
+    (res_names, res_cols): (&[String], &[Vec<f64>]),
+    separable: &mut Vec<usize>,
+    base_fixed: &mut Vec<FixedParam>,
+) {
+    let rot = rotation_column(d);
+    let (with_rot, _) =
+        ident::identifiable_given(d, model, res_names, res_cols, std::slice::from_ref(&rot));
+    separable.retain(|j| {
+        let kept = with_rot.contains(j);
+        if !kept {
+            base_fixed.push(FixedParam {
+                name: res_names[*j].clone(),
+                reason: "not determined by this log: in-plane readings cannot tell it from a rotation of the measuring frame (the frame is fixed by taking the stage's x axis as the reference)".into(),
+                aliased: false,
+            });
+        }
+        kept
+    });
+}
+
+/// A parameter the training rows of some fold do not vary (its effect
+/// lies in the held-out cycle or chunk alone, e.g. the forward screw
+/// harmonics of a log with four forward points in its first chunk)
+/// is fitted from a handful of points no held-out row ever tests.
+/// Likewise a parameter whose effect lies on a handful of points (the
+/// play of an axis that only ever moves forward, seen at the log's
+/// first point alone): a fit to those points, not a measurement. Both
+/// leave `separable` for `base_fixed`; `res` holds the names and
+/// columns `separable` indexes.
+fn fix_undetermined(
+    d: &data::Data,
+    model: &StageModel,
+    (res_names, res_cols): (&[String], &[Vec<f64>]),
+    separable: &mut Vec<usize>,
+    base_fixed: &mut Vec<FixedParam>,
+) {
     separable.retain(|&j| {
-        if let Some(axis) = one_way_play(&d, model, &res_names[j]) {
+        if let Some(axis) = one_way_play(d, model, &res_names[j]) {
             base_fixed.push(FixedParam {
                 name: res_names[j].clone(),
                 reason: format!(
@@ -722,7 +945,7 @@ fn diagnose_with(
             });
             return false;
         }
-        let pts = effective_points(&d, &res_cols[j]);
+        let pts = effective_points(d, &res_cols[j]);
         let enough = pts >= MIN_EFFECTIVE_POINTS;
         if !enough {
             base_fixed.push(FixedParam {
@@ -735,23 +958,20 @@ fn diagnose_with(
         }
         enough
     });
-    let (testable, untestable): (Vec<usize>, Vec<usize>) = separable
-        .iter()
-        .partition(|&&j| testable_in_every_fold(&d, &res_cols[j]));
-    for &j in &untestable {
-        base_fixed.push(FixedParam {
-            name: res_names[j].clone(),
-            reason: "no held-out test can judge them: on the training rows of a fold their effect does not vary (it lies in the held-out part alone)".into(),
-            aliased: false,
-        });
-    }
-    let cand_names: Vec<String> = testable.iter().map(|&j| res_names[j].clone()).collect();
-    let cand_cols: Vec<Vec<f64>> = testable.iter().map(|&j| res_cols[j].clone()).collect();
-    drop(res_cols);
-    // Model selection on the base fit too: only the terms whose freeing
-    // predicts held-out data better (see `fit::select_base`).
-    let keep = select_base(&d, &cand_names, &cand_cols);
-    let mut base_names: Vec<String> = keep.iter().map(|&j| cand_names[j].clone()).collect();
+}
+
+/// Model selection on the base fit too: only the candidates whose
+/// freeing predicts held-out data better are free (see
+/// `fit::select_base`); the others stay at the model's value until a
+/// finding frees them.
+fn select_candidates(
+    d: &data::Data,
+    cand_names: Vec<String>,
+    cand_cols: Vec<Vec<f64>>,
+    mut base_fixed: Vec<FixedParam>,
+) -> Base {
+    let keep = select_base(d, &cand_names, &cand_cols);
+    let base_names: Vec<String> = keep.iter().map(|&j| cand_names[j].clone()).collect();
     base_fixed.extend(
         cand_names
             .iter()
@@ -764,168 +984,252 @@ fn diagnose_with(
                 aliased: false,
             }),
     );
-    // The base: the selected parameters, then (below) every carrier a
-    // finding frees.
-    let mut base0: Vec<Vec<f64>> = keep.iter().map(|&j| cand_cols[j].clone()).collect();
-    // Candidates the selection left at the model's value: a later finding
-    // that one of them can carry frees it instead (see below).
-    let mut dropped: Vec<usize> = (0..cand_names.len())
+    // The base: the selected parameters, then (in the greedy search)
+    // every carrier a finding frees.
+    let base0: Vec<Vec<f64>> = keep.iter().map(|&j| cand_cols[j].clone()).collect();
+    let dropped: Vec<usize> = (0..cand_names.len())
         .filter(|j| !keep.contains(j))
         .collect();
-    // Readings of the replicates that the base leaves (a reversal that
-    // varies along the travel, a non-linearity between targets) become
-    // candidate terms, tables judged on held-out data like every family.
-    let mut fams = families(&d);
-    fams.extend(tables::wanted(log, &d, &base0));
-    fams.extend(lead::shape_tables(&leads.checks, &d, &fams));
-    // The last held-out test of each table family (against the final
-    // model when it was not accepted).
-    let mut table_tests: Vec<tables::TableTest> = Vec::new();
-    let mut acc: Vec<Accepted> = Vec::new();
-    let mut baseline_rms = [0.0; 2];
-    let mut final_heldout: Vec<f64>;
-    // Each pass accepts a finding (re-judging the others, which may drop
-    // one), frees a carrier or stops. A dropped family can come back with
-    // hyper-parameters searched afresh; the bound on the passes guards
-    // against a finding and its replacement taking turns.
-    let mut passes = 0usize;
-    loop {
-        passes += 1;
-        let round: usize = acc.iter().map(|a| a.findings()).sum();
-        let base = with_findings(&base0, &acc, None);
+    Base {
+        names: base_names,
+        cols: base0,
+        fixed: base_fixed,
+        cand_names,
+        cand_cols,
+        dropped,
+    }
+}
+
+/// Steps 4–6, the greedy search: its inputs, and what it has found so
+/// far.
+struct Greedy<'a> {
+    d: &'a data::Data,
+    model: &'a StageModel,
+    opts: &'a DiagnoseOptions,
+    fams: &'a [Family],
+    acc: Vec<Accepted>,
+    /// The last held-out test of each table family (against the final
+    /// model when it was not accepted).
+    table_tests: Vec<tables::TableTest>,
+    /// The held-out RMS before any finding: the report's baseline.
+    baseline_rms: [f64; 2],
+    /// The held-out residual of the last pass.
+    final_heldout: Vec<f64>,
+}
+
+impl<'a> Greedy<'a> {
+    /// Each pass accepts a finding (re-judging the others, which may drop
+    /// one), frees a carrier or stops. A dropped family can come back with
+    /// hyper-parameters searched afresh; the bound on the passes guards
+    /// against a finding and its replacement taking turns.
+    fn run(
+        d: &'a data::Data,
+        model: &'a StageModel,
+        opts: &'a DiagnoseOptions,
+        fams: &'a [Family],
+        base: &mut Base,
+    ) -> Self {
+        let mut g = Greedy {
+            d,
+            model,
+            opts,
+            fams,
+            acc: Vec::new(),
+            table_tests: Vec::new(),
+            baseline_rms: [0.0; 2],
+            final_heldout: Vec::new(),
+        };
+        let mut passes = 0usize;
+        loop {
+            passes += 1;
+            if !g.pass(base, passes) {
+                break;
+            }
+        }
+        g
+    }
+
+    /// One pass; `false` when the search stops.
+    fn pass(&mut self, base: &mut Base, passes: usize) -> bool {
+        let (d, model, opts) = (self.d, self.model, self.opts);
+        let round: usize = self.acc.iter().map(|a| a.findings()).sum();
+        let cols = with_findings(&base.cols, &self.acc, None);
         let judged_fams: &[Family] = if round >= opts.max_findings
             || passes > MAX_PASSES_PER_FINDING * opts.max_findings + 2
         {
             &[]
         } else {
-            &fams
+            self.fams
         };
         let cands: Vec<(Family, Option<&[Vec<f64>]>)> =
             judged_fams.iter().map(|f| (*f, None)).collect();
-        let (before, all_verdicts) = judge(&d, &base, &cands, model);
+        let (before, all_verdicts) = judge(d, &cols, &cands, model);
         let heldout = [rms_comp(&before, 0), rms_comp(&before, 1)];
-        if acc.is_empty() {
-            baseline_rms = heldout;
+        if self.acc.is_empty() {
+            self.baseline_rms = heldout;
         }
-        final_heldout = before.clone();
+        self.final_heldout = before;
         if judged_fams.is_empty() {
-            break;
+            return false;
         }
-        for v in &all_verdicts {
-            tracing::debug!(
-                family = ?v.family,
-                gain_pct = v.gain_pct,
-                z = v.z,
-                rms_before_um = v.rms_before,
-                rms_after_um = v.rms_after,
-                "diagnose: held-out verdict"
-            );
-        }
-        let taken: Vec<Family> = acc.iter().map(|a| a.family).collect();
-        tables::record(&mut table_tests, &all_verdicts, &taken);
-        let mut verdicts: Vec<Verdict> = all_verdicts
-            .into_iter()
-            .filter(|v| passes_test(v, opts))
-            // Two tables at once are two findings: only within the cap.
-            .filter(|v| {
-                !matches!(v.family, Family::Tables { .. }) || round + 2 <= opts.max_findings
-            })
-            .collect();
-        verdicts.sort_by(|a, b| b.reduction.total_cmp(&a.reduction));
-        let Some(mut best) = verdicts.first().map(|v| v.family) else {
-            break;
+        trace_verdicts(&all_verdicts);
+        let taken: Vec<Family> = self.acc.iter().map(|a| a.family).collect();
+        tables::record(&mut self.table_tests, &all_verdicts, &taken);
+        let mut verdicts = significant(all_verdicts, opts, round);
+        let Some(best) = verdicts.first().map(|v| v.family) else {
+            return false;
         };
-        // A quadratic drift must beat the linear one on held-out data.
-        if let Family::Drift {
-            comp,
-            quadratic: true,
-        } = best
-        {
-            let lin = Family::Drift {
-                comp,
-                quadratic: false,
-            };
-            if let (Some(q), Some(l)) = (
-                verdicts.iter().find(|v| v.family == best),
-                verdicts.iter().find(|v| v.family == lin),
-            ) {
-                let (_, z) = paired_z(&l.after, &q.after, comp.index(), 0.0);
-                if z < opts.z_threshold {
-                    best = lin;
-                }
-            }
-        }
+        let best = prefer_linear_drift(best, &verdicts, opts);
         let Some(pos) = verdicts.iter().position(|v| v.family == best) else {
-            break;
+            return false;
         };
         let verdict = verdicts.swap_remove(pos);
-        // The accepted term's hyper-parameters from all the data.
-        let all = vec![true; d.n];
-        let fb = fold_base(&d, &base, all.clone());
-        let Some(spec) = search(best, &d, &fb.resid, &all) else {
-            break;
+        let Some(spec) = refined_spec(d, model, best, &cols) else {
+            return false;
         };
-        let spec = refine_localized(refine_period(spec, &d, &base, model), &d, &base, model);
-        let spec_cols = columns(&spec, &d, model);
+        let spec_cols = columns(&spec, d, model);
         // A finding the model's own parameters can carry is a parameter
         // correction: a candidate the base selection left at the model's
         // value (its effect was hidden under a larger unmodelled one) whose
         // columns span the finding's is freed instead, and the search goes
         // on without spending a finding.
-        let carriers = ident::carriers(&d, &spec_cols, &dropped, &cand_cols);
+        let carriers = ident::carriers(d, &spec_cols, &base.dropped, &base.cand_cols);
         if !carriers.is_empty() {
             for j in carriers {
-                base0.push(cand_cols[j].clone());
-                base_names.push(cand_names[j].clone());
-                base_fixed.retain(|f| f.name != cand_names[j]);
-                dropped.retain(|&k| k != j);
+                base.free(j);
             }
         } else {
-            // A reversal table is the lost motion relative to the axis's
-            // play (zero at its first knot, `search::table_free_knots`):
-            // with the play left at the model's value by the base
-            // selection, the table's first knot would be the model's
-            // play, a value nothing in the log measured. The play is
-            // freed with it.
-            for j in table_plays(&spec, model, &cand_names, &dropped) {
-                base0.push(cand_cols[j].clone());
-                base_names.push(cand_names[j].clone());
-                base_fixed.retain(|f| f.name != cand_names[j]);
-                dropped.retain(|&k| k != j);
-            }
-            let table = matches!(spec, Spec::Table { .. } | Spec::Tables { .. });
-            acc.push(Accepted {
-                family: best,
-                spec,
-                verdict,
-                cols: spec_cols,
-            });
-            // A table with a knot at every target takes any error of its
-            // axis at those targets: a base parameter whose effect it (with
-            // the other base parameters) spans is no longer separable and
-            // stays at the model's value (see `ident`). Fitted as well, the
-            // split between it and the table is arbitrary, and so is its σ.
-            if table {
-                let given: Vec<Vec<f64>> = acc.iter().flat_map(|a| a.cols.clone()).collect();
-                let (kept, unid) =
-                    ident::identifiable_given(&d, model, &base_names, &base0, &given);
-                if kept.len() < base_names.len() {
-                    for u in unid {
-                        base_fixed.push(FixedParam {
-                            name: u.name.clone(),
-                            reason: "the per-target table of a finding spans its effect at the log's targets: not separable from it".into(),
-                            aliased: false,
-                        });
-                    }
-                    base0 = kept.iter().map(|&j| base0[j].clone()).collect();
-                    base_names = kept.iter().map(|&j| base_names[j].clone()).collect();
-                }
-            }
+            self.accept(
+                base,
+                Accepted {
+                    family: best,
+                    spec,
+                    verdict,
+                    cols: spec_cols,
+                },
+            );
         }
         // The findings so far, against what the base and each other now
         // carry (a freed carrier can take over an earlier finding's error).
-        rejudge(&d, &base0, &mut acc, model, opts);
+        rejudge(d, &base.cols, &mut self.acc, model, opts);
+        true
     }
+
+    /// Takes `finding`, with what it implies for the base.
+    fn accept(&mut self, base: &mut Base, finding: Accepted) {
+        // A reversal table is the lost motion relative to the axis's
+        // play (zero at its first knot, `search::table_free_knots`):
+        // with the play left at the model's value by the base
+        // selection, the table's first knot would be the model's
+        // play, a value nothing in the log measured. The play is
+        // freed with it.
+        for j in table_plays(&finding.spec, self.model, &base.cand_names, &base.dropped) {
+            base.free(j);
+        }
+        let table = matches!(finding.spec, Spec::Table { .. } | Spec::Tables { .. });
+        self.acc.push(finding);
+        if table {
+            base.fix_spanned_by(self.d, self.model, &self.acc);
+        }
+    }
+}
+
+/// Every held-out verdict of a pass, for `RUST_LOG=debug`: why a family
+/// was or was not taken.
+fn trace_verdicts(all_verdicts: &[Verdict]) {
+    for v in all_verdicts {
+        tracing::debug!(
+            family = ?v.family,
+            gain_pct = v.gain_pct,
+            z = v.z,
+            rms_before_um = v.rms_before,
+            rms_after_um = v.rms_after,
+            "diagnose: held-out verdict"
+        );
+    }
+}
+
+/// The verdicts that pass the findings' test, the most useful (largest
+/// held-out reduction) first. `round` findings are taken already.
+fn significant(all_verdicts: Vec<Verdict>, opts: &DiagnoseOptions, round: usize) -> Vec<Verdict> {
+    let mut verdicts: Vec<Verdict> = all_verdicts
+        .into_iter()
+        .filter(|v| passes_test(v, opts))
+        // Two tables at once are two findings: only within the cap.
+        .filter(|v| !matches!(v.family, Family::Tables { .. }) || round + 2 <= opts.max_findings)
+        .collect();
+    verdicts.sort_by(|a, b| b.reduction.total_cmp(&a.reduction));
+    verdicts
+}
+
+/// A quadratic drift must beat the linear one on held-out data: `best`,
+/// or the linear drift when it does not.
+fn prefer_linear_drift(best: Family, verdicts: &[Verdict], opts: &DiagnoseOptions) -> Family {
+    if let Family::Drift {
+        comp,
+        quadratic: true,
+    } = best
+    {
+        let lin = Family::Drift {
+            comp,
+            quadratic: false,
+        };
+        if let (Some(q), Some(l)) = (
+            verdicts.iter().find(|v| v.family == best),
+            verdicts.iter().find(|v| v.family == lin),
+        ) {
+            let (_, z) = paired_z(&l.after, &q.after, comp.index(), 0.0);
+            if z < opts.z_threshold {
+                return lin;
+            }
+        }
+    }
+    best
+}
+
+/// The accepted family's hyper-parameters, from all the data (`cols`:
+/// the base with the findings so far).
+fn refined_spec(
+    d: &data::Data,
+    model: &StageModel,
+    best: Family,
+    cols: &[Vec<f64>],
+) -> Option<Spec> {
+    let all = vec![true; d.n];
+    let fb = fold_base(d, cols, all.clone());
+    let spec = search(best, d, &fb.resid, &all)?;
+    Some(refine_localized(
+        refine_period(spec, d, cols, model),
+        d,
+        cols,
+        model,
+    ))
+}
+
+/// The findings left after withdrawal, and the held-out residuals of the
+/// extended model they make.
+struct Outcome {
+    findings: Vec<Finding>,
+    withdrawn: Vec<Withdrawn>,
+    fitted: StageModel,
+    std_errs: std::collections::HashMap<String, f64>,
+    /// The held-out residual with every finding left.
+    final_heldout: Vec<f64>,
+    /// The held-out RMS of the extended model (without `other` findings).
+    extended_heldout: [f64; 2],
+    /// The held-out RMS with the `other` findings too, when there are any.
+    with_unmodelled: Option<RmsXy>,
+}
+
+/// Step 8 on the greedy search's findings `acc`, whose last held-out
+/// residual is `final_heldout`.
+fn settle_findings(
+    d: &data::Data,
+    model: &StageModel,
+    base: &Base,
+    acc: &[Accepted],
+    mut final_heldout: Vec<f64>,
+) -> Result<Outcome, AnalysisError> {
     let accepted: Vec<(Spec, Verdict)> = acc
         .iter()
         .flat_map(|a| {
@@ -938,10 +1242,10 @@ fn diagnose_with(
         .collect();
     // Step 8: findings whose numbers the log does not determine are
     // withdrawn, the extended model refitted without them (`withdraw`).
-    let settled = withdraw::settle(&d, model, &base_names, accepted)?;
+    let settled = withdraw::settle(d, model, &base.names, accepted)?;
     let kept = &settled.accepted;
     if !settled.withdrawn.is_empty() {
-        final_heldout = withdraw::heldout_of(&d, model, &base0, kept.iter().map(|(s, _)| s));
+        final_heldout = withdraw::heldout_of(d, model, &base.cols, kept.iter().map(|(s, _)| s));
     }
     let all_heldout = [rms_comp(&final_heldout, 0), rms_comp(&final_heldout, 1)];
     // The extended model cannot carry `other` findings (log columns it has
@@ -949,7 +1253,7 @@ fn diagnose_with(
     let unmodelled = |s: &Spec| matches!(s, Spec::Other { .. });
     let (extended_heldout, with_unmodelled) = if kept.iter().any(|(s, _)| unmodelled(s)) {
         let modelled = kept.iter().map(|(s, _)| s).filter(|s| !unmodelled(s));
-        let ho = withdraw::heldout_of(&d, model, &base0, modelled);
+        let ho = withdraw::heldout_of(d, model, &base.cols, modelled);
         (
             [rms_comp(&ho, 0), rms_comp(&ho, 1)],
             Some(RmsXy::from(all_heldout)),
@@ -960,42 +1264,62 @@ fn diagnose_with(
     let withdraw::Settled {
         findings,
         withdrawn,
-        mut fitted,
+        fitted,
         std_errs,
         ..
     } = settled;
-    let (mut base_model, _) = extended(&d, model, &base_names, &[])?;
+    Ok(Outcome {
+        findings,
+        withdrawn,
+        fitted,
+        std_errs,
+        final_heldout,
+        extended_heldout,
+        with_unmodelled,
+    })
+}
+
+/// The model with the base fit alone (no findings), and the log's
+/// temperature record given to it and to `fitted`: both are written
+/// out and simulated under the log's conditions.
+fn base_model_with_environment(
+    log: &MeasurementLog,
+    d: &data::Data,
+    model: &StageModel,
+    base_names: &[String],
+    fitted: &mut StageModel,
+) -> Result<StageModel, AnalysisError> {
+    let (mut base_model, _) = extended(d, model, base_names, &[])?;
     if let Some(env) = log_environment(log)? {
         fitted.set_environment(env.clone())?;
         base_model.set_environment(env)?;
     }
-    let synthetic_time = log
-        .metadata
-        .get(TIME_SOURCE_KEY)
-        .is_some_and(|v| v.trim_start().starts_with("synthetic"));
-    let mut parameters = leads.corrections.clone();
-    parameters.extend(corrections::corrections(
-        model,
-        &fitted,
-        &base_names,
-        &std_errs,
-        synthetic_time,
-    ));
-    corrections::with_joint_totals(&mut parameters, model, &unidentifiable);
-    // Residual series and in-sample RMS of the extended model.
-    let mut series = ResidualSeries::default();
-    let observed: Vec<_> = d
-        .states
-        .iter()
-        .map(|s| fitted.observed_position(s))
-        .collect();
+    Ok(base_model)
+}
+
+/// Measured − extended model at every row (`observed`: the extended
+/// model's positions), centred like the fit's residuals.
+fn extended_residual(d: &data::Data, observed: &[XyUm]) -> Vec<f64> {
     let mut after = vec![0.0; 2 * d.n];
     for (i, o) in observed.iter().enumerate() {
         after[2 * i] = d.meas[i][0] - o.x_um;
         after[2 * i + 1] = d.meas[i][1] - o.y_um;
     }
     d.center(&mut after);
-    let base_only = fold_base(&d, &base0, vec![true; d.n]);
+    after
+}
+
+/// The residuals before (base fit `base0`) and after (`after`) the
+/// findings at every row, beside the variables the plots draw them
+/// against.
+fn residual_series(
+    log: &MeasurementLog,
+    d: &data::Data,
+    base0: &[Vec<f64>],
+    after: &[f64],
+) -> ResidualSeries {
+    let mut series = ResidualSeries::default();
+    let base_only = fold_base(d, base0, vec![true; d.n]);
     for i in 0..d.n {
         let s = &d.states[i];
         series.x_um.push(s.cmd_um(Axis::X));
@@ -1023,10 +1347,12 @@ fn diagnose_with(
         .iter()
         .map(|x| (x.name.clone(), x.values.clone()))
         .collect();
-    let fit_rms = [rms_comp(&after, 0), rms_comp(&after, 1)];
-    corrections::note_tables(&mut parameters, &findings, model);
-    corrections::note_model_scale(&mut parameters, &fitted, &d.states, &observed, d.measured);
-    note_short_periods(&mut parameters, &d, model);
+    series
+}
+
+/// Measured − the model as given, on the measured components: the
+/// report's "model as given" RMS.
+fn given_model_residual(d: &data::Data, given: &StageModel) -> Vec<f64> {
     let mut r0 = vec![0.0; 2 * d.n];
     for i in 0..d.n {
         let o = given.observed_position(&d.states[i]);
@@ -1036,9 +1362,16 @@ fn diagnose_with(
             }
         }
     }
-    let mut noise = noise::noise_report(log, &d, &final_heldout);
-    tables::reading_terms(&mut noise, &findings, &table_tests, &d, opts);
-    // What the aliased parameters contribute at the log's points.
+    r0
+}
+
+/// What the aliased parameters (`base_fixed`'s) contribute at the log's
+/// points, RMS per component: a table finding takes it too.
+fn aliased_contribution(
+    d: &data::Data,
+    model: &StageModel,
+    base_fixed: &[FixedParam],
+) -> Result<[f64; 2], AnalysisError> {
     let mut aliased_rms = [0.0; 2];
     if base_fixed.iter().any(|p| p.aliased) {
         let mut zeroed = model.clone();
@@ -1061,11 +1394,15 @@ fn diagnose_with(
         }
         aliased_rms = [rms_comp(&diff, 0), rms_comp(&diff, 1)];
     }
-    // A table with a knot per target also takes what the model's aliased
-    // terms (unverifiable, at the model's values) claim at the targets: on
-    // an axis whose real error is linear to 0.01 µm, a table can read
-    // 2.6 µm, all of it the model's own screw and guide claims.
-    let mut findings = findings;
+    Ok(aliased_rms)
+}
+
+/// A table with a knot per target also takes what the model's aliased
+/// terms (unverifiable, at the model's values) claim at the targets: on
+/// an axis whose real error is linear to 0.01 µm, a table can read
+/// 2.6 µm, all of it the model's own screw and guide claims. The table
+/// findings say so.
+fn note_aliased_in_tables(findings: &mut [Finding], aliased_rms: [f64; 2]) {
     for f in findings.iter_mut().filter(|f| {
         matches!(
             f.kind,
@@ -1080,46 +1417,6 @@ fn diagnose_with(
             ));
         }
     }
-    lead::note_held(&mut findings, &leads.checks);
-    Ok(Diagnosis {
-        points: d.n,
-        folds: d.nfolds,
-        model_rms_um: RmsXy::from([rms_comp(&r0, 0), rms_comp(&r0, 1)]),
-        baseline_rms_um: RmsXy::from(baseline_rms),
-        findings,
-        withdrawn,
-        extended_rms_um: RmsXy::from(extended_heldout),
-        with_unmodelled_rms_um: with_unmodelled,
-        extended_fit_rms_um: RmsXy::from(fit_rms),
-        parameters,
-        leads: leads.checks,
-        unidentifiable,
-        base_free_params: base_names,
-        base_fixed_params: base_fixed,
-        measured_axes: Axis::ALL
-            .into_iter()
-            .filter(|a| d.measured[a.index()])
-            .collect(),
-        measured_from: match d.measured_source {
-            MeasuredSource::Metadata => "metadata".into(),
-            MeasuredSource::Data => "data".into(),
-        },
-        synthetic_time,
-        time_with: d.time_with,
-        time_unusable: d.time_unusable.clone(),
-        grid: None,
-        map_term: None,
-        frame_turn_urad: None,
-        whole_cycle_folds: d.whole_cycle_folds,
-        folds_interleaved: None,
-        aliased_contribution_rms_um: RmsXy::from(aliased_rms),
-        judged_points: d.judged.iter().filter(|&&j| j).count(),
-        noise,
-        options: opts.clone(),
-        extended_model: fitted,
-        base_model,
-        series,
-    })
 }
 
 /// Relative spread (standard deviation over the training rows of a fold
