@@ -895,8 +895,19 @@ fn parse_report(
     if tables.is_empty() {
         return Err(ImportError::NoReadingTable);
     }
-    // The standard's order (per cycle: forward over increasing targets,
-    // then backward over decreasing ones), as the test ran it.
+    in_standard_order(&mut arrivals);
+    let wide = tables.iter().any(|t| t.per_cycle_columns);
+    let notes = report_notes(wide, directions, skipped);
+    Ok(Parsed {
+        arrivals: arrivals.into_iter().map(|(a, _)| a).collect(),
+        unit: units.or(unit_seen).unwrap_or(Unit::Mm),
+        notes,
+    })
+}
+
+/// The standard's order (per cycle: forward over increasing targets,
+/// then backward over decreasing ones), as the test ran it.
+fn in_standard_order(arrivals: &mut [(Arrival, usize)]) {
     arrivals.sort_by(|(a, _), (b, _)| {
         a.cycle
             .cmp(&b.cycle)
@@ -907,7 +918,12 @@ fn parse_report(
                 b.target_um.total_cmp(&a.target_um)
             })
     });
-    let wide = tables.iter().any(|t| t.per_cycle_columns);
+}
+
+/// The notes a report's log carries: its layout (`wide`: a column per
+/// cycle), how its direction headings were read and what was skipped,
+/// so that the log says how it was imported.
+fn report_notes(wide: bool, directions: DirectionLabels, skipped: usize) -> Vec<(String, String)> {
     let mut notes = vec![(
         "report_layout".to_string(),
         if wide {
@@ -937,11 +953,7 @@ fn parse_report(
             format!("{skipped} arrivals without a reading (empty or 'out of range' cells) skipped"),
         ));
     }
-    Ok(Parsed {
-        arrivals: arrivals.into_iter().map(|(a, _)| a).collect(),
-        unit: units.or(unit_seen).unwrap_or(Unit::Mm),
-        notes,
-    })
+    notes
 }
 
 /// Writes arrivals as a 1-D measurement log (see the module docs).
