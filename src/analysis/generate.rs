@@ -213,82 +213,14 @@ fn draw_with(
     size: f64,
     plan: &SimPlan,
 ) -> Result<InjectedEffect, AnalysisError> {
-    let range = |a: Axis| match a {
-        Axis::X => plan.x_range_um,
-        Axis::Y => plan.y_range_um,
-    };
     let mut params = BTreeMap::new();
     let name = "injected";
     let (axis, component, cfg): (Axis, Axis, DiscoveredConfig) = match kind {
-        FindingKind::PositionPeriodic => {
-            let axis = axis_of(&mut rng);
-            let component = axis_of(&mut rng);
-            let [lo, hi] = range(axis);
-            let period = log_uniform(&mut rng, 600.0, (3000.0f64).min((hi - lo) / 2.5));
-            let phi = rng.gen::<f64>() * std::f64::consts::TAU;
-            params.insert("period_um".into(), period);
-            params.insert("amplitude_um".into(), size);
-            (
-                axis,
-                component,
-                DiscoveredConfig::PositionPeriodic(PositionPeriodicConfig {
-                    axis,
-                    component,
-                    period_um: period,
-                    sin_um: size * phi.cos(),
-                    cos_um: size * phi.sin(),
-                }),
-            )
-        }
+        FindingKind::PositionPeriodic => position_periodic(&mut rng, size, plan, &mut params),
         FindingKind::Scale | FindingKind::CrossAxis => {
-            let axis = axis_of(&mut rng);
-            let component = if kind == FindingKind::Scale {
-                axis
-            } else {
-                axis.other()
-            };
-            let ppm = sign(&mut rng) * size / (range(axis)[1] * 1e-6);
-            params.insert(
-                if kind == FindingKind::Scale {
-                    "ppm"
-                } else {
-                    "slope_urad"
-                }
-                .into(),
-                ppm,
-            );
-            (
-                axis,
-                component,
-                DiscoveredConfig::PositionSlope(PositionSlopeConfig {
-                    axis,
-                    component,
-                    ppm,
-                }),
-            )
+            position_slope(&mut rng, kind, size, plan, &mut params)
         }
-        FindingKind::Localized => {
-            let axis = axis_of(&mut rng);
-            let component = axis_of(&mut rng);
-            let [lo, hi] = range(axis);
-            let position = lo + (hi - lo) * (0.1 + 0.8 * rng.gen::<f64>());
-            let width = log_uniform(&mut rng, 60.0, 300.0);
-            let amp = sign(&mut rng) * size;
-            params.insert("position_um".into(), position);
-            params.insert("width_um".into(), width);
-            params.insert("amplitude_um".into(), amp);
-            (
-                axis,
-                component,
-                DiscoveredConfig::Localized(LocalizedConfig {
-                    axis,
-                    component,
-                    position_um: position,
-                    width_um: width,
-                    amplitude_um: amp,
-                }),
-            )
-        }
+        FindingKind::Localized => localized(&mut rng, size, plan, &mut params),
         FindingKind::TimeDrift => {
             let component = axis_of(&mut rng);
             let rate = sign(&mut rng) * size / (plan.duration_s() / 3600.0);
@@ -390,6 +322,106 @@ fn draw_with(
         params,
         term: Box::new(DiscoveredTerm::new(name, cfg)?),
     })
+}
+
+/// The travel of axis `a` in `plan`, µm.
+fn range_of(plan: &SimPlan, a: Axis) -> [f64; 2] {
+    match a {
+        Axis::X => plan.x_range_um,
+        Axis::Y => plan.y_range_um,
+    }
+}
+
+/// A periodic error along an axis, its period drawn within the travel.
+fn position_periodic(
+    rng: &mut ChaCha8Rng,
+    size: f64,
+    plan: &SimPlan,
+    params: &mut BTreeMap<String, f64>,
+) -> (Axis, Axis, DiscoveredConfig) {
+    let axis = axis_of(rng);
+    let component = axis_of(rng);
+    let [lo, hi] = range_of(plan, axis);
+    let period = log_uniform(rng, 600.0, (3000.0f64).min((hi - lo) / 2.5));
+    let phi = rng.gen::<f64>() * std::f64::consts::TAU;
+    params.insert("period_um".into(), period);
+    params.insert("amplitude_um".into(), size);
+    (
+        axis,
+        component,
+        DiscoveredConfig::PositionPeriodic(PositionPeriodicConfig {
+            axis,
+            component,
+            period_um: period,
+            sin_um: size * phi.cos(),
+            cos_um: size * phi.sin(),
+        }),
+    )
+}
+
+/// A scale error (`kind` `Scale`) or a cross-axis slope, reaching `size`
+/// at the end of the travel.
+fn position_slope(
+    rng: &mut ChaCha8Rng,
+    kind: FindingKind,
+    size: f64,
+    plan: &SimPlan,
+    params: &mut BTreeMap<String, f64>,
+) -> (Axis, Axis, DiscoveredConfig) {
+    let axis = axis_of(rng);
+    let component = if kind == FindingKind::Scale {
+        axis
+    } else {
+        axis.other()
+    };
+    let ppm = sign(rng) * size / (range_of(plan, axis)[1] * 1e-6);
+    params.insert(
+        if kind == FindingKind::Scale {
+            "ppm"
+        } else {
+            "slope_urad"
+        }
+        .into(),
+        ppm,
+    );
+    (
+        axis,
+        component,
+        DiscoveredConfig::PositionSlope(PositionSlopeConfig {
+            axis,
+            component,
+            ppm,
+        }),
+    )
+}
+
+/// A local bump or dip, away from the ends of the travel.
+fn localized(
+    rng: &mut ChaCha8Rng,
+    size: f64,
+    plan: &SimPlan,
+    params: &mut BTreeMap<String, f64>,
+) -> (Axis, Axis, DiscoveredConfig) {
+    let axis = axis_of(rng);
+    let component = axis_of(rng);
+    let [lo, hi] = range_of(plan, axis);
+    let position = lo + (hi - lo) * (0.1 + 0.8 * rng.gen::<f64>());
+    let width = log_uniform(rng, 60.0, 300.0);
+    let amp = sign(rng) * size;
+    params.insert("position_um".into(), position);
+    params.insert("width_um".into(), width);
+    params.insert("amplitude_um".into(), amp);
+    (
+        axis,
+        component,
+        DiscoveredConfig::Localized(LocalizedConfig {
+            axis,
+            component,
+            position_um: position,
+            width_um: width,
+            amplitude_um: amp,
+        }),
+    )
 }
 
 /// The truth model: `base` plus the effect's term, with a seeded random-walk

@@ -134,7 +134,6 @@ fn pairs(x: &[f64], y: &[f64]) -> Vec<(f64, f64)> {
 /// Writes every diagnose plot into `dir`; returns the files written.
 pub fn write_all(d: &Diagnosis, dir: &Path) -> Result<Vec<PathBuf>, PlotError> {
     ensure_dir(dir)?;
-    let s = &d.series;
     let mut files = Vec::new();
     for c in &d.noise.components {
         if let Some(f) = c
@@ -155,7 +154,41 @@ pub fn write_all(d: &Diagnosis, dir: &Path) -> Result<Vec<PathBuf>, PlotError> {
             &dir.join("parameter_corrections"),
         )?);
     }
-    let measured = |c: usize| d.measured_axes.iter().any(|a| a.index() == c);
+    let vars = residual_variables(d);
+    for (c, comp) in ["x", "y"].iter().enumerate() {
+        if !measured(d, c) {
+            continue;
+        }
+        files.extend(residual_charts(d, c, comp, &vars, dir)?);
+        files.extend(periodograms(d, c, comp, dir)?);
+    }
+    let chart = before_after_chart(d);
+    files.extend(render(&chart, &dir.join("before_after"))?);
+    if let Some(g) = &d.grid {
+        for (c, m) in g.components.iter().enumerate() {
+            let comp = &m.component;
+            files.extend(render(
+                &separable_chart(g, c),
+                &dir.join(format!("grid_separable_{comp}")),
+            )?);
+            files.extend(render(
+                &joint_chart(g, c),
+                &dir.join(format!("grid_joint_{comp}")),
+            )?);
+        }
+    }
+    Ok(files)
+}
+
+/// Whether the diagnosis measured component `c`: only those are drawn.
+fn measured(d: &Diagnosis, c: usize) -> bool {
+    d.measured_axes.iter().any(|a| a.index() == c)
+}
+
+/// The variables the residuals are drawn against, as (file name part,
+/// axis label, values): those that vary over the log.
+fn residual_variables(d: &Diagnosis) -> Vec<(String, String, &[f64])> {
+    let s = &d.series;
     let mut vars: Vec<(String, String, &[f64])> = vec![
         ("x".into(), "commanded x (µm)".into(), &s.x_um),
         ("y".into(), "commanded y (µm)".into(), &s.y_um),
@@ -203,113 +236,141 @@ pub fn write_all(d: &Diagnosis, dir: &Path) -> Result<Vec<PathBuf>, PlotError> {
     }
     // Synthetic times are the record order: not a quantity of the log.
     vars.retain(|(name, _, v)| varies(v) && !(d.synthetic_time && name == "time"));
-    for (c, comp) in ["x", "y"].iter().enumerate() {
-        if !measured(c) {
+    vars
+}
+
+/// The residual of component `c` (`comp`) against each of `vars`,
+/// before and after the findings.
+fn residual_charts(
+    d: &Diagnosis,
+    c: usize,
+    comp: &str,
+    vars: &[(String, String, &[f64])],
+    dir: &Path,
+) -> Result<Vec<PathBuf>, PlotError> {
+    let s = &d.series;
+    let mut files = Vec::new();
+    // Visits left out as outliers have no fitted residual (they are
+    // zero after the centring): not drawn, and the legend says so.
+    let kept = |v: &[f64]| -> Vec<(f64, f64)> {
+        pairs(v, &s.before_um[c])
+            .into_iter()
+            .zip(&s.excluded)
+            .filter(|(_, &e)| !e)
+            .map(|(p, _)| p)
+            .collect()
+    };
+    let kept_after = |v: &[f64]| -> Vec<(f64, f64)> {
+        pairs(v, &s.after_um[c])
+            .into_iter()
+            .zip(&s.excluded)
+            .filter(|(_, &e)| !e)
+            .map(|(p, _)| p)
+            .collect()
+    };
+    let left_out = s.excluded.iter().filter(|&&e| e).count();
+    let note = if left_out > 0 {
+        format!(" ({left_out} outlier visit(s) left out, see the report)")
+    } else {
+        String::new()
+    };
+    for (name, label, v) in vars {
+        let chart = Chart {
+            title: format!("{comp} residual (measured − model) vs {name}{note}"),
+            x_label: label.clone(),
+            y_label: format!("{comp} residual (µm)"),
+            series: vec![
+                Series {
+                    label: "parameter corrections (base fit)".into(),
+                    points: kept(v),
+                    mark: Mark::Dots,
+                },
+                Series {
+                    label: "corrections + findings (extended model)".into(),
+                    points: kept_after(v),
+                    mark: Mark::Dots,
+                },
+            ],
+        };
+        files.extend(render(
+            &chart,
+            &dir.join(format!("residual_{comp}_vs_{name}")),
+        )?);
+    }
+    Ok(files)
+}
+
+/// Periodograms of the residual of component `c` (`comp`) against the
+/// positions and time, before and after the findings.
+fn periodograms(
+    d: &Diagnosis,
+    c: usize,
+    comp: &str,
+    dir: &Path,
+) -> Result<Vec<PathBuf>, PlotError> {
+    let s = &d.series;
+    let mut files = Vec::new();
+    for (name, label, v, unit) in [
+        ("x", "period (µm of x)", &s.x_um, "µm"),
+        ("y", "period (µm of y)", &s.y_um, "µm"),
+        ("time", "period (s)", &s.t_s, "s"),
+    ] {
+        let (lo, hi) = v
+            .iter()
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| {
+                (a.min(x), b.max(x))
+            });
+        let span = hi - lo;
+        if span.is_nan()
+            || span <= 0.0
+            || (name != "time" && !varies(v))
+            || (name == "time" && d.synthetic_time)
+        {
             continue;
         }
-        // Visits left out as outliers have no fitted residual (they are
-        // zero after the centring): not drawn, and the legend says so.
-        let kept = |v: &[f64]| -> Vec<(f64, f64)> {
-            pairs(v, &s.before_um[c])
-                .into_iter()
-                .zip(&s.excluded)
-                .filter(|(_, &e)| !e)
-                .map(|(p, _)| p)
-                .collect()
-        };
-        let kept_after = |v: &[f64]| -> Vec<(f64, f64)> {
-            pairs(v, &s.after_um[c])
-                .into_iter()
-                .zip(&s.excluded)
-                .filter(|(_, &e)| !e)
-                .map(|(p, _)| p)
-                .collect()
-        };
-        let left_out = s.excluded.iter().filter(|&&e| e).count();
-        let note = if left_out > 0 {
-            format!(" ({left_out} outlier visit(s) left out, see the report)")
-        } else {
-            String::new()
-        };
-        for (name, label, v) in &vars {
-            let chart = Chart {
-                title: format!("{comp} residual (measured − model) vs {name}{note}"),
-                x_label: label.clone(),
-                y_label: format!("{comp} residual (µm)"),
-                series: vec![
-                    Series {
-                        label: "parameter corrections (base fit)".into(),
-                        points: kept(v),
-                        mark: Mark::Dots,
-                    },
-                    Series {
-                        label: "corrections + findings (extended model)".into(),
-                        points: kept_after(v),
-                        mark: Mark::Dots,
-                    },
-                ],
-            };
-            files.extend(render(
-                &chart,
-                &dir.join(format!("residual_{comp}_vs_{name}")),
-            )?);
-        }
-        for (name, label, v, unit) in [
-            ("x", "period (µm of x)", &s.x_um, "µm"),
-            ("y", "period (µm of y)", &s.y_um, "µm"),
-            ("time", "period (s)", &s.t_s, "s"),
+        let f_min = 2.0 / span;
+        let f_max = 50.0 / span.min(1e12);
+        let n = 600;
+        let df = (f_max - f_min) / n as f64;
+        let mut series = Vec::new();
+        for (label, r) in [
+            ("base fit", &s.before_um[c]),
+            ("extended model", &s.after_um[c]),
         ] {
-            let (lo, hi) = v
-                .iter()
-                .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| {
-                    (a.min(x), b.max(x))
-                });
-            let span = hi - lo;
-            if span.is_nan()
-                || span <= 0.0
-                || (name != "time" && !varies(v))
-                || (name == "time" && d.synthetic_time)
-            {
-                continue;
-            }
-            let f_min = 2.0 / span;
-            let f_max = 50.0 / span.min(1e12);
-            let n = 600;
-            let df = (f_max - f_min) / n as f64;
-            let mut series = Vec::new();
-            for (label, r) in [
-                ("base fit", &s.before_um[c]),
-                ("extended model", &s.after_um[c]),
-            ] {
-                let p = gls_grid(v, r, f_min, df, n);
-                series.push(Series {
-                    label: label.into(),
-                    points: p
-                        .iter()
-                        .enumerate()
-                        .map(|(k, pw)| (1.0 / (f_min + k as f64 * df), *pw))
-                        .collect(),
-                    mark: Mark::Line,
-                });
-            }
-            let chart = Chart {
-                title: format!("periodogram of the {comp} residual against {name} (GLS)"),
-                x_label: format!("{label} [{unit}]"),
-                y_label: "normalized power".into(),
-                series,
-            };
-            files.extend(render(
-                &chart,
-                &dir.join(format!("periodogram_{comp}_vs_{name}")),
-            )?);
+            let p = gls_grid(v, r, f_min, df, n);
+            series.push(Series {
+                label: label.into(),
+                points: p
+                    .iter()
+                    .enumerate()
+                    .map(|(k, pw)| (1.0 / (f_min + k as f64 * df), *pw))
+                    .collect(),
+                mark: Mark::Line,
+            });
         }
+        let chart = Chart {
+            title: format!("periodogram of the {comp} residual against {name} (GLS)"),
+            x_label: format!("{label} [{unit}]"),
+            y_label: "normalized power".into(),
+            series,
+        };
+        files.extend(render(
+            &chart,
+            &dir.join(format!("periodogram_{comp}_vs_{name}")),
+        )?);
     }
+    Ok(files)
+}
+
+/// The residual at each point before and after the findings.
+fn before_after_chart(d: &Diagnosis) -> Chart {
+    let s = &d.series;
     let rms = |v: &[f64]| (v.iter().map(|x| x * x).sum::<f64>() / v.len().max(1) as f64).sqrt();
-    let chart = Chart {
+    Chart {
         title: format!(
             "residual before/after the findings: {} (in-sample rms)",
             (0..2)
-                .filter(|&c| measured(c))
+                .filter(|&c| measured(d, c))
                 .map(|c| format!(
                     "{} {:.3}→{:.3} µm",
                     ["x", "y"][c],
@@ -322,7 +383,7 @@ pub fn write_all(d: &Diagnosis, dir: &Path) -> Result<Vec<PathBuf>, PlotError> {
         x_label: "point index".into(),
         y_label: "residual (µm)".into(),
         series: (0..2)
-            .filter(|&c| measured(c))
+            .filter(|&c| measured(d, c))
             .flat_map(|c| {
                 let comp = ["x", "y"][c];
                 [
@@ -347,22 +408,7 @@ pub fn write_all(d: &Diagnosis, dir: &Path) -> Result<Vec<PathBuf>, PlotError> {
                 ]
             })
             .collect(),
-    };
-    files.extend(render(&chart, &dir.join("before_after"))?);
-    if let Some(g) = &d.grid {
-        for (c, m) in g.components.iter().enumerate() {
-            let comp = &m.component;
-            files.extend(render(
-                &separable_chart(g, c),
-                &dir.join(format!("grid_separable_{comp}")),
-            )?);
-            files.extend(render(
-                &joint_chart(g, c),
-                &dir.join(format!("grid_joint_{comp}")),
-            )?);
-        }
     }
-    Ok(files)
 }
 
 /// A map's separable part of component `c`: `f(x)` and `g(y)` after the

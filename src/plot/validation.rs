@@ -346,33 +346,7 @@ pub fn validation_figure(v: &Validation) -> Figure {
         v.segment.as_str()
     };
     let is_square = v.segment == SEGMENT_SQUARE;
-    // Magnification of the plan view.
-    let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
-    for p in &v.poses {
-        for (k, c) in [p.target.x_um, p.target.y_um].into_iter().enumerate() {
-            lo[k] = lo[k].min(c);
-            hi[k] = hi[k].max(c);
-        }
-    }
-    let span = (hi[0] - lo[0]).max(hi[1] - lo[1]);
-    let dmax = v
-        .modes
-        .iter()
-        .flat_map(|m| {
-            m.visits.iter().enumerate().flat_map(move |(i, vs)| {
-                vs.iter().map(move |q| {
-                    let t = v.poses[i].target;
-                    (q.x_um - t.x_um).hypot(q.y_um - t.y_um)
-                })
-            })
-        })
-        .filter(|d| d.is_finite())
-        .fold(0.0, f64::max);
-    let mag = if dmax > 0.0 && span > 0.0 {
-        nice_floor(0.05 * span / dmax)
-    } else {
-        1.0
-    };
+    let mag = magnification(v);
     let targets: Vec<(f64, f64)> = v
         .poses
         .iter()
@@ -483,55 +457,7 @@ pub fn validation_figure(v: &Validation) -> Figure {
             y_scale: if log_scale { Scale::Log } else { Scale::Linear },
             equal_aspect: false,
         })],
-        vec![Panel::Bars(BarPanel {
-            title: format!(
-                "summary per {} (ISO 9283, µm)",
-                if v.sources.len() > 1 {
-                    "mode and log"
-                } else {
-                    "mode"
-                }
-            ),
-            categories: v.modes.iter().map(|m| m.label.clone()).collect(),
-            x_label: if v.sources.len() > 1 {
-                "mode (log)".into()
-            } else {
-                "mode".into()
-            },
-            y_label: "AP, RP (µm)".into(),
-            groups: vec![
-                BarGroup::labelled(
-                    BAR_AP_MAX,
-                    0,
-                    summaries
-                        .iter()
-                        .map(|s| s.as_ref().map(|s| s.ap_max_um))
-                        .collect(),
-                    VALUE_RESOLUTION_UM,
-                    "µm",
-                ),
-                BarGroup::labelled(
-                    BAR_AP_MEAN,
-                    2,
-                    summaries
-                        .iter()
-                        .map(|s| s.as_ref().map(|s| s.ap_mean_um))
-                        .collect(),
-                    VALUE_RESOLUTION_UM,
-                    "µm",
-                ),
-                BarGroup::labelled(
-                    BAR_RP_MAX,
-                    3,
-                    summaries
-                        .iter()
-                        .map(|s| s.as_ref().and_then(|s| s.rp_max_um))
-                        .collect(),
-                    VALUE_RESOLUTION_UM,
-                    "µm",
-                ),
-            ],
-        })],
+        vec![summary_panel(v, &summaries)],
     ];
     let headline: Vec<String> = v
         .modes
@@ -550,6 +476,90 @@ pub fn validation_figure(v: &Validation) -> Figure {
         rows,
         size: (1400, 1500),
     }
+}
+
+/// Magnification of the plan view: the deviations drawn at about 5 % of
+/// the poses' span, so that they show beside microns of travel.
+fn magnification(v: &Validation) -> f64 {
+    let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
+    for p in &v.poses {
+        for (k, c) in [p.target.x_um, p.target.y_um].into_iter().enumerate() {
+            lo[k] = lo[k].min(c);
+            hi[k] = hi[k].max(c);
+        }
+    }
+    let span = (hi[0] - lo[0]).max(hi[1] - lo[1]);
+    let dmax = v
+        .modes
+        .iter()
+        .flat_map(|m| {
+            m.visits.iter().enumerate().flat_map(move |(i, vs)| {
+                vs.iter().map(move |q| {
+                    let t = v.poses[i].target;
+                    (q.x_um - t.x_um).hypot(q.y_um - t.y_um)
+                })
+            })
+        })
+        .filter(|d| d.is_finite())
+        .fold(0.0, f64::max);
+    if dmax > 0.0 && span > 0.0 {
+        nice_floor(0.05 * span / dmax)
+    } else {
+        1.0
+    }
+}
+
+/// The summary bars per mode (and log): AP worst and mean, RP worst.
+fn summary_panel(v: &Validation, summaries: &[Option<PoseSummary>]) -> Panel {
+    Panel::Bars(BarPanel {
+        title: format!(
+            "summary per {} (ISO 9283, µm)",
+            if v.sources.len() > 1 {
+                "mode and log"
+            } else {
+                "mode"
+            }
+        ),
+        categories: v.modes.iter().map(|m| m.label.clone()).collect(),
+        x_label: if v.sources.len() > 1 {
+            "mode (log)".into()
+        } else {
+            "mode".into()
+        },
+        y_label: "AP, RP (µm)".into(),
+        groups: vec![
+            BarGroup::labelled(
+                BAR_AP_MAX,
+                0,
+                summaries
+                    .iter()
+                    .map(|s| s.as_ref().map(|s| s.ap_max_um))
+                    .collect(),
+                VALUE_RESOLUTION_UM,
+                "µm",
+            ),
+            BarGroup::labelled(
+                BAR_AP_MEAN,
+                2,
+                summaries
+                    .iter()
+                    .map(|s| s.as_ref().map(|s| s.ap_mean_um))
+                    .collect(),
+                VALUE_RESOLUTION_UM,
+                "µm",
+            ),
+            BarGroup::labelled(
+                BAR_RP_MAX,
+                3,
+                summaries
+                    .iter()
+                    .map(|s| s.as_ref().and_then(|s| s.rp_max_um))
+                    .collect(),
+                VALUE_RESOLUTION_UM,
+                "µm",
+            ),
+        ],
+    })
 }
 
 /// Legend of the bars of the worst pose's AP.

@@ -10,7 +10,7 @@
 use std::collections::HashMap;
 
 use crate::analysis::grid::GridMap;
-use crate::charact::log::MeasurementLog;
+use crate::charact::log::{MeasurementLog, Record};
 use crate::charact::scan::{grid_direction, SEGMENT_GRID};
 use crate::model::{Axis, MotionState, MotionTracker, StageModel, Waypoint};
 
@@ -269,90 +269,9 @@ pub(super) fn prepare(
     let mut cycles: Vec<u32> = recs.iter().map(|r| r.cycle).collect();
     cycles.sort_unstable();
     cycles.dedup();
-    let max_folds = max_folds.max(2);
-    let (fold, nfolds) = if scheme == FoldScheme::InterleavedInTime {
-        let k = if cycles.len() >= 2 {
-            cycles.len().min(max_folds)
-        } else {
-            max_folds.min(5)
-        };
-        let mut order: Vec<usize> = (0..n).collect();
-        order.sort_by(|&a, &b| states[a].time_s.total_cmp(&states[b].time_s));
-        let mut fold = vec![0usize; n];
-        for (rank, &i) in order.iter().enumerate() {
-            fold[i] = (rank / INTERLEAVE_ROWS) % k;
-        }
-        (fold, k)
-    } else if cycles.len() >= 2 {
-        let k = cycles.len().min(max_folds);
-        let rank: HashMap<u32, usize> = cycles.iter().enumerate().map(|(i, c)| (*c, i)).collect();
-        (
-            recs.iter().map(|r| rank[&r.cycle] % k).collect::<Vec<_>>(),
-            k,
-        )
-    } else if let Some(g) = &grid {
-        // A diagonal pattern: every held-out cell has trained neighbours
-        // on its row and its column, whatever order the log has.
-        let k = max_folds.min(5);
-        let fold = recs
-            .iter()
-            .map(|r| {
-                let (ix, iy) = g.index_of(r.x_target_um, r.y_target_um);
-                (ix + 2 * iy) % k
-            })
-            .collect();
-        (fold, k)
-    } else {
-        let k = max_folds.min(5);
-        ((0..n).map(|i| i * k / n).collect(), k)
-    };
-    // Blocks (segment, cycle, fold): static axes and centring groups.
-    let mut block_of: HashMap<(&str, u32, usize), usize> = HashMap::new();
-    let mut block = vec![0usize; n];
-    for i in 0..n {
-        // Interleaved folds share their blocks: a pass's static axis has
-        // one constant, not one per fold.
-        let f = if scheme == FoldScheme::InterleavedInTime {
-            0
-        } else {
-            fold[i]
-        };
-        let seg = if grid.is_some() {
-            ""
-        } else {
-            recs[i].segment.as_str()
-        };
-        let key = (seg, recs[i].cycle, f);
-        let next = block_of.len();
-        block[i] = *block_of.entry(key).or_insert(next);
-    }
-    let nb = block_of.len();
-    let mut lo = vec![[f64::INFINITY; 2]; nb];
-    let mut hi = vec![[f64::NEG_INFINITY; 2]; nb];
-    for i in 0..n {
-        for a in 0..2 {
-            let v = states[i].axes[a].cmd_um;
-            lo[block[i]][a] = lo[block[i]][a].min(v);
-            hi[block[i]][a] = hi[block[i]][a].max(v);
-        }
-    }
-    let tol = min_move.max(1e-6);
-    let mut group = vec![[None; 2]; n];
-    let mut moving = vec![[false; 2]; n];
-    for i in 0..n {
-        for a in 0..2 {
-            let b = block[i];
-            let still = hi[b][a] - lo[b][a] <= tol;
-            moving[i][a] = !still;
-            group[i][a] = Some(if still {
-                2 * b + a
-            } else {
-                // Frame gauge: one constant per component over the rows
-                // where it moves (see the module docs, step 3).
-                2 * nb + a
-            });
-        }
-    }
+    let (fold, nfolds) = folds(recs, &states, &cycles, grid.as_ref(), max_folds, scheme);
+    let Centring { group, moving, nb } =
+        centring_groups(recs, &states, &fold, grid.is_some(), scheme, min_move);
     let temps: Vec<f64> = states.iter().map(|s| s.temp_c).collect();
     let tmean = temps.iter().sum::<f64>() / n as f64;
     let tsd = (temps.iter().map(|t| (t - tmean).powi(2)).sum::<f64>() / n as f64).sqrt();
@@ -404,6 +323,122 @@ pub(super) fn prepare(
     let mut d = d;
     d.time_with = time_position(&d.states, &d.moving);
     Ok(d)
+}
+
+/// Folds: whole cycles, else contiguous chunks (a grid: interleaved
+/// over its lattice); interleaved in time under
+/// [`FoldScheme::InterleavedInTime`]. Each row's fold, and how many.
+fn folds(
+    recs: &[Record],
+    states: &[MotionState],
+    cycles: &[u32],
+    grid: Option<&GridMap>,
+    max_folds: usize,
+    scheme: FoldScheme,
+) -> (Vec<usize>, usize) {
+    let n = states.len();
+    let max_folds = max_folds.max(2);
+    if scheme == FoldScheme::InterleavedInTime {
+        let k = if cycles.len() >= 2 {
+            cycles.len().min(max_folds)
+        } else {
+            max_folds.min(5)
+        };
+        let mut order: Vec<usize> = (0..n).collect();
+        order.sort_by(|&a, &b| states[a].time_s.total_cmp(&states[b].time_s));
+        let mut fold = vec![0usize; n];
+        for (rank, &i) in order.iter().enumerate() {
+            fold[i] = (rank / INTERLEAVE_ROWS) % k;
+        }
+        (fold, k)
+    } else if cycles.len() >= 2 {
+        let k = cycles.len().min(max_folds);
+        let rank: HashMap<u32, usize> = cycles.iter().enumerate().map(|(i, c)| (*c, i)).collect();
+        (
+            recs.iter().map(|r| rank[&r.cycle] % k).collect::<Vec<_>>(),
+            k,
+        )
+    } else if let Some(g) = grid {
+        // A diagonal pattern: every held-out cell has trained neighbours
+        // on its row and its column, whatever order the log has.
+        let k = max_folds.min(5);
+        let fold = recs
+            .iter()
+            .map(|r| {
+                let (ix, iy) = g.index_of(r.x_target_um, r.y_target_um);
+                (ix + 2 * iy) % k
+            })
+            .collect();
+        (fold, k)
+    } else {
+        let k = max_folds.min(5);
+        ((0..n).map(|i| i * k / n).collect(), k)
+    }
+}
+
+/// The centring groups of the rows (see [`Data::group`]).
+struct Centring {
+    /// Each row's centring group, per component.
+    group: Vec<[Option<usize>; 2]>,
+    /// Whether each row's axes move within its block.
+    moving: Vec<[bool; 2]>,
+    /// The number of blocks.
+    nb: usize,
+}
+
+/// Blocks (segment, cycle, fold): static axes and centring groups.
+fn centring_groups(
+    recs: &[Record],
+    states: &[MotionState],
+    fold: &[usize],
+    grid: bool,
+    scheme: FoldScheme,
+    min_move: f64,
+) -> Centring {
+    let n = states.len();
+    let mut block_of: HashMap<(&str, u32, usize), usize> = HashMap::new();
+    let mut block = vec![0usize; n];
+    for i in 0..n {
+        // Interleaved folds share their blocks: a pass's static axis has
+        // one constant, not one per fold.
+        let f = if scheme == FoldScheme::InterleavedInTime {
+            0
+        } else {
+            fold[i]
+        };
+        let seg = if grid { "" } else { recs[i].segment.as_str() };
+        let key = (seg, recs[i].cycle, f);
+        let next = block_of.len();
+        block[i] = *block_of.entry(key).or_insert(next);
+    }
+    let nb = block_of.len();
+    let mut lo = vec![[f64::INFINITY; 2]; nb];
+    let mut hi = vec![[f64::NEG_INFINITY; 2]; nb];
+    for i in 0..n {
+        for a in 0..2 {
+            let v = states[i].axes[a].cmd_um;
+            lo[block[i]][a] = lo[block[i]][a].min(v);
+            hi[block[i]][a] = hi[block[i]][a].max(v);
+        }
+    }
+    let tol = min_move.max(1e-6);
+    let mut group = vec![[None; 2]; n];
+    let mut moving = vec![[false; 2]; n];
+    for i in 0..n {
+        for a in 0..2 {
+            let b = block[i];
+            let still = hi[b][a] - lo[b][a] <= tol;
+            moving[i][a] = !still;
+            group[i][a] = Some(if still {
+                2 * b + a
+            } else {
+                // Frame gauge: one constant per component over the rows
+                // where it moves (see the module docs, step 3).
+                2 * nb + a
+            });
+        }
+    }
+    Centring { group, moving, nb }
 }
 
 /// Metadata key a log declares its measured axes with (`x`, `y`, `x,y`):

@@ -111,9 +111,9 @@
 //! reported separately (`with_unmodelled_rms_um`).
 //!
 //! # Layout
-//! This file holds the public types, [`diagnose`] (the greedy loop of
-//! steps 4–6) and the log's temperature record; each step's machinery has
-//! its own file:
+//! This file holds the public types, [`diagnose`] (its steps in order)
+//! and the log's temperature record; each step's machinery has its own
+//! file:
 //! * `options`: [`DiagnoseOptions`], how to diagnose.
 //! * `finding`: [`Finding`], one named discrepancy.
 //! * `data`: step 1 and 3, the log replayed into model states, residual
@@ -126,8 +126,11 @@
 //!   verdict (paired z, RMS); the base fit's held-out selection.
 //! * `lead`: step 1b, the screw leads the log can correct, and what it
 //!   cannot check.
+//! * `base`: step 2, which base parameters are fitted and why the others
+//!   stay at the model's value.
 //! * `ident`: step 2, which base parameters the log can separate, and the
 //!   combinations it cannot.
+//! * `greedy`: steps 4–6, the greedy loop that accepts findings.
 //! * `corrections`: step 2's parameter corrections (model vs fitted value).
 //! * `extend`: step 7, accepted candidates turned into model terms, with
 //!   the standard errors of their parameters.
@@ -139,6 +142,7 @@
 //!   held-out tests, and the term attached to each reading.
 //! * `report`: the text and JSON reports of a [`Diagnosis`].
 
+mod base;
 mod corrections;
 mod data;
 mod describe;
@@ -146,6 +150,7 @@ mod extend;
 mod family;
 mod finding;
 mod fit;
+mod greedy;
 mod ident;
 mod iso_figures;
 mod judge;
@@ -165,26 +170,30 @@ use serde::{Deserialize, Serialize};
 
 use crate::charact::log::MeasurementLog;
 use crate::charact::scan::is_sweep_anchor;
-use crate::model::{Axis, Environment, Interpolation, StageModel, TemperaturePoint};
+use crate::model::{Axis, Environment, Interpolation, StageModel, TemperaturePoint, XyUm};
 
 use super::grid::{self, GridReport};
 use super::AnalysisError;
+use base::{aliased_period, unresolved, LONGEST_PERIOD_SPANS};
+use base::{select_base_params, Base};
 pub use corrections::{ParamCorrection, SIGNIFICANT_SIGMAS};
 pub use data::{parse_approach, APPROACH_COLUMN, MEASURED_AXES_KEY};
 use data::{FoldScheme, MeasuredSource};
 use extend::extended;
-use family::Family;
 pub use finding::{Finding, Withdrawn};
-use fit::{fold_base, paired_z, rms_comp, select_base, Verdict};
+use fit::{fold_base, rms_comp, Verdict};
+use greedy::Greedy;
 pub use ident::Unidentifiable;
-use judge::{judge, passes_test, rejudge, with_findings, Accepted};
+use judge::Accepted;
 pub use lead::{LeadCheck, LeadTest, LeadVerdict};
 pub use map_term::{MapComponent, MapFold, MapTermReport};
 pub use noise::{ComponentNoise, IsoFigures, NoiseReport, Outlier, Sampling, TargetRepeat};
 pub use options::DiagnoseOptions;
 pub use readings::{Reading, ReadingKind, ReadingTerm, READING_Z};
 pub use search::ALL_KINDS;
-use search::{base_columns, columns, families, refine_localized, refine_period, search, Spec};
+use search::{families, search, Spec};
+#[cfg(test)]
+use {family::Family, judge::rejudge, search::columns};
 
 /// RMS per error component, µm.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -256,103 +265,6 @@ pub struct FixedParam {
     /// parameters, or freeing it predicted held-out data worse).
     pub aliased: bool,
 }
-
-/// `(period, shortest resolvable period)` when parameter `name` belongs to
-/// a periodic term (`period_um` in its configuration) along an axis whose
-/// sampling cannot resolve that period; `None` otherwise.
-fn aliased_period(d: &data::Data, model: &StageModel, name: &str) -> Option<(f64, f64)> {
-    let (term_name, param) = name.split_once('.')?;
-    // Only the periodic parameters (a term's slope is not aliased).
-    if !(param.contains("sin") || param.contains("cos")) {
-        return None;
-    }
-    let term = model.terms().iter().find(|t| t.name() == term_name)?;
-    let cfg = term.to_config().ok()?;
-    let period_um = cfg.get("period_um")?.as_float()?;
-    let axis = match cfg.get("axis")?.as_str()? {
-        "x" => Axis::X,
-        "y" => Axis::Y,
-        _ => return None,
-    };
-    let shortest_um = data::shortest_period_um(d, axis)?;
-    (period_um < shortest_um).then_some((period_um, shortest_um))
-}
-
-/// The reason a temperature coefficient is held (the start of it).
-const CONSTANT_TEMPERATURE: &str = "the log's temperature does not change";
-
-/// Why the log cannot identify parameter `name` beyond aliasing, or
-/// `None`: a periodic term whose period is more than
-/// [`LONGEST_PERIOD_SPANS`] times the log's span of its variable (less
-/// than half a period is seen: its sine and cosine are a smooth curve that
-/// trades off against every slope, a fitted amplitude means nothing), or a temperature coefficient (unit `…/°C…`) when the
-/// log's temperature does not change (the column is then the model's own
-/// assumed temperature history, not a measurement).
-fn unresolved(d: &data::Data, model: &StageModel, name: &str) -> Option<String> {
-    let (term_name, param) = name.split_once('.')?;
-    let mp = model.params();
-    let unit = mp.iter().find(|p| p.full_name == name)?.info.unit;
-    if unit.contains("°C") && !d.temp_varies {
-        return Some(format!(
-            "{CONSTANT_TEMPERATURE}: temperature coefficients cannot be identified"
-        ));
-    }
-    let time_reason = match (d.time_with, &d.time_unusable) {
-        (Some((axis, r)), _) => Some(format!(
-            "time and {axis} position move together over this log (r = {r:+.3}): a drift cannot be told from an error along {axis}"
-        )),
-        (None, Some(why)) => Some(why.clone()),
-        (None, None) => None,
-    };
-    if let Some(reason) = time_reason {
-        let per_time = unit.contains("/h") || unit.contains("/s");
-        let timed = model
-            .terms()
-            .iter()
-            .find(|t| t.name() == term_name)
-            .and_then(|t| t.to_config().ok())
-            .is_some_and(|c| c.get("period_s").is_some());
-        if per_time || timed {
-            return Some(reason);
-        }
-    }
-    if !(param.contains("sin") || param.contains("cos")) {
-        return None;
-    }
-    let term = model.terms().iter().find(|t| t.name() == term_name)?;
-    if let Some(reason) = lead::held_screw_reason(d, &**term) {
-        return Some(reason);
-    }
-    let cfg = term.to_config().ok()?;
-    if let Some(period_s) = cfg.get("period_s").and_then(|v| v.as_float()) {
-        let (lo, hi) = d
-            .states
-            .iter()
-            .fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), s| {
-                (l.min(s.time_s), h.max(s.time_s))
-            });
-        let span_s = hi - lo;
-        return (period_s > LONGEST_PERIOD_SPANS * span_s).then(|| {
-            format!("the log cannot resolve them: period {period_s:.0} s is more than {LONGEST_PERIOD_SPANS}× the {span_s:.0} s it lasts")
-        });
-    }
-    let period_um = cfg.get("period_um")?.as_float()?;
-    let axis = match cfg.get("axis")?.as_str()? {
-        "x" => Axis::X,
-        "y" => Axis::Y,
-        _ => return None,
-    };
-    let span_um = data::span_um(&data::distinct_positions(d, axis));
-    (period_um > LONGEST_PERIOD_SPANS * span_um).then(|| {
-        format!("the log cannot resolve them: period {period_um:.1} µm is more than {LONGEST_PERIOD_SPANS}× the {span_um:.1} µm of {axis} it spans")
-    })
-}
-
-/// A periodic base term is fitted up to a period of this many times the
-/// log's span of its variable: over half a period its sine and cosine are
-/// still a distinct curve (a 5 mm guideway waviness on a 4.2 mm y scan),
-/// over less they trade off against every slope.
-const LONGEST_PERIOD_SPANS: f64 = 2.0;
 
 /// Everything `diagnose` found.
 #[derive(Debug, Clone, Serialize)]
@@ -621,311 +533,127 @@ fn diagnose_with(
         prepare_with(log, &leads.model, opts.max_folds, scheme)?
     };
     let model = &leads.model;
-    let (all_names, all_base) = base_columns(&d, model, &opts.base_free_kinds);
-    // A periodic base term whose period the log's sampling cannot resolve
-    // is aliased: fitting it would turn it into an arbitrary per-target
-    // correction. It stays at the model's value.
-    let mut base_fixed: Vec<FixedParam> = Vec::new();
-    let mut resolvable: Vec<usize> = Vec::new();
-    for (j, name) in all_names.iter().enumerate() {
-        if let Some((period_um, shortest_um)) = aliased_period(&d, model, name) {
-            base_fixed.push(FixedParam {
-                name: name.clone(),
-                reason: format!(
-                    "the log cannot resolve them: period {period_um:.1} µm is shorter than the {shortest_um:.1} µm its spacing resolves (aliased); sampling at ≤ {:.1} µm, or a dense segment at that step, resolves it",
-                    crate::model::sampling::resolving_step_um(period_um)
-                ),
-                aliased: true,
-            });
-        } else if let Some(reason) = unresolved(&d, model, name) {
-            base_fixed.push(FixedParam {
-                name: name.clone(),
-                reason,
-                aliased: false,
-            });
-        } else {
-            resolvable.push(j);
-        }
-    }
-    // Parameters the log's geometry cannot separate from others stay at
-    // the model's value; their combination is named (see `ident`).
-    let res_names: Vec<String> = resolvable.iter().map(|&j| all_names[j].clone()).collect();
-    let res_cols: Vec<Vec<f64>> = resolvable.iter().map(|&j| all_base[j].clone()).collect();
-    // Temperature coefficients held at a constant temperature: their
-    // columns, to find those that still act along a kept parameter
-    // (`ident::held_along`).
-    let held: Vec<(String, Vec<f64>)> = base_fixed
-        .iter()
-        .filter(|f| f.reason.starts_with(CONSTANT_TEMPERATURE))
-        .filter_map(|f| {
-            let j = all_names.iter().position(|n| *n == f.name)?;
-            Some((f.name.clone(), all_base[j].clone()))
-        })
-        .collect();
-    drop(all_base);
-    let (mut separable, mut unidentifiable) = ident::identifiable(&d, model, &res_names, &res_cols);
-    // On a map from an outside instrument, a slope of the y error along x
-    // is the measuring frame's rotation as much as the stage's (the frame
-    // was turned to make it zero, see `diagnose`): a parameter whose
-    // column the rotation and the parameters before it span is not
-    // measured by the log.
-    if d.grid && frame_turned(log) {
-        let rot = rotation_column(&d);
-        let (with_rot, _) =
-            ident::identifiable_given(&d, model, &res_names, &res_cols, std::slice::from_ref(&rot));
-        separable.retain(|j| {
-            let kept = with_rot.contains(j);
-            if !kept {
-                base_fixed.push(FixedParam {
-                    name: res_names[*j].clone(),
-                    reason: "not determined by this log: in-plane readings cannot tell it from a rotation of the measuring frame (the frame is fixed by taking the stage's x axis as the reference)".into(),
-                    aliased: false,
-                });
-            }
-            kept
-        });
-    }
-    for u in &unidentifiable {
-        base_fixed.push(FixedParam {
-            name: u.name.clone(),
-            reason: "the log cannot separate them from other parameters (see `unidentifiable`)"
-                .into(),
-            aliased: false,
-        });
-    }
-    {
-        let kept_names: Vec<String> = separable.iter().map(|&j| res_names[j].clone()).collect();
-        let kept_cols: Vec<Vec<f64>> = separable.iter().map(|&j| res_cols[j].clone()).collect();
-        unidentifiable.extend(ident::held_along(
-            &d,
-            &held,
-            &kept_names,
-            &kept_cols,
-            "held: the log's temperature does not change",
-        ));
-    }
-    // A parameter the training rows of some fold do not vary (its effect
-    // lies in the held-out cycle or chunk alone, e.g. the forward screw
-    // harmonics of a log with four forward points in its first chunk)
-    // is fitted from a handful of points no held-out row ever tests.
-    // Likewise a parameter whose effect lies on a handful of points (the
-    // play of an axis that only ever moves forward, seen at the log's
-    // first point alone): a fit to those points, not a measurement.
-    separable.retain(|&j| {
-        if let Some(axis) = one_way_play(&d, model, &res_names[j]) {
-            base_fixed.push(FixedParam {
-                name: res_names[j].clone(),
-                reason: format!(
-                    "not determined by this log: the {axis} axis reaches its points from one side only (fewer than {MIN_EFFECTIVE_POINTS:.0} approaches from the other), so its play is never taken up and let go"
-                ),
-                aliased: false,
-            });
-            return false;
-        }
-        let pts = effective_points(&d, &res_cols[j]);
-        let enough = pts >= MIN_EFFECTIVE_POINTS;
-        if !enough {
-            base_fixed.push(FixedParam {
-                name: res_names[j].clone(),
-                reason: format!(
-                    "not determined by this log: its effect lies on about {pts:.0} of the log's points (fewer than {MIN_EFFECTIVE_POINTS:.0})"
-                ),
-                aliased: false,
-            });
-        }
-        enough
-    });
-    let (testable, untestable): (Vec<usize>, Vec<usize>) = separable
-        .iter()
-        .partition(|&&j| testable_in_every_fold(&d, &res_cols[j]));
-    for &j in &untestable {
-        base_fixed.push(FixedParam {
-            name: res_names[j].clone(),
-            reason: "no held-out test can judge them: on the training rows of a fold their effect does not vary (it lies in the held-out part alone)".into(),
-            aliased: false,
-        });
-    }
-    let cand_names: Vec<String> = testable.iter().map(|&j| res_names[j].clone()).collect();
-    let cand_cols: Vec<Vec<f64>> = testable.iter().map(|&j| res_cols[j].clone()).collect();
-    drop(res_cols);
-    // Model selection on the base fit too: only the terms whose freeing
-    // predicts held-out data better (see `fit::select_base`).
-    let keep = select_base(&d, &cand_names, &cand_cols);
-    let mut base_names: Vec<String> = keep.iter().map(|&j| cand_names[j].clone()).collect();
-    base_fixed.extend(
-        cand_names
-            .iter()
-            .enumerate()
-            .filter(|(j, _)| !keep.contains(j))
-            .map(|(_, n)| FixedParam {
-                name: n.clone(),
-                reason: "freeing them did not predict held-out data better than the model's values"
-                    .into(),
-                aliased: false,
-            }),
-    );
-    // The base: the selected parameters, then (below) every carrier a
-    // finding frees.
-    let mut base0: Vec<Vec<f64>> = keep.iter().map(|&j| cand_cols[j].clone()).collect();
-    // Candidates the selection left at the model's value: a later finding
-    // that one of them can carry frees it instead (see below).
-    let mut dropped: Vec<usize> = (0..cand_names.len())
-        .filter(|j| !keep.contains(j))
-        .collect();
+    let (mut base, unidentifiable) = select_base_params(log, &d, model, opts);
     // Readings of the replicates that the base leaves (a reversal that
     // varies along the travel, a non-linearity between targets) become
     // candidate terms, tables judged on held-out data like every family.
     let mut fams = families(&d);
-    fams.extend(tables::wanted(log, &d, &base0));
+    fams.extend(tables::wanted(log, &d, &base.cols));
     fams.extend(lead::shape_tables(&leads.checks, &d, &fams));
-    // The last held-out test of each table family (against the final
-    // model when it was not accepted).
-    let mut table_tests: Vec<tables::TableTest> = Vec::new();
-    let mut acc: Vec<Accepted> = Vec::new();
-    let mut baseline_rms = [0.0; 2];
-    let mut final_heldout: Vec<f64>;
-    // Each pass accepts a finding (re-judging the others, which may drop
-    // one), frees a carrier or stops. A dropped family can come back with
-    // hyper-parameters searched afresh; the bound on the passes guards
-    // against a finding and its replacement taking turns.
-    let mut passes = 0usize;
-    loop {
-        passes += 1;
-        let round: usize = acc.iter().map(|a| a.findings()).sum();
-        let base = with_findings(&base0, &acc, None);
-        let judged_fams: &[Family] = if round >= opts.max_findings
-            || passes > MAX_PASSES_PER_FINDING * opts.max_findings + 2
-        {
-            &[]
-        } else {
-            &fams
-        };
-        let cands: Vec<(Family, Option<&[Vec<f64>]>)> =
-            judged_fams.iter().map(|f| (*f, None)).collect();
-        let (before, all_verdicts) = judge(&d, &base, &cands, model);
-        let heldout = [rms_comp(&before, 0), rms_comp(&before, 1)];
-        if acc.is_empty() {
-            baseline_rms = heldout;
-        }
-        final_heldout = before.clone();
-        if judged_fams.is_empty() {
-            break;
-        }
-        for v in &all_verdicts {
-            tracing::debug!(
-                family = ?v.family,
-                gain_pct = v.gain_pct,
-                z = v.z,
-                rms_before_um = v.rms_before,
-                rms_after_um = v.rms_after,
-                "diagnose: held-out verdict"
-            );
-        }
-        let taken: Vec<Family> = acc.iter().map(|a| a.family).collect();
-        tables::record(&mut table_tests, &all_verdicts, &taken);
-        let mut verdicts: Vec<Verdict> = all_verdicts
+    let Greedy {
+        acc,
+        table_tests,
+        baseline_rms,
+        final_heldout,
+        ..
+    } = Greedy::run(&d, model, opts, &fams, &mut base);
+    let Outcome {
+        findings,
+        withdrawn,
+        mut fitted,
+        std_errs,
+        final_heldout,
+        extended_heldout,
+        with_unmodelled,
+    } = settle_findings(&d, model, &base, &acc, final_heldout)?;
+    let base_model = base_model_with_environment(log, &d, model, &base.names, &mut fitted)?;
+    let synthetic_time = log
+        .metadata
+        .get(TIME_SOURCE_KEY)
+        .is_some_and(|v| v.trim_start().starts_with("synthetic"));
+    let mut parameters = leads.corrections.clone();
+    parameters.extend(corrections::corrections(
+        model,
+        &fitted,
+        &base.names,
+        &std_errs,
+        synthetic_time,
+    ));
+    corrections::with_joint_totals(&mut parameters, model, &unidentifiable);
+    // Residual series and in-sample RMS of the extended model.
+    let observed: Vec<_> = d
+        .states
+        .iter()
+        .map(|s| fitted.observed_position(s))
+        .collect();
+    let after = extended_residual(&d, &observed);
+    let series = residual_series(log, &d, &base.cols, &after);
+    let fit_rms = [rms_comp(&after, 0), rms_comp(&after, 1)];
+    corrections::note_tables(&mut parameters, &findings, model);
+    corrections::note_model_scale(&mut parameters, &fitted, &d.states, &observed, d.measured);
+    note_short_periods(&mut parameters, &d, model);
+    let r0 = given_model_residual(&d, given);
+    let mut noise = noise::noise_report(log, &d, &final_heldout);
+    tables::reading_terms(&mut noise, &findings, &table_tests, &d, opts);
+    let aliased_rms = aliased_contribution(&d, model, &base.fixed)?;
+    let mut findings = findings;
+    note_aliased_in_tables(&mut findings, aliased_rms);
+    lead::note_held(&mut findings, &leads.checks);
+    Ok(Diagnosis {
+        points: d.n,
+        folds: d.nfolds,
+        model_rms_um: RmsXy::from([rms_comp(&r0, 0), rms_comp(&r0, 1)]),
+        baseline_rms_um: RmsXy::from(baseline_rms),
+        findings,
+        withdrawn,
+        extended_rms_um: RmsXy::from(extended_heldout),
+        with_unmodelled_rms_um: with_unmodelled,
+        extended_fit_rms_um: RmsXy::from(fit_rms),
+        parameters,
+        leads: leads.checks,
+        unidentifiable,
+        base_free_params: base.names,
+        base_fixed_params: base.fixed,
+        measured_axes: Axis::ALL
             .into_iter()
-            .filter(|v| passes_test(v, opts))
-            // Two tables at once are two findings: only within the cap.
-            .filter(|v| {
-                !matches!(v.family, Family::Tables { .. }) || round + 2 <= opts.max_findings
-            })
-            .collect();
-        verdicts.sort_by(|a, b| b.reduction.total_cmp(&a.reduction));
-        let Some(mut best) = verdicts.first().map(|v| v.family) else {
-            break;
-        };
-        // A quadratic drift must beat the linear one on held-out data.
-        if let Family::Drift {
-            comp,
-            quadratic: true,
-        } = best
-        {
-            let lin = Family::Drift {
-                comp,
-                quadratic: false,
-            };
-            if let (Some(q), Some(l)) = (
-                verdicts.iter().find(|v| v.family == best),
-                verdicts.iter().find(|v| v.family == lin),
-            ) {
-                let (_, z) = paired_z(&l.after, &q.after, comp.index(), 0.0);
-                if z < opts.z_threshold {
-                    best = lin;
-                }
-            }
-        }
-        let Some(pos) = verdicts.iter().position(|v| v.family == best) else {
-            break;
-        };
-        let verdict = verdicts.swap_remove(pos);
-        // The accepted term's hyper-parameters from all the data.
-        let all = vec![true; d.n];
-        let fb = fold_base(&d, &base, all.clone());
-        let Some(spec) = search(best, &d, &fb.resid, &all) else {
-            break;
-        };
-        let spec = refine_localized(refine_period(spec, &d, &base, model), &d, &base, model);
-        let spec_cols = columns(&spec, &d, model);
-        // A finding the model's own parameters can carry is a parameter
-        // correction: a candidate the base selection left at the model's
-        // value (its effect was hidden under a larger unmodelled one) whose
-        // columns span the finding's is freed instead, and the search goes
-        // on without spending a finding.
-        let carriers = ident::carriers(&d, &spec_cols, &dropped, &cand_cols);
-        if !carriers.is_empty() {
-            for j in carriers {
-                base0.push(cand_cols[j].clone());
-                base_names.push(cand_names[j].clone());
-                base_fixed.retain(|f| f.name != cand_names[j]);
-                dropped.retain(|&k| k != j);
-            }
-        } else {
-            // A reversal table is the lost motion relative to the axis's
-            // play (zero at its first knot, `search::table_free_knots`):
-            // with the play left at the model's value by the base
-            // selection, the table's first knot would be the model's
-            // play, a value nothing in the log measured. The play is
-            // freed with it.
-            for j in table_plays(&spec, model, &cand_names, &dropped) {
-                base0.push(cand_cols[j].clone());
-                base_names.push(cand_names[j].clone());
-                base_fixed.retain(|f| f.name != cand_names[j]);
-                dropped.retain(|&k| k != j);
-            }
-            let table = matches!(spec, Spec::Table { .. } | Spec::Tables { .. });
-            acc.push(Accepted {
-                family: best,
-                spec,
-                verdict,
-                cols: spec_cols,
-            });
-            // A table with a knot at every target takes any error of its
-            // axis at those targets: a base parameter whose effect it (with
-            // the other base parameters) spans is no longer separable and
-            // stays at the model's value (see `ident`). Fitted as well, the
-            // split between it and the table is arbitrary, and so is its σ.
-            if table {
-                let given: Vec<Vec<f64>> = acc.iter().flat_map(|a| a.cols.clone()).collect();
-                let (kept, unid) =
-                    ident::identifiable_given(&d, model, &base_names, &base0, &given);
-                if kept.len() < base_names.len() {
-                    for u in unid {
-                        base_fixed.push(FixedParam {
-                            name: u.name.clone(),
-                            reason: "the per-target table of a finding spans its effect at the log's targets: not separable from it".into(),
-                            aliased: false,
-                        });
-                    }
-                    base0 = kept.iter().map(|&j| base0[j].clone()).collect();
-                    base_names = kept.iter().map(|&j| base_names[j].clone()).collect();
-                }
-            }
-        }
-        // The findings so far, against what the base and each other now
-        // carry (a freed carrier can take over an earlier finding's error).
-        rejudge(&d, &base0, &mut acc, model, opts);
-    }
+            .filter(|a| d.measured[a.index()])
+            .collect(),
+        measured_from: match d.measured_source {
+            MeasuredSource::Metadata => "metadata".into(),
+            MeasuredSource::Data => "data".into(),
+        },
+        synthetic_time,
+        time_with: d.time_with,
+        time_unusable: d.time_unusable.clone(),
+        grid: None,
+        map_term: None,
+        frame_turn_urad: None,
+        whole_cycle_folds: d.whole_cycle_folds,
+        folds_interleaved: None,
+        aliased_contribution_rms_um: RmsXy::from(aliased_rms),
+        judged_points: d.judged.iter().filter(|&&j| j).count(),
+        noise,
+        options: opts.clone(),
+        extended_model: fitted,
+        base_model,
+        series,
+    })
+}
+
+/// The findings left after withdrawal, and the held-out residuals of the
+/// extended model they make.
+struct Outcome {
+    findings: Vec<Finding>,
+    withdrawn: Vec<Withdrawn>,
+    fitted: StageModel,
+    std_errs: std::collections::HashMap<String, f64>,
+    /// The held-out residual with every finding left.
+    final_heldout: Vec<f64>,
+    /// The held-out RMS of the extended model (without `other` findings).
+    extended_heldout: [f64; 2],
+    /// The held-out RMS with the `other` findings too, when there are any.
+    with_unmodelled: Option<RmsXy>,
+}
+
+/// Step 8 on the greedy search's findings `acc`, whose last held-out
+/// residual is `final_heldout`.
+fn settle_findings(
+    d: &data::Data,
+    model: &StageModel,
+    base: &Base,
+    acc: &[Accepted],
+    mut final_heldout: Vec<f64>,
+) -> Result<Outcome, AnalysisError> {
     let accepted: Vec<(Spec, Verdict)> = acc
         .iter()
         .flat_map(|a| {
@@ -938,10 +666,10 @@ fn diagnose_with(
         .collect();
     // Step 8: findings whose numbers the log does not determine are
     // withdrawn, the extended model refitted without them (`withdraw`).
-    let settled = withdraw::settle(&d, model, &base_names, accepted)?;
+    let settled = withdraw::settle(d, model, &base.names, accepted)?;
     let kept = &settled.accepted;
     if !settled.withdrawn.is_empty() {
-        final_heldout = withdraw::heldout_of(&d, model, &base0, kept.iter().map(|(s, _)| s));
+        final_heldout = withdraw::heldout_of(d, model, &base.cols, kept.iter().map(|(s, _)| s));
     }
     let all_heldout = [rms_comp(&final_heldout, 0), rms_comp(&final_heldout, 1)];
     // The extended model cannot carry `other` findings (log columns it has
@@ -949,7 +677,7 @@ fn diagnose_with(
     let unmodelled = |s: &Spec| matches!(s, Spec::Other { .. });
     let (extended_heldout, with_unmodelled) = if kept.iter().any(|(s, _)| unmodelled(s)) {
         let modelled = kept.iter().map(|(s, _)| s).filter(|s| !unmodelled(s));
-        let ho = withdraw::heldout_of(&d, model, &base0, modelled);
+        let ho = withdraw::heldout_of(d, model, &base.cols, modelled);
         (
             [rms_comp(&ho, 0), rms_comp(&ho, 1)],
             Some(RmsXy::from(all_heldout)),
@@ -960,42 +688,62 @@ fn diagnose_with(
     let withdraw::Settled {
         findings,
         withdrawn,
-        mut fitted,
+        fitted,
         std_errs,
         ..
     } = settled;
-    let (mut base_model, _) = extended(&d, model, &base_names, &[])?;
+    Ok(Outcome {
+        findings,
+        withdrawn,
+        fitted,
+        std_errs,
+        final_heldout,
+        extended_heldout,
+        with_unmodelled,
+    })
+}
+
+/// The model with the base fit alone (no findings), and the log's
+/// temperature record given to it and to `fitted`: both are written
+/// out and simulated under the log's conditions.
+fn base_model_with_environment(
+    log: &MeasurementLog,
+    d: &data::Data,
+    model: &StageModel,
+    base_names: &[String],
+    fitted: &mut StageModel,
+) -> Result<StageModel, AnalysisError> {
+    let (mut base_model, _) = extended(d, model, base_names, &[])?;
     if let Some(env) = log_environment(log)? {
         fitted.set_environment(env.clone())?;
         base_model.set_environment(env)?;
     }
-    let synthetic_time = log
-        .metadata
-        .get(TIME_SOURCE_KEY)
-        .is_some_and(|v| v.trim_start().starts_with("synthetic"));
-    let mut parameters = leads.corrections.clone();
-    parameters.extend(corrections::corrections(
-        model,
-        &fitted,
-        &base_names,
-        &std_errs,
-        synthetic_time,
-    ));
-    corrections::with_joint_totals(&mut parameters, model, &unidentifiable);
-    // Residual series and in-sample RMS of the extended model.
-    let mut series = ResidualSeries::default();
-    let observed: Vec<_> = d
-        .states
-        .iter()
-        .map(|s| fitted.observed_position(s))
-        .collect();
+    Ok(base_model)
+}
+
+/// Measured − extended model at every row (`observed`: the extended
+/// model's positions), centred like the fit's residuals.
+fn extended_residual(d: &data::Data, observed: &[XyUm]) -> Vec<f64> {
     let mut after = vec![0.0; 2 * d.n];
     for (i, o) in observed.iter().enumerate() {
         after[2 * i] = d.meas[i][0] - o.x_um;
         after[2 * i + 1] = d.meas[i][1] - o.y_um;
     }
     d.center(&mut after);
-    let base_only = fold_base(&d, &base0, vec![true; d.n]);
+    after
+}
+
+/// The residuals before (base fit `base0`) and after (`after`) the
+/// findings at every row, beside the variables the plots draw them
+/// against.
+fn residual_series(
+    log: &MeasurementLog,
+    d: &data::Data,
+    base0: &[Vec<f64>],
+    after: &[f64],
+) -> ResidualSeries {
+    let mut series = ResidualSeries::default();
+    let base_only = fold_base(d, base0, vec![true; d.n]);
     for i in 0..d.n {
         let s = &d.states[i];
         series.x_um.push(s.cmd_um(Axis::X));
@@ -1023,10 +771,12 @@ fn diagnose_with(
         .iter()
         .map(|x| (x.name.clone(), x.values.clone()))
         .collect();
-    let fit_rms = [rms_comp(&after, 0), rms_comp(&after, 1)];
-    corrections::note_tables(&mut parameters, &findings, model);
-    corrections::note_model_scale(&mut parameters, &fitted, &d.states, &observed, d.measured);
-    note_short_periods(&mut parameters, &d, model);
+    series
+}
+
+/// Measured − the model as given, on the measured components: the
+/// report's "model as given" RMS.
+fn given_model_residual(d: &data::Data, given: &StageModel) -> Vec<f64> {
     let mut r0 = vec![0.0; 2 * d.n];
     for i in 0..d.n {
         let o = given.observed_position(&d.states[i]);
@@ -1036,9 +786,16 @@ fn diagnose_with(
             }
         }
     }
-    let mut noise = noise::noise_report(log, &d, &final_heldout);
-    tables::reading_terms(&mut noise, &findings, &table_tests, &d, opts);
-    // What the aliased parameters contribute at the log's points.
+    r0
+}
+
+/// What the aliased parameters (`base_fixed`'s) contribute at the log's
+/// points, RMS per component: a table finding takes it too.
+fn aliased_contribution(
+    d: &data::Data,
+    model: &StageModel,
+    base_fixed: &[FixedParam],
+) -> Result<[f64; 2], AnalysisError> {
     let mut aliased_rms = [0.0; 2];
     if base_fixed.iter().any(|p| p.aliased) {
         let mut zeroed = model.clone();
@@ -1061,11 +818,15 @@ fn diagnose_with(
         }
         aliased_rms = [rms_comp(&diff, 0), rms_comp(&diff, 1)];
     }
-    // A table with a knot per target also takes what the model's aliased
-    // terms (unverifiable, at the model's values) claim at the targets: on
-    // an axis whose real error is linear to 0.01 µm, a table can read
-    // 2.6 µm, all of it the model's own screw and guide claims.
-    let mut findings = findings;
+    Ok(aliased_rms)
+}
+
+/// A table with a knot per target also takes what the model's aliased
+/// terms (unverifiable, at the model's values) claim at the targets: on
+/// an axis whose real error is linear to 0.01 µm, a table can read
+/// 2.6 µm, all of it the model's own screw and guide claims. The table
+/// findings say so.
+fn note_aliased_in_tables(findings: &mut [Finding], aliased_rms: [f64; 2]) {
     for f in findings.iter_mut().filter(|f| {
         matches!(
             f.kind,
@@ -1080,130 +841,6 @@ fn diagnose_with(
             ));
         }
     }
-    lead::note_held(&mut findings, &leads.checks);
-    Ok(Diagnosis {
-        points: d.n,
-        folds: d.nfolds,
-        model_rms_um: RmsXy::from([rms_comp(&r0, 0), rms_comp(&r0, 1)]),
-        baseline_rms_um: RmsXy::from(baseline_rms),
-        findings,
-        withdrawn,
-        extended_rms_um: RmsXy::from(extended_heldout),
-        with_unmodelled_rms_um: with_unmodelled,
-        extended_fit_rms_um: RmsXy::from(fit_rms),
-        parameters,
-        leads: leads.checks,
-        unidentifiable,
-        base_free_params: base_names,
-        base_fixed_params: base_fixed,
-        measured_axes: Axis::ALL
-            .into_iter()
-            .filter(|a| d.measured[a.index()])
-            .collect(),
-        measured_from: match d.measured_source {
-            MeasuredSource::Metadata => "metadata".into(),
-            MeasuredSource::Data => "data".into(),
-        },
-        synthetic_time,
-        time_with: d.time_with,
-        time_unusable: d.time_unusable.clone(),
-        grid: None,
-        map_term: None,
-        frame_turn_urad: None,
-        whole_cycle_folds: d.whole_cycle_folds,
-        folds_interleaved: None,
-        aliased_contribution_rms_um: RmsXy::from(aliased_rms),
-        judged_points: d.judged.iter().filter(|&&j| j).count(),
-        noise,
-        options: opts.clone(),
-        extended_model: fitted,
-        base_model,
-        series,
-    })
-}
-
-/// Relative spread (standard deviation over the training rows of a fold
-/// against that over all rows) below which a base column cannot be
-/// fitted from the training rows, see [`testable_in_every_fold`].
-const TRAINING_SPREAD: f64 = 1e-3;
-
-/// Whether base column `col` varies over the training rows of every fold
-/// (measured components, rows not excluded): a parameter that does not is
-/// fitted on the full data from the held-out part alone, where no
-/// held-out test can judge it.
-/// The axis of a play (`backlash`) parameter whose axis the log
-/// approaches from one side only, or `None`.
-fn one_way_play(d: &data::Data, model: &StageModel, name: &str) -> Option<Axis> {
-    let term = name.split('.').next()?;
-    let t = model.terms().iter().find(|t| t.name() == term)?;
-    if t.kind() != "backlash" {
-        return None;
-    }
-    let axis = match t.to_config().ok()?.get("axis")?.as_str()? {
-        "x" => Axis::X,
-        "y" => Axis::Y,
-        _ => return None,
-    };
-    let count = |sign: f64| {
-        (0..d.n)
-            .filter(|&i| !d.excluded[i] && d.approach[i][axis.index()] == sign)
-            .count() as f64
-    };
-    (count(1.0).min(count(-1.0)) < MIN_EFFECTIVE_POINTS).then_some(axis)
-}
-
-/// Points a parameter's effect must spread over to be measured by a log.
-const MIN_EFFECTIVE_POINTS: f64 = 8.0;
-
-/// How many of the log's points a base column's effect lies on: the
-/// participation ratio `(Σ v²)² / Σ v⁴` of the column centred over the
-/// measured components (1 for a single point, the number of points for
-/// an even spread).
-fn effective_points(d: &data::Data, col: &[f64]) -> f64 {
-    let vals: Vec<f64> = (0..d.n)
-        .filter(|&i| !d.excluded[i])
-        .flat_map(|i| {
-            (0..2)
-                .filter(|&c| d.measured[c])
-                .map(move |c| col[2 * i + c])
-        })
-        .collect();
-    if vals.is_empty() {
-        return 0.0;
-    }
-    let m = vals.iter().sum::<f64>() / vals.len() as f64;
-    let (s2, s4) = vals.iter().fold((0.0, 0.0), |(a, b), v| {
-        let q = (v - m) * (v - m);
-        (a + q, b + q * q)
-    });
-    if s4 > 0.0 {
-        s2 * s2 / s4
-    } else {
-        0.0
-    }
-}
-
-fn testable_in_every_fold(d: &data::Data, col: &[f64]) -> bool {
-    let spread = |use_row: &dyn Fn(usize) -> bool| -> f64 {
-        let vals: Vec<f64> = (0..d.n)
-            .filter(|&i| use_row(i) && !d.excluded[i])
-            .flat_map(|i| {
-                (0..2)
-                    .filter(|&c| d.measured[c])
-                    .map(move |c| col[2 * i + c])
-            })
-            .collect();
-        if vals.len() < 2 {
-            return 0.0;
-        }
-        let m = vals.iter().sum::<f64>() / vals.len() as f64;
-        (vals.iter().map(|v| (v - m).powi(2)).sum::<f64>() / vals.len() as f64).sqrt()
-    };
-    let all = spread(&|_| true);
-    if all <= 0.0 {
-        return true;
-    }
-    (0..d.nfolds).all(|f| spread(&|i| d.fold[i] != f) >= TRAINING_SPREAD * all)
 }
 
 /// Periods a log must span before a fitted periodic parameter reads as
@@ -1258,42 +895,6 @@ fn note_short_periods(parameters: &mut [ParamCorrection], d: &data::Data, model:
         }
     }
 }
-
-/// Indices in `cand_names` of the plays (`backlash_um`) a reversal table
-/// in `spec` is relative to, among the `dropped` candidates (left at the
-/// model's value by the base selection).
-fn table_plays(
-    spec: &Spec,
-    model: &StageModel,
-    cand_names: &[String],
-    dropped: &[usize],
-) -> Vec<usize> {
-    let mut out = Vec::new();
-    for s in spec.clone().split() {
-        let Spec::Table {
-            axis,
-            lost_motion: true,
-            ..
-        } = s
-        else {
-            continue;
-        };
-        let Some(t) = search::backlash_term_of(model, axis) else {
-            continue;
-        };
-        let play = format!("{}.backlash_um", t.name());
-        out.extend(dropped.iter().copied().filter(|&j| cand_names[j] == play));
-    }
-    out.sort_unstable();
-    out.dedup();
-    out
-}
-
-/// Passes of the greedy loop per allowed finding (each pass accepts a
-/// finding, frees a carrier, or stops): a guard against a finding and its
-/// replacement taking turns, above what a log uses (one per finding, one
-/// per freed carrier, one per dropped finding).
-const MAX_PASSES_PER_FINDING: usize = 3;
 
 /// Steps 1 and 3: the log replayed into [`data::Data`] ([`data::prepare`]),
 /// the replicates' outliers ([`noise::outlier_rows`]) left out of the fit

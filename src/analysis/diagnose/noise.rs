@@ -538,20 +538,36 @@ pub(super) fn outlier_rows(log: &MeasurementLog, d: &Data, c: Axis) -> Vec<usize
     rows
 }
 
-fn component(log: &MeasurementLog, d: &Data, heldout: &[f64], c: Axis) -> ComponentNoise {
+/// The replicate groups of one component, each sorted into kept visits,
+/// outliers or a discordant pair: the figures of [`ComponentNoise`] are
+/// taken from these.
+struct Tally {
+    targets: Vec<TargetRepeat>,
+    outliers: Vec<Outlier>,
+    /// Their rows, for the residual's replicate scatter.
+    outlying: Vec<usize>,
+    /// Visits, scatter and degrees of freedom of the groups that reposition
+    /// the axis (`[1]`) and of those read while it was held (`[0]`).
+    visits: [Vec<Visit>; 2],
+    ss: [f64; 2],
+    dof: [usize; 2],
+    discordant: Vec<DiscordantPair>,
+}
+
+/// Sorts the visits of each replicate group of `rep` (component `c`).
+fn tally(log: &MeasurementLog, d: &Data, heldout: &[f64], rep: &Replicates<'_>, c: Axis) -> Tally {
     let ci = c.index();
-    let rep = replicates(log, d, c);
     let (reps, medians, robust) = (&rep.reps, &rep.medians, rep.robust);
     let dev = |i: usize| deviation(log, i, ci);
-    let mut targets = Vec::new();
-    let mut outliers = Vec::new();
-    // Their rows, for the residual's replicate scatter.
-    let mut outlying = Vec::new();
-    // Visits, scatter and degrees of freedom of the groups that reposition
-    // the axis (`[1]`) and of those read while it was held (`[0]`).
-    let mut visits: [Vec<Visit>; 2] = [Vec::new(), Vec::new()];
-    let (mut ss, mut dof) = ([0.0; 2], [0usize; 2]);
-    let mut discordant = Vec::new();
+    let mut t = Tally {
+        targets: Vec::new(),
+        outliers: Vec::new(),
+        outlying: Vec::new(),
+        visits: [Vec::new(), Vec::new()],
+        ss: [0.0; 2],
+        dof: [0usize; 2],
+        discordant: Vec::new(),
+    };
     for ((((k, rows), med), &moved), z) in reps
         .iter()
         .zip(medians)
@@ -569,7 +585,7 @@ fn component(log: &MeasurementLog, d: &Data, heldout: &[f64], c: Axis) -> Compon
         let target_um = if along == 0 { k.1 } else { k.2 } as f64 / 1e3;
         let approach = if along == 0 { k.3 } else { k.4 } as f64;
         if let (Some(z), [i0, i1]) = (*z, rows.as_slice()) {
-            discordant.push(DiscordantPair {
+            t.discordant.push(DiscordantPair {
                 target_um,
                 approach,
                 cycles: [log.records[*i0].cycle, log.records[*i1].cycle],
@@ -578,7 +594,7 @@ fn component(log: &MeasurementLog, d: &Data, heldout: &[f64], c: Axis) -> Compon
                 first_of_pass: [first_of_pass(log, *i0), first_of_pass(log, *i1)],
             });
             if !rep.discordant_kept {
-                outlying.extend([*i0, *i1]);
+                t.outlying.extend([*i0, *i1]);
                 continue;
             }
         }
@@ -586,8 +602,8 @@ fn component(log: &MeasurementLog, d: &Data, heldout: &[f64], c: Axis) -> Compon
         for &i in rows.iter() {
             let excess = dev(i) - med;
             if is_outlier(rows.len(), robust, excess) {
-                outlying.push(i);
-                outliers.push(Outlier {
+                t.outlying.push(i);
+                t.outliers.push(Outlier {
                     cycle: log.records[i].cycle,
                     target_um,
                     approach,
@@ -601,7 +617,7 @@ fn component(log: &MeasurementLog, d: &Data, heldout: &[f64], c: Axis) -> Compon
         if kept.len() < 2 {
             continue;
         }
-        visits[p].extend(kept.iter().map(|&i| Visit {
+        t.visits[p].extend(kept.iter().map(|&i| Visit {
             target_um,
             approach,
             cycle: log.records[i].cycle,
@@ -611,8 +627,8 @@ fn component(log: &MeasurementLog, d: &Data, heldout: &[f64], c: Axis) -> Compon
         let n = kept.len();
         let m = kept.iter().map(|&i| dev(i)).sum::<f64>() / n as f64;
         let s2 = kept.iter().map(|&i| (dev(i) - m).powi(2)).sum::<f64>() / (n - 1) as f64;
-        ss[p] += s2 * (n - 1) as f64;
-        dof[p] += n - 1;
+        t.ss[p] += s2 * (n - 1) as f64;
+        t.dof[p] += n - 1;
         let res: Vec<f64> = kept
             .iter()
             .map(|&i| heldout[2 * i + ci])
@@ -623,7 +639,7 @@ fn component(log: &MeasurementLog, d: &Data, heldout: &[f64], c: Axis) -> Compon
         } else {
             res.iter().sum::<f64>() / res.len() as f64
         };
-        targets.push(TargetRepeat {
+        t.targets.push(TargetRepeat {
             target_um,
             approach,
             n,
@@ -633,6 +649,21 @@ fn component(log: &MeasurementLog, d: &Data, heldout: &[f64], c: Axis) -> Compon
             held: !moved,
         });
     }
+    t
+}
+
+fn component(log: &MeasurementLog, d: &Data, heldout: &[f64], c: Axis) -> ComponentNoise {
+    let ci = c.index();
+    let rep = replicates(log, d, c);
+    let Tally {
+        targets,
+        outliers,
+        outlying,
+        mut visits,
+        ss,
+        dof,
+        discordant,
+    } = tally(log, d, heldout, &rep, c);
     let heldout_rms = super::fit::rms_comp(heldout, ci);
     // The repeatability from the positioning repeats when the log has
     // any, else from the held readings (a log that measures a component
@@ -658,29 +689,7 @@ fn component(log: &MeasurementLog, d: &Data, heldout: &[f64], c: Axis) -> Compon
         .filter(|t| p == 0 || !t.held)
         .map(|t| t.s_um)
         .reduce(f64::max);
-    // Systematic error left per target, against what noise alone gives.
-    let judged: Vec<&TargetRepeat> = targets
-        .iter()
-        .filter(|t| t.mean_residual_um.is_finite())
-        .collect();
-    let (systematic, floor, chi_z) = match repeatability {
-        Some(s) if !judged.is_empty() && s > 0.0 => {
-            let g = judged.len() as f64;
-            let rms = (judged
-                .iter()
-                .map(|t| t.mean_residual_um.powi(2))
-                .sum::<f64>()
-                / g)
-                .sqrt();
-            let floor = (judged.iter().map(|t| s * s / t.n as f64).sum::<f64>() / g).sqrt();
-            let chi2 = judged
-                .iter()
-                .map(|t| t.n as f64 * t.mean_residual_um.powi(2) / (s * s))
-                .sum::<f64>();
-            (Some(rms), Some(floor), Some(wilson_hilferty(chi2, g)))
-        }
-        _ => (None, None, None),
-    };
+    let (systematic, floor, chi_z) = systematic_left(&targets, repeatability);
     let neighbour = neighbour_noise(log, d, heldout, c);
     // Like with like: visits that reposition the axis against neighbours
     // of passes that move it, readings of a held axis against neighbours
@@ -758,6 +767,37 @@ fn component(log: &MeasurementLog, d: &Data, heldout: &[f64], c: Axis) -> Compon
     }
 }
 
+/// Systematic error left per target, against what noise alone gives
+/// (repeatability `repeatability`): its RMS, the RMS noise alone would
+/// leave, and the χ² of the two as a z-score.
+fn systematic_left(
+    targets: &[TargetRepeat],
+    repeatability: Option<f64>,
+) -> (Option<f64>, Option<f64>, Option<f64>) {
+    let judged: Vec<&TargetRepeat> = targets
+        .iter()
+        .filter(|t| t.mean_residual_um.is_finite())
+        .collect();
+    match repeatability {
+        Some(s) if !judged.is_empty() && s > 0.0 => {
+            let g = judged.len() as f64;
+            let rms = (judged
+                .iter()
+                .map(|t| t.mean_residual_um.powi(2))
+                .sum::<f64>()
+                / g)
+                .sqrt();
+            let floor = (judged.iter().map(|t| s * s / t.n as f64).sum::<f64>() / g).sqrt();
+            let chi2 = judged
+                .iter()
+                .map(|t| t.n as f64 * t.mean_residual_um.powi(2) / (s * s))
+                .sum::<f64>();
+            (Some(rms), Some(floor), Some(wilson_hilferty(chi2, g)))
+        }
+        _ => (None, None, None),
+    }
+}
+
 /// Ratio of the residual's replicate scatter to the neighbour noise from
 /// which the error counts as changing between visits of a target. The
 /// neighbour noise is an upper bound (smooth structure left in the
@@ -818,7 +858,7 @@ fn outliers_in(rep: &Replicates, log: &MeasurementLog, ci: usize) -> Vec<usize> 
 /// `χ²_k / k`, `(1 − 2/(9k))³` (Wilson–Hilferty), with `k` the groups'
 /// median degrees of freedom.
 fn residual_replicate_scatter(
-    rep: &Replicates,
+    rep: &Replicates<'_>,
     positioning: Option<bool>,
     outliers: &[usize],
     resid: &[f64],

@@ -258,66 +258,126 @@ pub(super) fn read(
     if !(s_um.is_finite() && s_um > 0.0) {
         return out;
     }
-    let s2 = s_um * s_um;
-    let gs = groups(visits);
-    let name = component.as_str();
-    // Positions in mm on long travels, in µm on short ones (a flexure's
-    // 450 µm would read as "0.4 mm" everywhere).
-    let (lo_t, hi_t) = visits
-        .iter()
-        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| {
-            (a.min(v.target_um), b.max(v.target_um))
-        });
-    let at = |t: f64| -> String {
-        if hi_t - lo_t >= 10_000.0 {
+    let r = Replicates::new(component, visits, s_um);
+    r.reversal(&mut out);
+    r.mean_deviation(&mut out);
+    r.cycle_drift(&mut out);
+    r.first_approaches(outliers, &mut out);
+    out
+}
+
+/// One component's visits grouped by target and approach, shared by the
+/// readings [`read`] takes from them.
+struct Replicates<'a> {
+    component: Axis,
+    visits: &'a [Visit],
+    s_um: f64,
+    /// `s_um²`: the variance of one visit.
+    s2: f64,
+    gs: Vec<Group>,
+    targets: super::data::Targets,
+    /// Each group's target.
+    gid: Vec<usize>,
+    /// The groups of each target, in order of first appearance.
+    members: Vec<Vec<usize>>,
+    /// A target's index in `members`.
+    slot: std::collections::HashMap<usize, usize>,
+    /// The range of the targets, for the unit positions are written in.
+    lo_t: f64,
+    hi_t: f64,
+}
+
+impl<'a> Replicates<'a> {
+    fn new(component: Axis, visits: &'a [Visit], s_um: f64) -> Self {
+        let s2 = s_um * s_um;
+        let gs = groups(visits);
+        let (lo_t, hi_t) = visits
+            .iter()
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| {
+                (a.min(v.target_um), b.max(v.target_um))
+            });
+        // The targets the groups stand for: the approaches of one target may
+        // stop at slightly different positions (`data::targets_of`).
+        let mut tpos: Vec<f64> = gs.iter().map(|g| g.target_um).collect();
+        tpos.sort_by(f64::total_cmp);
+        tpos.dedup_by(|p, q| (*p - *q).abs() < 1e-3);
+        let targets = super::data::targets_of(&tpos);
+        // Each group's target (every group position is one of `tpos`, so it
+        // has one; a group that had none would stand alone), and the groups of
+        // each target in order of first appearance: one pass, not one search
+        // per pair of groups (a dense log has a thousand groups).
+        let gid: Vec<usize> = gs
+            .iter()
+            .enumerate()
+            .map(|(k, g)| {
+                targets
+                    .index_of(g.target_um)
+                    .unwrap_or(targets.bounds.len() + k)
+            })
+            .collect();
+        let mut members: Vec<Vec<usize>> = Vec::new();
+        let mut slot: std::collections::HashMap<usize, usize> = std::collections::HashMap::new();
+        for (k, &t) in gid.iter().enumerate() {
+            let j = *slot.entry(t).or_insert_with(|| {
+                members.push(Vec::new());
+                members.len() - 1
+            });
+            members[j].push(k);
+        }
+        Replicates {
+            component,
+            visits,
+            s_um,
+            s2,
+            gs,
+            targets,
+            gid,
+            members,
+            slot,
+            lo_t,
+            hi_t,
+        }
+    }
+
+    /// Positions in mm on long travels, in µm on short ones (a flexure's
+    /// 450 µm would read as "0.4 mm" everywhere).
+    fn at(&self, t: f64) -> String {
+        if self.hi_t - self.lo_t >= 10_000.0 {
             format!("{:.1} mm", t / 1e3)
         } else {
             format!("{t:.1} µm")
         }
-    };
+    }
 
-    // The targets the groups stand for: the approaches of one target may
-    // stop at slightly different positions (`data::targets_of`).
-    let mut tpos: Vec<f64> = gs.iter().map(|g| g.target_um).collect();
-    tpos.sort_by(f64::total_cmp);
-    tpos.dedup_by(|p, q| (*p - *q).abs() < 1e-3);
-    let targets = super::data::targets_of(&tpos);
-    // Each group's target (every group position is one of `tpos`, so it
-    // has one; a group that had none would stand alone), and the groups of
-    // each target in order of first appearance: one pass, not one search
-    // per pair of groups (a dense log has a thousand groups).
-    let gid: Vec<usize> = gs
-        .iter()
-        .enumerate()
-        .map(|(k, g)| {
-            targets
-                .index_of(g.target_um)
-                .unwrap_or(targets.bounds.len() + k)
-        })
-        .collect();
-    let mut members: Vec<Vec<usize>> = Vec::new();
-    let mut slot: std::collections::HashMap<usize, usize> = std::collections::HashMap::new();
-    for (k, &t) in gid.iter().enumerate() {
-        let j = *slot.entry(t).or_insert_with(|| {
-            members.push(Vec::new());
-            members.len() - 1
-        });
-        members[j].push(k);
-    }
-    // Reversal per target: B_i = x̄↑ − x̄↓ (ISO 230-2 sign).
-    let mut rev: Vec<(f64, f64, f64, f64)> = Vec::new(); // (target, B, var, B of residual)
-    for (k, g) in gs.iter().enumerate().filter(|(_, g)| g.approach > 0.0) {
-        let here = slot.get(&gid[k]).map_or(&[][..], |&j| &members[j][..]);
-        if let Some(h) = here.iter().map(|&i| &gs[i]).find(|h| h.approach < 0.0) {
-            rev.push((
-                g.target_um,
-                g.dev - h.dev,
-                s2 * (1.0 / g.n + 1.0 / h.n),
-                g.resid - h.resid,
-            ));
+    /// Reversal per target: B_i = x̄↑ − x̄↓ (ISO 230-2 sign), as
+    /// `(target, B, var, B of residual)`.
+    fn reversals(&self) -> Vec<(f64, f64, f64, f64)> {
+        let (gs, s2) = (&self.gs, self.s2);
+        let mut rev: Vec<(f64, f64, f64, f64)> = Vec::new();
+        for (k, g) in gs.iter().enumerate().filter(|(_, g)| g.approach > 0.0) {
+            let here = self
+                .slot
+                .get(&self.gid[k])
+                .map_or(&[][..], |&j| &self.members[j][..]);
+            if let Some(h) = here.iter().map(|&i| &gs[i]).find(|h| h.approach < 0.0) {
+                rev.push((
+                    g.target_um,
+                    g.dev - h.dev,
+                    s2 * (1.0 / g.n + 1.0 / h.n),
+                    g.resid - h.resid,
+                ));
+            }
         }
+        rev
     }
-    if rev.len() >= 2 {
+
+    /// The mean reversal, and whether it changes along the travel.
+    fn reversal(&self, out: &mut Vec<Reading>) {
+        let (component, name) = (self.component, self.component.as_str());
+        let rev = self.reversals();
+        if rev.len() < 2 {
+            return;
+        }
         let sw: f64 = rev.iter().map(|r| 1.0 / r.2).sum();
         let mean = rev.iter().map(|r| r.1 / r.2).sum::<f64>() / sw;
         let z = mean.abs() * sw.sqrt();
@@ -336,245 +396,320 @@ pub(super) fn read(
                     -mean,
                     sw.sqrt().recip(),
                     rev.len(),
-                    paired(targets.widest_um())
+                    paired(self.targets.widest_um())
                 ),
                 term: None,
                 cause: ReadingKind::Reversal.cause(),
             });
         }
         if rev.len() >= 3 {
-            let chi2: f64 = rev.iter().map(|r| (r.1 - mean).powi(2) / r.2).sum();
-            let zv = wilson_hilferty(chi2, (rev.len() - 1) as f64);
-            if zv >= READING_Z {
-                let res_ok = rev.iter().all(|r| r.3.is_finite());
-                let res_chi2: f64 = rev.iter().map(|r| (r.3 - res_mean).powi(2) / r.2).sum();
-                let (lo, hi) = rev.iter().fold((rev[0], rev[0]), |(lo, hi), r| {
-                    (
-                        if r.1 < lo.1 { *r } else { lo },
-                        if r.1 > hi.1 { *r } else { hi },
-                    )
-                });
-                out.push(Reading {
-                    kind: ReadingKind::ReversalVaries,
-                    component,
-                    value: hi.1 - lo.1,
-                    unit: "µm",
-                    z: zv,
-                    model_explains: res_ok.then(|| {
-                        wilson_hilferty(res_chi2, (rev.len() - 1) as f64) < READING_Z
-                    }),
-                    sentence: format!(
-                        "{name}'s lost motion changes along the travel: B = {:+.3} µm at {}, {:+.3} µm at {} ({} targets; noise alone would leave about ± {:.3} µm){}",
-                        lo.1,
-                        at(lo.0),
-                        hi.1,
-                        at(hi.0),
-                        rev.len(),
-                        (rev.iter().map(|r| r.2).sum::<f64>() / rev.len() as f64).sqrt(),
-                        if rev.len() <= MAX_LISTED {
-                            format!(
-                                "; B_i = x̄↑ − x̄↓ (measured − target, outliers left out): {}; the lost motion is −B_i{}",
-                                rev.iter()
-                                    .map(|r| format!("{:+.3} µm at {}", r.1, at(r.0)))
-                                    .collect::<Vec<_>>()
-                                    .join(", "),
-                                paired(targets.widest_um())
-                            )
-                        } else {
-                            String::new()
-                        }
-                    ),
-                    term: None,
-                cause: ReadingKind::ReversalVaries.cause(),
-                });
-            }
+            self.reversal_varies(&rev, mean, res_mean, out);
         }
     }
 
-    // Scale and non-linearity of the bidirectional mean deviation per
-    // target (ISO 230-2's x̄_i: the mean over the approaches of each
-    // approach's mean, so a reversal, constant or varying, cancels).
-    // (target, x̄, var, residual x̄) and the approaches it was seen from.
-    let mut tg: Vec<(f64, f64, f64, f64)> = Vec::new();
-    let mut napp: Vec<usize> = Vec::new();
-    for here in members.iter().map(|m| m.iter().map(|&i| &gs[i])) {
-        let here: Vec<&Group> = here.collect();
-        let k = here.len() as f64;
-        tg.push((
-            here.iter().map(|h| h.target_um).sum::<f64>() / k,
-            here.iter().map(|h| h.dev).sum::<f64>() / k,
-            s2 * here.iter().map(|h| 1.0 / h.n).sum::<f64>() / (k * k),
-            here.iter().map(|h| h.resid).sum::<f64>() / k,
-        ));
-        napp.push(here.len());
+    /// Whether the reversals `rev` scatter about their mean `mean` (that
+    /// of the residual: `res_mean`) more than the noise explains.
+    fn reversal_varies(
+        &self,
+        rev: &[(f64, f64, f64, f64)],
+        mean: f64,
+        res_mean: f64,
+        out: &mut Vec<Reading>,
+    ) {
+        let (component, name) = (self.component, self.component.as_str());
+        let chi2: f64 = rev.iter().map(|r| (r.1 - mean).powi(2) / r.2).sum();
+        let zv = wilson_hilferty(chi2, (rev.len() - 1) as f64);
+        if zv < READING_Z {
+            return;
+        }
+        let res_ok = rev.iter().all(|r| r.3.is_finite());
+        let res_chi2: f64 = rev.iter().map(|r| (r.3 - res_mean).powi(2) / r.2).sum();
+        let (lo, hi) = rev.iter().fold((rev[0], rev[0]), |(lo, hi), r| {
+            (
+                if r.1 < lo.1 { *r } else { lo },
+                if r.1 > hi.1 { *r } else { hi },
+            )
+        });
+        out.push(Reading {
+            kind: ReadingKind::ReversalVaries,
+            component,
+            value: hi.1 - lo.1,
+            unit: "µm",
+            z: zv,
+            model_explains: res_ok
+                .then(|| wilson_hilferty(res_chi2, (rev.len() - 1) as f64) < READING_Z),
+            sentence: format!(
+                "{name}'s lost motion changes along the travel: B = {:+.3} µm at {}, {:+.3} µm at {} ({} targets; noise alone would leave about ± {:.3} µm){}",
+                lo.1,
+                self.at(lo.0),
+                hi.1,
+                self.at(hi.0),
+                rev.len(),
+                (rev.iter().map(|r| r.2).sum::<f64>() / rev.len() as f64).sqrt(),
+                if rev.len() <= MAX_LISTED {
+                    format!(
+                        "; B_i = x̄↑ − x̄↓ (measured − target, outliers left out): {}; the lost motion is −B_i{}",
+                        rev.iter()
+                            .map(|r| format!("{:+.3} µm at {}", r.1, self.at(r.0)))
+                            .collect::<Vec<_>>()
+                            .join(", "),
+                        paired(self.targets.widest_um())
+                    )
+                } else {
+                    String::new()
+                }
+            ),
+            term: None,
+            cause: ReadingKind::ReversalVaries.cause(),
+        });
     }
-    // Only targets seen from the same approaches have comparable means:
-    // those seen from the most (both ways, when any is). The turning
-    // points of a step test (its first and last target, reached one way
-    // only) are left out rather than the whole reading.
-    let most = napp.iter().copied().max().unwrap_or(0);
-    let all = tg.len();
-    let tg: Vec<(f64, f64, f64, f64)> = tg
-        .into_iter()
-        .zip(&napp)
-        .filter(|(_, &n)| n == most)
-        .map(|(t, _)| t)
-        .collect();
-    if tg.len() >= 3 && all - tg.len() <= 2 {
+
+    /// The bidirectional mean deviation per target (ISO 230-2's x̄_i: the
+    /// mean over the approaches of each approach's mean, so a reversal,
+    /// constant or varying, cancels) of the targets whose means compare,
+    /// or `None` when too few do.
+    fn target_means(&self) -> Option<Means> {
+        let (gs, s2) = (&self.gs, self.s2);
+        // (target, x̄, var, residual x̄) and the approaches it was seen from.
+        let mut tg: Vec<(f64, f64, f64, f64)> = Vec::new();
+        let mut napp: Vec<usize> = Vec::new();
+        for here in self.members.iter().map(|m| m.iter().map(|&i| &gs[i])) {
+            let here: Vec<&Group> = here.collect();
+            let k = here.len() as f64;
+            tg.push((
+                here.iter().map(|h| h.target_um).sum::<f64>() / k,
+                here.iter().map(|h| h.dev).sum::<f64>() / k,
+                s2 * here.iter().map(|h| 1.0 / h.n).sum::<f64>() / (k * k),
+                here.iter().map(|h| h.resid).sum::<f64>() / k,
+            ));
+            napp.push(here.len());
+        }
+        // Only targets seen from the same approaches have comparable means:
+        // those seen from the most (both ways, when any is). The turning
+        // points of a step test (its first and last target, reached one way
+        // only) are left out rather than the whole reading.
+        let most = napp.iter().copied().max().unwrap_or(0);
+        let all = tg.len();
+        let tg: Vec<(f64, f64, f64, f64)> = tg
+            .into_iter()
+            .zip(&napp)
+            .filter(|(_, &n)| n == most)
+            .map(|(t, _)| t)
+            .collect();
+        if !(tg.len() >= 3 && all - tg.len() <= 2) {
+            return None;
+        }
         let x: Vec<f64> = tg.iter().map(|t| t.0).collect();
         let y: Vec<f64> = tg.iter().map(|t| t.1).collect();
         let yr: Vec<f64> = tg.iter().map(|t| t.3).collect();
         let w: Vec<f64> = tg.iter().map(|t| 1.0 / t.2).collect();
         let res_ok = yr.iter().all(|v| v.is_finite());
         let span = x[x.len() - 1] - x[0];
-        if let Some((_, b, var_b, resid)) = line(&x, &y, &w) {
-            let z = b.abs() / var_b.sqrt();
-            if z >= READING_Z {
-                let rz = line(&x, &yr, &w).map(|(_, br, _, _)| br.abs() / var_b.sqrt());
-                out.push(Reading {
-                    kind: ReadingKind::Scale,
-                    component,
-                    value: b * 1e6,
-                    unit: "ppm",
-                    z,
-                    model_explains: rz.filter(|_| res_ok).map(|r| r < READING_Z),
-                    sentence: format!(
-                        "{name}'s mean deviation grows by {:+.1} ± {:.1} ppm of the travel ({:+.3} µm over the {:.1} mm tested)",
-                        b * 1e6,
-                        var_b.sqrt() * 1e6,
-                        b * span,
-                        span / 1e3
-                    ),
-                    term: None,
-                cause: ReadingKind::Scale.cause(),
-                });
-            }
-            let dof = tg.len() as f64 - 2.0;
-            if dof >= 2.0 {
-                let chi2: f64 = resid.iter().zip(&w).map(|(r, w)| r * r * w).sum();
-                let zn = wilson_hilferty(chi2, dof);
-                if zn >= READING_Z {
-                    let k = (0..resid.len())
-                        .max_by(|&a, &b| resid[a].abs().total_cmp(&resid[b].abs()))
-                        .unwrap_or(0);
-                    let rz = line(&x, &yr, &w).map(|(_, _, _, rr)| {
-                        wilson_hilferty(rr.iter().zip(&w).map(|(r, w)| r * r * w).sum(), dof)
-                    });
-                    out.push(Reading {
-                        kind: ReadingKind::Nonlinearity,
-                        component,
-                        value: resid[k],
-                        unit: "µm",
-                        z: zn,
-                        model_explains: rz.filter(|_| res_ok).map(|r| r < READING_Z),
-                        sentence: format!(
-                            "{name}'s mean deviation departs from a straight line by up to {:+.3} µm (at {}; the least-squares line through the bidirectional means x̄_i, measured − target; noise alone ± {:.3} µm per target){}",
-                            resid[k],
-                            at(x[k]),
-                            tg[k].2.sqrt(),
-                            if x.len() <= MAX_LISTED {
-                                let n = x.len() - 1;
-                                let chord = |i: usize| {
-                                    y[i] - y[0] - (y[n] - y[0]) * (x[i] - x[0]) / (x[n] - x[0])
-                                };
-                                format!(
-                                    "; x̄_i less that line: {}; less the chord through the end targets (how a table zero at its end knots reads it): {}",
-                                    (0..x.len())
-                                        .map(|i| format!("{:+.3} µm at {}", resid[i], at(x[i])))
-                                        .collect::<Vec<_>>()
-                                        .join(", "),
-                                    (0..x.len())
-                                        .map(|i| format!("{:+.3}", chord(i)))
-                                        .collect::<Vec<_>>()
-                                        .join(", ")
-                                )
-                            } else {
-                                String::new()
-                            }
-                        ),
-                        term: None,
-                cause: ReadingKind::Nonlinearity.cause(),
-                    });
-                }
-            }
+        Some(Means {
+            tg,
+            x,
+            y,
+            yr,
+            w,
+            res_ok,
+            span,
+        })
+    }
+
+    /// Scale and non-linearity of the bidirectional mean deviation per
+    /// target.
+    fn mean_deviation(&self, out: &mut Vec<Reading>) {
+        let Some(m) = self.target_means() else {
+            return;
+        };
+        if let Some((_, b, var_b, resid)) = line(&m.x, &m.y, &m.w) {
+            self.scale(&m, b, var_b, out);
+            self.nonlinearity(&m, &resid, out);
         }
     }
 
-    // Drift from cycle to cycle: each visit's deviation from its group's
-    // mean (the target's systematic error cancels), averaged per cycle.
-    let mut cycles: Vec<(u32, f64, f64, f64)> = Vec::new(); // (cycle, Σe, n, Σe of residual)
-    for v in visits {
-        let Some(g) = gs
-            .iter()
-            .find(|g| (g.target_um - v.target_um).abs() < 1e-3 && g.approach == v.approach)
-        else {
-            continue;
-        };
-        let (e, er) = (v.dev_um - g.dev, v.resid_um - g.resid);
-        match cycles.iter_mut().find(|c| c.0 == v.cycle) {
-            Some(c) => {
-                c.1 += e;
-                c.2 += 1.0;
-                c.3 += er;
-            }
-            None => cycles.push((v.cycle, e, 1.0, er)),
+    /// The slope `b` (variance `var_b`) of the line through the means.
+    fn scale(&self, m: &Means, b: f64, var_b: f64, out: &mut Vec<Reading>) {
+        let (component, name) = (self.component, self.component.as_str());
+        let z = b.abs() / var_b.sqrt();
+        if z < READING_Z {
+            return;
         }
+        let rz = line(&m.x, &m.yr, &m.w).map(|(_, br, _, _)| br.abs() / var_b.sqrt());
+        out.push(Reading {
+            kind: ReadingKind::Scale,
+            component,
+            value: b * 1e6,
+            unit: "ppm",
+            z,
+            model_explains: rz.filter(|_| m.res_ok).map(|r| r < READING_Z),
+            sentence: format!(
+                "{name}'s mean deviation grows by {:+.1} ± {:.1} ppm of the travel ({:+.3} µm over the {:.1} mm tested)",
+                b * 1e6,
+                var_b.sqrt() * 1e6,
+                b * m.span,
+                m.span / 1e3
+            ),
+            term: None,
+            cause: ReadingKind::Scale.cause(),
+        });
     }
-    cycles.sort_by_key(|c| c.0);
-    if cycles.len() >= 3 {
+
+    /// The means' departure `resid` from their line, when the noise does
+    /// not explain it.
+    fn nonlinearity(&self, m: &Means, resid: &[f64], out: &mut Vec<Reading>) {
+        let (component, name) = (self.component, self.component.as_str());
+        let (x, y, w) = (&m.x, &m.y, &m.w);
+        let dof = m.tg.len() as f64 - 2.0;
+        if dof < 2.0 {
+            return;
+        }
+        let chi2: f64 = resid.iter().zip(w).map(|(r, w)| r * r * w).sum();
+        let zn = wilson_hilferty(chi2, dof);
+        if zn < READING_Z {
+            return;
+        }
+        let k = (0..resid.len())
+            .max_by(|&a, &b| resid[a].abs().total_cmp(&resid[b].abs()))
+            .unwrap_or(0);
+        let rz = line(x, &m.yr, w).map(|(_, _, _, rr)| {
+            wilson_hilferty(rr.iter().zip(w).map(|(r, w)| r * r * w).sum(), dof)
+        });
+        out.push(Reading {
+            kind: ReadingKind::Nonlinearity,
+            component,
+            value: resid[k],
+            unit: "µm",
+            z: zn,
+            model_explains: rz.filter(|_| m.res_ok).map(|r| r < READING_Z),
+            sentence: format!(
+                "{name}'s mean deviation departs from a straight line by up to {:+.3} µm (at {}; the least-squares line through the bidirectional means x̄_i, measured − target; noise alone ± {:.3} µm per target){}",
+                resid[k],
+                self.at(x[k]),
+                m.tg[k].2.sqrt(),
+                if x.len() <= MAX_LISTED {
+                    let n = x.len() - 1;
+                    let chord = |i: usize| {
+                        y[i] - y[0] - (y[n] - y[0]) * (x[i] - x[0]) / (x[n] - x[0])
+                    };
+                    format!(
+                        "; x̄_i less that line: {}; less the chord through the end targets (how a table zero at its end knots reads it): {}",
+                        (0..x.len())
+                            .map(|i| format!("{:+.3} µm at {}", resid[i], self.at(x[i])))
+                            .collect::<Vec<_>>()
+                            .join(", "),
+                        (0..x.len())
+                            .map(|i| format!("{:+.3}", chord(i)))
+                            .collect::<Vec<_>>()
+                            .join(", ")
+                    )
+                } else {
+                    String::new()
+                }
+            ),
+            term: None,
+            cause: ReadingKind::Nonlinearity.cause(),
+        });
+    }
+
+    /// Drift from cycle to cycle: each visit's deviation from its group's
+    /// mean (the target's systematic error cancels), averaged per cycle.
+    fn cycle_drift(&self, out: &mut Vec<Reading>) {
+        let (component, name) = (self.component, self.component.as_str());
+        let (gs, s2) = (&self.gs, self.s2);
+        let mut cycles: Vec<(u32, f64, f64, f64)> = Vec::new(); // (cycle, Σe, n, Σe of residual)
+        for v in self.visits {
+            let Some(g) = gs
+                .iter()
+                .find(|g| (g.target_um - v.target_um).abs() < 1e-3 && g.approach == v.approach)
+            else {
+                continue;
+            };
+            let (e, er) = (v.dev_um - g.dev, v.resid_um - g.resid);
+            match cycles.iter_mut().find(|c| c.0 == v.cycle) {
+                Some(c) => {
+                    c.1 += e;
+                    c.2 += 1.0;
+                    c.3 += er;
+                }
+                None => cycles.push((v.cycle, e, 1.0, er)),
+            }
+        }
+        cycles.sort_by_key(|c| c.0);
+        if cycles.len() < 3 {
+            return;
+        }
         let x: Vec<f64> = cycles.iter().map(|c| c.0 as f64).collect();
         let y: Vec<f64> = cycles.iter().map(|c| c.1 / c.2).collect();
         let yr: Vec<f64> = cycles.iter().map(|c| c.3 / c.2).collect();
         let w: Vec<f64> = cycles.iter().map(|c| c.2 / s2).collect();
-        if let Some((_, b, var_b, _)) = line(&x, &y, &w) {
-            let z = b.abs() / var_b.sqrt();
-            if z >= READING_Z {
-                let span = x[x.len() - 1] - x[0];
-                let rz = line(&x, &yr, &w).map(|(_, br, _, _)| br.abs() / var_b.sqrt());
+        let Some((_, b, var_b, _)) = line(&x, &y, &w) else {
+            return;
+        };
+        let z = b.abs() / var_b.sqrt();
+        if z < READING_Z {
+            return;
+        }
+        let span = x[x.len() - 1] - x[0];
+        let rz = line(&x, &yr, &w).map(|(_, br, _, _)| br.abs() / var_b.sqrt());
+        out.push(Reading {
+            kind: ReadingKind::CycleDrift,
+            component,
+            value: b * span,
+            unit: "µm",
+            z,
+            model_explains: rz.filter(|r| r.is_finite()).map(|r| r < READING_Z),
+            sentence: format!(
+                "{name} drifts from cycle to cycle: {:+.3} ± {:.3} µm per cycle, {:+.3} µm over cycles {} to {}",
+                b,
+                var_b.sqrt(),
+                b * span,
+                cycles[0].0,
+                cycles[cycles.len() - 1].0
+            ),
+            term: None,
+            cause: ReadingKind::CycleDrift.cause(),
+        });
+    }
+
+    /// First visits that stand apart (found in `noise.rs`).
+    fn first_approaches(&self, outliers: &[(u32, f64, f64, bool)], out: &mut Vec<Reading>) {
+        let (component, name) = (self.component, self.component.as_str());
+        for &(cycle, target_um, excess_um, first) in outliers {
+            if first {
                 out.push(Reading {
-                    kind: ReadingKind::CycleDrift,
+                    kind: ReadingKind::FirstApproach,
                     component,
-                    value: b * span,
+                    value: excess_um,
                     unit: "µm",
-                    z,
-                    model_explains: rz
-                        .filter(|r| r.is_finite())
-                        .map(|r| r < READING_Z),
+                    z: excess_um.abs() / self.s_um,
+                    model_explains: None,
                     sentence: format!(
-                        "{name} drifts from cycle to cycle: {:+.3} ± {:.3} µm per cycle, {:+.3} µm over cycles {} to {}",
-                        b,
-                        var_b.sqrt(),
-                        b * span,
-                        cycles[0].0,
-                        cycles[cycles.len() - 1].0
+                        "the first visit of {} on {name} (cycle {cycle}) is {excess_um:+.3} µm from the other visits of that target",
+                        self.at(target_um)
                     ),
                     term: None,
-                cause: ReadingKind::CycleDrift.cause(),
+                    cause: ReadingKind::FirstApproach.cause(),
                 });
             }
         }
     }
+}
 
-    // First visits that stand apart (found in `noise.rs`).
-    for &(cycle, target_um, excess_um, first) in outliers {
-        if first {
-            out.push(Reading {
-                kind: ReadingKind::FirstApproach,
-                component,
-                value: excess_um,
-                unit: "µm",
-                z: excess_um.abs() / s_um,
-                model_explains: None,
-                sentence: format!(
-                    "the first visit of {} on {name} (cycle {cycle}) is {excess_um:+.3} µm from the other visits of that target",
-                    at(target_um)
-                ),
-                term: None,
-                cause: ReadingKind::FirstApproach.cause(),
-            });
-        }
-    }
-    out
+/// The bidirectional means of the targets a scale and non-linearity are
+/// read from.
+struct Means {
+    /// `(target, x̄, var, residual x̄)` per target.
+    tg: Vec<(f64, f64, f64, f64)>,
+    x: Vec<f64>,
+    y: Vec<f64>,
+    /// The residual's x̄: whether the model explains the reading.
+    yr: Vec<f64>,
+    /// Weights, 1 / var.
+    w: Vec<f64>,
+    res_ok: bool,
+    /// The targets' span, µm.
+    span: f64,
 }
 
 #[cfg(test)]

@@ -56,6 +56,55 @@ impl Diagnosis {
 
     /// The human-readable report.
     pub fn to_text(&self) -> String {
+        let mut out = self.overview_text();
+        out.push_str(&self.base_fit_text());
+        let _ = writeln!(
+            out,
+            "model as given:           rms {}",
+            self.rms_text(&self.model_rms_um)
+        );
+        let _ = writeln!(
+            out,
+            "after base fit, held out: rms {}",
+            self.rms_text(&self.baseline_rms_um)
+        );
+        if let Some(why) = &self.folds_interleaved {
+            let _ = writeln!(out, "folds interleaved in time: {why}");
+        }
+        out.push_str(&self.verdict_text());
+        out.push_str(&self.findings_text());
+        out.push_str(&self.withdrawn_text());
+        let _ = writeln!(
+            out,
+            "\nextended model, held out: rms {}; in-sample {}",
+            Axis::ALL
+                .iter()
+                .filter(|a| self.is_measured(**a))
+                .map(|a| format!(
+                    "{a} {:.4} µm ({:+.1} %)",
+                    self.extended_rms_um.get(*a),
+                    pct(self.baseline_rms_um.get(*a), self.extended_rms_um.get(*a))
+                ))
+                .collect::<Vec<_>>()
+                .join(", "),
+            self.rms_text(&self.extended_fit_rms_um)
+        );
+        if let Some(w) = &self.with_unmodelled_rms_um {
+            let _ = writeln!(
+                out,
+                "with the log-column findings the model cannot carry, held out: rms {}",
+                self.rms_text(w)
+            );
+        }
+        out.push_str(&self.map_term_text());
+        out.push_str(&self.noise_text());
+        out
+    }
+
+    /// The report's opening: the map's own reading (grid logs), the
+    /// ISO 230-2 figures, and what the log lets the analysis use (points,
+    /// folds, measured axes, time).
+    fn overview_text(&self) -> String {
         let mut out = String::new();
         // A map's own reading first: what the grid measures, in the
         // stage's frame, before anything read through the stage model.
@@ -71,7 +120,6 @@ impl Diagnosis {
             );
         }
         out.push_str(&self.iso_text());
-        let measured = |a: Axis| self.measured_axes.contains(&a);
         let _ = writeln!(
             out,
             "{} points ({} judged held out), {} held-out folds ({}); measured axes: {}{}",
@@ -90,7 +138,7 @@ impl Diagnosis {
                 .map(|a| a.as_str())
                 .collect::<Vec<_>>()
                 .join(", "),
-            match Axis::ALL.iter().find(|a| !measured(**a)) {
+            match Axis::ALL.iter().find(|a| !self.is_measured(**a)) {
                 Some(a) if self.measured_from == "metadata" => format!(
                     " ({a} not measured, per the log's {MEASURED_AXES_KEY} metadata: nothing fitted or reported on it)"
                 ),
@@ -116,6 +164,13 @@ impl Diagnosis {
                 super::TIME_SOURCE_KEY
             );
         }
+        out
+    }
+
+    /// Step 2's outcome: the parameters fitted, those kept at the
+    /// model's value and why, and the parameter corrections.
+    fn base_fit_text(&self) -> String {
+        let mut out = String::new();
         let _ = writeln!(
             out,
             "base fit identified {} parameters of the model (its own structure, this stage's values)",
@@ -143,7 +198,7 @@ impl Diagnosis {
                 "  the aliased parameters, at the model's values, contribute {} rms at the log's points: a claim of the model the log can neither confirm nor correct",
                 Axis::ALL
                     .iter()
-                    .filter(|a| measured(**a))
+                    .filter(|a| self.is_measured(**a))
                     .map(|a| format!("{a} {:.4} µm", self.aliased_contribution_rms_um.get(*a)))
                     .collect::<Vec<_>>()
                     .join(", ")
@@ -157,27 +212,13 @@ impl Diagnosis {
             let _ = writeln!(out, "  screw lead: {}", l.sentence);
         }
         out.push_str(&self.parameters_text());
-        let rms = |r: &RmsXy| -> String {
-            Axis::ALL
-                .iter()
-                .filter(|a| measured(**a))
-                .map(|a| format!("{a} {:.4} µm", r.get(*a)))
-                .collect::<Vec<_>>()
-                .join(", ")
-        };
-        let _ = writeln!(
-            out,
-            "model as given:           rms {}",
-            rms(&self.model_rms_um)
-        );
-        let _ = writeln!(
-            out,
-            "after base fit, held out: rms {}",
-            rms(&self.baseline_rms_um)
-        );
-        if let Some(why) = &self.folds_interleaved {
-            let _ = writeln!(out, "folds interleaved in time: {why}");
-        }
+        out
+    }
+
+    /// The sentence when no finding is reported: why, and whether the
+    /// model explains the log to its noise all the same.
+    fn verdict_text(&self) -> String {
+        let mut out = String::new();
         let unexplained: Vec<&ComponentNoise> = self
             .noise
             .components
@@ -219,6 +260,12 @@ impl Diagnosis {
                 self.options.z_threshold, self.options.min_gain_pct
             );
         }
+        out
+    }
+
+    /// Each finding: its sentence, cause, parameters and held-out test.
+    fn findings_text(&self) -> String {
+        let mut out = String::new();
         for (i, f) in self.findings.iter().enumerate() {
             let _ = writeln!(
                 out,
@@ -255,32 +302,23 @@ impl Diagnosis {
                 }
             );
         }
-        out.push_str(&self.withdrawn_text());
-        let _ = writeln!(
-            out,
-            "\nextended model, held out: rms {}; in-sample {}",
-            Axis::ALL
-                .iter()
-                .filter(|a| measured(**a))
-                .map(|a| format!(
-                    "{a} {:.4} µm ({:+.1} %)",
-                    self.extended_rms_um.get(*a),
-                    pct(self.baseline_rms_um.get(*a), self.extended_rms_um.get(*a))
-                ))
-                .collect::<Vec<_>>()
-                .join(", "),
-            rms(&self.extended_fit_rms_um)
-        );
-        if let Some(w) = &self.with_unmodelled_rms_um {
-            let _ = writeln!(
-                out,
-                "with the log-column findings the model cannot carry, held out: rms {}",
-                rms(w)
-            );
-        }
-        out.push_str(&self.map_term_text());
-        out.push_str(&self.noise_text());
         out
+    }
+
+    /// Whether the log measures axis `a`: the report gives figures for
+    /// measured axes only.
+    fn is_measured(&self, a: Axis) -> bool {
+        self.measured_axes.contains(&a)
+    }
+
+    /// RMS figures `r` of the measured axes, for one line of the report.
+    fn rms_text(&self, r: &RmsXy) -> String {
+        Axis::ALL
+            .iter()
+            .filter(|a| self.is_measured(**a))
+            .map(|a| format!("{a} {:.4} µm", r.get(*a)))
+            .collect::<Vec<_>>()
+            .join(", ")
     }
 
     /// The 2-D map term's section of the text report (grid logs): per
@@ -403,137 +441,17 @@ impl Diagnosis {
     fn noise_text(&self) -> String {
         let mut out = String::from("\nnoise from the data:\n");
         for c in &self.noise.components {
-            let a = c.component;
-            match (c.repeatability_um, c.max_s_um) {
-                (Some(s), _) if c.repeatability_at_resolution => {
-                    let _ = writeln!(
-                        out,
-                        "  {a}: repeatability ≤ {s:.4} µm: the replicates scatter less than the log's resolution ({s:.4} µm), taken as the repeatability (a bound, not a measurement)"
-                    );
-                }
-                (Some(s), Some(m)) => {
-                    let _ = writeln!(
-                        out,
-                        "  {a}: repeatability σ {s:.4} µm pooled over {} replicated targets (max s_i {m:.4} µm)",
-                        c.replicated_targets - c.held_targets
-                    );
-                }
-                _ => {
-                    let _ = writeln!(out, "  {a}: no target visited twice (no replicates)");
-                }
-            }
-            if let Some(h) = c.held_scatter_um {
-                let _ = writeln!(
-                    out,
-                    "  {a}: {} replicated targets read while {a} was held still (the other axis positioning) scatter {h:.4} µm: not repeats of positioning {a}, left out of the repeatability",
-                    c.held_targets
-                );
-            }
-            if !c.outliers.is_empty() {
-                let firsts = c.outliers.iter().filter(|o| o.first_visit).count();
-                let list = c
-                    .outliers
-                    .iter()
-                    .take(6)
-                    .map(|o| {
-                        format!(
-                            "cycle {} {} at {:.1} µm ({:+.2} µm)",
-                            o.cycle,
-                            match o.approach {
-                                v if v > 0.0 => "fwd",
-                                v if v < 0.0 => "bwd",
-                                _ => "?",
-                            },
-                            o.target_um,
-                            o.excess_um
-                        )
-                    })
-                    .collect::<Vec<_>>()
-                    .join(", ");
-                let _ = writeln!(
-                    out,
-                    "  {a}: {} outlier visit(s) excluded (> {} robust σ from their target's median): {list}{}",
-                    c.outliers.len(),
-                    super::noise::OUTLIER_SIGMAS,
-                    if firsts == c.outliers.len() {
-                        " — each the first visit of its target: a first-approach effect (warm-up, settling, or an unlogged first move)"
-                    } else {
-                        ""
-                    }
-                );
-            }
-            if !c.discordant_pairs.is_empty() {
-                out.push_str(&discordant_text(c));
-            }
-            if let Some(nb) = c.neighbour_noise_um {
-                let _ = writeln!(
-                    out,
-                    "  {a}: noise from neighbouring positions ≤ {nb:.4} µm; held-out residual rms {:.4} µm",
-                    c.heldout_rms_um
-                );
-            }
-            if let (Some(sc), Some(nb)) = (
-                c.residual_replicate_scatter_um,
-                c.replicate_neighbour_noise_um,
-            ) {
-                if c.changes_between_visits {
-                    let _ = writeln!(
-                        out,
-                        "  {a}: UNEXPLAINED: visits of one target scatter {sc:.4} µm in the residual (robust), {:.1}× the noise between neighbouring positions of the same kind of pass ({nb:.4} µm): the error changes between visits (with time, or with the path to the target), which no function of position explains; the repeatability above is not the measurement's noise",
-                        sc / nb
-                    );
-                } else {
-                    let _ = writeln!(
-                        out,
-                        "  {a}: visits of one target scatter {sc:.4} µm in the residual (robust), {:.1}× the noise between neighbouring positions of the same kind of pass ({nb:.4} µm)",
-                        sc / nb
-                    );
-                }
-            }
-            if let (Some(sys), Some(floor), Some(ratio)) = (
-                c.systematic_rms_um,
-                c.systematic_noise_floor_um,
-                c.systematic_over_repeatability,
-            ) {
-                // Per-target means can be explained while structure the
-                // means average out (a drift from cycle to cycle) is not.
-                let lacking: Vec<&str> = c
-                    .readings
-                    .iter()
-                    .filter(|r| r.model_explains == Some(false))
-                    .map(|r| r.kind.as_str())
-                    .collect();
-                let _ = writeln!(
-                    out,
-                    "  {a}: {} {sys:.4} µm rms of per-target systematic error remains (held out), {ratio:.1}× the repeatability (noise alone would leave {floor:.4} µm){}",
-                    if c.unexplained { "UNEXPLAINED:" } else { "explained to the noise:" },
-                    if !c.unexplained && !lacking.is_empty() {
-                        format!(
-                            "; the model still lacks {} (see the readings): the per-target means average it out",
-                            lacking.join(", ")
-                        )
-                    } else {
-                        String::new()
-                    }
-                );
-            } else if let (Some(sys), Some(floor), true) = (
-                c.systematic_rms_um,
-                c.systematic_noise_floor_um,
-                c.repeatability_at_resolution,
-            ) {
-                let _ = writeln!(
-                    out,
-                    "  {a}: {} {sys:.4} µm rms of per-target systematic error remains (held out); the repeatability is only bounded by the log's resolution, so no ratio to it is given (the resolution alone would leave {floor:.4} µm)",
-                    if c.unexplained { "UNEXPLAINED:" } else { "explained to the log's resolution:" }
-                );
-            } else if c.unexplained {
-                let _ = writeln!(
-                    out,
-                    "  {a}: UNEXPLAINED: the held-out residual ({:.4} µm rms) is ≥ 3× the noise from neighbouring positions",
-                    c.heldout_rms_um
-                );
-            }
+            out.push_str(&repeatability_text(c));
+            out.push_str(&residual_noise_text(c));
         }
+        out.push_str(&self.sampling_text());
+        out.push_str(&self.readings_text());
+        out
+    }
+
+    /// The sampling of each axis, and the periods it aliases.
+    fn sampling_text(&self) -> String {
+        let mut out = String::new();
         for s in &self.noise.sampling {
             let _ = write!(
                 out,
@@ -557,6 +475,12 @@ impl Diagnosis {
             }
             out.push('\n');
         }
+        out
+    }
+
+    /// The structure read from the replicates alone, with no model.
+    fn readings_text(&self) -> String {
+        let mut out = String::new();
         let readings: Vec<&super::Reading> = self
             .noise
             .components
@@ -657,6 +581,152 @@ fn abbreviate(names: &[String]) -> String {
 
 /// Discordant pairs shown in the text report (the rest are in the JSON).
 const DISCORDANT_SHOWN: usize = 6;
+
+/// One component's repeatability, its held readings, outliers,
+/// discordant pairs and neighbour noise: what noise the residual is
+/// judged against.
+fn repeatability_text(c: &ComponentNoise) -> String {
+    let mut out = String::new();
+    let a = c.component;
+    match (c.repeatability_um, c.max_s_um) {
+        (Some(s), _) if c.repeatability_at_resolution => {
+            let _ = writeln!(
+                out,
+                "  {a}: repeatability ≤ {s:.4} µm: the replicates scatter less than the log's resolution ({s:.4} µm), taken as the repeatability (a bound, not a measurement)"
+            );
+        }
+        (Some(s), Some(m)) => {
+            let _ = writeln!(
+                out,
+                "  {a}: repeatability σ {s:.4} µm pooled over {} replicated targets (max s_i {m:.4} µm)",
+                c.replicated_targets - c.held_targets
+            );
+        }
+        _ => {
+            let _ = writeln!(out, "  {a}: no target visited twice (no replicates)");
+        }
+    }
+    if let Some(h) = c.held_scatter_um {
+        let _ = writeln!(
+            out,
+            "  {a}: {} replicated targets read while {a} was held still (the other axis positioning) scatter {h:.4} µm: not repeats of positioning {a}, left out of the repeatability",
+            c.held_targets
+        );
+    }
+    if !c.outliers.is_empty() {
+        let firsts = c.outliers.iter().filter(|o| o.first_visit).count();
+        let list = c
+            .outliers
+            .iter()
+            .take(6)
+            .map(|o| {
+                format!(
+                    "cycle {} {} at {:.1} µm ({:+.2} µm)",
+                    o.cycle,
+                    match o.approach {
+                        v if v > 0.0 => "fwd",
+                        v if v < 0.0 => "bwd",
+                        _ => "?",
+                    },
+                    o.target_um,
+                    o.excess_um
+                )
+            })
+            .collect::<Vec<_>>()
+            .join(", ");
+        let _ = writeln!(
+            out,
+            "  {a}: {} outlier visit(s) excluded (> {} robust σ from their target's median): {list}{}",
+            c.outliers.len(),
+            super::noise::OUTLIER_SIGMAS,
+            if firsts == c.outliers.len() {
+                " — each the first visit of its target: a first-approach effect (warm-up, settling, or an unlogged first move)"
+            } else {
+                ""
+            }
+        );
+    }
+    if !c.discordant_pairs.is_empty() {
+        out.push_str(&discordant_text(c));
+    }
+    if let Some(nb) = c.neighbour_noise_um {
+        let _ = writeln!(
+            out,
+            "  {a}: noise from neighbouring positions ≤ {nb:.4} µm; held-out residual rms {:.4} µm",
+            c.heldout_rms_um
+        );
+    }
+    out
+}
+
+/// What one component's residual leaves against its noise: the scatter
+/// between visits and the per-target systematic error.
+fn residual_noise_text(c: &ComponentNoise) -> String {
+    let mut out = String::new();
+    let a = c.component;
+    if let (Some(sc), Some(nb)) = (
+        c.residual_replicate_scatter_um,
+        c.replicate_neighbour_noise_um,
+    ) {
+        if c.changes_between_visits {
+            let _ = writeln!(
+                out,
+                "  {a}: UNEXPLAINED: visits of one target scatter {sc:.4} µm in the residual (robust), {:.1}× the noise between neighbouring positions of the same kind of pass ({nb:.4} µm): the error changes between visits (with time, or with the path to the target), which no function of position explains; the repeatability above is not the measurement's noise",
+                sc / nb
+            );
+        } else {
+            let _ = writeln!(
+                out,
+                "  {a}: visits of one target scatter {sc:.4} µm in the residual (robust), {:.1}× the noise between neighbouring positions of the same kind of pass ({nb:.4} µm)",
+                sc / nb
+            );
+        }
+    }
+    if let (Some(sys), Some(floor), Some(ratio)) = (
+        c.systematic_rms_um,
+        c.systematic_noise_floor_um,
+        c.systematic_over_repeatability,
+    ) {
+        // Per-target means can be explained while structure the
+        // means average out (a drift from cycle to cycle) is not.
+        let lacking: Vec<&str> = c
+            .readings
+            .iter()
+            .filter(|r| r.model_explains == Some(false))
+            .map(|r| r.kind.as_str())
+            .collect();
+        let _ = writeln!(
+            out,
+            "  {a}: {} {sys:.4} µm rms of per-target systematic error remains (held out), {ratio:.1}× the repeatability (noise alone would leave {floor:.4} µm){}",
+            if c.unexplained { "UNEXPLAINED:" } else { "explained to the noise:" },
+            if !c.unexplained && !lacking.is_empty() {
+                format!(
+                    "; the model still lacks {} (see the readings): the per-target means average it out",
+                    lacking.join(", ")
+                )
+            } else {
+                String::new()
+            }
+        );
+    } else if let (Some(sys), Some(floor), true) = (
+        c.systematic_rms_um,
+        c.systematic_noise_floor_um,
+        c.repeatability_at_resolution,
+    ) {
+        let _ = writeln!(
+            out,
+            "  {a}: {} {sys:.4} µm rms of per-target systematic error remains (held out); the repeatability is only bounded by the log's resolution, so no ratio to it is given (the resolution alone would leave {floor:.4} µm)",
+            if c.unexplained { "UNEXPLAINED:" } else { "explained to the log's resolution:" }
+        );
+    } else if c.unexplained {
+        let _ = writeln!(
+            out,
+            "  {a}: UNEXPLAINED: the held-out residual ({:.4} µm rms) is ≥ 3× the noise from neighbouring positions",
+            c.heldout_rms_um
+        );
+    }
+    out
+}
 
 /// The text report's line on a component's discordant pairs
 /// ([`super::noise::DiscordantPair`]).

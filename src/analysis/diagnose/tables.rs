@@ -443,38 +443,7 @@ pub(super) fn heldout_chi_z(
         v.push(row);
         kept.push(keys[g]);
     }
-    // The contrast the table carries: rows of weights over the groups.
-    let mut cm: Vec<Vec<f64>> = Vec::new();
-    for &t in &targets {
-        let here: Vec<usize> = (0..kept.len()).filter(|&g| kept[g].0 == t).collect();
-        match contrast {
-            Contrast::All => {
-                for &g in &here {
-                    let mut w = vec![0.0; kept.len()];
-                    w[g] = 1.0;
-                    cm.push(w);
-                }
-            }
-            Contrast::Mean if !here.is_empty() => {
-                let mut w = vec![0.0; kept.len()];
-                for &g in &here {
-                    w[g] = 1.0 / here.len() as f64;
-                }
-                cm.push(w);
-            }
-            Contrast::Reversal => {
-                let fwd = here.iter().find(|&&g| kept[g].1 > 0);
-                let bwd = here.iter().find(|&&g| kept[g].1 < 0);
-                if let (Some(&f), Some(&b)) = (fwd, bwd) {
-                    let mut w = vec![0.0; kept.len()];
-                    w[f] = 1.0;
-                    w[b] = -1.0;
-                    cm.push(w);
-                }
-            }
-            Contrast::Mean => {}
-        }
-    }
+    let cm = contrast_weights(&targets, &kept, contrast);
     let q = cm.len();
     if q == 0 {
         return None;
@@ -516,4 +485,41 @@ pub(super) fn heldout_chi_z(
         }
     }
     Some(paulson_z(chi2 / s2 / k as f64, k as f64, nu as f64))
+}
+
+/// The contrast the table carries: rows of weights over the groups
+/// `kept` (target, approach) of `targets`.
+fn contrast_weights(targets: &[i64], kept: &[(i64, i64)], contrast: Contrast) -> Vec<Vec<f64>> {
+    let mut cm: Vec<Vec<f64>> = Vec::new();
+    for &t in targets {
+        let here: Vec<usize> = (0..kept.len()).filter(|&g| kept[g].0 == t).collect();
+        match contrast {
+            Contrast::All => {
+                for &g in &here {
+                    let mut w = vec![0.0; kept.len()];
+                    w[g] = 1.0;
+                    cm.push(w);
+                }
+            }
+            Contrast::Mean if !here.is_empty() => {
+                let mut w = vec![0.0; kept.len()];
+                for &g in &here {
+                    w[g] = 1.0 / here.len() as f64;
+                }
+                cm.push(w);
+            }
+            Contrast::Reversal => {
+                let fwd = here.iter().find(|&&g| kept[g].1 > 0);
+                let bwd = here.iter().find(|&&g| kept[g].1 < 0);
+                if let (Some(&f), Some(&b)) = (fwd, bwd) {
+                    let mut w = vec![0.0; kept.len()];
+                    w[f] = 1.0;
+                    w[b] = -1.0;
+                    cm.push(w);
+                }
+            }
+            Contrast::Mean => {}
+        }
+    }
+    cm
 }
