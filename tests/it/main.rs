@@ -15,6 +15,11 @@
 //! `#[global_allocator]`: it counts every allocation of its process, so it
 //! must be alone in it).
 
+#![allow(
+    clippy::too_many_lines,
+    reason = "a test reads as one story: set-up, act, check"
+)]
+
 /// aravis's interfaces (GigE Vision, USB3 Vision, Fake) are process-wide
 /// singletons, not safe to update from two threads: the tests that reach
 /// them in this process (`camera_genicam` opening its fake camera,

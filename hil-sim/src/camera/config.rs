@@ -278,7 +278,8 @@ mod tests {
     fn the_default_passes_and_each_bad_value_names_its_key() {
         let ok = CameraConfig::default();
         assert_eq!(ok.validate(), Ok(()));
-        let cases: [(&str, fn(&mut CameraConfig)); 10] = [
+        type Spoil = fn(&mut CameraConfig);
+        let cases: [(&str, Spoil); 10] = [
             ("width", |c| c.width = 8),
             ("bits", |c| c.bits = 13),
             ("period in px", |c| c.pixel_um = c.period_um),

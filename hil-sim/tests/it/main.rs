@@ -13,6 +13,11 @@
 //! hold a line open that a test drops). The one fixed port, GigE Vision's
 //! GVCP port 3956, is used by `genicam_gige` alone.
 
+#![allow(
+    clippy::too_many_lines,
+    reason = "a test reads as one story: set-up, act, check"
+)]
+
 mod common;
 
 mod camera_blur;

@@ -536,6 +536,10 @@ impl CoarseStage {
     }
 
     /// Runs the stage on `frame` with the fine `grid`.
+    #[expect(
+        clippy::too_many_lines,
+        reason = "the coarse decode's stages share many locals; to be split with a state struct"
+    )]
     pub(crate) fn run(
         &mut self,
         frame: &Frame,

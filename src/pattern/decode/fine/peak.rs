@@ -60,6 +60,10 @@ impl FineStage {
 
     /// Cold peak search: approximate wave vectors (rad/px) of the two grid
     /// directions, with k_a × k_b > 0.
+    #[expect(
+        clippy::too_many_lines,
+        reason = "the peak search's refinement loop; to be split"
+    )]
     pub(crate) fn peak_search(
         &mut self,
         frame: &Frame,
