@@ -138,13 +138,9 @@ impl Jobs {
         }
     }
 
-    fn log_path(rig: &Rig, name: &str) -> PathBuf {
-        rig.cfg.daemon.data_dir.join(name)
-    }
-
-    /// Starts a new characterization. Every refusal comes before anything
-    /// moves or is written, in the order of the checks below.
-    pub async fn start(&self, rig: &Arc<Rig>, p: CharacterizeParams) -> Result<Value, ProtoError> {
+    /// Refuses a new job while one runs, or on a rig without a camera
+    /// (`what` measures with it: "characterization", "validation").
+    fn check_can_start(&self, rig: &Rig, what: &str) -> Result<(), ProtoError> {
         if self.is_running() {
             return Err(ProtoError::new(
                 ErrorCode::Busy,
@@ -154,9 +150,20 @@ impl Jobs {
         if rig.vision.is_none() {
             return Err(ProtoError::new(
                 ErrorCode::CameraUnavailable,
-                "characterization measures with the camera; none is configured (camera.source)",
+                format!("{what} measures with the camera; none is configured (camera.source)"),
             ));
         }
+        Ok(())
+    }
+
+    fn log_path(rig: &Rig, name: &str) -> PathBuf {
+        rig.cfg.daemon.data_dir.join(name)
+    }
+
+    /// Starts a new characterization. Every refusal comes before anything
+    /// moves or is written, in the order of the checks below.
+    pub async fn start(&self, rig: &Arc<Rig>, p: CharacterizeParams) -> Result<Value, ProtoError> {
+        self.check_can_start(rig, "characterization")?;
         check_plan_options(&p)?;
         let plan = scan_plan(rig, &p)?;
         let name = p

@@ -53,18 +53,7 @@ impl Jobs {
         rig: &Arc<Rig>,
         p: ValidateParams,
     ) -> Result<Value, ProtoError> {
-        if self.is_running() {
-            return Err(ProtoError::new(
-                ErrorCode::Busy,
-                "a job is already running; cancel it first",
-            ));
-        }
-        if rig.vision.is_none() {
-            return Err(ProtoError::new(
-                ErrorCode::CameraUnavailable,
-                "validation measures with the camera; none is configured (camera.source)",
-            ));
-        }
+        self.check_can_start(rig, "validation")?;
         let comps = resolve_comps(rig, &p).await?;
         let frame = comps
             .table
