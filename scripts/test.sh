@@ -8,8 +8,10 @@
 #   micropos' Python client (clients/python) against microposd and the simulated
 #   rig, each in a virtualenv under target/ that its script creates on first use.
 # - The README followed in order from a fresh clone (scripts/newcomer.sh).
-# - docs/results.md's `--short` section is what a fresh
-#   `hil-sim run --short --json --seed 1` gives (scripts/results.py).
+# - The documents against the code: every path and name ARCHITECTURE.md puts
+#   in backticks exists (scripts/doc-names.py), and docs/results.md's
+#   `--short` section is what a fresh `hil-sim run --short --json --seed 1`
+#   gives (scripts/results.py).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 root=$PWD
@@ -40,6 +42,10 @@ fi
 # compiled beside the library within the one build).
 # shellcheck source=scripts/stage.sh
 . scripts/stage.sh
+
+# Seconds, and before the build: a stale document fails at once.
+stage "documents: names and paths"
+python3 scripts/doc-names.py ARCHITECTURE.md
 
 if [ "${MICROPOS_NEXTEST:-1}" = 1 ] && cargo nextest --version >/dev/null 2>&1; then
   stage "build the tests (cargo test --no-run ${features[*]:-})"
