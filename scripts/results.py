@@ -16,7 +16,7 @@ one kind of run:
                                                 --paper-faithful F)
   short    hil-sim run --short --json --seed 1        (--short FILE)
 
-A FILE is either the `--json` output or the `run.json` that `--out DIR`
+A FILE is either the `--json` output or the `data/run.json` that `--out DIR`
 writes (`{"summary": …, "wall_s": …, "phases_wall_s": …}`); from the
 latter the wall time is shown too, marked as the machine's, not the seed's.
 
@@ -425,10 +425,10 @@ hil-sim run --json --seed 1 --out /tmp/r-main >/dev/null
 hil-sim run --json --seed 1 --model config/stage-model.toml --out /tmp/r-kinder >/dev/null
 for n in 1 2 3 4 5; do hil-sim run --json --seed $n --out /tmp/r-seed$n >/dev/null; done
 hil-sim run --short --json --seed 1 >/tmp/r-short.json
-micropos paper --seeds 5 --json --model config/stage-model.toml >/tmp/r-paper-default.json
+micropos paper --seeds 5 --json --model config/stage-model.toml >/tmp/r-paper-default.json  # exit 3: it misses statements
 micropos paper --seeds 5 --json --model config/stage-model-paper.toml >/tmp/r-paper-faithful.json
-python3 scripts/results.py --main /tmp/r-main/run.json --kinder /tmp/r-kinder/run.json \\
-  --seeds /tmp/r-seed?/run.json --short /tmp/r-short.json \\
+python3 scripts/results.py --main /tmp/r-main/data/run.json --kinder /tmp/r-kinder/data/run.json \\
+  --seeds /tmp/r-seed?/data/run.json --short /tmp/r-short.json \\
   --paper-default /tmp/r-paper-default.json --paper-faithful /tmp/r-paper-faithful.json
 ```
 
