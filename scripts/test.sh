@@ -9,9 +9,9 @@
 #   rig, each in a virtualenv under target/ that its script creates on first use.
 # - The README followed in order from a fresh clone (scripts/newcomer.sh).
 # - The documents against the code: every path and name ARCHITECTURE.md puts
-#   in backticks exists (scripts/doc-names.py), and docs/results.md's
-#   `--short` section is what a fresh `hil-sim run --short --json --seed 1`
-#   gives (scripts/results.py).
+#   in backticks exists (scripts/doc-names.py), the README quotes only
+#   figures docs/results.md holds, and that file's `--short` section is what
+#   a fresh `hil-sim run --short --json --seed 1` gives (scripts/results.py).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 root=$PWD
@@ -44,8 +44,9 @@ fi
 . scripts/stage.sh
 
 # Seconds, and before the build: a stale document fails at once.
-stage "documents: names and paths"
+stage "documents: names and paths, quoted figures"
 python3 scripts/doc-names.py ARCHITECTURE.md
+python3 scripts/results.py --check-quotes README.md docs/results.md
 
 if [ "${MICROPOS_NEXTEST:-1}" = 1 ] && cargo nextest --version >/dev/null 2>&1; then
   stage "build the tests (cargo test --no-run ${features[*]:-})"
