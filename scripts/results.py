@@ -66,6 +66,10 @@ TITLES = {
     "paper": "The paper's statements at model level (`micropos paper`)",
     "short": "The short job (`--short`), seed 1",
 }
+# The main job's phases in the order they run (`phases_s` is sorted by name).
+PHASES = ["reference", "charact-paper", "charact-short", "tables", "validate",
+          "validate_drift_off", "validate_drift_static", "validate_drift_adaptive",
+          "sweep", "grid"]
 ORDER = ["main", "kinder", "seeds", "paper", "short"]
 BEGIN = "<!-- results:begin {} -->"
 END = "<!-- results:end {} -->"
@@ -229,7 +233,8 @@ def phases_lines(s, wall):
     total = sum(v for v in p.values() if isinstance(v, (int, float)))
     head = "| phase | simulated s |" + (" wall s (this machine) |" if wall else "")
     out = [head, "|---|---|" + ("---|" if wall else "")]
-    for k, v in p.items():
+    for k in sorted(p, key=lambda k: (PHASES.index(k) if k in PHASES else len(PHASES), k)):
+        v = p[k]
         row = f"| {k} | {num(v, 1)} |"
         if wall:
             row += f" {num(wall['phases'].get(k), 1)} |"
@@ -391,7 +396,7 @@ def check_quotes(readme, md):
 def placeholder(name):
     return [f'<a id="{name}"></a>', "", f"## {TITLES[name]}", "",
             f"Not generated yet. Make it with `{COMMANDS[name]}` and "
-            f"`scripts/results.py --{name} FILE.json`.", ""]
+            f"`scripts/results.py --{name} FILE.json…` (the commands at the head of this file).", ""]
 
 
 def wrap(name, lines):
