@@ -8,6 +8,10 @@
 #   micropos' Python client (clients/python) against microposd and the simulated
 #   rig, each in a virtualenv under target/ that its script creates on first use.
 # - The README followed in order from a fresh clone (scripts/newcomer.sh).
+# - The documents against the code: every path and name ARCHITECTURE.md puts
+#   in backticks exists (scripts/doc-names.py), the README quotes only
+#   figures docs/results.md holds, and that file's `--short` section is what
+#   a fresh `hil-sim run --short --json --seed 1` gives (scripts/results.py).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 root=$PWD
@@ -38,6 +42,12 @@ fi
 # compiled beside the library within the one build).
 # shellcheck source=scripts/stage.sh
 . scripts/stage.sh
+
+# Seconds, and before the build: a stale document fails at once.
+stage "documents: names and paths, quoted figures"
+python3 scripts/doc-names.py ARCHITECTURE.md
+python3 scripts/results.py --check-quotes README.md docs/results.md
+
 if [ "${MICROPOS_NEXTEST:-1}" = 1 ] && cargo nextest --version >/dev/null 2>&1; then
   stage "build the tests (cargo test --no-run ${features[*]:-})"
   # MICROPOS_TIMINGS=1 (CI): cargo's --timings report, and the build's
@@ -71,13 +81,26 @@ export MICROPOS_BINS_BUILT=1
 # the newcomer's main job uses one core): they run side by side, each into
 # a log of its own, printed whole when all have ended, in this order. Each
 # has its own rig, temporary directories and virtualenv; none binds a
-# fixed port.
-suites=(pipython pyclient newcomer)
+# fixed port. The fourth, the short job against docs/results.md, takes one
+# core for the seconds of a `--short` run.
+suites=(pipython pyclient newcomer results)
 declare -A what=(
   [pipython]="PIPython against hil-sim"
   [pyclient]="Python client against microposd + hil-sim"
   [newcomer]="the README in order, from a fresh clone"
+  [results]="docs/results.md's short section against a fresh --short run"
 )
+# The short job's JSON is byte-identical per seed, so its section of
+# docs/results.md must be exactly what this run gives.
+check_results() {
+  local json
+  json=$(mktemp)
+  "$target/debug/hil-sim" run --short --json --seed 1 >"$json" || { rm -f "$json"; return 1; }
+  local rc=0
+  python3 scripts/results.py --check-short "$json" docs/results.md || rc=$?
+  rm -f "$json"
+  return "$rc"
+}
 run_suite() {
   case $1 in
     pipython) PIPYTHON_VENV="${PIPYTHON_VENV:-$target/venv-pipython}" ./scripts/pipython.sh ;;
@@ -86,6 +109,7 @@ run_suite() {
     # order written (the main job, the served rig, the Python example), and
     # the checkout left clean (scripts/newcomer.sh).
     newcomer) ./scripts/newcomer.sh ;;
+    results) check_results ;;
   esac
 }
 stage "side by side: ${suites[*]}"
