@@ -48,8 +48,29 @@ stage "documents: names and paths, quoted figures"
 python3 scripts/doc-names.py ARCHITECTURE.md
 python3 scripts/results.py --check-quotes README.md docs/results.md
 
+# MICROPOS_CLIPPY=1 (CI): the test build is also clippy's pass. clippy-driver
+# is rustc with clippy's lints added (what `cargo clippy` runs, there without
+# code generation): as the workspace's compiler wrapper it lints each crate of
+# the workspace while compiling it, with `-D warnings`, so CI compiles the
+# workspace once instead of checking it (and every dependency, in check
+# mode) for clippy and then building it for the tests. `--benches` adds what
+# `cargo clippy --all-targets` covers beyond the tests (built, not run).
+# The same variables stay set for every later cargo call (nextest's own
+# build, the doc tests): with another wrapper cargo would rebuild.
+build_targets=()
+if [ "${MICROPOS_CLIPPY:-0}" = 1 ]; then
+  driver=$(rustup which clippy-driver 2>/dev/null || command -v clippy-driver || true)
+  if [ -z "$driver" ]; then
+    echo "MICROPOS_CLIPPY=1: no clippy-driver (rustup component add clippy)" >&2
+    exit 1
+  fi
+  export RUSTC_WORKSPACE_WRAPPER=$driver
+  export CLIPPY_ARGS="-D__CLIPPY_HACKERY__warnings__CLIPPY_HACKERY__"
+  build_targets=(--lib --bins --tests --benches)
+fi
+
 if [ "${MICROPOS_NEXTEST:-1}" = 1 ] && cargo nextest --version >/dev/null 2>&1; then
-  stage "build the tests (cargo test --no-run ${features[*]:-})"
+  stage "build the tests (cargo test --no-run ${features[*]:-} ${build_targets[*]:-})${build_targets:+, linted by clippy}"
   # MICROPOS_TIMINGS=1 (CI): cargo's --timings report, and the build's
   # longest units printed (scripts/cargo-timings.py).
   timings=()
@@ -57,7 +78,7 @@ if [ "${MICROPOS_NEXTEST:-1}" = 1 ] && cargo nextest --version >/dev/null 2>&1; 
     timings=(--timings)
     rm -f "$target"/cargo-timings/cargo-timing-*.html
   fi
-  cargo test --workspace "${features[@]}" "${timings[@]}" --no-run
+  cargo test --workspace "${features[@]}" "${timings[@]}" "${build_targets[@]}" --no-run
   if [ ${#timings[@]} -gt 0 ]; then
     python3 scripts/cargo-timings.py -n 12 "$target"/cargo-timings/cargo-timing-*.html || true
   fi
@@ -66,6 +87,10 @@ if [ "${MICROPOS_NEXTEST:-1}" = 1 ] && cargo nextest --version >/dev/null 2>&1; 
   stage "cargo test --doc ${features[*]:-}"
   cargo test --workspace --doc "${features[@]}"
 else
+  if [ ${#build_targets[@]} -gt 0 ]; then
+    stage "build the tests, linted by clippy (cargo test --no-run ${build_targets[*]})"
+    cargo test --workspace "${features[@]}" "${build_targets[@]}" --no-run
+  fi
   stage "cargo test ${features[*]:-}"
   cargo test --workspace "${features[@]}"
 fi
@@ -83,13 +108,22 @@ export MICROPOS_BINS_BUILT=1
 # has its own rig, temporary directories and virtualenv; none binds a
 # fixed port. The fourth, the short job against docs/results.md, takes one
 # core for the seconds of a `--short` run.
+#
+# MICROPOS_FUZZ=1 (CI) adds the fuzz targets' smoke run (.ci/fuzz run) as a
+# fifth, at idle priority: it fills the cores the real-time suites leave
+# idle instead of running after them (it waits for the fuzz build, which
+# .ci/run starts in the background at the beginning, on cargo's lock).
 suites=(pipython pyclient newcomer results)
 declare -A what=(
   [pipython]="PIPython against hil-sim"
   [pyclient]="Python client against microposd + hil-sim"
   [newcomer]="the README in order, from a fresh clone"
   [results]="docs/results.md's short section against a fresh --short run"
+  [fuzz]="every fuzz target's smoke run, at idle priority"
 )
+if [ "${MICROPOS_FUZZ:-0}" = 1 ]; then
+  suites+=(fuzz)
+fi
 # The short job's JSON is byte-identical per seed, so its section of
 # docs/results.md must be exactly what this run gives.
 check_results() {
@@ -110,6 +144,13 @@ run_suite() {
     # the checkout left clean (scripts/newcomer.sh).
     newcomer) ./scripts/newcomer.sh ;;
     results) check_results ;;
+    fuzz)
+      local idle=(nice -n 19)
+      if ionice -c 3 true 2>/dev/null; then idle+=(ionice -c 3); fi
+      # Not through clippy-driver: the fuzz crate is a workspace of its own,
+      # built on nightly, as the background build built it.
+      env -u RUSTC_WORKSPACE_WRAPPER -u CLIPPY_ARGS "${idle[@]}" .ci/fuzz run
+      ;;
   esac
 }
 stage "side by side: ${suites[*]}"
