@@ -26,6 +26,7 @@
 //! - [`figures`]: the paper's figures of the newest logs, read-only;
 //! - [`config`]: the validated configuration;
 //! - [`reload`]: what SIGHUP may change live, and its running values;
+//! - [`metrics`]: the rig's counters for `/metrics` (rendered by `web`);
 //! - [`notify`]: systemd readiness, status and a health-fed watchdog;
 //! - [`web`]: the optional web view and `/metrics` (`[web]`).
 //!
@@ -44,6 +45,7 @@ pub mod deviation;
 pub mod drift;
 pub mod figures;
 pub mod jobs;
+pub mod metrics;
 pub mod notify;
 pub mod protocol;
 pub mod reload;

@@ -115,7 +115,7 @@ pub struct Rig {
     /// simulator's in-process rig); `None` on hardware.
     links: Option<Arc<dyn crate::driver::LinkOpener>>,
     /// Counters for `/metrics` (moves, faults, reconnects, …).
-    pub metrics: super::web::metrics::Metrics,
+    pub metrics: super::metrics::Metrics,
 }
 
 fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
@@ -195,7 +195,7 @@ impl Rig {
     ) -> Rig {
         let (events, _) = broadcast::channel(1024);
         let drift = super::drift::DriftControl::new(&cfg);
-        let metrics = super::web::metrics::Metrics::new(vision.as_ref().map(|v| &*v.stats));
+        let metrics = super::metrics::Metrics::new(vision.as_ref().map(|v| &*v.stats));
         let supervisor = Supervisor::new(Bounds {
             following_error_um: cfg.safety.following_error_um,
             read_fail_s: cfg.safety.read_fail_s,
