@@ -11,6 +11,9 @@
 //! - [`access`]: the peer's credentials and role (`[access]`);
 //! - [`audit`]: who ran which state-changing command (journal + file);
 //! - [`state`]: the safe-state machine (pure; faults latch until `reset`);
+//! - [`motion_core`]: the move policy, sans-IO (safe state, stop
+//!   generation, commanded targets, soft limits, supervisor and deviation
+//!   verdicts), held by the rig under one lock;
 //! - [`supervisor`]: judges every move to completion (controller errors,
 //!   following error, motion timeout, failing reads; sampled by
 //!   `rig::supervise`);
@@ -46,6 +49,7 @@ pub mod drift;
 pub mod figures;
 pub mod jobs;
 pub mod metrics;
+pub(crate) mod motion_core;
 pub mod notify;
 pub mod protocol;
 pub mod reload;
