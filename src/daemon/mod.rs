@@ -11,6 +11,9 @@
 //! - [`access`]: the peer's credentials and role (`[access]`);
 //! - [`audit`]: who ran which state-changing command (journal + file);
 //! - [`state`]: the safe-state machine (pure; faults latch until `reset`);
+//! - [`motion_core`]: the move policy, sans-IO (safe state, stop
+//!   generation, commanded targets, soft limits, supervisor and deviation
+//!   verdicts), held by the rig under one lock;
 //! - [`supervisor`]: judges every move to completion (controller errors,
 //!   following error, motion timeout, failing reads; sampled by
 //!   `rig::supervise`);
@@ -26,6 +29,7 @@
 //! - [`figures`]: the paper's figures of the newest logs, read-only;
 //! - [`config`]: the validated configuration;
 //! - [`reload`]: what SIGHUP may change live, and its running values;
+//! - [`metrics`]: the rig's counters for `/metrics` (rendered by `web`);
 //! - [`notify`]: systemd readiness, status and a health-fed watchdog;
 //! - [`web`]: the optional web view and `/metrics` (`[web]`).
 //!
@@ -44,6 +48,8 @@ pub mod deviation;
 pub mod drift;
 pub mod figures;
 pub mod jobs;
+pub mod metrics;
+pub(crate) mod motion_core;
 pub mod notify;
 pub mod protocol;
 pub mod reload;

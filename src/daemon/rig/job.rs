@@ -2,9 +2,9 @@
 //! for a job's duration and retrying its moves and measurements after
 //! transient faults.
 
-use super::{lock, refusal, Rig};
+use super::Rig;
 use crate::daemon::protocol::{ErrorCode, ProtoError, Topic};
-use crate::daemon::state::{Activity, Input};
+use crate::daemon::state::Activity;
 use serde_json::json;
 use std::sync::atomic::Ordering;
 use std::sync::Arc;
@@ -14,9 +14,7 @@ impl Rig {
     /// Marks a job as owning the axes (refused unless idle and connected).
     pub fn begin_job(self: &Arc<Self>) -> Result<(), ProtoError> {
         let t = self.clock.now_s();
-        let mut s = lock(&self.state);
-        s.may_take_axes().map_err(refusal)?;
-        s.apply(Input::Begin(Activity::Job), t);
+        self.core().begin_job(t)?;
         self.job_retries.store(0, Ordering::SeqCst);
         Ok(())
     }
@@ -95,6 +93,6 @@ impl Rig {
     /// Ends a job's ownership of the axes.
     pub fn end_job(&self) {
         let t = self.clock.now_s();
-        lock(&self.state).apply(Input::End(Activity::Job), t);
+        self.core().end(Activity::Job, t);
     }
 }

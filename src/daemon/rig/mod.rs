@@ -25,6 +25,27 @@
 //! - [`reference`](mod@reference): the reference run;
 //! - [`tie`](mod@tie): the vision → stage frame in force (the rig's tie,
 //!   else the active table's) and the tie's file.
+//!
+//! The move policy itself (the safe state, the stop generation and its
+//! reason, the commanded targets, soft limits, the supervisor's and the
+//! deviation judge's verdicts) is `daemon::motion_core::MotionCore`,
+//! sans-IO and unit-tested; the rig holds it under one lock and carries
+//! out its decisions through the driver.
+//!
+//! Locks, in the order they may be taken (never the other way round):
+//! 1. `motion` (tokio): one move or reference run at a time per stage,
+//!    held across the driver's I/O of a move;
+//! 2. `sampling` (tokio): the supervisor and the poller while they read
+//!    positions; a reference run takes (and drops) it after `motion`;
+//! 3. `core` (std): the [`MotionCore`]; a leaf: held only for a call
+//!    into it, never across an `.await`, and nothing else is locked or
+//!    called out to (events, logs, the driver) while it is held — the
+//!    inputs it needs from elsewhere (the vision frame in force, the
+//!    soft limits) are read before taking it.
+//!
+//! `stage`, `tie` and the locks inside `comp`, `drift`, `live`, `vision`
+//! and `metrics` are leaves too: each held for one read or write, none
+//! while another lock is held.
 
 pub mod closed_loop;
 pub mod drift;
@@ -38,10 +59,10 @@ pub mod tasks;
 pub mod tie;
 
 use super::config::DaemonConfig;
-use super::deviation::DeviationJudge;
+use super::motion_core::MotionCore;
 use super::protocol::{ErrorCode, ProtoError, Topic};
-use super::state::{Activity, AxisId, Input, Refusal, SafetyState};
-use super::supervisor::{Bounds, Supervisor};
+use super::state::{Activity, AxisId};
+use super::supervisor::Bounds;
 use super::vision::{Measurement, Vision};
 use crate::clock::RigClock;
 use crate::driver::{DriverError, Stage};
@@ -59,14 +80,6 @@ pub struct Pushed {
     pub line: Arc<str>,
 }
 
-/// Positions last read from the controllers.
-#[derive(Debug, Clone, Copy, Default)]
-struct Reported {
-    t_s: f64,
-    x_um: Option<f64>,
-    y_um: Option<f64>,
-}
-
 /// The rig. Shared by every task through an `Arc`.
 #[derive(Debug)]
 pub struct Rig {
@@ -75,17 +88,12 @@ pub struct Rig {
     /// The rig's clock: every wait and timestamp goes through it.
     pub clock: Arc<dyn RigClock>,
     stage: Mutex<Option<Stage>>,
-    state: Mutex<SafetyState>,
-    commanded: Mutex<[Option<f64>; 2]>,
-    reported: Mutex<Reported>,
+    /// The move policy (safe state, stop generation, commanded targets,
+    /// supervisor, deviation judge, last polled positions): one lock for
+    /// all of it, so a decision sees one consistent state.
+    core: Mutex<MotionCore>,
+    /// One move (or reference run) at a time per stage.
     motion: tokio::sync::Mutex<()>,
-    stop_gen: AtomicU64,
-    /// Why the last stop, halt or fault overtook the moves in flight
-    /// ([`Rig::begin_stop`]), so a move cut short can say why.
-    stop_why: Mutex<String>,
-    supervisor: Mutex<Supervisor>,
-    /// Vision against controller (`daemon::deviation`).
-    deviation: Mutex<DeviationJudge>,
     /// Vision → stage, measured after the reference run
     /// (`daemon::vision_tie`).
     tie: Mutex<super::vision_tie::VisionTie>,
@@ -115,7 +123,7 @@ pub struct Rig {
     /// simulator's in-process rig); `None` on hardware.
     links: Option<Arc<dyn crate::driver::LinkOpener>>,
     /// Counters for `/metrics` (moves, faults, reconnects, …).
-    pub metrics: super::web::metrics::Metrics,
+    pub metrics: super::metrics::Metrics,
 }
 
 fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
@@ -132,7 +140,7 @@ struct ActivityGuard<'a> {
 impl Drop for ActivityGuard<'_> {
     fn drop(&mut self) {
         let t = self.rig.clock.now_s();
-        lock(&self.rig.state).apply(Input::End(self.activity), t);
+        self.rig.core().end(self.activity, t);
     }
 }
 
@@ -163,28 +171,6 @@ pub fn driver_error(e: DriverError) -> ProtoError {
     }
 }
 
-fn refusal(r: Refusal) -> ProtoError {
-    match r {
-        Refusal::NotConnected(m) => ProtoError::new(ErrorCode::NotConnected, m),
-        Refusal::NotReferenced(a) => ProtoError::new(
-            ErrorCode::NotReferenced,
-            format!(
-                "axis {} is not referenced; send reference first (CLI: `micropos reference {}`)",
-                a.name(),
-                a.name()
-            ),
-        ),
-        Refusal::Busy(a) => ProtoError::new(
-            ErrorCode::Busy,
-            format!("the axes are busy ({a:?}); stop it or wait"),
-        ),
-        Refusal::FaultLatched(m) => ProtoError::new(
-            ErrorCode::FaultLatched,
-            format!("a fault is latched ({m}); find its cause, then send reset"),
-        ),
-    }
-}
-
 impl Rig {
     /// A rig with no stage yet.
     pub fn new(
@@ -195,15 +181,17 @@ impl Rig {
     ) -> Rig {
         let (events, _) = broadcast::channel(1024);
         let drift = super::drift::DriftControl::new(&cfg);
-        let metrics = super::web::metrics::Metrics::new(vision.as_ref().map(|v| &*v.stats));
-        let supervisor = Supervisor::new(Bounds {
-            following_error_um: cfg.safety.following_error_um,
-            read_fail_s: cfg.safety.read_fail_s,
-            motion_timeout_s: [cfg.driver.x.motion_timeout_s, cfg.driver.y.motion_timeout_s],
-        });
+        let metrics = super::metrics::Metrics::new(vision.as_ref().map(|v| &*v.stats));
+        let core = MotionCore::new(
+            Bounds {
+                following_error_um: cfg.safety.following_error_um,
+                read_fail_s: cfg.safety.read_fail_s,
+                motion_timeout_s: [cfg.driver.x.motion_timeout_s, cfg.driver.y.motion_timeout_s],
+            },
+            cfg.safety.deviation_um,
+        );
         Rig {
-            supervisor: Mutex::new(supervisor),
-            deviation: Mutex::new(DeviationJudge::new(cfg.safety.deviation_um)),
+            core: Mutex::new(core),
             tie: Mutex::default(),
             sampling: tokio::sync::Mutex::new(()),
             drift,
@@ -211,12 +199,7 @@ impl Rig {
             cfg,
             clock,
             stage: Mutex::new(None),
-            state: Mutex::new(SafetyState::new()),
-            commanded: Mutex::new([None, None]),
-            reported: Mutex::new(Reported::default()),
             motion: tokio::sync::Mutex::new(()),
-            stop_gen: AtomicU64::new(0),
-            stop_why: Mutex::new(String::new()),
             events,
             vision,
             heartbeat: AtomicU64::new(0),
@@ -246,9 +229,10 @@ impl Rig {
         });
     }
 
-    /// The motion supervisor's judge (`daemon::supervisor`).
-    pub(super) fn supervisor(&self) -> std::sync::MutexGuard<'_, Supervisor> {
-        lock(&self.supervisor)
+    /// The motion core, locked: hold it for one call, never across an
+    /// `.await`, and lock nothing else meanwhile.
+    pub(super) fn core(&self) -> std::sync::MutexGuard<'_, MotionCore> {
+        lock(&self.core)
     }
 
     /// The stage, once connected.
@@ -258,7 +242,7 @@ impl Rig {
 
     /// Whether a reference run owns the axes.
     pub(super) fn referencing(&self) -> bool {
-        lock(&self.state).activity() == Activity::Referencing
+        self.core().state().activity() == Activity::Referencing
     }
 
     /// Feeds the watchdog heartbeat: the rig is supervised.
@@ -271,14 +255,14 @@ impl Rig {
         stage.ok_or_else(|| {
             // Why, as `status` says it (the last failed attempt), not only
             // in the daemon's log.
-            let why = lock(&self.state).not_connected_because();
+            let why = self.core().state().not_connected_because();
             ProtoError::new(ErrorCode::NotConnected, format!("{why}; see status"))
         })
     }
 
     /// Positions from every source, each named, with its time.
     pub async fn position(&self) -> Value {
-        let commanded = *lock(&self.commanded);
+        let commanded = self.commanded_um();
         let mut controller = json!(null);
         if let Ok(stage) = self.stage() {
             let t = self.clock.now_s();
@@ -287,7 +271,7 @@ impl Rig {
             controller = json!({"t_s": t, "x_um": x.as_ref().ok(), "y_um": y.as_ref().ok(),
                                 "x_error": err(&x), "y_error": err(&y)});
         } else {
-            let r = *lock(&self.reported);
+            let r = self.core().reported();
             if r.x_um.is_some() || r.y_um.is_some() {
                 controller = json!({"t_s": r.t_s, "x_um": r.x_um, "y_um": r.y_um});
             }
@@ -307,12 +291,12 @@ impl Rig {
 
     /// The commanded position `[x, y]` µm (what the last move asked).
     pub fn commanded_um(&self) -> [Option<f64>; 2] {
-        *lock(&self.commanded)
+        self.core().commanded()
     }
 
     /// The controllers' positions as last polled: `(t_s, x_um, y_um)`.
     pub fn reported_um(&self) -> (f64, Option<f64>, Option<f64>) {
-        let r = *lock(&self.reported);
+        let r = self.core().reported();
         (r.t_s, r.x_um, r.y_um)
     }
 
@@ -323,7 +307,7 @@ impl Rig {
         // client that reads "connected" must find the stage there for its
         // next command (seen: `reference` refused `not_connected` right
         // after `status` said connected). Until the hand-out, not connected.
-        let mut rig = lock(&self.state).to_json();
+        let mut rig = self.core().state().to_json();
         let stage = lock(&self.stage).clone();
         if stage.is_none() {
             if let Some(c) = rig.get_mut("connected") {

@@ -1,27 +1,26 @@
-//! The motion coordinator: one move at a time per stage, soft limits,
-//! raw and planned (`compensated`, `closed_loop`) moves, `stop`.
+//! The motion coordinator's I/O: one move at a time per stage, raw and
+//! planned (`compensated`, `closed_loop`) moves, `stop`. What a move may
+//! do (admission, soft limits, the stop generation, what a failure is) is
+//! decided by the motion core (`daemon::motion_core`); this file sends
+//! what it decides and feeds back what the controllers answered.
 
-use super::{driver_error, lock, refusal, ActivityGuard, Rig};
+use super::{driver_error, ActivityGuard, Rig};
+use crate::daemon::motion_core as core;
 use crate::daemon::protocol::{ErrorCode, MoveMode, MoveRequest, ProtoError, Topic};
 use crate::daemon::state::{Activity, AxisId, Input};
-use crate::driver::{Axis, DriverError};
+use crate::driver::Axis;
 use serde_json::{json, Value};
-use std::sync::atomic::Ordering;
 use std::sync::Arc;
 
 impl Rig {
     /// Soft limits ∩ controller travel for an axis, µm.
     pub fn limits_um(&self, axis: &Axis, a: AxisId) -> (f64, f64) {
-        let (tmin, tmax) = axis.travel_um();
         let l = &self.live.limits();
         let (lo, hi) = match a {
             AxisId::X => (l.x_min_um, l.x_max_um),
             AxisId::Y => (l.y_min_um, l.y_max_um),
         };
-        (
-            lo.map_or(tmin, |v| v.max(tmin)),
-            hi.map_or(tmax, |v| v.min(tmax)),
-        )
+        core::allowed_range_um(axis.travel_um(), lo, hi)
     }
 
     /// A client or job move. Refused before any byte is sent if the state
@@ -58,7 +57,7 @@ impl Rig {
     /// The commanded position of both axes (cached, else queried).
     pub(super) async fn current_cmd(&self) -> Result<[f64; 2], ProtoError> {
         let stage = self.stage()?;
-        let cached = *lock(&self.commanded);
+        let cached = self.commanded_um();
         let x = match cached[0] {
             Some(v) => v,
             None => stage.x.target_um().await.map_err(driver_error)?,
@@ -212,21 +211,10 @@ impl Rig {
         commit: bool,
     ) -> Result<Value, ProtoError> {
         let stage = self.stage()?;
-        let gen = self.stop_gen.load(Ordering::SeqCst);
+        let gen = self.stop_generation();
         let _queue = self.motion.lock().await;
-        if self.stop_gen.load(Ordering::SeqCst) != gen {
-            return Err(self.halted_because(
-                ProtoError::new(
-                    ErrorCode::Halted,
-                    "a stop or fault came before this move started; it was not sent",
-                ),
-                gen,
-            ));
-        }
         let want = [req.x_um.is_some(), req.y_um.is_some()];
-        lock(&self.state)
-            .may_move(want, from_job)
-            .map_err(refusal)?;
+        self.core().admit_move(gen, want, from_job)?;
         let mut targets = [None, None];
         for (i, (a, axis, v)) in [
             (AxisId::X, &stage.x, req.x_um),
@@ -236,29 +224,19 @@ impl Rig {
         .enumerate()
         {
             let Some(v) = v else { continue };
-            let t = if req.relative {
-                let cached = lock(&self.commanded)[i];
-                let base = match cached {
-                    Some(c) => c,
-                    None => axis.target_um().await.map_err(driver_error)?,
-                };
-                base + v
+            let base = if req.relative {
+                let cached = self.commanded_um()[i];
+                match cached {
+                    Some(c) => Some(c),
+                    None => Some(axis.target_um().await.map_err(driver_error)?),
+                }
             } else {
-                v
+                None
             };
-            let (lo, hi) = self.limits_um(axis, a);
-            if !(lo..=hi).contains(&t) {
-                return Err(ProtoError::new(
-                    ErrorCode::OutOfTravel,
-                    format!(
-                        "axis {} target {t:.3} µm is outside the allowed range {lo:.3}..{hi:.3} µm (soft limits ∩ controller travel); nothing was sent",
-                        a.name()
-                    ),
-                ));
-            }
-            targets[i] = Some(t);
+            targets[i] = Some(core::target_within(a, v, base, self.limits_um(axis, a))?);
         }
-        self.apply(Input::Begin(Activity::Moving));
+        let t = self.clock.now_s();
+        self.core().begin_move(t);
         let _guard = ActivityGuard {
             rig: self,
             activity: Activity::Moving,
@@ -278,36 +256,17 @@ impl Rig {
         // history take it too: one clock read, which on a served simulator
         // is an exchange with it).
         let sent_t1 = self.clock.now_s();
-        {
-            // Sent or not (a failed send may have reached the controller):
-            // the deviation check widens its span by the target.
-            let mut d = lock(&self.deviation);
-            for (a, tg) in [(AxisId::X, targets[0]), (AxisId::Y, targets[1])] {
-                if let Some(tg) = tg {
-                    d.commanded(a, sent_t0, sent_t1, tg);
-                }
-            }
-        }
-        {
-            let mut c = lock(&self.commanded);
-            if rx.is_ok() && targets[0].is_some() {
-                c[0] = targets[0];
-            }
-            if ry.is_ok() && targets[1].is_some() {
-                c[1] = targets[1];
-            }
-        }
+        self.core()
+            .move_sent(targets, [rx.is_ok(), ry.is_ok()], sent_t0, sent_t1);
         if let Err(e) = rx.and(ry) {
             // One axis may have started: a half-accepted move is halted.
             self.halt_all().await;
-            if matches!(e, DriverError::PendingError { .. }) {
-                // A controller error nobody had read (a servo fault, say)
-                // is a fault as it would be met by the supervisor.
-                self.apply(Input::Fault(format!("before a move: {e}")));
+            if let Some(fault) = core::fault_of_send(&e) {
+                self.apply(Input::Fault(fault));
             }
             return Err(driver_error(e));
         }
-        if self.stop_gen.load(Ordering::SeqCst) != gen {
+        if !self.core().watch_sent(gen, targets, sent_t1) {
             // A stop or a fault came while the move was being sent: its
             // halt (written ahead of the queue) may have reached the
             // controller before this `MOV`, which would then run on.
@@ -319,14 +278,6 @@ impl Rig {
                 ),
                 gen,
             ));
-        }
-        {
-            let mut sup = self.supervisor();
-            for (a, tg) in [(AxisId::X, targets[0]), (AxisId::Y, targets[1])] {
-                if let Some(tg) = tg {
-                    sup.watch(a, tg, sent_t1);
-                }
-            }
         }
         if commit {
             self.comp.commit_raw(targets, sent_t1);
@@ -346,8 +297,8 @@ impl Rig {
             // A controller error or a motion timeout while waiting is a
             // fault (halt both, latch), not only this client's failure.
             for r in [&wx, &wy] {
-                if let Err(e @ (DriverError::MotionTimeout { .. } | DriverError::Gcs { .. })) = r {
-                    self.apply(Input::Fault(format!("while waiting for a move: {e}")));
+                if let Some(fault) = r.as_ref().err().and_then(core::fault_of_wait) {
+                    self.apply(Input::Fault(fault));
                 }
             }
             let why = |e| self.halted_because(driver_error(e), gen);
@@ -361,18 +312,13 @@ impl Rig {
     /// Halts everything now: overtakes queued moves (they are refused when
     /// their turn comes), stops a job, sends `#24` to both controllers.
     pub async fn stop(self: &Arc<Self>) -> Result<Value, ProtoError> {
-        self.begin_stop("stop requested by a client");
+        const WHY: &str = "stop requested by a client";
         let t = self.clock.now_s();
-        lock(&self.state).apply(Input::Stop, t);
-        self.push(
-            Topic::Fault,
-            "stopped",
-            json!({"t_s": t, "reason": "stop requested by a client"}),
-        );
-        self.supervisor().clear();
+        self.core().stop(WHY, t);
+        self.push(Topic::Fault, "stopped", json!({"t_s": t, "reason": WHY}));
         let stage = self.stage()?;
         let (x, y) = tokio::join!(stage.x.stop(), stage.y.stop());
-        *lock(&self.commanded) = [None, None];
+        self.core().halted();
         let mut errors = Vec::new();
         for (n, r) in [("x", x), ("y", y)] {
             if let Err(e) = r {
@@ -391,28 +337,12 @@ impl Rig {
 
     /// A stop generation: jobs compare it to notice a stop or a fault.
     pub fn stop_generation(&self) -> u64 {
-        self.stop_gen.load(Ordering::SeqCst)
-    }
-
-    /// A stop, halt or fault overtakes every move in flight: the
-    /// generation moves on (queued moves are refused when their turn
-    /// comes) and `why` is kept for the moves it cuts short.
-    pub(super) fn begin_stop(&self, why: &str) {
-        *lock(&self.stop_why) = why.to_owned();
-        self.stop_gen.fetch_add(1, Ordering::SeqCst);
+        self.core().stop_generation()
     }
 
     /// A move's `halted` error with the reason of the stop, halt or fault
-    /// that came since generation `gen`: "the move was halted" alone leaves
-    /// a client (or a job's log) guessing whether a user, a cancel or a
-    /// fault did it.
-    fn halted_because(&self, mut e: ProtoError, gen: u64) -> ProtoError {
-        if e.code == ErrorCode::Halted && self.stop_generation() != gen {
-            let why = lock(&self.stop_why).clone();
-            if !why.is_empty() {
-                e.message = format!("{} (halted by the daemon: {why})", e.message);
-            }
-        }
-        e
+    /// that came since generation `gen` (`MotionCore::halted_because`).
+    fn halted_because(&self, e: ProtoError, gen: u64) -> ProtoError {
+        self.core().halted_because(e, gen)
     }
 }

@@ -1,12 +1,11 @@
 //! The rig's one reference run: both axes (or one) referenced with the
 //! supervisor and the poller paused, the soft limits and history reset.
 
-use super::{driver_error, lock, refusal, ActivityGuard, Rig};
+use super::{driver_error, ActivityGuard, Rig};
 use crate::daemon::protocol::{Axes, ErrorCode, ProtoError};
 use crate::daemon::state::{Activity, AxisId, Input};
 use crate::driver::Axis;
 use serde_json::{json, Value};
-use std::sync::atomic::Ordering;
 use std::sync::Arc;
 use std::time::Duration;
 
@@ -14,25 +13,21 @@ impl Rig {
     /// References the selected axes (the stage moves to its reference).
     pub async fn reference(self: &Arc<Self>, axes: Axes) -> Result<Value, ProtoError> {
         let stage = self.stage()?;
-        let gen = self.stop_gen.load(Ordering::SeqCst);
+        let gen = self.stop_generation();
         let _queue = self.motion.lock().await;
         // The play is unknown again after a reference run.
         self.comp.reset_history();
-        {
-            let t = self.clock.now_s();
-            let mut s = lock(&self.state);
-            s.may_take_axes().map_err(refusal)?;
-            s.apply(Input::Begin(Activity::Referencing), t);
-        }
-        // A reference run supersedes the moves watched so far; a sample in
-        // flight finishes before the run starts.
-        self.supervisor().clear();
+        // A reference run supersedes the moves watched so far (the core
+        // drops their watches); a sample in flight finishes before the run
+        // starts.
+        let t = self.clock.now_s();
+        self.core().begin_reference(t)?;
         let _guard = ActivityGuard {
             rig: self,
             activity: Activity::Referencing,
         };
         drop(self.sampling.lock().await);
-        if self.stop_gen.load(Ordering::SeqCst) != gen {
+        if self.stop_generation() != gen {
             return Err(ProtoError::new(
                 ErrorCode::Halted,
                 "a stop or fault came before the reference run started; it was not sent",
@@ -69,7 +64,7 @@ impl Rig {
                     _ = &mut done_rx => return,
                     () = tokio::time::sleep(period) => {}
                 }
-                if self.stop_gen.load(Ordering::SeqCst) != gen {
+                if self.stop_generation() != gen {
                     self.halt_all().await;
                 }
             }
@@ -78,12 +73,12 @@ impl Rig {
         // The counts changed meaning: the deviation check ties afresh, and
         // the vision tie of the last reference no longer applies (the
         // caller ties again after a successful run).
-        lock(&self.deviation).retie();
+        self.core().retie();
         self.store_tie(Err(
             "a reference run changed the controllers' zero since the last tie; a successful reference run ties again".to_owned(),
         ))
         .await;
-        if self.stop_gen.load(Ordering::SeqCst) != gen {
+        if self.stop_generation() != gen {
             // Halted once more: an `FRF` written after the stop's `#24` or
             // `HLT` runs while its `ERR?` reports the stop (10), so the run
             // can end in an error with the axis still referencing.
@@ -95,15 +90,7 @@ impl Rig {
         }
         let x = x.map_err(driver_error)?;
         let y = y.map_err(driver_error)?;
-        {
-            let mut c = lock(&self.commanded);
-            if x.is_some() {
-                c[0] = x;
-            }
-            if y.is_some() {
-                c[1] = y;
-            }
-        }
+        self.core().reference_done([x, y]);
         for (a, v) in [(AxisId::X, x), (AxisId::Y, y)] {
             if v.is_some() {
                 self.apply(Input::Referenced(a));

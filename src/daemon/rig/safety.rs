@@ -1,10 +1,11 @@
-//! The rig's safe state: the state machine's actions carried out (halts,
+//! The rig's safe state: the motion core's decisions carried out (halts,
 //! faults, reset), a returning line's axis recovered, and the vision
-//! against controller deviation check.
+//! against controller deviation check fed and its verdicts applied.
 
-use super::{lock, Rig};
+use super::Rig;
+use crate::daemon::motion_core::Decision;
 use crate::daemon::protocol::Topic;
-use crate::daemon::state::{Action, AxisId, Input};
+use crate::daemon::state::{AxisId, Input};
 use crate::driver::DriverError;
 use serde_json::{json, Value};
 use std::sync::Arc;
@@ -40,7 +41,7 @@ impl Rig {
     /// A controller position read of `axis` between `t0_s` and `t1_s`
     /// (poller or supervisor): input of the deviation check.
     pub(crate) fn deviation_read(self: &Arc<Self>, axis: AxisId, t0_s: f64, t1_s: f64, um: f64) {
-        lock(&self.deviation).controller(axis, t0_s, t1_s, um);
+        self.core().controller_read(axis, t0_s, t1_s, um);
         self.judge_deviation();
     }
 
@@ -50,17 +51,7 @@ impl Rig {
     pub(super) fn judge_deviation(self: &Arc<Self>) {
         let frame = self.deviation_frame();
         let from_tie = frame.as_ref().is_ok_and(|(_, src)| src.starts_with("tie "));
-        // A tie needs both axes at rest: no move watched and no reference
-        // run (the judge also wants the reads around the frame to agree).
-        let quiet = self.supervisor().watching() == [false, false] && !self.referencing();
-        let r = {
-            let mut j = lock(&self.deviation);
-            match frame {
-                Ok((f, src)) => j.set_frame(Some(f), src),
-                Err(why) => j.set_frame(None, why),
-            }
-            j.judge(quiet)
-        };
+        let r = self.core().judge_deviation(frame);
         if let Some(tie) = r.tied_um {
             tracing::info!(
                 "vision deviation check tied at rest: translation x {:.1} µm, y {:.1} µm",
@@ -80,12 +71,7 @@ impl Rig {
     /// would use now.
     pub fn deviation_json(&self) -> Value {
         let frame = self.deviation_frame();
-        let mut j = lock(&self.deviation);
-        match frame {
-            Ok((f, src)) => j.set_frame(Some(f), src),
-            Err(why) => j.set_frame(None, why),
-        }
-        j.to_json()
+        self.core().deviation_json(frame)
     }
 
     /// A breach found by the motion supervisor: halts both axes, latches.
@@ -94,17 +80,16 @@ impl Rig {
         self.apply(Input::Fault(reason));
     }
 
-    /// Feeds the state machine and carries out what it asks.
+    /// Feeds the motion core's state machine and carries out what it
+    /// decides.
     pub fn apply(self: &Arc<Self>, input: Input) {
         let t = self.clock.now_s();
-        let actions = lock(&self.state).apply(input, t);
-        for a in actions {
-            match a {
-                Action::HaltAll { reason } => {
+        let decisions = self.core().apply(input, t);
+        for d in decisions {
+            match d {
+                Decision::HaltAndLatch { reason } => {
                     tracing::warn!("halting both axes: {reason}");
                     self.metrics.record_fault();
-                    self.begin_stop(&format!("fault: {reason}"));
-                    self.supervisor().clear();
                     self.push(
                         Topic::Fault,
                         "fault",
@@ -126,7 +111,7 @@ impl Rig {
         let Ok(stage) = self.stage() else {
             return vec![];
         };
-        self.supervisor().clear();
+        self.core().halting();
         let (x, y) = tokio::join!(stage.x.halt_now(), stage.y.halt_now());
         let mut out = vec![(AxisId::X, x), (AxisId::Y, y)];
         for (a, r) in &mut out {
@@ -134,7 +119,7 @@ impl Rig {
                 tracing::warn!("halt of axis {} failed: {e}", a.name());
             }
         }
-        *lock(&self.commanded) = [None, None];
+        self.core().halted();
         out
     }
 
@@ -150,7 +135,7 @@ impl Rig {
     /// warnings. A halt that leaves an axis moving or fails is a warning;
     /// a fault's halt ([`Rig::apply`]) is one too.
     pub async fn halt_and_wait(&self, why: &str) -> Value {
-        self.begin_stop(why);
+        self.core().begin_stop(why);
         tracing::info!("halting both axes: {why}");
         let t = self.clock.now_s();
         let halts = self.halt_all().await;
@@ -205,14 +190,12 @@ impl Rig {
     /// (an axis whose reference was lost stays unreferenced: reference it).
     pub fn reset(&self) -> Value {
         let t = self.clock.now_s();
-        let mut s = lock(&self.state);
-        let cleared = s
-            .latched()
-            .map(|f| json!({"t_s": f.t_s, "reason": f.reason}));
-        s.apply(Input::Reset, t);
-        let state = s.to_json();
-        drop(s);
-        lock(&self.deviation).retie();
+        let (cleared, state) = {
+            let mut c = self.core();
+            let cleared = c.reset(t);
+            (cleared, c.state().to_json())
+        };
+        let cleared = cleared.map(|f| json!({"t_s": f.t_s, "reason": f.reason}));
         if let Some(c) = &cleared {
             tracing::info!("fault reset by a client: {}", c["reason"]);
             self.push(Topic::Fault, "reset", json!({"t_s": t, "cleared": c}));

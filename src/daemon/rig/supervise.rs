@@ -13,9 +13,10 @@ use tokio::sync::broadcast;
 /// Samples one watched axis: `VEL?` once per move, then `ERR?`, the
 /// position and `ONT?`.
 async fn sample(rig: &Arc<Rig>, a: AxisId, axis: &Axis) -> (f64, f64, AxisSample) {
-    if rig.supervisor().needs_velocity(a) {
+    let needs_velocity = rig.core().needs_velocity(a);
+    if needs_velocity {
         if let Ok(v) = axis.velocity_um_per_s().await {
-            rig.supervisor().set_velocity(a, v);
+            rig.core().set_velocity(a, v);
         }
     }
     let t0 = rig.clock.now_s();
@@ -54,7 +55,7 @@ pub async fn run(rig: Arc<Rig>, mut shutdown: broadcast::Receiver<()>) {
             _ = shutdown.recv() => return,
         }
         let _sampling = rig.sampling.lock().await;
-        let watching = rig.supervisor().watching();
+        let watching = rig.core().watching();
         if let Some(v) = &rig.vision {
             let counts = (
                 v.stats.frames.load(std::sync::atomic::Ordering::Relaxed),
@@ -99,7 +100,8 @@ pub async fn run(rig: Arc<Rig>, mut shutdown: broadcast::Receiver<()>) {
         for (a, s) in [(AxisId::X, sx), (AxisId::Y, sy)] {
             let Some((t0, t1, s)) = s else { continue };
             clean &= s.position_um.is_ok();
-            if let Err(reason) = rig.supervisor().observe(a, t0, t1, &s) {
+            let verdict = rig.core().observe(a, t0, t1, &s);
+            if let Err(reason) = verdict {
                 faults.push(reason);
             }
         }

@@ -2,9 +2,10 @@
 //! controller lines, driver events, the camera's frames to subscribers and
 //! the position poller.
 
-use super::{lock, Reported, Rig};
+use super::{lock, Rig};
+use crate::daemon::motion_core::Reported;
 use crate::daemon::protocol::Topic;
-use crate::daemon::state::{Activity, AxisId, Input};
+use crate::daemon::state::{AxisId, Input};
 use crate::daemon::supervisor::ReadFailure;
 use crate::driver::{AxisEvent, Stage};
 use serde_json::json;
@@ -67,12 +68,10 @@ impl Rig {
             self.on_driver_event(ev);
         }
         *lock(&self.stage) = Some(stage);
-        lock(&self.deviation).retie();
-        self.push(
-            Topic::Fault,
-            "state",
-            json!({"t_s": self.clock.now_s(), "state": lock(&self.state).to_json()}),
-        );
+        self.core().retie();
+        let t = self.clock.now_s();
+        let state = self.core().state().to_json();
+        self.push(Topic::Fault, "state", json!({"t_s": t, "state": state}));
         loop {
             let ev = tokio::select! {
                 ev = rx.recv() => ev,
@@ -172,7 +171,7 @@ impl Rig {
             }
             last_seq = Some(m.sequence);
             if m.quality >= self.cfg.camera.min_quality {
-                lock(&self.deviation).vision(m.t_s, m.frame_t_s, m.x_um, m.y_um);
+                self.core().vision(m.t_s, m.frame_t_s, m.x_um, m.y_um);
                 self.judge_deviation();
             }
             let mut f = self.vision_json(&m);
@@ -227,7 +226,7 @@ impl Rig {
             // run that began meanwhile is seen here, and one that begins
             // now waits for these reads (see `Rig::sampling`).
             let sampling = self.sampling.lock().await;
-            if lock(&self.state).activity() == Activity::Referencing {
+            if self.referencing() {
                 self.heartbeat.fetch_add(1, Ordering::Relaxed);
                 continue;
             }
@@ -247,18 +246,18 @@ impl Rig {
             for (a, r) in [(AxisId::X, &x), (AxisId::Y, &y)] {
                 let r = r.as_ref().map(|v| *v).map_err(ReadFailure::of);
                 supervised &= !matches!(r, Err(ReadFailure::Failed(_)));
-                let verdict = self.supervisor().read_result(a, t, &r);
+                let verdict = self.core().read_result(a, t, &r);
                 if let Some(reason) = verdict {
                     self.supervisor_fault(reason);
                 }
             }
             let x = x.ok();
             let y = y.ok();
-            *lock(&self.reported) = Reported {
+            self.core().set_reported(Reported {
                 t_s: t,
                 x_um: x,
                 y_um: y,
-            };
+            });
             if supervised {
                 self.beat();
             }

@@ -25,8 +25,8 @@ pub struct FrameInForce {
 impl Rig {
     /// Whether both axes are referenced.
     pub fn referenced_both(&self) -> bool {
-        let s = lock(&self.state);
-        s.referenced(AxisId::X) && s.referenced(AxisId::Y)
+        let c = self.core();
+        c.state().referenced(AxisId::X) && c.state().referenced(AxisId::Y)
     }
 
     /// The frame that maps vision to stage coordinates: the rig's tie
@@ -40,10 +40,10 @@ impl Rig {
             (t.tie().cloned(), t.untied_why().map(str::to_owned))
         };
         let unreferenced: Vec<&str> = {
-            let s = lock(&self.state);
+            let c = self.core();
             [AxisId::X, AxisId::Y]
                 .into_iter()
-                .filter(|a| !s.referenced(*a))
+                .filter(|a| !c.state().referenced(*a))
                 .map(AxisId::name)
                 .collect()
         };

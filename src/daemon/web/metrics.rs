@@ -1,238 +1,129 @@
-//! `GET /metrics`: the rig's counters and gauges in the OpenMetrics text
-//! format (Prometheus scrapes it), so a lab with many rigs points its
-//! existing Prometheus/Grafana at them instead of micropos growing a fleet
-//! manager. Names, types and units: `docs/design/web.md`.
-//!
-//! Two kinds of sources: event counters that the rig bumps where the event
-//! happens (moves and their error codes, latched faults, reconnects) and
-//! values that already live elsewhere (the vision pipeline's counters, the
-//! latest decode, drift, the job's progress), copied into the registry at
-//! scrape time ([`Metrics::render`], `scrape.rs`) so nothing is counted twice.
+//! `GET /metrics`, the scrape: copies the values that live elsewhere (the
+//! rig's positions, the vision pipeline's counters, drift, the job's
+//! progress) into the registry of [`Metrics`] (`daemon::metrics`, owned by
+//! the rig) and encodes it. Here, in the web front door that serves it, so
+//! the rig's counters never depend on the daemon they are part of.
 
-mod scrape;
-
-use crate::daemon::protocol::ErrorCode;
-use crate::daemon::vision::VisionStats;
-use prometheus_client::encoding::EncodeLabelSet;
+use crate::daemon::metrics::{AxisLabel, FloatGauge, Metrics, PositionLabel, RATE_WINDOW_S};
+use crate::daemon::Daemon;
 use prometheus_client::metrics::counter::Counter;
 use prometheus_client::metrics::family::Family;
-use prometheus_client::metrics::gauge::Gauge;
-use prometheus_client::registry::Registry;
-use std::collections::HashSet;
-use std::sync::atomic::AtomicU64;
-use std::sync::Mutex;
-
-/// Label of a move error.
-#[derive(Debug, Clone, Hash, PartialEq, Eq, EncodeLabelSet)]
-struct CodeLabel {
-    code: &'static str,
-}
-
-/// Label of a per-axis gauge.
-#[derive(Debug, Clone, Hash, PartialEq, Eq, EncodeLabelSet)]
-struct AxisLabel {
-    axis: &'static str,
-}
-
-/// Labels of a position gauge.
-#[derive(Debug, Clone, Hash, PartialEq, Eq, EncodeLabelSet)]
-struct PositionLabel {
-    source: &'static str,
-    axis: &'static str,
-}
-
-type FloatGauge = Gauge<f64, AtomicU64>;
-
-/// The daemon's metrics: a registry and handles to what is in it.
-#[derive(Debug)]
-pub struct Metrics {
-    registry: Registry,
-    moves: Counter,
-    move_errors: Family<CodeLabel, Counter>,
-    faults: Counter,
-    reconnects: Counter,
-    lines_seen: Mutex<HashSet<String>>,
-    frames: Counter,
-    frames_decoded: Counter,
-    decode_failures: Counter,
-    decode_rate_hz: FloatGauge,
-    /// `(rig time s, decoded count)` of the last rate sample.
-    rate_sample: Mutex<Option<(f64, u64)>>,
-    decode_quality_bits: FloatGauge,
-    residual_um: Family<AxisLabel, FloatGauge>,
-    drift_um: Family<AxisLabel, FloatGauge>,
-    position_um: Family<PositionLabel, FloatGauge>,
-    job_running: Gauge,
-    job_points_done: Gauge,
-    job_points_total: Gauge,
-    job_progress_ratio: FloatGauge,
-    job_eta_seconds: FloatGauge,
-    faulted: Gauge,
-}
-
-/// The shortest rig time between two samples of the decode rate, s: a
-/// rate over a shorter window is mostly the jitter of frame arrivals.
-const RATE_WINDOW_S: f64 = 1.0;
+use std::sync::atomic::Ordering;
 
 impl Metrics {
-    /// Registers every metric; `vision` (the pipeline's counters, if a
-    /// camera is configured) contributes its decode-time histogram.
-    pub fn new(vision: Option<&VisionStats>) -> Metrics {
-        let mut r = Registry::default();
-        let m = Metrics {
-            moves: Counter::default(),
-            move_errors: Family::default(),
-            faults: Counter::default(),
-            reconnects: Counter::default(),
-            lines_seen: Mutex::new(HashSet::new()),
-            frames: Counter::default(),
-            frames_decoded: Counter::default(),
-            decode_failures: Counter::default(),
-            decode_rate_hz: FloatGauge::default(),
-            rate_sample: Mutex::new(None),
-            decode_quality_bits: FloatGauge::default(),
-            residual_um: Family::default(),
-            drift_um: Family::default(),
-            position_um: Family::default(),
-            job_running: Gauge::default(),
-            job_points_done: Gauge::default(),
-            job_points_total: Gauge::default(),
-            job_progress_ratio: FloatGauge::default(),
-            job_eta_seconds: FloatGauge::default(),
-            faulted: Gauge::default(),
-            registry: Registry::default(),
-        };
-        // Counters are registered without `_total`: the encoder adds it.
-        r.register(
-            "micropos_moves",
-            "Moves that reached their target (client and job moves)",
-            m.moves.clone(),
-        );
-        r.register(
-            "micropos_move_errors",
-            "Moves that failed, by protocol error code",
-            m.move_errors.clone(),
-        );
-        r.register(
-            "micropos_faults",
-            "Faults that halted both axes and latched",
-            m.faults.clone(),
-        );
-        r.register(
-            "micropos_reconnects",
-            "Controller lines that came back after a loss",
-            m.reconnects.clone(),
-        );
-        r.register(
-            "micropos_vision_frames",
-            "Camera frames received",
-            m.frames.clone(),
-        );
-        r.register(
-            "micropos_vision_frames_decoded",
-            "Camera frames decoded",
-            m.frames_decoded.clone(),
-        );
-        r.register(
-            "micropos_vision_decode_failures",
-            "Camera frames that did not decode",
-            m.decode_failures.clone(),
-        );
-        r.register(
-            "micropos_vision_decode_rate_hz",
-            "Frames decoded per second of rig time (over at least 1 s)",
-            m.decode_rate_hz.clone(),
-        );
-        r.register(
-            "micropos_vision_decode_quality_bits",
-            "Quality of the newest decode (smaller code margin, bits)",
-            m.decode_quality_bits.clone(),
-        );
-        if let Some(v) = vision {
-            r.register(
-                "micropos_vision_decode_seconds",
-                "Wall time of one decode",
-                v.decode_seconds.clone(),
-            );
-        }
-        r.register(
-            "micropos_vision_residual_um",
-            "Vision (in the stage frame: the rig's tie, else the active table's frame) minus controller position",
-            m.residual_um.clone(),
-        );
-        r.register(
-            "micropos_drift_correction_um",
-            "Live drift correction applied to compensated moves",
-            m.drift_um.clone(),
-        );
-        r.register(
-            "micropos_position_um",
-            "Position by source (commanded, controller, vision through the rig's tie or the active table's frame; absent untied)",
-            m.position_um.clone(),
-        );
-        r.register(
-            "micropos_fault_latched",
-            "1 while a fault is latched (cleared by reset)",
-            m.faulted.clone(),
-        );
-        r.register(
-            "micropos_job_running",
-            "1 while a job runs",
-            m.job_running.clone(),
-        );
-        r.register(
-            "micropos_job_points_done",
-            "Points done by the current or last job",
-            m.job_points_done.clone(),
-        );
-        r.register(
-            "micropos_job_points",
-            "Points planned for the current or last job",
-            m.job_points_total.clone(),
-        );
-        r.register(
-            "micropos_job_progress_ratio",
-            "Done over planned points of the current or last job (0..1)",
-            m.job_progress_ratio.clone(),
-        );
-        r.register(
-            "micropos_job_eta_seconds",
-            "Estimated rig time until the running job ends",
-            m.job_eta_seconds.clone(),
-        );
-        Metrics { registry: r, ..m }
+    /// Copies the values that live elsewhere into the registry and encodes
+    /// it (OpenMetrics text, `# EOF` last).
+    pub fn render(&self, daemon: &Daemon) -> Result<String, std::fmt::Error> {
+        self.sync(daemon);
+        let mut out = String::new();
+        prometheus_client::encoding::text::encode(&mut out, &self.registry)?;
+        Ok(out)
     }
 
-    /// A move ended: `Ok` or its error code.
-    pub fn record_move(&self, r: Result<(), ErrorCode>) {
-        match r {
-            Ok(()) => {
-                self.moves.inc();
+    fn sync(&self, daemon: &Daemon) {
+        let rig = &daemon.rig;
+        let now_s = rig.clock.now_s();
+        let set_axes = |fam: &Family<PositionLabel, FloatGauge>, source, x: Option<f64>, y| {
+            for (axis, v) in [("x", x), ("y", y)] {
+                if let Some(v) = v.filter(|v: &f64| v.is_finite()) {
+                    fam.get_or_create(&PositionLabel { source, axis }).set(v);
+                }
             }
-            Err(code) => {
-                self.move_errors
-                    .get_or_create(&CodeLabel {
-                        code: code.as_str(),
+        };
+        let [cx, cy] = rig.commanded_um();
+        set_axes(&self.position_um, "commanded", cx, cy);
+        let (_, px, py) = rig.reported_um();
+        set_axes(&self.position_um, "controller", px, py);
+        if let Some(v) = &rig.vision {
+            let s = &v.stats;
+            catch_up(&self.frames, s.frames.load(Ordering::Relaxed));
+            let decoded = s.decoded.load(Ordering::Relaxed);
+            catch_up(&self.frames_decoded, decoded);
+            catch_up(&self.decode_failures, s.failed.load(Ordering::Relaxed));
+            if let Ok(mut last) = self.rate_sample.lock() {
+                match *last {
+                    Some((t0, n0)) if now_s - t0 >= RATE_WINDOW_S => {
+                        let rate = decoded.saturating_sub(n0) as f64 / (now_s - t0);
+                        self.decode_rate_hz.set(rate);
+                        *last = Some((now_s, decoded));
+                    }
+                    Some(_) => {}
+                    None => *last = Some((now_s, decoded)),
+                }
+            }
+            let latest = *v.latest.borrow();
+            if let Some(m) = latest {
+                self.decode_quality_bits.set(m.quality);
+                // Through the frame in force (the rig's tie, else the
+                // active table's); without one a decoded position is no
+                // stage position, and the series are absent.
+                let frame = rig.vision_frame().ok().map(|f| f.frame);
+                let s = frame.map(|f| {
+                    f.to_stage(crate::model::XyUm {
+                        x_um: m.x_um,
+                        y_um: m.y_um,
                     })
-                    .inc();
+                });
+                match s {
+                    Some(s) => set_axes(&self.position_um, "vision", Some(s.x_um), Some(s.y_um)),
+                    None => {
+                        for axis in ["x", "y"] {
+                            self.position_um.remove(&PositionLabel {
+                                source: "vision",
+                                axis,
+                            });
+                        }
+                    }
+                }
+                let fresh = now_s - m.t_s <= rig.cfg.camera.max_age_s;
+                if let (true, Some(s), Some(px), Some(py)) = (fresh, s, px, py) {
+                    for (axis, r) in [("x", s.x_um - px), ("y", s.y_um - py)] {
+                        self.residual_um.get_or_create(&AxisLabel { axis }).set(r);
+                    }
+                } else if s.is_none() {
+                    self.residual_um.clear();
+                }
             }
         }
-    }
-
-    /// A fault halted both axes and latched.
-    pub fn record_fault(&self) {
-        self.faults.inc();
-    }
-
-    /// A controller line connected; a line seen before counts as a
-    /// reconnect.
-    pub fn record_link_up(&self, line: &str) {
-        let again = match self.lines_seen.lock() {
-            Ok(mut seen) => !seen.insert(line.to_owned()),
-            Err(_) => true,
-        };
-        if again {
-            self.reconnects.inc();
+        let drift = rig.drift.to_json(now_s);
+        if let Some(c) = drift["correction_um"].as_array() {
+            for (axis, v) in ["x", "y"].into_iter().zip(c) {
+                if let Some(v) = v.as_f64() {
+                    self.drift_um.get_or_create(&AxisLabel { axis }).set(v);
+                }
+            }
         }
+        let state = rig.status();
+        self.faulted
+            .set(i64::from(state["rig"]["fault_latched"].is_object()));
+        let job = daemon.jobs.status();
+        self.job_running.set(i64::from(daemon.jobs.is_running()));
+        let done = job["done"].as_u64().unwrap_or(0);
+        let total = job["total"].as_u64().unwrap_or(0);
+        self.job_points_done.set(clamp_i64(done));
+        self.job_points_total.set(clamp_i64(total));
+        self.job_progress_ratio.set(if total > 0 {
+            done as f64 / total as f64
+        } else {
+            0.0
+        });
+        self.job_eta_seconds.set(
+            job["eta_s"]
+                .as_f64()
+                .filter(|v| v.is_finite())
+                .unwrap_or(0.0),
+        );
+    }
+}
+
+fn clamp_i64(v: u64) -> i64 {
+    i64::try_from(v).unwrap_or(i64::MAX)
+}
+
+/// Raises a counter to `total` (the source's own monotonic count).
+fn catch_up(c: &Counter, total: u64) {
+    let have = c.get();
+    if total > have {
+        c.inc_by(total - have);
     }
 }

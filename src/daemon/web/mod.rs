@@ -17,7 +17,7 @@
 //! - [`command`]: `POST /api/command` (token, role, audit, dispatch);
 //! - [`live`]: `GET /api/events`, the event bus as server-sent events;
 //! - [`camera`]: the downscaled camera frame and its overlay;
-//! - [`metrics`]: `GET /metrics` (OpenMetrics text);
+//! - [`metrics`]: `GET /metrics`, the scrape of `daemon::metrics` (OpenMetrics text);
 //! - [`page`]: the embedded page (HTML, JS, CSS; no build step);
 //! - [`shared`]: what every handler shares.
 
