@@ -10,4 +10,5 @@
 pub mod import;
 pub mod import_grid;
 pub mod log;
+pub mod plan;
 pub mod scan;

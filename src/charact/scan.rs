@@ -24,6 +24,12 @@ use thiserror::Error;
 
 use crate::model::{Axis, Direction, XyUm};
 
+/// Distance below the first point from which the held axis is parked, µm
+/// (10× the M-111's 2 µm backlash, as [`AxisScan::approach_um`]'s
+/// default): the daemon's jobs, the scan plan and the sweep's anchors all
+/// park from here, so it lives with the plans' geometry.
+pub const PARK_APPROACH_UM: f64 = 20.0;
+
 /// Segment name of the X scan in the measurement log.
 pub const SEGMENT_SCAN_X: &str = "scan_x";
 /// Segment name of the Y scan in the measurement log.

@@ -7,7 +7,6 @@
 //! every case: each point is appended and flushed before the next move.
 
 pub mod approach;
-pub mod plan;
 pub mod record;
 mod scan;
 mod spawn;
@@ -37,10 +36,10 @@ use super::protocol::{
 use super::rig::Rig;
 use crate::analysis::drift::DRIFT_REF_SEGMENT;
 use crate::charact::log::{self, LogWriter, Metadata};
+use crate::charact::plan::{self, DriftPlan, ScanPlan};
 use crate::comp::VisionFrame;
 use crate::model::XyUm;
 use approach::ApproachTracker;
-use plan::{DriftPlan, ScanPlan};
 use serde_json::Value;
 use std::fs::File;
 use std::path::PathBuf;

@@ -27,7 +27,6 @@
 
 mod output;
 
-use super::plan::DriftPlan;
 use super::sweep::{
     estimate_delay, frames_at, resample, DelayEstimate, PassData, PassSpec, PosSample, SweepFrame,
     SweepPlan,
@@ -39,6 +38,7 @@ use super::{
     PARK_APPROACH_UM,
 };
 use crate::charact::log::{self, Columns, Metadata, Record, SyncPolicy};
+use crate::charact::plan::DriftPlan;
 use crate::charact::scan::SEGMENTS_SWEEP_ANCHOR;
 use crate::comp::VisionFrame;
 use crate::daemon::protocol::{ErrorCode, JobState, MoveRequest, ProtoError, Topic};

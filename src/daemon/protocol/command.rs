@@ -124,7 +124,7 @@ pub struct CharacterizeParams {
     /// `daemon::jobs::sweep_anchor::DEFAULT_ANCHOR_SPACING_UM`).
     pub anchor_spacing_um: Option<f64>,
     /// Step mode: moves of varied length per cycle after the scans
-    /// (`daemon::jobs::plan::ScanPlan::moves_per_cycle`); default 0.
+    /// (`charact::plan::ScanPlan::moves_per_cycle`); default 0.
     pub moves_per_cycle: Option<u32>,
     /// What is measured: the paper's scan lines (default) or a grid over
     /// the whole area.
