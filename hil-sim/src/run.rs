@@ -176,7 +176,7 @@ impl RunPlan {
             drift_compare: true,
             sweep_velocity_um_per_s: 120.0,
             sweep_anchor_spacing_um:
-                micropos::daemon::jobs::sweep_anchor::DEFAULT_ANCHOR_SPACING_UM,
+                micropos::charact::sweep::anchor::DEFAULT_ANCHOR_SPACING_UM,
             grid_pitch_um: 100.0,
         }
     }

@@ -12,3 +12,4 @@ pub mod import_grid;
 pub mod log;
 pub mod plan;
 pub mod scan;
+pub mod sweep;

@@ -49,7 +49,7 @@ pub const SEGMENT_MOVES: &str = "moves";
 /// x backward, y forward, y backward): stops measured as the step plan
 /// measures its points, each reached by a move of the anchor spacing and a
 /// final move of one step, neither of which the log holds
-/// (`crate::daemon::jobs::sweep_anchor`). Readers that replay the logged
+/// (`crate::charact::sweep::anchor`). Readers that replay the logged
 /// commands as the motion (`crate::analysis::diagnose`) leave them out.
 pub const SEGMENTS_SWEEP_ANCHOR: [&str; 4] = [
     "anchor_x_fwd",

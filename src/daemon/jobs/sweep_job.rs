@@ -6,11 +6,11 @@
 //! [`POS_SAMPLE_PERIOD`] of rig time; the log's metadata says which) and
 //! collects every decoded frame until the axis arrives; at the end estimates the camera
 //! delay and writes the log resampled onto the step grid
-//! (`jobs::sweep` has the method).
+//! (`charact::sweep` has the method).
 //!
 //! After the two passes of each cycle on an axis (when `anchor_spacing_um`
 //! is positive), the job stops at that axis's static anchors, forward then backward,
-//! each reached as the step plan reaches its points (`jobs::sweep_anchor`):
+//! each reached as the step plan reaches its points (`charact::sweep::anchor`):
 //! the records are corrected by the anchors' offset curves, so that they
 //! describe the stage in the step plan's motion state.
 //!
@@ -27,11 +27,6 @@
 
 mod output;
 
-use super::sweep::{
-    estimate_delay, frames_at, resample, DelayEstimate, PassData, PassSpec, PosSample, SweepFrame,
-    SweepPlan,
-};
-use super::sweep_anchor::{anchor_correction, anchor_route, AnchorCorrection, AnchorMeas};
 use super::sweep_recorder::{merge, Chunk, CHUNK_S, POLL_WITH_RECORDER, RECORD_RATE, RECORD_TABLE};
 use super::{
     clamp_to_travel, drift_ref_record, lock, measure_retrying, move_raw_retrying, tie, Progress,
@@ -40,6 +35,13 @@ use super::{
 use crate::charact::log::{self, Columns, Metadata, Record, SyncPolicy};
 use crate::charact::plan::DriftPlan;
 use crate::charact::scan::SEGMENTS_SWEEP_ANCHOR;
+use crate::charact::sweep::anchor::{
+    anchor_correction, anchor_route, AnchorCorrection, AnchorMeas,
+};
+use crate::charact::sweep::{
+    estimate_delay, frames_at, resample, DelayEstimate, PassData, PassSpec, PosSample, SweepFrame,
+    SweepPlan,
+};
 use crate::comp::VisionFrame;
 use crate::daemon::protocol::{ErrorCode, JobState, MoveRequest, ProtoError, Topic};
 use crate::daemon::rig::{driver_error, Rig};
@@ -418,7 +420,7 @@ struct AnchorGroup {
     hold_um: f64,
 }
 
-/// Runs one group's route (`sweep_anchor::anchor_route`): every stop a raw
+/// Runs one group's route (`charact::sweep::anchor::anchor_route`): every stop a raw
 /// move of the swept axis (the held one stays), at each anchor the step
 /// job's settle and frames. `Ok(None)` if a stop or fault moved the stop
 /// generation past `gen`.
