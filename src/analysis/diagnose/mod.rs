@@ -159,6 +159,7 @@ mod map_term;
 mod noise;
 mod options;
 mod readings;
+mod refine;
 mod report;
 mod search;
 mod tables;
