@@ -160,6 +160,7 @@ mod noise;
 mod options;
 mod readings;
 mod refine;
+mod replicates;
 mod report;
 mod search;
 mod tables;
@@ -898,7 +899,7 @@ fn note_short_periods(parameters: &mut [ParamCorrection], d: &data::Data, model:
 }
 
 /// Steps 1 and 3: the log replayed into [`data::Data`] ([`data::prepare`]),
-/// the replicates' outliers ([`noise::outlier_rows`]) left out of the fit
+/// the replicates' outliers ([`replicates::outlier_rows`]) left out of the fit
 /// and of the judging, and the residual centred. Why here: the outliers are
 /// read from the replicates, on the rows `data` builds.
 #[cfg(test)]
@@ -920,7 +921,7 @@ fn prepare_with(
     let mut d = data::prepare(log, model, max_folds, scheme)?;
     let measured = d.measured;
     for c in Axis::ALL.into_iter().filter(|c| measured[c.index()]) {
-        for i in noise::outlier_rows(log, &d, c) {
+        for i in replicates::outlier_rows(log, &d, c) {
             d.excluded[i] = true;
             d.judged[i] = false;
         }
