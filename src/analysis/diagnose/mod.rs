@@ -155,6 +155,7 @@ mod ident;
 mod iso_figures;
 mod judge;
 mod lead;
+mod log_columns;
 mod map_term;
 mod noise;
 mod options;
@@ -179,7 +180,6 @@ use super::AnalysisError;
 use base::{aliased_period, unresolved, LONGEST_PERIOD_SPANS};
 use base::{select_base_params, Base};
 pub use corrections::{ParamCorrection, SIGNIFICANT_SIGMAS};
-pub use data::{parse_approach, APPROACH_COLUMN, MEASURED_AXES_KEY};
 use data::{FoldScheme, MeasuredSource};
 use extend::extended;
 pub use finding::{Finding, Withdrawn};
@@ -188,6 +188,7 @@ use greedy::Greedy;
 pub use ident::Unidentifiable;
 use judge::Accepted;
 pub use lead::{LeadCheck, LeadTest, LeadVerdict};
+pub use log_columns::{parse_approach, APPROACH_COLUMN, MEASURED_AXES_KEY};
 pub use map_term::{MapComponent, MapFold, MapTermReport};
 pub use noise::{ComponentNoise, IsoFigures, NoiseReport, Outlier, Sampling, TargetRepeat};
 pub use options::DiagnoseOptions;
@@ -406,7 +407,7 @@ pub fn diagnose(
     } else {
         log
     };
-    let (measured, _) = data::measured_axes(log)?;
+    let (measured, _) = log_columns::measured_axes(log)?;
     let grid = grid::report_of(&log.records, measured, opts.z_threshold, opts.min_gain_pct);
     let turned;
     let log = match &grid {
