@@ -10,4 +10,6 @@
 pub mod import;
 pub mod import_grid;
 pub mod log;
+pub mod plan;
 pub mod scan;
+pub mod sweep;

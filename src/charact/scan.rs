@@ -24,6 +24,12 @@ use thiserror::Error;
 
 use crate::model::{Axis, Direction, XyUm};
 
+/// Distance below the first point from which the held axis is parked, µm
+/// (10× the M-111's 2 µm backlash, as [`AxisScan::approach_um`]'s
+/// default): the daemon's jobs, the scan plan and the sweep's anchors all
+/// park from here, so it lives with the plans' geometry.
+pub const PARK_APPROACH_UM: f64 = 20.0;
+
 /// Segment name of the X scan in the measurement log.
 pub const SEGMENT_SCAN_X: &str = "scan_x";
 /// Segment name of the Y scan in the measurement log.
@@ -43,7 +49,7 @@ pub const SEGMENT_MOVES: &str = "moves";
 /// x backward, y forward, y backward): stops measured as the step plan
 /// measures its points, each reached by a move of the anchor spacing and a
 /// final move of one step, neither of which the log holds
-/// (`crate::daemon::jobs::sweep_anchor`). Readers that replay the logged
+/// (`crate::charact::sweep::anchor`). Readers that replay the logged
 /// commands as the motion (`crate::analysis::diagnose`) leave them out.
 pub const SEGMENTS_SWEEP_ANCHOR: [&str; 4] = [
     "anchor_x_fwd",

@@ -29,7 +29,7 @@
 
 use crate::bins::{hil_sim_bin, microposd_bin};
 use micropos::charact::log;
-use micropos::daemon::jobs::plan::ScanPlan;
+use micropos::charact::plan::ScanPlan;
 use serde_json::{json, Value};
 use std::io::{BufRead, BufReader, Write};
 use std::os::unix::net::UnixStream;

@@ -34,6 +34,10 @@
 //! Gaussian-blurred square is a product of error functions in the dot's own
 //! axes; the pixel integral is a 32 × 32 midpoint sum via a summed-area
 //! table).
+//!
+//! The files: this one builds the stamps and renders a frame band by band;
+//! `stamp` places the dots, `blur` builds a moving frame's blurred stamps,
+//! `sensor` shades, adds noise and quantises.
 
 use super::config::CameraConfig;
 use micropos::frame::{Frame, Pixels};
@@ -41,6 +45,12 @@ use micropos::pattern::render::{shading_map, Shading};
 use micropos::pattern::sequence::LineSequence;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
+use sensor::FinishParams;
+use stamp::{StampGeom, StampTable};
+
+mod blur;
+mod sensor;
+mod stamp;
 
 /// Sub-pixel phases per pixel side.
 const Q: usize = 32;
@@ -282,133 +292,6 @@ impl FastRenderer {
         out16
     }
 
-    /// The sharp stamps, times `weight`.
-    fn sharp_table(&self, weight: f32) -> StampTable<'_> {
-        let k = self.k as i64;
-        StampTable {
-            stamps: &self.stamps,
-            geom: StampGeom {
-                rows: self.side,
-                cols: self.side,
-                stride: self.stride,
-                row_off: -k,
-                col_off: -k,
-            },
-            weight,
-        }
-    }
-
-    /// The blurred stamps [`FastRenderer::build_blur`] built last.
-    fn blur_table(&self) -> StampTable<'_> {
-        StampTable {
-            stamps: &self.blur,
-            geom: self.blur_geom,
-            weight: 1.0,
-        }
-    }
-
-    /// Builds this frame's blurred stamps for the instants `path_um` (at
-    /// least two), unless the last frame's are the same: for each sub-pixel
-    /// phase of a dot's position at the reference instant (the middle one,
-    /// the exposure's mid-point), the mean of the sharp stamps of the dot at
-    /// every instant, summed in time order. Why one stamp per frame: the
-    /// pattern moves rigidly, so every dot moves by the same displacement
-    /// from the reference instant, and the blurred image of a dot depends
-    /// only on its phase there; placing each dot once costs about one
-    /// instant's pass where placing it per instant costs one pass per
-    /// instant, and building the table costs Q² = 1024 stamp additions per
-    /// instant, fewer than a frame's 4000–4500 dots. An instant's displacement
-    /// is rounded to the stamps' 1/Q px (a shift common to all dots; for
-    /// motion that is uniform over the exposure the displacements, and so
-    /// their rounding, are symmetric about the reference, which keeps the
-    /// blur centred on it), and the dot's position at the reference to
-    /// 1/Q px as for a still frame. The table is a function of the rounded
-    /// displacements alone, and a sweep at constant velocity gives the
-    /// same ones frame after frame: then the last table is used again
-    /// (same bits as rebuilding it). False, and nothing built, when the
-    /// path spreads over more than [`MAX_BLUR_SPREAD_PX`] from the
-    /// reference (the caller then places the sharp stamps instant by
-    /// instant): that bounds the table, (side + 32)² floats per phase at
-    /// most, ≈ 11 MB for the paper's camera.
-    fn build_blur(&mut self, path_um: &[[f64; 2]]) -> bool {
-        let Some(shifts) = self.blur_shifts(path_um) else {
-            return false;
-        };
-        if shifts == self.blur_key {
-            return true;
-        }
-        // Set again only once the table is complete.
-        self.blur_key.clear();
-        let q = Q as i64;
-        let lo_hi = |f: fn(&(i64, i64)) -> i64| {
-            let lo = shifts.iter().map(f).min().unwrap_or(0);
-            let hi = shifts.iter().map(f).max().unwrap_or(0);
-            (lo.div_euclid(q), (hi + q - 1).div_euclid(q))
-        };
-        let (col_lo, col_hi) = lo_hi(|s| s.0);
-        let (row_lo, row_hi) = lo_hi(|s| s.1);
-        let cols = self.side + (col_hi - col_lo) as usize;
-        let rows = self.side + (row_hi - row_lo) as usize;
-        let stride = cols.div_ceil(8) * 8;
-        let k = self.k as i64;
-        self.blur_geom = StampGeom {
-            rows,
-            cols,
-            stride,
-            row_off: row_lo - k,
-            col_off: col_lo - k,
-        };
-        let mut blur = std::mem::take(&mut self.blur);
-        // Each stamp is zeroed before it is filled (`BlurFill`).
-        blur.resize(Q * Q * rows * stride, 0.0);
-        let weight = 1.0 / shifts.len() as f32;
-        // Two threads, each filling whole stamps (its own phase rows).
-        let (top, bottom) = blur.split_at_mut(Q / 2 * Q * rows * stride);
-        let this = &*self;
-        let fill = |tables: &mut [f32], b0: usize| {
-            this.arch.dispatch(BlurFill {
-                r: this,
-                shifts: &shifts,
-                origin: (col_lo, row_lo),
-                rows,
-                stride,
-                weight,
-                tables,
-                b0,
-            });
-        };
-        std::thread::scope(|sc| {
-            sc.spawn(|| fill(bottom, Q / 2));
-            fill(top, 0);
-        });
-        self.blur = blur;
-        self.blur_key = shifts;
-        true
-    }
-
-    /// Each instant's displacement of the dots' images from the reference
-    /// instant (the middle one) in whole 1/Q px, (columns, rows): the
-    /// derivative of the dot position of [`FastRenderer::stamp_rows`] with
-    /// respect to the pattern point, times the point's move, rounded.
-    /// `None` when one is beyond [`MAX_BLUR_SPREAD_PX`] (or not finite).
-    fn blur_shifts(&self, path_um: &[[f64; 2]]) -> Option<Vec<(i64, i64)>> {
-        let [xr, yr] = *path_um.get(path_um.len() / 2)?;
-        let s = self.cfg.pixel_um;
-        let (sn, cs) = self.theta_rad.sin_cos();
-        let limit = (MAX_BLUR_SPREAD_PX * Q) as f64;
-        let mut shifts = Vec::with_capacity(path_um.len());
-        for &[x, y] in path_um {
-            let (dx, dy) = (x - xr, y - yr);
-            let du = (-cs * dx + sn * dy) / s * Q as f64;
-            let dv = (-sn * dx - cs * dy) / s * Q as f64;
-            if !(du.abs() <= limit && dv.abs() <= limit) {
-                return None;
-            }
-            shifts.push((du.round() as i64, dv.round() as i64));
-        }
-        Some(shifts)
-    }
-
     /// The frame as the reference two-pass render computes it: all sharp
     /// stamps into a whole-frame accumulator (each image half summed on its
     /// own, instant by instant), then the sensor model over the whole
@@ -433,124 +316,6 @@ impl FastRenderer {
         let mut out16 = vec![0u16; w * h];
         self.finish_rows(&p, &mut acc, &mut out16, 0);
         out16
-    }
-
-    /// Adds the stamps of `table` of the dots seen with `(x_um, y_um)` at
-    /// the image centre to the image rows `row0..` that `band` (whole rows
-    /// of the accumulator) holds.
-    #[inline(always)]
-    fn stamp_rows(&self, band: &mut [f32], row0: usize, x_um: f64, y_um: f64, table: &StampTable) {
-        let (w, h) = (self.cfg.width as i64, self.cfg.height as i64);
-        let band_lo = row0 as i64;
-        let band_hi = band_lo + (band.len() / self.cfg.width) as i64;
-        let p = self.cfg.period_um;
-        let s = self.cfg.pixel_um;
-        let (sn, cs) = self.theta_rad.sin_cos();
-        let (e1, e2) = ((cs, sn), (-sn, cs));
-        let (cxi, cyi) = (w as f64 / 2.0, h as f64 / 2.0);
-        // Pattern bounding box of the band's rows plus the stamp margin:
-        // every dot whose stamp reaches the band, in the frame's dot order.
-        let m = table.geom.reach_px() as f64 + 1.0;
-        let (v_lo, v_hi) = (band_lo as f64 - m, band_hi as f64 + m);
-        let mut cmin = f64::MAX;
-        let mut cmax = f64::MIN;
-        let mut rmin = f64::MAX;
-        let mut rmax = f64::MIN;
-        for (u, v) in [
-            (-m, v_lo),
-            (w as f64 + m, v_lo),
-            (-m, v_hi),
-            (w as f64 + m, v_hi),
-        ] {
-            let du = u - cxi;
-            let dv = v - cyi;
-            let x = x_um + s * (cs * du + sn * dv);
-            let y = y_um + s * (-sn * du + cs * dv);
-            cmin = cmin.min(x / p);
-            cmax = cmax.max(x / p);
-            rmin = rmin.min(y / p);
-            rmax = rmax.max(y / p);
-        }
-        let len = self.seq.len() as f64;
-        let c0 = (cmin - 1.0).floor().max(0.0) as i64;
-        let c1 = (cmax + 1.0).ceil().min(len) as i64;
-        let r0 = (rmin - 1.0).floor().max(0.0) as i64;
-        let r1 = (rmax + 1.0).ceil().min(len) as i64;
-        let StampTable {
-            stamps,
-            geom:
-                StampGeom {
-                    rows,
-                    cols,
-                    stride,
-                    row_off,
-                    col_off,
-                },
-            weight,
-        } = *table;
-        let wu = w as usize;
-        for r in r0..r1 {
-            if !self.seq.line(r) {
-                continue;
-            }
-            let dy = (r as f64 * p - y_um) / s;
-            for c in c0..c1 {
-                if !self.seq.dot(c, r) {
-                    continue;
-                }
-                let dx = (c as f64 * p - x_um) / s;
-                let uc = cxi + e1.0 * dx + e2.0 * dy;
-                let vc = cyi + e1.1 * dx + e2.1 * dy;
-                let mut j0 = floor(uc);
-                let mut a = round_non_negative((uc - j0) * Q as f64) as usize;
-                if a >= Q {
-                    a = 0;
-                    j0 += 1.0;
-                }
-                let mut i0 = floor(vc);
-                let mut b = round_non_negative((vc - i0) * Q as f64) as usize;
-                if b >= Q {
-                    b = 0;
-                    i0 += 1.0;
-                }
-                let (j0, i0) = (j0 as i64 + col_off, i0 as i64 + row_off);
-                if j0 >= w || i0 >= band_hi || j0 + cols as i64 <= 0 || i0 + rows as i64 <= band_lo
-                {
-                    continue;
-                }
-                let ph = (b * Q + a) * rows * stride;
-                let stamp = &stamps[ph..ph + rows * stride];
-                let kx0 = (-j0).max(0) as usize;
-                let kx1 = ((w - j0).min(cols as i64)) as usize;
-                let ky0 = (band_lo - i0).max(0);
-                let ky1 = (band_hi - i0).min(rows as i64);
-                // A stamp whose padded rows fit in the image adds whole
-                // vectors: the padding adds +0.0 · weight = +0.0, which
-                // leaves every sum as it was (the accumulator starts at
-                // +0.0 and is never −0.0), so the bits are those of the
-                // unpadded row.
-                let whole = j0 >= 0 && j0 + stride as i64 <= w;
-                for ky in ky0..ky1 {
-                    let row = (i0 + ky - band_lo) as usize * wu;
-                    let ky = ky as usize;
-                    if whole {
-                        let at = row + j0 as usize;
-                        let dst = &mut band[at..at + stride];
-                        let src = &stamp[ky * stride..(ky + 1) * stride];
-                        for (d, s) in dst.chunks_exact_mut(8).zip(src.chunks_exact(8)) {
-                            add8(d, s, weight);
-                        }
-                        continue;
-                    }
-                    let dst = &mut band
-                        [row + (j0 + kx0 as i64) as usize..row + (j0 + kx1 as i64) as usize];
-                    let src = &stamp[ky * stride + kx0..ky * stride + kx1];
-                    for (d, s) in dst.iter_mut().zip(src) {
-                        *d += s * weight;
-                    }
-                }
-            }
-        }
     }
 
     /// Renders the pattern with `(x_um, y_um)` (pattern frame) at the image
@@ -719,87 +484,6 @@ impl FastRenderer {
         let out16 = self.render_pixels(&[], &p, Placement::PerInstant);
         self.to_frame(out16, timestamp_s, sequence)
     }
-
-    /// The sensor model's constants for one frame and its noise offsets:
-    /// each row reads the noise table from its own random offset, drawn in
-    /// row order (so the frame is a function of the seed alone).
-    fn finish_params(&self, gain: f64, analog_gain: f64, noise_seed: u64) -> FinishParams {
-        let (w, h) = (self.cfg.width, self.cfg.height);
-        let (bg, fg) = if self.cfg.dark_dots {
-            (self.cfg.foreground as f32, self.cfg.background as f32)
-        } else {
-            (self.cfg.background as f32, self.cfg.foreground as f32)
-        };
-        let inv_fw = if self.cfg.full_well_e > 0.0 {
-            (1.0 / self.cfg.full_well_e) as f32
-        } else {
-            0.0
-        };
-        let mut rng = ChaCha8Rng::seed_from_u64(noise_seed);
-        FinishParams {
-            fs: ((1u32 << self.cfg.bit_depth) - 1) as f32,
-            bg,
-            fg,
-            g: gain as f32,
-            ag: analog_gain as f32,
-            inv_fw,
-            rn2: (self.cfg.read_noise * self.cfg.read_noise) as f32,
-            offsets: (0..h)
-                .map(|_| rng.gen_range(0..NOISE_LEN.saturating_sub(w).max(1)))
-                .collect(),
-        }
-    }
-
-    /// Shades, adds noise to and quantises the image rows `row0..` whose
-    /// accumulated stamps `acc` holds (whole rows) into `out`, and zeroes
-    /// each row of `acc` once read. Row by row over equal-length slices,
-    /// written in place: the loop body is branch-free, so its arithmetic
-    /// compiles to vector code.
-    #[inline(always)]
-    fn finish_rows(&self, p: &FinishParams, acc: &mut [f32], out: &mut [u16], row0: usize) {
-        let w = self.cfg.width;
-        let (shade, noise) = (&self.shade, &self.noise);
-        let FinishParams {
-            fs,
-            bg,
-            fg,
-            g,
-            ag,
-            inv_fw,
-            rn2,
-            ..
-        } = *p;
-        for (k, (out, acc)) in out
-            .chunks_exact_mut(w)
-            .zip(acc.chunks_exact_mut(w))
-            .enumerate()
-        {
-            let i = row0 + k;
-            let shade = &shade[i * w..(i + 1) * w];
-            let off = p.offsets[i];
-            let noise_row = &noise[off..(off + w).min(NOISE_LEN)];
-            for (((o, &c), &sh), &n) in out.iter_mut().zip(&*acc).zip(shade).zip(noise_row) {
-                let v = (bg + (fg - bg) * c) * sh * g;
-                let var = v.max(0.0) * inv_fw + rn2;
-                let v = ag * (v + n * var.sqrt());
-                *o = quantize((v * fs).max(0.0).min(fs));
-            }
-            acc.fill(0.0);
-        }
-    }
-
-    /// The frame of quantised pixels `out16` (narrowed to bytes for depths
-    /// up to 8 bits).
-    fn to_frame(&self, out16: Vec<u16>, timestamp_s: f64, sequence: u64) -> Result<Frame, String> {
-        let (w, h) = (self.cfg.width, self.cfg.height);
-        let pixels = if self.cfg.bit_depth <= 8 {
-            Pixels::U8(out16.iter().map(|&v| v as u8).collect())
-        } else {
-            Pixels::U16(out16)
-        };
-        Frame::new(w, h, self.cfg.bit_depth, pixels, timestamp_s, sequence)
-            .map_err(|e| e.to_string())
-    }
 }
 
 /// One image half of [`FastRenderer::render_pixels`], band by band, as a
@@ -841,42 +525,6 @@ impl pulp::WithSimd for Half<'_> {
     }
 }
 
-/// A table of dot stamps, one per sub-pixel phase (Q × Q) of a dot's
-/// position, and where a stamp lies relative to the dot's pixel.
-#[derive(Debug, Clone, Copy)]
-struct StampTable<'a> {
-    stamps: &'a [f32],
-    geom: StampGeom,
-    /// Factor on every stamp value.
-    weight: f32,
-}
-
-/// The shape of the stamps of a [`StampTable`] (the sharp ones, or the
-/// blurred ones of `FastRenderer::blur`).
-#[derive(Debug, Clone, Copy, Default)]
-struct StampGeom {
-    /// Rows and columns of a stamp, and the length of its rows in the
-    /// table (whole vectors of 8, padded with +0.0).
-    rows: usize,
-    cols: usize,
-    stride: usize,
-    /// The stamp's first row and column relative to the dot's pixel.
-    row_off: i64,
-    col_off: i64,
-}
-
-impl StampGeom {
-    /// How far from a dot's pixel its stamp's farthest pixel lies, px: `k`
-    /// for the sharp stamps, so a still frame visits the dots it always
-    /// did.
-    fn reach_px(&self) -> i64 {
-        (-self.row_off)
-            .max(-self.col_off)
-            .max(self.rows as i64 - 1 + self.row_off)
-            .max(self.cols as i64 - 1 + self.col_off)
-    }
-}
-
 /// How [`FastRenderer::render_pixels`] places the dots of several instants.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum Placement {
@@ -884,141 +532,6 @@ enum Placement {
     Blurred,
     /// Once per instant, with the sharp stamps.
     PerInstant,
-}
-
-/// Fills the blurred stamps of the phases with rows `b0..` (whole phase
-/// rows of Q stamps) in `tables`, as a `pulp` operation (see [`Half`]):
-/// for each phase (a, b) at the reference instant and each instant in
-/// time order, the sharp stamp of the phase the instant's shift leads to,
-/// times the instant's weight, added at the whole pixels it leads to.
-struct BlurFill<'a> {
-    r: &'a FastRenderer,
-    /// Each instant's shift from the reference instant, 1/Q px.
-    shifts: &'a [(i64, i64)],
-    /// The blurred stamp's first column and row, whole px from the sharp
-    /// stamp's at the reference instant.
-    origin: (i64, i64),
-    /// Rows of a blurred stamp and the length of its rows.
-    rows: usize,
-    stride: usize,
-    weight: f32,
-    tables: &'a mut [f32],
-    b0: usize,
-}
-
-impl pulp::WithSimd for BlurFill<'_> {
-    type Output = ();
-
-    #[inline(always)]
-    fn with_simd<S: pulp::Simd>(self, _: S) {
-        let q = Q as i64;
-        let (side, src_stride) = (self.r.side, self.r.stride);
-        for (i, table) in self
-            .tables
-            .chunks_exact_mut(self.rows * self.stride)
-            .enumerate()
-        {
-            // Zeroed here, in cache, rather than the whole table up front.
-            table.fill(0.0);
-            let (a, b) = ((i % Q) as i64, (self.b0 + i / Q) as i64);
-            for &(sx, sy) in self.shifts {
-                let (ta, tb) = (a + sx, b + sy);
-                let col = (ta.div_euclid(q) - self.origin.0) as usize;
-                let row = (tb.div_euclid(q) - self.origin.1) as usize;
-                let ph =
-                    (tb.rem_euclid(q) as usize * Q + ta.rem_euclid(q) as usize) * side * src_stride;
-                let src = &self.r.stamps[ph..ph + side * src_stride];
-                for ky in 0..side {
-                    let at = (row + ky) * self.stride + col;
-                    let d = &mut table[at..at + side];
-                    let s = &src[ky * src_stride..ky * src_stride + side];
-                    let mut d8 = d.chunks_exact_mut(8);
-                    let mut s8 = s.chunks_exact(8);
-                    for (d, s) in (&mut d8).zip(&mut s8) {
-                        add8(d, s, self.weight);
-                    }
-                    for (d, s) in d8.into_remainder().iter_mut().zip(s8.remainder()) {
-                        *d += s * self.weight;
-                    }
-                }
-            }
-        }
-    }
-}
-
-/// The sensor model's constants for one frame (see
-/// [`FastRenderer::finish_params`]).
-#[derive(Debug, Clone)]
-struct FinishParams {
-    /// Full scale, ADC codes.
-    fs: f32,
-    /// Background and dot levels, fractions of full scale.
-    bg: f32,
-    fg: f32,
-    /// Illumination × exposure, and analog gain.
-    g: f32,
-    ag: f32,
-    /// 1 / full well, and read noise², in the model's units.
-    inv_fw: f32,
-    rn2: f32,
-    /// Per row: the start of its noise in the Gaussian table.
-    offsets: Vec<usize>,
-}
-
-/// `d += s · weight` over eight lanes: both read into registers before
-/// the store, so the compiler need not prove that `d` and `s` do not
-/// overlap and emits one vector multiply and add (a plain loop over the
-/// two slices stayed scalar).
-#[inline(always)]
-fn add8(d: &mut [f32], s: &[f32], weight: f32) {
-    let (Ok(dv), Ok(sv)) = (<[f32; 8]>::try_from(&*d), <[f32; 8]>::try_from(s)) else {
-        return;
-    };
-    let mut out = [0f32; 8];
-    for ((o, a), b) in out.iter_mut().zip(dv).zip(sv) {
-        *o = a + b * weight;
-    }
-    d.copy_from_slice(&out);
-}
-
-/// `x.floor()`, exactly, for |x| < 2⁶³ (a dot's image position). Why not
-/// `f64::floor`: the baseline x86-64 target has no rounding instruction,
-/// so that is a libm call, two per dot and instant of every frame.
-#[inline(always)]
-fn floor(x: f64) -> f64 {
-    let t = x as i64 as f64;
-    if t > x {
-        t - 1.0
-    } else {
-        t
-    }
-}
-
-/// `x.round()` (half away from zero), exactly, for 0 ≤ x < 2⁶³: the
-/// fractional part `x − trunc(x)` of a float is exact. Same reason as
-/// [`floor`].
-#[inline(always)]
-fn round_non_negative(x: f64) -> f64 {
-    let t = x as i64 as f64;
-    if x - t >= 0.5 {
-        t + 1.0
-    } else {
-        t
-    }
-}
-
-/// 2²³ as f32: adding it to a value in [0, 2²³) leaves that value rounded
-/// to an integer (ties to even) in the low mantissa bits.
-const ROUND_MAGIC: f32 = 8_388_608.0;
-
-/// `x` (in 0..=65535, not NaN) rounded to the nearest integer, ties to even,
-/// as the ADC's code. Why not `x.round() as u16`: Rust's float-to-int
-/// casts must saturate and map NaN to 0, which keeps LLVM from vectorizing
-/// the loop; this is two vector instructions and the pixel loop is the
-/// simulated camera's largest cost.
-#[inline(always)]
-fn quantize(x: f32) -> u16 {
-    ((x + ROUND_MAGIC).to_bits() - ROUND_MAGIC.to_bits()) as u16
 }
 
 #[cfg(test)]

@@ -14,7 +14,8 @@ use super::family::Family;
 use super::fit::{fold_base, paired_z, rms_comp, Verdict};
 use super::ident;
 use super::judge::{judge, passes_test, rejudge, with_findings, Accepted};
-use super::search::{self, columns, refine_localized, refine_period, search, Spec};
+use super::refine::{refine_localized, refine_period};
+use super::search::{self, columns, search, Spec};
 use super::tables;
 use super::DiagnoseOptions;
 

@@ -8,7 +8,8 @@ use super::fit::{
     base_share, fit_with, fold_base, keep_heldout, paired_z, rms_comp, unjudged, Verdict,
 };
 use super::options::DiagnoseOptions;
-use super::search::{columns, refine_period_on_fold, search, Spec};
+use super::refine::refine_period_on_fold;
+use super::search::{columns, search, Spec};
 use super::{data, readings, tables};
 use crate::model::StageModel;
 

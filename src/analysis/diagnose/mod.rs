@@ -155,10 +155,13 @@ mod ident;
 mod iso_figures;
 mod judge;
 mod lead;
+mod log_columns;
 mod map_term;
 mod noise;
 mod options;
 mod readings;
+mod refine;
+mod replicates;
 mod report;
 mod search;
 mod tables;
@@ -177,7 +180,6 @@ use super::AnalysisError;
 use base::{aliased_period, unresolved, LONGEST_PERIOD_SPANS};
 use base::{select_base_params, Base};
 pub use corrections::{ParamCorrection, SIGNIFICANT_SIGMAS};
-pub use data::{parse_approach, APPROACH_COLUMN, MEASURED_AXES_KEY};
 use data::{FoldScheme, MeasuredSource};
 use extend::extended;
 pub use finding::{Finding, Withdrawn};
@@ -186,6 +188,7 @@ use greedy::Greedy;
 pub use ident::Unidentifiable;
 use judge::Accepted;
 pub use lead::{LeadCheck, LeadTest, LeadVerdict};
+pub use log_columns::{parse_approach, APPROACH_COLUMN, MEASURED_AXES_KEY};
 pub use map_term::{MapComponent, MapFold, MapTermReport};
 pub use noise::{ComponentNoise, IsoFigures, NoiseReport, Outlier, Sampling, TargetRepeat};
 pub use options::DiagnoseOptions;
@@ -404,7 +407,7 @@ pub fn diagnose(
     } else {
         log
     };
-    let (measured, _) = data::measured_axes(log)?;
+    let (measured, _) = log_columns::measured_axes(log)?;
     let grid = grid::report_of(&log.records, measured, opts.z_threshold, opts.min_gain_pct);
     let turned;
     let log = match &grid {
@@ -897,7 +900,7 @@ fn note_short_periods(parameters: &mut [ParamCorrection], d: &data::Data, model:
 }
 
 /// Steps 1 and 3: the log replayed into [`data::Data`] ([`data::prepare`]),
-/// the replicates' outliers ([`noise::outlier_rows`]) left out of the fit
+/// the replicates' outliers ([`replicates::outlier_rows`]) left out of the fit
 /// and of the judging, and the residual centred. Why here: the outliers are
 /// read from the replicates, on the rows `data` builds.
 #[cfg(test)]
@@ -919,7 +922,7 @@ fn prepare_with(
     let mut d = data::prepare(log, model, max_folds, scheme)?;
     let measured = d.measured;
     for c in Axis::ALL.into_iter().filter(|c| measured[c.index()]) {
-        for i in noise::outlier_rows(log, &d, c) {
+        for i in replicates::outlier_rows(log, &d, c) {
             d.excluded[i] = true;
             d.judged[i] = false;
         }

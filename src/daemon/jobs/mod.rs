@@ -7,12 +7,9 @@
 //! every case: each point is appended and flushed before the next move.
 
 pub mod approach;
-pub mod plan;
 pub mod record;
 mod scan;
 mod spawn;
-pub mod sweep;
-pub mod sweep_anchor;
 pub mod sweep_job;
 pub mod sweep_recorder;
 pub mod tables;
@@ -37,10 +34,11 @@ use super::protocol::{
 use super::rig::Rig;
 use crate::analysis::drift::DRIFT_REF_SEGMENT;
 use crate::charact::log::{self, LogWriter, Metadata};
+use crate::charact::plan::{self, DriftPlan, ScanPlan};
+use crate::charact::sweep::{self, anchor};
 use crate::comp::VisionFrame;
 use crate::model::XyUm;
 use approach::ApproachTracker;
-use plan::{DriftPlan, ScanPlan};
 use serde_json::Value;
 use std::fs::File;
 use std::path::PathBuf;
@@ -224,7 +222,7 @@ impl Jobs {
                 .unwrap_or(DEFAULT_SWEEP_VELOCITY_UM_PER_S),
             anchor_spacing_um: p
                 .anchor_spacing_um
-                .unwrap_or(sweep_anchor::DEFAULT_ANCHOR_SPACING_UM),
+                .unwrap_or(anchor::DEFAULT_ANCHOR_SPACING_UM),
         };
         sweep
             .validate()

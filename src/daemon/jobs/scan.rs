@@ -21,10 +21,10 @@
 //! up, and the record says how each point was reached (`approach`).
 
 use super::approach::ApproachTracker;
-use super::plan::{self, DriftPlan, ScanPlan};
 use super::record::{append_record, lock, measured_columns, Progress};
 use super::{measure_reference, move_raw, scan_approach, scan_line, RefContext};
 use crate::charact::log::{LogWriter, Record};
+use crate::charact::plan::{self, DriftPlan, ScanPlan};
 use crate::comp::VisionFrame;
 use crate::daemon::protocol::{ErrorCode, JobState, ProtoError, Topic};
 use crate::daemon::rig::measure::{self, Exposed};

@@ -6,11 +6,11 @@
 //! [`POS_SAMPLE_PERIOD`] of rig time; the log's metadata says which) and
 //! collects every decoded frame until the axis arrives; at the end estimates the camera
 //! delay and writes the log resampled onto the step grid
-//! (`jobs::sweep` has the method).
+//! (`charact::sweep` has the method).
 //!
 //! After the two passes of each cycle on an axis (when `anchor_spacing_um`
 //! is positive), the job stops at that axis's static anchors, forward then backward,
-//! each reached as the step plan reaches its points (`jobs::sweep_anchor`):
+//! each reached as the step plan reaches its points (`charact::sweep::anchor`):
 //! the records are corrected by the anchors' offset curves, so that they
 //! describe the stage in the step plan's motion state.
 //!
@@ -27,22 +27,25 @@
 
 mod output;
 
-use super::plan::DriftPlan;
-use super::sweep::{
-    estimate_delay, frames_at, resample, DelayEstimate, PassData, PassSpec, PosSample, SweepFrame,
-    SweepPlan,
-};
-use super::sweep_anchor::{anchor_correction, anchor_route, AnchorCorrection, AnchorMeas};
 use super::sweep_recorder::{merge, Chunk, CHUNK_S, POLL_WITH_RECORDER, RECORD_RATE, RECORD_TABLE};
 use super::{
     clamp_to_travel, drift_ref_record, lock, measure_retrying, move_raw_retrying, tie, Progress,
     PARK_APPROACH_UM,
 };
 use crate::charact::log::{self, Columns, Metadata, Record, SyncPolicy};
+use crate::charact::plan::DriftPlan;
 use crate::charact::scan::SEGMENTS_SWEEP_ANCHOR;
+use crate::charact::sweep::anchor::{
+    anchor_correction, anchor_route, AnchorCorrection, AnchorMeas,
+};
+use crate::charact::sweep::{
+    estimate_delay, frames_at, resample, DelayEstimate, PassData, PassSpec, PosSample, SweepFrame,
+    SweepPlan,
+};
 use crate::comp::VisionFrame;
 use crate::daemon::protocol::{ErrorCode, JobState, MoveRequest, ProtoError, Topic};
 use crate::daemon::rig::{driver_error, Rig};
+use crate::daemon::vision::Measurement;
 use crate::driver::Axis;
 use crate::model::XyUm;
 use output::{anchor_json, records, result_json, sweep_metadata, RecordContext};
@@ -418,7 +421,7 @@ struct AnchorGroup {
     hold_um: f64,
 }
 
-/// Runs one group's route (`sweep_anchor::anchor_route`): every stop a raw
+/// Runs one group's route (`charact::sweep::anchor::anchor_route`): every stop a raw
 /// move of the swept axis (the held one stays), at each anchor the step
 /// job's settle and frames. `Ok(None)` if a stop or fault moved the stop
 /// generation past `gen`.
@@ -585,11 +588,9 @@ async fn one_pass(
 
 /// Sends the move to `target_um` and samples positions and frames until
 /// the axis is there; positions from the data recorder when `recorder`
-/// (`jobs::sweep_recorder`), else from `POS?` alone.
-#[expect(
-    clippy::too_many_lines,
-    reason = "one pass: move, record, decode and resample as one timed sequence; to be split"
-)]
+/// (`jobs::sweep_recorder`), else from `POS?` alone. The frames are
+/// collected ([`collect_frames`]) while the positions are sampled
+/// ([`PassIo::sample`]); the pass ends when the axis is on target.
 async fn sweep(
     rig: &Arc<Rig>,
     axis: &Axis,
@@ -619,87 +620,159 @@ async fn sweep(
     req.wait = false;
     let gen = rig.stop_generation();
     let frames: Mutex<Vec<SweepFrame>> = Mutex::new(Vec::new());
-    let collect = async {
-        let mut last = None;
-        while rx.changed().await.is_ok() {
-            let m = *rx.borrow_and_update();
-            let Some(m) = m else { continue };
-            if Some(m.sequence) == last || m.quality < min_quality {
-                continue;
-            }
-            last = Some(m.sequence);
-            lock(&frames).push(SweepFrame {
-                t_s: m.frame_t_s,
-                meas: frame.to_stage(XyUm {
-                    x_um: m.x_um,
-                    y_um: m.y_um,
-                }),
-                quality: m.quality,
-            });
-        }
-    };
+    let collect = collect_frames(&mut rx, frame, min_quality, &frames);
     let deadline_s =
         rig.clock.now_s() + (target_um - start_um).abs() / spec.velocity_um_per_s + 10.0;
-    let reconnected = || {
-        ProtoError::new(
-            ErrorCode::NotConnected,
-            "the line reconnected during a sweep; its positions are not trusted",
-        )
-        .into_transient()
+    let io = PassIo {
+        rig,
+        axis,
+        epoch,
+        recorder,
     };
-    // Starts the table now; the exchange's rig-time bracket.
-    let trigger = || async {
-        let a = rig.clock.now_s();
-        let e = axis
+    let sample = io.sample(&req, target_um, gen, deadline_s);
+    let (polls, chunks) = tokio::select! {
+        r = sample => r?,
+        () = collect => {
+            return Err(ProtoError::new(ErrorCode::CameraUnavailable, "the camera pipeline ended"));
+        }
+    };
+    axis.wait_on_target(None).await.map_err(driver_error)?;
+    axis.position_um().await.map_err(driver_error)?;
+    if axis.epoch() != epoch {
+        return Err(reconnected());
+    }
+    let frames = frames.into_inner().unwrap_or_else(|p| p.into_inner());
+    let samples = if recorder {
+        for c in &chunks {
+            recorded.records += c.positions_um.len();
+            recorded.sample_time_s = c.sample_time_s;
+        }
+        merge(&chunks, &polls)
+    } else {
+        polls
+    };
+    Ok(PassData {
+        spec: *spec,
+        samples,
+        frames,
+    })
+}
+
+/// The refusal of a pass whose line reconnected: its positions may come
+/// from two connections (transient: the pass can be run again).
+fn reconnected() -> ProtoError {
+    ProtoError::new(
+        ErrorCode::NotConnected,
+        "the line reconnected during a sweep; its positions are not trusted",
+    )
+    .into_transient()
+}
+
+/// Every new, good enough measurement `rx` publishes, as a frame of the
+/// pass in stage coordinates, into `frames`; returns only when the camera
+/// pipeline ends.
+async fn collect_frames(
+    rx: &mut watch::Receiver<Option<Measurement>>,
+    frame: &VisionFrame,
+    min_quality: f64,
+    frames: &Mutex<Vec<SweepFrame>>,
+) {
+    let mut last = None;
+    while rx.changed().await.is_ok() {
+        let m = *rx.borrow_and_update();
+        let Some(m) = m else { continue };
+        if Some(m.sequence) == last || m.quality < min_quality {
+            continue;
+        }
+        last = Some(m.sequence);
+        lock(frames).push(SweepFrame {
+            t_s: m.frame_t_s,
+            meas: frame.to_stage(XyUm {
+                x_um: m.x_um,
+                y_um: m.y_um,
+            }),
+            quality: m.quality,
+        });
+    }
+}
+
+/// The position sampling of one pass: the swept axis on its connection
+/// `epoch`, and whether the data recorder supplies the positions.
+struct PassIo<'a> {
+    rig: &'a Arc<Rig>,
+    axis: &'a Axis,
+    /// The connection the pass started on: samples of another are refused.
+    epoch: u64,
+    recorder: bool,
+}
+
+impl PassIo<'_> {
+    /// Starts the table now; the exchange's rig-time bracket.
+    async fn trigger(&self) -> Result<(f64, f64), ProtoError> {
+        let a = self.rig.clock.now_s();
+        let e = self
+            .axis
             .trigger_recorder(RECORD_TABLE)
             .await
             .map_err(driver_error)?;
-        if e != epoch {
+        if e != self.epoch {
             return Err(reconnected());
         }
-        Ok::<_, ProtoError>((a, rig.clock.now_s()))
-    };
-    // Reads what the table holds since `trigger_s`.
-    let read_chunk = |trigger_s: (f64, f64)| async move {
-        let (n, e) = axis
+        Ok((a, self.rig.clock.now_s()))
+    }
+
+    /// Reads what the table holds since `trigger_s`.
+    async fn read_chunk(&self, trigger_s: (f64, f64)) -> Result<Chunk, ProtoError> {
+        let (n, e) = self
+            .axis
             .recorded_points(RECORD_TABLE)
             .await
             .map_err(driver_error)?;
-        if e != epoch {
+        if e != self.epoch {
             return Err(reconnected());
         }
-        let r = axis
+        let r = self
+            .axis
             .read_records(RECORD_TABLE, 1, n)
             .await
             .map_err(driver_error)?;
-        if r.epoch != epoch {
+        if r.epoch != self.epoch {
             return Err(reconnected());
         }
-        Ok::<_, ProtoError>(Chunk {
+        Ok(Chunk {
             trigger_s,
             sample_time_s: r.sample_time_s,
             positions_um: r.positions_um,
         })
-    };
-    let sample = async {
+    }
+
+    /// Sends the move `req` and samples `POS?` (and, with the recorder,
+    /// reads the table every [`CHUNK_S`]) until the axis is at `target_um`;
+    /// a stop (the stop generation moved from `gen`) or `deadline_s` ends
+    /// it with an error. Returns the polled samples and the recorder's
+    /// chunks.
+    async fn sample(
+        &self,
+        req: &MoveRequest,
+        target_um: f64,
+        gen: u64,
+        deadline_s: f64,
+    ) -> Result<(Vec<PosSample>, Vec<Chunk>), ProtoError> {
+        let (rig, axis) = (self.rig, self.axis);
         let mut chunks: Vec<Chunk> = Vec::new();
-        let mut armed = if recorder {
-            Some(trigger().await?)
+        let mut armed = if self.recorder {
+            Some(self.trigger().await?)
         } else {
             None
         };
-        rig.raw_move(&req, true, true).await?;
+        rig.raw_move(req, true, true).await?;
         let mut samples: Vec<PosSample> = Vec::new();
         loop {
             let t0 = rig.clock.now_s();
             let (pos_um, e) = axis.position_sample_um().await.map_err(driver_error)?;
             let t1 = rig.clock.now_s();
-            if e != epoch {
-                return Err(ProtoError::new(
-                    ErrorCode::NotConnected,
-                    "the line reconnected during a sweep; its positions are not trusted",
-                )
-                .into_transient());
+            if e != self.epoch {
+                return Err(reconnected());
             }
             samples.push(PosSample {
                 t_s: (t0 + t1) / 2.0,
@@ -708,11 +781,11 @@ async fn sweep(
             let arrived = (pos_um - target_um).abs() < 0.01;
             if let Some(trig) = armed {
                 if arrived || rig.clock.now_s() - trig.0 >= CHUNK_S {
-                    chunks.push(read_chunk(trig).await?);
+                    chunks.push(self.read_chunk(trig).await?);
                     armed = if arrived {
                         None
                     } else {
-                        Some(trigger().await?)
+                        Some(self.trigger().await?)
                     };
                 }
             }
@@ -732,7 +805,7 @@ async fn sweep(
                 ));
             }
             rig.clock
-                .sleep(if recorder {
+                .sleep(if self.recorder {
                     POLL_WITH_RECORDER
                 } else {
                     POS_SAMPLE_PERIOD
@@ -740,35 +813,5 @@ async fn sweep(
                 .await;
         }
         Ok((samples, chunks))
-    };
-    let (polls, chunks) = tokio::select! {
-        r = sample => r?,
-        () = collect => {
-            return Err(ProtoError::new(ErrorCode::CameraUnavailable, "the camera pipeline ended"));
-        }
-    };
-    axis.wait_on_target(None).await.map_err(driver_error)?;
-    axis.position_um().await.map_err(driver_error)?;
-    if axis.epoch() != epoch {
-        return Err(ProtoError::new(
-            ErrorCode::NotConnected,
-            "the line reconnected during a sweep; its positions are not trusted",
-        )
-        .into_transient());
     }
-    let frames = frames.into_inner().unwrap_or_else(|p| p.into_inner());
-    let samples = if recorder {
-        for c in &chunks {
-            recorded.records += c.positions_um.len();
-            recorded.sample_time_s = c.sample_time_s;
-        }
-        merge(&chunks, &polls)
-    } else {
-        polls
-    };
-    Ok(PassData {
-        spec: *spec,
-        samples,
-        frames,
-    })
 }

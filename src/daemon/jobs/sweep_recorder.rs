@@ -17,7 +17,7 @@
 //! samples; at rest a chunk carries no timing information and keeps the
 //! exchange's midpoint, where a time error moves nothing.
 
-use super::sweep::PosSample;
+use crate::charact::sweep::PosSample;
 use std::time::Duration;
 
 /// Servo cycles per record (`RTR`): 1 ms on a C-863 (50 µs cycle).

@@ -10,7 +10,7 @@
 //! reply carries the result.
 //!
 //! The daemon's scan log names its passes `scan_x_fwd`, `scan_x_bwd`, …
-//! (see [`super::plan`]); the builders read one segment per axis with the
+//! (see [`crate::charact::plan`]); the builders read one segment per axis with the
 //! direction inferred from the command order. So the passes are merged
 //! back into `scan_x` / `scan_y` in log order, and a record whose command
 //! equals the previous one (the turn point of a pass, measured twice without

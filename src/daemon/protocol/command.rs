@@ -121,10 +121,10 @@ pub struct CharacterizeParams {
     pub unanchored_log: Option<String>,
     /// Sweep: spacing of the static anchors, µm (rounded to a multiple of
     /// the step; 0 = none; default
-    /// `daemon::jobs::sweep_anchor::DEFAULT_ANCHOR_SPACING_UM`).
+    /// `charact::sweep::anchor::DEFAULT_ANCHOR_SPACING_UM`).
     pub anchor_spacing_um: Option<f64>,
     /// Step mode: moves of varied length per cycle after the scans
-    /// (`daemon::jobs::plan::ScanPlan::moves_per_cycle`); default 0.
+    /// (`charact::plan::ScanPlan::moves_per_cycle`); default 0.
     pub moves_per_cycle: Option<u32>,
     /// What is measured: the paper's scan lines (default) or a grid over
     /// the whole area.
@@ -184,7 +184,7 @@ pub enum CharacterizeMode {
     #[default]
     Step,
     /// Constant-velocity sweeps, every frame decoded and timestamped,
-    /// resampled onto the step grid (`daemon::jobs::sweep`).
+    /// resampled onto the step grid (`charact::sweep`).
     Sweep,
 }
 

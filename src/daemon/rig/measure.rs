@@ -9,9 +9,8 @@ use serde_json::Value;
 use std::sync::Arc;
 use std::time::Duration;
 
-/// Distance below the first point from which the held axis is parked, µm
-/// (10× the M-111's 2 µm backlash, as `charact::scan`'s approach).
-pub const PARK_APPROACH_UM: f64 = 20.0;
+/// The park approach, µm (defined with the scan plan's geometry).
+pub use crate::charact::scan::PARK_APPROACH_UM;
 
 /// Waits for `n` fresh, good measurements and averages them. Fresh: the
 /// grab was requested at or after `after_s` (so the frame was exposed after

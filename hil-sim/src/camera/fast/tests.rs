@@ -1,3 +1,5 @@
+use super::sensor::quantize;
+use super::stamp::{floor, round_non_negative};
 use super::*;
 
 #[test]

@@ -5,7 +5,7 @@
 
 use super::super::fit::{paired_z, rms_comp};
 use super::super::options::DiagnoseOptions;
-use super::super::search::golden_max;
+use super::super::refine::golden_max;
 use crate::analysis::AnalysisError;
 
 use super::scan::Scan;

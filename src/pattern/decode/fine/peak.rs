@@ -59,11 +59,12 @@ impl FineStage {
     }
 
     /// Cold peak search: approximate wave vectors (rad/px) of the two grid
-    /// directions, with k_a × k_b > 0.
-    #[expect(
-        clippy::too_many_lines,
-        reason = "the peak search's refinement loop; to be split"
-    )]
+    /// directions, with k_a × k_b > 0. The steps: the block's power
+    /// spectrum ([`FineStage::power_spectrum`]), the strongest peak in the
+    /// admissible annulus ([`FineStage::strongest_peak`]), the fundamental
+    /// it implies ([`FineStage::fundamental`]), and its perpendicular
+    /// partner ([`FineStage::perpendicular_peak`], or the diagonal reading,
+    /// [`FineStage::diagonal_reading`]).
     pub(crate) fn peak_search(
         &mut self,
         frame: &Frame,
@@ -80,6 +81,51 @@ impl FineStage {
             });
         }
         let n = 1usize << (usize::BITS - 1 - m.leading_zeros());
+        self.power_spectrum(frame, n)?;
+        let fmin = (n as f64 / max_period_px).max(2.0);
+        let fmax = (n as f64 / min_period_px).min(n as f64 / 2.0 - 1.0);
+        if fmin >= fmax {
+            return Err(DecodeError::NoGrid(format!(
+                "no admissible period range: {min_period_px:.2}..{max_period_px:.2} px in a {n} px block"
+            )));
+        }
+        let (best, mean_p) = self.strongest_peak(n, fmin, fmax);
+        if best.0 <= 0.0 || f64::from(best.0) < 20.0 * mean_p {
+            return Err(DecodeError::NoGrid(format!(
+                "no spectral peak stands out (peak/mean power {:.1}, need 20)",
+                f64::from(best.0) / mean_p.max(f64::MIN_POSITIVE)
+            )));
+        }
+        let ka0 = self.refine_peak(best.1, best.2, n);
+        let fmax_abs = n as f64 / 2.0 - 1.0;
+        self.lattice_hypotheses(ka0, fmin, fmax.min(fmax_abs), mean_p, n);
+        let ka = self.fundamental(ka0, best.0, fmax, n);
+        let best2 = self.perpendicular_peak(ka, n);
+        let one_direction = f64::from(best2.0) < 10.0 * mean_p || best2.0 < 0.05 * best.0;
+        let [ka, kb] = if !one_direction {
+            [ka, self.refine_peak(best2.1, best2.2, n)]
+        } else {
+            self.diagonal_reading(ka0, fmin, fmax, mean_p, n)?
+        };
+        for (d, kd) in [ka, kb].into_iter().enumerate() {
+            self.blob_var[d] = self.blob_variance(kd, n);
+        }
+        let s = std::f64::consts::TAU / n as f64;
+        let a = [ka.0 * s, ka.1 * s];
+        let mut b = [kb.0 * s, kb.1 * s];
+        if a[0] * b[1] - a[1] * b[0] < 0.0 {
+            b = [-b[0], -b[1]];
+        }
+        Ok([a, b])
+    }
+
+    /// The power spectrum of the frame's central `n` × `n` block into
+    /// `self.power` (row-major, `n / 2 + 1` columns): cropped (only the
+    /// block's pixels are converted), the mean removed, Hann-windowed, a
+    /// 2-D real FFT.
+    fn power_spectrum(&mut self, frame: &Frame, n: usize) -> Result<(), DecodeError> {
+        let w = frame.width();
+        let h = frame.height();
         self.prepare_fft(n);
         let (Some(r2c), Some(c2c)) = (self.r2c.clone(), self.c2c.clone()) else {
             return Err(DecodeError::NoGrid("FFT plan unavailable".into()));
@@ -134,29 +180,20 @@ impl FineStage {
             *p = v.norm_sqr();
         }
         transpose::transpose(&self.power_t, &mut self.power, n, nc);
-        let fmin = (n as f64 / max_period_px).max(2.0);
-        let fmax = (n as f64 / min_period_px).min(n as f64 / 2.0 - 1.0);
-        if fmin >= fmax {
-            return Err(DecodeError::NoGrid(format!(
-                "no admissible period range: {min_period_px:.2}..{max_period_px:.2} px in a {n} px block"
-            )));
-        }
-        let freq = |fy: usize, fx: usize| -> (f64, f64) {
-            let y = if fy > n / 2 {
-                fy as f64 - n as f64
-            } else {
-                fy as f64
-            };
-            (fx as f64, y)
-        };
-        // Strongest peak in the annulus (squared radii, and per row only the
-        // columns the annulus can reach).
+        Ok(())
+    }
+
+    /// The strongest peak (power, fy, fx) in the annulus `fmin..=fmax`
+    /// (cycles per block; squared radii, and per row only the columns the
+    /// annulus can reach), and the annulus's mean power.
+    fn strongest_peak(&self, n: usize, fmin: f64, fmax: f64) -> ((f32, usize, usize), f64) {
+        let nc = n / 2 + 1;
         let mut best = (0.0f32, 0usize, 0usize);
         let mut acc = 0.0f64;
         let mut cnt = 0usize;
         let (r2min, r2max) = (fmin * fmin, fmax * fmax);
         for fy in 0..n {
-            let (_, y) = freq(fy, 0);
+            let y = signed_freq(fy, n);
             if y.abs() > fmax {
                 continue;
             }
@@ -175,45 +212,48 @@ impl FineStage {
                 }
             }
         }
-        let mean_p = acc / cnt.max(1) as f64;
-        if best.0 <= 0.0 || f64::from(best.0) < 20.0 * mean_p {
-            return Err(DecodeError::NoGrid(format!(
-                "no spectral peak stands out (peak/mean power {:.1}, need 20)",
-                f64::from(best.0) / mean_p.max(f64::MIN_POSITIVE)
-            )));
-        }
-        // The pattern's 3-period structure (empty crossings, code lines)
-        // puts peaks at k/3 and 2k/3 too; under heavy blur at short periods
-        // one of them can outshine the fundamental k. If the strongest peak f
-        // is k/3, then 3f (= k) and 2f (= 2k/3) are strong peaks; if f is k,
-        // they are its 3rd and 2nd harmonics, which the dot shape, pixel
-        // integration and blur keep below ~9 % and ~5 % of its power (a
-        // 50 %-fill square dot, unblurred, is the worst case). Likewise for
-        // f = 2k/3: 1.5f (= k) and 0.5f (= k/3) are peaks, while 1.5k and
-        // k/2 are not peaks of the pattern at all.
-        let ka0 = self.refine_peak(best.1, best.2, n);
+        (best, acc / cnt.max(1) as f64)
+    }
+
+    /// The fundamental k the strongest peak `ka0` (power `pbest`) implies.
+    ///
+    /// The pattern's 3-period structure (empty crossings, code lines)
+    /// puts peaks at k/3 and 2k/3 too; under heavy blur at short periods
+    /// one of them can outshine the fundamental k. If the strongest peak f
+    /// is k/3, then 3f (= k) and 2f (= 2k/3) are strong peaks; if f is k,
+    /// they are its 3rd and 2nd harmonics, which the dot shape, pixel
+    /// integration and blur keep below ~9 % and ~5 % of its power (a
+    /// 50 %-fill square dot, unblurred, is the worst case). Likewise for
+    /// f = 2k/3: 1.5f (= k) and 0.5f (= k/3) are peaks, while 1.5k and
+    /// k/2 are not peaks of the pattern at all.
+    fn fundamental(&self, ka0: (f64, f64), pbest: f32, fmax: f64, n: usize) -> (f64, f64) {
         let fmax_abs = n as f64 / 2.0 - 1.0;
-        self.lattice_hypotheses(ka0, fmin, fmax.min(fmax_abs), mean_p, n);
-        let pbest = f64::from(best.0);
-        let rel = |st: &Self, m: f64| f64::from(st.local_peak((ka0.0 * m, ka0.1 * m), n).0) / pbest;
+        let pbest = f64::from(pbest);
+        let rel = |m: f64| f64::from(self.local_peak((ka0.0 * m, ka0.1 * m), n).0) / pbest;
         let mut ka = ka0;
         for (m, companion) in [(3.0, 2.0), (1.5, 0.5)] {
             let c = (ka0.0 * m, ka0.1 * m);
             if c.0.hypot(c.1) > fmax_abs.min(fmax * 1.05) {
                 continue;
             }
-            if rel(self, m) >= 0.15 && rel(self, companion) >= 0.05 {
+            if rel(m) >= 0.15 && rel(companion) >= 0.05 {
                 let (_, fy, fx) = self.local_peak(c, n);
                 ka = self.refine_peak(fy, fx, n);
                 break;
             }
         }
+        ka
+    }
+
+    /// The second peak (power, fy, fx): near perpendicular to `ka`
+    /// (|cos| ≤ 0.3), of similar modulus (0.8–1.25 ×).
+    fn perpendicular_peak(&self, ka: (f64, f64), n: usize) -> (f32, usize, usize) {
+        let nc = n / 2 + 1;
         let ra = (ka.0 * ka.0 + ka.1 * ka.1).sqrt();
-        // Second peak: near perpendicular, similar modulus.
         let mut best2 = (0.0f32, 0usize, 0usize);
         let (q2min, q2max) = ((0.8 * ra).powi(2), (1.25 * ra).powi(2));
         for fy in 0..n {
-            let (_, y) = freq(fy, 0);
+            let y = signed_freq(fy, n);
             if y.abs() > 1.25 * ra {
                 continue;
             }
@@ -233,46 +273,45 @@ impl FineStage {
                 best2 = (p, fy, fx);
             }
         }
-        let one_direction = f64::from(best2.0) < 10.0 * mean_p || best2.0 < 0.05 * best.0;
-        let (ka, kb) = if !one_direction {
-            (ka, self.refine_peak(best2.1, best2.2, n))
-        } else {
-            // Under heavy blur the empty-crossing sublattice's diagonal
-            // component (k_a + k_b)/3 (modulus 0.47 |k|, so barely blurred)
-            // can outshine everything else, while its partner (k_a − k_b)/3
-            // is weak: then the strongest peak has no perpendicular partner.
-            // Test that reading: k_a, k_b = 3/2 (f ± f⊥) must both be peaks
-            // standing out of the annulus's mean power, of similar power.
-            // Only reached where the plain reading already failed; a wrong
-            // lattice is still caught by the coherence, orientation and code
-            // checks downstream.
-            let f = ka0;
-            let fr = (f.1, -f.0);
-            let ca = (1.5 * (f.0 + fr.0), 1.5 * (f.1 + fr.1));
-            let cb = (1.5 * (f.0 - fr.0), 1.5 * (f.1 - fr.1));
-            let rmax = fmax_abs.min(fmax * 1.05);
-            let r = ca.0.hypot(ca.1);
-            let (pa, ya, xa) = self.local_peak(ca, n);
-            let (pb, yb, xb) = self.local_peak(cb, n);
-            let (pa, pb) = (f64::from(pa), f64::from(pb));
-            let stands_out = pa.min(pb) >= 10.0 * mean_p && pa.min(pb) >= 0.25 * pa.max(pb);
-            if !(r <= rmax && r >= fmin && stands_out) {
-                return Err(DecodeError::NoGrid(
-                    "only one grid direction found (no peak near the perpendicular)".into(),
-                ));
-            }
-            (self.refine_peak(ya, xa, n), self.refine_peak(yb, xb, n))
-        };
-        for (d, kd) in [ka, kb].into_iter().enumerate() {
-            self.blob_var[d] = self.blob_variance(kd, n);
+        best2
+    }
+
+    /// The lattice when the strongest peak `f` has no perpendicular
+    /// partner: read as the empty-crossing diagonal (k_a + k_b)/3.
+    ///
+    /// Under heavy blur the empty-crossing sublattice's diagonal
+    /// component (k_a + k_b)/3 (modulus 0.47 |k|, so barely blurred)
+    /// can outshine everything else, while its partner (k_a − k_b)/3
+    /// is weak: then the strongest peak has no perpendicular partner.
+    /// Test that reading: k_a, k_b = 3/2 (f ± f⊥) must both be peaks
+    /// standing out of the annulus's mean power, of similar power.
+    /// Only reached where the plain reading already failed; a wrong
+    /// lattice is still caught by the coherence, orientation and code
+    /// checks downstream.
+    fn diagonal_reading(
+        &self,
+        f: (f64, f64),
+        fmin: f64,
+        fmax: f64,
+        mean_p: f64,
+        n: usize,
+    ) -> Result<[(f64, f64); 2], DecodeError> {
+        let fmax_abs = n as f64 / 2.0 - 1.0;
+        let fr = (f.1, -f.0);
+        let ca = (1.5 * (f.0 + fr.0), 1.5 * (f.1 + fr.1));
+        let cb = (1.5 * (f.0 - fr.0), 1.5 * (f.1 - fr.1));
+        let rmax = fmax_abs.min(fmax * 1.05);
+        let r = ca.0.hypot(ca.1);
+        let (pa, ya, xa) = self.local_peak(ca, n);
+        let (pb, yb, xb) = self.local_peak(cb, n);
+        let (pa, pb) = (f64::from(pa), f64::from(pb));
+        let stands_out = pa.min(pb) >= 10.0 * mean_p && pa.min(pb) >= 0.25 * pa.max(pb);
+        if !(r <= rmax && r >= fmin && stands_out) {
+            return Err(DecodeError::NoGrid(
+                "only one grid direction found (no peak near the perpendicular)".into(),
+            ));
         }
-        let s = std::f64::consts::TAU / n as f64;
-        let a = [ka.0 * s, ka.1 * s];
-        let mut b = [kb.0 * s, kb.1 * s];
-        if a[0] * b[1] - a[1] * b[0] < 0.0 {
-            b = [-b[0], -b[1]];
-        }
-        Ok([a, b])
+        Ok([self.refine_peak(ya, xa, n), self.refine_peak(yb, xb, n)])
     }
 
     /// Fills `alts` with the lattices in which the strongest peak `f`
@@ -457,5 +496,15 @@ impl FineStage {
             fy as f64
         };
         (fx as f64 + dx, yy + dy)
+    }
+}
+
+/// The signed frequency (cycles per block) of FFT row `fy` of an `n`-point
+/// transform: rows past `n / 2` are the negative frequencies.
+fn signed_freq(fy: usize, n: usize) -> f64 {
+    if fy > n / 2 {
+        fy as f64 - n as f64
+    } else {
+        fy as f64
     }
 }

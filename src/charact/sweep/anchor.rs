@@ -1,7 +1,7 @@
 //! The sweep characterization's static anchors, pure: where the job stops
 //! after the passes of a cycle, how it reaches each stop, and the
-//! correction of the sweep's records the stops give. `jobs::sweep_job`
-//! moves and measures; `jobs::sweep` has the passes and the camera delay.
+//! correction of the sweep's records the stops give. `daemon::jobs::sweep_job`
+//! moves and measures; [`super`] has the passes and the camera delay.
 //!
 //! # Why
 //! A pass is one constant-velocity move across the range, so whatever the
@@ -74,8 +74,8 @@
 //! anywhere in a cell, and the leadscrew's slope over half a step (≈ 0.06 µm
 //! on the simulated stage) would enter the difference.
 
-use super::sweep::{frames_at, FrameAt, PassData, SweepPlan};
-use super::PARK_APPROACH_UM;
+use super::{frames_at, FrameAt, PassData, SweepPlan};
+use crate::charact::scan::PARK_APPROACH_UM;
 use crate::model::XyUm;
 
 /// Spacing of the anchors when the request names none, µm (see the module

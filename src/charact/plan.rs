@@ -389,7 +389,7 @@ pub struct DriftPlan {
     /// Interval between re-measurements, s of rig time (> 0).
     pub every_s: f64,
     /// Reference point `[x, y]`, µm (controller coordinates); always
-    /// approached forward on both axes from [`super::PARK_APPROACH_UM`]
+    /// approached forward on both axes from [`crate::charact::scan::PARK_APPROACH_UM`]
     /// below, so backlash is the same at every re-measurement.
     pub reference_um: [f64; 2],
 }

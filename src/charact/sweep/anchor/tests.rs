@@ -1,7 +1,7 @@
 //! Unit tests of the sweep anchors (`super`).
 
 use super::*;
-use crate::daemon::jobs::sweep::{estimate_delay, resample, PassSpec, PosSample, SweepFrame};
+use crate::charact::sweep::{estimate_delay, resample, PassSpec, PosSample, SweepFrame};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, StandardNormal};

@@ -2,7 +2,8 @@
 //! controller position at a frame's time, the resampling of a pass onto the
 //! step plan's grid, and the camera delay estimated from the data. The
 //! async job that moves the stage and collects samples and frames is
-//! `jobs::sweep_job`.
+//! `daemon::jobs::sweep_job`; [`anchor`] corrects the records to static
+//! anchors.
 //!
 //! # Method
 //! Each axis sweeps forward and backward at constant velocity over its
@@ -21,7 +22,7 @@
 //! the grid point: the log has the step plan's segments, cycles and
 //! targets, so `tables build`, `diagnose` and the plots read it unchanged.
 //! A record carries the motion state of its pass (one move since the run-up
-//! began); `jobs::sweep_anchor` measures the step plan's state at static
+//! began); [`anchor`] measures the step plan's state at static
 //! anchors and corrects the records to it.
 //!
 //! # Camera delay
@@ -52,8 +53,10 @@
 //! rest error persisted through the next pass: σ 0.035 µm per pass scatters
 //! the estimate by ≈ 0.2 ms on the paper plan).
 
-use super::PARK_APPROACH_UM;
+pub mod anchor;
+
 use crate::charact::log::Metadata;
+use crate::charact::scan::PARK_APPROACH_UM;
 use crate::model::XyUm;
 
 /// The sweep plan: which axes, the step plan's grid, the velocities.
@@ -78,7 +81,7 @@ pub struct SweepPlan {
     /// Velocity of the odd cycles, µm/s (even cycles: twice it).
     pub velocity_um_per_s: f64,
     /// Spacing of the static anchors measured after each cycle's passes,
-    /// µm, rounded to a multiple of `step_um` (`jobs::sweep_anchor`); 0 =
+    /// µm, rounded to a multiple of `step_um` ([`anchor`]); 0 =
     /// none (the records then carry the pass's motion state).
     pub anchor_spacing_um: f64,
 }
