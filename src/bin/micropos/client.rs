@@ -840,6 +840,41 @@ fn sweep_summary(r: &Value) -> Option<String> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use micropos::daemon::protocol::parse_request;
+
+    /// The CLI's typed requests read back as sent, and a word the protocol
+    /// does not know is refused with the daemon's own code and message.
+    #[test]
+    fn requests_are_typed_and_bad_words_refused_as_the_daemon_would() {
+        let mv = |mode: &str| ClientCommand::Move {
+            x: Some(1.5),
+            y: None,
+            relative: true,
+            mode: mode.to_owned(),
+            wait: false,
+        };
+        let Ok(c) = build(&mv("compensated")) else {
+            panic!("a known mode is typed");
+        };
+        let line = c.to_json().to_string();
+        assert_eq!(parse_request(line.as_bytes()).map(|r| r.command), Ok(c));
+        let local = build(&mv("fast")).unwrap_err();
+        let daemon = parse_request(br#"{"cmd":"move","x_um":1.5,"mode":"fast"}"#)
+            .unwrap_err()
+            .error;
+        assert_eq!(local, daemon);
+        let t = ClientCommand::Tables {
+            action: "load".to_owned(),
+            name: None,
+            out: None,
+            kinds: vec![],
+            activate: false,
+        };
+        let daemon = parse_request(br#"{"cmd":"tables","action":"load"}"#)
+            .unwrap_err()
+            .error;
+        assert_eq!(build(&t).unwrap_err(), daemon);
+    }
 
     #[test]
     fn the_validation_table_lists_modes_raw_first_then_what_each_adds() {
