@@ -101,13 +101,17 @@ def test_timeouts_must_be_positive():
 
 
 def parse_rs_fields():
-    """Command → accepted fields, from the daemon's parser (parse.rs)."""
-    text = (REPO / "src" / "daemon" / "protocol" / "parse.rs").read_text()
-    block = text.split("let known: &[&str] = match cmd {", 1)[1].split("other =>", 1)[0]
+    """Command → accepted fields, from the daemon's request schema
+    (docs/socket-schema.json, generated from src/daemon/protocol/schema.rs,
+    the list the parser refuses unknown fields by)."""
+    import json
+    schema = json.loads((REPO / "docs" / "socket-schema.json").read_text())
     fields = {}
-    for m in re.finditer(r'((?:"\w+"\s*\|\s*)*"\w+")\s*=>\s*&\[(.*?)\]', block, re.S):
-        for name in re.findall(r'"(\w+)"', m.group(1)):
-            fields[name] = set(re.findall(r'"(\w+)"', m.group(2)))
+    for cmd, c in schema["commands"].items():
+        if "actions" in c:
+            fields[cmd] = {"action"}.union(*(a["fields"] for a in c["actions"].values()))
+        else:
+            fields[cmd] = set(c["fields"])
     assert {"move", "characterize", "validate", "tables", "drift", "figures"} <= set(fields)
     return fields
 

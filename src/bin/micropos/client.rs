@@ -9,7 +9,12 @@
 
 use anyhow::Context;
 use clap::{Args, Subcommand};
-use micropos::daemon::protocol::JobState;
+use micropos::daemon::protocol::{
+    build_needs_log, error_reply_value, load_needs_name, resume_needs_log, unknown_action, Axes,
+    CharacterizeAction, CharacterizeParams, Command, ErrorBody, ErrorCode, JobState, MoveMode,
+    MoveRequest, ProtoError, Request, TablesAction, TablesBuildParams, Topic, ValidateAction,
+    ValidateMode, ValidateParams, ValidateTest, Word,
+};
 use serde_json::{json, Value};
 use std::io::Write;
 use std::path::PathBuf;
@@ -282,9 +287,13 @@ impl Conn {
             .map_err(|e| Unreachable(anyhow::anyhow!("unreadable reply {l:?}: {e}")))
     }
 
-    async fn request(&mut self, mut req: Value) -> Result<Value, Unreachable> {
-        req["id"] = json!(1);
-        let mut s = req.to_string();
+    /// Sends `command` (`id` 1) and returns its reply, skipping events.
+    async fn request(&mut self, command: Command) -> Result<Value, Unreachable> {
+        let req = Request {
+            id: Value::from(1),
+            command,
+        };
+        let mut s = req.to_json().to_string();
         s.push('\n');
         self.writer
             .write_all(s.as_bytes())
@@ -299,152 +308,180 @@ impl Conn {
     }
 }
 
-fn build(cmd: &ClientCommand) -> Value {
-    match cmd {
-        ClientCommand::Status => json!({"cmd": "status"}),
-        ClientCommand::Position => json!({"cmd": "position"}),
+/// The typed request a client command sends. A word the protocol does not
+/// know (a mode, an action) or a missing required name is refused here
+/// with the code and message the daemon would send; numbers and file names
+/// are the daemon's to judge.
+fn build(cmd: &ClientCommand) -> Result<Command, ProtoError> {
+    Ok(match cmd {
+        ClientCommand::Status => Command::Status,
+        ClientCommand::Position => Command::Position,
         ClientCommand::Move {
             x,
             y,
             relative,
             mode,
             wait,
-        } => {
-            json!({"cmd": "move", "x_um": x, "y_um": y, "relative": relative, "mode": mode, "wait": wait})
-        }
-        ClientCommand::Stop => json!({"cmd": "stop"}),
-        ClientCommand::Reset => json!({"cmd": "reset"}),
-        ClientCommand::Reference { axes } => json!({"cmd": "reference", "axes": axes}),
+        } => Command::Move(MoveRequest {
+            x_um: *x,
+            y_um: *y,
+            relative: *relative,
+            mode: MoveMode::from_word(mode)?,
+            wait: *wait,
+            tolerance_um: None,
+        }),
+        ClientCommand::Stop => Command::Stop,
+        ClientCommand::Reset => Command::Reset,
+        ClientCommand::Reference { axes } => Command::Reference(Axes::from_word(axes)?),
         ClientCommand::Subscribe { topics } => {
-            if topics.is_empty() {
-                json!({"cmd": "subscribe"})
+            // None named: every topic, as the daemon's default.
+            let mut typed = Vec::new();
+            for t in topics {
+                let t = Topic::from_word(t)?;
+                if !typed.contains(&t) {
+                    typed.push(t);
+                }
+            }
+            Command::Subscribe(if topics.is_empty() {
+                Topic::ALL.to_vec()
             } else {
-                json!({"cmd": "subscribe", "topics": topics})
-            }
+                typed
+            })
         }
-        ClientCommand::Characterize {
-            action,
-            log,
-            step_um,
-            x_range_um,
-            y_range_um,
-            cycles,
-            mode,
-            velocity_um_per_s,
-            uncorrected_log,
-            anchor_spacing_um,
-            unanchored_log,
-            plan,
-            pitch_um,
-            approach,
-            order,
-            ..
-        } => {
-            let mut v = json!({"cmd": "characterize", "action": action});
-            if let Some(p) = plan {
-                v["plan"] = json!(p);
-            }
-            if let Some(a) = approach {
-                v["approach"] = json!(a);
-            }
-            if let Some(o) = order {
-                v["order"] = json!(o);
-            }
-            if let Some(p) = pitch_um {
-                v["pitch_um"] = json!(p);
-            }
-            if let Some(m) = mode {
-                v["mode"] = json!(m);
-            }
-            if let Some(u) = velocity_um_per_s {
-                v["velocity_um_per_s"] = json!(u);
-            }
-            if let Some(u) = uncorrected_log {
-                v["uncorrected_log"] = json!(u);
-            }
-            if let Some(h) = anchor_spacing_um {
-                v["anchor_spacing_um"] = json!(h);
-            }
-            if let Some(u) = unanchored_log {
-                v["unanchored_log"] = json!(u);
-            }
-            if let Some(l) = log {
-                v["log"] = json!(l);
-            }
-            if let Some(s) = step_um {
-                v["step_um"] = json!(s);
-            }
-            if let Some(r) = x_range_um {
-                v["x_range_um"] = json!(r);
-            }
-            if let Some(r) = y_range_um {
-                v["y_range_um"] = json!(r);
-            }
-            if let Some(c) = cycles {
-                v["cycles"] = json!(c);
-            }
-            v
-        }
-        ClientCommand::Validate {
-            action,
-            test,
-            modes,
-            cycles,
-            log,
-            origin_x_um,
-            origin_y_um,
-            square_step_um,
-            table,
-            model_table,
-            ..
-        } => {
-            let mut v = json!({"cmd": "validate", "action": action});
-            if action == "start" {
-                let fields = [
-                    ("test", json!(test)),
-                    ("cycles", json!(cycles)),
-                    ("log", json!(log)),
-                    ("origin_x_um", json!(origin_x_um)),
-                    ("origin_y_um", json!(origin_y_um)),
-                    ("square_step_um", json!(square_step_um)),
-                    ("table", json!(table)),
-                    ("model_table", json!(model_table)),
-                ];
-                for (k, x) in fields {
-                    if !x.is_null() {
-                        v[k] = x;
-                    }
-                }
-                if !modes.is_empty() {
-                    v["modes"] = json!(modes);
-                }
-            }
-            v
-        }
+        ClientCommand::Characterize { .. } => Command::Characterize(characterize(cmd)?),
+        ClientCommand::Validate { .. } => Command::Validate(validate(cmd)?),
         ClientCommand::Tables {
             action,
             name,
             out,
             kinds,
             activate,
-        } => {
-            if action == "build" {
-                let mut v = json!({"cmd": "tables", "action": "build", "log": name,
-                                   "activate": activate});
-                if let Some(o) = out {
-                    v["name"] = json!(o);
-                }
-                if !kinds.is_empty() {
-                    v["kinds"] = json!(kinds);
-                }
-                v
-            } else {
-                json!({"cmd": "tables", "action": action, "name": name})
-            }
-        }
-        ClientCommand::Config => json!({"cmd": "config"}),
-        ClientCommand::Version => json!({"cmd": "version"}),
+        } => Command::Tables(match action.as_str() {
+            "list" => TablesAction::List,
+            "load" => TablesAction::Load {
+                name: name.clone().ok_or_else(load_needs_name)?,
+            },
+            "activate" => TablesAction::Activate { name: name.clone() },
+            "build" => TablesAction::Build(TablesBuildParams {
+                log: name.clone().ok_or_else(build_needs_log)?,
+                name: out.clone(),
+                kinds: kinds.clone(),
+                activate: *activate,
+            }),
+            other => return Err(unknown_action("tables", other)),
+        }),
+        ClientCommand::Config => Command::Config,
+        ClientCommand::Version => Command::Version,
+    })
+}
+
+/// `characterize ACTION`'s typed action (see [`build`]).
+fn characterize(cmd: &ClientCommand) -> Result<CharacterizeAction, ProtoError> {
+    let ClientCommand::Characterize {
+        action,
+        log,
+        step_um,
+        x_range_um,
+        y_range_um,
+        cycles,
+        mode,
+        velocity_um_per_s,
+        uncorrected_log,
+        anchor_spacing_um,
+        unanchored_log,
+        plan,
+        pitch_um,
+        approach,
+        order,
+        ..
+    } = cmd
+    else {
+        return Err(unknown_action("characterize", ""));
+    };
+    fn word<W: Word>(w: &Option<String>) -> Result<Option<W>, ProtoError> {
+        w.as_deref().map(W::from_word).transpose()
     }
+    Ok(match action.as_str() {
+        "start" => CharacterizeAction::Start(Box::new(CharacterizeParams {
+            log: log.clone(),
+            step_um: *step_um,
+            x_range_um: *x_range_um,
+            y_range_um: *y_range_um,
+            cycles: *cycles,
+            mode: word(mode)?,
+            velocity_um_per_s: *velocity_um_per_s,
+            uncorrected_log: uncorrected_log.clone(),
+            unanchored_log: unanchored_log.clone(),
+            anchor_spacing_um: *anchor_spacing_um,
+            plan: word(plan)?,
+            pitch_um: *pitch_um,
+            approach: word(approach)?,
+            order: word(order)?,
+            ..CharacterizeParams::default()
+        })),
+        "status" => CharacterizeAction::Status,
+        "cancel" => CharacterizeAction::Cancel,
+        "resume" => CharacterizeAction::Resume {
+            log: log.clone().ok_or_else(resume_needs_log)?,
+        },
+        other => return Err(unknown_action("characterize", other)),
+    })
+}
+
+/// `validate ACTION`'s typed action (see [`build`]).
+fn validate(cmd: &ClientCommand) -> Result<ValidateAction, ProtoError> {
+    let ClientCommand::Validate {
+        action,
+        test,
+        modes,
+        cycles,
+        log,
+        origin_x_um,
+        origin_y_um,
+        square_step_um,
+        table,
+        model_table,
+        ..
+    } = cmd
+    else {
+        return Err(unknown_action("validate", ""));
+    };
+    Ok(match action.as_str() {
+        "start" => {
+            let tests = match test {
+                Some(t) => ValidateTest::from_word(t)?,
+                None => ValidateTest::Both,
+            };
+            // None named: every mode, as the daemon's default.
+            let mut typed = Vec::new();
+            for m in modes {
+                let m = ValidateMode::from_word(m)?;
+                if !typed.contains(&m) {
+                    typed.push(m);
+                }
+            }
+            ValidateAction::Start(ValidateParams {
+                tests: tests.tests(),
+                modes: if modes.is_empty() {
+                    ValidateMode::ALL.to_vec()
+                } else {
+                    typed
+                },
+                cycles: *cycles,
+                log: log.clone(),
+                origin_x_um: *origin_x_um,
+                origin_y_um: *origin_y_um,
+                square_step_um: *square_step_um,
+                table: table.clone(),
+                model_table: model_table.clone(),
+                frames_per_point: None,
+                settle_s: None,
+            })
+        }
+        "status" => ValidateAction::Status,
+        "cancel" => ValidateAction::Cancel,
+        other => return Err(unknown_action("validate", other)),
+    })
 }
 
 /// Runs a client command.
@@ -464,27 +501,32 @@ async fn run_inner(opts: &GlobalOpts, cmd: &ClientCommand) -> Result<ExitCode, U
     // A daemon just started connects its controllers within moments:
     // `not_connected` refuses a command without doing anything, so with
     // --wait-s the command is sent again until they are (or time is up).
+    let command = match build(cmd) {
+        Ok(c) => c,
+        // Refused before sending: shown as the daemon's refusal would be.
+        Err(e) => {
+            return Ok(print_reply_or_error(
+                opts,
+                &error_reply_value(&Value::from(1), &e),
+            ))
+        }
+    };
     let reply = loop {
-        let reply = conn.request(build(cmd)).await?;
-        if reply["error"]["code"] == "not_connected" && tokio::time::Instant::now() < deadline {
+        let reply = conn.request(command.clone()).await?;
+        let not_connected =
+            ErrorBody::of_reply(&reply).is_some_and(|e| e.code == ErrorCode::NotConnected.as_str());
+        if not_connected && tokio::time::Instant::now() < deadline {
             tokio::time::sleep(std::time::Duration::from_millis(200)).await;
             continue;
         }
         break reply;
     };
     let out = std::io::stdout();
-    if opts.json {
-        let _ = writeln!(out.lock(), "{reply}");
-    }
-    if reply["ok"] != json!(true) {
-        if !opts.json {
-            eprintln!(
-                "error [{}]: {}",
-                reply["error"]["code"].as_str().unwrap_or("?"),
-                reply["error"]["message"].as_str().unwrap_or("?")
-            );
+    if opts.json || reply["ok"] != true {
+        let code = print_reply_or_error(opts, &reply);
+        if reply["ok"] != true {
+            return Ok(code);
         }
-        return Ok(ExitCode::from(1));
     }
     if !opts.json {
         let text = text_of(cmd, &reply, &mut conn).await?;
@@ -527,13 +569,33 @@ async fn run_inner(opts: &GlobalOpts, cmd: &ClientCommand) -> Result<ExitCode, U
             }
             // The results come with the job-done state: shown like a reply.
             let s = conn
-                .request(json!({"cmd": "validate", "action": "status"}))
+                .request(Command::Validate(ValidateAction::Status))
                 .await?;
             let table = validation_table(&s["validation"]);
             Ok(follow::report_end(&job, Some(table), opts.json, Some(&s)))
         }
         _ => Ok(ExitCode::SUCCESS),
     }
+}
+
+/// With `--json` the reply line; without, a refusal's code and message on
+/// stderr. The exit code: 0 for an ok reply, 1 for a refusal.
+fn print_reply_or_error(opts: &GlobalOpts, reply: &Value) -> ExitCode {
+    if opts.json {
+        let _ = writeln!(std::io::stdout().lock(), "{reply}");
+    }
+    if reply["ok"] == true {
+        return ExitCode::SUCCESS;
+    }
+    if !opts.json {
+        let e = ErrorBody::of_reply(reply);
+        eprintln!(
+            "error [{}]: {}",
+            e.as_ref().map_or("?", |e| e.code.as_str()),
+            e.as_ref().map_or("?", |e| e.message.as_str())
+        );
+    }
+    ExitCode::from(1)
 }
 
 /// A command's reply for a person. Most replies print as indented
@@ -551,9 +613,9 @@ async fn text_of(
     Ok(match cmd {
         ClientCommand::Status => {
             let extra = status::Extra {
-                position: optional(conn, json!({"cmd": "position"})).await?,
-                tables: optional(conn, json!({"cmd": "tables", "action": "list"})).await?,
-                config: optional(conn, json!({"cmd": "config"})).await?,
+                position: optional(conn, Command::Position).await?,
+                tables: optional(conn, Command::Tables(TablesAction::List)).await?,
+                config: optional(conn, Command::Config).await?,
             };
             status::text(reply, &extra)
         }
@@ -584,8 +646,8 @@ async fn text_of(
 
 /// A reply the view can do without: `None` when the daemon refused it
 /// (a role that may not read it).
-async fn optional(conn: &mut Conn, req: Value) -> Result<Option<Value>, Unreachable> {
-    let r = conn.request(req).await?;
+async fn optional(conn: &mut Conn, command: Command) -> Result<Option<Value>, Unreachable> {
+    let r = conn.request(command).await?;
     Ok((r["ok"] == true).then_some(r))
 }
 
@@ -778,6 +840,41 @@ fn sweep_summary(r: &Value) -> Option<String> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use micropos::daemon::protocol::parse_request;
+
+    /// The CLI's typed requests read back as sent, and a word the protocol
+    /// does not know is refused with the daemon's own code and message.
+    #[test]
+    fn requests_are_typed_and_bad_words_refused_as_the_daemon_would() {
+        let mv = |mode: &str| ClientCommand::Move {
+            x: Some(1.5),
+            y: None,
+            relative: true,
+            mode: mode.to_owned(),
+            wait: false,
+        };
+        let Ok(c) = build(&mv("compensated")) else {
+            panic!("a known mode is typed");
+        };
+        let line = c.to_json().to_string();
+        assert_eq!(parse_request(line.as_bytes()).map(|r| r.command), Ok(c));
+        let local = build(&mv("fast")).unwrap_err();
+        let daemon = parse_request(br#"{"cmd":"move","x_um":1.5,"mode":"fast"}"#)
+            .unwrap_err()
+            .error;
+        assert_eq!(local, daemon);
+        let t = ClientCommand::Tables {
+            action: "load".to_owned(),
+            name: None,
+            out: None,
+            kinds: vec![],
+            activate: false,
+        };
+        let daemon = parse_request(br#"{"cmd":"tables","action":"load"}"#)
+            .unwrap_err()
+            .error;
+        assert_eq!(build(&t).unwrap_err(), daemon);
+    }
 
     #[test]
     fn the_validation_table_lists_modes_raw_first_then_what_each_adds() {

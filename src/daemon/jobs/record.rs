@@ -4,9 +4,9 @@
 
 use crate::analysis::drift::DRIFT_REF_SEGMENT;
 use crate::charact::log::{Columns, LogWriter, Record};
-use crate::daemon::protocol::{ErrorCode, JobKind, JobState, ProtoError};
+use crate::daemon::protocol::{ErrorCode, JobKind, JobProgress, JobState, ProtoError};
 use crate::model::XyUm;
-use serde_json::{json, Value};
+use serde_json::Value;
 use std::fs::File;
 use std::sync::atomic::AtomicU64;
 use std::sync::{Arc, Mutex};
@@ -58,10 +58,18 @@ pub struct Progress {
 impl Progress {
     /// As JSON.
     pub fn to_json(&self) -> Value {
-        json!({"kind": self.kind.as_str(), "log": self.log, "state": self.state.as_str(), "done": self.done,
-               "total": self.total, "eta_s": self.eta_s, "error": self.error,
-               "retries": self.retries.load(std::sync::atomic::Ordering::SeqCst),
-               "result": self.result})
+        JobProgress {
+            kind: self.kind,
+            log: self.log.clone(),
+            state: self.state,
+            done: self.done as u64,
+            total: self.total as u64,
+            eta_s: self.eta_s,
+            error: self.error.clone(),
+            retries: self.retries.load(std::sync::atomic::Ordering::SeqCst),
+            result: self.result.clone(),
+        }
+        .to_json()
     }
 }
 

@@ -27,6 +27,14 @@ impl Axes {
     pub fn y(self) -> bool {
         matches!(self, Axes::Y | Axes::Both)
     }
+    /// The axes as sent on the wire (`both` is spelt `xy`).
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Axes::X => "x",
+            Axes::Y => "y",
+            Axes::Both => "xy",
+        }
+    }
 }
 
 /// How a move reaches its target.

@@ -81,6 +81,41 @@ pub enum ErrorCode {
 }
 
 impl ErrorCode {
+    /// Every code, in the order the docs list them (the schema's list).
+    pub const ALL: [ErrorCode; 31] = [
+        ErrorCode::BadJson,
+        ErrorCode::RequestTooLarge,
+        ErrorCode::BadRequest,
+        ErrorCode::NotAnObject,
+        ErrorCode::MissingField,
+        ErrorCode::WrongType,
+        ErrorCode::BadValue,
+        ErrorCode::UnknownCommand,
+        ErrorCode::OutOfTravel,
+        ErrorCode::NotReferenced,
+        ErrorCode::NotConnected,
+        ErrorCode::Busy,
+        ErrorCode::Halted,
+        ErrorCode::DriverError,
+        ErrorCode::FaultLatched,
+        ErrorCode::CameraUnavailable,
+        ErrorCode::StaleMeasurement,
+        ErrorCode::NotConverged,
+        ErrorCode::NoActiveTable,
+        ErrorCode::OutsideTable,
+        ErrorCode::CameraStalled,
+        ErrorCode::LowQuality,
+        ErrorCode::RetryLimit,
+        ErrorCode::Diverging,
+        ErrorCode::NotAvailable,
+        ErrorCode::JobState,
+        ErrorCode::LogError,
+        ErrorCode::PermissionDenied,
+        ErrorCode::TimedOut,
+        ErrorCode::ShuttingDown,
+        ErrorCode::Internal,
+    ];
+
     /// The code as sent on the wire.
     pub fn as_str(self) -> &'static str {
         match self {

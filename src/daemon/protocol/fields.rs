@@ -6,7 +6,7 @@
 
 use serde_json::{Map, Value};
 
-use super::{Axes, ErrorCode, ProtoError};
+use super::{ErrorCode, ProtoError};
 
 /// File names from clients stay inside the data directory: no separators,
 /// no `..`, no hidden files, printable and short.
@@ -127,16 +127,6 @@ pub(super) fn opt_xy(obj: &Map<String, Value>, key: &str) -> Result<Option<[f64;
             _ => Err(wrong_type(key, "two finite numbers [x, y]", v)),
         },
         _ => Err(wrong_type(key, "an array [x, y] of two numbers", v)),
-    }
-}
-
-pub(super) fn opt_axes(obj: &Map<String, Value>, key: &str) -> Result<Option<Axes>, ProtoError> {
-    match opt_str(obj, key)? {
-        None => Ok(None),
-        Some("x") => Ok(Some(Axes::X)),
-        Some("y") => Ok(Some(Axes::Y)),
-        Some("xy") | Some("both") => Ok(Some(Axes::Both)),
-        Some(other) => Err(unknown_word(key, other, "x, y or xy")),
     }
 }
 

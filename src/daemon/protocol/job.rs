@@ -5,8 +5,11 @@
 
 use std::fmt;
 
+use super::command::{CharacterizeAction, Command, ValidateAction};
+
 /// Which long job a progress describes.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
 pub enum JobKind {
     /// `characterize`: a step, grid or sweep characterization.
     Characterize,
@@ -22,6 +25,23 @@ impl JobKind {
             Self::Validate => "validate",
         }
     }
+
+    /// The kind a protocol word names; `None` for a word this client does
+    /// not know.
+    pub fn parse(word: &str) -> Option<Self> {
+        [Self::Characterize, Self::Validate]
+            .into_iter()
+            .find(|k| k.as_str() == word)
+    }
+
+    /// The request for this kind's progress (`characterize status`,
+    /// `validate status`): what a client following a job asks.
+    pub fn status_command(self) -> Command {
+        match self {
+            Self::Characterize => Command::Characterize(CharacterizeAction::Status),
+            Self::Validate => Command::Validate(ValidateAction::Status),
+        }
+    }
 }
 
 impl fmt::Display for JobKind {
@@ -33,7 +53,8 @@ impl fmt::Display for JobKind {
 /// Where a job is: `Running` until it ends, then how it ended (kept until
 /// the next job starts). Its log stays resumable in every ended state but
 /// `Done`.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
 pub enum JobState {
     /// Moving and measuring.
     Running,
@@ -95,6 +116,18 @@ impl fmt::Display for JobState {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// serde's spelling (the typed replies) is the protocol word.
+    #[test]
+    fn serde_writes_the_protocol_words() {
+        for s in JobState::ALL {
+            assert_eq!(serde_json::json!(s), serde_json::json!(s.as_str()));
+        }
+        for k in [JobKind::Characterize, JobKind::Validate] {
+            assert_eq!(serde_json::json!(k), serde_json::json!(k.as_str()));
+            assert_eq!(JobKind::parse(k.as_str()), Some(k));
+        }
+    }
 
     #[test]
     fn every_state_reads_back_from_its_word() {

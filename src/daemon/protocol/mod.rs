@@ -21,19 +21,33 @@
 //! * `job`: a long job's kind and state ([`JobKind`], [`JobState`]), as
 //!   replies and events carry them and clients read them.
 //! * `reply`: replies and events serialized to one line each.
+//! * `replies`: the typed replies both ends use ([`JobProgress`],
+//!   [`ErrorBody`]).
 //! * `role`: the role each command needs ([`Role`], [`Command::role`]) and
 //!   which commands are audited.
+//! * `schema`: every command's actions and fields with their types: the one
+//!   list of request fields, the parser's and `docs/socket-schema.json`'s.
+//! * `words`: the keyword types' words ([`Word`]) and the refusals a client
+//!   building typed requests shares with the parser.
+//! * `wire`: typed requests back into their wire form ([`Request::to_json`]),
+//!   what the CLI sends.
 
 mod command;
 mod error;
 mod fields;
 mod job;
 mod parse;
+mod replies;
 mod reply;
 mod role;
+#[cfg(test)]
+mod round_trip;
+mod schema;
 mod strict;
 #[cfg(test)]
 mod tests;
+mod wire;
+mod words;
 
 pub use command::{
     Axes, CharacterizeAction, CharacterizeMode, CharacterizeParams, CharacterizePlan, Command,
@@ -44,8 +58,15 @@ pub use command::{
 pub use error::{ErrorCode, ProtoError};
 pub use job::{JobKind, JobState};
 pub use parse::{parse_request, too_large};
-pub use reply::{error_reply, event_line, ok_reply, reply, reply_fields};
+pub use replies::{ErrorBody, JobProgress};
+pub use reply::{error_reply, error_reply_value, event_line, ok_reply, reply, reply_fields};
 pub use role::Role;
+pub use schema::{
+    command_schema, schema_json, unknown_action, CommandSchema, Field, FieldType, SCHEMA,
+};
+pub use words::{
+    build_needs_log, load_needs_name, resume_needs_log, ValidateTest, Word, TABLE_KINDS,
+};
 
 /// Version of the protocol this daemon speaks (the `version` command reports
 /// it; a client refuses a major version it does not know).

@@ -7,16 +7,19 @@
 use serde_json::{Map, Value};
 
 use super::command::{
-    Axes, CharacterizeAction, CharacterizeMode, CharacterizeParams, CharacterizePlan, Command,
-    DriftAction, FiguresJob, FiguresParams, GridApproach, GridOrder, MoveMode, MoveRequest,
-    Refusal, Request, TablesAction, TablesBuildParams, Topic, ValidateAction, ValidateMode,
-    ValidateParams, COMMANDS,
+    Axes, CharacterizeAction, CharacterizeParams, Command, DriftAction, FiguresJob, FiguresParams,
+    MoveMode, MoveRequest, Refusal, Request, TablesAction, TablesBuildParams, Topic,
+    ValidateAction, ValidateMode, ValidateParams, COMMANDS,
 };
 use super::fields::{
-    check_file_name, opt_axes, opt_bool, opt_count, opt_f64, opt_f64_within, opt_str, opt_xy,
-    req_str, truncate, type_name, unknown_word, wrong_type,
+    check_file_name, opt_bool, opt_count, opt_f64, opt_f64_within, opt_str, opt_xy, req_str,
+    truncate, type_name, unknown_word, wrong_type,
 };
+use super::schema::{command_schema, unknown_action, CommandSchema};
 use super::strict::{parse_strict, StrictError};
+use super::words::{
+    build_needs_log, load_needs_name, resume_needs_log, ValidateTest, Word, TABLE_KINDS,
+};
 use super::{ErrorCode, ProtoError, MAX_REQUEST_BYTES};
 
 /// Parses one request line (without its newline).
@@ -78,62 +81,17 @@ pub fn too_large(len: usize) -> ProtoError {
 
 fn parse_command(obj: &Map<String, Value>) -> Result<Command, ProtoError> {
     let cmd = req_str(obj, "cmd")?;
-    let known: &[&str] = match cmd {
-        "status" | "position" | "stop" | "reset" | "config" | "version" => &[],
-        "move" => &["x_um", "y_um", "relative", "mode", "wait", "tolerance_um"],
-        "reference" => &["axes"],
-        "subscribe" => &["topics"],
-        "characterize" => &[
-            "action",
-            "log",
-            "axes",
-            "step_um",
-            "x_range_um",
-            "y_range_um",
-            "cycles",
-            "frames_per_point",
-            "settle_s",
-            "drift_every_s",
-            "drift_reference_um",
-            "mode",
-            "velocity_um_per_s",
-            "uncorrected_log",
-            "unanchored_log",
-            "anchor_spacing_um",
-            "moves_per_cycle",
-            "plan",
-            "pitch_um",
-            "approach",
-            "order",
-        ],
-        "validate" => &[
-            "action",
-            "test",
-            "modes",
-            "cycles",
-            "log",
-            "origin_x_um",
-            "origin_y_um",
-            "square_step_um",
-            "table",
-            "model_table",
-            "frames_per_point",
-            "settle_s",
-        ],
-        "tables" => &["action", "name", "log", "kinds", "activate"],
-        "drift" => &["action", "method", "every_s", "time_constant_s"],
-        "figures" => &["job", "log"],
-        other => {
-            return Err(ProtoError::new(
-                ErrorCode::UnknownCommand,
-                format!(
-                    "unknown command {:?}; known: {}",
-                    truncate(other, 64),
-                    COMMANDS.join(", ")
-                ),
-            ))
-        }
+    let Some(schema) = command_schema(cmd) else {
+        return Err(ProtoError::new(
+            ErrorCode::UnknownCommand,
+            format!(
+                "unknown command {:?}; known: {}",
+                truncate(cmd, 64),
+                COMMANDS.join(", ")
+            ),
+        ));
     };
+    let known = schema.known_fields();
     for key in obj.keys() {
         if key != "id" && key != "cmd" && !known.contains(&key.as_str()) {
             return Err(ProtoError::new(
@@ -158,16 +116,15 @@ fn parse_command(obj: &Map<String, Value>) -> Result<Command, ProtoError> {
         "config" => Command::Config,
         "version" => Command::Version,
         "move" => Command::Move(parse_move(obj)?),
-        "reference" => Command::Reference(opt_axes(obj, "axes")?.unwrap_or(Axes::Both)),
+        "reference" => Command::Reference(opt_word(obj, "axes")?.unwrap_or(Axes::Both)),
         "subscribe" => Command::Subscribe(parse_topics(obj)?),
-        "characterize" => Command::Characterize(parse_characterize(obj)?),
-        "validate" => Command::Validate(parse_validate(obj)?),
-        "drift" => Command::Drift(parse_drift(obj)?),
+        "characterize" => Command::Characterize(parse_characterize(obj, schema)?),
+        "validate" => Command::Validate(parse_validate(obj, schema)?),
+        "drift" => Command::Drift(parse_drift(obj, schema)?),
         "figures" => Command::Figures(parse_figures(obj)?),
-        _ => Command::Tables(parse_tables(obj)?),
+        _ => Command::Tables(parse_tables(obj, schema)?),
     })
 }
-
 fn parse_move(obj: &Map<String, Value>) -> Result<MoveRequest, ProtoError> {
     let x_um = opt_f64(obj, "x_um")?;
     let y_um = opt_f64(obj, "y_um")?;
@@ -177,18 +134,7 @@ fn parse_move(obj: &Map<String, Value>) -> Result<MoveRequest, ProtoError> {
             "move needs x_um, y_um or both",
         ));
     }
-    let mode = match opt_str(obj, "mode")? {
-        None | Some("raw") => MoveMode::Raw,
-        Some("compensated") => MoveMode::Compensated,
-        Some("closed_loop") => MoveMode::ClosedLoop,
-        Some(other) => {
-            return Err(unknown_word(
-                "mode",
-                other,
-                "raw, compensated or closed_loop",
-            ))
-        }
-    };
+    let mode = opt_word(obj, "mode")?.unwrap_or(MoveMode::Raw);
     let tolerance_um = opt_f64(obj, "tolerance_um")?;
     if let Some(t) = tolerance_um {
         if t <= 0.0 {
@@ -210,12 +156,7 @@ fn parse_move(obj: &Map<String, Value>) -> Result<MoveRequest, ProtoError> {
 
 fn parse_topics(obj: &Map<String, Value>) -> Result<Vec<Topic>, ProtoError> {
     let Some(v) = obj.get("topics") else {
-        return Ok(vec![
-            Topic::Position,
-            Topic::Job,
-            Topic::Fault,
-            Topic::Drift,
-        ]);
+        return Ok(Topic::ALL.to_vec());
     };
     let Value::Array(items) = v else {
         return Err(wrong_type("topics", "an array of strings", v));
@@ -225,13 +166,7 @@ fn parse_topics(obj: &Map<String, Value>) -> Result<Vec<Topic>, ProtoError> {
         let Value::String(s) = item else {
             return Err(wrong_type("topics[]", "a string", item));
         };
-        let t = match s.as_str() {
-            "position" => Topic::Position,
-            "job" => Topic::Job,
-            "fault" => Topic::Fault,
-            "drift" => Topic::Drift,
-            other => return Err(unknown_word("topic", other, "position, job, fault, drift")),
-        };
+        let t = Topic::from_word(s)?;
         if !topics.contains(&t) {
             topics.push(t);
         }
@@ -239,8 +174,11 @@ fn parse_topics(obj: &Map<String, Value>) -> Result<Vec<Topic>, ProtoError> {
     Ok(topics)
 }
 
-fn parse_characterize(obj: &Map<String, Value>) -> Result<CharacterizeAction, ProtoError> {
-    let action = opt_str(obj, "action")?.unwrap_or("status");
+fn parse_characterize(
+    obj: &Map<String, Value>,
+    schema: &CommandSchema,
+) -> Result<CharacterizeAction, ProtoError> {
+    let action = action_word(obj, schema)?;
     let log = opt_str(obj, "log")?.map(str::to_owned);
     if let Some(l) = &log {
         check_file_name("log", l)?;
@@ -261,7 +199,7 @@ fn parse_characterize(obj: &Map<String, Value>) -> Result<CharacterizeAction, Pr
                 opt_f64_within(obj, "drift_every_s", 0.0, 86_400.0, "0..86400 (0 = off)")?;
             Ok(CharacterizeAction::Start(Box::new(CharacterizeParams {
                 log,
-                axes: opt_axes(obj, "axes")?,
+                axes: opt_word(obj, "axes")?,
                 step_um: positive("step_um")?,
                 x_range_um: positive("x_range_um")?,
                 y_range_um: positive("y_range_um")?,
@@ -270,14 +208,7 @@ fn parse_characterize(obj: &Map<String, Value>) -> Result<CharacterizeAction, Pr
                 settle_s,
                 drift_every_s,
                 drift_reference_um: opt_xy(obj, "drift_reference_um")?,
-                mode: match opt_str(obj, "mode")? {
-                    None => None,
-                    Some("step") => Some(CharacterizeMode::Step),
-                    Some("sweep") => Some(CharacterizeMode::Sweep),
-                    Some(other) => {
-                        return Err(unknown_word("characterize mode", other, "step, sweep"))
-                    }
-                },
+                mode: opt_word(obj, "mode")?,
                 velocity_um_per_s: opt_f64_within(
                     obj,
                     "velocity_um_per_s",
@@ -307,54 +238,24 @@ fn parse_characterize(obj: &Map<String, Value>) -> Result<CharacterizeAction, Pr
                     "0..1000000 (0 = no anchors)",
                 )?,
                 moves_per_cycle: opt_count(obj, "moves_per_cycle", 0, 100_000)?,
-                plan: match opt_str(obj, "plan")? {
-                    None => None,
-                    Some("lines") => Some(CharacterizePlan::Lines),
-                    Some("grid") => Some(CharacterizePlan::Grid),
-                    Some(other) => {
-                        return Err(unknown_word("characterize plan", other, "lines, grid"))
-                    }
-                },
+                plan: opt_word(obj, "plan")?,
                 pitch_um: positive("pitch_um")?,
-                approach: match opt_str(obj, "approach")? {
-                    None => None,
-                    Some("below") => Some(GridApproach::Below),
-                    Some("both") => Some(GridApproach::Both),
-                    Some(other) => return Err(unknown_word("grid approach", other, "below, both")),
-                },
-                order: match opt_str(obj, "order")? {
-                    None => None,
-                    Some("raster") => Some(GridOrder::Raster),
-                    Some("serpentine") => Some(GridOrder::Serpentine),
-                    Some(other) => {
-                        return Err(unknown_word("grid order", other, "raster, serpentine"))
-                    }
-                },
+                approach: opt_word(obj, "approach")?,
+                order: opt_word(obj, "order")?,
             })))
         }
         "status" => Ok(CharacterizeAction::Status),
         "cancel" => Ok(CharacterizeAction::Cancel),
         "resume" => match log {
             Some(log) => Ok(CharacterizeAction::Resume { log }),
-            None => Err(ProtoError::new(
-                ErrorCode::MissingField,
-                "characterize resume needs log (the file name of the job to continue)",
-            )),
+            None => Err(resume_needs_log()),
         },
-        other => Err(unknown_word(
-            "characterize action",
-            other,
-            "start, status, cancel, resume",
-        )),
+        other => Err(unknown_action(schema.cmd, other)),
     }
 }
 
 fn parse_figures(obj: &Map<String, Value>) -> Result<FiguresParams, ProtoError> {
-    let job = match opt_str(obj, "job")?.unwrap_or("characterize") {
-        "characterize" => FiguresJob::Characterize,
-        "validate" => FiguresJob::Validate,
-        other => return Err(unknown_word("figures job", other, "characterize, validate")),
-    };
+    let job = opt_word(obj, "job")?.unwrap_or(FiguresJob::Characterize);
     let log = match opt_str(obj, "log")? {
         Some(l) => {
             check_file_name("log", l)?;
@@ -365,43 +266,30 @@ fn parse_figures(obj: &Map<String, Value>) -> Result<FiguresParams, ProtoError> 
     Ok(FiguresParams { job, log })
 }
 
-fn parse_drift(obj: &Map<String, Value>) -> Result<DriftAction, ProtoError> {
-    use crate::daemon::config::DriftMethodName;
-    match opt_str(obj, "action")?.unwrap_or("show") {
+fn parse_drift(
+    obj: &Map<String, Value>,
+    schema: &CommandSchema,
+) -> Result<DriftAction, ProtoError> {
+    match action_word(obj, schema)? {
         "show" => Ok(DriftAction::Show),
         "reset" => Ok(DriftAction::Reset),
         "measure" => Ok(DriftAction::Measure),
-        "set" => {
-            let method = match opt_str(obj, "method")? {
-                None => None,
-                Some("off") => Some(DriftMethodName::Off),
-                Some("static") => Some(DriftMethodName::Static),
-                Some("adaptive") => Some(DriftMethodName::Adaptive),
-                Some(m) => return Err(unknown_word("drift method", m, "off, static or adaptive")),
-            };
-            Ok(DriftAction::Set {
-                method,
-                every_s: opt_f64_within(obj, "every_s", 0.001, 86_400.0, "0.001..86400")?,
-                time_constant_s: opt_f64_within(obj, "time_constant_s", 1.0, 1e7, "1..10000000")?,
-            })
-        }
-        other => Err(unknown_word(
-            "drift action",
-            other,
-            "show, set, reset, measure",
-        )),
+        "set" => Ok(DriftAction::Set {
+            method: opt_word(obj, "method")?,
+            every_s: opt_f64_within(obj, "every_s", 0.001, 86_400.0, "0.001..86400")?,
+            time_constant_s: opt_f64_within(obj, "time_constant_s", 1.0, 1e7, "1..10000000")?,
+        }),
+        other => Err(unknown_action(schema.cmd, other)),
     }
 }
 
-fn parse_validate(obj: &Map<String, Value>) -> Result<ValidateAction, ProtoError> {
-    match opt_str(obj, "action")?.unwrap_or("status") {
+fn parse_validate(
+    obj: &Map<String, Value>,
+    schema: &CommandSchema,
+) -> Result<ValidateAction, ProtoError> {
+    match action_word(obj, schema)? {
         "start" => {
-            let tests = match opt_str(obj, "test")?.unwrap_or("both") {
-                "square" => vec!["square".to_owned()],
-                "random" => vec!["random".to_owned()],
-                "both" => vec!["square".to_owned(), "random".to_owned()],
-                test => return Err(unknown_word("test", test, "square, random or both")),
-            };
+            let tests = opt_word(obj, "test")?.unwrap_or(ValidateTest::Both).tests();
             let modes = match obj.get("modes") {
                 None | Some(Value::Null) => ValidateMode::ALL.to_vec(),
                 Some(Value::Array(items)) => {
@@ -410,12 +298,7 @@ fn parse_validate(obj: &Map<String, Value>) -> Result<ValidateAction, ProtoError
                         let Value::String(m) = item else {
                             return Err(wrong_type("modes[]", "a string", item));
                         };
-                        let m = ValidateMode::ALL
-                            .into_iter()
-                            .find(|k| k.as_str() == m)
-                            .ok_or_else(|| {
-                                unknown_word("mode", m, "raw, table, model, closed_loop")
-                            })?;
+                        let m = ValidateMode::from_word(m)?;
                         if !modes.contains(&m) {
                             modes.push(m);
                         }
@@ -456,24 +339,20 @@ fn parse_validate(obj: &Map<String, Value>) -> Result<ValidateAction, ProtoError
         }
         "status" => Ok(ValidateAction::Status),
         "cancel" => Ok(ValidateAction::Cancel),
-        other => Err(unknown_word(
-            "validate action",
-            other,
-            "start, status, cancel",
-        )),
+        other => Err(unknown_action(schema.cmd, other)),
     }
 }
 
-fn parse_tables(obj: &Map<String, Value>) -> Result<TablesAction, ProtoError> {
+fn parse_tables(
+    obj: &Map<String, Value>,
+    schema: &CommandSchema,
+) -> Result<TablesAction, ProtoError> {
     let name = opt_str(obj, "name")?;
-    match opt_str(obj, "action")?.unwrap_or("list") {
+    match action_word(obj, schema)? {
         "list" => Ok(TablesAction::List),
         "load" => {
             let Some(name) = name else {
-                return Err(ProtoError::new(
-                    ErrorCode::MissingField,
-                    "tables load needs name (a table file in the data directory)",
-                ));
+                return Err(load_needs_name());
             };
             check_file_name("name", name)?;
             Ok(TablesAction::Load {
@@ -485,10 +364,7 @@ fn parse_tables(obj: &Map<String, Value>) -> Result<TablesAction, ProtoError> {
         }),
         "build" => {
             let Some(log) = opt_str(obj, "log")? else {
-                return Err(ProtoError::new(
-                    ErrorCode::MissingField,
-                    "tables build needs log (a characterization log in the data directory)",
-                ));
+                return Err(build_needs_log());
             };
             check_file_name("log", log)?;
             if let Some(n) = name {
@@ -501,13 +377,13 @@ fn parse_tables(obj: &Map<String, Value>) -> Result<TablesAction, ProtoError> {
                     let mut kinds: Vec<String> = Vec::new();
                     for item in items {
                         match item {
-                            Value::String(k) if k == "paper" || k == "model" || k == "grid" => {
+                            Value::String(k) if TABLE_KINDS.contains(&k.as_str()) => {
                                 if !kinds.contains(k) {
                                     kinds.push(k.clone());
                                 }
                             }
                             Value::String(k) => {
-                                return Err(unknown_word("table kind", k, "paper, model, grid"))
+                                return Err(unknown_word("table kind", k, &TABLE_KINDS.join(", ")))
                             }
                             other => return Err(wrong_type("kinds[]", "a string", other)),
                         }
@@ -526,10 +402,23 @@ fn parse_tables(obj: &Map<String, Value>) -> Result<TablesAction, ProtoError> {
                 activate: opt_bool(obj, "activate")?.unwrap_or(false),
             }))
         }
-        other => Err(unknown_word(
-            "tables action",
-            other,
-            "list, load, activate, build",
-        )),
+        other => Err(unknown_action(schema.cmd, other)),
     }
+}
+
+/// An optional keyword field: `None` when absent or null, else its word
+/// read by [`Word::from_word`] (a wrong word refused with the type's
+/// wording, a non-string as `wrong_type`).
+fn opt_word<T: Word>(obj: &Map<String, Value>, key: &str) -> Result<Option<T>, ProtoError> {
+    opt_str(obj, key)?.map(T::from_word).transpose()
+}
+
+/// The `action` word, or the command's default action when absent.
+fn action_word<'a>(
+    obj: &'a Map<String, Value>,
+    schema: &CommandSchema,
+) -> Result<&'a str, ProtoError> {
+    Ok(opt_str(obj, "action")?
+        .or(schema.default_action)
+        .unwrap_or_default())
 }

@@ -6,6 +6,7 @@
 
 use serde_json::{Map, Value};
 
+use super::replies::error_body_value;
 use super::ProtoError;
 
 /// A success reply: `{"id":…,"ok":true, …fields}` plus newline.
@@ -46,14 +47,18 @@ pub fn reply(id: &Value, result: Result<Value, ProtoError>) -> String {
 
 /// An error reply: `{"id":…,"ok":false,"error":{"code":…,"message":…}}`.
 pub fn error_reply(id: &Value, e: &ProtoError) -> String {
-    let mut err = Map::new();
-    err.insert("code".to_owned(), Value::from(e.code.as_str()));
-    err.insert("message".to_owned(), Value::from(e.message.clone()));
+    line(error_reply_value(id, e))
+}
+
+/// An error reply as a value: what [`error_reply`] writes, and what a
+/// client that refuses a request itself (a word the protocol does not
+/// know, read from its command line) shows as if the daemon had refused.
+pub fn error_reply_value(id: &Value, e: &ProtoError) -> Value {
     let mut obj = Map::new();
     obj.insert("id".to_owned(), id.clone());
     obj.insert("ok".to_owned(), Value::Bool(false));
-    obj.insert("error".to_owned(), Value::Object(err));
-    line(Value::Object(obj))
+    obj.insert("error".to_owned(), error_body_value(e));
+    Value::Object(obj)
 }
 
 /// A pushed event: `{"event":name, …fields}` plus newline.

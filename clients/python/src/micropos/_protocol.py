@@ -2,8 +2,9 @@
 
 Why separate from the sync and asyncio clients: both must send byte-identical
 requests and judge replies identically; keeping the field names here, in one
-place next to ``src/daemon/protocol/parse.rs``, means a renamed field is fixed
-once. Every builder drops the arguments left at ``None`` so the daemon applies
+place, means a renamed field is fixed once. They are checked against the
+daemon's request schema (``docs/socket-schema.json``, generated from
+``src/daemon/protocol/schema.rs``) by ``tests/test_schema.py``. Every builder drops the arguments left at ``None`` so the daemon applies
 its own (configured) default instead of a copy of it frozen in this client.
 """
 

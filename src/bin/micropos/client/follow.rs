@@ -9,7 +9,7 @@
 //! between the start and the end).
 
 use super::{sweep_summary, Conn, Unreachable};
-use micropos::daemon::protocol::JobState;
+use micropos::daemon::protocol::{Command, JobKind, JobProgress, JobState, Topic};
 use serde_json::{json, Value};
 use std::io::{IsTerminal, Write};
 use std::process::ExitCode;
@@ -48,17 +48,20 @@ impl View {
 
     /// Shows a running job's `job` event.
     fn progress(&mut self, ev: &Value) {
+        let Some(p) = JobProgress::from_json(ev) else {
+            return;
+        };
         match self {
             View::Bar(bar) => {
-                bar.set_position(ev["done"].as_u64().unwrap_or(0));
-                if let Some(eta) = ev["eta_s"].as_f64() {
+                bar.set_position(p.done);
+                if let Some(eta) = p.eta_s {
                     bar.set_message(format!("{eta:.0} s"));
                 }
             }
             View::Plain { last } => {
                 if last.elapsed() >= PLAIN_EVERY {
                     *last = Instant::now();
-                    eprintln!("{}", progress_line(ev));
+                    eprintln!("{}", progress_line(&p));
                 }
             }
         }
@@ -85,23 +88,19 @@ impl View {
 }
 
 /// `progress: 5/12 points, ETA 30 s`.
-fn progress_line(ev: &Value) -> String {
-    let eta = ev["eta_s"]
-        .as_f64()
-        .map_or(String::new(), |s| format!(", ETA {s:.0} s"));
-    format!(
-        "progress: {}/{} points{eta}",
-        ev["done"].as_u64().unwrap_or(0),
-        ev["total"].as_u64().unwrap_or(0)
-    )
+fn progress_line(p: &JobProgress) -> String {
+    let eta = p.eta_s.map_or(String::new(), |s| format!(", ETA {s:.0} s"));
+    format!("progress: {}/{} points{eta}", p.done, p.total)
 }
 
 /// Whether a `job` object (event or status) is of a job that has ended.
 fn ended(job: &Value) -> bool {
-    // A state this client does not know (a newer daemon's) has ended too.
-    job["state"]
-        .as_str()
-        .is_some_and(|s| JobState::parse(s) != Some(JobState::Running))
+    match JobProgress::from_json(job) {
+        Some(p) => p.state.ended(),
+        // A state this client does not know (a newer daemon's) has ended
+        // too; no state at all (no job yet) has not.
+        None => job["state"].is_string(),
+    }
 }
 
 /// Waits until the job the `started` reply announced ends; its last `job`
@@ -123,7 +122,7 @@ pub(super) async fn follow(conn: &mut Conn, started: &Value) -> Result<Value, Un
 
 /// The subscription and the event loop of [`follow`].
 async fn wait_end(conn: &mut Conn, view: &mut View, kind: &str) -> Result<Value, Unreachable> {
-    conn.request(json!({"cmd": "subscribe", "topics": ["job", "fault"]}))
+    conn.request(Command::Subscribe(vec![Topic::Job, Topic::Fault]))
         .await?;
     // A job that ended before the subscription took effect sends no more
     // events: its status (asked after subscribing) says so.
@@ -147,9 +146,10 @@ async fn wait_end(conn: &mut Conn, view: &mut View, kind: &str) -> Result<Value,
 
 /// The current `job` object of a `characterize` or `validate` status.
 async fn job_status(conn: &mut Conn, kind: &str) -> Result<Value, Unreachable> {
-    let s = conn
-        .request(json!({"cmd": kind, "action": "status"}))
-        .await?;
+    // A kind this client does not know: asked as a characterization, the
+    // job a reply without a kind is taken for.
+    let kind = JobKind::parse(kind).unwrap_or(JobKind::Characterize);
+    let s = conn.request(kind.status_command()).await?;
     Ok(s["job"].clone())
 }
 
@@ -187,23 +187,23 @@ pub(super) fn report_end(
 
 /// Whether the job ended done: the only end a script may build on.
 fn ended_done(job: &Value) -> bool {
-    JobState::of(job) == Some(JobState::Done)
+    JobProgress::from_json(job).is_some_and(|p| p.state == JobState::Done)
 }
 
-/// `characterize run1.csv: state done, 12/12 points (1 retry)`.
+/// `characterize run1.csv: state done, 12/12 points (1 retry)`; a job
+/// this client cannot read (a newer daemon's state) as its JSON.
 fn final_line(job: &Value) -> String {
-    let retries = match job["retries"].as_u64() {
-        Some(0) | None => String::new(),
-        Some(1) => " (1 retry)".to_owned(),
-        Some(n) => format!(" ({n} retries)"),
+    let Some(p) = JobProgress::from_json(job) else {
+        return format!("job ended: {job}");
+    };
+    let retries = match p.retries {
+        0 => String::new(),
+        1 => " (1 retry)".to_owned(),
+        n => format!(" ({n} retries)"),
     };
     format!(
         "{} {}: state {}, {}/{} points{retries}",
-        job["kind"].as_str().unwrap_or("job"),
-        job["log"].as_str().unwrap_or("?"),
-        job["state"].as_str().unwrap_or("?"),
-        job["done"].as_u64().unwrap_or(0),
-        job["total"].as_u64().unwrap_or(0)
+        p.kind, p.log, p.state, p.done, p.total
     )
 }
 

@@ -10,7 +10,7 @@
 //! `--json` prints the `status` reply alone, as before.
 
 use crate::fmt::{margin_short, rms_um, um};
-use micropos::daemon::protocol::JobState;
+use micropos::daemon::protocol::{JobProgress, JobState};
 use serde_json::Value;
 use std::fmt::Write;
 
@@ -327,33 +327,30 @@ pub(super) fn job(j: &Value, out: &mut String) {
     let _ = writeln!(out, "job: {}", job_line(j));
 }
 
-/// `characterize c.csv: running, 5/80 points, ETA 30 s` (or `none`).
+/// `characterize c.csv: running, 5/80 points, ETA 30 s` (or `none`; a job
+/// object this client cannot read, a newer daemon's state, as `unreadable`).
 pub(super) fn job_line(j: &Value) -> String {
     if !j.is_object() {
         return "none".to_owned();
     }
+    let Some(p) = JobProgress::from_json(j) else {
+        return format!("unreadable ({j})");
+    };
     let mut s = format!(
         "{} {}: {}, {}/{} points",
-        j["kind"].as_str().unwrap_or("job"),
-        j["log"].as_str().unwrap_or("?"),
-        j["state"].as_str().unwrap_or("?"),
-        j["done"].as_u64().unwrap_or(0),
-        j["total"].as_u64().unwrap_or(0)
+        p.kind, p.log, p.state, p.done, p.total
     );
-    if let Some(eta) = j["eta_s"]
-        .as_f64()
-        .filter(|_| JobState::of(j) == Some(JobState::Running))
-    {
+    if let Some(eta) = p.eta_s.filter(|_| p.state == JobState::Running) {
         let _ = write!(s, ", ETA {eta:.0} s");
     }
-    match j["retries"].as_u64() {
-        Some(0) | None => {}
-        Some(1) => s.push_str(" (1 retry)"),
-        Some(n) => {
+    match p.retries {
+        0 => {}
+        1 => s.push_str(" (1 retry)"),
+        n => {
             let _ = write!(s, " ({n} retries)");
         }
     }
-    if let Some(e) = j["error"].as_str().filter(|e| !e.is_empty()) {
+    if let Some(e) = p.error.filter(|e| !e.is_empty()) {
         let _ = write!(s, ": {e}");
     }
     s
