@@ -53,29 +53,8 @@ python3 scripts/results.py --check-quotes README.md docs/results.md
 stage "files over 900 lines (scripts/long-code.py)"
 python3 scripts/long-code.py
 
-# MICROPOS_CLIPPY=1 (CI): the test build is also clippy's pass. clippy-driver
-# is rustc with clippy's lints added (what `cargo clippy` runs, there without
-# code generation): as the workspace's compiler wrapper it lints each crate of
-# the workspace while compiling it, with `-D warnings`, so CI compiles the
-# workspace once instead of checking it (and every dependency, in check
-# mode) for clippy and then building it for the tests. `--benches` adds what
-# `cargo clippy --all-targets` covers beyond the tests (built, not run).
-# The same variables stay set for every later cargo call (nextest's own
-# build, the doc tests): with another wrapper cargo would rebuild.
-build_targets=()
-if [ "${MICROPOS_CLIPPY:-0}" = 1 ]; then
-  driver=$(rustup which clippy-driver 2>/dev/null || command -v clippy-driver || true)
-  if [ -z "$driver" ]; then
-    echo "MICROPOS_CLIPPY=1: no clippy-driver (rustup component add clippy)" >&2
-    exit 1
-  fi
-  export RUSTC_WORKSPACE_WRAPPER=$driver
-  export CLIPPY_ARGS="-D__CLIPPY_HACKERY__warnings__CLIPPY_HACKERY__"
-  build_targets=(--lib --bins --tests --benches)
-fi
-
 if [ "${MICROPOS_NEXTEST:-1}" = 1 ] && cargo nextest --version >/dev/null 2>&1; then
-  stage "build the tests (cargo test --no-run ${features[*]:-} ${build_targets[*]:-})${build_targets:+, linted by clippy}"
+  stage "build the tests (cargo test --no-run ${features[*]:-})"
   # MICROPOS_TIMINGS=1 (CI): cargo's --timings report, and the build's
   # longest units printed (scripts/cargo-timings.py).
   timings=()
@@ -83,7 +62,7 @@ if [ "${MICROPOS_NEXTEST:-1}" = 1 ] && cargo nextest --version >/dev/null 2>&1; 
     timings=(--timings)
     rm -f "$target"/cargo-timings/cargo-timing-*.html
   fi
-  cargo test --workspace "${features[@]}" "${timings[@]}" "${build_targets[@]}" --no-run
+  cargo test --workspace "${features[@]}" "${timings[@]}" --no-run
   if [ ${#timings[@]} -gt 0 ]; then
     python3 scripts/cargo-timings.py -n 12 "$target"/cargo-timings/cargo-timing-*.html || true
   fi
@@ -92,10 +71,6 @@ if [ "${MICROPOS_NEXTEST:-1}" = 1 ] && cargo nextest --version >/dev/null 2>&1; 
   stage "cargo test --doc ${features[*]:-}"
   cargo test --workspace --doc "${features[@]}"
 else
-  if [ ${#build_targets[@]} -gt 0 ]; then
-    stage "build the tests, linted by clippy (cargo test --no-run ${build_targets[*]})"
-    cargo test --workspace "${features[@]}" "${build_targets[@]}" --no-run
-  fi
   stage "cargo test ${features[*]:-}"
   cargo test --workspace "${features[@]}"
 fi
@@ -152,9 +127,7 @@ run_suite() {
     fuzz)
       local idle=(nice -n 19)
       if ionice -c 3 true 2>/dev/null; then idle+=(ionice -c 3); fi
-      # Not through clippy-driver: the fuzz crate is a workspace of its own,
-      # built on nightly, as the background build built it.
-      env -u RUSTC_WORKSPACE_WRAPPER -u CLIPPY_ARGS "${idle[@]}" .ci/fuzz run
+      "${idle[@]}" .ci/fuzz run
       ;;
   esac
 }
