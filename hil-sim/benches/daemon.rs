@@ -100,7 +100,7 @@ impl FrameSource for Counting {
     }
 }
 
-struct Rig {
+struct BenchRig {
     sim: Option<SimHandle>,
     daemon: Option<Running>,
     socket: PathBuf,
@@ -122,7 +122,7 @@ fn runtime(name: &'static str) -> tokio::runtime::Runtime {
 /// runs at real time (so its 30 frames per simulated second are 30 per wall
 /// second) and referencing is fast-forwarded with `SimHandle::advance`;
 /// without, the clock runs 20× (as `tests/it/daemon_sim.rs`).
-fn start_rig(rt: &tokio::runtime::Runtime, camera: bool) -> Rig {
+fn start_rig(rt: &tokio::runtime::Runtime, camera: bool) -> BenchRig {
     let dir = tempfile::tempdir().unwrap();
     let cfg = ServeConfig {
         link_dir: dir.path().to_owned(),
@@ -158,7 +158,7 @@ fn start_rig(rt: &tokio::runtime::Runtime, camera: bool) -> Rig {
         let listener = tokio::net::UnixListener::bind(&socket).unwrap();
         Daemon::start(c, Arc::new(WallClock::new()), cam, listener).unwrap()
     });
-    let r = Rig {
+    let r = BenchRig {
         sim: Some(sim),
         daemon: Some(daemon),
         socket,
@@ -195,7 +195,7 @@ fn start_rig(rt: &tokio::runtime::Runtime, camera: bool) -> Rig {
     r
 }
 
-fn stop_rig(rt: &tokio::runtime::Runtime, mut r: Rig) {
+fn stop_rig(rt: &tokio::runtime::Runtime, mut r: BenchRig) {
     if let Some(d) = r.daemon.take() {
         rt.block_on(d.shutdown());
     }

@@ -65,7 +65,7 @@ impl Client {
     }
 }
 
-struct Rig {
+struct BenchRig {
     sim: SimHandle,
     daemon: Running,
     socket: PathBuf,
@@ -73,7 +73,7 @@ struct Rig {
     _dir: tempfile::TempDir,
 }
 
-fn start() -> Rig {
+fn start() -> BenchRig {
     let dir = tempfile::tempdir().unwrap();
     let sim = SimHandle::start(ServeConfig {
         link_dir: dir.path().to_owned(),
@@ -117,7 +117,7 @@ fn start() -> Rig {
     }
     let rf = cl.call(json!({"cmd":"reference"}));
     assert_eq!(rf["ok"], true, "{rf}");
-    Rig {
+    BenchRig {
         sim,
         daemon,
         socket,
@@ -234,7 +234,7 @@ fn bench(c: &mut Criterion) {
             busy / quiet
         );
     }
-    let Rig {
+    let BenchRig {
         sim, daemon, rt, ..
     } = rig;
     rt.block_on(daemon.shutdown());

@@ -11,7 +11,7 @@ use tokio::sync::{broadcast, mpsc};
 
 const T: Duration = Duration::from_millis(200);
 
-struct Rig {
+struct FakeLine {
     fake: Fake,
     feed: mpsc::UnboundedSender<DuplexStream>,
     line: Line,
@@ -20,8 +20,8 @@ struct Rig {
     garbage: mpsc::UnboundedSender<Vec<u8>>,
 }
 
-impl Rig {
-    async fn new(addresses: &[u8]) -> Rig {
+impl FakeLine {
+    async fn new(addresses: &[u8]) -> FakeLine {
         let fake = Fake::new(addresses);
         let (conn, feed) = duplex_connector();
         let (host, dev) = tokio::io::duplex(4096);
@@ -31,7 +31,7 @@ impl Rig {
         let line = Line::open(conn, LineOptions::default(), events.clone())
             .await
             .unwrap();
-        Rig {
+        FakeLine {
             fake,
             feed,
             line,
@@ -86,7 +86,7 @@ fn params(name: &str) -> AxisParams {
     }
 }
 
-async fn referenced_axis(rig: &Rig) -> Axis {
+async fn referenced_axis(rig: &FakeLine) -> Axis {
     let ax = rig.axis("x", None).await.unwrap();
     assert_eq!(ax.reference().await.unwrap(), 7500.0);
     ax
@@ -94,7 +94,7 @@ async fn referenced_axis(rig: &Rig) -> Axis {
 
 #[tokio::test(start_paused = true)]
 async fn bring_up_reference_and_moves_in_micrometres() {
-    let mut rig = Rig::new(&[1]).await;
+    let mut rig = FakeLine::new(&[1]).await;
     let ax = rig.axis("x", None).await.unwrap();
     assert_eq!(ax.identity().model, "C-863.11");
     assert_eq!(ax.travel_um(), (0.0, 15_000.0));
@@ -155,7 +155,7 @@ async fn bring_up_reference_and_moves_in_micrometres() {
 
 #[tokio::test(start_paused = true)]
 async fn silence_is_unknown_command_or_not_answering() {
-    let rig = Rig::new(&[1]).await;
+    let rig = FakeLine::new(&[1]).await;
     let ctl = rig.controller(None);
     // The fake does not know HPA?: silence, then ERR? = 2.
     match ctl.query(&Command::Hpa).await {
@@ -189,7 +189,7 @@ async fn silence_is_unknown_command_or_not_answering() {
 
 #[tokio::test(start_paused = true)]
 async fn non_pi_and_non_c863_are_refused() {
-    let rig = Rig::new(&[1]).await;
+    let rig = FakeLine::new(&[1]).await;
     rig.fake.axis(1, |a| a.idn = "Arduino Uno".into());
     match rig.axis("x", None).await {
         Err(DriverError::NotPi { idn, .. }) => assert_eq!(idn, "Arduino Uno"),
@@ -206,7 +206,7 @@ async fn non_pi_and_non_c863_are_refused() {
 
 #[tokio::test(start_paused = true)]
 async fn halt_stops_the_move_and_the_waiter() {
-    let rig = Rig::new(&[1]).await;
+    let rig = FakeLine::new(&[1]).await;
     let ax = referenced_axis(&rig).await;
     ax.move_abs_um(14_000.0).await.unwrap();
     let waiter = {
@@ -242,7 +242,7 @@ async fn halt_stops_the_move_and_the_waiter() {
 /// next command reads it first, so it is not reported refused by it.
 #[tokio::test(start_paused = true)]
 async fn an_abandoned_halt_does_not_refuse_the_next_move() {
-    let rig = Rig::new(&[1]).await;
+    let rig = FakeLine::new(&[1]).await;
     let ax = referenced_axis(&rig).await;
     ax.move_abs_um(9_000.0).await.unwrap();
     assert!(!rig.line.error_unread(None));
@@ -265,7 +265,7 @@ async fn an_abandoned_halt_does_not_refuse_the_next_move() {
 /// not sent and says which code was waiting; nothing is lost.
 #[tokio::test(start_paused = true)]
 async fn a_waiting_refusal_is_reported_and_the_next_command_not_sent() {
-    let rig = Rig::new(&[1]).await;
+    let rig = FakeLine::new(&[1]).await;
     let ax = referenced_axis(&rig).await;
     let ctl = ax.controller().clone();
     let vel = |v: f64| Command::Vel(vec![(AxisId::new("1").unwrap(), v)]);
@@ -291,7 +291,7 @@ async fn a_waiting_refusal_is_reported_and_the_next_command_not_sent() {
 /// says it was halted, not that the controller gave up.
 #[tokio::test(start_paused = true)]
 async fn a_halt_during_referencing_reads_as_halted() {
-    let rig = Rig::new(&[1]).await;
+    let rig = FakeLine::new(&[1]).await;
     let ax = rig.axis("x", None).await.unwrap();
     let referencing = {
         let ax = ax.clone();
@@ -310,7 +310,7 @@ async fn a_halt_during_referencing_reads_as_halted() {
 
 #[tokio::test(start_paused = true)]
 async fn pulled_cable_gives_clear_errors_then_recovers() {
-    let mut rig = Rig::new(&[1]).await;
+    let mut rig = FakeLine::new(&[1]).await;
     let ax = referenced_axis(&rig).await;
     rig.drain_events();
     rig.pull();
@@ -341,7 +341,7 @@ async fn pulled_cable_gives_clear_errors_then_recovers() {
 
 #[tokio::test(start_paused = true)]
 async fn power_cycle_refuses_positions_until_referenced() {
-    let mut rig = Rig::new(&[1]).await;
+    let mut rig = FakeLine::new(&[1]).await;
     let ax = referenced_axis(&rig).await;
     ax.set_velocity_um_per_s(700.0).await.unwrap();
     ax.move_abs_um(9_000.0).await.unwrap();
@@ -372,7 +372,7 @@ async fn power_cycle_refuses_positions_until_referenced() {
 
 #[tokio::test(start_paused = true)]
 async fn garbage_is_never_taken_for_an_answer() {
-    let mut rig = Rig::new(&[1]).await;
+    let mut rig = FakeLine::new(&[1]).await;
     let ax = referenced_axis(&rig).await;
     // While idle, with and without a line feed: dropped, reported, harmless.
     rig.garbage.send(b"\xff\x00noise".to_vec()).unwrap();
@@ -402,7 +402,7 @@ async fn garbage_is_never_taken_for_an_answer() {
 
 #[tokio::test(start_paused = true)]
 async fn late_replies_are_dropped_not_misattributed() {
-    let rig = Rig::new(&[1]).await;
+    let rig = FakeLine::new(&[1]).await;
     let ax = referenced_axis(&rig).await;
     ax.move_abs_um(9_000.0).await.unwrap();
     ax.wait_on_target(None).await.unwrap();
@@ -424,7 +424,7 @@ async fn late_replies_are_dropped_not_misattributed() {
 
 #[tokio::test(start_paused = true)]
 async fn withheld_replies_then_recovery() {
-    let rig = Rig::new(&[1]).await;
+    let rig = FakeLine::new(&[1]).await;
     let ax = referenced_axis(&rig).await;
     rig.fake.with(|b| b.silent = true);
     assert!(matches!(
@@ -437,7 +437,7 @@ async fn withheld_replies_then_recovery() {
 
 #[tokio::test(start_paused = true)]
 async fn daisy_chain_serves_two_addresses() {
-    let rig = Rig::new(&[1, 2]).await;
+    let rig = FakeLine::new(&[1, 2]).await;
     let x = rig.axis("x", Some(1)).await.unwrap();
     let y = rig.axis("y", Some(2)).await.unwrap();
     let (a, b) = tokio::join!(x.reference(), y.reference());
@@ -465,7 +465,7 @@ async fn daisy_chain_serves_two_addresses() {
 
 #[tokio::test(start_paused = true)]
 async fn a_different_controller_after_reconnect_is_refused() {
-    let mut rig = Rig::new(&[1]).await;
+    let mut rig = FakeLine::new(&[1]).await;
     let ax = referenced_axis(&rig).await;
     rig.pull();
     rig.fake.axis(1, |a| {
@@ -484,7 +484,7 @@ async fn a_different_controller_after_reconnect_is_refused() {
 /// (servo off) has the other axis, which had started, halted.
 #[tokio::test(start_paused = true)]
 async fn a_two_axis_move_is_all_or_nothing() {
-    let rig = Rig::new(&[1, 2]).await;
+    let rig = FakeLine::new(&[1, 2]).await;
     let x = rig.axis("x", Some(1)).await.unwrap();
     let y = rig.axis("y", Some(2)).await.unwrap();
     assert_eq!(x.reference().await.unwrap(), 7500.0);
@@ -522,7 +522,7 @@ async fn a_two_axis_move_is_all_or_nothing() {
 /// not taken for the refusal of the next command.
 #[tokio::test(start_paused = true)]
 async fn a_reopened_line_stops_the_controller_first() {
-    let mut rig = Rig::new(&[1]).await;
+    let mut rig = FakeLine::new(&[1]).await;
     let ax = referenced_axis(&rig).await;
     ax.move_abs_um(14_000.0).await.unwrap(); // 6.5 mm at 1 mm/s
     tokio::time::sleep(Duration::from_secs(1)).await;
@@ -554,7 +554,7 @@ async fn a_reopened_line_stops_the_controller_first() {
 
 #[tokio::test(start_paused = true)]
 async fn dropping_handles_ends_the_line_task_without_sending() {
-    let rig = Rig::new(&[1]).await;
+    let rig = FakeLine::new(&[1]).await;
     let ax = referenced_axis(&rig).await;
     ax.move_abs_um(14_000.0).await.unwrap();
     let fake = rig.fake.clone();
@@ -600,7 +600,7 @@ async fn serial_connector_on_a_pty_and_hangup() {
 
 #[tokio::test(start_paused = true)]
 async fn garbage_shaped_like_an_answer_is_not_trusted() {
-    let rig = Rig::new(&[1]).await;
+    let rig = FakeLine::new(&[1]).await;
     let ax = referenced_axis(&rig).await;
     rig.fake.with(|b| b.delay = Duration::from_millis(50));
     let garbage = rig.garbage.clone();
@@ -617,7 +617,7 @@ async fn garbage_shaped_like_an_answer_is_not_trusted() {
 
 #[tokio::test(start_paused = true)]
 async fn urgent_stop_overtakes_a_busy_line() {
-    let rig = Rig::new(&[1]).await;
+    let rig = FakeLine::new(&[1]).await;
     let ax = referenced_axis(&rig).await;
     ax.move_abs_um(14_000.0).await.unwrap();
     // The controller stops answering: every query waits its timeout, then
@@ -658,7 +658,7 @@ async fn urgent_stop_overtakes_a_busy_line() {
 
 #[tokio::test(start_paused = true)]
 async fn urgent_halt_overtakes_reads_that_time_out_and_their_resync() {
-    let rig = Rig::new(&[1]).await;
+    let rig = FakeLine::new(&[1]).await;
     let ax = referenced_axis(&rig).await;
     ax.move_abs_um(14_000.0).await.unwrap();
     rig.fake.with(|b| b.silent = true);
@@ -709,7 +709,7 @@ async fn urgent_halt_overtakes_reads_that_time_out_and_their_resync() {
 /// reads as having none, not as a fault: the sweep then polls `POS?`.
 #[tokio::test(start_paused = true)]
 async fn a_controller_without_a_data_recorder_reads_as_none() {
-    let rig = Rig::new(&[1]).await;
+    let rig = FakeLine::new(&[1]).await;
     let ax = referenced_axis(&rig).await;
     assert_eq!(ax.recorder_tables().await.unwrap(), None);
     let e = ax.record_actual_position(1, 20).await.unwrap_err();
@@ -724,7 +724,7 @@ async fn a_controller_without_a_data_recorder_reads_as_none() {
 /// first move, whose start is not known), with far fewer polls.
 #[tokio::test(start_paused = true)]
 async fn a_move_from_rest_is_polled_sparsely_until_it_can_have_ended() {
-    let rig = Rig::new(&[1]).await;
+    let rig = FakeLine::new(&[1]).await;
     let ax = referenced_axis(&rig).await;
     ax.set_velocity_um_per_s(500.0).await.unwrap();
     let polls = || rig.fake.axis(1, |a| a.ont_queries);

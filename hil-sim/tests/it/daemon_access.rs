@@ -11,7 +11,7 @@
 //!   `move`; after the roles change (what SIGHUP does) it moves, and the
 //!   audit file names its uid and pid.
 
-use crate::common::{self, Client};
+use crate::common::{self, Client, DaemonRig};
 use hil_sim::{AxisName, ServeConfig, SimHandle};
 use micropos::clock::WallClock;
 use micropos::daemon::config::{AccessSection, DaemonConfig};
@@ -23,68 +23,8 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 use tokio::io::AsyncReadExt;
 
-struct Rig {
-    sim: Option<SimHandle>,
-    daemon: Running,
-    socket: PathBuf,
-    data: PathBuf,
-    _dir: tempfile::TempDir,
-}
-
-impl Drop for Rig {
-    fn drop(&mut self) {
-        if let Some(s) = self.sim.take() {
-            s.shutdown();
-        }
-    }
-}
-
-impl Rig {
-    fn truth_um(&self, axis: AxisName) -> f64 {
-        self.sim.as_ref().unwrap().true_position_mm(axis) * 1000.0
-    }
-}
-
-async fn rig(configure: impl FnOnce(&mut DaemonConfig)) -> Rig {
-    let dir = tempfile::tempdir().unwrap();
-    let cfg = ServeConfig {
-        link_dir: dir.path().to_owned(),
-        daisy_chain: false,
-        time_scale: 20.0,
-        control_socket: None,
-        seed: 12,
-        ..ServeConfig::default()
-    };
-    let sim = tokio::task::spawn_blocking(move || SimHandle::start(cfg))
-        .await
-        .unwrap()
-        .unwrap();
-    let socket = dir.path().join("d.sock");
-    let data = dir.path().join("data");
-    let mut c = DaemonConfig::default();
-    c.daemon.socket = socket.clone();
-    c.daemon.data_dir = data.clone();
-    c.daemon.poll_interval_ms = 50;
-    c.driver.x.port = sim.link(AxisName::X);
-    c.driver.y.port = sim.link(AxisName::Y);
-    for a in [&mut c.driver.x, &mut c.driver.y] {
-        a.timeout_ms = 200;
-        a.reference_timeout_s = 20.0;
-        a.motion_timeout_s = 20.0;
-    }
-    c.driver.reconnect_min_ms = 20;
-    c.driver.reconnect_max_ms = 200;
-    configure(&mut c);
-    c.validate().unwrap();
-    let listener = tokio::net::UnixListener::bind(&socket).unwrap();
-    let daemon = Daemon::start(c, Arc::new(WallClock::new()), None, listener).unwrap();
-    Rig {
-        sim: Some(sim),
-        daemon,
-        socket,
-        data,
-        _dir: dir,
-    }
+async fn rig(configure: impl FnOnce(&mut DaemonConfig)) -> DaemonRig {
+    DaemonRig::on_ptys(12, 20.0, configure).await
 }
 
 fn code(v: &Value) -> &str {
@@ -99,7 +39,7 @@ async fn connected_and_referenced(c: &mut Client) {
 /// The true X position stops changing: two readings 200 ms apart within
 /// 1 µm of each other (a moving axis covers ≈ 300 µm in that time at the
 /// served time scale). Returns the resting position.
-async fn at_rest_x(r: &Rig) -> f64 {
+async fn at_rest_x(r: &DaemonRig) -> f64 {
     let t = Instant::now();
     loop {
         let a = r.truth_um(AxisName::X);
@@ -114,7 +54,7 @@ async fn at_rest_x(r: &Rig) -> f64 {
 
 /// Waits until the stage's true x is 50 µm past `start_x` (the move
 /// really runs), at most 20 s.
-async fn until_moving(r: &Rig, start_x: f64) {
+async fn until_moving(r: &DaemonRig, start_x: f64) {
     let t = Instant::now();
     while r.truth_um(AxisName::X) < start_x + 50.0 {
         assert!(
@@ -175,7 +115,7 @@ async fn stop_through_a_full_daemon(max_clients: usize) {
     );
     // Beyond the stop slots too: a `busy` line and the connection closes.
     let mut stop_only = Vec::new();
-    for _ in 1..r.daemon.daemon.rig.cfg.daemon.stop_slots {
+    for _ in 1..r.running().daemon.rig.cfg.daemon.stop_slots {
         let mut c = Client::connect(&r.socket).await;
         assert_eq!(code(&c.call(json!({"cmd":"version"})).await), "busy");
         stop_only.push(c);
@@ -313,7 +253,7 @@ async fn read_role_is_denied_moves_and_the_audit_names_who_moved() {
     }
     c.call_ok(json!({"cmd":"stop"})).await;
     // Roles change (SIGHUP does this): new connections get them.
-    r.daemon.daemon.access.set(Some(AccessSection {
+    r.running().daemon.access.set(Some(AccessSection {
         read: vec![],
         operate: vec![my_gid.to_string()],
         admin: vec![other.clone()],

@@ -2,7 +2,7 @@
 //! ptys, daemon in-process on a Unix socket): commands, safe states, faults,
 //! malformed input floods and many concurrent clients.
 
-use crate::common::Client;
+use crate::common::{Client, DaemonRig};
 use hil_sim::{AxisName, Fault, ServeConfig, SimHandle};
 use micropos::clock::WallClock;
 use micropos::daemon::config::DaemonConfig;
@@ -14,70 +14,9 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 use tokio::io::{AsyncBufReadExt, AsyncWriteExt};
 
-struct Rig {
-    sim: Option<SimHandle>,
-    daemon: Option<Running>,
-    socket: PathBuf,
-    _dir: tempfile::TempDir,
-}
-
-impl Drop for Rig {
-    fn drop(&mut self) {
-        if let Some(s) = self.sim.take() {
-            s.shutdown();
-        }
-    }
-}
-
-async fn rig(time_scale: f64) -> Rig {
-    let dir = tempfile::tempdir().unwrap();
-    let cfg = ServeConfig {
-        link_dir: dir.path().to_owned(),
-        daisy_chain: false,
-        time_scale,
-        control_socket: None,
-        seed: 11,
-        ..ServeConfig::default()
-    };
-    let sim = tokio::task::spawn_blocking(move || SimHandle::start(cfg))
-        .await
-        .unwrap()
-        .unwrap();
-    let socket = dir.path().join("d.sock");
-    let mut c = DaemonConfig::default();
-    c.daemon.socket = socket.clone();
-    c.daemon.data_dir = dir.path().join("data");
-    c.daemon.poll_interval_ms = 50;
-    c.driver.x.port = sim.link(AxisName::X);
-    c.driver.y.port = sim.link(AxisName::Y);
-    for a in [&mut c.driver.x, &mut c.driver.y] {
-        a.timeout_ms = 200;
-        a.reference_timeout_s = 20.0;
-        a.motion_timeout_s = 20.0;
-    }
-    c.driver.reconnect_min_ms = 20;
-    c.driver.reconnect_max_ms = 200;
-    c.limits.x_max_um = Some(14000.0);
-    c.validate().unwrap();
-    let listener = tokio::net::UnixListener::bind(&socket).unwrap();
-    let daemon = Daemon::start(c, Arc::new(WallClock::new()), None, listener).unwrap();
-    let r = Rig {
-        sim: Some(sim),
-        daemon: Some(daemon),
-        socket,
-        _dir: dir,
-    };
-    // Wait for the controllers to be connected.
-    let mut cl = Client::connect(&r.socket).await;
-    let t = Instant::now();
-    loop {
-        let s = cl.call(json!({"cmd":"status"})).await;
-        if s["rig"]["connected"]["x"] == true && s["rig"]["connected"]["y"] == true {
-            break;
-        }
-        assert!(t.elapsed() < Duration::from_secs(10), "{s}");
-        tokio::time::sleep(Duration::from_millis(50)).await;
-    }
+async fn rig(time_scale: f64) -> DaemonRig {
+    let r = DaemonRig::on_ptys(11, time_scale, |c| c.limits.x_max_um = Some(14000.0)).await;
+    r.wait_connected(Duration::from_secs(10)).await;
     r
 }
 

@@ -15,14 +15,14 @@ use tokio::sync::broadcast;
 const TIME_SCALE: f64 = 20.0;
 const TIMEOUT_MS: u64 = 200;
 
-struct Rig {
+struct DriverRig {
     sim: Option<SimHandle>,
     stage: Stage,
     rx: broadcast::Receiver<AxisEvent>,
     _dir: tempfile::TempDir,
 }
 
-impl Rig {
+impl DriverRig {
     fn sim(&self) -> &SimHandle {
         self.sim.as_ref().unwrap()
     }
@@ -44,7 +44,7 @@ impl Rig {
     }
 }
 
-impl Drop for Rig {
+impl Drop for DriverRig {
     fn drop(&mut self) {
         if let Some(sim) = self.sim.take() {
             sim.shutdown();
@@ -70,7 +70,7 @@ fn driver_config(sim: &SimHandle, daisy: bool) -> DriverConfig {
     cfg
 }
 
-async fn rig(daisy: bool) -> Rig {
+async fn rig(daisy: bool) -> DriverRig {
     let dir = tempfile::tempdir().unwrap();
     let cfg = ServeConfig {
         stage_model: Some(micropos::model::StageModel::ideal()),
@@ -81,15 +81,12 @@ async fn rig(daisy: bool) -> Rig {
         seed: 7,
         ..Default::default()
     };
-    let sim = tokio::task::spawn_blocking(move || SimHandle::start(cfg))
-        .await
-        .unwrap()
-        .unwrap();
+    let sim = crate::common::serve(cfg).await;
     let (tx, rx) = broadcast::channel(1024);
     let stage = Stage::connect(&driver_config(&sim, daisy), tx)
         .await
         .unwrap();
-    Rig {
+    DriverRig {
         sim: Some(sim),
         stage,
         rx,
@@ -97,7 +94,7 @@ async fn rig(daisy: bool) -> Rig {
     }
 }
 
-async fn reference_both(r: &Rig) {
+async fn reference_both(r: &DriverRig) {
     let (x, y) = tokio::join!(r.stage.x.reference(), r.stage.y.reference());
     assert!((x.unwrap() - 7500.0).abs() < 0.1);
     assert!((y.unwrap() - 7500.0).abs() < 0.1);
@@ -126,7 +123,7 @@ fn assert_close(a: f64, b: f64, tol: f64) {
     assert!((a - b).abs() <= tol, "{a} vs {b}");
 }
 
-async fn move_and_check(ax: &Axis, r: &Rig, name: AxisName, target_um: f64) {
+async fn move_and_check(ax: &Axis, r: &DriverRig, name: AxisName, target_um: f64) {
     ax.move_abs_um(target_um).await.unwrap();
     let p = ax.wait_on_target(None).await.unwrap();
     assert_close(p, target_um, 0.5);

@@ -9,7 +9,7 @@
 //! its retry of the measurement. Permanent: a controller power cycle in the
 //! middle of the job (reference lost, servo off).
 
-use crate::common::{self, Client};
+use crate::common::{self, Client, DaemonRig};
 use hil_sim::camera::CameraMode;
 use hil_sim::{AxisName, Corruption, Fault, SimHandle};
 use micropos::daemon::Running;
@@ -17,79 +17,38 @@ use serde_json::{json, Value};
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
-struct Rig {
-    sim: Option<SimHandle>,
-    daemon: Option<Running>,
-    socket: PathBuf,
-    data: PathBuf,
-    _dir: tempfile::TempDir,
-}
-
-impl Rig {
-    async fn shutdown(mut self) {
-        if let Some(d) = self.daemon.take() {
-            d.shutdown().await;
-        }
-        if let Some(s) = self.sim.take() {
-            tokio::task::spawn_blocking(move || s.shutdown())
-                .await
-                .unwrap();
-        }
-    }
-    fn sim(&self) -> &SimHandle {
-        self.sim.as_ref().unwrap()
-    }
-}
-
-async fn rig() -> Rig {
+async fn rig() -> DaemonRig {
     rig_with(|_| {}).await
 }
 
 /// [`rig`] with `tune` applied to the daemon's configuration last.
-async fn rig_with(tune: impl FnOnce(&mut micropos::daemon::config::DaemonConfig)) -> Rig {
-    let common::InProcess {
-        dir,
-        data,
-        socket,
-        sim,
-        rig: _,
-        config: mut c,
-    } = common::in_process_rig(7);
-    // No controller poll during the test: every value answer the rig sends
-    // belongs to the job, so a corrupted one lands on the job.
-    c.daemon.poll_interval_ms = 60_000;
-    // Nor a motion supervisor's sample (`tests/it/motion_safety.rs` covers it).
-    c.safety.supervise_interval_ms = 60_000;
-    for a in [&mut c.driver.x, &mut c.driver.y] {
-        // A lost answer costs this much (rig) time.
-        a.timeout_ms = 2000;
-        // A power cycle during a wait leaves the axis stopped off target:
-        // the driver only notices at the motion timeout. Rig time, so a
-        // long one costs no wall time; it must exceed the longest move
-        // (7 mm from the reference position at ≈ 1.5 mm/s).
-        a.motion_timeout_s = 30.0;
-    }
-    c.camera.timeout_ms = 1000;
-    c.daemon.job_retries = 3;
-    c.daemon.job_retry_backoff_s = 0.5;
-    tune(&mut c);
-    c.validate().unwrap();
-    let daemon = common::start_daemon_in_process(c, &sim, &socket);
-    let r = Rig {
-        sim: Some(sim),
-        daemon: Some(daemon),
-        socket,
-        data,
-        _dir: dir,
-    };
-    let mut cl = Client::connect(&r.socket).await;
-    common::connect_and_reference(&mut cl).await;
-    r
+async fn rig_with(tune: impl FnOnce(&mut micropos::daemon::config::DaemonConfig)) -> DaemonRig {
+    DaemonRig::in_process(7, 50.0, |c| {
+        // No controller poll during the test: every value answer the rig sends
+        // belongs to the job, so a corrupted one lands on the job.
+        c.daemon.poll_interval_ms = 60_000;
+        // Nor a motion supervisor's sample (`tests/it/motion_safety.rs` covers it).
+        c.safety.supervise_interval_ms = 60_000;
+        for a in [&mut c.driver.x, &mut c.driver.y] {
+            // A lost answer costs this much (rig) time.
+            a.timeout_ms = 2000;
+            // A power cycle during a wait leaves the axis stopped off target:
+            // the driver only notices at the motion timeout. Rig time, so a
+            // long one costs no wall time; it must exceed the longest move
+            // (7 mm from the reference position at ≈ 1.5 mm/s).
+            a.motion_timeout_s = 30.0;
+        }
+        c.camera.timeout_ms = 1000;
+        c.daemon.job_retries = 3;
+        c.daemon.job_retry_backoff_s = 0.5;
+        tune(c);
+    })
+    .await
 }
 
 /// Subscribes to `job` events, then starts `request` (which must be
 /// accepted): the event stream and the client that started it.
-async fn start(r: &Rig, request: Value) -> (Client, Client) {
+async fn start(r: &DaemonRig, request: Value) -> (Client, Client) {
     let mut events = Client::connect(&r.socket).await;
     events
         .call_ok(json!({"cmd":"subscribe","topics":["job"]}))

@@ -18,7 +18,7 @@
 //! motion_safety:: -- --nocapture | grep HALT` gives the table of
 //! `docs/design/daemon.md`.
 
-use crate::common::{self, Client};
+use crate::common::{self, Client, DaemonRig};
 use hil_sim::run::{daemon_config, RunPlan};
 use hil_sim::{AxisName, Corruption, Fault, SimHandle};
 use micropos::daemon::config::{DaemonConfig, DeviationFrame};
@@ -32,63 +32,22 @@ use std::time::Duration;
 /// timeout) plus the deceleration from 1 mm/s.
 const HALT_BOUND_S: f64 = 1.0;
 
-struct Rig {
-    sim: Option<SimHandle>,
-    daemon: Option<Running>,
-    socket: PathBuf,
-    _dir: tempfile::TempDir,
-}
-
-impl Rig {
-    fn sim(&self) -> &SimHandle {
-        self.sim.as_ref().unwrap()
-    }
-    async fn shutdown(mut self) {
-        if let Some(d) = self.daemon.take() {
-            d.shutdown().await;
-        }
-        if let Some(s) = self.sim.take() {
-            tokio::task::spawn_blocking(move || s.shutdown())
-                .await
-                .unwrap();
-        }
-    }
-}
-
 /// The in-process rig with the daemon on it, both axes referenced (at the
 /// reference switch, 7500 µm). `tweak` adjusts the daemon's configuration.
-async fn rig(tweak: impl FnOnce(&mut DaemonConfig)) -> Rig {
-    let dir = tempfile::tempdir().unwrap();
-    let rig_dir = dir.path().join("rig");
-    let data = dir.path().join("data");
-    std::fs::create_dir_all(&rig_dir).unwrap();
-    std::fs::create_dir_all(&data).unwrap();
-    let cfg = common::serve_config(&rig_dir, 1.0, 3);
-    let rig_cfg = cfg.rig.clone();
-    let sim = common::serve_in_process(cfg);
-    let socket = dir.path().join("d.sock");
-    let mut c = daemon_config(&rig_dir, &data, &socket, &rig_cfg, &RunPlan::reduced()).unwrap();
-    c.daemon.poll_interval_ms = 100;
-    for a in [&mut c.driver.x, &mut c.driver.y] {
-        a.timeout_ms = 200;
-        a.poll_interval_ms = 20;
-        a.motion_timeout_s = 30.0;
-    }
-    c.safety.supervise_interval_ms = 50;
-    c.safety.following_error_um = 200.0;
-    c.safety.read_fail_s = 0.5;
-    tweak(&mut c);
-    c.validate().unwrap();
-    let daemon = common::start_daemon_in_process(c, &sim, &socket);
-    let r = Rig {
-        sim: Some(sim),
-        daemon: Some(daemon),
-        socket,
-        _dir: dir,
-    };
-    let mut cl = Client::connect(&r.socket).await;
-    common::connect_and_reference(&mut cl).await;
-    r
+async fn rig(tweak: impl FnOnce(&mut DaemonConfig)) -> DaemonRig {
+    DaemonRig::in_process(3, 1.0, |c| {
+        c.daemon.poll_interval_ms = 100;
+        for a in [&mut c.driver.x, &mut c.driver.y] {
+            a.timeout_ms = 200;
+            a.poll_interval_ms = 20;
+            a.motion_timeout_s = 30.0;
+        }
+        c.safety.supervise_interval_ms = 50;
+        c.safety.following_error_um = 200.0;
+        c.safety.read_fail_s = 0.5;
+        tweak(c);
+    })
+    .await
 }
 
 fn code(v: &Value) -> &str {

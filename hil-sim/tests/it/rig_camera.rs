@@ -112,10 +112,7 @@ async fn served_camera_clock_truth_and_faults() {
         seed: 5,
         ..Default::default()
     };
-    let sim = tokio::task::spawn_blocking(move || SimHandle::start(cfg))
-        .await
-        .unwrap()
-        .unwrap();
+    let sim = crate::common::serve(cfg).await;
 
     // The clock: advances through micropos's SimClock.
     let clock = {

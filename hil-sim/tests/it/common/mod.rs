@@ -1,9 +1,9 @@
 //! Helpers shared by the hil-sim integration tests (the modules of
 //! `main.rs`) that talk to a daemon over its Unix socket.
 
-use hil_sim::{ServeConfig, SimHandle};
+use hil_sim::{AxisName, ServeConfig, SimHandle};
 use micropos::camera::{open_source, OpenOptions};
-use micropos::clock::{RigClock, SimClock};
+use micropos::clock::{RigClock, SimClock, WallClock};
 use micropos::daemon::config::DaemonConfig;
 use micropos::daemon::{Daemon, Running};
 use serde_json::{json, Value};
@@ -160,12 +160,17 @@ pub struct InProcess {
 
 /// [`InProcess`] with the rig's `seed`.
 pub fn in_process_rig(seed: u64) -> InProcess {
+    in_process_rig_at(seed, 50.0)
+}
+
+/// [`InProcess`] with the rig's `seed` at `time_scale`.
+pub fn in_process_rig_at(seed: u64, time_scale: f64) -> InProcess {
     let dir = tempfile::tempdir().unwrap();
     let rig_dir = dir.path().join("rig");
     let data = dir.path().join("data");
     std::fs::create_dir_all(&rig_dir).unwrap();
     std::fs::create_dir_all(&data).unwrap();
-    let cfg = serve_config(&rig_dir, 50.0, seed);
+    let cfg = serve_config(&rig_dir, time_scale, seed);
     let rig = cfg.rig.clone();
     let sim = serve_in_process(cfg);
     let socket = dir.path().join("d.sock");
@@ -246,4 +251,160 @@ pub async fn http_on(
         .and_then(|c| c.parse().ok())
         .expect("a status code");
     (status, head, out[split + 4..].to_vec())
+}
+
+/// A simulated rig with microposd on it: the one fixture of the tests that
+/// drive the daemon through its socket. Two kinds: served on pseudo-
+/// terminals in real time ([`DaemonRig::on_ptys`], the daemon's own driver
+/// and wall clock), or in process on the test's paused runtime
+/// ([`DaemonRig::in_process`], the main job's daemon configuration, both
+/// axes referenced). Fields are public: a test may take the daemon or the
+/// simulator out to stop it at a moment of its choosing.
+pub struct DaemonRig {
+    /// The simulator (`None` once taken).
+    pub sim: Option<SimHandle>,
+    /// The daemon (`None` once taken).
+    pub daemon: Option<Running>,
+    /// The daemon's socket.
+    pub socket: PathBuf,
+    /// The daemon's data directory.
+    pub data: PathBuf,
+    /// A served rig's threads and ptys end when the fixture is dropped; an
+    /// in-process one ends with the test's runtime.
+    served: bool,
+    _dir: tempfile::TempDir,
+}
+
+impl Drop for DaemonRig {
+    fn drop(&mut self) {
+        if self.served {
+            if let Some(s) = self.sim.take() {
+                s.shutdown();
+            }
+        }
+    }
+}
+
+impl DaemonRig {
+    /// The rig served on ptys (seed `seed`, `time_scale`), microposd on
+    /// them with short driver timeouts and reconnects; `tune` adjusts the
+    /// daemon's configuration last. Returns before the controllers are
+    /// connected ([`DaemonRig::wait_connected`]).
+    pub async fn on_ptys(
+        seed: u64,
+        time_scale: f64,
+        tune: impl FnOnce(&mut DaemonConfig),
+    ) -> DaemonRig {
+        let dir = tempfile::tempdir().unwrap();
+        let cfg = ServeConfig {
+            link_dir: dir.path().to_owned(),
+            daisy_chain: false,
+            time_scale,
+            control_socket: None,
+            seed,
+            ..ServeConfig::default()
+        };
+        let sim = serve(cfg).await;
+        let socket = dir.path().join("d.sock");
+        let data = dir.path().join("data");
+        let mut c = DaemonConfig::default();
+        c.daemon.socket = socket.clone();
+        c.daemon.data_dir = data.clone();
+        c.daemon.poll_interval_ms = 50;
+        c.driver.x.port = sim.link(AxisName::X);
+        c.driver.y.port = sim.link(AxisName::Y);
+        for a in [&mut c.driver.x, &mut c.driver.y] {
+            a.timeout_ms = 200;
+            a.reference_timeout_s = 20.0;
+            a.motion_timeout_s = 20.0;
+        }
+        c.driver.reconnect_min_ms = 20;
+        c.driver.reconnect_max_ms = 200;
+        tune(&mut c);
+        c.validate().unwrap();
+        let listener = tokio::net::UnixListener::bind(&socket).unwrap();
+        let daemon = Daemon::start(c, Arc::new(WallClock::new()), None, listener).unwrap();
+        DaemonRig {
+            sim: Some(sim),
+            daemon: Some(daemon),
+            socket,
+            data,
+            served: true,
+            _dir: dir,
+        }
+    }
+
+    /// The rig in process (seed `seed`, `time_scale`) with the main job's
+    /// daemon configuration for it (reduced plan), `tune` applied last;
+    /// returns once both axes are connected and referenced.
+    pub async fn in_process(
+        seed: u64,
+        time_scale: f64,
+        tune: impl FnOnce(&mut DaemonConfig),
+    ) -> DaemonRig {
+        let InProcess {
+            dir,
+            data,
+            socket,
+            sim,
+            rig: _,
+            config: mut c,
+        } = in_process_rig_at(seed, time_scale);
+        tune(&mut c);
+        c.validate().unwrap();
+        let daemon = start_daemon_in_process(c, &sim, &socket);
+        let r = DaemonRig {
+            sim: Some(sim),
+            daemon: Some(daemon),
+            socket,
+            data,
+            served: false,
+            _dir: dir,
+        };
+        let mut cl = Client::connect(&r.socket).await;
+        connect_and_reference(&mut cl).await;
+        r
+    }
+
+    /// The simulator (panics once it was taken).
+    pub fn sim(&self) -> &SimHandle {
+        self.sim.as_ref().unwrap()
+    }
+
+    /// The daemon (panics once it was taken).
+    pub fn running(&self) -> &Running {
+        self.daemon.as_ref().unwrap()
+    }
+
+    /// The platform's true position along `axis`, µm.
+    pub fn truth_um(&self, axis: AxisName) -> f64 {
+        self.sim().true_position_mm(axis) * 1000.0
+    }
+
+    /// Waits (up to `within`) until the daemon reports both controllers
+    /// connected.
+    pub async fn wait_connected(&self, within: Duration) {
+        let mut cl = Client::connect(&self.socket).await;
+        let t = Instant::now();
+        loop {
+            let s = cl.call(json!({"cmd": "status"})).await;
+            if s["rig"]["connected"]["x"] == true && s["rig"]["connected"]["y"] == true {
+                return;
+            }
+            assert!(t.elapsed() < within, "not connected: {s}");
+            tokio::time::sleep(Duration::from_millis(50)).await;
+        }
+    }
+
+    /// Stops the daemon, then the simulator (on a blocking thread).
+    pub async fn shutdown(mut self) {
+        if let Some(d) = self.daemon.take() {
+            d.shutdown().await;
+        }
+        if let Some(s) = self.sim.take() {
+            tokio::task::spawn_blocking(move || s.shutdown())
+                .await
+                .unwrap();
+        }
+    }
 }
