@@ -10,14 +10,16 @@
 //! Activation swaps an `Arc<dyn Compensator>` under a mutex: a move in flight
 //! keeps the compensator it started with; the next move uses the new one.
 
-use super::protocol::{ErrorCode, ProtoError};
+use super::protocol::{
+    ErrorCode, Limits, LoadedTable, OutsideTable as OutsideTableReply, ProtoError,
+    TableActivateReply, TableLoadReply, TablesListReply,
+};
 use crate::analysis::drift::DriftBaseline;
 use crate::comp::{
     CompFile, CompKind, Compensator, MotionHistory, MovePlan, PlanOptions, VisionFrame,
 };
 use crate::model::state::MotionState;
 use crate::model::XyUm;
-use serde_json::{json, Value};
 use std::collections::BTreeMap;
 use std::sync::{Arc, Mutex};
 
@@ -77,7 +79,7 @@ pub fn check_area(
     target: XyUm,
     cfg: &crate::daemon::config::CompensationSection,
     what: &str,
-) -> Result<Option<Value>, ProtoError> {
+) -> Result<Option<OutsideTableReply>, ProtoError> {
     use crate::daemon::config::OutsideTable;
     let Some(area) = comp.characterized_area() else {
         return Ok(None);
@@ -103,9 +105,15 @@ pub fn check_area(
         comp.kind(),
         axes.join(" and ")
     );
-    let info = |p: &str| {
-        json!({"policy": p, "area": {"x_um": area.x_um, "y_um": area.y_um},
-               "margin_um": margin, "outside_by_um": by})
+    let info = |p: &str| OutsideTableReply {
+        policy: p.to_owned(),
+        area: Limits {
+            x_um: area.x_um,
+            y_um: area.y_um,
+        },
+        margin_um: margin,
+        outside_by_um: by,
+        warning: None,
     };
     match policy {
         OutsideTable::Refuse => Err(ProtoError::new(
@@ -124,7 +132,7 @@ pub fn check_area(
             let w = format!("{sentence}: {extra}");
             tracing::warn!("{w}");
             let mut v = info("warn");
-            v["warning"] = json!(w);
+            v.warning = Some(w);
             Ok(Some(v))
         }
         OutsideTable::Extrapolate => Ok(Some(info("extrapolate"))),
@@ -142,7 +150,7 @@ impl CompState {
     }
 
     /// `tables list`: `.toml` files of the data directory, loaded, active.
-    pub async fn list(&self, data_dir: &std::path::Path) -> Result<Value, ProtoError> {
+    pub async fn list(&self, data_dir: &std::path::Path) -> Result<TablesListReply, ProtoError> {
         let dir = data_dir.to_owned();
         let files = tokio::task::spawn_blocking(move || -> std::io::Result<Vec<String>> {
             let mut v = Vec::new();
@@ -158,20 +166,30 @@ impl CompState {
         .await
         .map_err(|e| comp_err(ErrorCode::Internal, "listing tables", e))?
         .map_err(|e| comp_err(ErrorCode::LogError, "listing the data directory", e))?;
-        let loaded: Vec<Value> = lock(&self.loaded)
+        let loaded: Vec<LoadedTable> = lock(&self.loaded)
             .iter()
-            .map(|(n, f)| {
-                json!({"name": n, "kind": f.kind, "created": f.created,
-                       "records": f.source.records, "has_frame": f.frame.is_some()})
+            .map(|(n, f)| LoadedTable {
+                name: n.clone(),
+                kind: f.kind,
+                created: f.created.clone(),
+                records: f.source.records,
+                has_frame: f.frame.is_some(),
             })
             .collect();
-        Ok(json!({"files": files, "loaded": loaded,
-                  "active": self.active().map(|a| a.name)}))
+        Ok(TablesListReply {
+            files,
+            loaded,
+            active: self.active().map(|a| a.name),
+        })
     }
 
     /// `tables load NAME`: reads and checks the file (a bad file is refused
     /// with the reason; the active table stays as it was).
-    pub async fn load(&self, data_dir: &std::path::Path, name: &str) -> Result<Value, ProtoError> {
+    pub async fn load(
+        &self,
+        data_dir: &std::path::Path,
+        name: &str,
+    ) -> Result<TableLoadReply, ProtoError> {
         let path = data_dir.join(name);
         let file = tokio::task::spawn_blocking(move || CompFile::read_path(&path))
             .await
@@ -181,7 +199,11 @@ impl CompState {
         file.compensator()
             .map_err(|e| comp_err(ErrorCode::BadValue, &format!("table {name}"), e))?;
         baseline_of(name, &file)?;
-        let out = json!({"loaded": name, "kind": file.kind, "records": file.source.records});
+        let out = TableLoadReply {
+            loaded: name.to_owned(),
+            kind: file.kind,
+            records: file.source.records,
+        };
         {
             let mut order = lock(&self.order);
             order.retain(|(n, _)| n != name);
@@ -193,14 +215,20 @@ impl CompState {
 
     /// `tables activate [NAME]`: swaps the active compensator (`None`
     /// deactivates). The table must be loaded first.
-    pub fn activate(&self, name: Option<&str>) -> Result<Value, ProtoError> {
+    pub fn activate(&self, name: Option<&str>) -> Result<TableActivateReply, ProtoError> {
         let Some(name) = name else {
             *lock(&self.active) = None;
-            return Ok(json!({"active": null}));
+            return Ok(TableActivateReply {
+                active: None,
+                kind: None,
+            });
         };
         let (active, kind) = self.load_active(name)?;
         *lock(&self.active) = Some(active);
-        Ok(json!({"active": name, "kind": kind}))
+        Ok(TableActivateReply {
+            active: Some(name.to_owned()),
+            kind: Some(kind),
+        })
     }
 
     /// A loaded table as a compensator with its frame, without activating
@@ -409,11 +437,8 @@ mod tests {
         )
         .unwrap()
         .unwrap();
-        assert_eq!(w["policy"], "warn");
-        assert!(w["warning"]
-            .as_str()
-            .unwrap()
-            .contains("holds its end values"));
+        assert_eq!(w.policy, "warn");
+        assert!(w.warning.unwrap().contains("holds its end values"));
         let x = check_area(
             &Fixed(false),
             "t.toml",
@@ -423,8 +448,8 @@ mod tests {
         )
         .unwrap()
         .unwrap();
-        assert_eq!(x["policy"], "extrapolate");
-        assert!(x.get("warning").is_none());
+        assert_eq!(x.policy, "extrapolate");
+        assert!(x.warning.is_none());
         let inside = XyUm {
             x_um: 1005.0,
             y_um: 250.0,
@@ -446,10 +471,7 @@ mod tests {
         )
         .unwrap()
         .unwrap();
-        assert_eq!(w["policy"], "warn");
-        assert!(w["warning"]
-            .as_str()
-            .unwrap()
-            .contains("model extrapolates"));
+        assert_eq!(w.policy, "warn");
+        assert!(w.warning.unwrap().contains("model extrapolates"));
     }
 }

@@ -43,6 +43,7 @@
 //! the supervisor reports a move during which frames arrived but none
 //! decoded (event `vision_unchecked`). Sans-IO: times are rig seconds.
 
+use super::protocol::{DeviationStatus, PerAxis};
 use super::state::AxisId;
 use crate::comp::frame::VisionFrame;
 use std::collections::VecDeque;
@@ -170,7 +171,7 @@ impl DeviationJudge {
     /// The state for `status`: `armed` is true only while the check runs
     /// ([`DeviationJudge::checking`]); `state` says in words what it does
     /// or why it does not, `frame` where its orientation comes from.
-    pub fn to_json(&self) -> serde_json::Value {
+    pub fn to_reply(&self) -> DeviationStatus {
         let state = if self.bound_um <= 0.0 {
             "off: safety.deviation_um = 0".to_owned()
         } else if self.frame.is_none() {
@@ -186,15 +187,20 @@ impl DeviationJudge {
                 self.bound_um
             )
         };
-        serde_json::json!({
-            "armed": self.checking(),
-            "state": state,
-            "bound_um": self.bound_um,
-            "frame": self.frame.is_some().then_some(&self.frame_source),
-            "frame_known": self.frame.is_some(),
-            "tied": self.tie_um.is_some(),
-            "last_um": self.last_um.map(|d| serde_json::json!({"x": d[0], "y": d[1]})),
-        })
+        DeviationStatus {
+            armed: self.checking(),
+            state,
+            bound_um: self.bound_um,
+            frame: self.frame.is_some().then(|| self.frame_source.clone()),
+            frame_known: self.frame.is_some(),
+            tied: self.tie_um.is_some(),
+            last_um: self.last_um.map(PerAxis::of),
+        }
+    }
+
+    /// [`to_reply`](Self::to_reply) as JSON.
+    pub fn to_json(&self) -> serde_json::Value {
+        super::protocol::to_value(&self.to_reply())
     }
 
     /// A controller position read of `axis` between `t0_s` and `t1_s`.

@@ -36,13 +36,12 @@
 #[cfg(test)]
 mod tests;
 
-use super::protocol::{ErrorCode, ProtoError};
+use super::protocol::{DeviationStatus, ErrorCode, ProtoError};
 use super::state::{Action, Activity, AxisId, FaultRecord, Input, Refusal, SafetyState};
 use super::supervisor::{AxisSample, Bounds, ReadFailure, Supervisor};
 use crate::comp::VisionFrame;
 use crate::daemon::deviation::{DeviationJudge, Judged};
 use crate::driver::DriverError;
-use serde_json::Value;
 
 /// What the shell must carry out.
 #[derive(Debug, Clone, PartialEq)]
@@ -427,9 +426,12 @@ impl MotionCore {
     }
 
     /// The deviation check's state (for `status`) under `frame`.
-    pub fn deviation_json(&mut self, frame: Result<(VisionFrame, String), String>) -> Value {
+    pub fn deviation_status(
+        &mut self,
+        frame: Result<(VisionFrame, String), String>,
+    ) -> DeviationStatus {
         self.set_deviation_frame(frame);
-        self.deviation.to_json()
+        self.deviation.to_reply()
     }
 
     fn set_deviation_frame(&mut self, frame: Result<(VisionFrame, String), String>) {

@@ -3,6 +3,7 @@
 //! progress (a hung runtime or a stuck poller lets systemd restart us).
 //! Outside systemd (`NOTIFY_SOCKET` unset) every call is a no-op.
 
+use super::protocol::JobState;
 use super::Daemon;
 use sd_notify::NotifyState;
 use std::sync::atomic::Ordering;
@@ -41,10 +42,11 @@ pub async fn watchdog_loop(daemon: Arc<Daemon>, mut shutdown: broadcast::Receive
         }
         let beat = daemon.rig.heartbeat.load(Ordering::Relaxed);
         let status = daemon.rig.status();
-        let mode = status["rig"]["mode"].as_str().unwrap_or("?").to_owned();
-        let job = daemon.jobs.status();
-        let text = match job["state"].as_str() {
-            Some("running") => format!("{mode}; job {}/{}", job["done"], job["total"]),
+        let mode = status.rig.mode;
+        let text = match daemon.jobs.status() {
+            Some(j) if j.state == JobState::Running => {
+                format!("{mode}; job {}/{}", j.done, j.total)
+            }
             _ => mode,
         };
         if text != last_status {

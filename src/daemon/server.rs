@@ -305,10 +305,12 @@ fn spawn_worker(
                     }
                     subscription = Some(spawn_forwarder(&daemon, topics.clone(), out.clone()));
                     subscribed.store(true, Ordering::Relaxed);
-                    let names: Vec<&str> = topics.iter().map(|t| t.as_str()).collect();
+                    let subscribed = topics.iter().map(|t| t.as_str().to_owned()).collect();
                     protocol::ok_reply(
                         &req.id,
-                        protocol::reply_fields(serde_json::json!({"subscribed": names})),
+                        protocol::reply_fields(protocol::to_value(&protocol::SubscribeReply {
+                            subscribed,
+                        })),
                     )
                 }
                 cmd => protocol::reply(&req.id, daemon.execute(cmd).await),
@@ -423,10 +425,7 @@ fn spawn_forwarder(
                     }
                 }
                 Err(broadcast::error::RecvError::Lagged(n)) => {
-                    let line = protocol::event_line(
-                        "lagged",
-                        protocol::reply_fields(serde_json::json!({"missed": n})),
-                    );
+                    let line = protocol::LaggedEvent { missed: n }.line();
                     let _ = out.try_send(line.into());
                 }
                 Err(broadcast::error::RecvError::Closed) => return,

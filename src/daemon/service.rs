@@ -5,13 +5,20 @@
 
 use super::config::DaemonConfig;
 use super::protocol::{
-    self, CharacterizeAction, Command, DriftAction, ErrorCode, ProtoError, TablesAction,
-    ValidateAction,
+    self, to_value, CharacterizeAction, Command, ConfigReply, DriftAction, DriftReply, ErrorCode,
+    JobCancelReply, JobObject, JobReply, ProtoError, ReferenceReply, TablesAction, ValidateAction,
+    VersionReply,
 };
 use super::{access, audit, figures, jobs, reload, rig};
-use serde_json::{json, Value};
+use serde::Serialize;
+use serde_json::Value;
 use std::sync::Arc;
 use tokio::sync::broadcast;
+
+/// A typed reply as the value `protocol::reply` writes.
+fn typed<T: Serialize>(reply: T) -> Result<Value, ProtoError> {
+    Ok(to_value(&reply))
+}
 
 /// The running daemon's shared parts.
 #[derive(Debug)]
@@ -34,49 +41,55 @@ impl Daemon {
     pub async fn execute(&self, cmd: Command) -> Result<Value, ProtoError> {
         let rig = &self.rig;
         match cmd {
-            Command::Version => Ok(json!({
-                "daemon": env!("CARGO_PKG_VERSION"),
-                "protocol": protocol::PROTOCOL_VERSION,
-                "commands": protocol::COMMANDS,
-            })),
+            Command::Version => typed(VersionReply {
+                daemon: env!("CARGO_PKG_VERSION").to_owned(),
+                protocol: protocol::PROTOCOL_VERSION,
+                commands: protocol::COMMANDS.iter().map(|&c| c.to_owned()).collect(),
+            }),
             Command::Status => {
                 let mut s = rig.status();
-                s["job"] = self.jobs.status();
-                Ok(s)
+                s.job = self.jobs.status().map(JobObject::from);
+                typed(s)
             }
-            Command::Drift(a) => self.drift(a).await,
-            Command::Position => Ok(rig.position().await),
-            Command::Move(m) => rig.move_to(&m, false).await,
+            Command::Drift(a) => typed(self.drift(a).await?),
+            Command::Position => typed(rig.position().await),
+            Command::Move(m) => typed(rig.move_to(&m, false).await?),
             Command::Stop => {
                 self.jobs.signal_cancel();
-                rig.stop().await
+                typed(rig.stop().await?)
             }
-            Command::Reset => Ok(rig.reset()),
+            Command::Reset => typed(rig.reset()),
             Command::Reference(axes) => {
                 // The reference run, then the rig's vision tie
                 // (`daemon::vision_tie`): its outcome is part of the reply.
-                let mut r = rig.reference(axes).await?;
-                r["vision_tie"] = jobs::tie::after_reference(rig).await;
-                Ok(r)
+                let reported = rig.reference(axes).await?;
+                typed(ReferenceReply {
+                    reported,
+                    vision_tie: jobs::tie::after_reference(rig).await,
+                })
             }
             Command::Config => serde_json::to_value(self.effective_config())
-                .map(|c| json!({"config": c}))
+                .map(|config| to_value(&ConfigReply { config }))
                 .map_err(|e| ProtoError::new(ErrorCode::Internal, e.to_string())),
             Command::Characterize(a) => match a {
-                CharacterizeAction::Start(p) => self.jobs.start(rig, *p).await,
-                CharacterizeAction::Resume { log } => self.jobs.resume(rig, &log).await,
-                CharacterizeAction::Status => Ok(json!({"job": self.jobs.status()})),
-                CharacterizeAction::Cancel => self.cancel_job().await,
+                CharacterizeAction::Start(p) => typed(self.jobs.start(rig, *p).await?),
+                CharacterizeAction::Resume { log } => typed(self.jobs.resume(rig, &log).await?),
+                CharacterizeAction::Status => {
+                    typed(JobReply::job(self.jobs.status().map(JobObject::from)))
+                }
+                CharacterizeAction::Cancel => typed(self.cancel_job().await?),
             },
             Command::Validate(v) => match v {
-                ValidateAction::Status => Ok(self.jobs.validation_status()),
-                ValidateAction::Start(p) => self.jobs.start_validation(rig, p).await,
-                ValidateAction::Cancel => self.cancel_job().await,
+                ValidateAction::Status => typed(self.jobs.validation_status()),
+                ValidateAction::Start(p) => typed(self.jobs.start_validation(rig, p).await?),
+                ValidateAction::Cancel => typed(self.cancel_job().await?),
             },
             Command::Tables(t) => match t {
-                TablesAction::List => rig.comp.list(&rig.cfg.daemon.data_dir).await,
-                TablesAction::Load { name } => rig.comp.load(&rig.cfg.daemon.data_dir, &name).await,
-                TablesAction::Activate { name } => rig.comp.activate(name.as_deref()),
+                TablesAction::List => typed(rig.comp.list(&rig.cfg.daemon.data_dir).await?),
+                TablesAction::Load { name } => {
+                    typed(rig.comp.load(&rig.cfg.daemon.data_dir, &name).await?)
+                }
+                TablesAction::Activate { name } => typed(rig.comp.activate(name.as_deref())?),
                 TablesAction::Build(p) => {
                     self.jobs.check_log_finished(&p.log)?;
                     jobs::tables::build(rig, p).await
@@ -139,17 +152,20 @@ impl Daemon {
     /// `characterize|validate cancel`: ends the job and halts both axes
     /// (waiting until they are at rest): the job's move in flight is
     /// dropped with its future, and the stage must not finish it alone.
-    async fn cancel_job(&self) -> Result<Value, ProtoError> {
+    async fn cancel_job(&self) -> Result<JobCancelReply, ProtoError> {
         self.jobs.signal_cancel();
         let halt = self.rig.halt_and_wait("job cancelled").await;
         let job = self.jobs.cancel().await?;
-        Ok(json!({"job": job, "halt": halt}))
+        Ok(JobCancelReply {
+            job: job.map(JobObject::from),
+            halt,
+        })
     }
 
     /// `drift show|set|reset|measure`.
-    async fn drift(&self, a: DriftAction) -> Result<Value, ProtoError> {
+    async fn drift(&self, a: DriftAction) -> Result<DriftReply, ProtoError> {
         let rig = &self.rig;
-        let mut out = json!({});
+        let mut measured = None;
         match a {
             DriftAction::Show => {}
             DriftAction::Set {
@@ -175,10 +191,12 @@ impl Daemon {
                 let r = rig
                     .drift_measure(&active, k.frames_per_point, k.settle_s, false)
                     .await?;
-                out["measured"] = json!(r.sample);
+                measured = Some(to_value(&r.sample));
             }
         }
-        out["drift"] = rig.drift.to_json(rig.clock.now_s());
-        Ok(out)
+        Ok(DriftReply {
+            drift: rig.drift.to_json(rig.clock.now_s()),
+            measured,
+        })
     }
 }

@@ -13,7 +13,8 @@
 //! - a client `stop` halts but latches nothing (it is not a fault);
 //! - motion needs both lines up; a move of an axis needs it referenced.
 
-use serde_json::{json, Value};
+use super::protocol::{to_value, PerAxis, RigStatus, TimedReason};
+use serde_json::Value;
 
 /// One of the two axes.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -392,26 +393,31 @@ impl SafetyState {
         }
     }
 
-    /// Status as JSON for the `status` command.
-    pub fn to_json(&self) -> Value {
-        let mut v = self.to_json_connected();
+    /// The state for `status` (`rig`), `reset` and the `state` event.
+    pub fn to_reply(&self) -> RigStatus {
         let why = [AxisId::X, AxisId::Y].map(|a| self.axis_not_connected(a));
-        if why.iter().any(Option::is_some) {
-            v["not_connected"] = json!({"x": why[0], "y": why[1]});
+        let timed = |f: &FaultRecord| TimedReason {
+            t_s: f.t_s,
+            reason: f.reason.clone(),
+        };
+        RigStatus {
+            mode: self.mode().to_owned(),
+            activity: self.activity.as_str().to_owned(),
+            connected: PerAxis::of([
+                self.stage_up && self.link_up[0],
+                self.stage_up && self.link_up[1],
+            ]),
+            referenced: PerAxis::of(self.referenced),
+            faults: self.faults,
+            last_fault: self.last_fault.as_ref().map(timed),
+            fault_latched: self.latched().map(timed),
+            not_connected: why.iter().any(Option::is_some).then(|| PerAxis::of(why)),
         }
-        v
     }
 
-    fn to_json_connected(&self) -> Value {
-        json!({
-            "mode": self.mode(),
-            "activity": self.activity.as_str(),
-            "connected": {"x": self.stage_up && self.link_up[0], "y": self.stage_up && self.link_up[1]},
-            "referenced": {"x": self.referenced[0], "y": self.referenced[1]},
-            "faults": self.faults,
-            "last_fault": self.last_fault.as_ref().map(|f| json!({"t_s": f.t_s, "reason": f.reason})),
-            "fault_latched": self.latched().map(|f| json!({"t_s": f.t_s, "reason": f.reason})),
-        })
+    /// [`to_reply`](Self::to_reply) as JSON.
+    pub fn to_json(&self) -> Value {
+        to_value(&self.to_reply())
     }
 }
 

@@ -31,8 +31,9 @@
 
 use crate::comp::{FrameReport, VisionFrame};
 use crate::daemon::config::DaemonConfig;
+use crate::daemon::protocol::{to_value, PerAxis, VisionTieStatus};
 use serde::{Deserialize, Serialize};
-use serde_json::{json, Value};
+use serde_json::Value;
 use std::path::Path;
 
 /// The tie's file in the data directory (`tables list` shows only `.toml`
@@ -335,31 +336,38 @@ impl VisionTie {
     /// For `status`: `tied`, and either the tie (its frame, when, what it
     /// saw, whether a restored tie is confirmed yet) or `why` not and
     /// `switched_off`, what an untied camera cannot do.
-    pub fn to_json(&self) -> Value {
+    pub fn to_reply(&self) -> VisionTieStatus {
         match &self.state {
-            State::Untied(why) => json!({
-                "tied": false,
-                "why": why,
-                "switched_off": SWITCHED_OFF,
-            }),
-            State::Tied { tie, restored } => json!({
-                "tied": true,
-                "after": tie.after,
-                "taken_utc": tie.taken_utc,
-                "restored": match restored {
+            State::Untied(why) => VisionTieStatus {
+                tied: false,
+                why: Some(why.clone()),
+                switched_off: Some(SWITCHED_OFF.to_owned()),
+                ..VisionTieStatus::default()
+            },
+            State::Tied { tie, restored } => VisionTieStatus {
+                tied: true,
+                after: Some(tie.after.clone()),
+                taken_utc: Some(tie.taken_utc.clone()),
+                restored: Some(match restored {
                     Restored::No => "no",
                     Restored::Unconfirmed => "from the data directory, not yet confirmed (the deviation check's first tie at rest confirms it)",
                     Restored::Confirmed => "from the data directory, confirmed at rest",
-                },
-                "rotation_rad": tie.frame.rotation_rad,
-                "mirrored": tie.frame.mirrored,
-                "translation_um": {"x": tie.frame.translation_um[0], "y": tie.frame.translation_um[1]},
-                "anchor_um": {"x": tie.anchor_um[0], "y": tie.anchor_um[1]},
-                "squareness_urad": tie.squareness_urad,
-                "scale_ppm": {"x": tie.x_scale_ppm, "y": tie.y_scale_ppm},
-                "rms_error_um": {"x": tie.rms_error_um[0], "y": tie.rms_error_um[1]},
-            }),
+                }.to_owned()),
+                rotation_rad: Some(tie.frame.rotation_rad),
+                mirrored: Some(tie.frame.mirrored),
+                translation_um: Some(PerAxis::of(tie.frame.translation_um)),
+                anchor_um: Some(PerAxis::of(tie.anchor_um)),
+                squareness_urad: Some(tie.squareness_urad),
+                scale_ppm: Some(PerAxis::of([tie.x_scale_ppm, tie.y_scale_ppm])),
+                rms_error_um: Some(PerAxis::of(tie.rms_error_um)),
+                ..VisionTieStatus::default()
+            },
         }
+    }
+
+    /// [`to_reply`](Self::to_reply) as JSON.
+    pub fn to_json(&self) -> Value {
+        to_value(&self.to_reply())
     }
 }
 

@@ -10,11 +10,13 @@
 use anyhow::Context;
 use clap::{Args, Subcommand};
 use micropos::daemon::protocol::{
-    build_needs_log, error_reply_value, load_needs_name, resume_needs_log, unknown_action, Axes,
-    CharacterizeAction, CharacterizeParams, Command, ErrorBody, ErrorCode, JobState, MoveMode,
-    MoveRequest, ProtoError, Request, TablesAction, TablesBuildParams, Topic, ValidateAction,
-    ValidateMode, ValidateParams, ValidateTest, Word,
+    build_needs_log, error_reply_value, from_reply, load_needs_name, resume_needs_log,
+    unknown_action, Axes, CharacterizeAction, CharacterizeParams, Command, ErrorBody, ErrorCode,
+    JobObject, JobReply, JobState, MoveMode, MoveReply, MoveRequest, ProtoError, Request,
+    TablesAction, TablesBuildParams, Topic, ValidateAction, ValidateMode, ValidateParams,
+    ValidateTest, ValidationStatusReply, Word,
 };
+use serde::de::DeserializeOwned;
 use serde_json::{json, Value};
 use std::io::Write;
 use std::path::PathBuf;
@@ -308,6 +310,18 @@ impl Conn {
     }
 }
 
+/// An ok reply read as its typed struct. A reply this client cannot read
+/// (a field missing or of another type: a daemon of another version) is
+/// an error naming the field, reported like an unreadable line (exit 3),
+/// never a panic.
+fn typed<T: DeserializeOwned>(reply: &Value, what: &str) -> Result<T, Unreachable> {
+    from_reply(reply).map_err(|e| {
+        Unreachable(anyhow::anyhow!(
+            "unreadable {what} reply from the daemon ({e}; a daemon of another version?): {reply}"
+        ))
+    })
+}
+
 /// The typed request a client command sends. A word the protocol does not
 /// know (a mode, an action) or a missing required name is refused here
 /// with the code and message the daemon would send; numbers and file names
@@ -531,7 +545,7 @@ async fn run_inner(opts: &GlobalOpts, cmd: &ClientCommand) -> Result<ExitCode, U
     if !opts.json {
         let text = text_of(cmd, &reply, &mut conn).await?;
         let _ = write!(out.lock(), "{text}");
-        for w in reply_warnings(&reply) {
+        for w in reply_warnings(cmd, &reply)? {
             eprintln!("warning: {w}");
         }
     }
@@ -554,7 +568,8 @@ async fn run_inner(opts: &GlobalOpts, cmd: &ClientCommand) -> Result<ExitCode, U
             action,
             ..
         } if action == "start" || action == "resume" => {
-            let job = follow::follow(&mut conn, &reply).await?;
+            let started: JobReply = typed(&reply, "characterize start")?;
+            let job = follow::follow(&mut conn, &started).await?;
             let summary = follow::characterize_summary(&job);
             Ok(follow::report_end(&job, summary, opts.json, None))
         }
@@ -563,15 +578,17 @@ async fn run_inner(opts: &GlobalOpts, cmd: &ClientCommand) -> Result<ExitCode, U
             action,
             ..
         } if action == "start" => {
-            let job = follow::follow(&mut conn, &reply).await?;
-            if JobState::of(&job) != Some(JobState::Done) {
+            let started: JobReply = typed(&reply, "validate start")?;
+            let job = follow::follow(&mut conn, &started).await?;
+            if job.known().map(|p| p.state) != Some(JobState::Done) {
                 return Ok(follow::report_end(&job, None, opts.json, None));
             }
             // The results come with the job-done state: shown like a reply.
             let s = conn
                 .request(Command::Validate(ValidateAction::Status))
                 .await?;
-            let table = validation_table(&s["validation"]);
+            let status: ValidationStatusReply = typed(&s, "validate status")?;
+            let table = validation_table(&status.validation);
             Ok(follow::report_end(&job, Some(table), opts.json, Some(&s)))
         }
         _ => Ok(ExitCode::SUCCESS),
@@ -613,17 +630,26 @@ async fn text_of(
     Ok(match cmd {
         ClientCommand::Status => {
             let extra = status::Extra {
-                position: optional(conn, Command::Position).await?,
-                tables: optional(conn, Command::Tables(TablesAction::List)).await?,
-                config: optional(conn, Command::Config).await?,
+                position: optional(conn, Command::Position, "position").await?,
+                tables: optional(conn, Command::Tables(TablesAction::List), "tables list").await?,
+                config: optional(conn, Command::Config, "config").await?,
             };
-            status::text(reply, &extra)
+            status::text(&typed(reply, "status")?, &extra)
         }
-        ClientCommand::Move { .. } => format!("{}{}", move_summary(reply), human(reply)),
-        ClientCommand::Validate { action, .. } if action == "status" => validate_status_text(reply),
+        ClientCommand::Move { .. } => {
+            format!("{}{}", move_summary(&typed(reply, "move")?), human(reply))
+        }
+        ClientCommand::Validate { action, .. } if action == "status" => {
+            validate_status_text(&typed(reply, "validate status")?)
+        }
         ClientCommand::Characterize { action, .. } if action == "status" => {
-            let mut s = format!("job: {}\n", status::job_line(&reply["job"]));
-            if let Some(sweep) = sweep_summary(&reply["job"]["result"]) {
+            let job: JobReply = typed(reply, "characterize status")?;
+            let job = job.job.as_ref();
+            let mut s = format!("job: {}\n", status::job_line(job));
+            if let Some(sweep) = job
+                .and_then(JobObject::known)
+                .and_then(|p| sweep_summary(&p.result))
+            {
                 s.push_str(&sweep);
                 s.push('\n');
             }
@@ -634,11 +660,16 @@ async fn text_of(
         ClientCommand::Characterize { .. } | ClientCommand::Validate { .. }
             if reply["job"].is_object() =>
         {
+            let job: JobReply = typed(reply, "job")?;
             let mut rest = reply.clone();
             if let Some(m) = rest.as_object_mut() {
                 m.remove("job");
             }
-            format!("job: {}\n{}", status::job_line(&reply["job"]), human(&rest))
+            format!(
+                "job: {}\n{}",
+                status::job_line(job.job.as_ref()),
+                human(&rest)
+            )
         }
         _ => human(reply),
     })
@@ -646,17 +677,25 @@ async fn text_of(
 
 /// A reply the view can do without: `None` when the daemon refused it
 /// (a role that may not read it).
-async fn optional(conn: &mut Conn, command: Command) -> Result<Option<Value>, Unreachable> {
+async fn optional<T: DeserializeOwned>(
+    conn: &mut Conn,
+    command: Command,
+    what: &str,
+) -> Result<Option<T>, Unreachable> {
     let r = conn.request(command).await?;
-    Ok((r["ok"] == true).then_some(r))
+    if r["ok"] != true {
+        return Ok(None);
+    }
+    typed(&r, what).map(Some)
 }
 
 /// `validate status`: the job, the AP/RP table (modes in the order raw,
 /// table, model, closed_loop), the logs; the per-pose figures are in
 /// `--json`.
-fn validate_status_text(reply: &Value) -> String {
-    let mut s = format!("job: {}\n", status::job_line(&reply["job"]));
-    let v = &reply["validation"];
+fn validate_status_text(reply: &ValidationStatusReply) -> String {
+    let mut s = format!("job: {}\n", status::job_line(reply.job.as_ref()));
+    // The results are the validation job's own JSON (per test and mode).
+    let v = &reply.validation;
     if v["results"].as_object().is_some_and(|r| !r.is_empty()) {
         s.push_str(&validation_table(v));
         if let Some(logs) = v["logs"].as_array() {
@@ -724,29 +763,38 @@ fn tables_build_text(reply: &Value) -> String {
 /// The first line of a move's reply: the target the user asked for, then
 /// the command the daemon sent to reach it (they differ by the
 /// compensation).
-fn move_summary(v: &Value) -> String {
-    let xy = |p: &Value| match (p["x_um"].as_f64(), p["y_um"].as_f64()) {
+fn move_summary(v: &MoveReply) -> String {
+    let c = match (v.commanded.x_um, v.commanded.y_um) {
         (Some(x), Some(y)) => Some(format!("({x:.3}, {y:.3}) µm")),
         _ => None,
     };
-    match (xy(&v["target"]), xy(&v["commanded"])) {
+    match (
+        v.target
+            .map(|t| format!("({:.3}, {:.3}) µm", t.x_um, t.y_um)),
+        c,
+    ) {
         (Some(t), Some(c)) => format!("target {t}, commanded {c}\n"),
         (Some(t), None) => format!("target {t}\n"),
         _ => String::new(),
     }
 }
 
-/// Warnings a reply carries (`outside_table.warning`, `warnings`).
-fn reply_warnings(v: &Value) -> Vec<String> {
-    let mut w: Vec<String> = v["outside_table"]["warning"]
-        .as_str()
-        .map(str::to_owned)
-        .into_iter()
-        .collect();
-    if let Some(a) = v["warnings"].as_array() {
-        w.extend(a.iter().filter_map(|s| s.as_str().map(str::to_owned)));
-    }
-    w
+/// Warnings a reply carries: a compensated move's `outside_table.warning`,
+/// `validate start`'s `warnings`.
+fn reply_warnings(cmd: &ClientCommand, v: &Value) -> Result<Vec<String>, Unreachable> {
+    Ok(match cmd {
+        ClientCommand::Move { .. } => typed::<MoveReply>(v, "move")?
+            .outside_table
+            .and_then(|o| o.warning)
+            .into_iter()
+            .collect(),
+        ClientCommand::Validate { action, .. } if action == "start" => {
+            typed::<JobReply>(v, "validate start")?
+                .warnings
+                .unwrap_or_default()
+        }
+        _ => Vec::new(),
+    })
 }
 
 /// The order a person reads the modes in: uncompensated first, then by
@@ -911,7 +959,7 @@ mod tests {
             "validation": {"results": {"random": {"raw": r(19.55), "closed_loop": r(0.048)},
                                        "square": {"closed_loop": r(0.075), "raw": r(28.66123456)}},
                            "logs": ["v.csv"]}});
-        let t = validate_status_text(&reply);
+        let t = validate_status_text(&from_reply(&reply).unwrap());
         let lines: Vec<&str> = t.lines().collect();
         assert_eq!(lines[0], "job: validate v.csv: done, 84/84 points", "{t}");
         assert_eq!(

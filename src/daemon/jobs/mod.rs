@@ -29,7 +29,7 @@ pub(crate) use super::rig::measure::{
 
 use super::protocol::{
     Axes, CharacterizeMode, CharacterizeParams, CharacterizePlan, ErrorCode, GridApproach,
-    GridOrder, JobKind, JobState, ProtoError,
+    GridOrder, JobKind, JobProgress, JobReply, JobState, MoveReply, ProtoError,
 };
 use super::rig::Rig;
 use crate::analysis::drift::DRIFT_REF_SEGMENT;
@@ -78,10 +78,8 @@ pub struct Jobs {
 
 impl Jobs {
     /// Progress of the current or last job (`null` if none ran).
-    pub fn status(&self) -> Value {
-        lock(&self.progress)
-            .as_ref()
-            .map_or(Value::Null, Progress::to_json)
+    pub fn status(&self) -> Option<JobProgress> {
+        lock(&self.progress).as_ref().map(Progress::to_reply)
     }
 
     /// Whether a job is running.
@@ -118,7 +116,7 @@ impl Jobs {
     }
 
     /// Cancels the running job; its log stays resumable.
-    pub async fn cancel(&self) -> Result<Value, ProtoError> {
+    pub async fn cancel(&self) -> Result<Option<JobProgress>, ProtoError> {
         let r = lock(&self.running).take();
         let Some(r) = r else {
             return Err(ProtoError::new(ErrorCode::JobState, "no job is running"));
@@ -160,7 +158,11 @@ impl Jobs {
 
     /// Starts a new characterization. Every refusal comes before anything
     /// moves or is written, in the order of the checks below.
-    pub async fn start(&self, rig: &Arc<Rig>, p: CharacterizeParams) -> Result<Value, ProtoError> {
+    pub async fn start(
+        &self,
+        rig: &Arc<Rig>,
+        p: CharacterizeParams,
+    ) -> Result<JobReply, ProtoError> {
         self.check_can_start(rig, "characterization")?;
         check_plan_options(&p)?;
         let plan = scan_plan(rig, &p)?;
@@ -207,7 +209,7 @@ impl Jobs {
         plan: &ScanPlan,
         name: String,
         drift: Option<DriftPlan>,
-    ) -> Result<Value, ProtoError> {
+    ) -> Result<JobReply, ProtoError> {
         let sweep = sweep::SweepPlan {
             scan_x: plan.scan_x,
             scan_y: plan.scan_y,
@@ -259,7 +261,7 @@ impl Jobs {
     }
 
     /// Resumes a job from its log.
-    pub async fn resume(&self, rig: &Arc<Rig>, name: &str) -> Result<Value, ProtoError> {
+    pub async fn resume(&self, rig: &Arc<Rig>, name: &str) -> Result<JobReply, ProtoError> {
         if self.is_running() {
             return Err(ProtoError::new(ErrorCode::Busy, "a job is already running"));
         }
@@ -361,7 +363,7 @@ impl Jobs {
     }
 
     /// Starts the sweep job task (see [`sweep_job`]).
-    fn launch_sweep(&self, rig: &Arc<Rig>, args: sweep_job::SweepArgs, total: usize) -> Value {
+    fn launch_sweep(&self, rig: &Arc<Rig>, args: sweep_job::SweepArgs, total: usize) -> JobReply {
         let logs = [
             Some(&args.name),
             args.uncorrected.as_ref(),
@@ -391,7 +393,7 @@ impl Jobs {
     /// Starts a step or grid characterization's task, new or resumed
     /// (`resumed`: the log's writer, its frame and its last record's time,
     /// s; `done` of `total` points logged).
-    fn launch(&self, rig: &Arc<Rig>, job: StepJob, done: usize, total: usize) -> Value {
+    fn launch(&self, rig: &Arc<Rig>, job: StepJob, done: usize, total: usize) -> JobReply {
         let launch = Launch {
             kind: JobKind::Characterize,
             what: format!("characterization {}", job.name),
@@ -453,10 +455,14 @@ fn scan_plan(rig: &Rig, p: &CharacterizeParams) -> Result<ScanPlan, ProtoError> 
     };
     let x_range_um = p.x_range_um.unwrap_or(d.x_range_um);
     let y_range_um = p.y_range_um.unwrap_or(d.y_range_um);
-    let status = rig.status();
+    let limits = rig.status().limits;
     let start = |configured: Option<f64>, axis: &str, range: f64| match configured {
         Some(v) => Ok(v),
-        None => centred_start(&status["limits"][axis], axis, range),
+        None => centred_start(
+            limits.map(|l| if axis == "x_um" { l.x_um } else { l.y_um }),
+            axis,
+            range,
+        ),
     };
     let plan = ScanPlan {
         grid,
@@ -498,14 +504,14 @@ fn scan_plan(rig: &Rig, p: &CharacterizeParams) -> Result<ScanPlan, ProtoError> 
 
 /// The start of a `range` µm long scan centred in the allowed travel
 /// `limits` (status's `[lo, hi]` of `axis`, µm).
-fn centred_start(limits: &Value, axis: &str, range: f64) -> Result<f64, ProtoError> {
-    match (limits[0].as_f64(), limits[1].as_f64()) {
-        (Some(lo), Some(hi)) if hi - lo < range => Err(ProtoError::new(
+fn centred_start(limits: Option<[f64; 2]>, axis: &str, range: f64) -> Result<f64, ProtoError> {
+    match limits {
+        Some([lo, hi]) if hi - lo < range => Err(ProtoError::new(
             ErrorCode::OutOfTravel,
             format!("{axis} range {range} µm exceeds the allowed travel {lo}..{hi} µm"),
         )),
-        (Some(lo), Some(hi)) => Ok((lo + hi - range) / 2.0),
-        _ => Err(ProtoError::new(
+        Some([lo, hi]) => Ok((lo + hi - range) / 2.0),
+        None => Err(ProtoError::new(
             ErrorCode::NotConnected,
             "the controllers are not connected",
         )),
@@ -635,7 +641,7 @@ async fn move_raw(
     x: f64,
     y: f64,
     cancel: &mut watch::Receiver<bool>,
-) -> Result<Option<Value>, ProtoError> {
+) -> Result<Option<MoveReply>, ProtoError> {
     tokio::select! {
         r = move_raw_retrying(rig, x, y) => r.map(Some),
         _ = cancel.changed() => Ok(None),

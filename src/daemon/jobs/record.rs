@@ -4,7 +4,9 @@
 
 use crate::analysis::drift::DRIFT_REF_SEGMENT;
 use crate::charact::log::{Columns, LogWriter, Record};
-use crate::daemon::protocol::{ErrorCode, JobKind, JobProgress, JobState, ProtoError};
+use crate::daemon::protocol::{
+    ErrorCode, JobKind, JobProgress, JobState, MoveReply, PairUm, ProtoError,
+};
 use crate::model::XyUm;
 use serde_json::Value;
 use std::fs::File;
@@ -58,6 +60,11 @@ pub struct Progress {
 impl Progress {
     /// As JSON.
     pub fn to_json(&self) -> Value {
+        self.to_reply().to_json()
+    }
+
+    /// As replies and events carry it.
+    pub fn to_reply(&self) -> JobProgress {
         JobProgress {
             kind: self.kind,
             log: self.log.clone(),
@@ -69,7 +76,6 @@ impl Progress {
             retries: self.retries.load(std::sync::atomic::Ordering::SeqCst),
             result: self.result.clone(),
         }
-        .to_json()
     }
 }
 
@@ -94,7 +100,7 @@ pub(crate) async fn append_record(
 /// and the sweep job, whose readers (`tables build`) treat both alike.
 pub(crate) fn drift_ref_record(
     reference_um: [f64; 2],
-    moved: &Value,
+    moved: &MoveReply,
     meas: XyUm,
     quality: f64,
     cycle: u32,
@@ -119,11 +125,14 @@ pub(crate) fn drift_ref_record(
 /// The extra columns of [`columns`] for a point reached by the move that
 /// answered `moved` (its `reported` position, empty when unknown) and
 /// measured at `quality`.
-pub(crate) fn measured_columns(moved: &Value, quality: f64) -> Vec<String> {
-    let rep = |axis: &str| moved["reported"][axis].as_f64();
+pub(crate) fn measured_columns(moved: &MoveReply, quality: f64) -> Vec<String> {
+    let rep = moved.reported.unwrap_or(PairUm {
+        x_um: None,
+        y_um: None,
+    });
     vec![
-        rep("x_um").map_or(String::new(), |v| format!("{v:.4}")),
-        rep("y_um").map_or(String::new(), |v| format!("{v:.4}")),
+        rep.x_um.map_or(String::new(), |v| format!("{v:.4}")),
+        rep.y_um.map_or(String::new(), |v| format!("{v:.4}")),
         format!("{quality:.3}"),
     ]
 }

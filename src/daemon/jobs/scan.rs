@@ -26,12 +26,12 @@ use super::{measure_reference, move_raw, scan_approach, scan_line, RefContext};
 use crate::charact::log::{LogWriter, Record};
 use crate::charact::plan::{self, DriftPlan, ScanPlan};
 use crate::comp::VisionFrame;
+use crate::daemon::protocol::MoveReply;
 use crate::daemon::protocol::{ErrorCode, JobState, ProtoError, Topic};
 use crate::daemon::rig::measure::{self, Exposed};
 use crate::daemon::rig::Rig;
 use crate::daemon::vision::Measurement;
 use crate::model::XyUm;
-use serde_json::Value;
 use std::fs::File;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
@@ -75,7 +75,7 @@ struct Pending {
 struct Head {
     index: usize,
     t_s: f64,
-    moved: Value,
+    moved: MoveReply,
     approach: Option<String>,
 }
 
@@ -305,7 +305,7 @@ async fn reach(
     p: &plan::Point,
     approach: &mut ApproachTracker,
     cancel: &mut watch::Receiver<bool>,
-) -> Result<Option<Value>, ProtoError> {
+) -> Result<Option<MoveReply>, ProtoError> {
     let rig = s.rig;
     let (x, y) = scan_approach(rig, p);
     if move_raw(rig, x, y, cancel).await?.is_none() {
@@ -328,7 +328,7 @@ fn head(
     s: &Scan<'_>,
     index: usize,
     p: &plan::Point,
-    moved: Value,
+    moved: MoveReply,
     approach: &ApproachTracker,
 ) -> Head {
     Head {

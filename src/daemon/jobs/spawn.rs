@@ -4,9 +4,9 @@
 //! started, followed, cancelled or ended.
 
 use super::{lock, Jobs, Progress, Running};
-use crate::daemon::protocol::{JobKind, JobState, ProtoError, Topic};
+use crate::daemon::protocol::{JobEvent, JobKind, JobObject, JobReply, JobState, ProtoError};
 use crate::daemon::rig::Rig;
-use serde_json::{json, Value};
+use serde_json::Value;
 use std::future::Future;
 use std::sync::Arc;
 use tokio::sync::watch;
@@ -54,7 +54,7 @@ impl Jobs {
     /// (`Rig::begin_job`); the task gives it back when `run` ends, before
     /// the progress says so, so that a client that sees the job ended
     /// finds the rig free. Returns the start reply, `{"job": progress}`.
-    pub(crate) fn spawn<F, Fut>(&self, rig: &Arc<Rig>, launch: Launch, run: F) -> Value
+    pub(crate) fn spawn<F, Fut>(&self, rig: &Arc<Rig>, launch: Launch, run: F) -> JobReply
     where
         F: FnOnce(watch::Receiver<bool>) -> Fut,
         Fut: Future<Output = Result<Ended, ProtoError>> + Send + 'static,
@@ -97,12 +97,12 @@ impl Jobs {
                 p.result = ended.result;
                 p.error = error;
                 p.eta_s = None;
-                let mut ev = p.to_json();
+                let mut ev = JobEvent::of(p.to_reply());
                 if let Some(v) = &ended.validation {
-                    ev["results"] = v["results"].clone();
-                    ev["logs"] = v["logs"].clone();
+                    ev.results = Some(v["results"].clone());
+                    ev.logs = Some(v["logs"].clone());
                 }
-                rig2.push(Topic::Job, "job", ev);
+                rig2.emit(&ev);
             }
         });
         *lock(&self.running) = Some(Running {
@@ -111,6 +111,10 @@ impl Jobs {
             kind: launch.kind,
             logs: launch.logs,
         });
-        json!({"job": lock(&self.progress).as_ref().map(Progress::to_json)})
+        JobReply::job(
+            lock(&self.progress)
+                .as_ref()
+                .map(|p| JobObject::from(p.to_reply())),
+        )
     }
 }

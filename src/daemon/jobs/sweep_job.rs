@@ -467,8 +467,8 @@ async fn anchor_group(
                 quality,
             },
             reported: [
-                moved["reported"]["x_um"].as_f64(),
-                moved["reported"]["y_um"].as_f64(),
+                moved.reported.and_then(|r| r.x_um),
+                moved.reported.and_then(|r| r.y_um),
             ],
             frames: a.frames_per_point,
         });

@@ -334,7 +334,7 @@ pub async fn build(rig: &Rig, params: TablesBuildParams) -> Result<Value, ProtoE
     }
     if params.activate {
         if let Some(first) = written.first() {
-            out["active"] = rig.comp.activate(Some(first))?["active"].clone();
+            out["active"] = Value::from(rig.comp.activate(Some(first))?.active);
         }
     }
     Ok(out)

@@ -32,8 +32,8 @@ mod start;
 use super::super::comp::{check_area, Active};
 use super::super::drift::is_measurement_error;
 use super::super::protocol::{
-    ErrorCode, JobKind, JobState, MoveMode, MoveRequest, ProtoError, Topic, ValidateMode,
-    ValidateParams,
+    to_value, ErrorCode, JobKind, JobState, MoveMode, MoveRequest, PairUm, ProtoError, Topic,
+    ValidateMode, ValidateParams,
 };
 use super::super::rig::Rig;
 use super::{append_record, lock, measure_retrying, tie, Ended, Jobs, Launch, Progress};
@@ -274,35 +274,42 @@ async fn reach(
                 e.message
             );
             let pos = rig.position().await;
-            let c = &pos["commanded"];
+            let c = pos.commanded;
             let cmd = XyUm {
-                x_um: c["x_um"].as_f64().unwrap_or(target.x_um),
-                y_um: c["y_um"].as_f64().unwrap_or(target.y_um),
+                x_um: c.x_um.unwrap_or(target.x_um),
+                y_um: c.y_um.unwrap_or(target.y_um),
             };
             return Ok((
                 cmd,
-                pos["controller"].clone(),
+                to_value(&pos.controller),
                 Some(e.code.to_string()),
                 None,
             ));
         }
         Err(e) => return Err(e),
     };
-    let pick = |v: &Value| -> Option<XyUm> {
-        Some(XyUm {
-            x_um: v["x_um"].as_f64()?,
-            y_um: v["y_um"].as_f64()?,
-        })
+    let cmd = match (&r.closed_loop, r.commanded) {
+        (Some(cl), _) => XyUm {
+            x_um: cl.commanded.x_um,
+            y_um: cl.commanded.y_um,
+        },
+        (
+            None,
+            PairUm {
+                x_um: Some(x_um),
+                y_um: Some(y_um),
+            },
+        ) => XyUm { x_um, y_um },
+        _ => target,
     };
-    let cmd = pick(&r["closed_loop"]["commanded"])
-        .or_else(|| pick(&r["commanded"]))
-        .unwrap_or(target);
-    let reported = if r["reported"].is_object() {
-        r["reported"].clone()
-    } else {
-        rig.position().await["controller"].clone()
+    let reported = match r.reported {
+        Some(p) => to_value(&p),
+        None => to_value(&rig.position().await.controller),
     };
-    let c = &r["drift"]["correction_um"];
+    let c = r
+        .drift
+        .as_ref()
+        .map_or(&Value::Null, |d| &d["correction_um"]);
     let correction = c[0].as_f64().zip(c[1].as_f64()).map(|(x, y)| [x, y]);
     Ok((cmd, reported, None, correction))
 }

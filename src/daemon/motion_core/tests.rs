@@ -450,9 +450,9 @@ fn no_tie_while_a_move_is_watched_or_without_a_frame() {
     c.vision(0.01, 0.01, 5.0, -5.0);
     read_both(&mut c, 0.1, [100.0, 100.0]);
     assert!(c.judge_deviation(identity()).tied_um.is_none());
-    let j = c.deviation_json(Err("no camera".to_owned()));
-    assert_eq!(j["armed"], false, "{j}");
-    assert_eq!(j["state"], "off: no camera", "{j}");
+    let j = c.deviation_status(Err("no camera".to_owned()));
+    assert!(!j.armed, "{j:?}");
+    assert_eq!(j.state, "off: no camera", "{j:?}");
 }
 
 /// One input of the property tests.

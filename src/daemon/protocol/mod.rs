@@ -21,8 +21,10 @@
 //! * `job`: a long job's kind and state ([`JobKind`], [`JobState`]), as
 //!   replies and events carry them and clients read them.
 //! * `reply`: replies and events serialized to one line each.
-//! * `replies`: the typed replies both ends use ([`JobProgress`],
-//!   [`ErrorBody`]).
+//! * `replies`: the typed replies and events both ends use, one struct
+//!   per reply kind ([`StatusReply`], [`MoveReply`], [`JobProgress`],
+//!   [`ErrorBody`], …): the daemon builds and serializes them, the CLI
+//!   reads them.
 //! * `role`: the role each command needs ([`Role`], [`Command::role`]) and
 //!   which commands are audited.
 //! * `schema`: every command's actions and fields with their types: the one
@@ -58,7 +60,7 @@ pub use command::{
 pub use error::{ErrorCode, ProtoError};
 pub use job::{JobKind, JobState};
 pub use parse::{parse_request, too_large};
-pub use replies::{ErrorBody, JobProgress};
+pub use replies::*;
 pub use reply::{error_reply, error_reply_value, event_line, ok_reply, reply, reply_fields};
 pub use role::Role;
 pub use schema::{

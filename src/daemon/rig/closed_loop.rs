@@ -7,9 +7,8 @@ use crate::comp::closed_loop::{
     Action, ClosedLoop, ClosedLoopConfig, FailReason, FrameMeasurement, RejectReason,
 };
 use crate::comp::{Compensator, Uncompensated, VisionFrame};
-use crate::daemon::protocol::{ErrorCode, ProtoError};
+use crate::daemon::protocol::{ClosedLoopOutcome, ErrorCode, LoopMeasurement, PairUm, ProtoError};
 use crate::model::XyUm;
-use serde_json::{json, Value};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
@@ -157,7 +156,7 @@ pub async fn run_loop(
     mut cl: ClosedLoop,
     frame: VisionFrame,
     mut execute: impl FnMut(Vec<XyUm>) -> futures_like::BoxFut<'static>,
-) -> Result<Value, ProtoError> {
+) -> Result<ClosedLoopOutcome, ProtoError> {
     let mut settled_s = rig.clock.now_s();
     cl.settled(settled_s);
     let mut min_seq = min_sequence_after_now(rig);
@@ -186,13 +185,17 @@ pub async fn run_loop(
                 residual_um,
                 corrections,
             } => {
-                return Ok(json!({
-                    "residual_um": {"x_um": residual_um[0], "y_um": residual_um[1]},
-                    "corrections": corrections,
-                    "measured": {"x_um": m.position.x_um, "y_um": m.position.y_um,
-                                 "t_s": m.timestamp_s, "quality": m.quality},
-                    "commanded": {"x_um": cl.cmd().x_um, "y_um": cl.cmd().y_um},
-                }))
+                return Ok(ClosedLoopOutcome {
+                    residual_um: PairUm::of(residual_um),
+                    corrections,
+                    measured: LoopMeasurement {
+                        x_um: m.position.x_um,
+                        y_um: m.position.y_um,
+                        t_s: m.timestamp_s,
+                        quality: m.quality,
+                    },
+                    commanded: PairUm::of([cl.cmd().x_um, cl.cmd().y_um]),
+                })
             }
             Action::Failed {
                 reason,

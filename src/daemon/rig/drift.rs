@@ -9,9 +9,9 @@ use super::Rig;
 use crate::comp::VisionFrame;
 use crate::daemon::comp::Active;
 use crate::daemon::drift::{is_measurement_error, Correction, Remeasured};
-use crate::daemon::protocol::{ErrorCode, MoveRequest, ProtoError, Topic};
+use crate::daemon::protocol::{to_value, ErrorCode, MoveRequest, ProtoError, Topic};
 use crate::model::XyUm;
-use serde_json::{json, Value};
+use serde_json::json;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
@@ -74,11 +74,11 @@ impl Rig {
         lock(&self.drift.live).arm(reference, active.drift_baseline);
         let [rx, ry] = reference;
         let approach = PARK_APPROACH_UM;
-        let mut moved = Value::Null;
+        let mut moved = None;
         let below = clamp_to_travel(self, rx - approach, ry - approach);
         for (x, y) in [below, (rx, ry)] {
             let req = MoveRequest::raw_to(x, y);
-            moved = self.raw_move(&req, from_job, true).await?;
+            moved = Some(self.raw_move(&req, from_job, true).await?);
         }
         self.clock
             .sleep(Duration::try_from_secs_f64(settle_s).unwrap_or_default())
@@ -124,7 +124,7 @@ impl Rig {
         Ok(Remeasured {
             reference_um: reference,
             sample,
-            reported: moved["reported"].clone(),
+            reported: to_value(&moved.and_then(|m| m.reported)),
             quality,
         })
     }

@@ -3,9 +3,8 @@
 //! (what jobs and the drift re-measurement share).
 
 use super::Rig;
-use crate::daemon::protocol::{ErrorCode, MoveRequest, ProtoError};
+use crate::daemon::protocol::{ErrorCode, MoveReply, MoveRequest, ProtoError};
 use crate::daemon::vision::{Deferred, HealthCounts, Measurement};
-use serde_json::Value;
 use std::sync::Arc;
 use std::time::Duration;
 
@@ -235,7 +234,11 @@ pub(crate) async fn expose_retrying(rig: &Rig, n: u32) -> Result<Option<Exposed>
 }
 
 /// An absolute raw move and wait, retried after transient faults.
-pub(crate) async fn move_raw_retrying(rig: &Arc<Rig>, x: f64, y: f64) -> Result<Value, ProtoError> {
+pub(crate) async fn move_raw_retrying(
+    rig: &Arc<Rig>,
+    x: f64,
+    y: f64,
+) -> Result<MoveReply, ProtoError> {
     let req = MoveRequest::raw_to(x, y);
     rig.retry_transient(&format!("move to ({x:.3}, {y:.3}) µm"), || {
         rig.move_to(&req, true)
@@ -253,13 +256,9 @@ pub(crate) async fn measure_retrying(rig: &Rig, n: u32) -> Result<(Measurement, 
 /// `(x, y)` clamped into the allowed travel (soft limits ∩ controller
 /// travel, as `status.limits`); unchanged when the limits are unknown.
 pub(crate) fn clamp_to_travel(rig: &Rig, x: f64, y: f64) -> (f64, f64) {
-    let status = rig.status();
-    let clamp = |v: f64, axis: &str| {
-        let l = &status["limits"][axis];
-        match (l[0].as_f64(), l[1].as_f64()) {
-            (Some(lo), Some(hi)) if lo <= hi => v.clamp(lo, hi),
-            _ => v,
-        }
+    let Some(l) = rig.status().limits else {
+        return (x, y);
     };
-    (clamp(x, "x_um"), clamp(y, "y_um"))
+    let clamp = |v: f64, [lo, hi]: [f64; 2]| if lo <= hi { v.clamp(lo, hi) } else { v };
+    (clamp(x, l.x_um), clamp(y, l.y_um))
 }

@@ -60,13 +60,16 @@ pub mod tie;
 
 use super::config::DaemonConfig;
 use super::motion_core::MotionCore;
-use super::protocol::{ErrorCode, ProtoError, Topic};
+use super::protocol::{
+    to_value, ControllerPosition, ErrorCode, Event, Limits, PairUm, PerAxis, PositionReply,
+    ProtoError, ReadErrors, StatusReply, Topic,
+};
 use super::state::{Activity, AxisId};
 use super::supervisor::Bounds;
 use super::vision::{Measurement, Vision};
 use crate::clock::RigClock;
 use crate::driver::{DriverError, Stage};
-use serde_json::{json, Map, Value};
+use serde_json::{Map, Value};
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use tokio::sync::broadcast;
@@ -229,6 +232,11 @@ impl Rig {
         });
     }
 
+    /// Pushes a typed event on its topic ([`Event`]).
+    pub fn emit<E: Event>(&self, event: &E) {
+        self.push(E::TOPIC, E::NAME, to_value(event));
+    }
+
     /// The motion core, locked: hold it for one call, never across an
     /// `.await`, and lock nothing else meanwhile.
     pub(super) fn core(&self) -> std::sync::MutexGuard<'_, MotionCore> {
@@ -261,32 +269,44 @@ impl Rig {
     }
 
     /// Positions from every source, each named, with its time.
-    pub async fn position(&self) -> Value {
+    pub async fn position(&self) -> PositionReply {
         let commanded = self.commanded_um();
-        let mut controller = json!(null);
+        let mut controller = None;
         if let Ok(stage) = self.stage() {
             let t = self.clock.now_s();
             let (x, y) = tokio::join!(stage.x.position_um(), stage.y.position_um());
             let err = |r: &Result<f64, DriverError>| r.as_ref().err().map(|e| e.to_string());
-            controller = json!({"t_s": t, "x_um": x.as_ref().ok(), "y_um": y.as_ref().ok(),
-                                "x_error": err(&x), "y_error": err(&y)});
+            controller = Some(ControllerPosition {
+                t_s: t,
+                x_um: x.as_ref().ok().copied(),
+                y_um: y.as_ref().ok().copied(),
+                errors: Some(ReadErrors {
+                    x_error: err(&x),
+                    y_error: err(&y),
+                }),
+            });
         } else {
             let r = self.core().reported();
             if r.x_um.is_some() || r.y_um.is_some() {
-                controller = json!({"t_s": r.t_s, "x_um": r.x_um, "y_um": r.y_um});
+                controller = Some(ControllerPosition {
+                    t_s: r.t_s,
+                    x_um: r.x_um,
+                    y_um: r.y_um,
+                    errors: None,
+                });
             }
         }
         let vision = self.vision.as_ref().and_then(|v| {
             let m = (*v.latest.borrow())?;
-            let mut j = self.vision_json(&m);
-            j["age_s"] = json!(self.clock.now_s() - m.t_s);
+            let mut j = self.vision_position(&m);
+            j.age_s = Some(self.clock.now_s() - m.t_s);
             Some(j)
         });
-        json!({
-            "commanded": {"x_um": commanded[0], "y_um": commanded[1]},
-            "controller": controller,
-            "vision": vision,
-        })
+        PositionReply {
+            commanded: PairUm::of(commanded),
+            controller,
+            vision,
+        }
     }
 
     /// The commanded position `[x, y]` µm (what the last move asked).
@@ -300,34 +320,36 @@ impl Rig {
         (r.t_s, r.x_um, r.y_um)
     }
 
-    /// The state part of `status`.
-    pub fn status(&self) -> Value {
+    /// `status` but its `job`, which the jobs add.
+    pub fn status(&self) -> StatusReply {
         // The state first, then the stage: the connect task records the
         // stage up in the state just before it hands the stage out, and a
         // client that reads "connected" must find the stage there for its
         // next command (seen: `reference` refused `not_connected` right
         // after `status` said connected). Until the hand-out, not connected.
-        let mut rig = self.core().state().to_json();
+        let mut rig = self.core().state().to_reply();
         let stage = lock(&self.stage).clone();
         if stage.is_none() {
-            if let Some(c) = rig.get_mut("connected") {
-                *c = json!({"x": false, "y": false});
-            }
+            rig.connected = PerAxis::of([false, false]);
         }
         let travel = stage.map(|s| {
             let (xl, xh) = self.limits_um(&s.x, AxisId::X);
             let (yl, yh) = self.limits_um(&s.y, AxisId::Y);
-            json!({"x_um": [xl, xh], "y_um": [yl, yh]})
+            Limits {
+                x_um: [xl, xh],
+                y_um: [yl, yh],
+            }
         });
-        json!({
-            "t_s": self.clock.now_s(),
-            "rig": rig,
-            "limits": travel,
-            "camera": self.vision.as_ref().map(|v| v.to_json()),
-            "drift": self.drift.to_json(self.clock.now_s()),
-            "deviation": self.deviation_json(),
-            "vision_tie": self.tie_json(),
-        })
+        StatusReply {
+            t_s: self.clock.now_s(),
+            rig,
+            limits: travel,
+            camera: self.vision.as_ref().map(|v| v.to_reply()),
+            drift: self.drift.to_json(self.clock.now_s()),
+            deviation: self.deviation_status(),
+            vision_tie: self.tie_status(),
+            job: None,
+        }
     }
 
     /// The newest vision measurement if it is fresh and good enough.

@@ -6,10 +6,12 @@
 
 use super::{driver_error, ActivityGuard, Rig};
 use crate::daemon::motion_core as core;
-use crate::daemon::protocol::{ErrorCode, MoveMode, MoveRequest, ProtoError, Topic};
+use crate::daemon::protocol::{
+    ErrorCode, MoveMode, MoveReply, MoveRequest, PairUm, ProtoError, StopReply, StoppedEvent,
+    TimedReason,
+};
 use crate::daemon::state::{Activity, AxisId, Input};
 use crate::driver::Axis;
-use serde_json::{json, Value};
 use std::sync::Arc;
 
 impl Rig {
@@ -29,7 +31,7 @@ impl Rig {
         self: &Arc<Self>,
         req: &MoveRequest,
         from_job: bool,
-    ) -> Result<Value, ProtoError> {
+    ) -> Result<MoveReply, ProtoError> {
         self.move_with(req, from_job, None).await
     }
 
@@ -42,7 +44,7 @@ impl Rig {
         req: &MoveRequest,
         from_job: bool,
         comp: Option<crate::daemon::comp::Active>,
-    ) -> Result<Value, ProtoError> {
+    ) -> Result<MoveReply, ProtoError> {
         let r = match req.mode {
             MoveMode::Raw => self.raw_move(req, from_job, true).await,
             MoveMode::Compensated | MoveMode::ClosedLoop => {
@@ -78,7 +80,7 @@ impl Rig {
         req: &MoveRequest,
         from_job: bool,
         named: Option<crate::daemon::comp::Active>,
-    ) -> Result<Value, ProtoError> {
+    ) -> Result<MoveReply, ProtoError> {
         use super::closed_loop as c;
         let active = named.or_else(|| self.comp.active());
         let comp = match &active {
@@ -160,21 +162,18 @@ impl Rig {
         }
         self.comp.commit_plan(&plan, self.clock.now_s());
         self.comp.set_target_offset(offset);
-        let mut out = json!({
-            "mode": req.mode.as_str(),
-            "compensator": comp.kind(),
-            "target": {"x_um": target.x_um, "y_um": target.y_um},
-            "commanded": {"x_um": plan.cmd.x_um, "y_um": plan.cmd.y_um},
-            "waypoints": plan.waypoints.len(),
-            "predicted_offset_um": plan.predicted_offset_um,
-            "on_target": true,
-        });
-        if self.drift.enabled() && req.mode == MoveMode::Compensated {
-            out["drift"] = drift.info;
-        }
-        if let Some(info) = outside {
-            out["outside_table"] = info;
-        }
+        let mut out = MoveReply {
+            mode: Some(req.mode.as_str().to_owned()),
+            compensator: Some(comp.kind().to_owned()),
+            target: Some(PairUm::of([target.x_um, target.y_um])),
+            waypoints: Some(plan.waypoints.len() as u64),
+            predicted_offset_um: Some(plan.predicted_offset_um),
+            on_target: Some(true),
+            drift: (self.drift.enabled() && req.mode == MoveMode::Compensated)
+                .then_some(drift.info),
+            outside_table: outside,
+            ..MoveReply::commanded([Some(plan.cmd.x_um), Some(plan.cmd.y_um)])
+        };
         if let Some(frame) = frame {
             let cl = crate::comp::closed_loop::ClosedLoop::new(
                 target,
@@ -197,7 +196,7 @@ impl Rig {
             .await;
             // Done or not, the move was for the user's target.
             self.comp.restore_target(plan.target, offset);
-            out["closed_loop"] = res?;
+            out.closed_loop = Some(res?);
         }
         Ok(out)
     }
@@ -209,7 +208,7 @@ impl Rig {
         req: &MoveRequest,
         from_job: bool,
         commit: bool,
-    ) -> Result<Value, ProtoError> {
+    ) -> Result<MoveReply, ProtoError> {
         let stage = self.stage()?;
         let gen = self.stop_generation();
         let _queue = self.motion.lock().await;
@@ -282,7 +281,7 @@ impl Rig {
         if commit {
             self.comp.commit_raw(targets, sent_t1);
         }
-        let mut out = json!({"commanded": {"x_um": targets[0], "y_um": targets[1]}});
+        let mut out = MoveReply::commanded(targets);
         if req.wait {
             let wait = |axis: &Axis, t: Option<f64>| {
                 let axis = axis.clone();
@@ -303,19 +302,22 @@ impl Rig {
             }
             let why = |e| self.halted_because(driver_error(e), gen);
             let (wx, wy) = (wx.map_err(why)?, wy.map_err(why)?);
-            out["reported"] = json!({"x_um": wx, "y_um": wy});
-            out["on_target"] = json!(true);
+            out.reported = Some(PairUm::of([wx, wy]));
+            out.on_target = Some(true);
         }
         Ok(out)
     }
 
     /// Halts everything now: overtakes queued moves (they are refused when
     /// their turn comes), stops a job, sends `#24` to both controllers.
-    pub async fn stop(self: &Arc<Self>) -> Result<Value, ProtoError> {
+    pub async fn stop(self: &Arc<Self>) -> Result<StopReply, ProtoError> {
         const WHY: &str = "stop requested by a client";
         let t = self.clock.now_s();
         self.core().stop(WHY, t);
-        self.push(Topic::Fault, "stopped", json!({"t_s": t, "reason": WHY}));
+        self.emit(&StoppedEvent(TimedReason {
+            t_s: t,
+            reason: WHY.to_owned(),
+        }));
         let stage = self.stage()?;
         let (x, y) = tokio::join!(stage.x.stop(), stage.y.stop());
         self.core().halted();
@@ -326,7 +328,7 @@ impl Rig {
             }
         }
         if errors.is_empty() {
-            Ok(json!({"stopped": true}))
+            Ok(StopReply { stopped: true })
         } else {
             Err(ProtoError::new(
                 ErrorCode::DriverError,

@@ -2,16 +2,18 @@
 //! supervisor and the poller paused, the soft limits and history reset.
 
 use super::{driver_error, ActivityGuard, Rig};
-use crate::daemon::protocol::{Axes, ErrorCode, ProtoError};
+use crate::daemon::protocol::{Axes, ErrorCode, PairUm, ProtoError};
 use crate::daemon::state::{Activity, AxisId, Input};
 use crate::driver::Axis;
-use serde_json::{json, Value};
 use std::sync::Arc;
 use std::time::Duration;
 
 impl Rig {
     /// References the selected axes (the stage moves to its reference).
-    pub async fn reference(self: &Arc<Self>, axes: Axes) -> Result<Value, ProtoError> {
+    pub async fn reference(
+        self: &Arc<Self>,
+        axes: Axes,
+    ) -> Result<PairUm<Option<f64>>, ProtoError> {
         let stage = self.stage()?;
         let gen = self.stop_generation();
         let _queue = self.motion.lock().await;
@@ -96,6 +98,6 @@ impl Rig {
                 self.apply(Input::Referenced(a));
             }
         }
-        Ok(json!({"reported": {"x_um": x, "y_um": y}}))
+        Ok(PairUm::of([x, y]))
     }
 }

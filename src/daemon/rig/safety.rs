@@ -4,10 +4,12 @@
 
 use super::Rig;
 use crate::daemon::motion_core::Decision;
-use crate::daemon::protocol::Topic;
+use crate::daemon::protocol::{
+    to_value, AxisReadBack, AxisRecoveredEvent, ClearedEvent, DeviationStatus, FaultEvent,
+    HaltReport, HaltedEvent, PerAxis, ResetReply, TimedReason,
+};
 use crate::daemon::state::{AxisId, Input};
 use crate::driver::DriverError;
-use serde_json::{json, Value};
 use std::sync::Arc;
 use std::time::Duration;
 
@@ -69,9 +71,9 @@ impl Rig {
 
     /// The deviation check's state (for `status`), with the frame it
     /// would use now.
-    pub fn deviation_json(&self) -> Value {
+    pub fn deviation_status(&self) -> DeviationStatus {
         let frame = self.deviation_frame();
-        self.core().deviation_json(frame)
+        self.core().deviation_status(frame)
     }
 
     /// A breach found by the motion supervisor: halts both axes, latches.
@@ -90,15 +92,15 @@ impl Rig {
                 Decision::HaltAndLatch { reason } => {
                     tracing::warn!("halting both axes: {reason}");
                     self.metrics.record_fault();
-                    self.push(
-                        Topic::Fault,
-                        "fault",
-                        json!({"t_s": t, "reason": reason, "latched": true}),
-                    );
+                    self.emit(&FaultEvent {
+                        t_s: t,
+                        reason: reason.clone(),
+                        latched: Some(true),
+                    });
                     let rig = self.clone();
                     tokio::spawn(async move {
                         let r = rig.wait_at_rest(rig.halt_all().await).await;
-                        tracing::warn!("after the fault: {r}");
+                        tracing::warn!("after the fault: {}", to_value(&r));
                     });
                 }
             }
@@ -134,23 +136,24 @@ impl Rig {
     /// every normal run, so a warning would teach a lab to ignore
     /// warnings. A halt that leaves an axis moving or fails is a warning;
     /// a fault's halt ([`Rig::apply`]) is one too.
-    pub async fn halt_and_wait(&self, why: &str) -> Value {
+    pub async fn halt_and_wait(&self, why: &str) -> HaltReport {
         self.core().begin_stop(why);
         tracing::info!("halting both axes: {why}");
         let t = self.clock.now_s();
         let halts = self.halt_all().await;
         let mut r = self.wait_at_rest(halts).await;
-        r["reason"] = json!(why);
-        self.push(
-            Topic::Fault,
-            "halted",
-            json!({"t_s": t, "reason": why, "at_rest": r["at_rest"], "wait_s": r["wait_s"]}),
-        );
-        let failed = r["errors"].as_array().is_some_and(|e| !e.is_empty());
-        if r["at_rest"] == true && !failed {
-            tracing::info!("halt ({why}): both axes at rest: {r}");
+        r.reason = Some(why.to_owned());
+        self.emit(&HaltedEvent {
+            t_s: t,
+            reason: why.to_owned(),
+            at_rest: r.at_rest,
+            wait_s: r.wait_s,
+        });
+        let shown = to_value(&r);
+        if r.at_rest && r.errors.is_empty() {
+            tracing::info!("halt ({why}): both axes at rest: {shown}");
         } else {
-            tracing::warn!("halt ({why}) did not bring both axes to rest: {r}");
+            tracing::warn!("halt ({why}) did not bring both axes to rest: {shown}");
         }
         r
     }
@@ -161,13 +164,19 @@ impl Rig {
     pub(super) async fn wait_at_rest(
         &self,
         halts: Vec<(AxisId, Result<(), DriverError>)>,
-    ) -> Value {
+    ) -> HaltReport {
         let errors: Vec<String> = halts
             .iter()
             .filter_map(|(a, r)| r.as_ref().err().map(|e| format!("axis {}: {e}", a.name())))
             .collect();
         let Ok(stage) = self.stage() else {
-            return json!({"at_rest": false, "wait_s": 0.0, "errors": ["not connected"]});
+            return HaltReport {
+                at_rest: false,
+                moving: None,
+                wait_s: 0.0,
+                errors: vec!["not connected".to_owned()],
+                reason: None,
+            };
         };
         let t0 = tokio::time::Instant::now();
         let bound = Duration::try_from_secs_f64(self.cfg.safety.halt_wait_s).unwrap_or_default();
@@ -181,26 +190,43 @@ impl Rig {
             }
             tokio::time::sleep(step).await;
         };
-        json!({"at_rest": moving == [false, false],
-               "moving": {"x": moving[0], "y": moving[1]},
-               "wait_s": t0.elapsed().as_secs_f64(), "errors": errors})
+        HaltReport {
+            at_rest: moving == [false, false],
+            moving: Some(PerAxis::of(moving)),
+            wait_s: t0.elapsed().as_secs_f64(),
+            errors,
+            reason: None,
+        }
     }
 
     /// `reset`: acknowledges the latched fault. Motion is allowed again
     /// (an axis whose reference was lost stays unreferenced: reference it).
-    pub fn reset(&self) -> Value {
+    pub fn reset(&self) -> ResetReply {
         let t = self.clock.now_s();
         let (cleared, state) = {
             let mut c = self.core();
             let cleared = c.reset(t);
-            (cleared, c.state().to_json())
+            (cleared, c.state().to_reply())
         };
-        let cleared = cleared.map(|f| json!({"t_s": f.t_s, "reason": f.reason}));
+        let cleared = cleared.map(|f| TimedReason {
+            t_s: f.t_s,
+            reason: f.reason,
+        });
         if let Some(c) = &cleared {
-            tracing::info!("fault reset by a client: {}", c["reason"]);
-            self.push(Topic::Fault, "reset", json!({"t_s": t, "cleared": c}));
+            // As the log showed it: the reason as a JSON string.
+            tracing::info!(
+                "fault reset by a client: {}",
+                serde_json::Value::from(c.reason.as_str())
+            );
+            self.emit(&ClearedEvent {
+                t_s: t,
+                cleared: c.clone(),
+            });
         }
-        json!({"cleared": cleared, "rig": state})
+        ResetReply {
+            cleared,
+            rig: state,
+        }
     }
 
     /// A line came back: its axis is halted (the controller kept running
@@ -215,17 +241,33 @@ impl Rig {
         let t = self.clock.now_s();
         let halt = axis.halt().await;
         let status = axis.status().await;
-        let fields = match (&halt, &status) {
-            (Ok(()), Ok(s)) => json!({"t_s": t, "axis": a.name(), "halted": true,
-                "referenced": s.referenced, "servo_on": s.servo_on, "on_target": s.on_target,
-                "position_um": s.position_um, "target_um": s.target_um}),
-            _ => json!({"t_s": t, "axis": a.name(), "halted": halt.is_ok(),
-                "error": halt.err().or(status.err()).map(|e| e.to_string())}),
+        let event = match (&halt, &status) {
+            (Ok(()), Ok(s)) => AxisRecoveredEvent {
+                t_s: t,
+                axis: a.name().to_owned(),
+                halted: true,
+                read_back: Some(AxisReadBack {
+                    referenced: s.referenced,
+                    servo_on: s.servo_on,
+                    on_target: s.on_target,
+                    position_um: s.position_um,
+                    target_um: s.target_um,
+                }),
+                error: None,
+            },
+            _ => AxisRecoveredEvent {
+                t_s: t,
+                axis: a.name().to_owned(),
+                halted: halt.is_ok(),
+                read_back: None,
+                error: halt.err().or(status.err()).map(|e| e.to_string()),
+            },
         };
         tracing::warn!(
-            "axis {} reconnected, halted and read back: {fields}",
-            a.name()
+            "axis {} reconnected, halted and read back: {}",
+            a.name(),
+            to_value(&event)
         );
-        self.push(Topic::Fault, "axis_recovered", fields);
+        self.emit(&event);
     }
 }

@@ -4,11 +4,12 @@
 
 use super::{lock, Rig};
 use crate::daemon::motion_core::Reported;
-use crate::daemon::protocol::Topic;
+use crate::daemon::protocol::{
+    CameraEvent, FaultEvent, GarbledEvent, LinkUpEvent, PolledPosition, PositionEvent, StateEvent,
+};
 use crate::daemon::state::{AxisId, Input};
 use crate::daemon::supervisor::ReadFailure;
 use crate::driver::{AxisEvent, Stage};
-use serde_json::json;
 use std::sync::atomic::Ordering;
 use std::sync::Arc;
 use std::time::Duration;
@@ -30,7 +31,11 @@ impl Rig {
                         self.apply(Input::ConnectFailed(e.to_string()));
                         if !reported {
                             tracing::warn!("controllers not available: {e}; retrying");
-                            self.push(Topic::Fault, "fault", json!({"t_s": self.clock.now_s(), "reason": format!("controllers not available: {e}")}));
+                            self.emit(&FaultEvent {
+                                t_s: self.clock.now_s(),
+                                reason: format!("controllers not available: {e}"),
+                                latched: None,
+                            });
                             reported = true;
                         }
                     }
@@ -70,8 +75,8 @@ impl Rig {
         *lock(&self.stage) = Some(stage);
         self.core().retie();
         let t = self.clock.now_s();
-        let state = self.core().state().to_json();
-        self.push(Topic::Fault, "state", json!({"t_s": t, "state": state}));
+        let state = self.core().state().to_reply();
+        self.emit(&StateEvent { t_s: t, state });
         loop {
             let ev = tokio::select! {
                 ev = rx.recv() => ev,
@@ -113,7 +118,7 @@ impl Rig {
                     }
                 }
                 self.metrics.record_link_up(&line);
-                self.push(Topic::Fault, "link_up", json!({"line": line}));
+                self.emit(&LinkUpEvent { line });
             }
             AxisEvent::Disconnected { line, reason } => {
                 for a in self.axis_of_line(&line) {
@@ -127,11 +132,11 @@ impl Rig {
                 // The call that got it fails and decides; the controller
                 // is alive, so nothing is halted (see `AxisEvent::Garbled`).
                 tracing::warn!("garbled answer from {source}: {error}");
-                self.push(
-                    Topic::Fault,
-                    "garbled",
-                    json!({"t_s": self.clock.now_s(), "source": source, "error": error}),
-                );
+                self.emit(&GarbledEvent {
+                    t_s: self.clock.now_s(),
+                    source,
+                    error,
+                });
             }
             AxisEvent::Fault { source, error } => {
                 self.apply(Input::Fault(format!("{source}: {error}")));
@@ -174,9 +179,7 @@ impl Rig {
                 self.core().vision(m.t_s, m.frame_t_s, m.x_um, m.y_um);
                 self.judge_deviation();
             }
-            let mut f = self.vision_json(&m);
-            f["source"] = json!("vision");
-            self.push(Topic::Position, "position", f);
+            self.emit(&PositionEvent::Vision(self.vision_position(&m)));
         }
     }
 
@@ -210,11 +213,11 @@ impl Rig {
                             .unwrap_or_else(|| "no frame".to_owned()),
                     };
                     tracing::warn!("camera {}: {reason}", state.as_str());
-                    self.push(
-                        Topic::Fault,
-                        "camera",
-                        json!({"t_s": t, "state": state.as_str(), "reason": reason}),
-                    );
+                    self.emit(&CameraEvent {
+                        t_s: t,
+                        state: state.as_str().to_owned(),
+                        reason,
+                    });
                 }
             }
             let Ok(stage) = self.stage() else {
@@ -261,11 +264,11 @@ impl Rig {
             if supervised {
                 self.beat();
             }
-            self.push(
-                Topic::Position,
-                "position",
-                json!({"source": "controller", "t_s": t, "x_um": x, "y_um": y}),
-            );
+            self.emit(&PositionEvent::Controller(PolledPosition {
+                t_s: t,
+                x_um: x,
+                y_um: y,
+            }));
         }
     }
 }

@@ -6,11 +6,11 @@
 
 use super::{lock, Rig};
 use crate::comp::VisionFrame;
+use crate::daemon::protocol::{VisionPosition, VisionTieStatus};
 use crate::daemon::state::AxisId;
 use crate::daemon::vision::Measurement;
 use crate::daemon::vision_tie::{self, StoredTie, SWITCHED_OFF};
 use crate::model::XyUm;
-use serde_json::{json, Value};
 use std::sync::Arc;
 
 /// The vision → stage frame in force and where it comes from.
@@ -71,25 +71,32 @@ impl Rig {
         Err(why)
     }
 
-    /// A decoded measurement as JSON for `position` and the position
+    /// A decoded measurement as `position` and the position
     /// events: its pattern coordinates and, through the frame in force,
     /// `stage_x_um`/`stage_y_um` (stage µm, the controllers' axes and
     /// signs) with `frame` naming it; without a frame `untied` says why and
     /// what that switches off, and there are no stage coordinates.
-    pub fn vision_json(&self, m: &Measurement) -> Value {
-        let mut j = m.to_json();
+    pub fn vision_position(&self, m: &Measurement) -> VisionPosition {
+        let mut j = VisionPosition {
+            measurement: m.to_reply(),
+            stage_x_um: None,
+            stage_y_um: None,
+            frame: None,
+            untied: None,
+            age_s: None,
+        };
         match self.vision_frame() {
             Ok(f) => {
                 let s = f.frame.to_stage(XyUm {
                     x_um: m.x_um,
                     y_um: m.y_um,
                 });
-                j["stage_x_um"] = json!(s.x_um);
-                j["stage_y_um"] = json!(s.y_um);
-                j["frame"] = json!(f.source);
+                j.stage_x_um = Some(s.x_um);
+                j.stage_y_um = Some(s.y_um);
+                j.frame = Some(f.source);
             }
             Err(why) => {
-                j["untied"] = json!(format!(
+                j.untied = Some(format!(
                     "vision is not tied to the stage: {why}; {SWITCHED_OFF}"
                 ));
             }
@@ -98,20 +105,24 @@ impl Rig {
     }
 
     /// The tie's state for `status` (`vision_tie`).
-    pub fn tie_json(&self) -> Value {
-        let mut j = lock(&self.tie).to_json();
+    pub fn tie_status(&self) -> VisionTieStatus {
+        if self.vision.is_none() {
+            return VisionTieStatus {
+                tied: false,
+                why: Some("no camera is configured (camera.source)".to_owned()),
+                ..VisionTieStatus::default()
+            };
+        }
+        let mut j = lock(&self.tie).to_reply();
         match self.vision_frame() {
-            Ok(f) => j["frame_in_force"] = json!(f.source),
-            Err(why) if j["tied"] == true => {
+            Ok(f) => j.frame_in_force = Some(f.source),
+            Err(why) if j.tied => {
                 // Tied, but not usable now (an axis lost its reference).
-                j["in_force"] = json!(false);
-                j["why"] = json!(why);
-                j["switched_off"] = json!(SWITCHED_OFF);
+                j.in_force = Some(false);
+                j.why = Some(why);
+                j.switched_off = Some(SWITCHED_OFF.to_owned());
             }
             Err(_) => {}
-        }
-        if self.vision.is_none() {
-            j = json!({"tied": false, "why": "no camera is configured (camera.source)"});
         }
         j
     }

@@ -23,9 +23,9 @@
 use crate::camera::timebase::CameraTimebase;
 use crate::camera::{FrameClock, FrameSource};
 use crate::clock::RigClock;
+use crate::daemon::protocol::{CameraClock, CameraStatus, VisionMeasurement};
 use crate::frame::Frame;
 use crate::pattern::decode::{DecodeOptions, Decoder};
-use serde_json::{json, Value};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{mpsc, Arc};
 use std::thread;
@@ -64,10 +64,17 @@ pub struct Measurement {
 }
 
 impl Measurement {
-    /// As JSON for replies and events.
-    pub fn to_json(&self) -> Value {
-        json!({"t_s": self.t_s, "frame_t_s": self.frame_t_s, "sequence": self.sequence, "x_um": self.x_um, "y_um": self.y_um,
-               "theta_rad": self.theta_rad, "quality": self.quality})
+    /// As replies and events carry it.
+    pub fn to_reply(&self) -> VisionMeasurement {
+        VisionMeasurement {
+            t_s: self.t_s,
+            frame_t_s: self.frame_t_s,
+            sequence: self.sequence,
+            x_um: self.x_um,
+            y_um: self.y_um,
+            theta_rad: self.theta_rad,
+            quality: self.quality,
+        }
     }
 }
 
@@ -486,22 +493,24 @@ impl Vision {
         })
     }
 
-    /// Status as JSON.
-    pub fn to_json(&self) -> Value {
+    /// Status (`status.camera`).
+    pub fn to_reply(&self) -> CameraStatus {
         let s = &self.stats;
-        let mut v = json!({
-            "frames": s.frames.load(Ordering::Relaxed),
-            "decoded": s.decoded.load(Ordering::Relaxed),
-            "failed": s.failed.load(Ordering::Relaxed),
-            "camera_errors": s.camera_errors.load(Ordering::Relaxed),
-            "dropped": s.dropped.load(Ordering::Relaxed),
-            "last_error": self.last_error.lock().map(|g| g.clone()).unwrap_or(None),
-            "latest": (*self.latest.borrow()).map(|m| m.to_json()),
-        });
-        if let Some((rate_ppm, resets)) = s.camera_clock.lock().ok().and_then(|g| *g) {
-            v["camera_clock"] = json!({"rate_ppm": rate_ppm, "resets": resets});
+        CameraStatus {
+            frames: s.frames.load(Ordering::Relaxed),
+            decoded: s.decoded.load(Ordering::Relaxed),
+            failed: s.failed.load(Ordering::Relaxed),
+            camera_errors: s.camera_errors.load(Ordering::Relaxed),
+            dropped: s.dropped.load(Ordering::Relaxed),
+            last_error: self.last_error.lock().map(|g| g.clone()).unwrap_or(None),
+            latest: (*self.latest.borrow()).map(|m| m.to_reply()),
+            camera_clock: s
+                .camera_clock
+                .lock()
+                .ok()
+                .and_then(|g| *g)
+                .map(|(rate_ppm, resets)| CameraClock { rate_ppm, resets }),
         }
-        v
     }
 }
 

@@ -69,11 +69,9 @@ fn bus_stream(
                         .event(p.topic.as_str())
                         .data(p.line.trim_end()),
                     Err(broadcast::error::RecvError::Lagged(n)) => {
-                        let mut m = serde_json::Map::new();
-                        m.insert("missed".to_owned(), n.into());
                         Event::default()
-                            .event("lagged")
-                            .data(protocol::event_line("lagged", m).trim_end())
+                            .event(protocol::LaggedEvent::NAME)
+                            .data(protocol::LaggedEvent { missed: n }.line().trim_end())
                     }
                     Err(broadcast::error::RecvError::Closed) => return None,
                 },

@@ -95,11 +95,11 @@ impl Metrics {
         }
         let state = rig.status();
         self.faulted
-            .set(i64::from(state["rig"]["fault_latched"].is_object()));
+            .set(i64::from(state.rig.fault_latched.is_some()));
         let job = daemon.jobs.status();
         self.job_running.set(i64::from(daemon.jobs.is_running()));
-        let done = job["done"].as_u64().unwrap_or(0);
-        let total = job["total"].as_u64().unwrap_or(0);
+        let done = job.as_ref().map_or(0, |j| j.done);
+        let total = job.as_ref().map_or(0, |j| j.total);
         self.job_points_done.set(clamp_i64(done));
         self.job_points_total.set(clamp_i64(total));
         self.job_progress_ratio.set(if total > 0 {
@@ -108,8 +108,7 @@ impl Metrics {
             0.0
         });
         self.job_eta_seconds.set(
-            job["eta_s"]
-                .as_f64()
+            job.and_then(|j| j.eta_s)
                 .filter(|v| v.is_finite())
                 .unwrap_or(0.0),
         );

@@ -8,9 +8,12 @@
 //! plain line now and then elsewhere (a hidden bar left a log with nothing
 //! between the start and the end).
 
-use super::{sweep_summary, Conn, Unreachable};
-use micropos::daemon::protocol::{Command, JobKind, JobProgress, JobState, Topic};
-use serde_json::{json, Value};
+use super::{sweep_summary, typed, Conn, Unreachable};
+use micropos::daemon::protocol::{
+    from_reply, to_value, Command, Event, FaultEvent, JobEvent, JobKind, JobObject, JobProgress,
+    JobReply, JobState, LaggedEvent, Topic,
+};
+use serde_json::Value;
 use std::io::{IsTerminal, Write};
 use std::process::ExitCode;
 use std::time::{Duration, Instant};
@@ -31,24 +34,24 @@ enum View {
 impl View {
     /// A bar when both stdout and stderr (where indicatif draws) are
     /// terminals, else plain lines (a bar would be hidden).
-    fn new(job: &Value) -> View {
+    fn new(job: Option<&JobProgress>) -> View {
         if !(std::io::stdout().is_terminal() && std::io::stderr().is_terminal()) {
             return View::Plain {
                 last: Instant::now(),
             };
         }
-        let bar = indicatif::ProgressBar::new(job["total"].as_u64().unwrap_or(0));
+        let bar = indicatif::ProgressBar::new(job.map_or(0, |j| j.total));
         bar.set_style(
             indicatif::ProgressStyle::with_template("{bar:40} {pos}/{len} points  ETA {msg}")
                 .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
         );
-        bar.set_position(job["done"].as_u64().unwrap_or(0));
+        bar.set_position(job.map_or(0, |j| j.done));
         View::Bar(bar)
     }
 
     /// Shows a running job's `job` event.
-    fn progress(&mut self, ev: &Value) {
-        let Some(p) = JobProgress::from_json(ev) else {
+    fn progress(&mut self, ev: &JobObject) {
+        let Some(p) = ev.known() else {
             return;
         };
         match self {
@@ -61,7 +64,7 @@ impl View {
             View::Plain { last } => {
                 if last.elapsed() >= PLAIN_EVERY {
                     *last = Instant::now();
-                    eprintln!("{}", progress_line(&p));
+                    eprintln!("{}", progress_line(p));
                 }
             }
         }
@@ -94,24 +97,25 @@ fn progress_line(p: &JobProgress) -> String {
 }
 
 /// Whether a `job` object (event or status) is of a job that has ended.
-fn ended(job: &Value) -> bool {
-    match JobProgress::from_json(job) {
-        Some(p) => p.state.ended(),
+fn ended(job: Option<&JobObject>) -> bool {
+    match job {
+        Some(JobObject::Known(p)) => p.state.ended(),
         // A state this client does not know (a newer daemon's) has ended
         // too; no state at all (no job yet) has not.
-        None => job["state"].is_string(),
+        Some(JobObject::Unknown(v)) => v["state"].is_string(),
+        None => false,
     }
 }
 
 /// Waits until the job the `started` reply announced ends; its last `job`
 /// object (the final event or a status's `job`). Losing the daemon is an
 /// error that says the job's end is unknown.
-pub(super) async fn follow(conn: &mut Conn, started: &Value) -> Result<Value, Unreachable> {
-    let job = &started["job"];
-    let kind = job["kind"].as_str().unwrap_or("characterize").to_owned();
-    let log = job["log"].as_str().unwrap_or("?").to_owned();
+pub(super) async fn follow(conn: &mut Conn, started: &JobReply) -> Result<JobObject, Unreachable> {
+    let job = started.job.as_ref().and_then(JobObject::known);
+    let kind = job.map_or(JobKind::Characterize, |j| j.kind);
+    let log = job.map_or("?".to_owned(), |j| j.log.clone());
     let mut view = View::new(job);
-    let end = wait_end(conn, &mut view, &kind).await;
+    let end = wait_end(conn, &mut view, kind).await;
     view.close();
     end.map_err(|Unreachable(e)| {
         Unreachable(e.context(format!(
@@ -121,36 +125,45 @@ pub(super) async fn follow(conn: &mut Conn, started: &Value) -> Result<Value, Un
 }
 
 /// The subscription and the event loop of [`follow`].
-async fn wait_end(conn: &mut Conn, view: &mut View, kind: &str) -> Result<Value, Unreachable> {
+async fn wait_end(
+    conn: &mut Conn,
+    view: &mut View,
+    kind: JobKind,
+) -> Result<JobObject, Unreachable> {
     conn.request(Command::Subscribe(vec![Topic::Job, Topic::Fault]))
         .await?;
     // A job that ended before the subscription took effect sends no more
     // events: its status (asked after subscribing) says so.
     let mut last = job_status(conn, kind).await?;
-    while !ended(&last) {
+    loop {
+        if let Some(job) = last.as_ref().filter(|j| ended(Some(j))) {
+            return Ok(job.clone());
+        }
         let ev = conn.line().await?;
         match ev["event"].as_str() {
-            Some("job") => {
-                view.progress(&ev);
-                last = ev;
+            Some(JobEvent::NAME) => {
+                // Any object reads as a job object (an unknown one as sent).
+                let job: JobObject = typed(&ev, "job event")?;
+                view.progress(&job);
+                last = Some(job);
             }
-            Some("fault") => view.note(&format!("fault: {}", ev["reason"].as_str().unwrap_or("?"))),
+            Some(FaultEvent::NAME) => {
+                let reason = from_reply::<FaultEvent>(&ev).map_or("?".to_owned(), |f| f.reason);
+                view.note(&format!("fault: {reason}"));
+            }
             // Events were dropped for this slow reader, perhaps the end:
             // the status has the job's state now.
-            Some("lagged") => last = job_status(conn, kind).await?,
+            Some(LaggedEvent::NAME) => last = job_status(conn, kind).await?,
             _ => {}
         }
     }
-    Ok(last)
 }
 
 /// The current `job` object of a `characterize` or `validate` status.
-async fn job_status(conn: &mut Conn, kind: &str) -> Result<Value, Unreachable> {
-    // A kind this client does not know: asked as a characterization, the
-    // job a reply without a kind is taken for.
-    let kind = JobKind::parse(kind).unwrap_or(JobKind::Characterize);
+async fn job_status(conn: &mut Conn, kind: JobKind) -> Result<Option<JobObject>, Unreachable> {
     let s = conn.request(kind.status_command()).await?;
-    Ok(s["job"].clone())
+    let r: JobReply = typed(&s, "job status")?;
+    Ok(r.job)
 }
 
 /// Prints how a followed job ended — its final state, then `summary` (what
@@ -158,7 +171,7 @@ async fn job_status(conn: &mut Conn, kind: &str) -> Result<Value, Unreachable> {
 /// — and returns the exit code: 0 only for `done`. With `json` the final
 /// `job` object (or `json_reply` if given) is printed as one line instead.
 pub(super) fn report_end(
-    job: &Value,
+    job: &JobObject,
     summary: Option<String>,
     json: bool,
     json_reply: Option<&Value>,
@@ -167,7 +180,9 @@ pub(super) fn report_end(
     let out = std::io::stdout();
     let mut out = out.lock();
     if json {
-        let line = json_reply.cloned().unwrap_or_else(|| json!({"job": job}));
+        let line = json_reply
+            .cloned()
+            .unwrap_or_else(|| to_value(&JobReply::job(Some(job.clone()))));
         let _ = writeln!(out, "{line}");
     } else {
         let _ = writeln!(out, "{}", final_line(job));
@@ -186,15 +201,16 @@ pub(super) fn report_end(
 }
 
 /// Whether the job ended done: the only end a script may build on.
-fn ended_done(job: &Value) -> bool {
-    JobProgress::from_json(job).is_some_and(|p| p.state == JobState::Done)
+fn ended_done(job: &JobObject) -> bool {
+    job.known().is_some_and(|p| p.state == JobState::Done)
 }
 
 /// `characterize run1.csv: state done, 12/12 points (1 retry)`; a job
 /// this client cannot read (a newer daemon's state) as its JSON.
-fn final_line(job: &Value) -> String {
-    let Some(p) = JobProgress::from_json(job) else {
-        return format!("job ended: {job}");
+fn final_line(job: &JobObject) -> String {
+    let p = match job {
+        JobObject::Known(p) => p,
+        JobObject::Unknown(v) => return format!("job ended: {v}"),
     };
     let retries = match p.retries {
         0 => String::new(),
@@ -208,9 +224,10 @@ fn final_line(job: &Value) -> String {
 }
 
 /// What a person does after a job that ended done.
-fn next_step(job: &Value) -> String {
-    let log = job["log"].as_str().unwrap_or("LOG");
-    if job["kind"] == "validate" {
+fn next_step(job: &JobObject) -> String {
+    let p = job.known();
+    let log = p.map_or("LOG", |p| p.log.as_str());
+    if p.map(|p| p.kind) == Some(JobKind::Validate) {
         format!(
             "the log {log} is in the daemon's data_dir; its figures (Figs. 10-11): `micropos plot DATA_DIR/{log} --out DIR`, or the daemon's web view"
         )
@@ -220,11 +237,23 @@ fn next_step(job: &Value) -> String {
 }
 
 /// Why a job that did not end done ended, and what can be done.
-fn not_done(job: &Value) -> String {
-    let kind = job["kind"].as_str().unwrap_or("job");
-    let log = job["log"].as_str().unwrap_or("?");
-    let state = job["state"].as_str().unwrap_or("?");
-    let why = match (job["error"].as_str(), JobState::of(job)) {
+fn not_done(job: &JobObject) -> String {
+    let (kind, log, state, error) = match job {
+        JobObject::Known(p) => (
+            p.kind.as_str(),
+            p.log.as_str(),
+            p.state.as_str(),
+            p.error.as_deref(),
+        ),
+        // A newer daemon's job, read as far as it goes.
+        JobObject::Unknown(v) => (
+            v["kind"].as_str().unwrap_or("job"),
+            v["log"].as_str().unwrap_or("?"),
+            v["state"].as_str().unwrap_or("?"),
+            v["error"].as_str(),
+        ),
+    };
+    let why = match (error, job.known().map(|p| p.state)) {
         (Some(e), _) if !e.is_empty() => e.to_owned(),
         (_, Some(JobState::Cancelled)) => "a client cancelled it".to_owned(),
         (_, Some(JobState::Stopped)) => {
@@ -232,7 +261,7 @@ fn not_done(job: &Value) -> String {
         }
         _ => "no reason given".to_owned(),
     };
-    let resume = if kind == "characterize" {
+    let resume = if kind == JobKind::Characterize.as_str() {
         format!(" (a step log resumes where it ended: `micropos characterize resume --log {log}`)")
     } else {
         String::new()
@@ -242,13 +271,14 @@ fn not_done(job: &Value) -> String {
 
 /// The text summary of a characterization: the log it wrote, and a
 /// sweep's delay and anchors.
-pub(super) fn characterize_summary(job: &Value) -> Option<String> {
+pub(super) fn characterize_summary(job: &JobObject) -> Option<String> {
+    let p = job.known();
     let log = format!(
         "log: {} in the daemon's data_dir, {} points",
-        job["log"].as_str().unwrap_or("?"),
-        job["done"].as_u64().unwrap_or(0)
+        p.map_or("?", |p| p.log.as_str()),
+        p.map_or(0, |p| p.done)
     );
-    Some(match sweep_summary(&job["result"]) {
+    Some(match p.and_then(|p| sweep_summary(&p.result)) {
         Some(sweep) => format!("{log}\n{sweep}"),
         None => log,
     })
@@ -262,16 +292,21 @@ mod tests {
     /// names the log a characterization's tables are built from.
     #[test]
     fn only_done_exits_zero_and_the_next_step_names_the_log() {
-        let job = |state: &str, kind: &str| {
-            json!({"kind": kind, "log": "c.csv", "state": state, "done": 3,
-                   "total": 12, "retries": 0, "error": null})
+        let job = |state: &str, kind: &str| -> JobObject {
+            from_reply(
+                &serde_json::json!({"kind": kind, "log": "c.csv", "state": state, "done": 3,
+                   "total": 12, "retries": 0, "error": null}),
+            )
+            .unwrap()
         };
         assert!(ended_done(&job("done", "characterize")));
         for s in ["failed", "cancelled", "stopped", "running"] {
             assert!(!ended_done(&job(s, "characterize")), "{s}");
             assert!(not_done(&job(s, "validate")).contains(&format!("ended {s}")));
         }
-        assert!(!ended(&job("running", "validate")) && ended(&job("stopped", "validate")));
+        assert!(
+            !ended(Some(&job("running", "validate"))) && ended(Some(&job("stopped", "validate")))
+        );
         assert_eq!(
             next_step(&job("done", "characterize")),
             "micropos tables build c.csv"

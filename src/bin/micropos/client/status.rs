@@ -10,7 +10,9 @@
 //! `--json` prints the `status` reply alone, as before.
 
 use crate::fmt::{margin_short, rms_um, um};
-use micropos::daemon::protocol::{JobProgress, JobState};
+use micropos::daemon::protocol::{
+    JobObject, JobState, PerAxis, PositionReply, RigStatus, StatusReply, TablesListReply,
+};
 use serde_json::Value;
 use std::fmt::Write;
 
@@ -18,76 +20,83 @@ use std::fmt::Write;
 #[derive(Debug, Default)]
 pub(super) struct Extra {
     /// `position`.
-    pub position: Option<Value>,
+    pub position: Option<PositionReply>,
     /// `tables list`.
-    pub tables: Option<Value>,
-    /// `config`.
+    pub tables: Option<TablesListReply>,
+    /// `config` (the daemon's `DaemonConfig` as JSON).
     pub config: Option<Value>,
 }
 
-/// `x` and `y` of an object as numbers.
-fn xy(v: &Value) -> Option<(f64, f64)> {
-    Some((v["x"].as_f64()?, v["y"].as_f64()?))
+/// Seconds, for a rig time stamp (to 1 ms).
+fn t(t: f64) -> String {
+    format!("{t:.3} s")
 }
 
-/// Seconds, for a rig time stamp (to 1 ms).
-fn t(v: &Value) -> String {
-    v.as_f64().map_or("?".to_owned(), |t| format!("{t:.3} s"))
+/// An axis' value by its name.
+fn axis<T: Copy>(p: &PerAxis<T>, a: &str) -> T {
+    if a == "x" {
+        p.x
+    } else {
+        p.y
+    }
 }
 
 /// The axes that are not referenced: `["x", "y"]`.
-fn unreferenced(rig: &Value) -> Vec<&'static str> {
+fn unreferenced(rig: &RigStatus) -> Vec<&'static str> {
     ["x", "y"]
         .into_iter()
-        .filter(|a| rig["referenced"][*a] != true)
+        .filter(|a| !axis(&rig.referenced, a))
         .collect()
 }
 
 /// The whole view.
-pub(super) fn text(s: &Value, extra: &Extra) -> String {
+pub(super) fn text(s: &StatusReply, extra: &Extra) -> String {
     let mut out = String::new();
     safety(s, &mut out);
     axes(s, extra.position.as_ref(), &mut out);
     vision(s, extra.position.as_ref(), &mut out);
     compensation(s, extra, &mut out);
-    job(&s["job"], &mut out);
+    job(s.job.as_ref(), &mut out);
     details(s, &mut out);
     out
 }
 
 /// Fault state and whether motion is allowed, and why not.
-fn safety(s: &Value, out: &mut String) {
-    let rig = &s["rig"];
-    let connected = rig["connected"]["x"] == true && rig["connected"]["y"] == true;
-    let latched = &rig["fault_latched"];
-    if latched.is_object() {
+fn safety(s: &StatusReply, out: &mut String) {
+    let rig = &s.rig;
+    let connected = rig.connected.x && rig.connected.y;
+    if let Some(latched) = &rig.fault_latched {
         let _ = writeln!(
             out,
             "safety: FAULT LATCHED at t {}: {}",
-            t(&latched["t_s"]),
-            latched["reason"].as_str().unwrap_or("?")
+            t(latched.t_s),
+            latched.reason
         );
         let _ = writeln!(
             out,
             "  motion refused until its cause is found and `micropos reset` acknowledges it"
         );
     } else {
-        let allowed = match rig["activity"].as_str() {
+        let allowed = match rig.activity.as_str() {
             _ if !connected => {
                 "motion refused: the controllers are not connected (see axes)".to_owned()
             }
-            Some("job") => {
-                let kind = s["job"]["kind"].as_str().unwrap_or("characterize");
+            "job" => {
+                let kind = s
+                    .job
+                    .as_ref()
+                    .and_then(JobObject::known)
+                    .map_or("characterize", |j| j.kind.as_str());
                 format!(
                     "a {kind} job moves the axes: client moves refused until it ends (`micropos {kind} cancel` ends it)"
                 )
             }
-            Some("referencing") => {
+            "referencing" => {
                 "a reference run moves the axes: moves refused until it ends".to_owned()
             }
             activity => {
                 let missing = unreferenced(rig);
-                let moving = if activity == Some("moving") {
+                let moving = if activity == "moving" {
                     " (a client move is under way)"
                 } else {
                     ""
@@ -104,122 +113,126 @@ fn safety(s: &Value, out: &mut String) {
         };
         let _ = writeln!(out, "safety: no fault latched; {allowed}");
     }
-    let faults = rig["faults"].as_u64().unwrap_or(0);
-    let last = &rig["last_fault"];
-    if faults > 0 && !latched.is_object() && last.is_object() {
-        let _ = writeln!(
-            out,
-            "  {faults} fault{} since start, the last at t {} (reset): {}",
-            if faults == 1 { "" } else { "s" },
-            t(&last["t_s"]),
-            last["reason"].as_str().unwrap_or("?")
-        );
-    } else if faults > 1 {
-        let _ = writeln!(out, "  {faults} faults since start");
+    let faults = rig.faults;
+    match &rig.last_fault {
+        Some(last) if faults > 0 && rig.fault_latched.is_none() => {
+            let _ = writeln!(
+                out,
+                "  {faults} fault{} since start, the last at t {} (reset): {}",
+                if faults == 1 { "" } else { "s" },
+                t(last.t_s),
+                last.reason
+            );
+        }
+        _ if faults > 1 => {
+            let _ = writeln!(out, "  {faults} faults since start");
+        }
+        _ => {}
     }
 }
 
 /// Per axis: connected (or why not), referenced, position; the activity
 /// and the travel.
-fn axes(s: &Value, position: Option<&Value>, out: &mut String) {
-    let rig = &s["rig"];
+fn axes(s: &StatusReply, position: Option<&PositionReply>, out: &mut String) {
+    let rig = &s.rig;
     let _ = writeln!(
         out,
         "axes: {}",
-        match rig["activity"].as_str() {
-            Some("idle") => "idle",
-            Some("moving") => "moving (a client move)",
-            Some("referencing") => "referencing",
-            Some("job") => "moving for a job",
+        match rig.activity.as_str() {
+            "idle" => "idle",
+            "moving" => "moving (a client move)",
+            "referencing" => "referencing",
+            "job" => "moving for a job",
             _ => "?",
         }
     );
     for a in ["x", "y"] {
         let mut parts = Vec::new();
-        if rig["connected"][a] != true {
-            let why = rig["not_connected"][a]
-                .as_str()
+        let connected = axis(&rig.connected, a);
+        if !connected {
+            let why = rig
+                .not_connected
+                .as_ref()
+                .and_then(|n| {
+                    if a == "x" {
+                        n.x.as_deref()
+                    } else {
+                        n.y.as_deref()
+                    }
+                })
                 .unwrap_or("no reason given");
             parts.push(format!("not connected: {why}"));
         } else {
             parts.push("connected".to_owned());
         }
-        if rig["referenced"][a] == true {
+        if axis(&rig.referenced, a) {
             parts.push("referenced".to_owned());
         } else {
             parts.push("NOT referenced".to_owned());
         }
         if let Some(p) = position {
-            let c = &p["controller"];
-            match c[format!("{a}_um")].as_f64() {
+            let of = |xy: (Option<f64>, Option<f64>)| if a == "x" { xy.0 } else { xy.1 };
+            let c = p.controller.as_ref().map(|c| (c.x_um, c.y_um));
+            match c.and_then(of) {
                 Some(v) => parts.push(format!("at {} (controller)", um(v))),
-                None if rig["connected"][a] == true => parts.push("position unknown".to_owned()),
+                None if connected => parts.push("position unknown".to_owned()),
                 None => {}
             }
-            if let Some(v) = p["commanded"][format!("{a}_um")].as_f64() {
+            if let Some(v) = of((p.commanded.x_um, p.commanded.y_um)) {
                 parts.push(format!("commanded {}", um(v)));
             }
         }
         let _ = writeln!(out, "  {a}: {}", parts.join(", "));
     }
-    if let (Some(x), Some(y)) = (
-        s["limits"]["x_um"].as_array(),
-        s["limits"]["y_um"].as_array(),
-    ) {
-        let range = |r: &Vec<Value>| match (
-            r.first().and_then(Value::as_f64),
-            r.get(1).and_then(Value::as_f64),
-        ) {
-            (Some(lo), Some(hi)) => format!("{lo:.3} .. {hi:.3} µm"),
-            _ => "?".to_owned(),
-        };
+    if let Some(l) = &s.limits {
+        let range = |[lo, hi]: [f64; 2]| format!("{lo:.3} .. {hi:.3} µm");
         let _ = writeln!(
             out,
             "  allowed range (soft limits ∩ travel): x {}, y {}",
-            range(x),
-            range(y)
+            range(l.x_um),
+            range(l.y_um)
         );
     }
 }
 
 /// Tied or not and what being untied switches off, the vision position,
 /// the deviation check.
-fn vision(s: &Value, position: Option<&Value>, out: &mut String) {
-    if s["camera"].is_null() {
+fn vision(s: &StatusReply, position: Option<&PositionReply>, out: &mut String) {
+    if s.camera.is_none() {
         let _ = writeln!(out, "vision: no camera configured (camera.source)");
         return;
     }
-    let tie = &s["vision_tie"];
-    if tie["tied"] == true && tie["in_force"] != false {
+    let tie = &s.vision_tie;
+    if tie.tied && tie.in_force != Some(false) {
         let mut how = Vec::new();
-        if let Some(a) = tie["after"].as_str() {
+        if let Some(a) = &tie.after {
             how.push(format!("after {a}"));
         }
-        if let Some(u) = tie["taken_utc"].as_str() {
+        if let Some(u) = &tie.taken_utc {
             how.push(format!("taken {u}"));
         }
-        if let Some(r) = tie["restored"].as_str().filter(|r| *r != "no") {
+        if let Some(r) = tie.restored.as_ref().filter(|r| *r != "no") {
             how.push(format!("restored {r}"));
         }
-        if let Some((x, y)) = xy(&tie["rms_error_um"]) {
-            how.push(format!("fit rms x {}, y {}", rms_um(x), rms_um(y)));
+        if let Some(e) = &tie.rms_error_um {
+            how.push(format!("fit rms x {}, y {}", rms_um(e.x), rms_um(e.y)));
         }
         let _ = writeln!(out, "vision: tied to the stage ({})", how.join("; "));
     } else {
         let _ = writeln!(
             out,
             "vision: NOT tied to the stage: {}",
-            tie["why"].as_str().unwrap_or("no reason given")
+            tie.why.as_deref().unwrap_or("no reason given")
         );
-        if let Some(off) = tie["switched_off"].as_str() {
+        if let Some(off) = &tie.switched_off {
             let _ = writeln!(out, "  switched off: {off}");
         }
     }
-    if let Some(v) = position.map(|p| &p["vision"]).filter(|v| v.is_object()) {
-        let age = v["age_s"].as_f64().map_or(String::new(), |a| {
+    if let Some(v) = position.and_then(|p| p.vision.as_ref()) {
+        let age = v.age_s.map_or(String::new(), |a| {
             format!(", {} s old", crate::fmt::sig(a, 2))
         });
-        match (v["stage_x_um"].as_f64(), v["stage_y_um"].as_f64()) {
+        match (v.stage_x_um, v.stage_y_um) {
             (Some(x), Some(y)) => {
                 let _ = writeln!(
                     out,
@@ -229,47 +242,36 @@ fn vision(s: &Value, position: Option<&Value>, out: &mut String) {
                 );
             }
             _ => {
-                if let (Some(x), Some(y)) = (v["x_um"].as_f64(), v["y_um"].as_f64()) {
-                    let _ = writeln!(
-                        out,
-                        "  position: x {}, y {} (pattern coordinates, not stage{age})",
-                        um(x),
-                        um(y)
-                    );
-                }
+                let _ = writeln!(
+                    out,
+                    "  position: x {}, y {} (pattern coordinates, not stage{age})",
+                    um(v.measurement.x_um),
+                    um(v.measurement.y_um)
+                );
             }
         }
     }
-    let d = &s["deviation"];
-    if d.is_object() {
-        let armed = if d["armed"] == true {
-            "armed"
-        } else {
-            "not armed"
-        };
-        let mut line = format!(
-            "  deviation check: {armed}: {}",
-            d["state"].as_str().unwrap_or("?")
-        );
-        if let Some((x, y)) = xy(&d["last_um"]) {
-            let _ = write!(line, "; last x {}, y {}", um(x), um(y));
-        }
-        let _ = writeln!(out, "{line}");
+    let d = &s.deviation;
+    let armed = if d.armed { "armed" } else { "not armed" };
+    let mut line = format!("  deviation check: {armed}: {}", d.state);
+    if let Some(l) = &d.last_um {
+        let _ = write!(line, "; last x {}, y {}", um(l.x), um(l.y));
     }
+    let _ = writeln!(out, "{line}");
 }
 
 /// The active table and its kind, the approach and outside-table policy,
 /// live drift.
-fn compensation(s: &Value, extra: &Extra, out: &mut String) {
+fn compensation(s: &StatusReply, extra: &Extra, out: &mut String) {
     match &extra.tables {
-        Some(t) => match t["active"].as_str() {
+        Some(t) => match &t.active {
             Some(name) => {
-                let kind = t["loaded"]
-                    .as_array()
-                    .and_then(|l| l.iter().find(|e| e["name"] == name))
-                    .and_then(|e| e["kind"].as_str())
-                    .unwrap_or("?");
-                let loaded = t["loaded"].as_array().map_or(0, Vec::len);
+                let kind = t
+                    .loaded
+                    .iter()
+                    .find(|e| &e.name == name)
+                    .map_or("?".to_owned(), |e| kind_word(e.kind));
+                let loaded = t.loaded.len();
                 let _ = writeln!(
                     out,
                     "compensation: active table {name} ({kind}); {loaded} loaded (`micropos tables`)"
@@ -286,6 +288,7 @@ fn compensation(s: &Value, extra: &Extra, out: &mut String) {
             let _ = writeln!(out, "compensation: (tables not readable)");
         }
     }
+    // The configuration is the daemon's `DaemonConfig`, shown as sent.
     if let Some(c) = extra.config.as_ref().map(|c| &c["config"]["compensation"]) {
         let mut line = format!(
             "  approach {}, a target outside the table: {}",
@@ -297,7 +300,8 @@ fn compensation(s: &Value, extra: &Extra, out: &mut String) {
         }
         let _ = writeln!(out, "{line}");
     }
-    let d = &s["drift"];
+    // Live drift is `analysis::drift`'s own JSON (not a protocol type).
+    let d = &s.drift;
     if d.is_object() {
         let method = d["method"].as_str().unwrap_or("?");
         let mut line = format!("  live drift correction: {method}");
@@ -322,19 +326,26 @@ fn compensation(s: &Value, extra: &Extra, out: &mut String) {
     }
 }
 
+/// A table kind's word (`lookup`), as the daemon writes it.
+fn kind_word(k: micropos::comp::file::CompKind) -> String {
+    micropos::daemon::protocol::to_value(&k)
+        .as_str()
+        .unwrap_or("?")
+        .to_owned()
+}
+
 /// The job's one line: `job: characterize c.csv: done, 80/80 points`.
-pub(super) fn job(j: &Value, out: &mut String) {
+pub(super) fn job(j: Option<&JobObject>, out: &mut String) {
     let _ = writeln!(out, "job: {}", job_line(j));
 }
 
 /// `characterize c.csv: running, 5/80 points, ETA 30 s` (or `none`; a job
 /// object this client cannot read, a newer daemon's state, as `unreadable`).
-pub(super) fn job_line(j: &Value) -> String {
-    if !j.is_object() {
-        return "none".to_owned();
-    }
-    let Some(p) = JobProgress::from_json(j) else {
-        return format!("unreadable ({j})");
+pub(super) fn job_line(j: Option<&JobObject>) -> String {
+    let p = match j {
+        None => return "none".to_owned(),
+        Some(JobObject::Unknown(v)) => return format!("unreadable ({v})"),
+        Some(JobObject::Known(p)) => p,
     };
     let mut s = format!(
         "{} {}: {}, {}/{} points",
@@ -350,72 +361,66 @@ pub(super) fn job_line(j: &Value) -> String {
             let _ = write!(s, " ({n} retries)");
         }
     }
-    if let Some(e) = p.error.filter(|e| !e.is_empty()) {
+    if let Some(e) = p.error.as_ref().filter(|e| !e.is_empty()) {
         let _ = write!(s, ": {e}");
     }
     s
 }
 
 /// The counters, for who looks closer.
-fn details(s: &Value, out: &mut String) {
+fn details(s: &StatusReply, out: &mut String) {
     let _ = writeln!(out, "details:");
-    let c = &s["camera"];
-    if c.is_object() {
-        let n = |k: &str| c[k].as_u64().unwrap_or(0);
+    if let Some(c) = &s.camera {
         let _ = writeln!(
             out,
             "  camera: {} frames, {} decoded, {} failed to decode, {} dropped (the decoder was busy; a newer frame took their place), {} camera errors{}",
-            n("frames"),
-            n("decoded"),
-            n("failed"),
-            n("dropped"),
-            n("camera_errors"),
-            c["last_error"]
-                .as_str()
+            c.frames,
+            c.decoded,
+            c.failed,
+            c.dropped,
+            c.camera_errors,
+            c.last_error
+                .as_ref()
                 .map_or(String::new(), |e| format!(" (last: {e})"))
         );
-        let l = &c["latest"];
-        if l.is_object() {
-            if let Some(q) = l["quality"].as_f64() {
-                let _ = writeln!(out, "  decode quality: {}", margin_short(q));
-            }
-            if let (Some(x), Some(y)) = (l["x_um"].as_f64(), l["y_um"].as_f64()) {
-                let _ = writeln!(
-                    out,
-                    "  latest decode: pattern x {}, y {}, θ {:.6} rad, frame at t {}",
-                    um(x),
-                    um(y),
-                    l["theta_rad"].as_f64().unwrap_or(f64::NAN),
-                    t(&l["frame_t_s"])
-                );
-            }
-        }
-        if let Some(r) = c["camera_clock"]["rate_ppm"].as_f64() {
+        if let Some(l) = &c.latest {
+            let _ = writeln!(out, "  decode quality: {}", margin_short(l.quality));
             let _ = writeln!(
                 out,
-                "  camera clock: {r:.1} ppm against the rig clock, {} restarts",
-                c["camera_clock"]["resets"].as_u64().unwrap_or(0)
+                "  latest decode: pattern x {}, y {}, θ {:.6} rad, frame at t {}",
+                um(l.x_um),
+                um(l.y_um),
+                l.theta_rad,
+                t(l.frame_t_s)
+            );
+        }
+        if let Some(k) = &c.camera_clock {
+            let _ = writeln!(
+                out,
+                "  camera clock: {:.1} ppm against the rig clock, {} restarts",
+                k.rate_ppm, k.resets
             );
         }
     }
-    let _ = writeln!(out, "  rig time: {}", t(&s["t_s"]));
+    let _ = writeln!(out, "  rig time: {}", t(s.t_s));
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use micropos::daemon::protocol::from_reply;
     use serde_json::json;
 
-    fn status(latched: bool, referenced: bool) -> Value {
+    fn status(latched: bool, referenced: bool) -> StatusReply {
         let fault = json!({"t_s": 2146.868066595, "reason": "/dev/y: no answer"});
-        json!({"ok": true, "t_s": 2291.989211655,
+        from_reply(&json!({"ok": true, "t_s": 2291.989211655,
             "camera": {"camera_errors": 1, "decoded": 1297, "dropped": 74, "failed": 0,
                        "frames": 1372, "last_error": null,
                        "latest": {"frame_t_s": 2287.425264875, "quality": 784.8261022435961,
                                   "sequence": 1372, "t_s": 2287.425264875,
                                   "theta_rad": 0.005241216334754882,
                                   "x_um": 4528.956800949039, "y_um": 5042.137353581423}},
-            "deviation": {"armed": true, "bound_um": 100.0, "last_um": {"x": -2.068593962115301, "y": 1.9797587091225068},
+            "deviation": {"armed": true, "bound_um": 100.0, "frame": "table c100-paper.toml", "frame_known": true, "last_um": {"x": -2.068593962115301, "y": 1.9797587091225068},
                           "state": "checking: vision − controller within ±100 µm per axis (stage frame)", "tied": true},
             "drift": {"method": "off", "references": 0, "failures": 0, "last_error": null},
             "job": {"done": 80, "error": null, "eta_s": null, "kind": "characterize",
@@ -427,18 +432,30 @@ mod tests {
                     "referenced": {"x": referenced, "y": true}},
             "vision_tie": {"after": "reference", "tied": true, "taken_utc": "2026-11-29T08:27:16Z",
                            "restored": "no",
-                           "rms_error_um": {"x": 4.6007803683465065, "y": 0.19937879175275167}}})
+                           "rms_error_um": {"x": 4.6007803683465065, "y": 0.19937879175275167}}}))
+        .unwrap()
     }
 
     fn extra() -> Extra {
         Extra {
-            position: Some(json!({"commanded": {"x_um": null, "y_um": null},
-                "controller": {"x_um": 7500.0, "y_um": 7100.000000000001},
+            position: Some(
+                from_reply(&json!({"commanded": {"x_um": null, "y_um": null},
+                "controller": {"t_s": 2291.9, "x_um": 7500.0, "y_um": 7100.000000000001,
+                               "x_error": null, "y_error": null},
                 "vision": {"age_s": 4.61482822500011, "stage_x_um": 7498.025602046547,
-                           "stage_y_um": 7101.978995896246}})),
-            tables: Some(json!({"active": "c100-paper.toml",
-                "loaded": [{"name": "c100-model.toml", "kind": "model"},
-                           {"name": "c100-paper.toml", "kind": "lookup"}]})),
+                           "stage_y_um": 7101.978995896246, "frame": "table c100-paper.toml",
+                           "t_s": 2287.4, "frame_t_s": 2287.4, "sequence": 1372,
+                           "x_um": 4528.9, "y_um": 5042.1, "theta_rad": 0.005, "quality": 784.8}}))
+                .unwrap(),
+            ),
+            tables: Some(
+                from_reply(&json!({"active": "c100-paper.toml", "files": [],
+                "loaded": [{"name": "c100-model.toml", "kind": "model", "created": "2026-11-29T08:27:16Z",
+                            "records": 80, "has_frame": true},
+                           {"name": "c100-paper.toml", "kind": "lookup", "created": "2026-11-29T08:27:16Z",
+                            "records": 80, "has_frame": true}]}))
+                .unwrap(),
+            ),
             config: Some(
                 json!({"config": {"compensation": {"approach": "direction_aware",
                 "outside_table": "refuse", "outside_margin_um": 10.0}}}),
@@ -500,7 +517,7 @@ mod tests {
         );
     }
 
-    fn text_of(s: &Value) -> String {
+    fn text_of(s: &StatusReply) -> String {
         text(s, &Extra::default())
     }
 }

@@ -4,6 +4,7 @@
 //! each with the range of origins that fits.
 
 use super::*;
+use crate::daemon::protocol::{JobObject, JobReply, PairUm, ValidationStatusReply};
 
 pub(super) async fn resolve(
     rig: &Rig,
@@ -36,13 +37,13 @@ pub(super) async fn resolve(
 impl Jobs {
     /// `validate status`: progress and the results of the current or last
     /// validation.
-    pub fn validation_status(&self) -> Value {
+    pub fn validation_status(&self) -> ValidationStatusReply {
         let job = lock(&self.progress)
             .as_ref()
             .filter(|p| p.kind == JobKind::Validate)
-            .map_or(Value::Null, Progress::to_json);
-        let results = lock(&self.validation).clone().unwrap_or(Value::Null);
-        json!({"job": job, "validation": results})
+            .map(|p| JobObject::from(p.to_reply()));
+        let validation = lock(&self.validation).clone().unwrap_or(Value::Null);
+        ValidationStatusReply { job, validation }
     }
 
     /// `validate start`. Every refusal comes before anything moves: the
@@ -52,7 +53,7 @@ impl Jobs {
         &self,
         rig: &Arc<Rig>,
         p: ValidateParams,
-    ) -> Result<Value, ProtoError> {
+    ) -> Result<JobReply, ProtoError> {
         self.check_can_start(rig, "validation")?;
         let comps = resolve_comps(rig, &p).await?;
         let frame = comps
@@ -114,10 +115,8 @@ impl Jobs {
                 ..Ended::state(state)
             })
         });
-        out["origin"] = json!({"x_um": origin.x_um, "y_um": origin.y_um});
-        if !warnings.is_empty() {
-            out["warnings"] = json!(warnings);
-        }
+        out.origin = Some(PairUm::of([origin.x_um, origin.y_um]));
+        out.warnings = (!warnings.is_empty()).then_some(warnings);
         Ok(out)
     }
 }
@@ -165,18 +164,13 @@ pub(super) async fn resolve_comps(rig: &Rig, p: &ValidateParams) -> Result<Comps
 /// The allowed travel `[(x_lo, x_hi), (y_lo, y_hi)]`, µm, from the
 /// controllers' limits; refused while they are not connected.
 pub(super) fn travel(rig: &Rig) -> Result<[(f64, f64); 2], ProtoError> {
-    let status = rig.status();
-    let limits = |axis: &str| -> Result<(f64, f64), ProtoError> {
-        let l = &status["limits"][axis];
-        match (l[0].as_f64(), l[1].as_f64()) {
-            (Some(lo), Some(hi)) => Ok((lo, hi)),
-            _ => Err(ProtoError::new(
-                ErrorCode::NotConnected,
-                "the controllers are not connected",
-            )),
-        }
-    };
-    Ok([limits("x_um")?, limits("y_um")?])
+    match rig.status().limits {
+        Some(l) => Ok([(l.x_um[0], l.x_um[1]), (l.y_um[0], l.y_um[1])]),
+        None => Err(ProtoError::new(
+            ErrorCode::NotConnected,
+            "the controllers are not connected",
+        )),
+    }
 }
 
 /// Where the paper's (0, 0) goes on the stage, µm: the request's, else the
@@ -263,9 +257,9 @@ pub(super) fn check_table_areas(
     plan: &Plan,
     span: Option<[[f64; 2]; 2]>,
     travel: [(f64, f64); 2],
-) -> Result<Vec<Value>, ProtoError> {
+) -> Result<Vec<String>, ProtoError> {
     let cfg = rig.live.compensation();
-    let mut warnings = Vec::new();
+    let mut warnings: Vec<String> = Vec::new();
     for mode in &plan.modes {
         if !matches!(mode, ValidateMode::Table | ValidateMode::Model) {
             continue;
@@ -279,8 +273,8 @@ pub(super) fn check_table_areas(
                 check_area(&*a.comp, &a.name, plan.target(pose), &cfg, &what).transpose()
             }) {
                 let w = w.map_err(|e| outside_table(e, &a, &cfg, plan.origin, span, travel))?;
-                if let Some(t) = w.get("warning") {
-                    warnings.push(t.clone());
+                if let Some(t) = w.warning {
+                    warnings.push(t);
                 }
             }
         }
