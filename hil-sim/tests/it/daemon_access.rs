@@ -12,14 +12,10 @@
 //!   audit file names its uid and pid.
 
 use crate::common::{self, Client, DaemonRig};
-use hil_sim::{AxisName, ServeConfig, SimHandle};
-use micropos::clock::WallClock;
+use hil_sim::AxisName;
 use micropos::daemon::config::{AccessSection, DaemonConfig};
-use micropos::daemon::{Daemon, Running};
 use serde_json::{json, Value};
 use std::os::unix::fs::MetadataExt;
-use std::path::PathBuf;
-use std::sync::Arc;
 use std::time::{Duration, Instant};
 use tokio::io::AsyncReadExt;
 
@@ -365,7 +361,7 @@ async fn a_user_holding_every_slot_it_may_cannot_deny_another_users_stop() {
     .await;
     // The other user must reach the socket (no [access]: any client that
     // can open it is admin).
-    std::fs::set_permissions(r._dir.path(), std::fs::Permissions::from_mode(0o755)).unwrap();
+    std::fs::set_permissions(r.dir.path(), std::fs::Permissions::from_mode(0o755)).unwrap();
     std::fs::set_permissions(&r.socket, std::fs::Permissions::from_mode(0o666)).unwrap();
     let mut mover = Client::connect(&r.socket).await;
     connected_and_referenced(&mut mover).await;

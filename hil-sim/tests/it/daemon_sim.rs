@@ -3,14 +3,9 @@
 //! malformed input floods and many concurrent clients.
 
 use crate::common::{Client, DaemonRig};
-use hil_sim::{AxisName, Fault, ServeConfig, SimHandle};
-use micropos::clock::WallClock;
-use micropos::daemon::config::DaemonConfig;
-use micropos::daemon::{Daemon, Running};
+use hil_sim::{AxisName, Fault};
 use rand::{Rng, SeedableRng};
 use serde_json::{json, Value};
-use std::path::PathBuf;
-use std::sync::Arc;
 use std::time::{Duration, Instant};
 use tokio::io::{AsyncBufReadExt, AsyncWriteExt};
 
@@ -320,7 +315,7 @@ async fn malformed_flood_and_concurrent_clients() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn tables_and_compensated_moves() {
     let r = rig(20.0).await;
-    let data = r._dir.path().join("data");
+    let data = r.data.clone();
     let model_text = std::fs::read_to_string(concat!(
         env!("CARGO_MANIFEST_DIR"),
         "/../config/stage-model.toml"

@@ -9,12 +9,10 @@
 //! its retry of the measurement. Permanent: a controller power cycle in the
 //! middle of the job (reference lost, servo off).
 
-use crate::common::{self, Client, DaemonRig};
+use crate::common::{Client, DaemonRig};
 use hil_sim::camera::CameraMode;
-use hil_sim::{AxisName, Corruption, Fault, SimHandle};
-use micropos::daemon::Running;
+use hil_sim::{AxisName, Corruption, Fault};
 use serde_json::{json, Value};
-use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
 async fn rig() -> DaemonRig {

@@ -22,9 +22,7 @@ use crate::common::{self, Client, DaemonRig};
 use hil_sim::run::{daemon_config, RunPlan};
 use hil_sim::{AxisName, Corruption, Fault, SimHandle};
 use micropos::daemon::config::{DaemonConfig, DeviationFrame};
-use micropos::daemon::Running;
 use serde_json::{json, Value};
-use std::path::PathBuf;
 use std::time::Duration;
 
 /// Longest a fault may take to bring both axes to rest (simulated s),

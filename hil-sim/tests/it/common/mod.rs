@@ -272,7 +272,9 @@ pub struct DaemonRig {
     /// A served rig's threads and ptys end when the fixture is dropped; an
     /// in-process one ends with the test's runtime.
     served: bool,
-    _dir: tempfile::TempDir,
+    /// The temporary directory holding the socket, the data and a served
+    /// rig's links.
+    pub dir: tempfile::TempDir,
 }
 
 impl Drop for DaemonRig {
@@ -330,7 +332,7 @@ impl DaemonRig {
             socket,
             data,
             served: true,
-            _dir: dir,
+            dir,
         }
     }
 
@@ -359,7 +361,7 @@ impl DaemonRig {
             socket,
             data,
             served: false,
-            _dir: dir,
+            dir,
         };
         let mut cl = Client::connect(&r.socket).await;
         connect_and_reference(&mut cl).await;

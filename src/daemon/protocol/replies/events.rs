@@ -23,6 +23,7 @@ pub trait Event: Serialize {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct FaultEvent {
     /// Rig time, s.
+    #[serde(deserialize_with = "super::null_as_nan")]
     pub t_s: f64,
     /// What happened.
     pub reason: String,
@@ -49,6 +50,7 @@ impl Event for StoppedEvent {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct ClearedEvent {
     /// Rig time, s.
+    #[serde(deserialize_with = "super::null_as_nan")]
     pub t_s: f64,
     /// The fault acknowledged.
     pub cleared: TimedReason,
@@ -63,6 +65,7 @@ impl Event for ClearedEvent {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct StateEvent {
     /// Rig time, s.
+    #[serde(deserialize_with = "super::null_as_nan")]
     pub t_s: f64,
     /// The state.
     pub state: RigStatus,
@@ -89,6 +92,7 @@ impl Event for LinkUpEvent {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct GarbledEvent {
     /// Rig time, s.
+    #[serde(deserialize_with = "super::null_as_nan")]
     pub t_s: f64,
     /// Which controller.
     pub source: String,
@@ -106,6 +110,7 @@ impl Event for GarbledEvent {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct CameraEvent {
     /// Rig time, s.
+    #[serde(deserialize_with = "super::null_as_nan")]
     pub t_s: f64,
     /// The health word (`ok`, `stalled`, `low_quality`).
     pub state: String,
@@ -138,6 +143,7 @@ impl Event for PositionEvent {
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct PolledPosition {
     /// Rig time, s.
+    #[serde(deserialize_with = "super::null_as_nan")]
     pub t_s: f64,
     /// X, µm.
     pub x_um: Option<f64>,
@@ -206,12 +212,14 @@ impl LaggedEvent {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct HaltedEvent {
     /// Rig time of the halt, s.
+    #[serde(deserialize_with = "super::null_as_nan")]
     pub t_s: f64,
     /// Why.
     pub reason: String,
     /// Whether both axes came to rest.
     pub at_rest: bool,
     /// How long it waited, s.
+    #[serde(deserialize_with = "super::null_as_nan")]
     pub wait_s: f64,
 }
 
@@ -225,6 +233,7 @@ impl Event for HaltedEvent {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct AxisRecoveredEvent {
     /// Rig time, s.
+    #[serde(deserialize_with = "super::null_as_nan")]
     pub t_s: f64,
     /// Which axis (`x`, `y`).
     pub axis: String,

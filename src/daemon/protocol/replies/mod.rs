@@ -13,7 +13,10 @@
 //! `json!` builders these replaced wrote (the tests in `pinned` keep the
 //! old builders as the oracle). A field the daemon writes only sometimes
 //! is `skip_serializing_if`; one it writes as `null` is an `Option`
-//! without it.
+//! without it. A number that is not finite (a NaN decode quality, an
+//! unset fit rms) goes out as `null`, as `serde_json` writes it; every
+//! plain `f64` field reads `null` back as NaN ([`null_as_nan`]), so one
+//! such number never makes a whole reply unreadable.
 //!
 //! # Layout
 //! * this file: the job progress ([`JobProgress`]), the `error` object
@@ -54,6 +57,16 @@ pub use status::{
     CameraClock, CameraStatus, DeviationStatus, Limits, ResetReply, RigStatus, StatusReply,
     VisionMeasurement, VisionTieStatus,
 };
+
+/// Reads a number or `null` (what `serde_json` writes for NaN and the
+/// infinities) as an `f64`, `null` as NaN: the reader shows "not a
+/// number" where the daemon had none, instead of refusing the reply.
+pub(crate) fn null_as_nan<'de, D>(d: D) -> Result<f64, D::Error>
+where
+    D: serde::Deserializer<'de>,
+{
+    Ok(Option::<f64>::deserialize(d)?.unwrap_or(f64::NAN))
+}
 
 /// A long job's progress, as the `job` object of replies and events
 /// carries it.
@@ -197,6 +210,7 @@ impl<T: Clone> PerAxis<T> {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct TimedReason {
     /// Rig time, s.
+    #[serde(deserialize_with = "null_as_nan")]
     pub t_s: f64,
     /// What happened, in words.
     pub reason: String,

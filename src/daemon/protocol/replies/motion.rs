@@ -22,6 +22,7 @@ pub struct PositionReply {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct ControllerPosition {
     /// Rig time of the read, s.
+    #[serde(deserialize_with = "super::null_as_nan")]
     pub t_s: f64,
     /// X, µm (`null`: the read failed or was never made).
     pub x_um: Option<f64>,
@@ -147,12 +148,16 @@ pub struct ClosedLoopOutcome {
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct LoopMeasurement {
     /// X, µm.
+    #[serde(deserialize_with = "super::null_as_nan")]
     pub x_um: f64,
     /// Y, µm.
+    #[serde(deserialize_with = "super::null_as_nan")]
     pub y_um: f64,
     /// Rig time, s.
+    #[serde(deserialize_with = "super::null_as_nan")]
     pub t_s: f64,
     /// Decode quality.
+    #[serde(deserialize_with = "super::null_as_nan")]
     pub quality: f64,
 }
 
@@ -184,6 +189,7 @@ pub struct HaltReport {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub moving: Option<super::PerAxis<bool>>,
     /// How long it waited, s.
+    #[serde(deserialize_with = "super::null_as_nan")]
     pub wait_s: f64,
     /// The halts that failed, per axis.
     pub errors: Vec<String>,
@@ -202,6 +208,7 @@ pub struct OutsideTable {
     /// The characterized area.
     pub area: super::status::Limits,
     /// `[compensation] outside_margin_um`.
+    #[serde(deserialize_with = "super::null_as_nan")]
     pub margin_um: f64,
     /// How far outside per axis, µm `[x, y]`.
     pub outside_by_um: [f64; 2],

@@ -553,3 +553,26 @@ fn a_missing_field_is_named() {
     assert!(o.known().is_none());
     assert_eq!(o.to_json(), j);
 }
+
+#[test]
+fn a_number_sent_as_null_reads_as_nan_and_a_missing_one_is_still_named() {
+    // What the daemon writes for a NaN quality (serde_json has no NaN).
+    let m = VisionMeasurement {
+        t_s: 1.0,
+        frame_t_s: 0.9,
+        sequence: 3,
+        x_um: 10.0,
+        y_um: 20.0,
+        theta_rad: 0.001,
+        quality: f64::NAN,
+    };
+    let v = serde_json::to_value(m).unwrap();
+    assert_eq!(v["quality"], Value::Null);
+    let back: VisionMeasurement = serde_json::from_value(v.clone()).unwrap();
+    assert!(back.quality.is_nan());
+    assert_eq!(back.x_um, 10.0);
+    let mut lacking = v;
+    lacking.as_object_mut().unwrap().remove("quality");
+    let e = serde_json::from_value::<VisionMeasurement>(lacking).unwrap_err();
+    assert!(e.to_string().contains("`quality`"), "{e}");
+}

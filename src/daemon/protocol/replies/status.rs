@@ -10,6 +10,7 @@ use super::{JobObject, PerAxis, TimedReason};
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct StatusReply {
     /// Rig time, s.
+    #[serde(deserialize_with = "super::null_as_nan")]
     pub t_s: f64,
     /// Connection, reference and fault state.
     pub rig: RigStatus,
@@ -89,6 +90,7 @@ pub struct CameraStatus {
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct CameraClock {
     /// Rate difference, ppm.
+    #[serde(deserialize_with = "super::null_as_nan")]
     pub rate_ppm: f64,
     /// Times the camera's clock restarted.
     pub resets: u64,
@@ -99,18 +101,24 @@ pub struct CameraClock {
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct VisionMeasurement {
     /// Rig time of the grab request, s.
+    #[serde(deserialize_with = "super::null_as_nan")]
     pub t_s: f64,
     /// Rig time of the exposure, s.
+    #[serde(deserialize_with = "super::null_as_nan")]
     pub frame_t_s: f64,
     /// The frame's sequence number.
     pub sequence: u64,
     /// Pattern x, µm.
+    #[serde(deserialize_with = "super::null_as_nan")]
     pub x_um: f64,
     /// Pattern y, µm.
+    #[serde(deserialize_with = "super::null_as_nan")]
     pub y_um: f64,
     /// Pattern angle, rad.
+    #[serde(deserialize_with = "super::null_as_nan")]
     pub theta_rad: f64,
     /// Decoder quality (smaller code margin, bits).
+    #[serde(deserialize_with = "super::null_as_nan")]
     pub quality: f64,
 }
 
@@ -122,6 +130,7 @@ pub struct DeviationStatus {
     /// What it does or why it does not, in words.
     pub state: String,
     /// The bound, µm (0: off).
+    #[serde(deserialize_with = "super::null_as_nan")]
     pub bound_um: f64,
     /// Where its orientation comes from; `null` without one.
     pub frame: Option<String>,
