@@ -276,6 +276,7 @@ impl Jobs {
         let (writer, resume) = tokio::task::spawn_blocking(move || {
             let older = [
                 step_columns().with_theta(false),
+                columns(),
                 columns().with_theta(false),
             ];
             let mut r = log::open_append(&path, &step_columns(), sync);
