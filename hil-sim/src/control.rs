@@ -14,7 +14,9 @@
 //!   "true_x_um":..,"true_y_um":..,"observed_x_um":..,"observed_y_um":..}`
 //!   (`observed_*` = pattern point under the image centre, pattern frame,
 //!   as the camera decodes it; `observed_stage_*_um` = the same in the stage
-//!   frame; see `crate::rig`)
+//!   frame; `platform_yaw_urad` = the platform's yaw, right-handed about +z,
+//!   so `true_*_um` and it are the platform pose (x, y, θ); `tool_*_um` =
+//!   the rig file's `[tool]` point, when it names one; see `crate::rig`)
 //! - `{"clock":"now"}` → `{"ok":true,"t_s":..}`;
 //!   `{"clock":"advance","s":0.25}` → `{"ok":true,"t_s":..}` (time after)
 //! - `{"camera":"stall"|"garbage"|"normal"}`: camera faults
@@ -220,8 +222,13 @@ pub fn handle_line(inj: &dyn Injector, line: &str) -> String {
                     ("observed_y_um", t.observed_pattern_um[1]),
                     ("observed_stage_x_um", t.observed_stage_um[0]),
                     ("observed_stage_y_um", t.observed_stage_um[1]),
+                    ("platform_yaw_urad", t.platform_yaw_urad),
                 ] {
                     o.insert(k.into(), json!(x));
+                }
+                if let Some([x, y]) = t.tool_um {
+                    o.insert("tool_x_um".into(), json!(x));
+                    o.insert("tool_y_um".into(), json!(y));
                 }
                 o.insert("moving".into(), json!(t.moving));
             }

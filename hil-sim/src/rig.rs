@@ -24,6 +24,22 @@
 //!   direction of stage +x. θ is the mounting angle, equal to the decoder's
 //!   `theta_rad` (angle from image +x to pattern +x, towards image +y)
 //!   because the camera's image axes are the stage axes (not mirrored).
+//! - *platform yaw* φ (rad; reported in µrad): the stage model's
+//!   [`StageModel::platform_yaw_rad`], the yaw terms of both carriages
+//!   summed, right-handed about +z (+x towards +y). The platform turns the
+//!   pattern with it, so the camera renders it at θ + φ and the decoder
+//!   reads `theta_rad` = mounting angle + φ. The turn is about the
+//!   carriages' rotation centres, and what it does to the point under the
+//!   camera is already in `observed_um` (the yaw terms' displacement
+//!   φ·(ẑ × arm) of that point): the pattern point under the image centre
+//!   stays `P` above, and the image turns about it. Pitch and roll tilt the
+//!   platform out of the plane; the in-plane pattern sees only the
+//!   displacement they cause.
+//! - *tool point* (`[tool] offset_um` of the rig file): a point fixed on the
+//!   platform at that offset from the point the model follows (the one
+//!   under the camera), in the platform's own frame (the stage axes when the
+//!   platform is not turned). Its truth is `true_um + R_z(φ)·offset`: the
+//!   platform is rigid, so the offset turns with it.
 
 use crate::controller::{ActuatorPath, Platform};
 use micropos::model::{Axis, ModelError, MotionState, SimStep, StageModel, StageSimulator};
@@ -92,6 +108,13 @@ pub struct RigTruth {
     pub observed_stage_um: [f64; 2],
     /// Pattern point under the image centre, as the camera decodes it, µm.
     pub observed_pattern_um: [f64; 2],
+    /// The platform's yaw φ, µrad (module docs: the model's yaw terms,
+    /// right-handed about +z): with `true_um`, the platform pose (x, y, θ).
+    /// The decoder reads the mounting angle plus this.
+    pub platform_yaw_urad: f64,
+    /// Where the configured tool point really is (stage frame, µm:
+    /// `true_um + R_z(φ)·offset`), if the rig file names one.
+    pub tool_um: Option<[f64; 2]>,
     /// Actuator positions, µm.
     pub actuator_um: [f64; 2],
     /// Whether either axis is travelling.
@@ -112,6 +135,7 @@ struct RigState {
 pub struct Rig {
     state: Mutex<RigState>,
     mounting: Mounting,
+    tool: ToolConfig,
 }
 
 fn rest(actuator_mm: f64) -> ActuatorPath {
@@ -152,7 +176,15 @@ impl Rig {
                 model_time_s: 0.0,
             }),
             mounting,
+            tool: ToolConfig::default(),
         })
+    }
+
+    /// The same rig with a tool point (`[tool]` of the rig file) whose truth
+    /// [`Rig::truth`] reports.
+    pub fn with_tool(mut self, tool: ToolConfig) -> Rig {
+        self.tool = tool;
+        self
     }
 
     /// The leadscrew periods of the stage model this rig runs, µm (one per
@@ -236,21 +268,28 @@ impl Rig {
         } else {
             Ok(st.sim.current())
         };
-        let (true_um, observed_stage_um) = match step {
+        let (true_um, observed_stage_um, yaw_rad) = match step {
             Ok(s) => (
                 [s.true_um.x_um, s.true_um.y_um],
                 [s.observed_um.x_um, s.observed_um.y_um],
+                st.sim.model().platform_yaw_rad(&s.state),
             ),
             Err(e) => {
                 tracing::warn!("stage model: {e}");
-                ([f64::NAN; 2], [f64::NAN; 2])
+                ([f64::NAN; 2], [f64::NAN; 2], f64::NAN)
             }
         };
+        let tool_um = self.tool.offset_um.map(|[ox, oy]| {
+            let (s, c) = yaw_rad.sin_cos();
+            [true_um[0] + c * ox - s * oy, true_um[1] + s * ox + c * oy]
+        });
         RigTruth {
             sim_time_s: t,
             true_um,
             observed_stage_um,
             observed_pattern_um: self.mounting.pattern_point(observed_stage_um),
+            platform_yaw_urad: yaw_rad * 1e6,
+            tool_um,
             actuator_um,
             moving,
         }
@@ -327,7 +366,27 @@ pub struct RigConfig {
     pub camera: crate::camera::config::CameraConfig,
     /// The controllers' servo loops.
     pub servo: ServoConfig,
+    /// A tool point on the platform whose truth is reported.
+    pub tool: ToolConfig,
 }
+
+/// A tool point on the platform (`[tool]` of the rig file): reported in the
+/// ground truth (`RigTruth::tool_um`, the control socket's `tool_*_um`), so
+/// a test can check a position away from the point the camera watches,
+/// where the platform's yaw adds `φ × offset`.
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ToolConfig {
+    /// Offset from the point the camera watches (the model's observed
+    /// point) to the tool point, in the platform's frame (the stage axes
+    /// when the platform is not turned), µm; none (the default) = no tool
+    /// point. Finite, |v| ≤ [`MAX_TOOL_OFFSET_UM`].
+    pub offset_um: Option<[f64; 2]>,
+}
+
+/// Largest tool offset accepted, µm per axis: 1 m, far beyond any point on
+/// a microscope stage's platform, so a typo in units (nm for µm) is caught.
+pub const MAX_TOOL_OFFSET_UM: f64 = 1e6;
 
 /// The controllers' servo loops (`[servo]` of the rig file).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -388,6 +447,16 @@ impl RigConfig {
                 m.offset_um
             ));
         }
+        if let Some(o) = self.tool.offset_um {
+            if !o
+                .iter()
+                .all(|v| v.is_finite() && v.abs() <= MAX_TOOL_OFFSET_UM)
+            {
+                return Err(format!(
+                    "tool.offset_um = {o:?}: must be finite, |v| ≤ {MAX_TOOL_OFFSET_UM} µm"
+                ));
+            }
+        }
         let lag = self.servo.following_lag_ms;
         if !(lag.is_finite() && (0.0..=20.0).contains(&lag)) {
             return Err(format!(
@@ -422,6 +491,7 @@ mod tests {
         assert_eq!(c.mounting, Mounting::default());
         assert_eq!(c.camera, crate::camera::config::CameraConfig::default());
         assert_eq!(c.servo, ServoConfig::default());
+        assert_eq!(c.tool, ToolConfig::default());
         let m = load_model(c.model.as_deref()).unwrap();
         assert_eq!(
             m.to_toml().unwrap(),
@@ -433,6 +503,40 @@ mod tests {
         assert!(e.contains("theta"), "{e}");
         let e = RigConfig::from_toml("[servo]\nfollowing_lag_ms = -1\n", None).unwrap_err();
         assert!(e.contains("servo.following_lag_ms"), "{e}");
+        assert_eq!(c.tool.offset_um, None);
+        let t = RigConfig::from_toml("[tool]\noffset_um = [1500.0, -20.5]\n", None).unwrap();
+        assert_eq!(t.tool.offset_um, Some([1500.0, -20.5]));
+        for bad in ["[2e6, 0.0]", "[0.0, nan]", "[1.0]", "\"x\""] {
+            let e =
+                RigConfig::from_toml(&format!("[tool]\noffset_um = {bad}\n"), None).unwrap_err();
+            assert!(e.contains("offset_um"), "{bad}: {e}");
+        }
+        let e = RigConfig::from_toml("[tool]\noffset = [1.0, 2.0]\n", None).unwrap_err();
+        assert!(e.contains("offset"), "{e}");
+    }
+
+    /// The platform pose: the model's yaw in µrad, and a tool point that
+    /// turns with the platform about the watched point.
+    #[test]
+    fn the_truth_reports_the_platform_yaw_and_the_tool_point() {
+        let model = StageModel::paper_default().unwrap();
+        let at = MotionState::at_rest(9000.0, 3000.0);
+        let yaw = model.platform_yaw_rad(&at);
+        let rig = Rig::new(model, 1, [9.0, 3.0], Mounting::default())
+            .unwrap()
+            .with_tool(ToolConfig {
+                offset_um: Some([0.0, 50_000.0]),
+            });
+        let t = rig.truth(Duration::ZERO);
+        assert!(yaw.abs() > 10e-6, "{yaw}");
+        assert!((t.platform_yaw_urad - yaw * 1e6).abs() < 1e-9, "{t:?}");
+        let tool = t.tool_um.unwrap();
+        // A positive yaw moves a point at +y from the watched one towards −x.
+        assert!((tool[0] - (t.true_um[0] - yaw.sin() * 50_000.0)).abs() < 1e-9);
+        assert!((tool[1] - (t.true_um[1] + yaw.cos() * 50_000.0)).abs() < 1e-9);
+        let plain = Rig::new(StageModel::ideal(), 1, [9.0, 3.0], Mounting::default()).unwrap();
+        let t = plain.truth(Duration::ZERO);
+        assert_eq!((t.platform_yaw_urad, t.tool_um), (0.0, None));
     }
 
     #[test]

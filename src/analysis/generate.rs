@@ -516,6 +516,7 @@ pub fn simulate_log(
             x_meas_um: step.observed_um.x_um + plan.camera_sigma_um * nx,
             y_meas_um: step.observed_um.y_um + plan.camera_sigma_um * ny,
             temp_c: Some(step.state.temp_c),
+            theta_urad: None,
             extra: Vec::new(),
         });
         Ok(())

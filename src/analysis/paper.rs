@@ -355,6 +355,7 @@ fn characterize(
             x_meas_um: step.observed_um.x_um + opts.camera_sigma_um * nx,
             y_meas_um: step.observed_um.y_um + opts.camera_sigma_um * ny,
             temp_c: Some(step.state.temp_c),
+            theta_urad: None,
             extra: Vec::new(),
         });
     }

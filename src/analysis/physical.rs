@@ -413,6 +413,7 @@ pub fn simulate_physical_log(
             x_meas_um: reading[0] + settle[0] + plan.camera_sigma_um * nx,
             y_meas_um: reading[1] + settle[1] + plan.camera_sigma_um * ny,
             temp_c: Some((temp_c * 1e4).round() / 1e4),
+            theta_urad: None,
             extra: Vec::new(),
         });
     };

@@ -751,6 +751,7 @@ pub fn write_log_with_notes(
             x_meas_um: xm,
             y_meas_um: ym,
             temp_c: None,
+            theta_urad: None,
             extra: vec![if a.approach > 0.0 { "fwd" } else { "bwd" }.into()],
         })?;
     }

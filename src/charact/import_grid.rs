@@ -523,6 +523,7 @@ fn write(grid: &Grid, opts: &GridImportOptions) -> Result<Vec<u8>, ImportError> 
             x_meas_um: p.meas_um[0],
             y_meas_um: p.meas_um[1],
             temp_c: p.temp_c,
+            theta_urad: None,
             extra: p.extra.clone(),
         })?;
     }

@@ -161,6 +161,11 @@ pub trait TermSpec: fmt::Debug + Clone + PartialEq + Send + Sync + 'static {
     }
     /// The term's error contribution (µm, x and y) in `state`.
     fn contribution(cfg: &Self::Config, state: &MotionState) -> [f64; 2];
+    /// The platform's yaw the term causes, rad ([`Term::yaw_rad`]; none by
+    /// default).
+    fn yaw_rad(_cfg: &Self::Config, _state: &MotionState) -> f64 {
+        0.0
+    }
 }
 
 /// The [`Term`] of a [`TermSpec`] kind: a name and a checked configuration.
@@ -217,6 +222,10 @@ impl<D: TermSpec> Term for SpecTerm<D> {
 
     fn contribution(&self, state: &MotionState) -> [f64; 2] {
         D::contribution(&self.cfg, state)
+    }
+
+    fn yaw_rad(&self, state: &MotionState) -> f64 {
+        D::yaw_rad(&self.cfg, state)
     }
 
     fn is_linear(&self) -> bool {

@@ -292,6 +292,20 @@ impl StageModel {
         out
     }
 
+    /// The platform's yaw at `state`, rad: the sum of every platform term's
+    /// [`Term::yaw_rad`] (the yaw of both carriages; small angles add),
+    /// right-handed about +z in the stage frame (+x towards +y). Why: the
+    /// simulated camera renders the pattern turned by it, so the decoded θ
+    /// is the mounting angle plus this; observation terms shift the view,
+    /// never turn the platform.
+    pub fn platform_yaw_rad(&self, state: &MotionState) -> f64 {
+        self.terms
+            .iter()
+            .filter(|t| t.effect() == Effect::Platform)
+            .map(|t| t.yaw_rad(state))
+            .sum()
+    }
+
     /// Σ Platform contributions `[dx_um, dy_um]`: true − commanded.
     pub fn platform_error_um(&self, state: &MotionState) -> [f64; 2] {
         self.sum(state, false)
@@ -348,6 +362,28 @@ mod tests {
         assert_eq!(back.stochastic(), m.stochastic());
         assert_eq!(back.environment(), m.environment());
         assert_eq!(back.to_toml().unwrap(), text);
+    }
+
+    /// The paper stage's yaw is the sum of its two carriages' yaw terms,
+    /// within the datasheet's ±150 µrad over the travel, and zero at the
+    /// origin (each term is zero at commanded 0).
+    #[test]
+    fn the_platform_yaw_sums_both_carriages() {
+        let m = StageModel::paper_default().unwrap();
+        let s = MotionState::at_rest(3300.0, 7100.0);
+        let sum: f64 = ["x_yaw", "y_yaw"]
+            .iter()
+            .map(|n| m.term(n).unwrap().yaw_rad(&s))
+            .sum();
+        let yaw = m.platform_yaw_rad(&s);
+        assert!(yaw.abs() > 1e-6 && (yaw - sum).abs() < 1e-18, "{yaw} {sum}");
+        assert!(m.term("x_pitch").unwrap().yaw_rad(&s) == 0.0);
+        assert_eq!(m.platform_yaw_rad(&MotionState::at_rest(0.0, 0.0)), 0.0);
+        for i in 0..=24 {
+            let p = 500.0 * i as f64;
+            let y = m.platform_yaw_rad(&MotionState::at_rest(p, p));
+            assert!(y.abs() < 150e-6, "{p}: {y}");
+        }
     }
 
     #[test]

@@ -94,6 +94,18 @@ pub trait Term: fmt::Debug + Send + Sync {
     /// Contribution `[dx_um, dy_um]` at `state`.
     fn contribution(&self, state: &MotionState) -> [f64; 2];
 
+    /// The platform's rotation about +z this term causes at `state`, rad:
+    /// right-handed in the stage frame (positive turns +x towards +y,
+    /// counter-clockwise seen from above); 0 for a term that only
+    /// translates (the default). Why a term says it: a camera looking at a
+    /// pattern on the platform sees this rotation (the decoded θ), while
+    /// [`Term::contribution`] is only the displacement it gives the
+    /// observed point. Pitch and roll tilt the platform out of the plane:
+    /// an in-plane pattern cannot see them, so they report 0 here.
+    fn yaw_rad(&self, _state: &MotionState) -> f64 {
+        0.0
+    }
+
     /// True when the contribution is linear in the parameters (the jacobian
     /// does not depend on them): a fit of only such terms is one linear solve.
     fn is_linear(&self) -> bool {

@@ -99,6 +99,7 @@ fn characterize(
             x_meas_um: step.observed_um.x_um + CAMERA_SIGMA_UM * nx,
             y_meas_um: step.observed_um.y_um + CAMERA_SIGMA_UM * ny,
             temp_c: Some(step.state.temp_c),
+            theta_urad: None,
             extra: Vec::new(),
         });
     }

@@ -47,6 +47,7 @@ fn coarse_log() -> Vec<Record> {
                 x_meas_um: s.observed_um.x_um,
                 y_meas_um: s.observed_um.y_um,
                 temp_c: None,
+                theta_urad: None,
                 extra: Vec::new(),
             });
         }

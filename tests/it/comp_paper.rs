@@ -51,6 +51,7 @@ fn characterize(
                 x_meas_um: s.observed_um.x_um,
                 y_meas_um: s.observed_um.y_um,
                 temp_c: Some(s.state.temp_c),
+                theta_urad: None,
                 extra: Vec::new(),
             });
         }

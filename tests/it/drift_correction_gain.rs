@@ -44,6 +44,7 @@ fn record(seg: &str, t_s: f64, target: [f64; 2], meas: [f64; 2]) -> Record {
         x_meas_um: meas[0],
         y_meas_um: meas[1],
         temp_c: None,
+        theta_urad: None,
         extra: Vec::new(),
     }
 }

@@ -232,6 +232,7 @@ impl Stage {
                 x_meas_um: tx * phi.cos() + ty * phi.sin() + self.offset_um[0] + noise.sample(rng),
                 y_meas_um: -tx * phi.sin() + ty * phi.cos() + self.offset_um[1] + noise.sample(rng),
                 temp_c: None,
+                theta_urad: None,
                 extra: Vec::new(),
             });
         }
@@ -582,6 +583,7 @@ fn a_map_measured_both_ways_gets_a_layer_per_direction() {
                 x_meas_um: x + e[0] + noise.sample(&mut rng),
                 y_meas_um: y + e[1] + noise.sample(&mut rng),
                 temp_c: None,
+                theta_urad: None,
                 extra: Vec::new(),
             });
         }

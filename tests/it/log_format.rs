@@ -18,6 +18,7 @@ fn record(t_s: f64, segment: &str, cycle: u32, x: f64, y: f64) -> Record {
         x_meas_um: x - 1.23456,
         y_meas_um: y + 0.00004,
         temp_c: Some(21.5),
+        theta_urad: None,
         extra: vec!["0.93".into(), "a, \"b\"".into()],
     }
 }

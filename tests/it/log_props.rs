@@ -68,6 +68,7 @@ fn record(columns: &Columns) -> impl Strategy<Value = Record> {
             x_meas_um: p[4],
             y_meas_um: p[5],
             temp_c: if temp { temp_c } else { None },
+            theta_urad: None,
             extra,
         })
 }

@@ -30,6 +30,7 @@ fn records(n: usize) -> Vec<Record> {
                 x_meas_um: x + 1.5,
                 y_meas_um: -x - 0.75,
                 temp_c: (i % 2 == 0).then_some(21.125),
+                theta_urad: None,
                 extra: vec![format!("{i}")],
             }
         })

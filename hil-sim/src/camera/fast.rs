@@ -1,4 +1,5 @@
-//! A fast renderer of the Megarena pattern for a fixed mounting angle.
+//! A fast renderer of the Megarena pattern for a fixed mounting angle,
+//! turned per frame by the platform's yaw.
 //!
 //! Why: micropos's exact renderer (`micropos::pattern::render`) clips every
 //! pixel against every dot and blurs the whole frame: 30–80 ms per
@@ -26,6 +27,20 @@
 //! frame after frame; placing each dot per instant
 //! ([`FastRenderer::render_path_per_instant`], the reference) costs one
 //! dot pass per instant.
+//!
+//! The platform's yaw: a frame may turn the pattern by a small angle from
+//! the mounting angle ([`FastRenderer::set_yaw_rad`]; the simulated camera
+//! sets the platform's yaw at the exposure's mid-point). Every dot is then
+//! placed at its position in the turned pattern, with the stamps of the
+//! mounting angle: the yaw moves the dots (over a 1024-px frame, 1 mrad is
+//! half a pixel at the edges: what the decoder measures as θ), while it
+//! would turn each square dot's own image by the same angle, its corners by
+//! (2.5·√2 px)·1 mrad ≈ 0.004 px for the default camera, which leaves its
+//! centre and so every decoded number in place; hence the limit
+//! [`MAX_YAW_RAD`] and no stamps rebuilt per frame. The motion-blurred
+//! stamps' displacements are turned the same way, and the yaw's change
+//! within one exposure (≤ 0.02 µrad in a 2 ms exposure of a 240 µm/s
+//! sweep on the paper stage) is neglected: the frame is turned by its mid-point's yaw.
 //!
 //! Same conventions as micropos's renderer (pixel j covers [j, j+1), the
 //! pose is the pattern point at (W/2, H/2), θ from image +x to pattern +x).
@@ -64,6 +79,13 @@ const MAX_BLUR_SPREAD_PX: usize = 16;
 /// 256 KB accumulator, which stays in a core's L2 cache.
 const BAND_ROWS: usize = 64;
 
+/// Largest turn of a frame from the mounting angle
+/// ([`FastRenderer::set_yaw_rad`]), rad: 10 mrad, 66 times the M-111's
+/// datasheet yaw (±150 µrad). Why a limit: the dots keep the mounting
+/// angle's stamps; at 10 mrad a default dot's corners are 0.035 px off,
+/// beyond it the stamps would have to turn too.
+pub const MAX_YAW_RAD: f64 = 0.01;
+
 /// Standard normal CDF via erfc (W. J. Cody-style rational approximation by
 /// Numerical Recipes' erfc, |error| < 1.2e-7).
 fn phi(x: f64) -> f64 {
@@ -96,6 +118,11 @@ fn erfc(x: f64) -> f64 {
 pub struct FastRenderer {
     cfg: CameraConfig,
     theta_rad: f64,
+    /// The turn of the next frames from `theta_rad` (the platform's yaw),
+    /// rad, and sin, cos of the angle the dots are placed at,
+    /// `theta_rad + yaw_rad` ([`FastRenderer::set_yaw_rad`]).
+    yaw_rad: f64,
+    view_sin_cos: (f64, f64),
     seq: LineSequence,
     k: usize,
     side: usize,
@@ -191,6 +218,8 @@ impl FastRenderer {
         let mut r = FastRenderer {
             cfg: cfg.clone(),
             theta_rad,
+            yaw_rad: 0.0,
+            view_sin_cos: theta_rad.sin_cos(),
             seq,
             k,
             side,
@@ -217,6 +246,29 @@ impl FastRenderer {
     /// The mounting angle the stamps were built for, rad.
     pub fn theta_rad(&self) -> f64 {
         self.theta_rad
+    }
+
+    /// Turns the pattern of the frames rendered from now on by `yaw_rad`
+    /// from the mounting angle (the platform's yaw, right-handed about +z
+    /// of the stage frame = the image frame, so the decoder reads θ =
+    /// mounting angle + yaw): the dots are placed at `theta_rad + yaw_rad`,
+    /// with the mounting angle's stamps (module docs). 0 renders as before,
+    /// bit for bit. Errors: not finite or beyond ±[`MAX_YAW_RAD`] (the
+    /// renderer keeps its previous yaw).
+    pub fn set_yaw_rad(&mut self, yaw_rad: f64) -> Result<(), String> {
+        if !(yaw_rad.is_finite() && yaw_rad.abs() <= MAX_YAW_RAD) {
+            return Err(format!(
+                "platform yaw {yaw_rad} rad: must be finite, within ±{MAX_YAW_RAD} rad"
+            ));
+        }
+        self.yaw_rad = yaw_rad;
+        self.view_sin_cos = (self.theta_rad + yaw_rad).sin_cos();
+        Ok(())
+    }
+
+    /// The turn [`FastRenderer::set_yaw_rad`] set last, rad.
+    pub fn yaw_rad(&self) -> f64 {
+        self.yaw_rad
     }
 
     fn build_shade(&mut self) {

@@ -333,6 +333,7 @@ impl SimHandle {
                 [cx.initial_actuator_mm, cy.initial_actuator_mm],
                 cfg.rig.mounting,
             )
+            .map(|r| r.with_tool(cfg.rig.tool))
             .map_err(|e| SimError::Config(format!("stage model: {e}")))?,
         );
         let camera = Arc::new(

@@ -579,3 +579,59 @@ async fn the_same_seed_writes_the_same_log() {
     let db = diagnose(&b.log, &nominal, &DiagnoseOptions::default()).unwrap();
     assert_eq!(da.to_json().to_string(), db.to_json().to_string());
 }
+
+/// The log's `theta_urad` is the platform's yaw since the tie: on the paper
+/// stage with its x carriage's yaw made steep (60 µrad/mm, 144 µrad over
+/// the X scan), every record carries θ, the tie's θ is the mounting angle
+/// plus the yaw at the anchor, and θ follows the model's yaw (taken at the
+/// commanded position, relative to the anchor's) with slope ≈ 1 (a sign
+/// error would give −1) and a scatter of the decoder's θ error (≈ 30 µrad
+/// rms per view: tests/it/decode_render.rs).
+#[tokio::test(start_paused = true)]
+async fn the_log_carries_the_platform_yaw_since_the_tie() {
+    let mut model = StageModel::paper_default().unwrap();
+    model.set_param("x_yaw.slope_urad_per_mm", 60.0).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("yaw.toml");
+    std::fs::write(&path, model.to_toml().unwrap()).unwrap();
+    let run = characterize_on_rig(3003, Some(&path)).await;
+    let md = &run.log.metadata;
+    let tie_theta: f64 = md.get("tie_theta_rad").unwrap().parse().unwrap();
+    let yaw =
+        |x: f64, y: f64| model.platform_yaw_rad(&micropos::model::MotionState::at_rest(x, y)) * 1e6;
+    let anchor = yaw(PLAN.x_start_um, PLAN.y_start_um);
+    let mount_urad = hil_sim::rig::Mounting::default().theta_deg.to_radians() * 1e6;
+    assert!(
+        (tie_theta * 1e6 - mount_urad - anchor).abs() < 100.0,
+        "tie θ {tie_theta} rad against {mount_urad} + {anchor} µrad"
+    );
+    assert!(run.log.columns.theta_urad);
+    let pairs: Vec<(f64, f64)> = run
+        .log
+        .records
+        .iter()
+        .map(|r| {
+            let seen = r.theta_urad.unwrap_or_else(|| panic!("no θ: {r:?}"));
+            (yaw(r.x_cmd_um, r.y_cmd_um) - anchor, seen)
+        })
+        .collect();
+    let n = pairs.len() as f64;
+    let (mx, my) = (
+        pairs.iter().map(|p| p.0).sum::<f64>() / n,
+        pairs.iter().map(|p| p.1).sum::<f64>() / n,
+    );
+    let sxx: f64 = pairs.iter().map(|p| (p.0 - mx).powi(2)).sum();
+    let slope = pairs.iter().map(|p| (p.0 - mx) * (p.1 - my)).sum::<f64>() / sxx;
+    let rms = (pairs.iter().map(|p| (p.1 - p.0).powi(2)).sum::<f64>() / n).sqrt();
+    println!(
+        "θ in the log: {} records, yaw σ {:.0} µrad, slope {slope:.3}, rms (θ − yaw) {rms:.1} µrad, mean {:+.1} µrad",
+        pairs.len(),
+        (sxx / n).sqrt(),
+        my - mx
+    );
+    assert!(
+        (0.8..1.2).contains(&slope),
+        "θ against the yaw: slope {slope}"
+    );
+    assert!(rms < 45.0, "rms {rms} µrad");
+}

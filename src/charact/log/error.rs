@@ -1,7 +1,7 @@
 //! Why a line, or a whole log, was refused: a leaf the reader, the writer
 //! and the field syntax all name.
 
-use super::format::{MANDATORY_COLUMNS, MAX_LINE_BYTES, TEMP_COLUMN};
+use super::format::{MANDATORY_COLUMNS, MAX_LINE_BYTES, TEMP_COLUMN, THETA_COLUMN};
 use std::io;
 use thiserror::Error;
 
@@ -27,6 +27,13 @@ pub enum LineError {
     /// `temp_c` appears elsewhere than right after `y_meas_um`.
     #[error("bad header: {TEMP_COLUMN} must be column 10, right after y_meas_um (found at column {position})")]
     MisplacedTemp {
+        /// 1-based position where it was found.
+        position: usize,
+    },
+    /// `theta_urad` appears elsewhere than right after the mandatory
+    /// columns and `temp_c`.
+    #[error("bad header: {THETA_COLUMN} must follow y_meas_um (and temp_c, when present) directly (found at column {position})")]
+    MisplacedTheta {
         /// 1-based position where it was found.
         position: usize,
     },

@@ -17,6 +17,19 @@ pub const MANDATORY_COLUMNS: [&str; 9] = [
 /// The optional temperature column; when present it is the tenth column.
 pub const TEMP_COLUMN: &str = "temp_c";
 
+/// The optional decoded-angle column: right after the mandatory columns
+/// and `temp_c` (when present), before any extra column. Its value is the
+/// camera's decoded θ minus the angle the log's vision tie absorbed
+/// ([`TIE_THETA_KEY`]), µrad: with `camera.mirrored` set as the optics
+/// are, the platform's yaw since the tie, right-handed about +z of the
+/// stage frame (+x towards +y).
+pub const THETA_COLUMN: &str = "theta_urad";
+
+/// Metadata key of the decoded θ the vision tie absorbed (the pattern's
+/// mounting angle as the camera saw it at the tie's anchor, mean of its
+/// visits), rad: what [`THETA_COLUMN`] is relative to.
+pub const TIE_THETA_KEY: &str = "tie_theta_rad";
+
 /// Metadata key the writer uses to identify the format and its version.
 pub const FORMAT_KEY: &str = "format";
 
@@ -39,6 +52,9 @@ pub const POSITION_DECIMALS: usize = 4;
 pub const TIME_DECIMALS: usize = 6;
 /// Decimals written for `temp_c`: 1 mK.
 pub const TEMP_DECIMALS: usize = 3;
+/// Decimals written for `theta_urad`: 0.01 µrad, far below a frame's θ
+/// error (tens of µrad).
+pub const THETA_DECIMALS: usize = 2;
 
 /// At most this many warnings are kept; the rest are only counted.
 pub const MAX_WARNINGS: usize = 1000;

@@ -63,7 +63,8 @@ pub use error::{LineError, LogError};
 use fields::{is_field_space, push_field};
 pub use format::{
     FORMAT_ID, FORMAT_KEY, MANDATORY_COLUMNS, MAX_ABS_VALUE, MAX_LINE_BYTES, MAX_WARNINGS,
-    POSITION_DECIMALS, TEMP_COLUMN, TEMP_DECIMALS, TIME_DECIMALS,
+    POSITION_DECIMALS, TEMP_COLUMN, TEMP_DECIMALS, THETA_COLUMN, THETA_DECIMALS, TIE_THETA_KEY,
+    TIME_DECIMALS,
 };
 pub use read::{parse_bytes, read_file, read_from, LogReader};
 pub use write::{create_file, open_append, LogSink, LogWriter, RepairedTail, Resume, SyncPolicy};
@@ -95,6 +96,10 @@ pub struct Record {
     /// Temperature, °C, if the log has a `temp_c` column and it was measured
     /// for this point (an empty cell reads as `None`).
     pub temp_c: Option<f64>,
+    /// Decoded θ relative to the tie's (µrad, [`THETA_COLUMN`]: the
+    /// platform's yaw since the tie), if the log has a `theta_urad` column
+    /// and the point has one (an empty cell reads as `None`).
+    pub theta_urad: Option<f64>,
     /// Values of the extra columns, in header order, as text.
     pub extra: Vec<String>,
 }
@@ -130,6 +135,8 @@ impl Record {
 pub struct Columns {
     /// Whether the `temp_c` column is present.
     pub temp_c: bool,
+    /// Whether the `theta_urad` column is present (after `temp_c`).
+    pub theta_urad: bool,
     /// Names of the extra columns, in order.
     pub extra: Vec<String>,
 }
@@ -139,9 +146,19 @@ impl Columns {
     /// extra names must be non-empty, unique, distinct from the standard
     /// columns and free of control characters.
     pub fn new(temp_c: bool, extra: Vec<String>) -> Result<Self, LogError> {
-        let c = Self { temp_c, extra };
+        let c = Self {
+            temp_c,
+            theta_urad: false,
+            extra,
+        };
         c.validate()?;
         Ok(c)
+    }
+
+    /// The same columns with or without `theta_urad`.
+    pub fn with_theta(mut self, theta_urad: bool) -> Self {
+        self.theta_urad = theta_urad;
+        self
     }
 
     fn validate(&self) -> Result<(), LogError> {
@@ -154,7 +171,10 @@ impl Columns {
             if name.chars().any(char::is_control) {
                 return Err(bad("name contains a control character"));
             }
-            if MANDATORY_COLUMNS.contains(&name.as_str()) || name == TEMP_COLUMN {
+            if MANDATORY_COLUMNS.contains(&name.as_str())
+                || name == TEMP_COLUMN
+                || name == THETA_COLUMN
+            {
                 return Err(bad("name is a standard column"));
             }
             if self.extra[..i].contains(name) {
@@ -166,7 +186,10 @@ impl Columns {
 
     /// Total number of columns.
     pub fn len(&self) -> usize {
-        MANDATORY_COLUMNS.len() + usize::from(self.temp_c) + self.extra.len()
+        MANDATORY_COLUMNS.len()
+            + usize::from(self.temp_c)
+            + usize::from(self.theta_urad)
+            + self.extra.len()
     }
 
     /// Always false: a log has at least the nine mandatory columns. Present
@@ -181,6 +204,10 @@ impl Columns {
         if self.temp_c {
             s.push(',');
             s.push_str(TEMP_COLUMN);
+        }
+        if self.theta_urad {
+            s.push(',');
+            s.push_str(THETA_COLUMN);
         }
         for name in &self.extra {
             s.push(',');

@@ -21,12 +21,19 @@ pub(super) fn parse_header(fields: &[Cow<'_, str>]) -> Result<Columns, LineError
     if temp_c {
         rest = &rest[1..];
     }
-    let first_extra = MANDATORY_COLUMNS.len() + usize::from(temp_c) + 1;
+    let theta_urad = rest.first().is_some_and(|f| f == THETA_COLUMN);
+    if theta_urad {
+        rest = &rest[1..];
+    }
+    let first_extra = MANDATORY_COLUMNS.len() + usize::from(temp_c) + usize::from(theta_urad) + 1;
     let mut extra: Vec<String> = Vec::with_capacity(rest.len());
     for (i, name) in rest.iter().enumerate() {
         let position = first_extra + i;
         if name == TEMP_COLUMN {
             return Err(LineError::MisplacedTemp { position });
+        }
+        if name == THETA_COLUMN {
+            return Err(LineError::MisplacedTheta { position });
         }
         let bad = |reason: &str| LineError::BadExtraColumn {
             position,
@@ -43,7 +50,11 @@ pub(super) fn parse_header(fields: &[Cow<'_, str>]) -> Result<Columns, LineError
         }
         extra.push(name.to_string());
     }
-    Ok(Columns { temp_c, extra })
+    Ok(Columns {
+        temp_c,
+        theta_urad,
+        extra,
+    })
 }
 
 pub(super) fn parse_number(column: &str, value: &str) -> Result<f64, LineError> {
@@ -83,17 +94,17 @@ pub(super) fn parse_record(columns: &Columns, line: &str) -> Result<Record, Line
     let cycle: u32 = f[2].parse().map_err(|_| LineError::BadCycle {
         value: f[2].to_string(),
     })?;
-    let temp_c = if columns.temp_c {
-        let v = &f[MANDATORY_COLUMNS.len()];
-        if v.is_empty() {
-            None
-        } else {
-            Some(parse_number(TEMP_COLUMN, v)?)
+    // An optional number column at `at`: an empty cell is `None`.
+    let optional = |on: bool, at: usize, name: &str| -> Result<Option<f64>, LineError> {
+        match f.get(at) {
+            Some(v) if on && !v.is_empty() => parse_number(name, v).map(Some),
+            _ => Ok(None),
         }
-    } else {
-        None
     };
-    let first_extra = MANDATORY_COLUMNS.len() + usize::from(columns.temp_c);
+    let temp_c = optional(columns.temp_c, MANDATORY_COLUMNS.len(), TEMP_COLUMN)?;
+    let theta_at = MANDATORY_COLUMNS.len() + usize::from(columns.temp_c);
+    let theta_urad = optional(columns.theta_urad, theta_at, THETA_COLUMN)?;
+    let first_extra = theta_at + usize::from(columns.theta_urad);
     Ok(Record {
         t_s,
         segment,
@@ -105,6 +116,7 @@ pub(super) fn parse_record(columns: &Columns, line: &str) -> Result<Record, Line
         x_meas_um: num(7)?,
         y_meas_um: num(8)?,
         temp_c,
+        theta_urad,
         extra: f[first_extra..].iter().map(|s| s.to_string()).collect(),
     })
 }

@@ -79,6 +79,7 @@ fn header_rules() {
         h(&format!("{base},temp_c,focus,\"note, free\"")).unwrap(),
         Columns {
             temp_c: true,
+            theta_urad: false,
             extra: vec!["focus".into(), "note, free".into()]
         }
     );
@@ -125,6 +126,7 @@ fn writer_refuses_what_it_could_not_read_back() {
         x_meas_um: 0.0,
         y_meas_um: 0.0,
         temp_c: None,
+        theta_urad: None,
         extra: vec![],
     };
     let mut w = LogWriter::create(
@@ -245,6 +247,7 @@ fn a_failed_write_poisons_the_writer() {
         x_meas_um: 5.0,
         y_meas_um: 6.0,
         temp_c: None,
+        theta_urad: None,
         extra: vec![],
     };
     assert!(matches!(w.append(&rec), Err(LogError::Io(_))));
@@ -256,4 +259,83 @@ fn a_failed_write_poisons_the_writer() {
     let log = parse_bytes(&bytes).unwrap();
     assert!(log.records.is_empty());
     assert_eq!(log.torn_tail.unwrap().line, 3);
+}
+
+/// The optional `theta_urad` column: after `temp_c`, before the extras; an
+/// empty cell is `None`; it round-trips at 0.01 µrad; a log without it
+/// (every log before it existed) reads with `None`; misplaced or repeated
+/// as an extra it is an error, and a writer without it refuses a θ rather
+/// than drop it.
+#[test]
+fn the_theta_column_is_optional_and_round_trips() {
+    let h = |s: &str| parse_header(&split_fields(s).unwrap());
+    let base = MANDATORY_COLUMNS.join(",");
+    let both = Columns::new(true, vec!["q".into()])
+        .unwrap()
+        .with_theta(true);
+    assert_eq!(h(&format!("{base},temp_c,theta_urad,q")).unwrap(), both);
+    assert_eq!(
+        h(&format!("{base},theta_urad")).unwrap(),
+        Columns::default().with_theta(true)
+    );
+    assert_eq!(
+        h(&format!("{base},theta_urad,temp_c")),
+        Err(LineError::MisplacedTemp { position: 11 })
+    );
+    assert_eq!(
+        h(&format!("{base},q,theta_urad")),
+        Err(LineError::MisplacedTheta { position: 11 })
+    );
+    assert!(Columns::new(false, vec![THETA_COLUMN.into()]).is_err());
+
+    let rec = |theta_urad: Option<f64>| Record {
+        t_s: 1.5,
+        segment: "scan_x".into(),
+        cycle: 1,
+        x_target_um: 10.0,
+        y_target_um: 0.0,
+        x_cmd_um: 10.0,
+        y_cmd_um: 0.0,
+        x_meas_um: 10.1,
+        y_meas_um: -0.2,
+        temp_c: Some(21.5),
+        theta_urad,
+        extra: vec!["7".into()],
+    };
+    let mut w = LogWriter::create(
+        Vec::new(),
+        &Metadata::new(),
+        both.clone(),
+        SyncPolicy::default(),
+    )
+    .unwrap();
+    w.append(&rec(Some(-123.456_789))).unwrap();
+    w.append(&rec(None)).unwrap();
+    let bytes = w.into_inner();
+    let text = String::from_utf8(bytes.clone()).unwrap();
+    assert!(
+        text.contains(",21.500,-123.46,7\n") && text.contains(",21.500,,7\n"),
+        "{text}"
+    );
+    let log = parse_bytes(&bytes).unwrap();
+    assert_eq!(log.columns, both);
+    assert_eq!(log.records[0].theta_urad, Some(-123.46));
+    assert_eq!(log.records[1].theta_urad, None);
+    assert_eq!(log.records[0].extra, vec!["7".to_owned()]);
+
+    // An old log: no column, no value.
+    let old = format!("{base},temp_c\n0,s,1,0,0,0,0,0,0,20\n");
+    let log = parse_bytes(old.as_bytes()).unwrap();
+    assert!(!log.columns.theta_urad && log.records[0].theta_urad.is_none());
+    // A value that is no number is an error naming the column.
+    let bad = format!("{base},theta_urad\n0,s,1,0,0,0,0,0,0,x\n");
+    let e = parse_bytes(bad.as_bytes()).unwrap_err().to_string();
+    assert!(e.contains("theta_urad"), "{e}");
+
+    let plain = Columns::new(true, vec!["q".into()]).unwrap();
+    let mut w =
+        LogWriter::create(Vec::new(), &Metadata::new(), plain, SyncPolicy::default()).unwrap();
+    let e = w.append(&rec(Some(1.0))).unwrap_err().to_string();
+    assert!(e.contains("theta_urad"), "{e}");
+    w.append(&rec(None)).unwrap();
 }

@@ -230,6 +230,16 @@ pub(super) fn format_record(
         (_, Some(t)) => check_number(TEMP_COLUMN, t)?,
         _ => {}
     }
+    match (columns.theta_urad, r.theta_urad) {
+        (false, Some(_)) => {
+            return Err(LogError::InvalidRecord {
+                field: THETA_COLUMN.into(),
+                reason: "the log has no theta_urad column; the angle would be lost".into(),
+            })
+        }
+        (_, Some(t)) => check_number(THETA_COLUMN, t)?,
+        _ => {}
+    }
     if r.extra.len() != columns.extra.len() {
         return Err(LogError::InvalidRecord {
             field: "extra".into(),
@@ -256,6 +266,12 @@ pub(super) fn format_record(
         out.push(',');
         if let Some(t) = r.temp_c {
             let _ = write!(out, "{:.*}", TEMP_DECIMALS, t);
+        }
+    }
+    if columns.theta_urad {
+        out.push(',');
+        if let Some(t) = r.theta_urad {
+            let _ = write!(out, "{:.*}", THETA_DECIMALS, t);
         }
     }
     for v in &r.extra {

@@ -340,6 +340,9 @@ pub struct SweepFrame {
     pub t_s: f64,
     /// Measured position, stage frame, µm.
     pub meas: XyUm,
+    /// Decoded θ relative to the tie's, µrad (the log's `theta_urad`: the
+    /// platform's yaw since the tie, right-handed about +z).
+    pub theta_urad: f64,
     /// Decoder quality.
     pub quality: f64,
 }
@@ -387,6 +390,8 @@ pub struct FrameAt {
     pub e_held_um: f64,
     /// Corrected frame time (stamp − delay), rig s.
     pub t_s: f64,
+    /// Decoded θ relative to the tie's, µrad.
+    pub theta_urad: f64,
     /// Decoder quality.
     pub quality: f64,
 }
@@ -415,6 +420,7 @@ pub fn frames_at(pass: &PassData, delay_s: f64) -> Vec<FrameAt> {
                 e_scan_um: cmd - scan,
                 e_held_um: s.hold_um - held,
                 t_s: t,
+                theta_urad: f.theta_urad,
                 quality: f.quality,
             })
         })
@@ -434,6 +440,9 @@ pub struct GridValue {
     pub e_held_um: f64,
     /// Mean corrected frame time, rig s.
     pub t_s: f64,
+    /// Mean decoded θ relative to the tie's, µrad (averaged like the
+    /// errors).
+    pub theta_urad: f64,
     /// Mean decoder quality.
     pub quality: f64,
     /// Frames averaged (0: interpolated between the two neighbours).
@@ -459,6 +468,7 @@ pub fn resample(frames: &[FrameAt], grid: &[f64], step_um: f64) -> Vec<Option<Gr
                     e_scan_um: mean(|f| f.e_scan_um),
                     e_held_um: mean(|f| f.e_held_um),
                     t_s: mean(|f| f.t_s),
+                    theta_urad: mean(|f| f.theta_urad),
                     quality: mean(|f| f.quality),
                     frames: win.len(),
                 });
@@ -475,6 +485,7 @@ pub fn resample(frames: &[FrameAt], grid: &[f64], step_um: f64) -> Vec<Option<Gr
                 e_scan_um: lerp(a.e_scan_um, b.e_scan_um),
                 e_held_um: lerp(a.e_held_um, b.e_held_um),
                 t_s: lerp(a.t_s, b.t_s),
+                theta_urad: lerp(a.theta_urad, b.theta_urad),
                 quality: a.quality.min(b.quality),
                 frames: 0,
             })
@@ -698,6 +709,7 @@ mod tests {
                 SweepFrame {
                     t_s: t + latency_s,
                     meas,
+                    theta_urad: 0.0,
                     quality: 100.0,
                 }
             })
@@ -991,6 +1003,7 @@ mod tests {
                 e_scan_um: e,
                 e_held_um: -e,
                 t_s: f64::from(k),
+                theta_urad: 0.0,
                 quality: 50.0,
             }).collect();
             let grid: Vec<f64> = (0..80).map(|k| f64::from(k) * 5.0).collect();

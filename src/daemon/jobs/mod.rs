@@ -273,14 +273,24 @@ impl Jobs {
         }
         let path = Self::log_path(rig, name);
         let sync = rig.cfg.log_sync();
-        // A log begun before the `approach` column existed goes on without.
+        // A log begun before the `theta_urad` or the `approach` column
+        // existed goes on without.
         let (writer, resume) = tokio::task::spawn_blocking(move || {
-            match log::open_append(&path, &step_columns(), sync) {
-                Err(e @ log::LogError::ColumnsMismatch { .. }) => {
-                    log::open_append(&path, &columns(), sync).map_err(|_| e)
+            let older = [
+                step_columns().with_theta(false),
+                columns(),
+                columns().with_theta(false),
+            ];
+            let mut r = log::open_append(&path, &step_columns(), sync);
+            for c in &older {
+                match r {
+                    Err(e @ log::LogError::ColumnsMismatch { .. }) => {
+                        r = log::open_append(&path, c, sync).map_err(|_| e);
+                    }
+                    _ => break,
                 }
-                r => r,
             }
+            r
         })
         .await
         .map_err(|e| ProtoError::new(ErrorCode::Internal, e.to_string()))?
@@ -352,12 +362,13 @@ impl Jobs {
             ));
         }
         let t0 = resume.last_record.map_or(0.0, |r| r.t_s);
+        let tie_theta = record::tie_theta_of(writer.columns(), &resume.metadata);
         rig.begin_job()?;
         let job = StepJob {
             plan,
             drift,
             name: name.to_owned(),
-            resumed: Some((writer, offset, t0)),
+            resumed: Some((writer, offset, t0, tie_theta)),
         };
         Ok(self.launch(rig, job, done, total))
     }
@@ -417,7 +428,9 @@ struct StepJob {
     plan: ScanPlan,
     drift: Option<DriftPlan>,
     name: String,
-    resumed: Option<(LogWriter<File>, VisionFrame, f64)>,
+    /// A resumed log: its writer, frame, last record's time (s) and the
+    /// tie's θ its `theta_urad` is relative to (rad; `None`: no column).
+    resumed: Option<(LogWriter<File>, VisionFrame, f64, Option<f64>)>,
 }
 
 /// Refuses the options that belong to another plan or mode than the one
@@ -544,9 +557,11 @@ async fn run(
     let writer: Arc<Mutex<LogWriter<File>>>;
     let frame: VisionFrame;
     let origin;
-    if let Some((w, f, t0)) = resumed {
+    let tie_theta_rad: Option<f64>;
+    if let Some((w, f, t0, theta)) = resumed {
         writer = Arc::new(Mutex::new(w));
         frame = f;
+        tie_theta_rad = theta;
         origin = clock.now_s() - t0;
     } else {
         // A new job ties the vision frame to the stage frame on its own
@@ -571,6 +586,7 @@ async fn run(
             _ = cancel.changed() => return Ok(JobState::Cancelled),
         };
         frame = tied.frame;
+        tie_theta_rad = Some(tied.theta_rad);
         let mut md = Metadata::new();
         plan.to_metadata(&mut md);
         if let Some(d) = &drift {
@@ -609,6 +625,7 @@ async fn run(
         points: &points,
         drift: drift.as_ref(),
         frame: &frame,
+        tie_theta_rad,
         origin,
         writer: &writer,
         name,
@@ -626,6 +643,8 @@ async fn run(
 struct RefContext<'a> {
     plan: &'a ScanPlan,
     frame: &'a VisionFrame,
+    /// The tie's θ the log's `theta_urad` is relative to, rad.
+    tie_theta_rad: Option<f64>,
     origin: f64,
     writer: &'a Arc<Mutex<LogWriter<File>>>,
     name: &'a str,
@@ -686,6 +705,7 @@ async fn measure_reference(
         d.reference_um,
         &moved,
         meas,
+        record::theta_urad(m.theta_rad, ctx.tie_theta_rad),
         quality,
         next.cycle,
         clock.now_s() - ctx.origin,

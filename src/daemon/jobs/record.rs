@@ -19,17 +19,41 @@ pub(crate) fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
     m.lock().unwrap_or_else(|p| p.into_inner())
 }
 
-/// The log's columns: the standard ones plus the controller-reported
-/// positions and the mean decode quality, so every position source is kept.
+/// The log's columns: the standard ones with the decoded θ
+/// (`theta_urad`, relative to the tie's: [`theta_urad`]) plus the
+/// controller-reported positions and the mean decode quality, so every
+/// position source is kept.
 pub fn columns() -> Columns {
     Columns {
         temp_c: false,
+        theta_urad: true,
         extra: vec![
             "x_reported_um".to_owned(),
             "y_reported_um".to_owned(),
             "vision_quality".to_owned(),
         ],
     }
+}
+
+/// A point's `theta_urad` cell: its decoded θ (`theta_rad`, the frames'
+/// mean) minus the one the log's tie absorbed (`tie_theta_rad`, metadata
+/// [`TIE_THETA_KEY`](crate::charact::log::TIE_THETA_KEY)), µrad, wrapped
+/// to a turn in (−π, π]; `None` for a log without the column (begun before
+/// it existed: `tie_theta_rad` is then `None`).
+pub(crate) fn theta_urad(theta_rad: f64, tie_theta_rad: Option<f64>) -> Option<f64> {
+    tie_theta_rad.map(|t| crate::daemon::vision::wrap_angle_rad(theta_rad - t) * 1e6)
+}
+
+/// The tie's θ a resumed log's `theta_urad` is relative to: its metadata
+/// key when the log has the column, else `None` (no θ written).
+pub(crate) fn tie_theta_of(columns: &Columns, md: &crate::charact::log::Metadata) -> Option<f64> {
+    if !columns.theta_urad {
+        return None;
+    }
+    md.get(crate::charact::log::TIE_THETA_KEY)?
+        .parse::<f64>()
+        .ok()
+        .filter(|t| t.is_finite())
 }
 
 /// Progress of the current or last job.
@@ -102,6 +126,7 @@ pub(crate) fn drift_ref_record(
     reference_um: [f64; 2],
     moved: &MoveReply,
     meas: XyUm,
+    theta_urad: Option<f64>,
     quality: f64,
     cycle: u32,
     t_s: f64,
@@ -118,6 +143,7 @@ pub(crate) fn drift_ref_record(
         x_meas_um: meas.x_um,
         y_meas_um: meas.y_um,
         temp_c: None,
+        theta_urad,
         extra: measured_columns(moved, quality),
     }
 }

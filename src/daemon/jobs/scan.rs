@@ -44,6 +44,9 @@ pub(super) struct Scan<'a> {
     pub points: &'a [plan::Point],
     pub drift: Option<&'a DriftPlan>,
     pub frame: &'a VisionFrame,
+    /// The tie's θ the log's `theta_urad` is relative to, rad (`None`: a
+    /// log without the column).
+    pub tie_theta_rad: Option<f64>,
     /// Rig time of the log's t = 0, s.
     pub origin: f64,
     pub writer: &'a Arc<Mutex<LogWriter<File>>>,
@@ -132,6 +135,7 @@ async fn points(
                 let ctx = RefContext {
                     plan: s.plan,
                     frame: s.frame,
+                    tie_theta_rad: s.tie_theta_rad,
                     origin: s.origin,
                     writer: s.writer,
                     name: s.name,
@@ -388,6 +392,7 @@ fn record(s: &Scan<'_>, p: &plan::Point, head: &Head, m: &Measurement, quality: 
         x_meas_um: meas.x_um,
         y_meas_um: meas.y_um,
         temp_c: None,
+        theta_urad: super::record::theta_urad(m.theta_rad, s.tie_theta_rad),
         extra: measured_columns(&head.moved, quality),
     };
     if let Some(a) = &head.approach {

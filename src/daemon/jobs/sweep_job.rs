@@ -42,7 +42,6 @@ use crate::charact::sweep::{
     estimate_delay, frames_at, resample, DelayEstimate, PassData, PassSpec, PosSample, SweepFrame,
     SweepPlan,
 };
-use crate::comp::VisionFrame;
 use crate::daemon::protocol::{ErrorCode, JobState, MoveRequest, ProtoError, Topic};
 use crate::daemon::rig::{driver_error, Rig};
 use crate::daemon::vision::Measurement;
@@ -213,7 +212,7 @@ async fn measure(
         if let Some(d) = &a.drift {
             if last_ref_s.is_none_or(|t| rig.clock.now_s() - t >= d.every_s) {
                 let rec = tokio::select! {
-                    r = drift_reference(rig, d, a, &tied.frame, origin, spec.cycle) => r?,
+                    r = drift_reference(rig, d, a, tied, origin, spec.cycle) => r?,
                     _ = cancel.changed() => return Ok(ControlFlow::Break(JobState::Cancelled)),
                 };
                 m.between.push((k, Between::Ref(rec)));
@@ -224,7 +223,7 @@ async fn measure(
         }
         let use_recorder = m.recorder[usize::from(!spec.x_axis)];
         let r = tokio::select! {
-            r = one_pass(rig, spec, park, &tied.frame, use_recorder, &mut m.recorded) => r?,
+            r = one_pass(rig, spec, park, tied, use_recorder, &mut m.recorded) => r?,
             _ = cancel.changed() => {
                 // The pass was dropped mid-sweep: its velocity is still set.
                 restore_velocities(rig, velocities).await;
@@ -244,7 +243,7 @@ async fn measure(
                     hold_um: spec.hold_um,
                 };
                 let rows = tokio::select! {
-                    r = anchor_group(rig, plan, &group, a, &tied.frame, gen) => r?,
+                    r = anchor_group(rig, plan, &group, a, tied, gen) => r?,
                     _ = cancel.changed() => return Ok(ControlFlow::Break(JobState::Cancelled)),
                 };
                 let Some(rows) = rows else {
@@ -410,6 +409,8 @@ struct AnchorRow {
     reported: [Option<f64>; 2],
     /// Frames averaged.
     frames: u32,
+    /// Decoded θ relative to the tie's, µrad (the log's `theta_urad`).
+    theta_urad: Option<f64>,
 }
 
 /// The anchors of one axis, direction and cycle.
@@ -430,7 +431,7 @@ async fn anchor_group(
     plan: &SweepPlan,
     g: &AnchorGroup,
     a: &SweepArgs,
-    frame: &VisionFrame,
+    tied: &tie::Tie,
     gen: u64,
 ) -> Result<Option<Vec<AnchorRow>>, ProtoError> {
     let mut rows = Vec::new();
@@ -451,11 +452,12 @@ async fn anchor_group(
             .sleep(Duration::try_from_secs_f64(a.settle_s).unwrap_or_default())
             .await;
         let (m, quality) = measure_retrying(rig, a.frames_per_point).await?;
-        let meas = frame.to_stage(XyUm {
+        let meas = tied.frame.to_stage(XyUm {
             x_um: m.x_um,
             y_um: m.y_um,
         });
         rows.push(AnchorRow {
+            theta_urad: super::record::theta_urad(m.theta_rad, Some(tied.theta_rad)),
             m: AnchorMeas {
                 x_axis: g.x_axis,
                 forward: g.forward,
@@ -484,7 +486,7 @@ async fn drift_reference(
     rig: &Arc<Rig>,
     d: &DriftPlan,
     a: &SweepArgs,
-    frame: &VisionFrame,
+    tied: &tie::Tie,
     origin: f64,
     cycle: u32,
 ) -> Result<Record, ProtoError> {
@@ -496,7 +498,7 @@ async fn drift_reference(
         .sleep(Duration::try_from_secs_f64(a.settle_s).unwrap_or_default())
         .await;
     let (m, quality) = measure_retrying(rig, a.frames_per_point).await?;
-    let meas = frame.to_stage(XyUm {
+    let meas = tied.frame.to_stage(XyUm {
         x_um: m.x_um,
         y_um: m.y_um,
     });
@@ -504,6 +506,7 @@ async fn drift_reference(
         d.reference_um,
         &moved,
         meas,
+        super::record::theta_urad(m.theta_rad, Some(tied.theta_rad)),
         quality,
         cycle,
         rig.clock.now_s() - origin,
@@ -547,7 +550,7 @@ async fn one_pass(
     rig: &Arc<Rig>,
     spec: &PassSpec,
     park: bool,
-    frame: &VisionFrame,
+    tied: &tie::Tie,
     recorder: bool,
     recorded: &mut RecorderStats,
 ) -> Result<PassData, ProtoError> {
@@ -576,7 +579,7 @@ async fn one_pass(
     axis.set_velocity_um_per_s(spec.velocity_um_per_s)
         .await
         .map_err(driver_error)?;
-    let swept = sweep(rig, axis, spec, target, frame, recorder, recorded).await;
+    let swept = sweep(rig, axis, spec, target, tied, recorder, recorded).await;
     let restored = axis
         .set_velocity_um_per_s(before)
         .await
@@ -596,7 +599,7 @@ async fn sweep(
     axis: &Axis,
     spec: &PassSpec,
     target_um: f64,
-    frame: &VisionFrame,
+    tied: &tie::Tie,
     recorder: bool,
     recorded: &mut RecorderStats,
 ) -> Result<PassData, ProtoError> {
@@ -620,7 +623,7 @@ async fn sweep(
     req.wait = false;
     let gen = rig.stop_generation();
     let frames: Mutex<Vec<SweepFrame>> = Mutex::new(Vec::new());
-    let collect = collect_frames(&mut rx, frame, min_quality, &frames);
+    let collect = collect_frames(&mut rx, tied, min_quality, &frames);
     let deadline_s =
         rig.clock.now_s() + (target_um - start_um).abs() / spec.velocity_um_per_s + 10.0;
     let io = PassIo {
@@ -673,7 +676,7 @@ fn reconnected() -> ProtoError {
 /// pipeline ends.
 async fn collect_frames(
     rx: &mut watch::Receiver<Option<Measurement>>,
-    frame: &VisionFrame,
+    tied: &tie::Tie,
     min_quality: f64,
     frames: &Mutex<Vec<SweepFrame>>,
 ) {
@@ -687,10 +690,11 @@ async fn collect_frames(
         last = Some(m.sequence);
         lock(frames).push(SweepFrame {
             t_s: m.frame_t_s,
-            meas: frame.to_stage(XyUm {
+            meas: tied.frame.to_stage(XyUm {
                 x_um: m.x_um,
                 y_um: m.y_um,
             }),
+            theta_urad: crate::daemon::vision::wrap_angle_rad(m.theta_rad - tied.theta_rad) * 1e6,
             quality: m.quality,
         });
     }

@@ -356,6 +356,7 @@ mod tests {
             x_meas_um: x,
             y_meas_um: y,
             temp_c: None,
+            theta_urad: None,
             extra: vec![],
         }
     }

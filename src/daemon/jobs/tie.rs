@@ -69,8 +69,9 @@
 use super::super::protocol::{ErrorCode, ProtoError};
 use super::super::rig::Rig;
 use super::{clamp_to_travel, measure_retrying, PARK_APPROACH_UM};
-use crate::charact::log::Metadata;
+use crate::charact::log::{Metadata, TIE_THETA_KEY};
 use crate::comp::{estimate_vision_frame, CompError, FrameReport, FrameSample, VisionFrame};
+use crate::daemon::vision::wrap_angle_rad;
 use crate::model::XyUm;
 use std::sync::Arc;
 use std::time::Duration;
@@ -241,6 +242,13 @@ pub struct Tie {
     /// procedure before the anchor visits), rad; `None` when they do not
     /// fit at all. Kept so a user sees how much the drift moved the tie.
     pub uncorrected_rotation_rad: Option<f64>,
+    /// The decoded θ at the anchor (mean of its visits' turns from the
+    /// first), rad: the pattern's mounting angle as the camera saw it, with
+    /// the platform's yaw there. The log's `theta_urad` is relative to it
+    /// (metadata [`TIE_THETA_KEY`](crate::charact::log::TIE_THETA_KEY));
+    /// why not the frame's rotation: that is also the X line's
+    /// straightness slope, a translation error, not a turn.
+    pub theta_rad: f64,
     /// Camera measurements taken (lines and anchor visits).
     pub measurements: usize,
     /// Rig time the tie took, s (from its first move to its last
@@ -353,16 +361,16 @@ async fn raw_move(rig: &Arc<Rig>, x_um: f64, y_um: f64) -> Result<(), ProtoError
 }
 
 /// Settles, measures `frames` frames at the current position (commanded
-/// `cmd`) and returns the timed sample.
+/// `cmd`) and returns the timed sample and the decoded θ, rad.
 async fn sample_here(
     rig: &Arc<Rig>,
     cmd: XyUm,
     frames: u32,
     settle: Duration,
-) -> Result<TimedSample, ProtoError> {
+) -> Result<(TimedSample, f64), ProtoError> {
     rig.clock.sleep(settle).await;
     let (m, _) = measure_retrying(rig, frames).await?;
-    Ok(TimedSample {
+    let s = TimedSample {
         sample: FrameSample {
             cmd,
             vision: XyUm {
@@ -371,7 +379,8 @@ async fn sample_here(
             },
         },
         t_s: m.t_s,
-    })
+    };
+    Ok((s, m.theta_rad))
 }
 
 /// Measures the two tie lines (`lines[0]` the X line) with the anchor
@@ -391,6 +400,7 @@ pub async fn measure_frame(
     let plan = tie_plan(&lines);
     let mut samples: [Vec<TimedSample>; 2] = [Vec::new(), Vec::new()];
     let mut visits: Vec<TimedSample> = Vec::with_capacity(3);
+    let mut anchor_theta_rad: Vec<f64> = Vec::with_capacity(3);
     for v in &plan {
         if let Some(via) = v.via {
             let (x, y) = clamp_to_travel(rig, via.x_um, via.y_um);
@@ -399,7 +409,7 @@ pub async fn measure_frame(
             }
         }
         raw_move(rig, v.at.x_um, v.at.y_um).await?;
-        let s = sample_here(rig, v.at, frames, settle).await?;
+        let (s, theta_rad) = sample_here(rig, v.at, frames, settle).await?;
         if let Some(i) = v.line {
             if let Some(l) = samples.get_mut(i) {
                 l.push(s);
@@ -407,6 +417,7 @@ pub async fn measure_frame(
         }
         if v.anchor {
             visits.push(s);
+            anchor_theta_rad.push(theta_rad);
         }
     }
     let duration_s = rig.clock.now_s() - began_s;
@@ -424,11 +435,18 @@ pub async fn measure_frame(
     })?;
     let (frame, report, drift, uncorrected_rotation_rad) =
         fit_tie(&samples[0], &samples[1], visits).map_err(tie_err)?;
+    let theta0 = anchor_theta_rad.first().copied().unwrap_or(0.0);
+    let turn = anchor_theta_rad
+        .iter()
+        .map(|t| wrap_angle_rad(t - theta0))
+        .sum::<f64>()
+        / anchor_theta_rad.len().max(1) as f64;
     Ok(Tie {
         frame,
         report,
         drift,
         uncorrected_rotation_rad,
+        theta_rad: wrap_angle_rad(theta0 + turn),
         measurements: plan.len(),
         duration_s,
     })
@@ -678,6 +696,7 @@ pub fn to_metadata(md: &mut Metadata, tie: &Tie) {
     if let Some(r) = tie.uncorrected_rotation_rad {
         md.insert("tie_uncorrected_rotation_rad", r.to_string());
     }
+    md.insert(TIE_THETA_KEY, tie.theta_rad.to_string());
     md.insert("tie_measurements", tie.measurements.to_string());
     md.insert("tie_duration_s", format!("{:.1}", tie.duration_s));
 }

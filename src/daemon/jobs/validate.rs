@@ -114,6 +114,7 @@ pub fn random() -> Vec<Pose> {
 pub fn columns() -> Columns {
     Columns {
         temp_c: false,
+        theta_urad: false,
         extra: [
             "mode",
             "pose",
@@ -360,6 +361,7 @@ async fn drift_reference(
         x_meas_um: r.sample.measured_um[0],
         y_meas_um: r.sample.measured_um[1],
         temp_c: None,
+        theta_urad: None,
         extra: vec![
             mode.as_str().to_owned(),
             "ref".to_owned(),
@@ -635,6 +637,7 @@ impl Run<'_> {
             x_meas_um: meas.x_um,
             y_meas_um: meas.y_um,
             temp_c: None,
+            theta_urad: None,
             extra: vec![
                 mode.as_str().to_owned(),
                 pose.label.clone(),

@@ -109,17 +109,25 @@ pub(crate) async fn measure(
     Ok((m, m.quality))
 }
 
-/// The mean of `got` (at least one), the newest frame's sequence number.
+/// The mean of `got` (at least one), the newest frame's sequence number;
+/// θ as the first frame's plus the mean turn from it (so angles on both
+/// sides of ±π average to the orientation they share).
 fn average(got: &[Measurement]) -> Measurement {
     let k = got.len().max(1) as f64;
     let mean = |f: fn(&Measurement) -> f64| got.iter().map(f).sum::<f64>() / k;
+    let theta0 = got.first().map_or(0.0, |m| m.theta_rad);
+    let turn = got
+        .iter()
+        .map(|m| crate::daemon::vision::wrap_angle_rad(m.theta_rad - theta0))
+        .sum::<f64>()
+        / k;
     Measurement {
         t_s: mean(|m| m.t_s),
         frame_t_s: mean(|m| m.frame_t_s),
         sequence: got.last().map_or(0, |m| m.sequence),
         x_um: mean(|m| m.x_um),
         y_um: mean(|m| m.y_um),
-        theta_rad: mean(|m| m.theta_rad),
+        theta_rad: crate::daemon::vision::wrap_angle_rad(theta0 + turn),
         quality: mean(|m| m.quality),
     }
 }

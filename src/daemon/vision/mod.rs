@@ -63,6 +63,19 @@ pub struct Measurement {
     pub quality: f64,
 }
 
+/// `x` wrapped into (−π, π], rad: the difference of two decoded angles as
+/// a turn. Why: the decoder's θ is in (−π, π], so a pattern mounted near
+/// ±π gives angles on both ends for one orientation.
+pub fn wrap_angle_rad(x: f64) -> f64 {
+    let pi = std::f64::consts::PI;
+    let w = (x + pi).rem_euclid(std::f64::consts::TAU) - pi;
+    if w == -pi {
+        pi
+    } else {
+        w
+    }
+}
+
 impl Measurement {
     /// As replies and events carry it.
     pub fn to_reply(&self) -> VisionMeasurement {

@@ -14,7 +14,14 @@
 //! | `pitch` | +y | +x | x: `(+θ·r_z, 0)`; y: `(0, −θ·r_z)` |
 //! | `roll`  | +x | +y | x: `(0, −θ·r_z)`; y: `(+θ·r_z, 0)` |
 //!
-//! (right-handed rotations about the stage-frame axes.) The angle, relative
+//! (right-handed rotations about the stage-frame axes: a positive yaw turns
+//! +x towards +y, counter-clockwise seen from above.) A yaw also turns the
+//! platform, and with it a pattern mounted on it: [`Term::yaw_rad`] reports
+//! θ, which the simulated camera renders and the decoder reads as θ
+//! (`docs/design/conventions.md`); the displacement above is that rotation
+//! about the carriage's rotation centre (the tool point minus the arm) seen
+//! at the tool point. Pitch and roll tilt the platform out of the plane: an
+//! in-plane pattern sees only their displacement, never their angle. The angle, relative
 //! to its value at commanded position 0, is a linear trend plus a periodic
 //! part (guideway waviness):
 //!
@@ -316,6 +323,15 @@ impl Term for AngularTerm {
         [theta * l[0], theta * l[1]]
     }
 
+    /// A yaw turns the platform by θ about +z; a pitch or roll tilts it
+    /// out of the plane, which an in-plane pattern does not see.
+    fn yaw_rad(&self, state: &MotionState) -> f64 {
+        match self.cfg.rotation {
+            Rotation::Yaw => self.angle_basis(state.cmd_um(self.cfg.axis)).1,
+            Rotation::Pitch | Rotation::Roll => 0.0,
+        }
+    }
+
     fn jacobian(&self, state: &MotionState) -> Vec<[f64; 2]> {
         let (basis, theta) = self.angle_basis(state.cmd_um(self.cfg.axis));
         let a = self.rotation_axis();
@@ -423,6 +439,29 @@ mod tests {
             (d[0] - 0.1).abs() < 1e-12 && (d[1] - 0.2).abs() < 1e-12,
             "{d:?}"
         );
+    }
+
+    /// The yaw the term reports is the angle whose rotation about the
+    /// centre (tool point − arm) gives its displacement; a pitch turns no
+    /// pattern in the plane.
+    #[test]
+    fn a_yaw_reports_its_angle_and_a_pitch_none() {
+        let mut c = cfg(Axis::X, Rotation::Yaw);
+        c.arm_x_um = Some(3000.0);
+        c.arm_y_um = Some(-7000.0);
+        let t = AngularTerm::new("xy", c.clone()).unwrap();
+        let s = MotionState::at_rest(2500.0, 400.0);
+        let yaw = t.yaw_rad(&s);
+        let (_, theta) = t.angle_basis(2500.0);
+        assert!(yaw.abs() > 1e-6 && yaw == theta, "{yaw}");
+        // ẑ × (3000, −7000) = (7000, 3000): +x towards +y.
+        let d = t.contribution(&s);
+        assert!((d[0] - yaw * 7000.0).abs() < 1e-12 && (d[1] - yaw * 3000.0).abs() < 1e-12);
+        let mut p = cfg(Axis::X, Rotation::Pitch);
+        p.arm_z_um = Some(1000.0);
+        let t = AngularTerm::new("xp", p).unwrap();
+        assert!(t.contribution(&s)[0] != 0.0);
+        assert_eq!(t.yaw_rad(&s), 0.0);
     }
 
     #[test]

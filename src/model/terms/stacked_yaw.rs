@@ -106,6 +106,12 @@ impl TermSpec for StackedYaw {
         let u = unit(cfg, state);
         [cfg.slope_urad_per_mm * u[0], cfg.slope_urad_per_mm * u[1]]
     }
+
+    /// ε itself: the lower carriage turns the upper axis and the platform
+    /// with it.
+    fn yaw_rad(cfg: &StackedYawConfig, state: &MotionState) -> f64 {
+        cfg.slope_urad_per_mm * 1e-9 * (state.cmd_um(cfg.lower_axis) - cfg.lower_center_um)
+    }
 }
 
 #[cfg(test)]
@@ -134,6 +140,10 @@ mod tests {
         let t = term(Axis::X, 10.0);
         let c = t.contribution(&MotionState::at_rest(9000.0, 5000.0));
         assert!((c[0] + 0.12).abs() < 1e-12 && c[1] == 0.0, "{c:?}");
+        // The yaw it reports: 40 µrad, whose turn of the arm (0, 3000 µm)
+        // about +z is the −x displacement above.
+        let yaw = t.yaw_rad(&MotionState::at_rest(9000.0, 5000.0));
+        assert!((yaw - 40e-6).abs() < 1e-15 && (c[0] + yaw * 3000.0).abs() < 1e-12);
         let at = |x: f64, y: f64| t.contribution(&MotionState::at_rest(x, y))[0];
         let mixed =
             at(6000.0, 3000.0) - at(5000.0, 3000.0) - at(6000.0, 2000.0) + at(5000.0, 2000.0);

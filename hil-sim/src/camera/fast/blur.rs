@@ -119,7 +119,7 @@ impl FastRenderer {
     pub(super) fn blur_shifts(&self, path_um: &[[f64; 2]]) -> Option<Vec<(i64, i64)>> {
         let [xr, yr] = *path_um.get(path_um.len() / 2)?;
         let s = self.cfg.pixel_um;
-        let (sn, cs) = self.theta_rad.sin_cos();
+        let (sn, cs) = self.view_sin_cos;
         let limit = (MAX_BLUR_SPREAD_PX * Q) as f64;
         let mut shifts = Vec::with_capacity(path_um.len());
         for &[x, y] in path_um {

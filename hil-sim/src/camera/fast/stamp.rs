@@ -24,7 +24,7 @@ impl FastRenderer {
         let band_hi = band_lo + (band.len() / self.cfg.width) as i64;
         let p = self.cfg.period_um;
         let s = self.cfg.pixel_um;
-        let (sn, cs) = self.theta_rad.sin_cos();
+        let (sn, cs) = self.view_sin_cos;
         let (e1, e2) = ((cs, sn), (-sn, cs));
         let (cxi, cyi) = (w as f64 / 2.0, h as f64 / 2.0);
         // Pattern bounding box of the band's rows plus the stamp margin:

@@ -128,6 +128,7 @@ pub fn combined_log(comb: &ZoneCombination, extra: &Metadata) -> Result<Vec<u8>,
                 x_meas_um: x + cell.e_um[0],
                 y_meas_um: y + cell.e_um[1],
                 temp_c: None,
+                theta_urad: None,
                 extra: Vec::new(),
             })?;
             i += 1;

@@ -164,6 +164,7 @@ fn pass(spec: PassSpec, stage: &Stage, rng: &mut ChaCha8Rng) -> PassData {
             SweepFrame {
                 t_s: t + LATENCY_S,
                 meas,
+                theta_urad: 0.0,
                 quality: 100.0,
             }
         })
@@ -620,6 +621,7 @@ proptest::proptest! {
         let frames: Vec<SweepFrame> = es.iter().enumerate().map(|(k, e)| SweepFrame {
             t_s: 0.1 + k as f64 * 0.2,
             meas: XyUm { x_um: -9.0 + k as f64 * 20.0 - e, y_um: 0.0 },
+            theta_urad: 0.0,
             quality: 50.0,
         }).collect();
         let passes = [

@@ -148,6 +148,7 @@ pub(super) fn records(
                 x_meas_um: xm,
                 y_meas_um: ym,
                 temp_c: None,
+                theta_urad: Some(v.theta_urad),
                 extra: vec![
                     um(x),
                     um(y),
@@ -193,6 +194,7 @@ pub(super) fn anchor_record(row: &AnchorRow, ctx: &RecordContext) -> Record {
         x_meas_um: m.meas.x_um,
         y_meas_um: m.meas.y_um,
         temp_c: None,
+        theta_urad: row.theta_urad,
         extra: vec![
             row.reported[0].map_or(String::new(), um),
             row.reported[1].map_or(String::new(), um),
