@@ -6,10 +6,9 @@
 //! validation whose poses leave the table's area is refused before it
 //! moves, saying which origins would keep them inside (here: none).
 
-use crate::common::{self, Client};
+use crate::common::{Client, DaemonRig};
 use micropos::comp::{AxisTables, CompFile, CompTable, DirTable, Interpolation, SourceInfo};
 use micropos::daemon::config::OutsideTable;
-use micropos::daemon::Running;
 use serde_json::{json, Value};
 
 /// A 1000 × 500 µm lookup table (x 1000 … 2000, y 1000 … 1500 µm) with a
@@ -41,41 +40,23 @@ fn small_table() -> CompFile {
 }
 
 struct Setup {
-    _dir: tempfile::TempDir,
-    data: std::path::PathBuf,
-    _sim: hil_sim::SimHandle,
-    _daemon: Running,
+    rig: DaemonRig,
     cl: Client,
 }
 
 /// The in-process rig and daemon with `outside_table`, the small table
 /// written to the data directory, loaded and activated, axes referenced.
 async fn setup(outside: OutsideTable) -> Setup {
-    let common::InProcess {
-        dir,
-        data,
-        socket,
-        sim,
-        rig: _,
-        config: mut c,
-    } = common::in_process_rig(23);
-    c.compensation.outside_table = outside;
-    c.validate().unwrap();
-    let daemon = common::start_daemon_in_process(c, &sim, &socket);
-    let mut cl = Client::connect(&socket).await;
-    common::connect_and_reference(&mut cl).await;
-    small_table().write_path(data.join("small.toml")).unwrap();
+    let rig = DaemonRig::in_process(23, 50.0, |c| c.compensation.outside_table = outside).await;
+    let mut cl = Client::connect(&rig.socket).await;
+    small_table()
+        .write_path(rig.data.join("small.toml"))
+        .unwrap();
     cl.call_ok(json!({"cmd": "tables", "action": "load", "name": "small.toml"}))
         .await;
     cl.call_ok(json!({"cmd": "tables", "action": "activate", "name": "small.toml"}))
         .await;
-    Setup {
-        _dir: dir,
-        data,
-        _sim: sim,
-        _daemon: daemon,
-        cl,
-    }
+    Setup { rig, cl }
 }
 
 fn commanded(p: &Value) -> [f64; 2] {
@@ -173,7 +154,7 @@ async fn validation_leaving_the_table_is_refused_before_it_moves() {
         "{msg}"
     );
     assert!(
-        !s.data.join("v.csv").exists(),
+        !s.rig.data.join("v.csv").exists(),
         "no log: the job never started"
     );
     let st = s.cl.call_ok(json!({"cmd": "validate"})).await;
