@@ -18,6 +18,7 @@ use serde::{Deserialize, Serialize};
 use super::frame::VisionFrame;
 use super::grid::{GridCompensator, GridTable};
 use super::table::{CompTable, LookupCompensator};
+use super::yaw::YawTables;
 use super::{invalid, CompError, Compensator, ModelCompensator};
 use crate::model::StageModel;
 
@@ -104,6 +105,12 @@ pub struct CompFile {
     /// A 2-D error map (kind = "grid").
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub grid: Option<GridTable>,
+    /// The platform's yaw measured by the same scans (µrad, positive +x
+    /// towards +y, relative to the tie), beside any kind: what moves a
+    /// tool point predict its arm's turn with. Absent in files built from
+    /// logs without θ.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub yaw: Option<YawTables>,
 }
 
 impl CompFile {
@@ -120,6 +127,7 @@ impl CompFile {
             lookup: Some(table),
             model: None,
             grid: None,
+            yaw: None,
         }
     }
 
@@ -136,6 +144,7 @@ impl CompFile {
             lookup: None,
             model: None,
             grid: Some(table),
+            yaw: None,
         }
     }
 
@@ -159,6 +168,7 @@ impl CompFile {
             lookup: None,
             model: Some(table),
             grid: None,
+            yaw: None,
         })
     }
 
@@ -213,6 +223,9 @@ impl CompFile {
         }
         if let Some(a) = &self.area {
             a.validate("area")?;
+        }
+        if let Some(y) = &self.yaw {
+            y.validate()?;
         }
         Ok(())
     }

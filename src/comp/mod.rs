@@ -11,6 +11,9 @@
 //! * [`grid`]: a 2-D error map measured on a lattice of (x, y) targets,
 //!   bilinear between its nodes; [`GridCompensator`]. Holds error that
 //!   depends on both axes at once, which the tables cannot.
+//! * [`yaw`]: the platform's yaw against each axis's position from the
+//!   decoded θ of the same scans ([`YawTables`]), and the tool point's
+//!   transform through it.
 //! * [`file`]: compensation files (TOML, `format_version = 1`) carrying the
 //!   characterization they came from; [`CompFile`].
 //! * [`frame`]: the vision→stage transform estimated from the scans.
@@ -51,6 +54,7 @@ pub mod frame;
 pub mod grid;
 pub mod model_comp;
 pub mod table;
+pub mod yaw;
 
 pub use closed_loop::{
     Action, ClosedLoop, ClosedLoopConfig, FailReason, FrameMeasurement, RejectReason,
@@ -65,6 +69,7 @@ pub use table::{
     AxisTables, BuildReport, CompTable, DirTable, Interpolation, LookupCompensator,
     TableBuildOptions,
 };
+pub use yaw::{pattern_for_tool_um, tool_from_pattern_um, YawBuildReport, YawTables};
 
 /// Everything that can go wrong building, loading or using compensation.
 #[derive(Debug, Clone, PartialEq, Error)]

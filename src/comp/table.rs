@@ -124,7 +124,7 @@ impl DirTable {
     }
 }
 
-fn interpolate(xs: &[f64], ys: &[f64], x: f64, interp: Interpolation) -> f64 {
+pub(super) fn interpolate(xs: &[f64], ys: &[f64], x: f64, interp: Interpolation) -> f64 {
     let n = xs.len();
     if n == 0 {
         return 0.0;

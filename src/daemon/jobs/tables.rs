@@ -31,6 +31,7 @@ use crate::charact::log::{self, Metadata, Record};
 use crate::charact::scan::{SEGMENT_MOVES, SEGMENT_SCAN_X, SEGMENT_SCAN_Y};
 use crate::comp::model_comp::{compensation_template_for, ModelBuildOptions};
 use crate::comp::table::{CompTable, TableBuildOptions};
+use crate::comp::yaw::YawTables;
 use crate::comp::{
     fnv1a64_hex, CompFile, GridArrival, GridTable, ModelCompensator, SourceInfo, VisionFrame,
 };
@@ -186,6 +187,25 @@ pub fn build_blocking(
     }
     let mut written = Vec::new();
     let mut out = json!({"log": params.log, "frame": frame, "drift": drift});
+    // The platform's yaw from the scans' θ, carried by the paper and the
+    // model files (a log without θ: none, and no `yaw` in the reply).
+    // A log whose θ cannot make tables (a scan without θ in one
+    // direction) still builds its position tables; the reply says why
+    // there is no yaw.
+    let yaw = if kinds_want_scans(params) {
+        match YawTables::from_records(&records, &TableBuildOptions::default()) {
+            Ok(y) => y,
+            Err(e) => {
+                out["yaw"] = json!({"error": format!("no yaw tables: {e}")});
+                None
+            }
+        }
+    } else {
+        None
+    };
+    if let Some((_, report)) = &yaw {
+        out["yaw"] = json!({"report": report});
+    }
     // The lattice, when a map may be asked for (named, or the default).
     let grid = (params.kinds.is_empty() || params.kinds.iter().any(|k| k == "grid"))
         .then(|| GridMap::read(&undrifted, [true, true]))
@@ -263,6 +283,9 @@ pub fn build_blocking(
             f
         };
         file.frame = frame;
+        if kind != "grid" {
+            file.yaw = yaw.as_ref().map(|(t, _)| t.clone());
+        }
         // A map's area is its nodes' span (set by `CompFile::grid`); the
         // tables' and the model's is the scans'.
         if file.area.is_none() {
@@ -275,6 +298,12 @@ pub fn build_blocking(
     }
     out["written"] = json!(written);
     Ok((out, written))
+}
+
+/// Whether the request may build scan tables (paper or model): only then
+/// are yaw tables built (a grid log's map carries none).
+fn kinds_want_scans(params: &TablesBuildParams) -> bool {
+    params.kinds.is_empty() || params.kinds.iter().any(|k| k != "grid")
 }
 
 /// What `tables build` makes when the request names no kind: a 2-D map
