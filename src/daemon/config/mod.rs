@@ -11,6 +11,7 @@ mod drift;
 mod error;
 mod locate;
 mod safety;
+mod tools;
 mod web;
 
 pub use access::AccessSection;
@@ -21,6 +22,7 @@ pub use daemon::{ClockSpec, DaemonSection, RigSection};
 pub use drift::{DriftMethodName, DriftSection};
 pub use error::{written_key, ConfigError};
 pub use safety::{DeviationFrame, Limits, SafetySection};
+pub use tools::{ToolPoint, ToolsSection, MAX_TOOL_OFFSET_UM};
 pub use web::{WebSection, MIN_WEB_TOKEN_CHARS};
 
 use crate::camera::SourceSpec;
@@ -63,6 +65,8 @@ pub struct DaemonConfig {
     /// `[audit]`: the audit file's per-source rate and rotation
     /// (`src/daemon/audit.rs`), so refused requests cannot fill the disk.
     pub audit: crate::daemon::audit::AuditLimits,
+    /// Tool points at an arm from the watched point (`move --tool`).
+    pub tools: ToolsSection,
 }
 
 impl DaemonConfig {
@@ -175,6 +179,7 @@ impl DaemonConfig {
         self.check_characterize()?;
         self.check_drift()?;
         self.check_compensation()?;
+        self.tools.validate()?;
         Ok(())
     }
 

@@ -304,3 +304,61 @@ fn shipped_configs_are_valid() {
         DaemonConfig::load(&p).unwrap_or_else(|e| panic!("{f}: {e}"));
     }
 }
+
+/// `[tools]`: several named tools, one active; each defect names its key,
+/// an unknown key is refused.
+#[test]
+fn tools_are_named_checked_and_resolved() {
+    let c = DaemonConfig::from_toml(MIN).unwrap();
+    assert!(c.tools.points.is_empty());
+    assert!(c.tools.resolve(None).unwrap_err().contains("none"));
+    let text = format!(
+        "{MIN}[tools]\nactive = \"tip\"\n[tools.points.tip]\noffset_um = [0.0, 20000.0]\n\
+         [tools.points.jaw-2]\noffset_um = [-1500.0, 300.0]\n"
+    );
+    let c = DaemonConfig::from_toml(&text).unwrap();
+    assert_eq!(
+        c.tools.resolve(None).unwrap(),
+        (
+            "tip",
+            ToolPoint {
+                offset_um: [0.0, 20000.0]
+            }
+        )
+    );
+    assert_eq!(
+        c.tools.resolve(Some("jaw-2")).unwrap().1.offset_um,
+        [-1500.0, 300.0]
+    );
+    let e = c.tools.resolve(Some("pipette")).unwrap_err();
+    assert!(e.contains("jaw-2, tip"), "{e}");
+    for (body, key) in [
+        (
+            "active = \"x\"\n[tools.points.tip]\noffset_um = [0.0, 1.0]\n",
+            "tools.active",
+        ),
+        (
+            "[tools.points.tip]\noffset_um = [0.0, 2e6]\n",
+            "tools.points.tip.offset_um",
+        ),
+        (
+            "[tools.points.tip]\noffset_um = [0.0, nan]\n",
+            "tools.points.tip.offset_um",
+        ),
+        (
+            "[tools.points.\"a b\"]\noffset_um = [0.0, 1.0]\n",
+            "tools.points",
+        ),
+    ] {
+        let e = DaemonConfig::from_toml(&format!("{MIN}[tools]\n{body}")).unwrap_err();
+        assert_eq!(e.key, key, "{body}: {e}");
+    }
+    let e = DaemonConfig::from_toml(&format!(
+        "{MIN}[tools.points.tip]\noffset_um = [0.0, 1.0]\narm_um = 3\n"
+    ))
+    .unwrap_err();
+    assert!(
+        e.key.contains("arm_um") || e.to_string().contains("arm_um"),
+        "{e}"
+    );
+}

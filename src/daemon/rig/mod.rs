@@ -62,7 +62,7 @@ use super::config::DaemonConfig;
 use super::motion_core::MotionCore;
 use super::protocol::{
     to_value, ControllerPosition, ErrorCode, Event, Limits, PairUm, PerAxis, PositionReply,
-    ProtoError, ReadErrors, StatusReply, Topic,
+    ProtoError, ReadErrors, StatusReply, ToolsStatus, Topic,
 };
 use super::state::{Activity, AxisId};
 use super::supervisor::Bounds;
@@ -349,6 +349,16 @@ impl Rig {
             deviation: self.deviation_status(),
             vision_tie: self.tie_status(),
             job: None,
+            tools: (!self.cfg.tools.points.is_empty()).then(|| ToolsStatus {
+                active: self.cfg.tools.active.clone(),
+                offsets_um: self
+                    .cfg
+                    .tools
+                    .points
+                    .iter()
+                    .map(|(n, p)| (n.clone(), p.offset_um))
+                    .collect(),
+            }),
         }
     }
 

@@ -55,7 +55,7 @@ pub use motion::{
 };
 pub use status::{
     CameraClock, CameraStatus, DeviationStatus, Limits, ResetReply, RigStatus, StatusReply,
-    VisionMeasurement, VisionTieStatus,
+    ToolsStatus, VisionMeasurement, VisionTieStatus,
 };
 
 /// Reads a number or `null` (what `serde_json` writes for NaN and the

@@ -270,6 +270,7 @@ fn status() {
             deviation: deviation(true),
             vision_tie: tie_tied(),
             job: with_job.then(|| JobObject::from(job.clone())),
+            tools: None,
         };
         // The old `Rig::status`, with `job` set by `Daemon::execute`.
         let travel = limits.then(|| json!({"x_um": [0.0, 15000.0], "y_um": [-0.5, AWKWARD]}));
@@ -813,4 +814,20 @@ fn events() {
         LaggedEvent { missed: 7 }.line(),
         "{\"event\":\"lagged\",\"missed\":7}\n"
     );
+}
+
+/// With tools configured `status` carries them; without, the key is
+/// absent (the bytes above).
+#[test]
+fn status_tools_are_reported_when_configured() {
+    let t = ToolsStatus {
+        active: Some("tip".into()),
+        offsets_um: [("tip".to_owned(), [0.0, 20000.0])].into_iter().collect(),
+    };
+    assert_eq!(
+        to_value(&t),
+        json!({"active": "tip", "offsets_um": {"tip": [0.0, 20000.0]}})
+    );
+    let back: ToolsStatus = serde_json::from_value(to_value(&t)).unwrap();
+    assert_eq!(back, t);
 }

@@ -205,9 +205,10 @@ fn status() -> impl Strategy<Value = StatusReply> {
         deviation(),
         tie(),
         proptest::option::of(job()),
+        proptest::option::of(("[a-z]{1,8}", num(), num())),
     )
         .prop_map(
-            |(t_s, rig, l, camera, drift, deviation, vision_tie, job)| StatusReply {
+            |(t_s, rig, l, camera, drift, deviation, vision_tie, job, tool)| StatusReply {
                 t_s,
                 rig,
                 limits: l.map(|(a, b, c, d)| Limits {
@@ -219,6 +220,10 @@ fn status() -> impl Strategy<Value = StatusReply> {
                 deviation,
                 vision_tie,
                 job: job.map(JobObject::from),
+                tools: tool.map(|(n, x, y)| ToolsStatus {
+                    active: Some(n.clone()),
+                    offsets_um: [(n, [x, y])].into_iter().collect(),
+                }),
             },
         )
 }

@@ -28,6 +28,21 @@ pub struct StatusReply {
     pub vision_tie: VisionTieStatus,
     /// The current or last job; `null` before the first.
     pub job: Option<JobObject>,
+    /// The configured tool points (`[tools]`); absent when none is.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub tools: Option<ToolsStatus>,
+}
+
+/// The tool points a `move --tool` can bring to a target
+/// (`status.tools`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ToolsStatus {
+    /// The tool used when a move names none; `null`: a tool move must
+    /// name one.
+    pub active: Option<String>,
+    /// Each tool's offset from the watched point `[x, y]`, µm, platform
+    /// frame at the tie.
+    pub offsets_um: std::collections::BTreeMap<String, [f64; 2]>,
 }
 
 /// The rig's state (`status.rig`, `reset.rig`, the `state` event).
