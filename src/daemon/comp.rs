@@ -40,6 +40,10 @@ pub struct Active {
     /// taken (live drift correction measures against it); `None` for
     /// tables built from logs without reference re-measurements.
     pub drift_baseline: Option<DriftBaseline>,
+    /// The platform's yaw measured with the table's data (`[yaw]`): what
+    /// a tool move predicts its arm's turn with; `None` for tables built
+    /// from logs without θ.
+    pub yaw: Option<Arc<crate::comp::YawTables>>,
 }
 
 /// The drift baseline a table file records (`tables build` writes it).
@@ -253,6 +257,7 @@ impl CompState {
             comp: Arc::from(comp),
             frame: file.frame,
             drift_baseline: baseline_of(name, &file)?,
+            yaw: file.yaw.clone().map(Arc::new),
         };
         Ok((active, file.kind))
     }

@@ -74,7 +74,7 @@ def type_error(ty: Any, v: Any) -> Optional[str]:
         ok = isinstance(v, int) and not isinstance(v, bool) and v >= 0
     elif ty == "boolean":
         ok = isinstance(v, bool)
-    elif ty == "file_name":
+    elif ty in ("file_name", "name"):
         ok = isinstance(v, str)
     elif ty == "number_pair":
         ok = isinstance(v, list) and len(v) == 2 and all(

@@ -81,6 +81,11 @@ pub enum ClientCommand {
         /// Return only once on target.
         #[arg(long)]
         wait: bool,
+        /// Bring this tool point (a `[tools]` name of the daemon's
+        /// config) to (--x, --y) instead of the watched point; planned
+        /// modes, absolute, both axes.
+        #[arg(long)]
+        tool: Option<String>,
     },
     /// Halt everything now.
     Stop,
@@ -336,6 +341,7 @@ fn build(cmd: &ClientCommand) -> Result<Command, ProtoError> {
             relative,
             mode,
             wait,
+            tool,
         } => Command::Move(MoveRequest {
             x_um: *x,
             y_um: *y,
@@ -343,6 +349,7 @@ fn build(cmd: &ClientCommand) -> Result<Command, ProtoError> {
             mode: MoveMode::from_word(mode)?,
             wait: *wait,
             tolerance_um: None,
+            tool: tool.clone(),
         }),
         ClientCommand::Stop => Command::Stop,
         ClientCommand::Reset => Command::Reset,
@@ -900,6 +907,7 @@ mod tests {
             relative: true,
             mode: mode.to_owned(),
             wait: false,
+            tool: None,
         };
         let Ok(c) = build(&mv("compensated")) else {
             panic!("a known mode is typed");

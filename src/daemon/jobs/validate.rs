@@ -255,6 +255,7 @@ async fn reach(
         mode: move_mode,
         wait: true,
         tolerance_um: None,
+        tool: None,
     };
     let r = rig.move_with(&req, true, plan.comps.for_mode(mode)).await;
     let r = match r {

@@ -75,6 +75,9 @@ pub struct MoveRequest {
     pub wait: bool,
     /// Closed loop: acceptable residual, µm.
     pub tolerance_um: Option<f64>,
+    /// `x_um`, `y_um` are where this tool (a `[tools]` name) should be,
+    /// not the watched point; planned, absolute moves only.
+    pub tool: Option<String>,
 }
 
 impl MoveRequest {
@@ -89,6 +92,7 @@ impl MoveRequest {
             mode: MoveMode::Raw,
             wait: true,
             tolerance_um: None,
+            tool: None,
         }
     }
 }

@@ -144,14 +144,50 @@ fn parse_move(obj: &Map<String, Value>) -> Result<MoveRequest, ProtoError> {
             ));
         }
     }
+    let relative = opt_bool(obj, "relative")?.unwrap_or(false);
+    let tool = opt_str(obj, "tool")?.map(str::to_owned);
+    if let Some(t) = &tool {
+        check_tool_move(t, x_um.is_some() && y_um.is_some(), relative, mode)?;
+    }
     Ok(MoveRequest {
         x_um,
         y_um,
-        relative: opt_bool(obj, "relative")?.unwrap_or(false),
+        relative,
         mode,
         wait: opt_bool(obj, "wait")?.unwrap_or(false),
         tolerance_um,
+        tool,
     })
+}
+
+/// A tool move names a tool point (1 to 64 of `A-Z a-z 0-9 _ -`, as
+/// `[tools]` names them) and where it should be: both axes, absolute,
+/// planned (its target goes through the tables' yaw).
+fn check_tool_move(
+    tool: &str,
+    both_axes: bool,
+    relative: bool,
+    mode: MoveMode,
+) -> Result<(), ProtoError> {
+    let bad = |m: &str| Err(ProtoError::new(ErrorCode::BadValue, m.to_owned()));
+    if tool.is_empty()
+        || tool.len() > 64
+        || !tool
+            .chars()
+            .all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '-')
+    {
+        return bad("tool must be a [tools] name: 1 to 64 of A-Z a-z 0-9 _ -");
+    }
+    if !both_axes {
+        return bad("a tool move needs x_um and y_um: the tool's target is a point");
+    }
+    if relative {
+        return bad("a tool move is absolute (relative is false)");
+    }
+    if mode == MoveMode::Raw {
+        return bad("a tool move is planned: mode compensated or closed_loop");
+    }
+    Ok(())
 }
 
 fn parse_topics(obj: &Map<String, Value>) -> Result<Vec<Topic>, ProtoError> {

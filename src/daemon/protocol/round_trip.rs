@@ -65,18 +65,23 @@ fn move_request() -> impl Strategy<Value = MoveRequest> {
         word::<MoveMode>(),
         any::<bool>(),
         opt_num(0.001, 1e9),
+        proptest::option::of("[A-Za-z0-9_-]{1,64}"),
     )
         .prop_filter("move needs x_um or y_um", |m| {
             m.0.is_some() || m.1.is_some()
         })
         .prop_map(
-            |(x_um, y_um, relative, mode, wait, tolerance_um)| MoveRequest {
+            |(x_um, y_um, relative, mode, wait, tolerance_um, tool)| MoveRequest {
                 x_um,
                 y_um,
                 relative,
                 mode,
                 wait,
                 tolerance_um,
+                // A tool move is absolute, planned, of both axes.
+                tool: tool.filter(|_| {
+                    x_um.is_some() && y_um.is_some() && !relative && mode != MoveMode::Raw
+                }),
             },
         )
 }

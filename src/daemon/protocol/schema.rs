@@ -40,6 +40,8 @@ pub enum FieldType {
     Words(fn() -> Vec<&'static str>),
     /// Two numbers `[x, y]`.
     Pair,
+    /// A configured name (`[tools]`): 1 to 64 of `A-Z a-z 0-9 _ -`.
+    Name,
 }
 
 impl FieldType {
@@ -53,6 +55,7 @@ impl FieldType {
             Self::Word(w) => json!({"word": w()}),
             Self::Words(w) => json!({"words": w()}),
             Self::Pair => json!("number_pair"),
+            Self::Name => json!("name"),
         }
     }
 
@@ -65,7 +68,7 @@ impl FieldType {
             Self::Number => v.is_number(),
             Self::Integer => v.is_u64(),
             Self::Boolean => v.is_boolean(),
-            Self::FileName | Self::Word(_) => v.is_string(),
+            Self::FileName | Self::Word(_) | Self::Name => v.is_string(),
             Self::Words(_) => v.as_array().is_some_and(|a| a.iter().all(Value::is_string)),
             Self::Pair => v
                 .as_array()
@@ -228,6 +231,7 @@ pub const SCHEMA: &[CommandSchema] = &[
             f("mode", FieldType::Word(words::<MoveMode>)),
             f("wait", Boolean),
             f("tolerance_um", Number),
+            f("tool", FieldType::Name),
         ],
     ),
     plain("stop", &[]),

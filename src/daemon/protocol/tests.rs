@@ -118,7 +118,8 @@ fn parses_every_command() {
             relative: false,
             mode: MoveMode::Raw,
             wait: true,
-            tolerance_um: None
+            tolerance_um: None,
+            tool: None,
         })
     );
     assert_eq!(
@@ -337,5 +338,39 @@ fn repeated_keys_are_refused_naming_the_key() {
         );
         let reply: Value = serde_json::from_str(&error_reply(&Value::Null, &e)).unwrap();
         assert_eq!(reply["error"]["code"], "bad_request");
+    }
+}
+
+/// `tool`: a name, with an absolute planned target of both axes; each
+/// misuse is refused with the reason.
+#[test]
+fn a_tool_move_is_absolute_planned_and_of_both_axes() {
+    let m =
+        parse(r#"{"cmd":"move","x_um":1,"y_um":2,"mode":"compensated","tool":"tip-2"}"#).unwrap();
+    let Command::Move(mv) = &m.command else {
+        panic!("a move: {m:?}");
+    };
+    assert_eq!(mv.tool.as_deref(), Some("tip-2"));
+    for (line, says) in [
+        (
+            r#"{"cmd":"move","x_um":1,"mode":"compensated","tool":"t"}"#,
+            "x_um and y_um",
+        ),
+        (r#"{"cmd":"move","x_um":1,"y_um":2,"tool":"t"}"#, "planned"),
+        (
+            r#"{"cmd":"move","x_um":1,"y_um":2,"mode":"closed_loop","relative":true,"tool":"t"}"#,
+            "absolute",
+        ),
+        (
+            r#"{"cmd":"move","x_um":1,"y_um":2,"mode":"compensated","tool":"a b"}"#,
+            "[tools] name",
+        ),
+        (
+            r#"{"cmd":"move","x_um":1,"y_um":2,"mode":"compensated","tool":3}"#,
+            "string",
+        ),
+    ] {
+        let e = parse(line).unwrap_err().error;
+        assert!(e.message.contains(says), "{line}: {e:?}");
     }
 }

@@ -109,6 +109,7 @@ fn move_obj(m: &MoveRequest) -> Obj {
     o.word("mode", Some(m.mode));
     o.put("wait", m.wait);
     o.opt("tolerance_um", m.tolerance_um);
+    o.opt("tool", m.tool.clone());
     o
 }
 

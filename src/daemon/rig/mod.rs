@@ -57,6 +57,7 @@ pub mod safety;
 pub mod supervise;
 pub mod tasks;
 pub mod tie;
+mod tool;
 
 use super::config::DaemonConfig;
 use super::motion_core::MotionCore;

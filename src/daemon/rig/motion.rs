@@ -114,9 +114,15 @@ impl Rig {
             Some(v) => v,
             None => b,
         };
-        let target = crate::model::XyUm {
-            x_um: pick(req.x_um, base[0]),
-            y_um: pick(req.y_um, base[1]),
+        let mut tool = super::tool::ToolTarget::of_request(self, req, active.as_ref())?;
+        // A tool move: the watched point's target (first estimate; the
+        // plan refines it with the yaw at its command).
+        let target = match tool.as_mut() {
+            Some(t) => t.first_target(),
+            None => crate::model::XyUm {
+                x_um: pick(req.x_um, base[0]),
+                y_um: pick(req.y_um, base[1]),
+            },
         };
         // Outside the table's characterized area: refused or warned before
         // anything moves (`[compensation] outside_table`). A closed loop
@@ -139,10 +145,6 @@ impl Rig {
             crate::daemon::drift::Correction::default()
         };
         let offset = drift.offset_um.unwrap_or([0.0, 0.0]);
-        let planned_target = crate::model::XyUm {
-            x_um: target.x_um - offset[0],
-            y_um: target.y_um - offset[1],
-        };
         // A re-measurement moved the stage: plan from where it is now.
         let start = if drift.info.get("measured").is_some() {
             self.current_cmd().await?
@@ -155,7 +157,8 @@ impl Rig {
             // correction does (`ClosedLoopConfig::plan_options`).
             opts = c::loop_config(self, req.tolerance_um).plan_options(opts);
         }
-        let plan = self.comp.plan(&*comp, planned_target, start, &opts)?;
+        let (plan, target) =
+            self.plan_target(&*comp, tool.as_mut(), target, offset, start, &opts)?;
         for w in &plan.waypoints {
             let r = MoveRequest::raw_to(w.x_um, w.y_um);
             self.raw_move(&r, from_job, false).await?;
@@ -172,6 +175,7 @@ impl Rig {
             drift: (self.drift.enabled() && req.mode == MoveMode::Compensated)
                 .then_some(drift.info),
             outside_table: outside,
+            tool: tool.as_ref().map(|t| t.reply(req.mode)),
             ..MoveReply::commanded([Some(plan.cmd.x_um), Some(plan.cmd.y_um)])
         };
         if let Some(frame) = frame {

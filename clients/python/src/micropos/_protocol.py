@@ -129,9 +129,11 @@ def move(
     relative: bool,
     wait: bool,
     tolerance_um: Optional[float],
+    tool: Optional[str] = None,
 ) -> Json:
     """``move``: every flag is sent explicitly, so the request says what the
-    script meant whatever the wire defaults are."""
+    script meant whatever the wire defaults are. ``tool``: the target is
+    where that ``[tools]`` point should be."""
     return request(
         "move",
         x_um=x_um,
@@ -140,6 +142,7 @@ def move(
         relative=relative,
         wait=wait,
         tolerance_um=tolerance_um,
+        tool=tool,
     )
 
 

@@ -263,10 +263,11 @@ class AsyncRig:
         relative: bool = False,
         wait: bool = True,
         tolerance_um: Optional[float] = None,
+        tool: Optional[str] = None,
         timeout: Optional[float] = None,
     ) -> Json:
         """``move``; see :meth:`Rig.move` (same defaults: compensated, wait)."""
-        req = proto.move(x_um, y_um, mode, relative, wait, tolerance_um)
+        req = proto.move(x_um, y_um, mode, relative, wait, tolerance_um, tool)
         return await self._call(req, self._long(timeout) if wait else timeout)
 
     async def stop(self) -> Json:

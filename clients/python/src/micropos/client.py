@@ -205,6 +205,7 @@ class Rig:
         relative: bool = False,
         wait: bool = True,
         tolerance_um: Optional[float] = None,
+        tool: Optional[str] = None,
         timeout: Optional[float] = None,
     ) -> Json:
         """``move``: one or both axes to a target (or by an offset).
@@ -222,9 +223,12 @@ class Rig:
             relative: offsets from the commanded target.
             wait: return once on target (else once the controllers accepted).
             tolerance_um: closed loop: acceptable residual.
+            tool: a ``[tools]`` name of the daemon's config: ``x_um``,
+                ``y_um`` are where that tool should be (both, absolute,
+                a planned mode); the reply's ``tool`` says the yaw used.
             timeout: seconds; default ``long_timeout`` with ``wait``.
         """
-        req = proto.move(x_um, y_um, mode, relative, wait, tolerance_um)
+        req = proto.move(x_um, y_um, mode, relative, wait, tolerance_um, tool)
         return self._call(req, self._long(timeout) if wait else timeout)
 
     def stop(self) -> Json:

@@ -51,7 +51,7 @@ pub use misc::{
 };
 pub use motion::{
     ClosedLoopOutcome, ControllerPosition, HaltReport, LoopMeasurement, MoveReply, OutsideTable,
-    PositionReply, ReadErrors, ReferenceReply, StopReply, VisionPosition,
+    PositionReply, ReadErrors, ReferenceReply, StopReply, ToolMove, VisionPosition,
 };
 pub use status::{
     CameraClock, CameraStatus, DeviationStatus, Limits, ResetReply, RigStatus, StatusReply,

@@ -109,6 +109,32 @@ pub struct MoveReply {
     /// How the closed loop ended (mode `closed_loop`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub closed_loop: Option<ClosedLoopOutcome>,
+    /// A tool move (`tool`): the tool, the yaw predicted for it and the
+    /// watched point's target it became (`target` above).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub tool: Option<ToolMove>,
+}
+
+/// What a tool move planned: the tool's target less its arm turned by the
+/// predicted yaw is the watched point's target.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ToolMove {
+    /// The tool's `[tools]` name.
+    pub name: String,
+    /// Its offset from the watched point, platform frame at the tie, µm.
+    pub offset_um: [f64; 2],
+    /// Where the tool should be, µm.
+    pub tool_target_um: [f64; 2],
+    /// The yaw predicted at the arrival, µrad (positive: +x towards +y).
+    pub yaw_urad: f64,
+    /// `table`: from the active table's `[yaw]`; `none`: the table has
+    /// no yaw tables (built from a log without θ) or no table is active,
+    /// so θ = 0 was used and the tool is off by the yaw times its arm.
+    pub yaw_source: String,
+    /// What the closed loop closes on (mode `closed_loop`): `pattern`, the
+    /// watched point's target; absent otherwise.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub closed_on: Option<String>,
 }
 
 impl MoveReply {
@@ -126,6 +152,7 @@ impl MoveReply {
             drift: None,
             outside_table: None,
             closed_loop: None,
+            tool: None,
         }
     }
 }

@@ -831,3 +831,24 @@ fn status_tools_are_reported_when_configured() {
     let back: ToolsStatus = serde_json::from_value(to_value(&t)).unwrap();
     assert_eq!(back, t);
 }
+
+/// A tool move's part of the `move` reply, as `Rig::planned_move` writes
+/// it; absent from other moves (the bytes above).
+#[test]
+fn move_tool_part_is_pinned() {
+    let t = ToolMove {
+        name: "tip".into(),
+        offset_um: [0.0, 20000.0],
+        tool_target_um: [1000.0, 22000.0],
+        yaw_urad: -12.5,
+        yaw_source: "table".into(),
+        closed_on: None,
+    };
+    assert_eq!(
+        to_value(&t),
+        json!({"name": "tip", "offset_um": [0.0, 20000.0], "tool_target_um": [1000.0, 22000.0],
+               "yaw_urad": -12.5, "yaw_source": "table"})
+    );
+    let back: ToolMove = serde_json::from_value(to_value(&t)).unwrap();
+    assert_eq!(back, t);
+}

@@ -351,6 +351,7 @@ fn moved() -> impl Strategy<Value = MoveReply> {
                     drift: d,
                     outside_table: o,
                     closed_loop: cl,
+                    tool: None,
                 }
             },
         )
