@@ -45,6 +45,7 @@ mod serve;
 mod sweep_anchors;
 mod sweep_charact;
 mod tie_drift;
+mod tool_move;
 mod validate_origin;
 mod web_browser;
 mod web_metrics;
