@@ -585,8 +585,10 @@ async fn the_same_seed_writes_the_same_log() {
 /// the X scan), every record carries θ, the tie's θ is the mounting angle
 /// plus the yaw at the anchor, and θ follows the model's yaw (taken at the
 /// commanded position, relative to the anchor's) with slope ≈ 1 (a sign
-/// error would give −1) and a scatter of the decoder's θ error (≈ 30 µrad
-/// rms per view: tests/it/decode_render.rs).
+/// error would give −1). Measured: slope 1.002, rms (θ − yaw) 2.6 µrad of
+/// which +2.2 µrad is a common offset (the yaw is taken at the commanded
+/// position, not the true one); the simulated camera's own θ error is
+/// ≈ 0.3 µrad rms per view (tests/it/decode_render.rs).
 #[tokio::test(start_paused = true)]
 async fn the_log_carries_the_platform_yaw_since_the_tie() {
     let mut model = StageModel::paper_default().unwrap();
@@ -630,8 +632,8 @@ async fn the_log_carries_the_platform_yaw_since_the_tie() {
         my - mx
     );
     assert!(
-        (0.8..1.2).contains(&slope),
+        (0.95..1.05).contains(&slope),
         "θ against the yaw: slope {slope}"
     );
-    assert!(rms < 45.0, "rms {rms} µrad");
+    assert!(rms < 8.0, "rms {rms} µrad");
 }

@@ -44,8 +44,7 @@ mod error;
 pub mod fine;
 mod helper;
 mod simd;
-
-use realfft::num_complex::Complex;
+mod sites;
 
 pub use coarse::{CoarseThresholds, CodeCheck, CODE_CHANCE_MAX};
 pub use fine::Grid;
@@ -54,6 +53,7 @@ use std::sync::Arc;
 
 use crate::frame::Frame;
 use crate::pattern::sequence::LineSequence;
+use sites::{missing_dot_correction, theta_wave_vectors};
 
 pub use error::DecodeError;
 
@@ -129,102 +129,6 @@ impl DecodeOptions {
             pixel_tolerance: 0.05,
         }
     }
-}
-
-/// Phase error (rad, per lattice direction) that the missing (coded) dots
-/// cause in the globally windowed demodulation; subtract it from the measured
-/// phase.
-///
-/// Each dot at u_s adds e^{iφ}·B̂·[w(u_s) + i β k̂·∇w(u_s)] to the windowed
-/// sum (first order in the window's variation across the dot; β =
-/// [`Grid::blob_slope_px`]). Over a full lattice Σ∇w cancels, but the coded
-/// dots are missing asymmetrically about the centre, so the phase is off by
-/// β k̂·Σ_present ∇w / Σ_present w — constant under sub-period motion,
-/// ~2e-3 px at some views. Once the code is known the present sites are
-/// known, so the sums are evaluated exactly (O(sites), no pixel pass).
-/// `phi` are the dot phases at the centre (π removed for dark dots);
-/// `present(m_a, m_b)` says whether lattice site (m_a, m_b) holds a dot.
-fn missing_dot_correction(
-    grid: &Grid,
-    phi: [f64; 2],
-    w: usize,
-    h: usize,
-    present: impl Fn(i64, i64) -> bool,
-) -> [f64; 2] {
-    use std::f64::consts::{PI, TAU};
-    let k = grid.k;
-    let det = k[0][0] * k[1][1] - k[0][1] * k[1][0];
-    if !(det.abs() > 1e-12) {
-        return [0.0; 2];
-    }
-    // u − c = K⁻¹ (2π m − φ).
-    let inv = [
-        [k[1][1] / det, -k[0][1] / det],
-        [-k[1][0] / det, k[0][0] / det],
-    ];
-    let (wf, hf) = (w as f64, h as f64);
-    let (cx, cy) = (wf / 2.0, hf / 2.0);
-    let mut lo = [f64::MAX; 2];
-    let mut hi = [f64::MIN; 2];
-    for (x, y) in [(-cx, -cy), (cx, -cy), (-cx, cy), (cx, cy)] {
-        for d in 0..2 {
-            let m = (k[d][0] * x + k[d][1] * y + phi[d]) / TAU;
-            lo[d] = lo[d].min(m);
-            hi[d] = hi[d].max(m);
-        }
-    }
-    // A frame spans at most a few thousand periods; bound the loop anyway.
-    if !(lo.iter().chain(hi.iter()).all(|v| v.is_finite()))
-        || (hi[0] - lo[0]) * (hi[1] - lo[1]) > 4e6
-    {
-        return [0.0; 2];
-    }
-    let (ax, ay) = (PI / wf, PI / hf);
-    let (mut s0, mut sx, mut sy) = (0.0, 0.0, 0.0);
-    // Along a lattice row x and y step by constants, so sin/cos of the
-    // window arguments follow by complex rotation (no per-site trig).
-    let (dxa, dya) = (inv[0][0] * TAU, inv[1][0] * TAU);
-    let (rx, ry) = (
-        Complex::from_polar(1.0, ax * dxa),
-        Complex::from_polar(1.0, ay * dya),
-    );
-    let ma0 = lo[0].floor() as i64;
-    for mb in lo[1].floor() as i64..=hi[1].ceil() as i64 {
-        let pb = TAU * mb as f64 - phi[1];
-        let pa = TAU * ma0 as f64 - phi[0];
-        let mut x = inv[0][0] * pa + inv[0][1] * pb + cx;
-        let mut y = inv[1][0] * pa + inv[1][1] * pb + cy;
-        let mut zx = Complex::from_polar(1.0, ax * x);
-        let mut zy = Complex::from_polar(1.0, ay * y);
-        for ma in ma0..=hi[0].ceil() as i64 {
-            let inside = x > 0.0 && x < wf && y > 0.0 && y < hf;
-            let (sxa, cxa, sya, cya) = (zx.im, zx.re, zy.im, zy.re);
-            x += dxa;
-            y += dya;
-            zx *= rx;
-            zy *= ry;
-            if !inside || !present(ma, mb) {
-                continue;
-            }
-            let (wx, wy) = (sxa * sxa, sya * sya);
-            s0 += wx * wy;
-            // d/dx sin²(πx/W) = (π/W)·2 sin cos.
-            sx += 2.0 * ax * sxa * cxa * wy;
-            sy += 2.0 * ay * sya * cya * wx;
-        }
-    }
-    if !(s0 > 0.0) {
-        return [0.0; 2];
-    }
-    [0, 1].map(|d| {
-        let kk = k[d][0].hypot(k[d][1]);
-        let c = grid.blob_slope_px[d] * (k[d][0] * sx + k[d][1] * sy) / (kk * s0);
-        if c.is_finite() {
-            c
-        } else {
-            0.0
-        }
-    })
 }
 
 /// True when the wave-vector pairs `a` and `b` (rad/px) describe the same
@@ -483,12 +387,21 @@ impl Decoder {
                 grid.phi[d]
             };
         }
-        let corr = missing_dot_correction(grid, phi, frame.width(), frame.height(), |ma, mb| {
+        let present = |ma: i64, mb: i64| {
             self.seq.dot(
                 fix.origin[0] + fix.sigma[0] * ma,
                 fix.origin[1] + fix.sigma[1] * mb,
             )
-        });
+        };
+        let (w, h) = (frame.width(), frame.height());
+        let corr = missing_dot_correction(grid, phi, w, h, present);
+        // The rotation from the moments' wave vectors where they are
+        // available (see `sites::theta_wave_vectors`), else the tile fit's.
+        let k_theta = self
+            .fine
+            .moments(frame, grid.k)
+            .and_then(|m| theta_wave_vectors(grid, &m, phi, w, h, present))
+            .unwrap_or(grid.k);
         let mut line_c = [0.0; 2];
         for d in 0..2 {
             line_c[d] = fix.origin[d] as f64 + fix.sigma[d] as f64 * (phi[d] - corr[d]) / tau;
@@ -505,10 +418,15 @@ impl Decoder {
             fix.sigma[ya] as f64 * grid.k[ya][0],
             fix.sigma[ya] as f64 * grid.k[ya][1],
         ];
+        let turned = |k: &[f64; 2], sign: i64| [sign as f64 * k[0], sign as f64 * k[1]];
+        let (tx, ty) = (
+            turned(&k_theta[xa], fix.sigma[xa]),
+            turned(&k_theta[ya], fix.sigma[ya]),
+        );
         let (t1, t2) = if mirrored {
-            (f64::atan2(-kx[1], kx[0]), f64::atan2(-ky[0], -ky[1]))
+            (f64::atan2(-tx[1], tx[0]), f64::atan2(-ty[0], -ty[1]))
         } else {
-            (f64::atan2(kx[1], kx[0]), f64::atan2(-ky[0], ky[1]))
+            (f64::atan2(tx[1], tx[0]), f64::atan2(-ty[0], ty[1]))
         };
         let theta = f64::atan2(t1.sin() + t2.sin(), t1.cos() + t2.cos());
         let pixel_um = p * (kx[0].hypot(kx[1]) + ky[0].hypot(ky[1])) / (2.0 * tau);

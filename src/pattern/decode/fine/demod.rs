@@ -212,7 +212,7 @@ impl DemodJob {
 
 /// Writes row `i` of `frame` as raw pixel values (no scaling: the
 /// demodulation tables carry the 1/full-scale factor).
-fn row_raw(frame: &Frame, i: usize, out: &mut Vec<f32>) {
+pub(super) fn row_raw(frame: &Frame, i: usize, out: &mut Vec<f32>) {
     let w = frame.width();
     out.clear();
     match frame.pixels() {
@@ -224,7 +224,7 @@ fn row_raw(frame: &Frame, i: usize, out: &mut Vec<f32>) {
 /// Dot product in eight independent lanes over `chunks_exact`, the shape
 /// the compiler turns into packed multiply-adds without bounds checks.
 #[inline]
-fn dot(x: &[f32], a: &[f32]) -> f32 {
+pub(super) fn dot(x: &[f32], a: &[f32]) -> f32 {
     const L: usize = 8;
     let n = x.len().min(a.len());
     let (x, a) = (&x[..n], &a[..n]);
@@ -252,7 +252,7 @@ fn dot4(x: &[f32], a0: &[f32], a1: &[f32], a2: &[f32], a3: &[f32]) -> [f32; 4] {
 /// Full scale of the quantised demodulation tables: the window times a
 /// unit phasor is at most 1 in magnitude. Quantisation error ≤ 1.5e-5 per
 /// entry, the same for every row, moves a tile phase by ~1e-6 rad.
-const Q16: f64 = 32767.0;
+pub(super) const Q16: f64 = 32767.0;
 
 impl FineStage {
     fn prepare_windows(&mut self, w: usize, h: usize) {

@@ -29,10 +29,12 @@
 
 mod demod;
 mod fit;
+mod moments;
 mod peak;
 
 pub(crate) use demod::DemodJob;
 pub(crate) use demod::HELPER_MIN_PIXELS;
+pub(crate) use moments::Moments;
 
 use std::sync::Arc;
 
@@ -148,6 +150,15 @@ pub(crate) struct FineStage {
     pub(crate) model_distortion: bool,
     /// Per image row: its phasor of each direction times the row window.
     row_ph: Vec<[Complex<f64>; 2]>,
+    /// The moments' column tables ([`FineStage::moments`]): per direction
+    /// w·e^{−i kx·x} (re, im) and x times it.
+    mtab: [Vec<f32>; 8],
+    /// `mtab` quantised to i16 (the x tables divided by W/2), and a zero
+    /// table: the 8-bit path's integer dot products.
+    mtab16: [Vec<i16>; 9],
+    /// Block bounds of the moments' 8-bit row products, and their sums.
+    mbounds: Vec<usize>,
+    mdots: Vec<[i32; simd::TABLES]>,
     /// The decoder's helper thread, once started
     /// ([`super::Decoder::decode_shared`]).
     pub(crate) helper: Option<Arc<Helper>>,
@@ -205,6 +216,10 @@ impl FineStage {
             n_alts: 0,
             model_distortion: false,
             row_ph: Vec::new(),
+            mtab: Default::default(),
+            mtab16: Default::default(),
+            mbounds: Vec::new(),
+            mdots: Vec::new(),
             helper: None,
             demod_job: Some(Box::default()),
         }
