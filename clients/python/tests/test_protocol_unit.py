@@ -122,7 +122,7 @@ def keys(req):
 
 def test_requests_use_exactly_the_daemons_field_names():
     known = parse_rs_fields()
-    assert keys(proto.move(1.0, 2.0, "raw", True, True, 0.5)) == known["move"]
+    assert keys(proto.move(1.0, 2.0, "raw", True, True, 0.5, "tip")) == known["move"]
     assert keys(proto.reference("x")) == known["reference"]
     assert keys(proto.subscribe(["job"])) == known["subscribe"]
     assert keys(proto.characterize_start(
