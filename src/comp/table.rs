@@ -398,6 +398,45 @@ struct ScanResult {
     max_spread_um: f64,
 }
 
+/// One direction's bins of a 1-DoF scan: per commanded position rounded
+/// to the grid tolerance, the sum of the positions and the binned values in
+/// record order.
+pub(crate) type Bins<T> = BTreeMap<i64, (f64, Vec<T>)>;
+
+/// Bins a scan's records by arrival direction (`[forward, backward]`) and
+/// commanded position (`mov`, rounded to `tol`), taking `value(i)` of
+/// record `i`; a `None` value is left out. Returns the bins and how many
+/// records with a value had no direction (not binned). The position
+/// tables and the yaw tables group the same way through this.
+pub(crate) fn bin_by_direction<T>(
+    mov: &[f64],
+    dirs: &[Option<Direction>],
+    tol: f64,
+    mut value: impl FnMut(usize) -> Option<T>,
+) -> ([Bins<T>; 2], usize) {
+    let mut acc: [Bins<T>; 2] = [BTreeMap::new(), BTreeMap::new()];
+    let mut skipped = 0;
+    for (i, (d, p)) in dirs.iter().zip(mov).enumerate() {
+        let Some(v) = value(i) else {
+            continue;
+        };
+        let k = match d {
+            Some(Direction::Forward) => 0,
+            Some(Direction::Backward) => 1,
+            _ => {
+                skipped += 1;
+                continue;
+            }
+        };
+        let a = acc[k]
+            .entry((p / tol).round() as i64)
+            .or_insert((0.0, Vec::new()));
+        a.0 += p;
+        a.1.push(v);
+    }
+    (acc, skipped)
+}
+
 /// Direction of each record of a 1-DoF scan from the log order (see the
 /// module docs); `None` where it cannot be told.
 pub fn infer_directions(moving_um: &[f64], tolerance_um: f64) -> Vec<Option<Direction>> {
@@ -466,38 +505,23 @@ fn scan_tables(
         ));
     }
     let dirs = infer_directions(&mov, tol);
-    // key → (sum pos, sum ex, sum ey, n, values for spread)
-    type Acc = BTreeMap<i64, (f64, f64, f64, u32, Vec<[f64; 2]>)>;
-    let mut acc: [Acc; 2] = [BTreeMap::new(), BTreeMap::new()];
-    let mut skipped = 0;
-    for ((r, d), p) in recs.iter().zip(&dirs).zip(&mov) {
-        let k = match d {
-            Some(Direction::Forward) => 0,
-            Some(Direction::Backward) => 1,
-            _ => {
-                skipped += 1;
-                continue;
-            }
-        };
-        let key = (p / tol).round() as i64;
-        let e = [r.x_cmd_um - r.x_meas_um, r.y_cmd_um - r.y_meas_um];
-        let a = acc[k].entry(key).or_insert((0.0, 0.0, 0.0, 0, Vec::new()));
-        a.0 += p;
-        a.1 += e[0];
-        a.2 += e[1];
-        a.3 += 1;
-        a.4.push(e);
-    }
+    let (acc, skipped) = bin_by_direction(&mov, &dirs, tol, |i| {
+        let r = recs[i];
+        Some([r.x_cmd_um - r.x_meas_um, r.y_cmd_um - r.y_meas_um])
+    });
     let mut max_spread: f64 = 0.0;
-    let mut build = |a: &Acc, name: &str| -> Result<DirTable, CompError> {
+    let mut build = |a: &Bins<[f64; 2]>, name: &str| -> Result<DirTable, CompError> {
         let mut t = DirTable {
             positions_um: Vec::new(),
             ex_um: Vec::new(),
             ey_um: Vec::new(),
             visits: Vec::new(),
         };
-        for (sp, sx, sy, n, vals) in a.values() {
-            let nf = f64::from(*n);
+        for (sp, vals) in a.values() {
+            let n = u32::try_from(vals.len()).unwrap_or(u32::MAX);
+            let nf = f64::from(n);
+            let sx = vals.iter().fold(0.0, |s, v| s + v[0]);
+            let sy = vals.iter().fold(0.0, |s, v| s + v[1]);
             let (mx, my) = (sx / nf, sy / nf);
             for v in vals {
                 max_spread = max_spread.max((v[0] - mx).hypot(v[1] - my));
@@ -505,7 +529,7 @@ fn scan_tables(
             t.positions_um.push(sp / nf);
             t.ex_um.push(mx);
             t.ey_um.push(my);
-            t.visits.push(*n);
+            t.visits.push(n);
         }
         if t.positions_um.len() < 2 {
             return Err(CompError::NoData {

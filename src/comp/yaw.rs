@@ -26,11 +26,9 @@
 //! `y_hold` (linear interpolation), so that this part is not counted twice:
 //! exact for a yaw that is a sum of an x part and a y part.
 
-use std::collections::BTreeMap;
-
 use serde::{Deserialize, Serialize};
 
-use super::table::{infer_directions, Interpolation, TableBuildOptions};
+use super::table::{bin_by_direction, infer_directions, Bins, Interpolation, TableBuildOptions};
 use super::{invalid, CompError};
 use crate::charact::log::Record;
 use crate::model::{Axis, Direction};
@@ -260,27 +258,12 @@ fn scan_yaw(
     // Directions from every record's command (a record without θ still
     // tells the next one's direction), then only records with θ.
     let dirs = infer_directions(&mov, tol);
-    type Acc = BTreeMap<i64, (f64, Vec<f64>)>;
-    let mut acc: [Acc; 2] = [BTreeMap::new(), BTreeMap::new()];
-    let mut used = 0;
-    for ((r, d), p) in recs.iter().zip(&dirs).zip(&mov) {
-        let Some(theta) = r.theta_urad.filter(|t| t.is_finite()) else {
-            continue;
-        };
-        let k = match d {
-            Some(Direction::Forward) => 0,
-            Some(Direction::Backward) => 1,
-            _ => continue,
-        };
-        let a = acc[k]
-            .entry((p / tol).round() as i64)
-            .or_insert((0.0, Vec::new()));
-        a.0 += p;
-        a.1.push(theta);
-        used += 1;
-    }
+    let (acc, _) = bin_by_direction(&mov, &dirs, tol, |i| {
+        recs[i].theta_urad.filter(|t| t.is_finite())
+    });
+    let used = acc.iter().flat_map(|a| a.values()).map(|b| b.1.len()).sum();
     let (mut sum_sq, mut dof) = (0.0, 0);
-    let mut build = |a: &Acc, name: &str| -> Result<YawDirTable, CompError> {
+    let mut build = |a: &Bins<f64>, name: &str| -> Result<YawDirTable, CompError> {
         let mut t = YawDirTable {
             positions_um: Vec::new(),
             yaw_urad: Vec::new(),
